@@ -1,0 +1,43 @@
+# make demo / make test: set up .venv (and the system EGL libraries if missing), then run.
+PYTHON ?= python3
+VENV   := .venv
+BIN    := $(VENV)/bin
+STAMP  := $(VENV)/.glsim-installed
+EGL_PKGS := libegl1 libegl-mesa0 libgl1-mesa-dri libgbm1
+
+.PHONY: demo test test-gl bench venv egl clean
+
+demo: venv
+	$(BIN)/glsim demo
+
+test: venv
+	$(BIN)/python -m pytest -q -ra
+
+test-gl: venv
+	$(BIN)/python -m pytest -q -m gl
+
+bench: venv
+	$(BIN)/glsim bench accuracy
+
+venv: egl $(STAMP)
+
+$(STAMP): pyproject.toml
+	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
+	$(BIN)/python -m pip install -q --upgrade pip
+	$(BIN)/python -m pip install -q -e '.[test]'
+	touch $(STAMP)
+
+# An EGL implementation (Mesa llvmpipe where there is no GPU) must be present for backend="gl".
+egl:
+	@if ldconfig -p 2>/dev/null | grep -q 'libEGL_mesa.so.0\|libEGL_nvidia.so.0'; then \
+	  echo "EGL: found"; \
+	elif [ "$$(id -u)" = 0 ] && command -v apt-get >/dev/null; then \
+	  echo "EGL: missing, installing $(EGL_PKGS)"; \
+	  apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq $(EGL_PKGS); \
+	else \
+	  echo "EGL: no EGL implementation found; install: sudo apt-get install $(EGL_PKGS)"; \
+	  echo "     (backend='cpu' works without it; GL tests will fail)"; \
+	fi
+
+clean:
+	rm -rf $(VENV) build dist *.egg-info glsim-demo

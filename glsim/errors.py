@@ -1,0 +1,31 @@
+"""Exceptions and warnings shared by every stage."""
+
+
+class GlsimError(Exception):
+    """Base class of glsim's own errors."""
+
+
+class SceneError(GlsimError, ValueError):
+    """Bad scene input. The message names the key (or file) and says what is expected.
+
+    ``key`` is the dotted scene path (``"cameras[1].fx"``) or a file name.
+    """
+
+    def __init__(self, key: str, problem: str, fix: str = ""):
+        self.key = key
+        msg = f"{key}: {problem}"
+        if fix:
+            msg += f" — {fix}"
+        super().__init__(msg)
+
+
+class GLUnavailableError(GlsimError, RuntimeError):
+    """No headless OpenGL (EGL) context could be made; backend="cpu" still works."""
+
+
+class ShaderError(GlsimError, RuntimeError):
+    """A GLSL program failed to compile or link; the message names file and line."""
+
+
+class RenderWarning(UserWarning):
+    """A render went on but masked pixels or dropped elements (the message names them)."""
