@@ -1,0 +1,1 @@
+"""OpenGL backend: the only place where GL objects exist."""

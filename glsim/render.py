@@ -1,0 +1,126 @@
+"""The one entry point: render a camera at a load step with backend "gl" or "cpu".
+
+    with Renderer(scene) as r:
+        res = r.render("cam0", step=1, truth=True)
+        res.image, res.truth.ref_uv
+
+Both backends take the same scene and return the same :class:`Result`.
+"""
+from __future__ import annotations
+
+import dataclasses
+import time
+import warnings
+from dataclasses import dataclass
+
+import numpy as np
+
+from .bilinear import bilinear
+from .camera import Camera, to_camera
+from .errors import RenderWarning, SceneError
+from .geometry import View, make_view
+from .oracle import CPUBackend
+from .reference import make_reference, specimen_mesh
+from .scene import BACKENDS, Render, Scene
+
+
+@dataclass(frozen=True, eq=False)
+class Truth:
+    """Per-pixel ground truth at pixel centres. Float maps are NaN where ``mask`` is False.
+
+    ``element``: element index (−1 = background); ``xi``, ``eta``: local coordinates in
+    [−1, 1] (FE corner order); ``ref_uv``: reference-image coordinates (px) the pixel was
+    given; ``X_undeformed``/``X_deformed``: the material point in camera 1's frame (mm),
+    evaluated in float64 from (element, ξ, η).
+    """
+    mask: np.ndarray
+    element: np.ndarray
+    xi: np.ndarray
+    eta: np.ndarray
+    ref_uv: np.ndarray
+    X_undeformed: np.ndarray
+    X_deformed: np.ndarray
+
+    def as_dict(self) -> dict[str, np.ndarray]:
+        return {f.name: getattr(self, f.name) for f in dataclasses.fields(self)}
+
+
+@dataclass(frozen=True, eq=False)
+class Result:
+    """One rendered image: float32 (H, W) grey levels in [0, 1] of full scale."""
+    image: np.ndarray
+    camera: Camera
+    step: int
+    backend: str
+    options: Render
+    seconds: float
+    truth: Truth | None = None
+
+
+def make_backend(name: str, reference_image: np.ndarray):
+    """A backend instance by name ("gl" or "cpu")."""
+    if name == "cpu":
+        return CPUBackend(reference_image)
+    if name == "gl":
+        from .gl.backend import GLBackend
+        return GLBackend(reference_image)
+    raise SceneError("render.backend", f"{name!r} is not one of {BACKENDS}", "use 'gl' or 'cpu'")
+
+
+class Renderer:
+    """Renders one scene with one backend; holds the mesh, reference and backend resources."""
+
+    def __init__(self, scene: Scene, backend: str | None = None):
+        self.scene = scene
+        self.mesh = specimen_mesh(scene)
+        self.reference = make_reference(scene, self.mesh)
+        self.backend_name = backend or scene.render.backend
+        self.backend = make_backend(self.backend_name, self.reference.image)
+
+    def __enter__(self) -> "Renderer":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    def close(self) -> None:
+        self.backend.close()
+
+    def view(self, camera: int | str, step: int) -> View:
+        """The per-element geometry of ``camera`` at ``step``."""
+        cam = self.scene.camera(camera)
+        return make_view(cam, self.reference.camera, self.mesh.nodes, self.mesh.deformed(step),
+                         self.mesh.quads, self.mesh.element_labels)
+
+    def render(self, camera: int | str = 0, step: int = 0, truth: bool = False, **options) -> Result:
+        """Render one image. ``options`` override the scene's [render] table (mode, …)."""
+        opts = dataclasses.replace(self.scene.render, **options) if options else self.scene.render
+        t0 = time.perf_counter()
+        view = self.view(camera, step)
+        image, raster = self.backend.render_view(view, opts, truth)
+        seconds = time.perf_counter() - t0
+        tr = self._truth(view, step, raster) if truth else None
+        return Result(image=image, camera=view.camera, step=step, backend=self.backend_name,
+                      options=opts, seconds=seconds, truth=tr)
+
+    def _truth(self, view: View, step: int, raster: dict) -> Truth:
+        W, H = view.camera.size
+        elem = raster["element"].reshape(H, W)
+        mask = elem >= 0
+        xi = np.where(mask, raster["xi"].reshape(H, W), np.nan)
+        eta = np.where(mask, raster["eta"].reshape(H, W), np.nan)
+        ref = np.where(mask[..., None], raster["ref_uv"].reshape(H, W, 2), np.nan)
+        cam1 = self.scene.cameras[0]
+        Xu = np.full((H, W, 3), np.nan)
+        Xd = np.full((H, W, 3), np.nan)
+        q = self.mesh.quads[elem[mask]]
+        Xu[mask] = to_camera(bilinear(self.mesh.nodes[q], xi[mask], eta[mask]), cam1)
+        Xd[mask] = to_camera(bilinear(self.mesh.deformed(step)[q], xi[mask], eta[mask]), cam1)
+        return Truth(mask=mask, element=elem, xi=xi, eta=eta, ref_uv=ref, X_undeformed=Xu, X_deformed=Xd)
+
+
+def render(scene: Scene, camera: int | str = 0, step: int = 0, backend: str | None = None,
+           truth: bool = False, **options) -> Result:
+    """Render one image of ``scene`` (convenience wrapper around :class:`Renderer`)."""
+    with Renderer(scene, backend) as r:
+        return r.render(camera, step, truth, **options)

@@ -1,0 +1,81 @@
+// Grey value of each sample: map it to the reference image and interpolate (paper §2.1).
+// Compile-time choices: MODE_FAST | MODE_Q4 | MODE_EXACT, INTERP_*, SS (samples per pixel
+// per axis), FP64 (double arithmetic), TRUTH (also write the truth maps).
+#include "camera.glsl"
+#include "interp.glsl"
+#include "bilinear.glsl"
+
+uniform vec2 u_ref_size;  // reference image W, H (px)
+uniform float u_far;      // depth range (mm): gl_FragDepth = Z / u_far
+
+#if defined(MODE_FAST)
+in vec2 v_ref;
+in vec2 v_xe;
+#else
+// Per-element data written by glsim/gl/backend.py (element_data), float64 or float32 as `real`.
+layout(std430, binding = 0) readonly buffer Elements { real elem_data[]; };
+#endif
+flat in int v_elem;
+
+#if defined(MODE_EXACT)
+uniform real u_intr[5];
+uniform real u_dist[12];
+uniform real u_valid_r2;
+uniform real u_ref_intr[5];
+uniform real u_ref_dist[12];
+uniform real u_ref_valid_r2;
+#endif
+
+layout(location = 0) out float out_grey;
+#ifdef TRUTH
+layout(location = 1) out vec4 out_map;     // ref u, ref v, xi, eta (float32)
+layout(location = 2) out vec4 out_extra;   // element + 1, ref u and v rounding residuals
+#endif
+
+void main() {
+    real xi, eta;
+    real2 ref;
+#if defined(MODE_FAST)
+    ref = real2(v_ref);
+    xi = v_xe.x;
+    eta = v_xe.y;
+#else
+    real2 px = real2(gl_FragCoord.xy) / real(SS) - 0.5;  // this sample's pixel coordinates
+#if defined(MODE_Q4)
+    // layout per element: uv corners (8), reference corners (8), corner depths Z (4)
+    int b = v_elem * 20;
+    real2 p[4], r[4];
+    for (int i = 0; i < 4; ++i) {
+        p[i] = real2(elem_data[b + 2 * i], elem_data[b + 2 * i + 1]);
+        r[i] = real2(elem_data[b + 8 + 2 * i], elem_data[b + 9 + 2 * i]);
+    }
+    if (!invert_newton(p, px, xi, eta) || !inside(xi, eta)) discard;
+    ref = bilinear2(r, xi, eta);
+    real4 N = shape_functions(xi, eta);
+    real Z = dot(N, real4(elem_data[b + 16], elem_data[b + 17], elem_data[b + 18], elem_data[b + 19]));
+#else
+    // layout per element: deformed corners in the camera frame (12), undeformed corners in
+    // the reference camera's frame (12), mm
+    int b = v_elem * 24;
+    real3 P[4], R[4];
+    for (int i = 0; i < 4; ++i) {
+        P[i] = real3(elem_data[b + 3 * i], elem_data[b + 3 * i + 1], elem_data[b + 3 * i + 2]);
+        R[i] = real3(elem_data[b + 12 + 3 * i], elem_data[b + 13 + 3 * i], elem_data[b + 14 + 3 * i]);
+    }
+    real2 xn;
+    if (!undistort(pixel_to_normalized(px, u_intr), u_dist, u_valid_r2, xn)) discard;
+    real Z;
+    if (!intersect_ray_patch(P, normalize(real3(xn, 1.0)), xi, eta, Z)) discard;
+    if (!project_camera_frame(bilinear3(R, xi, eta), u_ref_intr, u_ref_dist, u_ref_valid_r2, ref)) discard;
+#endif
+    gl_FragDepth = float(Z) / u_far;
+#endif
+    if (ref.x < -0.5 || ref.y < -0.5 || ref.x > real(u_ref_size.x) - 0.5 || ref.y > real(u_ref_size.y) - 0.5)
+        discard;
+    out_grey = sample_ref(ref);
+#ifdef TRUTH
+    vec2 ref32 = vec2(ref);
+    out_map = vec4(ref32, float(xi), float(eta));
+    out_extra = vec4(float(v_elem + 1), vec2(ref - real2(ref32)), 0.0);
+#endif
+}

@@ -1,0 +1,83 @@
+// Reference-image interpolation: the GLSL twin of glsim/interp.py (same kernels, tap order
+// and index clamping). Needs the precision macros (real, real2) and exactly one of
+// INTERP_LINEAR, INTERP_CUBIC, INTERP_BSPLINE3, INTERP_BSPLINE5 defined.
+// Only +-*/, floor, clamp are used on real, so FP64 builds stay exact double arithmetic;
+// the literals are small integers or halves, exact as float and as double.
+
+// Mirror padding of the coefficient image, px per side; keep in sync with glsim.interp.PAD.
+#define REF_PAD 4
+
+// Padded coefficient image (R32F, glsim.interp.prepare): texel (i, j) = padded column i, row j.
+uniform sampler2D u_ref;
+
+// ref_weights(t, w): per-axis weights at fractional offset t in [0, 1); tap k multiplies
+// the coefficient at floor(x) + REF_FIRST + k.
+#if defined(INTERP_LINEAR)
+#define REF_TAPS 2
+#define REF_FIRST 0
+void ref_weights(real t, out real w[REF_TAPS]) {
+    w[0] = 1.0 - t;
+    w[1] = t;
+}
+#elif defined(INTERP_CUBIC)
+// Keys (1981) cubic convolution, a = -0.5.
+#define REF_TAPS 4
+#define REF_FIRST (-1)
+void ref_weights(real t, out real w[REF_TAPS]) {
+    w[0] = t * (-1.0 + t * (2.0 - t)) * 0.5;
+    w[1] = (2.0 + t * t * (-5.0 + 3.0 * t)) * 0.5;
+    w[2] = t * (1.0 + t * (4.0 - 3.0 * t)) * 0.5;
+    w[3] = t * t * (t - 1.0) * 0.5;
+}
+#elif defined(INTERP_BSPLINE3)
+#define REF_TAPS 4
+#define REF_FIRST (-1)
+void ref_weights(real t, out real w[REF_TAPS]) {
+    real s = 1.0 - t;
+    w[0] = s * s * s / 6.0;
+    w[1] = (4.0 + t * t * (-6.0 + 3.0 * t)) / 6.0;
+    w[2] = (1.0 + t * (3.0 + t * (3.0 - 3.0 * t))) / 6.0;
+    w[3] = t * t * t / 6.0;
+}
+#elif defined(INTERP_BSPLINE5)
+#define REF_TAPS 6
+#define REF_FIRST (-2)
+void ref_weights(real t, out real w[REF_TAPS]) {
+    real s = 1.0 - t;
+    real s2 = s * s;
+    real t2 = t * t;
+    w[0] = s2 * s2 * s / 120.0;
+    w[1] = (26.0 + t * (-50.0 + t * (20.0 + t * (20.0 + t * (-20.0 + 5.0 * t))))) / 120.0;
+    w[2] = (66.0 + t2 * (-60.0 + t2 * (30.0 - 10.0 * t))) / 120.0;
+    w[3] = (26.0 + t * (50.0 + t * (20.0 + t * (-20.0 + t * (-20.0 + 10.0 * t))))) / 120.0;
+    w[4] = (1.0 + t * (5.0 + t * (10.0 + t * (10.0 + t * (5.0 - 5.0 * t))))) / 120.0;
+    w[5] = t2 * t2 * t / 120.0;
+}
+#else
+#error "interp.glsl: define one of INTERP_LINEAR, INTERP_CUBIC, INTERP_BSPLINE3, INTERP_BSPLINE5"
+#endif
+
+// Interpolated grey level at uv = (column, row) in unpadded reference-image pixels.
+// Taps beyond the padded texture read its edge texels.
+float sample_ref(real2 uv) {
+    real2 f = floor(uv);
+    real wx[REF_TAPS];
+    real wy[REF_TAPS];
+    ref_weights(uv.x - f.x, wx);
+    ref_weights(uv.y - f.y, wy);
+    ivec2 size = textureSize(u_ref, 0);
+    // Clamp before the int conversion (undefined out of range); a first tap at
+    // -REF_TAPS or beyond reads only edge texels anyway.
+    ivec2 base = ivec2(clamp(f + real(REF_PAD + REF_FIRST), real2(-REF_TAPS), real2(size)));
+    real acc = 0.0;
+    for (int j = 0; j < REF_TAPS; ++j) {
+        int row = clamp(base.y + j, 0, size.y - 1);
+        real s = 0.0;
+        for (int i = 0; i < REF_TAPS; ++i) {
+            int col = clamp(base.x + i, 0, size.x - 1);
+            s += wx[i] * real(texelFetch(u_ref, ivec2(col, row), 0).r);
+        }
+        acc += wy[j] * s;
+    }
+    return float(acc);
+}
