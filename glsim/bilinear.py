@@ -12,15 +12,14 @@ INSIDE_TOL = 1e-9  # |ξ|, |η| ≤ 1 + INSIDE_TOL counts as inside (pixels exac
 
 def shape_functions(xi, eta):
     """Q4 shape functions (..., 4) in FE corner order."""
-    xi = np.asarray(xi, dtype=np.float64)
-    eta = np.asarray(eta, dtype=np.float64)
+    xi, eta = np.broadcast_arrays(np.asarray(xi, dtype=np.float64), np.asarray(eta, dtype=np.float64))
     return 0.25 * np.stack([(1 - xi) * (1 - eta), (1 + xi) * (1 - eta),
                             (1 + xi) * (1 + eta), (1 - xi) * (1 + eta)], axis=-1)
 
 
 def bilinear(p, xi, eta):
     """Forward map: corners p (..., 4, D) at (ξ, η) → (..., D)."""
-    return np.einsum("...i,...id->...d", shape_functions(xi, eta), p)
+    return np.einsum("...i,...id->...d", shape_functions(xi, eta), np.asarray(p, dtype=np.float64))
 
 
 def _residual_jacobian(p, xi, eta, q):

@@ -26,6 +26,7 @@ from typing import Sequence
 import meshio
 import numpy as np
 
+from .bilinear import bilinear as interpolate, shape_functions  # noqa: F401 (re-exported)
 from .errors import SceneError
 
 UNITS_TO_MM = {"mm": 1.0, "m": 1000.0, "cm": 10.0, "um": 1e-3, "in": 25.4}
@@ -124,20 +125,6 @@ class Mesh:
 def with_displacements(mesh: Mesh, steps: Sequence[np.ndarray]) -> Mesh:
     """New Mesh with displacements (zeros, *steps): `steps` are load steps 1..n, (N,3) mm."""
     return dataclasses.replace(mesh, displacements=(np.zeros((mesh.n_nodes, 3)), *steps))
-
-
-# --- shape functions --------------------------------------------------------------------
-
-def shape_functions(xi, eta) -> np.ndarray:
-    """Bilinear Q4 shape functions (...,4) at (ξ, η) ∈ [−1, 1]², FE node order."""
-    xi, eta = np.broadcast_arrays(np.asarray(xi, dtype=np.float64), np.asarray(eta, dtype=np.float64))
-    return 0.25 * np.stack([(1 - xi) * (1 - eta), (1 + xi) * (1 - eta),
-                            (1 + xi) * (1 + eta), (1 - xi) * (1 + eta)], axis=-1)
-
-
-def interpolate(corner_values, xi, eta) -> np.ndarray:
-    """Σ Φi·v_i: corner values (...,4,D) at (ξ, η) broadcast against them → (...,D)."""
-    return np.einsum("...k,...kd->...d", shape_functions(xi, eta), np.asarray(corner_values, dtype=np.float64))
 
 
 # --- units and placement ----------------------------------------------------------------

@@ -10,14 +10,14 @@ from __future__ import annotations
 
 import dataclasses
 import time
-import warnings
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 
 from .bilinear import bilinear
 from .camera import Camera, to_camera
-from .errors import RenderWarning, SceneError
+from .errors import SceneError
 from .geometry import View, make_view
 from .oracle import CPUBackend
 from .reference import make_reference, specimen_mesh
@@ -57,25 +57,25 @@ class Result:
     truth: Truth | None = None
 
 
-def make_backend(name: str, reference_image: np.ndarray):
-    """A backend instance by name ("gl" or "cpu")."""
+def make_backend(name: str, reference_image: np.ndarray, ctx=None):
+    """A backend instance by name ("gl" or "cpu"); ``ctx`` shares an existing GL context."""
     if name == "cpu":
         return CPUBackend(reference_image)
     if name == "gl":
         from .gl.backend import GLBackend
-        return GLBackend(reference_image)
+        return GLBackend(reference_image, ctx)
     raise SceneError("render.backend", f"{name!r} is not one of {BACKENDS}", "use 'gl' or 'cpu'")
 
 
 class Renderer:
     """Renders one scene with one backend; holds the mesh, reference and backend resources."""
 
-    def __init__(self, scene: Scene, backend: str | None = None):
+    def __init__(self, scene: Scene, backend: str | None = None, ctx=None):
         self.scene = scene
         self.mesh = specimen_mesh(scene)
         self.reference = make_reference(scene, self.mesh)
         self.backend_name = backend or scene.render.backend
-        self.backend = make_backend(self.backend_name, self.reference.image)
+        self.backend = make_backend(self.backend_name, self.reference.image, ctx)
 
     def __enter__(self) -> "Renderer":
         return self
@@ -124,3 +124,46 @@ def render(scene: Scene, camera: int | str = 0, step: int = 0, backend: str | No
     """Render one image of ``scene`` (convenience wrapper around :class:`Renderer`)."""
     with Renderer(scene, backend) as r:
         return r.render(camera, step, truth, **options)
+
+
+@dataclass(frozen=True)
+class Written:
+    """What :func:`write_sequence` wrote: image paths, truth paths and seconds per render."""
+    images: tuple[str, ...]
+    truth: tuple[str, ...]
+    seconds: tuple[float, ...]
+    scene_json: str
+
+
+def write_sequence(scene: Scene, directory: str | None = None, steps=None, cameras=None,
+                   backend: str | None = None, truth: bool = False, progress=None) -> Written:
+    """Render every camera at every step and write the images (and truth maps) atomically.
+
+    Writes ``scene.json`` (the resolved scene) first. ``progress(done, total, path)`` is called
+    after each image. Returns what was written.
+    """
+    from . import io
+
+    out = Path(directory or scene.resolve(scene.output.directory))
+    ext = io.EXTENSIONS[scene.output.format]
+    images, truths, seconds = [], [], []
+    scene_json = io.write_text(out / "scene.json", scene.to_json())
+    with Renderer(scene, backend) as r:
+        steps = list(range(r.mesh.n_steps)) if steps is None else list(steps)
+        for s in steps:
+            if not 0 <= s < r.mesh.n_steps:
+                raise SceneError("steps", f"step {s} does not exist", f"use 0…{r.mesh.n_steps - 1}")
+        cams = [scene.camera(c) for c in (cameras if cameras is not None else range(len(scene.cameras)))]
+        total = len(cams) * len(steps)
+        for step in steps:
+            for cam in cams:
+                res = r.render(cam.name, step, truth=truth)
+                path = out / scene.output.pattern.format(camera=cam.name, step=step, ext=ext)
+                images.append(str(io.write_image(path, res.image, cam.bit_depth, scene.output.format)))
+                if truth:
+                    truths.append(str(io.write_truth(path.with_name(path.stem + "_truth.npz"),
+                                                     res.truth.as_dict())))
+                seconds.append(res.seconds)
+                if progress:
+                    progress(len(images), total, images[-1])
+    return Written(tuple(images), tuple(truths), tuple(seconds), str(scene_json))

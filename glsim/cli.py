@@ -1,0 +1,125 @@
+"""Command line: a thin layer over the Python API (glsim.render, glsim.scene)."""
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from pathlib import Path
+
+from .errors import GlsimError
+from .scene import BACKENDS, MODES, bulge_scene, load_scene
+
+
+def _progress(done: int, total: int, path: str) -> None:
+    width = 30
+    bar = "#" * (width * done // total) + "." * (width - width * done // total)
+    sys.stderr.write(f"\r[{bar}] {done}/{total} {Path(path).name}   ")
+    if done == total:
+        sys.stderr.write("\n")
+    sys.stderr.flush()
+
+
+def _steps(text: str | None):
+    """'0,2,5' or '0-3' → list of ints (None = every step)."""
+    if text is None:
+        return None
+    steps: list[int] = []
+    try:
+        for part in text.split(","):
+            a, _, b = part.partition("-")
+            steps += list(range(int(a), int(b) + 1)) if b else [int(a)]
+    except ValueError:
+        raise GlsimError(f"--steps: cannot read {text!r}; write e.g. 0,2,5 or 0-3") from None
+    return steps
+
+
+def _overrides(scene, args):
+    render = {k: v for k, v in (("backend", args.backend), ("mode", args.mode)) if v}
+    return scene.replace(render=render) if render else scene
+
+
+def _run(scene, out: str, args, label: str) -> int:
+    from .render import write_sequence
+
+    t0 = time.perf_counter()
+    w = write_sequence(scene, out, steps=_steps(args.steps), backend=args.backend,
+                       truth=args.truth, progress=None if args.quiet else _progress)
+    total = time.perf_counter() - t0
+    n = len(w.images)
+    r = scene.render
+    print(f"{label}: wrote {n} images ({len(w.truth)} truth files) to {out}/ in {total:.2f} s "
+          f"(render {sum(w.seconds):.2f} s, {sum(w.seconds) / max(n, 1) * 1e3:.0f} ms per image; "
+          f"backend={args.backend or r.backend}, mode={r.mode}, interpolation={r.interpolation}, "
+          f"spp={r.samples_per_pixel})")
+    print(f"resolved scene: {w.scene_json}")
+    return 0
+
+
+def cmd_info(args) -> int:
+    from .gl.context import gl_context, info
+
+    with gl_context() as ctx:
+        for key, value in info(ctx).items():
+            print(f"{key:17s} {value}")
+    return 0
+
+
+def cmd_demo(args) -> int:
+    scene = _overrides(bulge_scene(steps=args.n_steps), args)
+    return _run(scene, args.output, args, "glsim demo (bulge test, paper Tables 2-3)")
+
+
+def cmd_render(args) -> int:
+    scene = _overrides(load_scene(args.scene), args)
+    out = args.output or str(scene.resolve(scene.output.directory))
+    return _run(scene, out, args, f"glsim render {args.scene}")
+
+
+def cmd_bench(args) -> int:
+    from . import bench
+
+    return bench.main(args.rest)
+
+
+def _common(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--backend", choices=BACKENDS, help="override [render] backend")
+    p.add_argument("--mode", choices=MODES, help="override [render] mode")
+    p.add_argument("--steps", help="load steps to render, e.g. 0,2 or 0-3 (default: all)")
+    p.add_argument("--truth", action="store_true", help="also write per-pixel ground truth (.npz)")
+    p.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
+
+
+def parser() -> argparse.ArgumentParser:
+    ap = argparse.ArgumentParser(prog="glsim", description=__doc__)
+    sub = ap.add_subparsers(dest="command", required=True)
+    sub.add_parser("info", help="GL vendor, renderer, version, EGL device, limits, fp64").set_defaults(func=cmd_info)
+    d = sub.add_parser("demo", help="render the built-in bulge scene (stereo, a few steps)")
+    d.add_argument("-o", "--output", default="glsim-demo")
+    d.add_argument("--n-steps", type=int, default=3, help="load steps after the reference state")
+    _common(d)
+    d.set_defaults(func=cmd_demo)
+    r = sub.add_parser("render", help="render a scene file")
+    r.add_argument("scene")
+    r.add_argument("-o", "--output", help="output directory (default: [output] directory)")
+    _common(r)
+    r.set_defaults(func=cmd_render)
+    b = sub.add_parser("bench", help="benchmarks: glsim bench accuracy [--quick] …")
+    b.add_argument("rest", nargs=argparse.REMAINDER)
+    b.set_defaults(func=cmd_bench)
+    return ap
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = parser().parse_args(argv)
+    try:
+        return args.func(args)
+    except GlsimError as exc:
+        print(f"glsim: error: {exc}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print("glsim: interrupted (no partial files were left)", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())
