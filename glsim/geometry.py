@@ -12,7 +12,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .camera import Camera, distort, normalized_to_pixel, project_camera_frame, to_camera
-from .errors import RenderWarning
+from .errors import RenderWarning, SceneError
 
 NEAR_MM = 1e-3  # corners closer to the camera plane than this cannot be projected
 
@@ -92,8 +92,10 @@ def make_view(cam: Camera, ref_cam: Camera, nodes_ref: np.ndarray, nodes_def: np
     ref_uv, ref_ok = project_camera_frame(Xr, ref_cam)
     if not ref_ok.all():
         bad = np.flatnonzero(~ref_ok.all(axis=1))
-        raise ValueError(f"the reference camera cannot see elements {_labels(bad, element_labels)}; "
-                         "place the reference camera so the whole undeformed specimen is in front")
+        raise SceneError("speckle.camera", f"the reference camera cannot see elements "
+                         f"{_labels(bad, element_labels)}", "place it so the whole undeformed specimen "
+                         "is in front of it and inside its distortion model's valid radius")
+    _warn_shape(cam, Xd, element_labels)
     projectable = ok.all(axis=1)
     behind = (Xd[..., 2] <= NEAR_MM).all(axis=1)
     if (~projectable & ~behind).any():
@@ -105,6 +107,21 @@ def make_view(cam: Camera, ref_cam: Camera, nodes_ref: np.ndarray, nodes_def: np
     return View(camera=cam, ref_camera=ref_cam, Xd=Xd, Xr=Xr, uv=uv, ref_uv=ref_uv,
                 projectable=projectable, bbox=_bbox_exact(cam, Xd, projectable, behind),
                 far=max(zmax, NEAR_MM) * 1.5)
+
+
+def _warn_shape(cam: Camera, Xd: np.ndarray, labels: np.ndarray | None) -> None:
+    """Warn about zero-area and folded (bow-tie / inverted) elements, naming them."""
+    n1 = np.cross(Xd[:, 1] - Xd[:, 0], Xd[:, 2] - Xd[:, 0])
+    n2 = np.cross(Xd[:, 2] - Xd[:, 0], Xd[:, 3] - Xd[:, 0])
+    area = 0.5 * (np.linalg.norm(n1, axis=1) + np.linalg.norm(n2, axis=1))
+    size = np.ptp(Xd.reshape(-1, 3), axis=0).max() if len(Xd) else 1.0
+    zero = area <= 1e-12 * size * size
+    folded = ~zero & ((n1 * n2).sum(axis=1) < 0)
+    for bad, what in ((zero, "have zero area"), (folded, "are folded (inverted or bow-tie)")):
+        if bad.any():
+            warnings.warn(f"camera {cam.name}: elements {_labels(np.flatnonzero(bad), labels)} {what}; "
+                          "pixels that map into them stay consistent but check the mesh",
+                          RenderWarning, stacklevel=3)
 
 
 def _labels(idx: np.ndarray, labels: np.ndarray | None, most: int = 8) -> str:

@@ -1,28 +1,48 @@
 """Scene description: frozen dataclasses (no GL handles) and the TOML loader that fills them.
 
-A scene file has the same structure as these dataclasses: ``[[cameras]]``, ``[speckle]``,
-``[specimen]``, ``[render]``, ``[output]`` and a top-level ``seed``. Every key is checked:
-unknown keys, wrong types and impossible values raise :class:`SceneError` naming the key.
-Units: millimetres, pixels, degrees for the stereo angles.
+A scene file has the same structure as these dataclasses (see ``examples/*.toml``)::
+
+    seed = 0
+    [[cameras]]                 # one table per camera; the first is the world frame by default
+    name = "cam0"               # default cam0, cam1, … by position
+    size = [1624, 1234]         # W, H px
+    fx = 6818.0                 # fx, fy, cx, cy, skew px (skew default 0)
+    bit_depth = 8               # 8, 10, 12 or 16
+    distortion = {k1 = -0.05}   # OpenCV coefficients k1 k2 p1 p2 k3 k4 k5 k6 s1 s2 s3 s4
+    pose = {rvec = [0, 0, 0], t = [0, 0, 0]}      # world→camera, or R = 3×3 instead of rvec,
+    # or pose = {look_at = {eye = [...], target = [...], up = [...]}}, or for a later camera
+    # pose = {stereo = {Tx, Ty, Tz, Theta, Phi, Psi}}: relative to the first camera (Stereo).
+    [specimen]                  # exactly one of [specimen.mesh], [specimen.plate], [specimen.bulge]
+    pose = {rvec = [...], t = [...]}              # specimen→world: X_world = R·X + t
+    [speckle]  [render]  [output]                 # all keys optional
+
+Every key is checked: unknown keys, wrong types, missing keys, impossible values and missing
+files raise :class:`SceneError` naming the key (``cameras[1].pose.stereo.Psi``) and the fix.
+Units: millimetres, pixels, degrees for the stereo angles, radians for ``rvec``.
 """
 from __future__ import annotations
 
 import dataclasses
+import difflib
 import json
 import math
 import typing
-from dataclasses import dataclass, field
+from dataclasses import MISSING, dataclass, field
 from pathlib import Path
 
 import numpy as np
 
-from .camera import Camera, Distortion, look_at, rodrigues, stereo_pose
+from .camera import Camera, Distortion, _check_rotation, look_at, rodrigues, stereo_pose
 from .errors import SceneError
+from .mesh import UNITS_TO_MM
 
 try:
     import tomllib
 except ModuleNotFoundError:  # Python 3.10
     import tomli as tomllib
+
+Vec3 = tuple[float, float, float]
+Mat3 = tuple[Vec3, Vec3, Vec3]
 
 MODES = ("fast", "q4", "exact")
 INTERPOLATIONS = ("linear", "cubic", "bspline3", "bspline5")
@@ -52,6 +72,9 @@ class Speckle:
     def __post_init__(self):
         _check(self.mm_per_px >= 0, "speckle.mm_per_px", f"must be ≥ 0, got {self.mm_per_px}",
                "give the reference image scale in mm per pixel (0 = automatic)")
+        _check(not self.image or self.camera is not None or self.mm_per_px > 0, "speckle.mm_per_px",
+               f"is needed with the reference image file {self.image!r}",
+               "give the image scale in mm per pixel, or a speckle.camera table")
         _check(self.oversample > 0, "speckle.oversample", f"must be > 0, got {self.oversample}",
                "reference pixels per camera pixel, typically 2–4")
         _check(self.dot_diameter_px >= 2.0, "speckle.dot_diameter_px",
@@ -68,15 +91,17 @@ class Plate:
     height: float = 30.0
     nx: int = 8
     ny: int = 6
-    translations: tuple = ()       # one (dx, dy, dz) in mm per load step after step 0
+    translations: tuple[Vec3, ...] = ()   # one (dx, dy, dz) in mm per load step after step 0
 
     def __post_init__(self):
         for k in ("width", "height"):
-            _check(getattr(self, k) > 0, f"specimen.plate.{k}", "must be > 0", "give it in mm")
+            _check(getattr(self, k) > 0, f"specimen.plate.{k}", f"must be > 0, got {getattr(self, k)}",
+                   "give it in mm")
         for k in ("nx", "ny"):
-            _check(getattr(self, k) >= 1, f"specimen.plate.{k}", "must be ≥ 1", "element count")
+            _check(getattr(self, k) >= 1, f"specimen.plate.{k}", f"must be ≥ 1, got {getattr(self, k)}",
+                   "the number of elements along that side")
         for i, tr in enumerate(self.translations):
-            _check(len(tr) == 3, f"specimen.plate.translations[{i}]", "must have 3 entries",
+            _check(np.shape(tr) == (3,), f"specimen.plate.translations[{i}]", "must have 3 entries",
                    "give [dx, dy, dz] in mm")
 
 
@@ -92,20 +117,36 @@ class Bulge:
 
     def __post_init__(self):
         for k in ("radius", "thickness"):
-            _check(getattr(self, k) > 0, f"specimen.bulge.{k}", "must be > 0", "give it in mm")
+            _check(getattr(self, k) > 0, f"specimen.bulge.{k}", f"must be > 0, got {getattr(self, k)}",
+                   "give it in mm")
         for k in ("steps", "n_core", "n_ring"):
-            _check(getattr(self, k) >= 1, f"specimen.bulge.{k}", "must be ≥ 1", "a count")
+            _check(getattr(self, k) >= 1, f"specimen.bulge.{k}", f"must be ≥ 1, got {getattr(self, k)}",
+                   "a count")
 
 
 @dataclass(frozen=True)
 class MeshFile:
-    """An FE mesh file read with meshio (Abaqus .inp, VTK/VTU, Gmsh .msh) and its steps."""
+    """An FE mesh file read with meshio (Abaqus .inp, VTK/VTU, Gmsh .msh) and its steps.
+
+    Load steps come from at most one of ``point_data``, ``files`` and ``csv``.
+    """
     path: str = ""
     unit: str = "mm"
-    point_data: tuple = ()         # names of per-step displacement arrays in the file
-    files: tuple = ()              # one mesh file per step with a displacement field
-    csv: tuple = ()                # one `label;ux;uy;uz` file per step
-    field: str = ""                # displacement field name in `files`
+    point_data: tuple[str, ...] = ()   # names of per-step displacement arrays in the file
+    files: tuple[str, ...] = ()        # one mesh file per step with a displacement field
+    csv: tuple[str, ...] = ()          # one `label;ux;uy;uz` file per step
+    field: str = ""                    # displacement field name in `files`
+
+    def __post_init__(self):
+        _check(bool(self.path), "specimen.mesh.path", "is empty", "give the FE mesh file, e.g. 'model.inp'")
+        _check(self.unit in UNITS_TO_MM, "specimen.mesh.unit", f"unknown unit {self.unit!r}",
+               f"use one of {', '.join(UNITS_TO_MM)}")
+        sources = [k for k in ("point_data", "files", "csv") if getattr(self, k)]
+        _check(len(sources) <= 1, f"specimen.mesh.{sources[-1] if sources else ''}",
+               f"only one displacement source may be given, got {', '.join(sources)}",
+               "keep one of point_data, files, csv")
+        _check(not self.field or bool(self.files), "specimen.mesh.field", "is only used with files",
+               "remove it, or give the per-step files")
 
 
 @dataclass(frozen=True)
@@ -113,7 +154,7 @@ class Specimen:
     """The FE specimen: one source (``mesh``, ``plate`` or ``bulge``) and its placement.
 
     Placement maps specimen coordinates to the world (camera 1's frame by default):
-    X_world = R·X + t, mm.
+    X_world = R·X + t, mm. In a scene file it is the ``pose`` table (R or rvec, and t).
     """
     mesh: MeshFile | None = None
     plate: Plate | None = None
@@ -124,8 +165,8 @@ class Specimen:
     def __post_init__(self):
         given = [k for k in ("mesh", "plate", "bulge") if getattr(self, k) is not None]
         _check(len(given) == 1, "specimen",
-               f"exactly one of mesh, plate, bulge must be given, got {given or 'none'}",
-               "add e.g. [specimen.bulge] or [specimen.mesh] path = 'model.inp'")
+               f"exactly one of mesh, plate, bulge must be given, got {', '.join(given) or 'none'}",
+               "keep one of [specimen.bulge], [specimen.plate], [specimen.mesh] path = 'model.inp'")
 
 
 @dataclass(frozen=True)
@@ -144,10 +185,10 @@ class Render:
             value = getattr(self, key)
             _check(value in allowed, f"render.{key}", f"{value!r} is not one of {allowed}",
                    f"use one of {', '.join(allowed)}")
-        s = math.isqrt(max(self.samples_per_pixel, 0))
-        _check(self.samples_per_pixel >= 1 and s * s == self.samples_per_pixel,
-               "render.samples_per_pixel", f"must be a perfect square ≥ 1, got "
-               f"{self.samples_per_pixel}", "use 1, 4, 9, 16, …")
+        spp = self.samples_per_pixel
+        _check(isinstance(spp, (int, np.integer)) and not isinstance(spp, bool) and spp >= 1
+               and math.isqrt(spp) ** 2 == spp, "render.samples_per_pixel",
+               f"must be a perfect square ≥ 1, got {spp!r}", "use 1, 4, 9, 16, …")
         _check(0.0 <= self.background <= 1.0, "render.background",
                f"must lie in [0, 1], got {self.background}", "a fraction of full scale")
 
@@ -168,10 +209,73 @@ class Output:
         _check(self.format in FORMATS, "output.format", f"{self.format!r} is not one of {FORMATS}",
                "use 'tiff' (8/16-bit) or 'png'")
         try:
-            self.pattern.format(camera="c", step=0, ext="tif")
+            names = {self.pattern.format(camera=c, step=k, ext="tif") for c in "ab" for k in (0, 1)}
         except (KeyError, IndexError, ValueError) as exc:
-            raise SceneError("output.pattern", f"cannot be formatted ({exc})",
-                             "use the fields {camera}, {step} and {ext}") from None
+            raise SceneError("output.pattern", f"{self.pattern!r} cannot be formatted ({exc!r})",
+                             "use only the fields {camera}, {step} and {ext}") from None
+        _check(len(names) == 4, "output.pattern", f"{self.pattern!r} gives two images the same file name",
+               "include both {camera} and {step}, e.g. '{camera}_{step:04d}.{ext}'")
+
+
+@dataclass(frozen=True)
+class Stereo:
+    """A camera relative to the first one (MatchID convention), mm and degrees:
+    X_cam = Rz(Psi)·Ry(Phi)·Rx(Theta)·X_cam1 + (Tx, Ty, Tz)."""
+    Tx: float
+    Ty: float
+    Tz: float
+    Theta: float
+    Phi: float
+    Psi: float
+
+
+@dataclass(frozen=True)
+class LookAt:
+    """A camera at ``eye`` looking at ``target``, image-up as close to ``up`` as possible (mm)."""
+    eye: Vec3
+    target: Vec3 = (0.0, 0.0, 0.0)
+    up: Vec3 = (0.0, -1.0, 0.0)
+
+    def __post_init__(self):
+        look_at(self.eye, self.target, self.up)  # raises SceneError("target" or "up") if degenerate
+
+
+@dataclass(frozen=True)
+class Pose:
+    """A ``pose`` table: ``R`` (3×3) or ``rvec`` (Rodrigues, rad) and ``t`` (mm), or, for
+    cameras only, ``stereo`` or ``look_at`` alone. Missing parts are the identity."""
+    R: Mat3 | None = None
+    rvec: Vec3 | None = None
+    t: Vec3 | None = None
+    stereo: Stereo | None = None
+    look_at: LookAt | None = None
+
+    def __post_init__(self):
+        given = [f.name for f in dataclasses.fields(self) if getattr(self, f.name) is not None]
+        for whole in ("stereo", "look_at"):
+            _check(whole not in given or len(given) == 1, whole,
+                   f"cannot be combined with {', '.join(k for k in given if k != whole)}",
+                   f"{whole} sets the whole pose: remove the other keys")
+        _check(self.R is None or self.rvec is None, "rvec", "R is given too",
+               "give the rotation either as R or as rvec")
+        if self.R is not None:
+            _check_rotation(self.R)
+
+    def matrices(self, first: Camera | None, camera: bool) -> tuple[np.ndarray, np.ndarray]:
+        """(R, t): world→camera for a camera (``first`` is the first camera, None for itself),
+        specimen→world otherwise."""
+        whole = "stereo" if self.stereo is not None else "look_at" if self.look_at is not None else ""
+        _check(not whole or camera, whole, "only cameras can be placed this way",
+               "place the specimen with R or rvec, and t")
+        if self.look_at is not None:
+            return look_at(self.look_at.eye, self.look_at.target, self.look_at.up)
+        if self.stereo is not None:
+            _check(first is not None, "stereo", "is relative to the first camera, so only later cameras "
+                   "can have it", "give the first camera R or rvec and t, or no pose (the world frame)")
+            return stereo_pose(first.rotation, first.translation, *dataclasses.astuple(self.stereo))
+        R = np.eye(3) if self.R is None else np.array(self.R, float)
+        t = np.zeros(3) if self.t is None else np.array(self.t, float)
+        return (R if self.rvec is None else rodrigues(self.rvec)), t
 
 
 @dataclass(frozen=True)
@@ -189,8 +293,19 @@ class Scene:
         _check(len(self.cameras) >= 1, "cameras", "at least one camera is needed",
                "add a [[cameras]] table")
         names = [c.name for c in self.cameras]
-        _check(len(set(names)) == len(names), "cameras", f"camera names repeat: {names}",
-               "give each camera a unique name")
+        for i, name in enumerate(names):
+            _check(name not in names[:i], f"cameras[{i}].name",
+                   f"{name!r} is already the name of cameras[{names.index(name)}]",
+                   "give each camera a unique name")
+        files = {"speckle.image": self.speckle.image} if self.speckle.image else {}
+        mesh = self.specimen.mesh
+        if mesh is not None:
+            files["specimen.mesh.path"] = mesh.path
+            files.update({f"specimen.mesh.files[{i}]": p for i, p in enumerate(mesh.files)})
+            files.update({f"specimen.mesh.csv[{i}]": p for i, p in enumerate(mesh.csv)})
+        for key, path in files.items():
+            _check(self.resolve(path).is_file(), key, f"file {self.resolve(path)} not found",
+                   "check the path (relative paths start at the scene file's directory)")
 
     def camera(self, which: int | str) -> Camera:
         """A camera by index or name."""
@@ -211,10 +326,14 @@ class Scene:
 
     def replace(self, **sections) -> "Scene":
         """A copy with some options changed, e.g. ``scene.replace(render={"mode": "q4"})``."""
+        _reject_unknown(sections, [f.name for f in dataclasses.fields(self)], "")
         changes = {}
         for name, value in sections.items():
             current = getattr(self, name)
-            changes[name] = dataclasses.replace(current, **value) if isinstance(value, dict) else value
+            if isinstance(value, dict):
+                _reject_unknown(value, [f.name for f in dataclasses.fields(current) if f.init], name)
+                value = dataclasses.replace(current, **value)
+            changes[name] = value
         return dataclasses.replace(self, **changes)
 
     def to_dict(self) -> dict:
@@ -244,202 +363,133 @@ def _plain(obj):
     return obj
 
 
+def _tuple(a: np.ndarray) -> tuple:
+    return tuple(map(tuple, a.tolist())) if a.ndim == 2 else tuple(a.tolist())
+
+
+def _reject_unknown(given, allowed, key: str) -> None:
+    """Raise for the first of the keys ``given`` in table ``key`` ("" = top level) not ``allowed``."""
+    unknown = sorted(set(given) - set(allowed))
+    if unknown:
+        close = difflib.get_close_matches(unknown[0], allowed, 1)
+        hint = (f"did you mean {close[0]!r}? " if close else
+                "top-level keys must come before the first [table]; " if key and unknown[0] in SECTIONS else "")
+        raise SceneError(f"{key}.{unknown[0]}" if key else unknown[0], "unknown key",
+                         f"{hint}allowed keys in {key or 'the top level'}: {', '.join(allowed)}")
+
+
+def _within(exc: SceneError, key: str) -> SceneError:
+    """``exc`` from a validator of the table at ``key``, with its key made a full scene path.
+
+    Validators name keys relative to themselves (Camera: ``fx``; Distortion: ``distortion.k1``)
+    or in full (Plate: ``specimen.plate.nx``): ``cameras[0]`` + ``fx`` → ``cameras[0].fx``,
+    ``cameras[0].distortion`` + ``distortion.k1`` → ``cameras[0].distortion.k1``.
+    """
+    if not key or exc.key == key or exc.key.startswith((key + ".", key + "[")):
+        return exc
+    own = key.rpartition(".")[2].partition("[")[0]          # "cameras[0].distortion" → "distortion"
+    rest = exc.key[len(own):] if exc.key == own or exc.key.startswith(own + ".") else "." + exc.key
+    problem, _, fix = str(exc)[len(exc.key) + 2:].partition(" — ")
+    return SceneError(key + rest, problem, fix)
+
+
 def _coerce(value, hint, key: str):
     """Convert a TOML value to the annotated type, or raise a SceneError naming ``key``."""
-    origin = typing.get_origin(hint)
-    args = typing.get_args(hint)
-    if origin is typing.Union or (origin is not None and type(None) in args):
-        inner = [a for a in args if a is not type(None)]
-        return _coerce(value, inner[0], key)
+    origin, args = typing.get_origin(hint), typing.get_args(hint)
+    if type(None) in args:                                   # X | None
+        return _coerce(value, next(a for a in args if a is not type(None)), key)
     if dataclasses.is_dataclass(hint):
         return _build(hint, value, key)
-    if hint is float:
-        if isinstance(value, bool) or not isinstance(value, (int, float)):
-            raise SceneError(key, f"expected a number, got {value!r}", "write e.g. 1.0")
+    if hint is tuple or origin is tuple:                     # tuple, tuple[X, ...], tuple[X, Y, Z]
+        if not isinstance(value, list):
+            raise SceneError(key, f"expected a list, got {value!r}", "write e.g. [1, 2, 3]")
+        if not args:
+            return tuple(tuple(v) if isinstance(v, list) else v for v in value)
+        if args[-1] is not Ellipsis and len(value) != len(args):
+            raise SceneError(key, f"expected a list of {len(args)}, got {value!r}",
+                             f"give exactly {len(args)} entries")
+        hints = [args[0]] * len(value) if args[-1] is Ellipsis else args
+        return tuple(_coerce(v, h, f"{key}[{i}]") for i, (v, h) in enumerate(zip(value, hints)))
+    if hint in (int, float):
+        if isinstance(value, bool) or not isinstance(value, int if hint is int else (int, float)):
+            raise SceneError(key, f"expected {'an integer' if hint is int else 'a number'}, got {value!r}",
+                             "write e.g. 4" if hint is int else "write e.g. 1.0")
         if not math.isfinite(value):
             raise SceneError(key, f"must be finite, got {value}", "give a finite number")
-        return float(value)
-    if hint is int:
-        if isinstance(value, bool) or not isinstance(value, int):
-            raise SceneError(key, f"expected an integer, got {value!r}", "write e.g. 4")
-        return value
-    if hint is str:
-        if not isinstance(value, str):
-            raise SceneError(key, f"expected a string, got {value!r}", 'write it in quotes, e.g. "x"')
-        return value
-    if hint is tuple or origin is tuple:
-        if not isinstance(value, (list, tuple)):
-            raise SceneError(key, f"expected a list, got {value!r}", "write e.g. [1, 2, 3]")
-        return tuple(tuple(v) if isinstance(v, list) else v for v in value)
+        return hint(value)
+    if hint in (str, bool) and not isinstance(value, hint):
+        raise SceneError(key, f"expected {'a string' if hint is str else 'true or false'}, got {value!r}",
+                         'write it in quotes, e.g. "x"' if hint is str else "write true or false")
     return value
 
 
-def _build(cls, table, key: str):
-    """Build dataclass ``cls`` from a TOML table, rejecting unknown keys."""
+SECTIONS = ("cameras", "specimen", "speckle", "render", "output", "seed")  # top level of a file
+
+# Values a TOML table may leave out although the dataclass requires them.
+TABLE_DEFAULTS = {Camera: {"name": "reference"}}
+
+
+def _build(cls, table, key: str, first: Camera | None = None, **defaults):
+    """Build dataclass ``cls`` from the TOML table at ``key``.
+
+    Unknown keys, wrong types, missing required keys and the class's own checks all raise
+    a SceneError naming the full key. Camera and Specimen take a ``pose`` table (see Pose)
+    instead of their fields R and t; ``first`` is the first camera, for stereo poses.
+    """
     if not isinstance(table, dict):
-        raise SceneError(key, f"expected a table, got {table!r}", f"write [{key}] with keys")
+        raise SceneError(key, f"expected a table, got {table!r}", f"write {key} as a table of key = value")
+    fields = [f for f in dataclasses.fields(cls) if f.init]
+    names = [f.name for f in fields]
+    posed = cls in (Camera, Specimen)
+    allowed = [n for n in names if not (posed and n in ("R", "t"))] + ["pose"] * posed
+    _reject_unknown(table, allowed, key)
     hints = typing.get_type_hints(cls)
-    names = [f.name for f in dataclasses.fields(cls) if f.init]
-    unknown = sorted(set(table) - set(names))
-    if unknown:
-        raise SceneError(f"{key}.{unknown[0]}" if key else unknown[0], "unknown key",
-                         f"allowed keys in [{key or 'top level'}]: {', '.join(names)}")
-    kwargs = {k: _coerce(v, hints[k], f"{key}.{k}" if key else k) for k, v in table.items()}
+    kwargs = {**TABLE_DEFAULTS.get(cls, {}), **defaults}
+    for name, value in table.items():
+        if name == "pose":
+            pose = _coerce(value, Pose, f"{key}.pose")
+            try:
+                R, t = pose.matrices(first, camera=cls is Camera)
+            except SceneError as exc:
+                raise _within(exc, f"{key}.pose") from None
+            kwargs.update(R=_tuple(R), t=_tuple(t))
+        else:
+            kwargs[name] = _coerce(value, hints[name], f"{key}.{name}")
+    missing = [f.name for f in fields
+               if f.name not in kwargs and f.default is MISSING and f.default_factory is MISSING]
+    if missing:
+        raise SceneError(f"{key}.{missing[0]}", "is required", f"add {', '.join(missing)} to {key}")
     try:
         return cls(**kwargs)
     except SceneError as exc:
-        if key and not exc.key.startswith(key.split("[")[0].split(".")[0]):
-            raise SceneError(f"{key}.{exc.key}", *_split(exc)) from None
-        raise
-
-
-def _split(exc: SceneError) -> tuple[str, str]:
-    text = str(exc)[len(exc.key) + 2:]
-    problem, _, fix = text.partition(" — ")
-    return problem, fix
-
-
-def _vec(value, n: int, key: str) -> np.ndarray:
-    arr = np.asarray(value, dtype=float) if _is_numeric_list(value) else None
-    if arr is None or arr.shape != (n,):
-        raise SceneError(key, f"expected {n} numbers, got {value!r}", f"write [{', '.join(['0'] * n)}]")
-    return arr
-
-
-def _is_numeric_list(value) -> bool:
-    def ok(v):
-        return isinstance(v, (int, float)) and not isinstance(v, bool) or (
-            isinstance(v, (list, tuple)) and all(ok(x) for x in v))
-    return isinstance(value, (list, tuple)) and all(ok(v) for v in value)
-
-
-def _rotation(table: dict, key: str) -> np.ndarray:
-    if "R" in table and "rvec" in table:
-        raise SceneError(key, "give either R or rvec, not both", "remove one of them")
-    if "rvec" in table:
-        return rodrigues(_vec(table["rvec"], 3, f"{key}.rvec"))
-    if "R" in table:
-        R = np.asarray(table["R"], dtype=float) if _is_numeric_list(table["R"]) else None
-        if R is None or R.shape != (3, 3):
-            raise SceneError(f"{key}.R", f"expected a 3×3 matrix, got {table['R']!r}",
-                             "write [[1,0,0],[0,1,0],[0,0,1]] or use rvec")
-        return R
-    return np.eye(3)
-
-
-STEREO_KEYS = ("Tx", "Ty", "Tz", "Theta", "Phi", "Psi")
-
-
-def _pose(table, key: str, first: Camera | None) -> tuple[np.ndarray, np.ndarray]:
-    """World→camera (R, t) from {R|rvec, t}, {look_at = {eye, target, up}} or {stereo = {...}}."""
-    if not isinstance(table, dict):
-        raise SceneError(key, f"expected a table, got {table!r}", "write pose = {rvec = [...], t = [...]}")
-    allowed = {"R", "rvec", "t", "stereo", "look_at"}
-    unknown = sorted(set(table) - allowed)
-    if unknown:
-        raise SceneError(f"{key}.{unknown[0]}", "unknown key", f"allowed: {', '.join(sorted(allowed))}")
-    if "stereo" in table:
-        if first is None:
-            raise SceneError(f"{key}.stereo", "the first camera cannot be given relative to itself",
-                             "give camera 1 a pose with R/rvec and t (or none: the world frame)")
-        st = table["stereo"]
-        missing = [k for k in STEREO_KEYS if k not in st] if isinstance(st, dict) else STEREO_KEYS
-        if missing or set(st) - set(STEREO_KEYS):
-            raise SceneError(f"{key}.stereo", f"needs exactly the keys {', '.join(STEREO_KEYS)}",
-                             "Tx Ty Tz in mm, Theta Phi Psi in degrees (MatchID convention)")
-        vals = [_coerce(st[k], float, f"{key}.stereo.{k}") for k in STEREO_KEYS]
-        return stereo_pose(first.rotation, first.translation, *vals)
-    if "look_at" in table:
-        la = table["look_at"]
-        eye = _vec(la.get("eye"), 3, f"{key}.look_at.eye")
-        target = _vec(la.get("target", [0, 0, 0]), 3, f"{key}.look_at.target")
-        up = _vec(la.get("up", [0, -1, 0]), 3, f"{key}.look_at.up")
-        return look_at(eye, target, up)
-    return _rotation(table, key), _vec(table.get("t", [0, 0, 0]), 3, f"{key}.t")
-
-
-def _camera(table, key: str, first: Camera | None) -> Camera:
-    if not isinstance(table, dict):
-        raise SceneError(key, "expected a table", "write [[cameras]] with keys")
-    table = dict(table)
-    R, t = _pose(table.pop("pose", {}), f"{key}.pose", first)
-    dist = table.pop("distortion", {})
-    if not isinstance(dist, dict):
-        raise SceneError(f"{key}.distortion", f"expected a table, got {dist!r}",
-                         "write distortion = {k1 = -0.1, k2 = 0.0, p1 = 0, p2 = 0, k3 = 0}")
-    distortion = _build(Distortion, dist, f"{key}.distortion")
-    table.setdefault("name", f"cam{0 if first is None else 1}")
-    if "size" in table:
-        size = table["size"]
-        if not (isinstance(size, list) and len(size) == 2 and all(isinstance(s, int) for s in size)):
-            raise SceneError(f"{key}.size", f"expected [W, H] integers, got {size!r}",
-                             "write size = [1624, 1234]")
-    cam = _build_camera(table, key)
-    return dataclasses.replace(cam, distortion=distortion, R=_tuple(R), t=_tuple(t))
-
-
-def _build_camera(table: dict, key: str) -> Camera:
-    hints = {"name": str, "size": tuple, "fx": float, "fy": float, "cx": float, "cy": float,
-             "skew": float, "bit_depth": int}
-    unknown = sorted(set(table) - set(hints))
-    if unknown:
-        raise SceneError(f"{key}.{unknown[0]}", "unknown key",
-                         f"allowed: {', '.join(list(hints) + ['distortion', 'pose'])}")
-    missing = [k for k in ("size", "fx", "fy", "cx", "cy") if k not in table]
-    if missing:
-        raise SceneError(f"{key}.{missing[0]}", "is required", "give the intrinsics in pixels")
-    kwargs = {k: _coerce(v, hints[k], f"{key}.{k}") for k, v in table.items()}
-    try:
-        return Camera(**kwargs)
-    except SceneError as exc:
-        raise SceneError(f"{key}.{exc.key}", *_split(exc)) from None
-
-
-def _tuple(a: np.ndarray) -> tuple:
-    return tuple(map(tuple, a)) if a.ndim == 2 else tuple(float(x) for x in a)
+        raise _within(exc, key) from None
 
 
 def scene_from_dict(data: dict, base_dir: str | Path = ".") -> Scene:
     """Build a Scene from parsed TOML (see the module docstring for the layout)."""
-    data = dict(data)
-    allowed = {"cameras", "specimen", "speckle", "render", "output", "seed"}
-    unknown = sorted(set(data) - allowed)
-    if unknown:
-        raise SceneError(unknown[0], "unknown top-level key", f"allowed: {', '.join(sorted(allowed))}")
-    cams_t = data.get("cameras")
-    if not isinstance(cams_t, list) or not cams_t:
+    _reject_unknown(data, SECTIONS, "")
+    tables = data.get("cameras")
+    if not isinstance(tables, list) or not tables:
         raise SceneError("cameras", "at least one [[cameras]] table is required",
                          "add [[cameras]] with size, fx, fy, cx, cy")
     cameras: list[Camera] = []
-    for i, table in enumerate(cams_t):
-        cameras.append(_camera(table, f"cameras[{i}]", cameras[0] if cameras else None))
-    spec_t = dict(data.get("specimen", {"bulge": {}}))
-    pose = spec_t.pop("pose", {})
-    R, t = _pose(pose, "specimen.pose", None)
-    specimen = _build(Specimen, spec_t, "specimen")
-    specimen = dataclasses.replace(specimen, R=_tuple(R), t=_tuple(t))
-    speckle_t = dict(data.get("speckle", {}))
-    ref_cam = speckle_t.pop("camera", None)
-    speckle = _build(Speckle, speckle_t, "speckle")
-    if ref_cam is not None:
-        speckle = dataclasses.replace(speckle, camera=_camera(ref_cam, "speckle.camera", None))
-    return Scene(
-        cameras=tuple(cameras), specimen=specimen, speckle=speckle,
-        render=_build(Render, data.get("render", {}), "render"),
-        output=_build(Output, data.get("output", {}), "output"),
-        seed=_coerce(data.get("seed", 0), int, "seed"),
-        base_dir=str(Path(base_dir).resolve()))
+    for i, table in enumerate(tables):
+        first = cameras[0] if cameras else None
+        cameras.append(_build(Camera, table, f"cameras[{i}]", first, name=f"cam{i}"))
+    hints = typing.get_type_hints(Scene)
+    rest = {k: _coerce(data[k], hints[k], k) for k in SECTIONS[1:] if k in data}
+    return Scene(cameras=tuple(cameras), base_dir=str(Path(base_dir).resolve()), **rest)
 
 
 def load_scene(path: str | Path) -> Scene:
-    """Read and validate a TOML scene file."""
+    """Read and validate a TOML scene file; relative paths in it start at its directory."""
     path = Path(path)
     if not path.is_file():
         raise SceneError(str(path), "scene file not found", "check the path")
     try:
-        data = tomllib.loads(path.read_text())
-    except tomllib.TOMLDecodeError as exc:
-        raise SceneError(str(path), f"is not valid TOML ({exc})", "fix the syntax at that line") from None
+        data = tomllib.loads(path.read_text(encoding="utf-8"))
+    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
+        raise SceneError(str(path), f"is not a valid TOML file ({exc})", "fix the syntax there") from None
     return scene_from_dict(data, path.parent)
 
 

@@ -70,7 +70,13 @@ class GLBackend:
             self._targets[key] = (ctx.framebuffer(color_attachments=color, depth_attachment=depth), color, depth)
         return self._targets[key]
 
+    def _unbind(self) -> None:
+        """Bind framebuffer 0 before releasing ours: moderngl re-binds the current framebuffer
+        when it creates the next one, which fails (GL_INVALID_OPERATION) if it was deleted."""
+        self.ctx.detect_framebuffer(0).use()
+
     def close(self) -> None:
+        self._unbind()
         for fbo, color, depth in self._targets.values():
             fbo.release()
             for t in color:
@@ -205,6 +211,7 @@ class GLBackend:
         vao.render(ctx.TRIANGLES, vertices=3)
         grey = np.frombuffer(out.read(), np.float32).reshape(H, W).copy()
         check_error(ctx, "box-filter pass")
+        self._unbind()
         for obj in (vao, fbo, out):
             obj.release()
         return grey

@@ -1,0 +1,23 @@
+"""Shared fixtures: one EGL context for every GL test, its error flag checked around each."""
+import pytest
+
+from glsim.gl.context import create_context
+
+
+@pytest.fixture(scope="session")
+def gl_ctx():
+    ctx = create_context()
+    yield ctx
+    ctx.release()
+
+
+@pytest.fixture(autouse=True)
+def _gl_error_check(request):
+    """GL tests start and end with GL_NO_ERROR (moderngl's own tests do the same)."""
+    if "gl" not in request.keywords:
+        yield
+        return
+    ctx = request.getfixturevalue("gl_ctx")
+    assert ctx.error == "GL_NO_ERROR"
+    yield
+    assert ctx.error == "GL_NO_ERROR"
