@@ -35,9 +35,7 @@ def specimen_mesh(scene: Scene) -> meshmod.Mesh:
         steps = [np.broadcast_to(np.asarray(tr, float), m.nodes.shape) for tr in p.translations]
         m = meshmod.with_displacements(m, steps)
     else:
-        f = sp.mesh
-        if not f.path:
-            raise SceneError("specimen.mesh.path", "is empty", "give the FE mesh file")
+        f = sp.mesh  # path, unit and sources were validated by the scene
         m = meshmod.load_mesh(
             scene.resolve(f.path), unit=f.unit,
             point_data_steps=list(f.point_data) or None,
@@ -94,11 +92,8 @@ def make_reference(scene: Scene, mesh: meshmod.Mesh) -> Reference:
             if (cam.width, cam.height) != image.shape[::-1]:
                 raise SceneError("speckle.camera.size", f"{cam.size} differs from the image's "
                                  f"{image.shape[::-1]}", "give the reference image's size")
-        elif sp.mm_per_px > 0:
+        else:  # the scene requires mm_per_px > 0 when there is no camera
             cam = _auto_camera(mesh.nodes, cam1.center, sp.mm_per_px, image.shape[::-1])
-        else:
-            raise SceneError("speckle.mm_per_px", "is needed with a reference image file",
-                             "give the image scale in mm per pixel, or a [speckle.camera]")
         return Reference(image, cam)
     cam_mm_per_px = camera_scale(cam1, mesh.nodes)
     mm_per_px = sp.mm_per_px or cam_mm_per_px / sp.oversample

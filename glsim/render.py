@@ -94,7 +94,7 @@ class Renderer:
 
     def render(self, camera: int | str = 0, step: int = 0, truth: bool = False, **options) -> Result:
         """Render one image. ``options`` override the scene's [render] table (mode, …)."""
-        opts = dataclasses.replace(self.scene.render, **options) if options else self.scene.render
+        opts = self.scene.replace(render=options).render if options else self.scene.render
         t0 = time.perf_counter()
         view = self.view(camera, step)
         image, raster = self.backend.render_view(view, opts, truth)

@@ -14,7 +14,7 @@ def gl_ctx():
 @pytest.fixture(autouse=True)
 def _gl_error_check(request):
     """GL tests start and end with GL_NO_ERROR (moderngl's own tests do the same)."""
-    if "gl" not in request.keywords:
+    if request.node.get_closest_marker("gl") is None:
         yield
         return
     ctx = request.getfixturevalue("gl_ctx")

@@ -5,6 +5,7 @@ from __future__ import annotations
 import re
 from dataclasses import dataclass
 from importlib import resources
+from pathlib import Path
 
 from ..errors import ShaderError
 
@@ -29,12 +30,16 @@ _INCLUDE = re.compile(r'^\s*#include\s+"([^"]+)"\s*$')
 _LOG_LINE = re.compile(r"^\s*\d+[:(](\d+)\)?(?:\(\d+\))?\s*:\s*(.*)$")
 
 
-def read_shader(name: str) -> str:
-    """Text of a file in the packaged shaders directory."""
+def read_shader(name: str, dirs: tuple = ()) -> str:
+    """Text of a shader file: first found in ``dirs``, then in the packaged shaders."""
+    for d in dirs:
+        path = Path(d) / name
+        if path.is_file():
+            return path.read_text()
     try:
         return resources.files("glsim.shaders").joinpath(name).read_text()
     except FileNotFoundError:
-        raise ShaderError(f"shader file {name!r} not found in glsim.shaders") from None
+        raise ShaderError(f"shader file {name!r} not found in {[str(d) for d in dirs]} or glsim.shaders") from None
 
 
 @dataclass(frozen=True)
@@ -50,7 +55,7 @@ class Source:
         return f"<assembled>:{line}"
 
 
-def assemble(name: str, defines: dict | None = None) -> Source:
+def assemble(name: str, defines: dict | None = None, dirs: tuple = ()) -> Source:
     """#version, one #define per item (value None → bare define), precision macros, then the
     file with its #include "x.glsl" lines replaced (each file included once)."""
     lines: list[str] = [VERSION]
@@ -65,7 +70,7 @@ def assemble(name: str, defines: dict | None = None) -> Source:
 
     def add(fname: str) -> None:
         seen.add(fname)
-        for n, text in enumerate(read_shader(fname).splitlines(), 1):
+        for n, text in enumerate(read_shader(fname, dirs).splitlines(), 1):
             m = _INCLUDE.match(text)
             if m:
                 if m.group(1) not in seen:
@@ -95,24 +100,23 @@ def translate_log(log: str, sources: dict[str, Source]) -> str:
 
 
 class ProgramCache:
-    """Compiles programs once per (files, defines) for one GL context."""
+    """Compiles programs once per (files, defines) for one GL context.
 
-    def __init__(self, ctx):
+    ``dirs`` are searched for shader files before the packaged ones.
+    """
+
+    def __init__(self, ctx, dirs: tuple = ()):
         self.ctx = ctx
+        self.dirs = tuple(dirs)
         self._programs: dict = {}
         self.compiled: list[tuple[tuple[str, ...], dict]] = []  # what was built, for tests
 
-    def program(self, vertex: str, fragment: str, geometry: str | None = None,
-                defines: dict | None = None):
-        defines = dict(defines or {})
-        key = (vertex, geometry, fragment, tuple(sorted(defines.items())))
+    def _build(self, stages: dict[str, str], defines: dict, make):
+        key = (tuple(stages.items()), tuple(sorted(defines.items())))
         if key not in self._programs:
-            stages = {"vertex_shader": vertex, "fragment_shader": fragment}
-            if geometry:
-                stages["geometry_shader"] = geometry
-            sources = {stage: assemble(f, defines) for stage, f in stages.items()}
+            sources = {stage: assemble(f, defines, self.dirs) for stage, f in stages.items()}
             try:
-                prog = self.ctx.program(**{s: src.text for s, src in sources.items()})
+                prog = make(**{s: src.text for s, src in sources.items()})
             except Exception as exc:
                 files = ", ".join(stages.values())
                 raise ShaderError(f"GLSL program ({files}) failed to build with defines "
@@ -120,6 +124,16 @@ class ProgramCache:
             self._programs[key] = prog
             self.compiled.append((tuple(stages.values()), defines))
         return self._programs[key]
+
+    def program(self, vertex: str, fragment: str, defines: dict | None = None):
+        """A vertex + fragment program."""
+        return self._build({"vertex_shader": vertex, "fragment_shader": fragment},
+                           dict(defines or {}), self.ctx.program)
+
+    def compute(self, name: str, defines: dict | None = None):
+        """A compute shader."""
+        return self._build({"source": name}, dict(defines or {}),
+                           lambda source: self.ctx.compute_shader(source))
 
     def release(self) -> None:
         for prog in self._programs.values():
