@@ -65,7 +65,7 @@ def cmd_info(args) -> int:
 
 
 def cmd_demo(args) -> int:
-    scene = _overrides(bulge_scene(steps=args.n_steps), args)
+    scene = _overrides(bulge_scene(size=tuple(args.size), steps=args.n_steps), args)
     return _run(scene, args.output, args, "glsim demo (bulge test, paper Tables 2-3)")
 
 
@@ -96,6 +96,8 @@ def parser() -> argparse.ArgumentParser:
     d = sub.add_parser("demo", help="render the built-in bulge scene (stereo, a few steps)")
     d.add_argument("-o", "--output", default="glsim-demo")
     d.add_argument("--n-steps", type=int, default=3, help="load steps after the reference state")
+    d.add_argument("--size", type=int, nargs=2, default=(1624, 1234), metavar=("W", "H"),
+                   help="image size in px (the rig scales with it)")
     _common(d)
     d.set_defaults(func=cmd_demo)
     r = sub.add_parser("render", help="render a scene file")

@@ -1,0 +1,122 @@
+"""The shader loader, the GLSL camera model against OpenCV, and the compile-time choice of
+program features."""
+import ctypes.util
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+
+from glsim.camera import Camera, Distortion
+from glsim.errors import GLUnavailableError, ShaderError
+from glsim.gl import context as glctx
+from glsim.gl.backend import GLBackend
+from glsim.gl.programs import ProgramCache, assemble
+from glsim.render import Renderer
+from glsim.scene import bulge_scene
+
+GLSL_DIR = Path(__file__).parent / "glsl"
+
+
+def test_assemble_resolves_includes_once_and_maps_lines():
+    src = assemble("deform.frag", {"MODE_EXACT": None, "INTERP_LINEAR": None, "SS": 2})
+    assert src.text.startswith("#version 450 core\n")
+    assert "#define SS 2" in src.text and "#include" not in src.text
+    assert src.text.count("real2 distort(real2 xn") == 1       # camera.glsl included once
+    line = src.text.splitlines().index("void main() {") + 1
+    assert src.locate(line).startswith("deform.frag:")
+
+
+@pytest.mark.gl
+def test_compile_error_names_file_and_line(gl_ctx, tmp_path):
+    (tmp_path / "broken.frag").write_text(
+        '#include "camera.glsl"\nout float o;\nvoid main() {\n    o = undefined_thing;\n}\n')
+    cache = ProgramCache(gl_ctx, dirs=(tmp_path,))
+    with pytest.raises(ShaderError, match=r"broken\.frag:4: .*undefined_thing"):
+        cache.program("fullscreen.vert", "broken.frag")
+
+
+def _run_camera_check(ctx, cam: Camera, pts, pix, fp64: bool):
+    cache = ProgramCache(ctx, dirs=(GLSL_DIR,))
+    prog = cache.compute("camera_check.comp", {"FP64": None} if fp64 else {})
+    dt = "f8" if fp64 else "f4"
+    n = len(pts)
+    bufs = [ctx.buffer(np.ascontiguousarray(pts, dt).tobytes()), ctx.buffer(np.ascontiguousarray(pix, dt).tobytes()),
+            ctx.buffer(reserve=n * 3 * np.dtype(dt).itemsize), ctx.buffer(reserve=n * 3 * np.dtype(dt).itemsize)]
+    for i, b in enumerate(bufs):
+        b.bind_to_storage_buffer(i)
+    for name, value in (("u_intr", cam.intrinsics), ("u_dist", cam.distortion.coeffs),
+                        ("u_valid_r2", [cam.distortion.valid_radius() ** 2])):
+        prog[name].write(np.asarray(value, dt).tobytes())
+    prog["u_count"].value = n
+    prog.run(group_x=(n + 63) // 64)
+    proj = np.frombuffer(bufs[2].read(), dt).reshape(n, 3).astype(float)
+    und = np.frombuffer(bufs[3].read(), dt).reshape(n, 3).astype(float)
+    for b in bufs:
+        b.release()
+    cache.release()
+    return proj, und
+
+
+DISTORTIONS = {
+    "barrel": Distortion(k1=-0.28, k2=0.09, p1=4e-4, p2=-3e-4),
+    "pincushion": Distortion(k1=0.3),
+    "full": Distortion(k1=-0.2, k2=0.05, p1=1e-3, p2=-5e-4, k3=-0.01, k4=0.02, k5=0.001, k6=0.0005,
+                       s1=1e-3, s2=-2e-4, s3=5e-4, s4=1e-4),
+}
+
+
+@pytest.mark.gl
+@pytest.mark.parametrize("name", sorted(DISTORTIONS))
+@pytest.mark.parametrize("fp64,tol", [(True, 1e-9), (False, 2e-3)], ids=["fp64", "fp32"])
+def test_glsl_camera_matches_opencv(gl_ctx, name, fp64, tol):
+    """camera.glsl's projection vs cv2.projectPoints and its undistortion vs
+    cv2.undistortPoints, over the whole image up to the corners (px)."""
+    W, H = 1624, 1234
+    cam = Camera(name="c", size=(W, H), fx=1800.0, fy=1790.0, cx=811.3, cy=617.9, distortion=DISTORTIONS[name])
+    rng = np.random.default_rng(3)
+    n = 4096
+    xn = rng.uniform([-0.5, -0.37], [0.5, 0.37], (n, 2))
+    pts = np.column_stack([xn, np.ones(n)]) * rng.uniform(200, 2000, (n, 1))
+    pix = rng.uniform([-0.5, -0.5], [W - 0.5, H - 0.5], (n, 2))
+    proj, und = _run_camera_check(gl_ctx, cam, pts, pix, fp64)
+    cv_proj, _ = cv2.projectPoints(pts, np.zeros(3), np.zeros(3), cam.K, cam.distortion.coeffs)
+    crit = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 200, 1e-16)
+    cv_und = cv2.undistortPoints(pix.reshape(-1, 1, 2), cam.K, cam.distortion.coeffs, criteria=crit).reshape(-1, 2)
+    assert proj[:, 2].all() and und[:, 2].all()
+    assert np.abs(proj[:, :2] - cv_proj.reshape(-1, 2)).max() < tol
+    assert np.abs(und[:, :2] - cv_und).max() * cam.fx < tol
+
+
+@pytest.mark.gl
+def test_programs_compiled_only_with_what_the_scene_asks_for(gl_ctx):
+    """The GL program's #defines are exactly the scene's choices: mode, interpolation,
+    supersampling and precision; a scene without truth maps compiles no truth outputs."""
+    scene = bulge_scene(size=(203, 154), steps=1, mode="q4", interpolation="cubic", samples_per_pixel=4)
+    with Renderer(scene, "gl", ctx=gl_ctx) as r:
+        r.render(0, 1)
+        compiled = r.backend.programs.compiled
+    deform = [d for files, d in compiled if "deform.frag" in files]
+    assert deform == [{"MODE_Q4": None, "INTERP_CUBIC": None, "SS": 2, "FP64": None}]
+    assert [d for files, d in compiled if "downsample.frag" in files] == [{"SS": 2}]
+
+
+@pytest.mark.gl
+def test_fast_mode_compiles_no_double_arithmetic(gl_ctx):
+    scene = bulge_scene(size=(203, 154), steps=1, mode="fast")
+    with Renderer(scene, "gl", ctx=gl_ctx) as r:
+        r.render(0, 1, truth=True)
+        (files, defines), = r.backend.programs.compiled
+    assert files == ("deform.vert", "deform.frag")
+    assert set(defines) == {"MODE_FAST", "INTERP_BSPLINE3", "SS", "TRUTH"}
+
+
+def test_missing_egl_gives_one_clear_error(monkeypatch):
+    monkeypatch.setattr(ctypes.util, "find_library", lambda name: None)
+    with pytest.raises(GLUnavailableError, match=r"libEGL\.so was not found.*apt-get install libegl1.*backend='cpu'"):
+        glctx.create_context()
+    with pytest.raises(GLUnavailableError):
+        GLBackend(np.zeros((4, 4), np.float32))
+    # the CPU backend does not need EGL
+    res = Renderer(bulge_scene(size=(101, 77), steps=1), "cpu").render(0, 1)
+    assert np.isfinite(res.image).all() and res.image.max() > 0
