@@ -106,7 +106,7 @@ def render(renderer: Renderer, combo: Combo, truth: bool = False, step: int = ST
     return res
 
 
-def timed(call, reps: int) -> tuple[list[float], Result]:
+def timed(call, reps: int) -> tuple[list[float], Result | Timing]:
     """One warm-up, then ``reps`` timed calls (at most SLOW_REPS if the warm-up took > SLOW_S)."""
     warm = call()
     n = reps if warm.seconds <= SLOW_S else min(reps, SLOW_REPS)
@@ -127,32 +127,32 @@ def reference_images(renderer: Renderer, spps, interps) -> dict[tuple[str, int],
     rasterised once per spp and interpolated in chunks (bounded memory at 16 spp)."""
     view = renderer.view(CAMERA, STEP)
     W, H = view.camera.size
-    background = renderer.scene.render.background
     images = {}
-    for s in sorted(set(spps)):
-        r = oracle.rasterize(view, "exact", math.isqrt(s))
+    for spp in sorted(set(spps)):
+        s = math.isqrt(spp)
+        r = oracle.rasterize(view, "exact", s)
         hit = np.flatnonzero(r["element"] >= 0)
         uv = r["ref_uv"][hit]
         del r
         for method in interps:
             coeffs = interp.prepare(renderer.reference.image, method, np.float64)
-            grey = np.full((H * math.isqrt(s)) * (W * math.isqrt(s)), float(background))
+            grey = np.full(H * s * W * s, float(renderer.scene.render.background))
             for k in range(0, len(hit), SAMPLE_CHUNK):
                 grey[hit[k:k + SAMPLE_CHUNK]] = interp.sample(coeffs, uv[k:k + SAMPLE_CHUNK], method)
-            q = math.isqrt(s)
-            images[method, s] = grey.reshape(H, q, W, q).mean(axis=(1, 3)).astype(np.float32)
+            images[method, spp] = grey.reshape(H, s, W, s).mean(axis=(1, 3)).astype(np.float32)
     return images
 
 
 # ---- errors ----------------------------------------------------------------------------------
-def mapping_error(truth, exact) -> dict:
-    """|ref_uv − ref_uv_exact| (px) over pixels covered in both; coverage differences counted."""
+def mapping_error(truth, exact) -> tuple[dict, np.ndarray]:
+    """|ref_uv − ref_uv_exact| (px) over pixels covered in both, coverage differences counted;
+    and the (H, W) mask of the pixels covered in both."""
     both = truth.mask & exact.mask
     d = np.linalg.norm(truth.ref_uv[both] - exact.ref_uv[both], axis=-1)
     return {"map_rms_px": float(np.sqrt(np.mean(d * d))), "map_max_px": float(d.max()),
             "map_n_over": int(np.count_nonzero(d > EDGE_PX)),
             "only_here": int(np.count_nonzero(truth.mask & ~exact.mask)),
-            "only_exact": int(np.count_nonzero(exact.mask & ~truth.mask)), "both": both}
+            "only_exact": int(np.count_nonzero(exact.mask & ~truth.mask))}, both
 
 
 def grey_error(image: np.ndarray, reference: np.ndarray, both: np.ndarray) -> dict:
@@ -162,25 +162,22 @@ def grey_error(image: np.ndarray, reference: np.ndarray, both: np.ndarray) -> di
 
 
 # ---- the accuracy table ------------------------------------------------------------------------
-def row(renderer: Renderer, combo: Combo, reps: int, mapping: dict, references: dict) -> dict:
+def row(renderer: Renderer, combo: Combo, reps: int, mapping: tuple[dict, np.ndarray],
+        references: dict) -> dict:
     """Time one combination and compare its image with the CPU exact one."""
     seconds, last = timed(lambda: render(renderer, combo), reps)
-    errors = {k: v for k, v in mapping.items() if k != "both"}
-    return {**dataclasses.asdict(combo), "precision": effective_precision(renderer, combo),
+    errors, both = mapping
+    return {**dataclasses.asdict(combo), "arithmetic": effective_precision(renderer, combo),
             "reps": len(seconds), "seconds": statistics.median(seconds), "seconds_all": seconds,
-            **errors, **grey_error(last.image, references[combo.interpolation, combo.spp], mapping["both"])}
-
-
-def mapping_key(renderer: Renderer, combo: Combo) -> tuple:
-    return combo.backend, combo.mode, effective_precision(renderer, combo)
+            **errors, **grey_error(last.image, references[combo.interpolation, combo.spp], both)}
 
 
 def backend_rows(renderer: Renderer, combos: list[Combo], reps: int, exact, references) -> list[dict]:
     """All rows of one backend; one truth render per mode × precision gives their mapping error."""
-    mappings: dict[tuple, dict] = {}
+    mappings: dict[tuple, tuple] = {}
     rows = []
     for combo in combos:
-        key = mapping_key(renderer, combo)
+        key = combo.mode, effective_precision(renderer, combo)
         if key not in mappings:
             truth = render(renderer, dataclasses.replace(combo, spp=1), truth=True).truth
             mappings[key] = mapping_error(truth, exact)
@@ -195,10 +192,11 @@ def accuracy(size: tuple[int, int], reps: int, quick: bool) -> dict:
 
     scene = bulge_scene(size=size, steps=1)
     combos = combinations(quick)
+    t0 = time.perf_counter()
     with Renderer(scene, "cpu") as cpu:
         exact = render(cpu, Combo("cpu", "exact", scene.render.interpolation, 1), truth=True).truth
         references = reference_images(cpu, {c.spp for c in combos}, {c.interpolation for c in combos})
-        print("reference done", file=sys.stderr, flush=True)
+        print(f"CPU exact reference images: {time.perf_counter() - t0:.0f} s", file=sys.stderr, flush=True)
         rows = backend_rows(cpu, [c for c in combos if c.backend == "cpu"], min(reps, CPU_REPS), exact, references)
     with Renderer(scene, "gl") as gl:
         machine = machine_info(info(gl.backend.ctx))
@@ -209,31 +207,221 @@ def accuracy(size: tuple[int, int], reps: int, quick: bool) -> dict:
 
 
 # ---- peer: riley-raster on a quad4 plate -------------------------------------------------------
+@dataclass(frozen=True)
+class Timing:
+    """One timed peer render: wall seconds (perf_counter) and its image."""
+    seconds: float
+    image: np.ndarray
+
+
 def plate_geometry(size: tuple[int, int]) -> dict:
     """A 50×40-element plate (mm) covering PLATE_FILL of the image, 600 mm in front of camera 0."""
-    cam = stereo_rig(size=size, fx=6818.0 * size[0] / 1624)[0]
+    fx = stereo_rig(size=size, fx=6818.0 * size[0] / 1624)[0].fx
     nx, ny = PLATE_ELEMENTS
     h_px = math.sqrt(PLATE_FILL * size[0] * size[1] * ny / nx)
     distance = 600.0
-    return {"width": h_px * nx / ny * distance / cam.fx, "height": h_px * distance / cam.fx,
-            "distance": distance, "fx": cam.fx}
+    return {"width": h_px * nx / ny * distance / fx, "height": h_px * distance / fx,
+            "distance": distance, "fx": fx, "width_px": h_px * nx / ny}
 
 
 def glsim_plate(size: tuple[int, int], reps: int) -> list[dict]:
-    """glsim GL on the plate: q4 and exact, cubic, 4 spp (the settings closest to riley's)."""
+    """glsim GL on the plate: q4 and exact (fp64), cubic, 4 spp: the settings closest to riley's."""
     g = plate_geometry(size)
+    plate = Plate(width=g["width"], height=g["height"], nx=PLATE_ELEMENTS[0], ny=PLATE_ELEMENTS[1])
     scene = Scene(cameras=stereo_rig(size=size, fx=g["fx"]),
-                  specimen=Specimen(plate=Plate(width=g["width"], height=g["height"],
-                                                nx=PLATE_ELEMENTS[0], ny=PLATE_ELEMENTS[1]),
-                                    t=(0.0, 0.0, g["distance"])),
+                  specimen=Specimen(plate=plate, t=(0.0, 0.0, g["distance"])),
                   speckle=Speckle(mm_per_px=g["width"] / PLATE_TEXTURE_PX))
     rows = []
     with Renderer(scene, "gl") as gl:
-        for mode in ("q4", "exact"):
-            combo = Combo("gl", mode, "cubic", 4)
+        for combo in (Combo("gl", "q4", "cubic", 4), Combo("gl", "exact", "cubic", 4)):
             seconds, last = timed(lambda: render(gl, combo, step=0), reps)
-            rows.append({"name": f"glsim GL {mode} fp64", "interpolation": "cubic (Keys a=−0.5)", "spp": 4,
-                         "reps": len(seconds), "seconds": statistics.median(seconds),
+            rows.append({"name": f"glsim GL {combo.mode} {effective_precision(gl, combo)}", "status": "ok",
+                         "reps": len(seconds),
+                         "seconds": statistics.median(seconds),
                          "coverage": float(np.mean(last.image != scene.render.background)),
                          "texture": list(gl.reference.image.shape[::-1])})
     return rows
+
+
+def riley_plate(size: tuple[int, int], reps: int) -> dict:
+    """riley-raster on the same plate: quad4, 2048² speckle texture, Catmull–Rom cubic, 4 spp."""
+    import riley
+    from importlib.metadata import version
+
+    g = plate_geometry(size)
+    nx, ny = PLATE_ELEMENTS
+    x, y = np.meshgrid(np.linspace(-g["width"] / 2, g["width"] / 2, nx + 1),
+                       np.linspace(-g["height"] / 2, g["height"] / 2, ny + 1))
+    coords = np.stack([x.ravel(), y.ravel(), np.zeros(x.size)], 1)
+    n0 = (np.arange(ny)[:, None] * (nx + 1) + np.arange(nx)[None]).ravel()
+    connect = np.stack([n0, n0 + 1, n0 + nx + 2, n0 + nx + 1], 1).astype(np.int64)
+    uvs = np.stack([x.ravel() / g["width"] + 0.5, y.ravel() / g["height"] + 0.5], 1)
+    dot = 5.0 * PLATE_TEXTURE_PX / g["width_px"]  # 5 camera px speckles, like glsim's default
+    texture = np.rint(speckle.generate((PLATE_TEXTURE_PX,) * 2, dot, seed=0) * 255).astype(np.uint8)
+    shader = riley.TextureShader(uvs=uvs, texture=texture[None], sample=riley.TextureSample.cubic_catmull_rom)
+    convention = riley.ConnectConvention(riley.EElemType.QUAD4, riley.EConnectAxis.ROW, 0, riley.ENodeOrder.RILEY)
+    mesh = riley.create_mesh(convention, riley.MeshType.quad4, coords, connect, shader)
+    pixel = 3.45e-3  # mm; only fx = focal / pixel matters
+    camera = riley.Camera(pixels_num=tuple(size), pixels_size=(pixel, pixel), pos_world=(0.0, 0.0, g["distance"]),
+                          rot_world=(0.0, 0.0, 0.0), roi_cent_world=(0.0, 0.0, 0.0),
+                          focal_length=g["fx"] * pixel, sub_sample=2)
+    config = riley.RasterConfig(save_strategy=riley.SaveStrategy.memory, report=riley.ReportMode.off,
+                                save_scaling=riley.ScaleStrategy.none)
+
+    def call() -> Timing:
+        t0 = time.perf_counter()
+        image = riley.raster(mesh, camera, config)
+        return Timing(time.perf_counter() - t0, np.squeeze(image))
+
+    seconds, last = timed(call, reps)
+    return {"name": f"riley-raster {version('riley-raster')}", "status": "ok", "reps": len(seconds),
+            "seconds": statistics.median(seconds), "coverage": float(np.mean(last.image != 0.0)),
+            "texture": [PLATE_TEXTURE_PX, PLATE_TEXTURE_PX]}
+
+
+def peer(size: tuple[int, int], reps: int) -> list[dict]:
+    """riley-raster and glsim on the same plate; glsim rows carry the time ratio glsim / riley."""
+    try:
+        riley_row = riley_plate(size, reps)
+    except ImportError:
+        riley_row = {"name": "riley-raster", "status": "not installed", "seconds": None}
+    except Exception as exc:  # a peer failure must not cost the accuracy table
+        riley_row = {"name": "riley-raster", "status": f"failed: {exc}", "seconds": None}
+    rows = glsim_plate(size, reps)
+    for r in rows:
+        r["ratio"] = r["seconds"] / riley_row["seconds"] if riley_row["seconds"] else None
+    return [riley_row] + rows
+
+
+# ---- report ------------------------------------------------------------------------------------
+def targets(report: dict) -> list[dict]:
+    """The two headline targets, evaluated on this run's rows."""
+    recs = [r for r in report["records"] if r["backend"] == "gl"]
+    exact = max(r["map_max_px"] for r in recs if r["mode"] == "exact" and r["precision"] == "fp64")
+    fast = {r["interpolation"]: r["seconds"] for r in recs if r["mode"] == "fast" and r["spp"] == 1}
+    W, H = report["size"]
+    scale = "" if (W, H) == FULL_SIZE else f" (measured at {W}×{H}; the target is for 1624×1234)"
+    return [
+        {"target": f"GL exact (fp64) mapping error max ≤ {TARGET_MAP_MAX_PX:g} px",
+         "measured": f"{exact:.3g} px", "met": exact <= TARGET_MAP_MAX_PX},
+        {"target": f"GL fast 1 spp < {TARGET_FAST_S:g} s per 1624×1234 image",
+         "measured": ", ".join(f"{i} {s:.3g} s" for i, s in fast.items()) + scale,
+         "met": (W, H) == FULL_SIZE and all(s < TARGET_FAST_S for s in fast.values())},
+    ]
+
+
+def _label(r: dict) -> str:
+    return f"{r['backend']} {r['mode']} {r['arithmetic']} {r['interpolation']} {r['spp']} spp"
+
+
+def _g(x: float | None, fmt: str = ".3g") -> str:
+    return "—" if x is None else format(x, fmt)
+
+
+COLUMNS = ("| backend | mode | arith. | interp | spp | reps | time (s) | map RMS (px) | map max (px) "
+           "| > 0.01 px | only here | only exact | grey RMS | grey max |")
+
+LEGEND = """\
+Columns. **arith.**: floating point of the mapping arithmetic actually used (GL fast is always
+fp32; GL q4/exact follow the `precision` option, default fp64; CPU is numpy float64).
+**time**: median of `Result.seconds` over **reps** timed renders after one warm-up render;
+`Result.seconds` times `Renderer.render` = geometry (`make_view`) + rasterisation + read-back
+of the image, truth maps off; scene, mesh, reference image, textures and shader compilation
+are excluded (done before or in the warm-up). GL rows use {reps} reps, except rows whose
+warm-up took > {slow} s, which use {slow_reps} to keep the run short; CPU rows use {cpu}.
+**map RMS / max**: |ref_uv − ref_uv_exact| in reference-image px over the pixels covered in
+both (pixel centres, 1 spp, truth=True, rendered apart from the timing runs); it depends on
+backend × mode × arithmetic only, so it repeats across interpolations and spp.
+**> 0.01 px**: pixels whose mapping error exceeds 0.01 px (silhouettes, element edges).
+**only here / only exact**: pixels whose centre is covered by this row's render but not by the
+CPU exact reference / the other way round. **grey RMS / max**: |image − CPU exact image with
+the same interpolation and spp| × 255 (grey levels of an 8-bit camera) over the pixels covered
+in both. The reference is the CPU backend in mode exact (float64 ray/patch intersection), so
+its own rows read 0; its images for every interpolation and spp come from one rasterisation
+per spp (the same code path as `glsim.oracle.render_view`).
+"""
+
+
+PEER = """\
+## Peer: riley-raster
+
+Same scene for both: a flat {nx}×{ny} quad4 plate covering {fill:.0%} of the {W}×{H} image,
+face-on; cubic interpolation (Keys / Catmull–Rom, a = −0.5); 4 samples per pixel (2×2 box).
+riley: {tex}² uint8 speckle texture, `riley.raster` into memory, default thread count, wall time
+(perf_counter) of that call. glsim: `Result.seconds`, auto-sized reference image.
+
+| renderer | status | reps | time (s) | coverage | texture (px) | glsim / riley |
+|---|---|---|---|---|---|---|
+"""
+
+
+def _record_line(r: dict) -> str:
+    return (f"| {r['backend']} | {r['mode']} | {r['arithmetic']} | {r['interpolation']} | {r['spp']} "
+            f"| {r['reps']} | {_g(r['seconds'])} | {_g(r['map_rms_px'], '.2e')} | {_g(r['map_max_px'], '.2e')} "
+            f"| {r['map_n_over']} | {r['only_here']} | {r['only_exact']} | {_g(r['grey_rms'])} "
+            f"| {_g(r['grey_max'])} |")
+
+
+def _peer_line(p: dict) -> str:
+    tex = "×".join(map(str, p.get("texture", []))) or "—"
+    return (f"| {p['name']} | {p['status']} | {p.get('reps', '—')} | {_g(p['seconds'])} "
+            f"| {_g(p.get('coverage'), '.0%')} | {tex} | {_g(p.get('ratio'), '.2f')} |")
+
+
+def markdown(report: dict) -> str:
+    """The report as markdown: header, accuracy table, legend, peer table, targets."""
+    m = report["machine"]
+    W, H = report["size"]
+    lines = ["# glsim accuracy benchmark", "",
+             f"- Machine: `{m['node']}`, {m['cpu']}, {m['cores']} cores, Python {m['python']}",
+             f"- GL: {m['gl']['vendor']} / {m['gl']['renderer']} / {m['gl']['version']}",
+             f"- Date: {report['date']}; image {W}×{H}; {report['scene']}", "",
+             COLUMNS, "|" + "---|" * 14]
+    lines += [_record_line(r) for r in report["records"]]
+    lines += ["", LEGEND.format(reps=report["reps"], slow=SLOW_S, slow_reps=SLOW_REPS, cpu=CPU_REPS),
+              PEER.format(nx=PLATE_ELEMENTS[0], ny=PLATE_ELEMENTS[1], fill=PLATE_FILL, W=W, H=H,
+                          tex=PLATE_TEXTURE_PX) + "\n".join(_peer_line(p) for p in report["peer"]),
+              "", "## Targets", "", "| target | measured | met |", "|---|---|---|"]
+    lines += [f"| {t['target']} | {t['measured']} | {'yes' if t['met'] else 'no'} |" for t in report["targets"]]
+    return "\n".join(lines) + "\n"
+
+
+def write_atomic(path: Path, text: str) -> None:
+    """Write ``text`` to a temporary file beside ``path``, then rename it over ``path``."""
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    try:
+        with os.fdopen(fd, "w") as f:
+            f.write(text)
+        os.replace(tmp, path)
+    except BaseException:
+        os.unlink(tmp)
+        raise
+
+
+def main(argv: list[str]) -> int:
+    """`glsim bench accuracy [--size W H] [--reps N] [--out DIR] [--quick]`."""
+    parser = argparse.ArgumentParser(prog="glsim bench")
+    sub = parser.add_subparsers(dest="command", required=True)
+    acc = sub.add_parser("accuracy", help="time and accuracy of every mode against the CPU oracle")
+    acc.add_argument("--size", nargs=2, type=int, metavar=("W", "H"),
+                     help="image size in px (default 1624 1234; with --quick 406 308)")
+    acc.add_argument("--reps", type=int, default=5, help="timed renders per row after one warm-up (default 5)")
+    acc.add_argument("--out", default="bench/results", help="directory of accuracy.json / accuracy.md")
+    acc.add_argument("--quick", action="store_true", help="small image and fewer combinations (CI smoke test)")
+    args = parser.parse_args(argv)
+    if args.reps < 1 or (args.size and min(args.size) < 2):
+        parser.error("--reps must be ≥ 1 and --size at least 2 2")
+    size = tuple(args.size) if args.size else (QUICK_SIZE if args.quick else FULL_SIZE)
+    try:
+        report = accuracy(size, args.reps, args.quick)
+    except GLUnavailableError as exc:
+        print(f"glsim bench: {exc}", file=sys.stderr)
+        return 1
+    report["targets"] = targets(report)
+    text = markdown(report)
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    write_atomic(out / "accuracy.json", json.dumps(report, indent=2) + "\n")
+    write_atomic(out / "accuracy.md", text)
+    print(text)
+    return 0

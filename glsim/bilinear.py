@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import numpy as np
 
+POLISH_RANGE = 1.5  # closed-form roots farther out than this are rejected unpolished
 INSIDE_TOL = 1e-9  # |ξ|, |η| ≤ 1 + INSIDE_TOL counts as inside (pixels exactly on an edge)
 
 
@@ -100,10 +101,11 @@ def invert_closed(p, q):
         dd = np.einsum("...d,...d->...", den, den)
         s = np.einsum("...d,...d->...", h - t[..., None] * f, den) / np.where(dd == 0, 1.0, dd)
         xi, eta = 2 * s - 1, 2 * t - 1
+        near = (np.abs(xi) <= POLISH_RANGE) & (np.abs(eta) <= POLISH_RANGE)
         for _ in range(2):
             dxi, deta, _ = newton_step(p, xi, eta, q)
             xi, eta = xi + dxi, eta + deta
-        good = ok & (dd != 0) & np.isfinite(xi) & np.isfinite(eta)
+        good = ok & near & (dd != 0) & np.isfinite(xi) & np.isfinite(eta)
         xs.append(np.where(good, xi, 0.0))
         es.append(np.where(good, eta, 0.0))
         oks.append(good)

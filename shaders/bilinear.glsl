@@ -12,6 +12,7 @@
 // on shared edges; the bilinear field is continuous there, so the extrapolation is harmless.
 #define RASTER_INSIDE_TOL 1e-4
 #define NEWTON_MAX_ITER 20
+#define POLISH_RANGE 1.5  // closed-form roots beyond |xi|, |eta| > 1.5 are not polished
 
 real cross2(real2 a, real2 b) { return a.x * b.y - a.y * b.x; }
 
@@ -90,13 +91,15 @@ void invert_closed(real2 p[4], real2 q, out real xi[2], out real eta[2], out boo
         real dd = dot(den, den);
         real s = dot(h - tk * f, den) / (dd == 0.0 ? 1.0 : dd);
         real x = 2.0 * s - 1.0, y = 2.0 * tk - 1.0;
-        for (int i = 0; i < 2; ++i) {
+        // roots far outside the element are rejected before polishing (saves half the work)
+        bool near = abs(x) <= POLISH_RANGE && abs(y) <= POLISH_RANGE;
+        for (int i = 0; i < 2 && near; ++i) {
             real dx, dy, det;
             newton_step(p, x, y, q, dx, dy, det);
             x += dx;
             y += dy;
         }
-        ok[k] = good[k] && dd != 0.0 && !isnan(x) && !isnan(y) && !isinf(x) && !isinf(y);
+        ok[k] = good[k] && near && dd != 0.0 && !isnan(x) && !isnan(y) && !isinf(x) && !isinf(y);
         xi[k] = ok[k] ? x : 0.0;
         eta[k] = ok[k] ? y : 0.0;
     }

@@ -1,0 +1,43 @@
+"""glsim.bench: the quick accuracy benchmark runs end to end and writes a sane report."""
+import json
+import math
+
+import pytest
+
+from glsim import bench
+
+SIZE = ("203", "154")  # a very small image: the whole quick run takes a few seconds on llvmpipe
+
+
+def _numbers(record):
+    for value in record.values():
+        if isinstance(value, list):
+            yield from (v for v in value if isinstance(v, (int, float)))
+        elif isinstance(value, (int, float)) and not isinstance(value, bool):
+            yield value
+
+
+@pytest.mark.gl
+def test_quick_accuracy_report(tmp_path, capsys):
+    rc = bench.main(["accuracy", "--quick", "--size", *SIZE, "--reps", "1", "--out", str(tmp_path)])
+    assert rc == 0
+    report = json.loads((tmp_path / "accuracy.json").read_text())
+    assert (tmp_path / "accuracy.md").read_text() in capsys.readouterr().out
+    records = report["records"]
+    combos = bench.combinations(quick=True)
+    assert len(records) == len(combos)
+    assert {(r["backend"], r["mode"], r["interpolation"], r["spp"], r["precision"]) for r in records} == {
+        (c.backend, c.mode, c.interpolation, c.spp, c.precision) for c in combos}
+    for r in records:
+        assert all(math.isfinite(x) for x in _numbers(r)), r
+        assert r["reps"] >= 1 and r["seconds"] > 0
+    exact = next(r for r in records if r["backend"] == "gl" and r["mode"] == "exact" and r["precision"] == "fp64")
+    # Measured at 203×154 on llvmpipe: ~1e-12 px with fp64 shader arithmetic, ~1e-4 px where the
+    # driver lacks GL_ARB_gpu_shader_fp64 and the exact mode falls back to fp32. 1e-3 px holds
+    # for both with margin and still catches a wrong intersection (those err by ≥ 0.01 px).
+    assert exact["map_max_px"] < 1e-3
+    if exact["arithmetic"] == "fp64":
+        assert exact["map_max_px"] < 1e-9
+    cpu_exact = next(r for r in records if r["backend"] == "cpu" and r["mode"] == "exact")
+    assert cpu_exact["map_max_px"] == 0 and cpu_exact["grey_max"] == 0  # the reference itself
+    assert [t["target"] for t in report["targets"]] and len(report["peer"]) == 3
