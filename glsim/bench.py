@@ -327,8 +327,8 @@ fp32; GL q4/exact follow the `precision` option, default fp64; CPU is numpy floa
 **time**: median of `Result.seconds` over **reps** timed renders after one warm-up render;
 `Result.seconds` times `Renderer.render` = geometry (`make_view`) + rasterisation + read-back
 of the image, truth maps off; scene, mesh, reference image, textures and shader compilation
-are excluded (done before or in the warm-up). GL rows use {reps} reps, except rows whose
-warm-up took > {slow} s, which use {slow_reps} to keep the run short; CPU rows use {cpu}.
+are excluded (done before or in the warm-up). GL and peer rows use {reps} timed renders, except
+rows whose warm-up took > {slow} s, which use {slow_reps} to keep the run short; CPU rows use {cpu}.
 **map RMS / max**: |ref_uv − ref_uv_exact| in reference-image px over the pixels covered in
 both (pixel centres, 1 spp, truth=True, rendered apart from the timing runs); it depends on
 backend × mode × arithmetic only, so it repeats across interpolations and spp.
@@ -378,7 +378,8 @@ def markdown(report: dict) -> str:
              f"- Date: {report['date']}; image {W}×{H}; {report['scene']}", "",
              COLUMNS, "|" + "---|" * 14]
     lines += [_record_line(r) for r in report["records"]]
-    lines += ["", LEGEND.format(reps=report["reps"], slow=SLOW_S, slow_reps=SLOW_REPS, cpu=CPU_REPS),
+    lines += ["", LEGEND.format(reps=report["reps"], slow=SLOW_S, slow_reps=min(report["reps"], SLOW_REPS),
+                                cpu=min(report["reps"], CPU_REPS)),
               PEER.format(nx=PLATE_ELEMENTS[0], ny=PLATE_ELEMENTS[1], fill=PLATE_FILL, W=W, H=H,
                           tex=PLATE_TEXTURE_PX) + "\n".join(_peer_line(p) for p in report["peer"]),
               "", "## Targets", "", "| target | measured | met |", "|---|---|---|"]

@@ -269,30 +269,9 @@ def test_crossing_camera_plane_gl_matches_oracle(gl_ctx):
     assert np.abs(a.ref_uv[both] - b.ref_uv[both]).max() < 1e-6
 
 
-@pytest.mark.parametrize("backend", BACKENDS)
-@pytest.mark.parametrize("angle", [85.0, 88.0])
-def test_grazing_angles(backend, angle, ctx_for):
-    a = np.radians(angle)
-    R = ((np.cos(a), 0, np.sin(a)), (0, 1, 0), (-np.sin(a), 0, np.cos(a)))
-    scene = plate_scene(specimen_R=R, plate=Plate(width=30, height=7.5, nx=12, ny=3, translations=(SHIFT,)))
-    ctx = ctx_for() if backend == "gl" else None
-    with backend_renderer(scene, backend, lambda: ctx) as r:
-        res = {m: r.render(0, 1, truth=True, mode=m) for m in MODES}
-    with Renderer(scene, "cpu") as c:
-        exact = c.render(0, 1, truth=True, mode="exact").truth
-    for m, rr in res.items():
-        check_stable(rr)
-        both = rr.truth.mask & exact.mask
-        assert both.sum() > 50
-        d = np.linalg.norm(rr.truth.ref_uv[both] - exact.ref_uv[both], axis=-1)
-        # seen edge-on, one image pixel spans many reference pixels: the approximate modes'
-        # error grows, but stays bounded; exact stays exact
-        assert d.max() < (1e-6 if m == "exact" else 5.0), (m, d.max())
-
-
-@pytest.mark.parametrize("backend", BACKENDS)
-def test_sub_pixel_elements(backend, ctx_for):
-    scene = plate_scene(plate=Plate(width=4, height=3, nx=60, ny=45, translations=(SHIFT,)))  # ~0.45 px
+def modes_against_exact_oracle(scene, backend, ctx_for):
+    """Render step 1 in every mode with ``backend``; yield (mode, result, covered in both,
+    |Δref_uv| px against the CPU exact mode)."""
     with backend_renderer(scene, backend, ctx_for) as r:
         res = {m: r.render(0, 1, truth=True, mode=m) for m in MODES}
     with Renderer(scene, "cpu") as c:
@@ -300,8 +279,31 @@ def test_sub_pixel_elements(backend, ctx_for):
     for m, rr in res.items():
         check_stable(rr)
         both = rr.truth.mask & exact.mask
-        assert (rr.truth.mask ^ exact.mask).sum() <= 0.05 * both.sum()
-        d = np.linalg.norm(rr.truth.ref_uv[both] - exact.ref_uv[both], axis=-1)
+        yield m, rr, both, np.linalg.norm(rr.truth.ref_uv[both] - exact.ref_uv[both], axis=-1)
+
+
+# A flat element seen at a grazing angle: fast (planar triangles, perspective-correct) and exact
+# are exact up to float32 interpolation in GL (measured 2e-4 / 6e-4 px at 85° / 88°); q4 maps
+# in the image plane, ignoring the perspective across the steep element (measured 0.071 px).
+GRAZING_TOL = {"exact": 1e-6, "fast": 2e-3, "q4": 0.1}
+
+
+@pytest.mark.parametrize("backend", BACKENDS)
+@pytest.mark.parametrize("angle", [85.0, 88.0])
+def test_grazing_angles(backend, angle, ctx_for):
+    a = np.radians(angle)
+    R = ((np.cos(a), 0, np.sin(a)), (0, 1, 0), (-np.sin(a), 0, np.cos(a)))
+    scene = plate_scene(specimen_R=R, plate=Plate(width=30, height=7.5, nx=12, ny=3, translations=(SHIFT,)))
+    for m, rr, both, d in modes_against_exact_oracle(scene, backend, ctx_for):
+        assert both.sum() > 50
+        assert d.max() < GRAZING_TOL[m], (m, d.max())
+
+
+@pytest.mark.parametrize("backend", BACKENDS)
+def test_sub_pixel_elements(backend, ctx_for):
+    scene = plate_scene(plate=Plate(width=4, height=3, nx=60, ny=45, translations=(SHIFT,)))  # ~0.45 px
+    for m, rr, both, d in modes_against_exact_oracle(scene, backend, ctx_for):
+        assert (rr.truth.mask ^ both).sum() <= 0.05 * both.sum()
         assert d.max() < (1e-6 if m == "exact" else 1e-3), (m, d.max())
 
 
