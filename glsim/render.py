@@ -70,10 +70,12 @@ def make_backend(name: str, reference_image: np.ndarray, ctx=None):
 class Renderer:
     """Renders one scene with one backend; holds the mesh, reference and backend resources."""
 
-    def __init__(self, scene: Scene, backend: str | None = None, ctx=None):
+    def __init__(self, scene: Scene, backend: str | None = None, ctx=None, mesh=None, reference=None):
+        """``mesh`` / ``reference`` replace the scene's specimen mesh and reference image
+        (e.g. a calibration target made in code); ``ctx`` shares a GL context."""
         self.scene = scene
-        self.mesh = specimen_mesh(scene)
-        self.reference = make_reference(scene, self.mesh)
+        self.mesh = mesh if mesh is not None else specimen_mesh(scene)
+        self.reference = reference if reference is not None else make_reference(scene, self.mesh)
         self.backend_name = backend or scene.render.backend
         self.backend = make_backend(self.backend_name, self.reference.image, ctx)
 

@@ -182,18 +182,9 @@ def custom_mesh_scene(nodes, quads, size=(120, 90), fx=1500.0, distortion=Distor
 
 
 def render_custom(scene, mesh, backend, ctx, step=0, **opts):
-    """Render a given mesh through a Renderer (mesh swapped in before the reference is made)."""
-    from glsim import reference as refmod
-    r = Renderer.__new__(Renderer)
-    r.scene, r.mesh = scene, mesh
-    r.reference = refmod.make_reference(scene, mesh)
-    r.backend_name = backend
-    from glsim.render import make_backend
-    r.backend = make_backend(backend, r.reference.image, ctx)
-    try:
+    """Render a given mesh (its reference image made from its undeformed nodes)."""
+    with Renderer(scene, backend, ctx=ctx, mesh=mesh) as r:
         return r.render(0, step, truth=True, **opts)
-    finally:
-        r.close()
 
 
 def grid_nodes(nx, ny, w, h, z):
