@@ -130,21 +130,61 @@ def rasterize(view: View, mode: str, s: int = 1) -> dict:
     return best
 
 
-def render_view(view: View, coeffs: np.ndarray, opts, truth: bool) -> tuple[np.ndarray, dict | None]:
-    """Image (H, W) float32 and, if asked, the pixel-centre raster of :func:`rasterize`.
+def _shade(view: View, r: dict, hit: np.ndarray, grey: np.ndarray, fx) -> np.ndarray:
+    """Phong lighting per sample (surface point and interpolated normal), combined with grey."""
+    from . import shade
 
-    ``opts`` is the scene's :class:`~glsim.scene.Render`; ``coeffs`` the prepared reference.
-    """
+    e, xi, eta = r["element"][hit], r["xi"][hit], r["eta"][hit]
+    X = bl.bilinear(view.Xd[e], xi, eta)
+    N = bl.bilinear(fx.normals[e], xi, eta)
+    norm = np.linalg.norm(N, axis=-1, keepdims=True)
+    N = np.divide(N, norm, out=np.zeros_like(N), where=norm > 0)
+    lit = fx.lighting
+    I = shade.phong(X, N, fx.lights, lit.ambient, lit.diffuse, lit.specular, lit.shininess)
+    return shade.combine(grey, I, lit.combine)
+
+
+def _box(a: np.ndarray, H: int, W: int, s: int) -> np.ndarray:
+    return a.reshape(H, s, W, s).mean(axis=(1, 3))
+
+
+def render_view(view: View, coeffs: np.ndarray, opts, truth: bool, fx=None):
+    """Image (H, W) float32, the pixel-centre raster of :func:`rasterize` if ``truth``, and
+    the list of stages run. ``opts`` is the scene's Render; ``fx`` the Effects."""
+    from .effects import Effects
+
+    fx = fx or Effects()
     W, H = view.camera.size
     s = opts.supersampling
+    stages = ["raster", "interpolate"]
     r = rasterize(view, opts.mode, s)
     hit = r["element"] >= 0
     grey = np.full(len(hit), float(opts.background))
     grey[hit] = interp.sample(coeffs, r["ref_uv"][hit], opts.interpolation)
-    image = grey.reshape(H, s, W, s).mean(axis=(1, 3)).astype(np.float32)
+    if fx.lighting is not None:
+        grey[hit] = _shade(view, r, hit, grey[hit], fx)
+        stages.append("light")
+    image = _box(grey, H, W, s) if s > 1 else grey.reshape(H, W)
+    if fx.blur:
+        from . import blur
+
+        z = np.where(hit, r["depth"], 0.0)
+        count = _box(hit.astype(float), H, W, s)
+        depth = np.divide(_box(z, H, W, s), count, out=np.zeros((H, W)), where=count > 0)
+        if fx.optics.kernel == "disk":
+            image = blur.blur_disk(image, blur.blur_sigma(depth, fx.optics))
+        else:
+            image = blur.blur_exact(image, blur.blur_sigma(depth, fx.optics))
+        stages.append("blur")
+    image = image.astype(np.float32)
+    if fx.noise is not None:
+        from . import noise
+
+        image = noise.add_noise(image, fx.noise, fx.bit_depth, fx.noise_seed, fx.variance)
+        stages.append("noise")
     if not truth:
-        return image, None
-    return image, (r if s == 1 else rasterize(view, opts.mode, 1))
+        return image, None, stages
+    return image, (r if s == 1 else rasterize(view, opts.mode, 1)), stages
 
 
 class CPUBackend:
@@ -155,10 +195,10 @@ class CPUBackend:
         self._image = reference_image
         self._coeffs: dict[str, np.ndarray] = {}
 
-    def render_view(self, view: View, opts, truth: bool = False):
+    def render_view(self, view: View, opts, truth: bool = False, effects=None):
         if opts.interpolation not in self._coeffs:
             self._coeffs[opts.interpolation] = interp.prepare(self._image, opts.interpolation, np.float64)
-        return render_view(view, self._coeffs[opts.interpolation], opts, truth)
+        return render_view(view, self._coeffs[opts.interpolation], opts, truth, effects)
 
     def close(self) -> None:
         self._coeffs.clear()

@@ -18,6 +18,7 @@ import numpy as np
 from .bilinear import bilinear
 from .camera import Camera, to_camera
 from .errors import SceneError
+from .effects import prepare as prepare_effects
 from .geometry import View, make_view
 from .oracle import CPUBackend
 from .reference import make_reference, specimen_mesh
@@ -55,6 +56,8 @@ class Result:
     options: Render
     seconds: float
     truth: Truth | None = None
+    stages: tuple[str, ...] = ()      # the pipeline stages / GL passes that ran
+    saturated: float = 0.0            # fraction of pixels below 0 or above full scale (clipped when written)
 
 
 def make_backend(name: str, reference_image: np.ndarray, ctx=None):
@@ -99,11 +102,14 @@ class Renderer:
         opts = self.scene.replace(render=options).render if options else self.scene.render
         t0 = time.perf_counter()
         view = self.view(camera, step)
-        image, raster = self.backend.render_view(view, opts, truth)
+        fx = prepare_effects(self.scene, self.mesh.deformed(step), self.mesh.quads, view.camera,
+                             self.scene.cameras.index(view.camera), step, view.Xd[..., 2])
+        image, raster, stages = self.backend.render_view(view, opts, truth, fx)
         seconds = time.perf_counter() - t0
         tr = self._truth(view, step, raster) if truth else None
         return Result(image=image, camera=view.camera, step=step, backend=self.backend_name,
-                      options=opts, seconds=seconds, truth=tr)
+                      options=opts, seconds=seconds, truth=tr, stages=tuple(stages),
+                      saturated=float(np.mean((image < 0) | (image > 1))))
 
     def _truth(self, view: View, step: int, raster: dict) -> Truth:
         W, H = view.camera.size

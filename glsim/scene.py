@@ -217,6 +217,113 @@ class Output:
                "include both {camera} and {step}, e.g. '{camera}_{step:04d}.{ext}'")
 
 
+LIGHT_COMBINE = ("additive", "multiplicative")
+NORMALS = ("smooth", "flat")
+KERNELS = ("gaussian", "disk")
+NOISE_MODELS = ("gaussian", "heteroscedastic", "poisson_gaussian")
+
+
+def _one_of(obj, key: str, name: str, allowed) -> None:
+    value = getattr(obj, name)
+    _check(value in allowed, f"{key}.{name}", f"{value!r} is not one of {allowed}",
+           f"use one of {', '.join(allowed)}")
+
+
+@dataclass(frozen=True)
+class Light:
+    """A point light, or a spotlight when ``direction`` is given (world frame, mm).
+
+    ``intensity`` I_i in fraction of full scale (the paper's Table 1, 80 grey levels of an
+    8-bit camera, is 80/255); ``attenuation`` k of 1/(1 + k d²) in 1/mm²; ``cutoff`` the
+    spot's half-angle and ``edge`` the width of its smooth edge inside the cutoff, degrees.
+    """
+    position: Vec3
+    intensity: float = 0.3
+    attenuation: float = 0.0
+    direction: Vec3 | None = None
+    cutoff: float = 180.0
+    edge: float = 0.0
+
+    def __post_init__(self):
+        _check(0 < self.cutoff <= 180, "cutoff", f"must lie in (0, 180] degrees, got {self.cutoff}",
+               "the spotlight's half-angle")
+        _check(0 <= self.edge <= self.cutoff, "edge", f"must lie in [0, cutoff], got {self.edge}",
+               "the smooth edge's width in degrees")
+        _check(self.attenuation >= 0, "attenuation", "must be ≥ 0", "k of 1/(1 + k d²), 1/mm²")
+        _check(self.direction is None or np.linalg.norm(self.direction) > 0, "direction",
+               "must not be zero", "give the spotlight's axis, or leave it out for a point light")
+
+
+@dataclass(frozen=True)
+class Lighting:
+    """Phong reflection (paper eqs. 10–13) combined with the speckle grey level.
+
+    ``combine = "additive"``: grey + I (the paper's model, grey levels added);
+    ``"multiplicative"``: grey × I (albedo × irradiance; I = 1 is the unlit brightness).
+    ``normals = "smooth"``: vertex normals averaged over adjacent elements and interpolated
+    (the paper's adapted Gouraud); ``"flat"``: one normal per element.
+    """
+    ambient: float = 0.0
+    lights: tuple[Light, ...] = ()
+    diffuse: float = 1.0
+    specular: float = 0.0
+    shininess: float = 1.0
+    normals: str = "smooth"
+    combine: str = "additive"
+
+    def __post_init__(self):
+        _one_of(self, "lighting", "normals", NORMALS)
+        _one_of(self, "lighting", "combine", LIGHT_COMBINE)
+        _check(self.shininess > 0, "lighting.shininess", "must be > 0", "the Phong exponent r")
+
+
+@dataclass(frozen=True)
+class Optics:
+    """Lens and aperture for depth of field (paper eqs. 14–19), mm.
+
+    ``focus_distance`` is measured along the optical axis (a point's distance is its
+    camera-frame depth); ``coc_px`` is the acceptable circle of confusion in pixels.
+    """
+    focal_length: float
+    f_number: float
+    focus_distance: float
+    pixel_pitch: float
+    coc_px: float = 1.0
+    kernel: str = "gaussian"
+
+    def __post_init__(self):
+        for name in ("focal_length", "f_number", "pixel_pitch", "coc_px"):
+            _check(getattr(self, name) > 0, f"optics.{name}", f"must be > 0, got {getattr(self, name)}",
+                   "give a positive value")
+        _check(self.focus_distance > self.focal_length, "optics.focus_distance",
+               f"must exceed the focal length ({self.focal_length} mm), got {self.focus_distance}",
+               "the focused distance in mm")
+        _one_of(self, "optics", "kernel", KERNELS)
+
+
+@dataclass(frozen=True)
+class Noise:
+    """Sensor noise before quantisation (paper §2.2.3 and beyond).
+
+    ``gaussian``: σ = ``sigma`` % of the dynamic range; ``heteroscedastic``: variance per
+    grey level (DN, DN²) from the CSV ``variance_file``; ``poisson_gaussian``: shot noise of
+    I·``full_well`` electrons plus ``read_noise`` electrons rms.
+    """
+    model: str = "gaussian"
+    sigma: float = 0.0
+    variance_file: str = ""
+    full_well: float = 10000.0
+    read_noise: float = 0.0
+
+    def __post_init__(self):
+        _one_of(self, "noise", "model", NOISE_MODELS)
+        _check(self.sigma >= 0, "noise.sigma", "must be ≥ 0", "percent of the dynamic range, e.g. 2")
+        _check(self.full_well > 0 and self.read_noise >= 0, "noise.full_well",
+               "full_well must be > 0 and read_noise ≥ 0", "electrons")
+        _check(self.model != "heteroscedastic" or bool(self.variance_file), "noise.variance_file",
+               "is required by the heteroscedastic model", "give a CSV of grey level;variance")
+
+
 @dataclass(frozen=True)
 class Stereo:
     """A camera relative to the first one (MatchID convention), mm and degrees:
@@ -286,6 +393,9 @@ class Scene:
     speckle: Speckle = field(default_factory=Speckle)
     render: Render = field(default_factory=Render)
     output: Output = field(default_factory=Output)
+    lighting: Lighting | None = None   # None: no lighting code runs
+    optics: Optics | None = None       # None: infinite depth of field, no blur pass
+    noise: Noise | None = None         # None: noise-free
     seed: int = 0
     base_dir: str = "."
 
@@ -298,6 +408,8 @@ class Scene:
                    f"{name!r} is already the name of cameras[{names.index(name)}]",
                    "give each camera a unique name")
         files = {"speckle.image": self.speckle.image} if self.speckle.image else {}
+        if self.noise is not None and self.noise.variance_file:
+            files["noise.variance_file"] = self.noise.variance_file
         mesh = self.specimen.mesh
         if mesh is not None:
             files["specimen.mesh.path"] = mesh.path
@@ -330,7 +442,9 @@ class Scene:
         changes = {}
         for name, value in sections.items():
             current = getattr(self, name)
-            if isinstance(value, dict):
+            if isinstance(value, dict) and current is None:   # an effect switched on
+                value = _build(typing.get_type_hints(Scene)[name].__args__[0], value, name)
+            elif isinstance(value, dict):
                 _reject_unknown(value, [f.name for f in dataclasses.fields(current) if f.init], name)
                 value = dataclasses.replace(current, **value)
             changes[name] = value
@@ -423,7 +537,8 @@ def _coerce(value, hint, key: str):
     return value
 
 
-SECTIONS = ("cameras", "specimen", "speckle", "render", "output", "seed")  # top level of a file
+SECTIONS = ("cameras", "specimen", "speckle", "render", "output", "lighting", "optics", "noise",
+            "seed")  # top level of a file
 
 # Values a TOML table may leave out although the dataclass requires them.
 TABLE_DEFAULTS = {Camera: {"name": "reference"}}

@@ -1,9 +1,15 @@
 // Grey value of each sample: map it to the reference image and interpolate (paper §2.1).
 // Compile-time choices: MODE_FAST | MODE_Q4 | MODE_EXACT, INTERP_*, SS (samples per pixel
-// per axis), FP64 (double arithmetic), TRUTH (also write the truth maps).
+// per axis), FP64 (double arithmetic), TRUTH (also write the truth maps), LIGHTING (Phong,
+// shade.glsl), DEPTH_OUT (write camera-frame depth Z at DEPTH_LOCATION, for depth of field).
 #include "camera.glsl"
 #include "interp.glsl"
 #include "bilinear.glsl"
+#ifdef LIGHTING
+#include "shade.glsl"
+// per element: corners in the camera frame (12) and corner normals (12), float32
+layout(std430, binding = 1) readonly buffer Shading { float shade_data[]; };
+#endif
 
 uniform vec2 u_ref_size;  // reference image W, H (px)
 uniform float u_far;      // depth range (mm): gl_FragDepth = Z / u_far
@@ -11,6 +17,7 @@ uniform float u_far;      // depth range (mm): gl_FragDepth = Z / u_far
 #if defined(MODE_FAST)
 in vec2 v_ref;
 in vec2 v_xe;
+in float v_depth;
 #else
 // Per-element data written by glsim/gl/backend.py (element_data), float64 or float32 as `real`.
 layout(std430, binding = 0) readonly buffer Elements { real elem_data[]; };
@@ -31,6 +38,24 @@ layout(location = 0) out float out_grey;
 layout(location = 1) out vec4 out_map;     // ref u, ref v, xi, eta (float32)
 layout(location = 2) out vec4 out_extra;   // element + 1, ref u and v rounding residuals
 #endif
+#ifdef DEPTH_OUT
+layout(location = DEPTH_LOCATION) out float out_depth;  // camera-frame Z (mm)
+#endif
+
+#ifdef LIGHTING
+// Phong intensity at (xi, eta) of element e: surface point and interpolated unit normal.
+float light_at(int e, real xi, real eta) {
+    vec4 w = vec4(shape_functions(xi, eta));
+    vec3 X = vec3(0.0), N = vec3(0.0);
+    for (int i = 0; i < 4; ++i) {
+        int b = e * 24 + 3 * i;
+        X += w[i] * vec3(shade_data[b], shade_data[b + 1], shade_data[b + 2]);
+        N += w[i] * vec3(shade_data[b + 12], shade_data[b + 13], shade_data[b + 14]);
+    }
+    float n = length(N);
+    return phong(X, n > 0.0 ? N / n : vec3(0.0));
+}
+#endif
 
 void main() {
     real xi, eta;
@@ -39,6 +64,7 @@ void main() {
     ref = real2(v_ref);
     xi = v_xe.x;
     eta = v_xe.y;
+    float Z = v_depth;
 #else
     real2 px = real2(gl_FragCoord.xy) / real(SS) - 0.5;  // this sample's pixel coordinates
 #if defined(MODE_Q4)
@@ -72,7 +98,14 @@ void main() {
 #endif
     if (ref.x < -0.5 || ref.y < -0.5 || ref.x > real(u_ref_size.x) - 0.5 || ref.y > real(u_ref_size.y) - 0.5)
         discard;
-    out_grey = sample_ref(ref);
+    float grey = sample_ref(ref);
+#ifdef LIGHTING
+    grey = combine(grey, light_at(v_elem, xi, eta));
+#endif
+    out_grey = grey;
+#ifdef DEPTH_OUT
+    out_depth = float(Z);
+#endif
 #ifdef TRUTH
     vec2 ref32 = vec2(ref);
     out_map = vec4(ref32, float(xi), float(eta));

@@ -14,6 +14,7 @@ uniform float u_far;  // depth range (mm)
 
 out vec2 v_ref;
 out vec2 v_xe;
+out float v_depth;   // camera-frame Z, perspective-correct
 flat out int v_elem;
 
 void main() {
@@ -26,5 +27,6 @@ void main() {
     gl_Position = vec4(ndc * w, (2.0 * w / u_far - 1.0) * w, w);  // w = Z: perspective-correct
     v_ref = in_ref;
     v_xe = in_xe;
+    v_depth = in_pos.z;
     v_elem = in_elem;
 }

@@ -8,6 +8,7 @@ from __future__ import annotations
 import numpy as np
 
 from .. import interp
+from ..effects import blur_radius_px
 from ..geometry import View
 from .context import check_error, create_context
 from .programs import ProgramCache
@@ -16,14 +17,22 @@ _CORNER_XE = np.array([[-1, -1], [1, -1], [1, 1], [-1, 1]], np.float32)
 _TRIANGLES = np.array([0, 1, 2, 0, 2, 3], np.int32)
 
 
-def program_defines(opts, truth: bool, fp64: bool) -> dict:
-    """The #defines of the deformation program for these render options."""
+def program_defines(opts, truth: bool, fp64: bool, fx=None) -> dict:
+    """The #defines of the deformation program for these render options and effects."""
     d = {f"MODE_{opts.mode.upper()}": None, f"INTERP_{opts.interpolation.upper()}": None,
          "SS": opts.supersampling}
     if opts.precision == "fp64" and fp64 and opts.mode != "fast":
         d["FP64"] = None
     if truth:
         d["TRUTH"] = None
+    if fx is not None and fx.lighting is not None:
+        d["LIGHTING"] = None
+        d["MAX_LIGHTS"] = max(1, len(fx.lighting.lights))
+        if fx.lighting.combine == "multiplicative":
+            d["LIGHT_MULTIPLICATIVE"] = None
+    if fx is not None and fx.blur:
+        d["DEPTH_OUT"] = None
+        d["DEPTH_LOCATION"] = 3 if truth else 1
     return d
 
 
@@ -35,6 +44,30 @@ def element_data(view: View, mode: str, dtype) -> np.ndarray:
     else:
         parts = [view.Xd.reshape(M, 12), view.Xr.reshape(M, 12)]
     return np.ascontiguousarray(np.concatenate(parts, axis=1), dtype=dtype)
+
+
+def shading_data(view: View, normals: np.ndarray) -> np.ndarray:
+    """Per-element lighting payload (float32): corners in the camera frame (12), normals (12)."""
+    M = len(view.Xd)
+    return np.ascontiguousarray(np.concatenate([view.Xd.reshape(M, 12), normals.reshape(M, 12)], 1),
+                                dtype=np.float32)
+
+
+def _light_uniforms(fx) -> dict:
+    """Uniform name → float32 array for shade.glsl (lights padded to MAX_LIGHTS ≥ 1)."""
+    L, lit = fx.lights, fx.lighting
+    n = max(1, len(L.intensity))
+
+    def pad(a, width):
+        out = np.zeros((n, width) if width > 1 else n, np.float32)
+        out[:len(a)] = a
+        return out
+
+    return {"u_light_pos": pad(L.pos, 3), "u_light_dir": pad(L.dir, 3),
+            "u_light_intensity": pad(L.intensity, 1), "u_light_att": pad(L.attenuation, 1),
+            "u_light_cos_cutoff": pad(L.cos_cutoff, 1), "u_light_cos_inner": pad(L.cos_inner, 1),
+            "u_ambient": np.float32(lit.ambient), "u_kr": np.float32(lit.diffuse),
+            "u_ks": np.float32(lit.specular), "u_shininess": np.float32(lit.shininess)}
 
 
 class GLBackend:
@@ -59,13 +92,16 @@ class GLBackend:
             self._textures[method] = tex
         return self._textures[method]
 
-    def _target(self, width: int, height: int, truth: bool):
-        key = (width, height, truth)
+    def _target(self, width: int, height: int, truth: bool, depth_out: bool):
+        """Cached deformation-pass framebuffer: grey, truth maps (if asked), depth Z (if asked)."""
+        key = (width, height, truth, depth_out)
         if key not in self._targets:
             ctx = self.ctx
             color = [ctx.texture((width, height), 1, dtype="f4")]
             if truth:
                 color += [ctx.texture((width, height), 4, dtype="f4"), ctx.texture((width, height), 4, dtype="f4")]
+            if depth_out:
+                color.append(ctx.texture((width, height), 1, dtype="f4"))
             depth = ctx.depth_renderbuffer((width, height))
             self._targets[key] = (ctx.framebuffer(color_attachments=color, depth_attachment=depth), color, depth)
         return self._targets[key]
@@ -121,23 +157,50 @@ class GLBackend:
         index = (drawn[:, None] * 4 + _TRIANGLES[None]).astype(np.int32).ravel()
         return verts, index, layout, attrs
 
-    def render_view(self, view: View, opts, truth: bool = False):
-        """Image (H, W) float32 and, if asked, the pixel-centre raster (as the CPU backend)."""
-        image = self._pass(view, opts, opts.supersampling, truth and opts.supersampling == 1)
-        raster = None
-        if truth:
-            if opts.supersampling == 1:
-                image, raster = image
-            else:
-                from dataclasses import replace
-                _, raster = self._pass(view, replace(opts, samples_per_pixel=1), 1, True)
-        return image, raster
+    def render_view(self, view: View, opts, truth: bool = False, effects=None):
+        """Image (H, W) float32, the pixel-centre raster if ``truth`` (as the CPU backend), and
+        the list of passes run."""
+        from ..effects import Effects
 
-    def _pass(self, view: View, opts, s: int, truth: bool):
+        fx = effects or Effects()
+        s = opts.supersampling
+        W, H = view.camera.size
+        color, raster = self._deform(view, opts, s, truth and s == 1, fx)
+        stages = ["deform"]
+        grey, depth, temps = color[0], (color[-1] if fx.blur else None), []
+        if s > 1:
+            grey, depth = self._downsample(grey, depth, W, H, s)
+            temps += [grey] + ([depth] if depth is not None else [])
+            stages.append("downsample")
+        if fx.blur:
+            kernel = fx.optics.kernel
+            passes = ("BLUR_DISK",) if kernel == "disk" else ("BLUR_HORIZONTAL", "BLUR_VERTICAL")
+            for name in passes:
+                grey = self._fullscreen("blur.frag", {name: None, "MAX_RADIUS": blur_radius_px(fx.sigma_max, kernel)},
+                                        {"u_src": grey, "u_depth": depth}, _optics_uniforms(fx.optics), W, H)
+                temps.append(grey)
+                stages.append(name.lower())
+        if fx.noise is not None:
+            grey = self._noise(grey, fx, W, H)
+            temps.append(grey)
+            stages.append("noise")
+        image = np.frombuffer(grey.read(), np.float32).reshape(H, W).copy()
+        check_error(self.ctx, "post-processing passes")
+        self._unbind()
+        for t in temps:
+            t.release()
+        if truth and s > 1:
+            from dataclasses import replace
+            _, raster = self._deform(view, replace(opts, samples_per_pixel=1), 1, True, Effects())
+        return image, raster, stages
+
+    def _deform(self, view: View, opts, s: int, truth: bool, fx):
+        """The deformation pass into the cached target; returns its color textures and, if
+        ``truth``, the read-back raster."""
         ctx = self.ctx
         W, H = view.camera.size
         cam, ref_cam = view.camera, view.ref_camera
-        defines = program_defines(opts, truth, self.fp64)
+        defines = program_defines(opts, truth, self.fp64, fx)
         fp64 = "FP64" in defines
         vert = "exact.vert" if opts.mode == "exact" else "deform.vert"
         prog = self.programs.program(vert, "deform.frag", defines=defines)
@@ -151,6 +214,13 @@ class GLBackend:
                             ("u_ref_size", tuple(float(x) for x in ref_cam.size))):
             if name in prog:
                 prog[name].value = value
+        buffers = []
+        if fx.lighting is not None:
+            for name, value in _light_uniforms(fx).items():
+                if name in prog:
+                    prog[name].write(np.ascontiguousarray(value).tobytes())
+            buffers.append(ctx.buffer(shading_data(view, fx.normals).tobytes()))
+            buffers[-1].bind_to_storage_buffer(1)
         tex = self._reference_texture(opts.interpolation)
         tex.use(0)
         if "u_ref" in prog:
@@ -158,22 +228,23 @@ class GLBackend:
 
         verts, index, layout, attrs = self._geometry(view, opts.mode)
         vbo = ctx.buffer(verts.tobytes())
-        ibo = ctx.buffer(index.tobytes()) if len(index) else None
-        ssbo = None
+        buffers.append(vbo)
         if opts.mode != "fast":
-            ssbo = ctx.buffer(element_data(view, opts.mode, np.float64 if fp64 else np.float32).tobytes())
-            ssbo.bind_to_storage_buffer(0)
-        fbo, color, _ = self._target(W * s, H * s, truth)
+            buffers.append(ctx.buffer(element_data(view, opts.mode, np.float64 if fp64 else np.float32).tobytes()))
+            buffers[-1].bind_to_storage_buffer(0)
+        fbo, color, _ = self._target(W * s, H * s, truth, "DEPTH_OUT" in defines)
         fbo.use()
         fbo.viewport = (0, 0, W * s, H * s)
         ctx.enable(ctx.DEPTH_TEST)
         ctx.disable(ctx.CULL_FACE)
         fbo.clear(depth=1.0)
-        # clear the grey target to the background; truth targets to zero
+        # the grey target starts at the background; truth and depth targets at zero
         color[0].write(np.full((H * s, W * s), opts.background, np.float32).tobytes())
         for t in color[1:]:
-            t.write(np.zeros((H * s, W * s, 4), np.float32).tobytes())
-        if ibo is not None:
+            t.write(np.zeros((H * s, W * s, t.components), np.float32).tobytes())
+        if len(index):
+            ibo = ctx.buffer(index.tobytes())
+            buffers.append(ibo)
             # attributes the compiled program does not use become padding
             fmt = " ".join(f if a in prog else f"{int(f[:-1]) * 4}x" for f, a in zip(layout.split(), attrs))
             used = [a for a in attrs if a in prog]
@@ -182,36 +253,68 @@ class GLBackend:
             vao.release()
         ctx.disable(ctx.DEPTH_TEST)
         check_error(ctx, f"deformation pass ({opts.mode})")
-        for b in (vbo, ibo, ssbo):
-            if b is not None:
-                b.release()
-
-        if s > 1:
-            grey = self._downsample(color[0], W, H, s)
-        else:
-            grey = np.frombuffer(color[0].read(), np.float32).reshape(H, W).copy()
+        for b in buffers:
+            b.release()
         if not truth:
-            return grey
+            return color, None
         m = np.frombuffer(color[1].read(), np.float32).reshape(H * W, 4).astype(np.float64)
         x = np.frombuffer(color[2].read(), np.float32).reshape(H * W, 4).astype(np.float64)
         elem = np.rint(x[:, 0]).astype(np.int64) - 1
-        raster = {"element": elem, "xi": m[:, 2], "eta": m[:, 3], "ref_uv": m[:, :2] + x[:, 1:3]}
-        return grey, raster
+        return color, {"element": elem, "xi": m[:, 2], "eta": m[:, 3], "ref_uv": m[:, :2] + x[:, 1:3]}
 
-    def _downsample(self, samples, W: int, H: int, s: int) -> np.ndarray:
+    def _fullscreen(self, frag: str, defines: dict, textures: dict, uniforms: dict, W: int, H: int):
+        """Run a full-screen pass into a new R32F W×H texture (the caller releases it)."""
         ctx = self.ctx
-        prog = self.programs.program("fullscreen.vert", "downsample.frag", defines={"SS": s})
+        prog = self.programs.program("fullscreen.vert", frag, defines=defines)
         out = ctx.texture((W, H), 1, dtype="f4")
         fbo = ctx.framebuffer(color_attachments=[out])
         fbo.use()
         fbo.viewport = (0, 0, W, H)
-        samples.use(0)
-        prog["u_samples"].value = 0
+        for unit, (name, tex) in enumerate(textures.items()):
+            if name in prog:
+                tex.use(unit)
+                prog[name].value = unit
+        for name, value in uniforms.items():
+            if name in prog:
+                prog[name].value = value
         vao = ctx.vertex_array(prog, [])
         vao.render(ctx.TRIANGLES, vertices=3)
-        grey = np.frombuffer(out.read(), np.float32).reshape(H, W).copy()
-        check_error(ctx, "box-filter pass")
+        check_error(ctx, f"pass {frag} {sorted(defines)}")
         self._unbind()
-        for obj in (vao, fbo, out):
-            obj.release()
-        return grey
+        vao.release()
+        fbo.release()
+        return out
+
+    def _downsample(self, samples, depth, W: int, H: int, s: int):
+        """Box filter over s×s samples: grey, and the mean depth of covered samples if given."""
+        grey = self._fullscreen("downsample.frag", {"SS": s}, {"u_samples": samples}, {}, W, H)
+        if depth is None:
+            return grey, None
+        return grey, self._fullscreen("downsample.frag", {"SS": s, "COVERED_MEAN": None},
+                                      {"u_samples": depth}, {}, W, H)
+
+    def _noise(self, grey, fx, W: int, H: int):
+        from .. import noise
+
+        nz = fx.noise
+        model = nz.model.upper()
+        uniforms = {"u_seed": int(fx.noise_seed), "u_width": W,
+                    "u_noise_sigma": nz.sigma / 100.0, "u_full_well": float(nz.full_well),
+                    "u_read_noise": float(nz.read_noise), "u_dn_max": float((1 << fx.bit_depth) - 1)}
+        textures = {"u_src": grey}
+        table = None
+        if nz.model == "heteroscedastic":
+            var = np.asarray(noise.variance_per_level(fx.variance, fx.bit_depth), np.float32)
+            table = self.ctx.texture((len(var), 1), 1, var.tobytes(), dtype="f4")
+            table.filter = (self.ctx.NEAREST, self.ctx.NEAREST)
+            textures["u_variance"] = table
+        out = self._fullscreen("noise.frag", {f"NOISE_{model}": None}, textures, uniforms, W, H)
+        if table is not None:
+            table.release()
+        return out
+
+
+def _optics_uniforms(optics) -> dict:
+    return {"u_focal_length": float(optics.focal_length), "u_f_number": float(optics.f_number),
+            "u_focus_distance": float(optics.focus_distance), "u_pixel_pitch": float(optics.pixel_pitch),
+            "u_coc_px": float(optics.coc_px)}
