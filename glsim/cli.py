@@ -7,7 +7,7 @@ import time
 from pathlib import Path
 
 from .errors import GlsimError
-from .scene import BACKENDS, MODES, bulge_scene, load_scene
+from .scene import BACKENDS, MODES, bulge_scene, demo_effects, load_scene
 
 
 def _progress(done: int, total: int, path: str) -> None:
@@ -66,7 +66,11 @@ def cmd_info(args) -> int:
 
 def cmd_demo(args) -> int:
     scene = _overrides(bulge_scene(size=tuple(args.size), steps=args.n_steps), args)
-    return _run(scene, args.output, args, "glsim demo (bulge test, paper Tables 2-3)")
+    label = "glsim demo (bulge test, paper Tables 2-3"
+    if args.effects:
+        scene = demo_effects(scene)
+        label += "; spotlight, f/2 depth of field, 2 % noise"
+    return _run(scene, args.output, args, label + ")")
 
 
 def cmd_render(args) -> int:
@@ -98,6 +102,8 @@ def parser() -> argparse.ArgumentParser:
     d.add_argument("--n-steps", type=int, default=3, help="load steps after the reference state")
     d.add_argument("--size", type=int, nargs=2, default=(1624, 1234), metavar=("W", "H"),
                    help="image size in px (the rig scales with it)")
+    d.add_argument("--effects", action="store_true",
+                   help="lit, slightly defocused and noisy variant (paper §2.2)")
     _common(d)
     d.set_defaults(func=cmd_demo)
     r = sub.add_parser("render", help="render a scene file")

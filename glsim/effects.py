@@ -5,7 +5,6 @@ lighting, blur or noise code and compile no such shader.
 """
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 
 import typing
@@ -92,7 +91,3 @@ def _light_dict(light) -> dict:
     return {"position": light.position, "direction": light.direction, "intensity": light.intensity,
             "attenuation": light.attenuation, "cutoff_deg": light.cutoff, "edge_deg": light.edge}
 
-
-def blur_radius_px(sigma_max: float, kernel: str) -> int:
-    """Loop bound of the blur shaders: 3σ for the Gaussian, the radius (+1 px edge) for a disk."""
-    return int(math.ceil(3 * sigma_max if kernel == "gaussian" else sigma_max + 1))

@@ -641,3 +641,22 @@ def bulge_scene(size=(1624, 1234), steps: int = 3, **render) -> Scene:
     Rp = np.array([[math.cos(half), 0, -math.sin(half)], [0, 1, 0], [math.sin(half), 0, math.cos(half)]])
     specimen = Specimen(bulge=Bulge(steps=steps), R=_tuple(Rp), t=(0.0, 0.0, 600.0))
     return Scene(cameras=(cam0, cam1), specimen=specimen, render=Render(**render))
+
+
+def demo_effects(scene: Scene) -> Scene:
+    """``scene`` lit, slightly defocused and noisy, as in the paper's §2.2 and Table 1.
+
+    A spotlight beside camera 1 aimed at the plate centre with the paper's Table 1 values
+    (I_a = −10, I_i = 80 grey levels of 8 bit, shininess 400; k_r = 1, k_s = 0.5), 30 mm f/2
+    lenses with 4.4 µm pixels focused at 600 mm (the 5 mm bulge is ~1.5 px out of focus), and
+    2 % Gaussian noise.
+    """
+    fx = scene.cameras[0].fx
+    pitch = 30.0 / fx  # the rig's lenses are 30 mm: pixel pitch that gives its fx
+    light = Light(position=(-150.0, -200.0, 0.0), intensity=80 / 255, direction=(150.0, 200.0, 600.0),
+                  cutoff=20.0, edge=5.0)
+    return dataclasses.replace(
+        scene,
+        lighting=Lighting(ambient=-10 / 255, lights=(light,), diffuse=1.0, specular=0.5, shininess=400.0),
+        optics=Optics(focal_length=30.0, f_number=2.0, focus_distance=600.0, pixel_pitch=pitch),
+        noise=Noise(model="gaussian", sigma=2.0))

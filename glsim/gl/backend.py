@@ -8,7 +8,8 @@ from __future__ import annotations
 import numpy as np
 
 from .. import interp
-from ..effects import blur_radius_px
+from .. import noise
+from ..blur import kernel_radius, shader_uniforms
 from ..geometry import View
 from .context import check_error, create_context
 from .programs import ProgramCache
@@ -74,11 +75,12 @@ class GLBackend:
     """OpenGL renderer over one EGL context (its own, or a shared one passed in)."""
     name = "gl"
 
-    def __init__(self, reference_image: np.ndarray, ctx=None):
+    def __init__(self, reference_image: np.ndarray, ctx=None, shader_dirs: tuple = ()):
+        """``shader_dirs`` are searched before the packaged shaders (tests add their own)."""
         self._own_ctx = ctx is None
         self.ctx = ctx if ctx is not None else create_context()
         self.fp64 = "GL_ARB_gpu_shader_fp64" in self.ctx.extensions
-        self.programs = ProgramCache(self.ctx)
+        self.programs = ProgramCache(self.ctx, shader_dirs)
         self._image = reference_image
         self._textures: dict[str, object] = {}
         self._targets: dict[tuple, tuple] = {}
@@ -176,17 +178,15 @@ class GLBackend:
             kernel = fx.optics.kernel
             passes = ("BLUR_DISK",) if kernel == "disk" else ("BLUR_HORIZONTAL", "BLUR_VERTICAL")
             for name in passes:
-                grey = self._fullscreen("blur.frag", {name: None, "MAX_RADIUS": blur_radius_px(fx.sigma_max, kernel)},
-                                        {"u_src": grey, "u_depth": depth}, _optics_uniforms(fx.optics), W, H)
+                grey = self.fullscreen_pass("blur.frag", {name: None, "MAX_RADIUS": int(kernel_radius(fx.sigma_max, kernel))},
+                                            {"u_src": grey, "u_depth": depth}, shader_uniforms(fx.optics), (W, H))
                 temps.append(grey)
                 stages.append(name.lower())
         if fx.noise is not None:
-            grey = self._noise(grey, fx, W, H)
+            grey = self.noise_pass(grey, fx.noise, fx.bit_depth, fx.noise_seed, fx.variance)
             temps.append(grey)
             stages.append("noise")
-        image = np.frombuffer(grey.read(), np.float32).reshape(H, W).copy()
-        check_error(self.ctx, "post-processing passes")
-        self._unbind()
+        image = self.read(grey)
         for t in temps:
             t.release()
         if truth and s > 1:
@@ -262,59 +262,58 @@ class GLBackend:
         elem = np.rint(x[:, 0]).astype(np.int64) - 1
         return color, {"element": elem, "xi": m[:, 2], "eta": m[:, 3], "ref_uv": m[:, :2] + x[:, 1:3]}
 
-    def _fullscreen(self, frag: str, defines: dict, textures: dict, uniforms: dict, W: int, H: int):
-        """Run a full-screen pass into a new R32F W×H texture (the caller releases it)."""
+    def fullscreen_pass(self, frag: str, defines: dict, inputs: dict, uniforms: dict, size: tuple[int, int]):
+        """Run a full-screen fragment pass into a new R32F texture of ``size`` (W, H); the
+        caller releases it. ``inputs`` maps sampler names to textures or float arrays (H, W)
+        (arrays are uploaded for the pass and released after it)."""
         ctx = self.ctx
+        W, H = size
         prog = self.programs.program("fullscreen.vert", frag, defines=defines)
-        out = ctx.texture((W, H), 1, dtype="f4")
-        fbo = ctx.framebuffer(color_attachments=[out])
-        fbo.use()
-        fbo.viewport = (0, 0, W, H)
-        for unit, (name, tex) in enumerate(textures.items()):
+        uploaded = []
+        for unit, (name, tex) in enumerate(inputs.items()):
+            if isinstance(tex, np.ndarray):
+                a = np.ascontiguousarray(tex, np.float32)
+                tex = ctx.texture(a.shape[::-1], 1, a.tobytes(), dtype="f4")
+                tex.filter = (ctx.NEAREST, ctx.NEAREST)
+                uploaded.append(tex)
             if name in prog:
                 tex.use(unit)
                 prog[name].value = unit
         for name, value in uniforms.items():
             if name in prog:
                 prog[name].value = value
+        out = ctx.texture((W, H), 1, dtype="f4")
+        fbo = ctx.framebuffer(color_attachments=[out])
+        fbo.use()
+        fbo.viewport = (0, 0, W, H)
         vao = ctx.vertex_array(prog, [])
         vao.render(ctx.TRIANGLES, vertices=3)
         check_error(ctx, f"pass {frag} {sorted(defines)}")
         self._unbind()
-        vao.release()
-        fbo.release()
+        for obj in (vao, fbo, *uploaded):
+            obj.release()
         return out
+
+    @staticmethod
+    def read(tex) -> np.ndarray:
+        """An R32F texture as a float32 (H, W) array."""
+        W, H = tex.size
+        return np.frombuffer(tex.read(), np.float32).reshape(H, W).copy()
 
     def _downsample(self, samples, depth, W: int, H: int, s: int):
         """Box filter over s×s samples: grey, and the mean depth of covered samples if given."""
-        grey = self._fullscreen("downsample.frag", {"SS": s}, {"u_samples": samples}, {}, W, H)
+        grey = self.fullscreen_pass("downsample.frag", {"SS": s}, {"u_samples": samples}, {}, (W, H))
         if depth is None:
             return grey, None
-        return grey, self._fullscreen("downsample.frag", {"SS": s, "COVERED_MEAN": None},
-                                      {"u_samples": depth}, {}, W, H)
+        return grey, self.fullscreen_pass("downsample.frag", {"SS": s, "COVERED_MEAN": None},
+                                          {"u_samples": depth}, {}, (W, H))
 
-    def _noise(self, grey, fx, W: int, H: int):
-        from .. import noise
-
-        nz = fx.noise
-        model = nz.model.upper()
-        uniforms = {"u_seed": int(fx.noise_seed), "u_width": W,
-                    "u_noise_sigma": nz.sigma / 100.0, "u_full_well": float(nz.full_well),
-                    "u_read_noise": float(nz.read_noise), "u_dn_max": float((1 << fx.bit_depth) - 1)}
-        textures = {"u_src": grey}
-        table = None
-        if nz.model == "heteroscedastic":
-            var = np.asarray(noise.variance_per_level(fx.variance, fx.bit_depth), np.float32)
-            table = self.ctx.texture((len(var), 1), 1, var.tobytes(), dtype="f4")
-            table.filter = (self.ctx.NEAREST, self.ctx.NEAREST)
-            textures["u_variance"] = table
-        out = self._fullscreen("noise.frag", {f"NOISE_{model}": None}, textures, uniforms, W, H)
-        if table is not None:
-            table.release()
-        return out
-
-
-def _optics_uniforms(optics) -> dict:
-    return {"u_focal_length": float(optics.focal_length), "u_f_number": float(optics.f_number),
-            "u_focus_distance": float(optics.focus_distance), "u_pixel_pitch": float(optics.pixel_pitch),
-            "u_coc_px": float(optics.coc_px)}
+    def noise_pass(self, grey, params, bit_depth: int, seed: int, table=None):
+        """noise.frag on an R32F texture or (H, W) array: grey + σ(grey)·z, the same field as
+        :func:`glsim.noise.add_noise`."""
+        inputs = {"u_src": grey}
+        if params.model == "heteroscedastic":
+            inputs["u_variance"] = noise.variance_texture(table, bit_depth)
+        H, W = grey.shape if isinstance(grey, np.ndarray) else grey.size[::-1]
+        uniforms = {**noise.shader_uniforms(params, bit_depth), "u_seed": int(seed), "u_width": W}
+        return self.fullscreen_pass("noise.frag", noise.shader_defines(params), inputs, uniforms, (W, H))

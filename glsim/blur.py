@@ -1,0 +1,246 @@
+"""Depth of field (reference paper §2.2.2, eqs. 14–19) and the depth-dependent blur, numpy float64.
+
+The GLSL twin is ``shaders/dof.glsl`` (``coc_px``, ``blur_sigma``, ``blur_radius``, same names
+and formulas) with ``shaders/blur.frag`` (the passes that ``blur_separable`` and ``blur_disk``
+mirror). Lengths in millimetres, blur sizes in pixels.
+
+Optics parameters are read by attribute name from any object (a frozen dataclass, a
+``SimpleNamespace``) or from a mapping: ``focal_length`` f (mm), ``f_number`` N,
+``focus_distance`` D (mm, along the optical axis: a surface point's distance is its
+camera-frame depth Z), ``pixel_pitch`` (mm), ``coc_px`` (acceptable circle of confusion in
+pixels, default 1: the paper takes the pixel size) and ``kernel`` ("gaussian", default, or
+"disk").
+
+Choices made here (the paper leaves them open):
+
+- **In focus** means CoC ≤ the acceptable circle of confusion (the paper's definition: "every
+  point in the DOF will have a blur spot smaller than the acceptable circle of confusion");
+  such pixels get σ = 0 and are copied unchanged. This band is evaluated with eq. 19 itself, so
+  it differs slightly from eqs. 14–15, which are the usual D ≫ f approximations (f = 30 mm,
+  N = 8, c = 4.4 µm, D = 600 mm: eqs. 14–15 give [586.26, 614.40] mm, CoC ≤ c holds on
+  [586.93, 613.70] mm = [DH/(D+H−f), D(H−2f)/(H−f−D)]).
+- **Gaussian σ = CoC/2** (in pixels): the paper convolves "with a Gaussian kernel, where the
+  kernel size is equal to the size of the circle of confusion"; we read the blur-spot diameter
+  as 2σ. The kernel is truncated to the square window |dx|, |dy| ≤ R = ceil(3σ) and
+  renormalised (also where the window is clipped by the image border).
+- **Disk radius = CoC/2**: a uniform aperture (beyond the paper), antialiased weight
+  clamp(r + 0.5 − |d|, 0, 1), window |dx|, |dy| ≤ ceil(r).
+- **Gather**, not scatter: the output pixel's own σ (from its own depth) sets its kernel. This
+  is what a one-texture-lookup-per-tap fragment shader can do; it blurs the in-focus side of a
+  depth discontinuity less than a physical scatter would.
+- Eq. 19 takes the similar triangles with apex at the sensor (V_D in the denominator); a thin
+  lens has its apex at the image point V_P, which gives CoC = f²|P − D| / (N P (D − f)) (1 %
+  smaller at P = 500 mm, D = 600 mm). We follow the paper.
+"""
+from __future__ import annotations
+
+from collections.abc import Mapping
+
+import numpy as np
+
+KERNELS = ("gaussian", "disk")
+TRUNCATE = 3.0  # the Gaussian is cut at R = ceil(TRUNCATE·σ)
+
+
+def _param(optics, name, default=None):
+    if isinstance(optics, Mapping):
+        value = optics.get(name, default)
+    else:
+        value = getattr(optics, name, default)
+    if value is None:
+        raise ValueError(f"optics.{name} is missing — give it ({_UNITS[name]})")
+    return value
+
+
+_UNITS = {"focal_length": "mm", "f_number": "the f-number N", "focus_distance": "mm",
+          "pixel_pitch": "mm per pixel", "coc_px": "pixels", "kernel": "'gaussian' or 'disk'"}
+
+
+# ---------------------------------------------------------------------------- optics (14–19)
+
+def hyperfocal(f, N, c_mm):
+    """Hyperfocal distance H = f²/(N c) + f (eq. 16), mm."""
+    return f * f / (N * c_mm) + f
+
+
+def dof_limits(D, H):
+    """Near and far limits of the depth of field (eqs. 14–15): D⁻ = DH/(H + D), D⁺ = DH/(H − D).
+
+    D⁺ is finite only for D < H and infinite for D ≥ H (focused at or beyond the hyperfocal
+    distance, everything from D⁻ on is sharp). The paper's text has the condition backwards
+    ("only valid if H is smaller than D"): for H < D its formula would give a negative distance.
+    Vectorised over D and H.
+    """
+    D = np.asarray(D, dtype=np.float64)
+    H = np.asarray(H, dtype=np.float64)
+    near = D * H / (H + D)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        far = np.where(D < H, D * H / np.where(D < H, H - D, 1.0), np.inf)
+    if near.ndim == 0:
+        return float(near), float(far)
+    return near, far
+
+
+def coc_mm(P, D, f, N):
+    """Blur-spot (circle of confusion) diameter in mm on the sensor of a point at distance P
+    when focused at D (eqs. 17–19): V_D = fD/(D − f), V_P = fP/(P − f),
+    CoC = |V_D − V_P|·f/(N·V_D).
+
+    Evaluated in the algebraically equal form CoC = f²|P − D| / (N (P − f) D), which has no
+    cancellation (V_D − V_P = f²(P − D)/((D − f)(P − f))); the GLSL twin uses the same form in
+    float. Valid for P > f and D > f. Vectorised over P (and the others).
+    """
+    P = np.asarray(P, dtype=np.float64)
+    return f * f * np.abs(P - D) / (N * (P - f) * D)
+
+
+def coc_px(Z, optics):
+    """Circle of confusion in pixels at camera-frame depth Z (mm): coc_mm / pixel_pitch."""
+    return coc_mm(Z, _param(optics, "focus_distance"), _param(optics, "focal_length"),
+                  _param(optics, "f_number")) / _param(optics, "pixel_pitch")
+
+
+def _blur_size(Z, optics):
+    """CoC/2 in pixels outside the in-focus band, 0 inside it and where Z ≤ 0."""
+    Z = np.asarray(Z, dtype=np.float64)
+    f = _param(optics, "focal_length")
+    if np.any((Z > 0) & (Z <= f)):
+        raise ValueError(f"depth Z in (0, f = {f} mm]: a surface closer than the focal length "
+                         "has no real image — use Z ≤ 0 for 'no surface'")
+    surface = Z > 0
+    c = coc_px(np.where(surface, Z, 2 * f + 1.0), optics)
+    return np.where(surface & (c > _param(optics, "coc_px", 1.0)), 0.5 * c, 0.0)
+
+
+def blur_sigma(Z, optics):
+    """Gaussian σ (px) per pixel from its depth Z (mm): CoC_px/2 where CoC_px > optics.coc_px,
+    0 inside the depth of field (CoC_px ≤ optics.coc_px: "appears in focus") and where Z ≤ 0
+    (background, no surface). σ is half the blur-spot diameter (see the module docstring).
+    Raises ValueError for 0 < Z ≤ f."""
+    return _blur_size(Z, optics)
+
+
+def blur_radius(Z, optics):
+    """Disk-kernel radius (px): CoC_px/2 outside the depth of field, 0 inside it and for Z ≤ 0."""
+    return _blur_size(Z, optics)
+
+
+def kernel_radius(size, kernel="gaussian"):
+    """Integer half-width of the window: ceil(3σ) (Gaussian) or ceil(r) (disk); 0 for size 0.
+    The shaders need ``MAX_RADIUS`` ≥ kernel_radius(max size)."""
+    if kernel not in KERNELS:
+        raise ValueError(f"kernel must be one of {KERNELS}, got {kernel!r}")
+    s = np.asarray(size, dtype=np.float64)
+    return np.ceil((TRUNCATE if kernel == "gaussian" else 1.0) * s).astype(np.int64)
+
+
+def shader_uniforms(optics) -> dict:
+    """The float uniforms of ``shaders/dof.glsl``."""
+    return {"u_focal_length": float(_param(optics, "focal_length")),
+            "u_f_number": float(_param(optics, "f_number")),
+            "u_focus_distance": float(_param(optics, "focus_distance")),
+            "u_pixel_pitch": float(_param(optics, "pixel_pitch")),
+            "u_coc_px": float(_param(optics, "coc_px", 1.0))}
+
+
+# ---------------------------------------------------------------------------- kernels
+
+def gaussian_weights(d, sigma):
+    """Unnormalised Gaussian weight exp(−d²/(2σ²)) for offset d (px); 0 beyond the truncation
+    radius |d| > ceil(3σ). σ = 0 gives the identity exactly: 1 at d = 0, 0 elsewhere."""
+    d, sigma = np.broadcast_arrays(np.asarray(d, dtype=np.float64), np.asarray(sigma, dtype=np.float64))
+    safe = np.where(sigma > 0, sigma, 1.0)
+    w = np.exp(-d * d / (2 * safe * safe))
+    w = np.where(np.abs(d) <= kernel_radius(sigma), w, 0.0)
+    return np.where(sigma > 0, w, (d == 0).astype(np.float64))
+
+
+def disk_weights(d, radius):
+    """Antialiased uniform-aperture weight clamp(r + 0.5 − |d|, 0, 1); r = 0 is the identity."""
+    d, r = np.broadcast_arrays(np.asarray(d, dtype=np.float64), np.asarray(radius, dtype=np.float64))
+    return np.where(r > 0, np.clip(r + 0.5 - np.abs(d), 0.0, 1.0), (d == 0).astype(np.float64))
+
+
+def _check(image, size_map, what):
+    img = np.asarray(image, dtype=np.float64)
+    s = np.asarray(size_map, dtype=np.float64)
+    if img.ndim != 2 or s.shape != img.shape:
+        raise ValueError(f"image and {what} map must be 2-D of the same shape, got "
+                         f"{img.shape} and {s.shape}")
+    if not np.all(np.isfinite(s)) or np.any(s < 0):
+        raise ValueError(f"{what} map must be finite and ≥ 0")
+    return img, s
+
+
+def _gather(img, size, radius, weight, offsets_1d=None):
+    """out(p) = Σ_q w(dx, dy, size_p) img(q) / Σ_q w over the window |q − p|∞ ≤ radius_p clipped
+    at the border; pixels with size 0 are copied. ``offsets_1d`` = "x" or "y" makes it 1-D.
+    Pixels are sorted by radius so each offset ring touches only the pixels that reach it."""
+    out = img.copy()
+    rows, cols = np.nonzero(size > 0)
+    if rows.size == 0:
+        return out
+    R = radius[rows, cols]
+    order = np.argsort(-R, kind="stable")
+    rows, cols, R = rows[order], cols[order], R[order]
+    s = size[rows, cols]
+    H, W = img.shape
+    Rmax = int(R[0])
+    count = np.searchsorted(-R, -np.arange(Rmax + 1), side="right")  # pixels with R ≥ k
+    acc = np.zeros(rows.size)
+    wsum = np.zeros(rows.size)
+    for dy in range(-Rmax, Rmax + 1):
+        if offsets_1d == "x" and dy != 0:
+            continue
+        for dx in range(-Rmax, Rmax + 1):
+            if offsets_1d == "y" and dx != 0:
+                continue
+            n = count[max(abs(dx), abs(dy))]
+            r, c = rows[:n] + dy, cols[:n] + dx
+            ok = (r >= 0) & (r < H) & (c >= 0) & (c < W)
+            w = weight(dx, dy, s[:n])
+            w = np.where(ok, w, 0.0)
+            acc[:n] += w * img[np.clip(r, 0, H - 1), np.clip(c, 0, W - 1)]
+            wsum[:n] += w
+    out[rows, cols] = acc / wsum
+    return out
+
+
+def _gauss(dx, dy, s):
+    return np.exp(-float(dx * dx + dy * dy) / (2 * s * s))
+
+
+def _disk(dx, dy, r):
+    return np.clip(r + 0.5 - np.hypot(dx, dy), 0.0, 1.0)
+
+
+def blur_exact(image, sigma_map):
+    """The oracle: spatially varying Gaussian *gather* with the output pixel's σ,
+    out(p) = Σ_q w(|q − p|; σ_p) I(q) / Σ_q w, over the square window |q − p|∞ ≤ ceil(3σ_p)
+    clipped at the image border (renormalised). Pixels with σ_p = 0 are copied exactly.
+    Returns float64."""
+    img, s = _check(image, sigma_map, "sigma")
+    return _gather(img, s, kernel_radius(s), _gauss)
+
+
+def blur_separable(image, sigma_map):
+    """numpy mirror of ``blur.frag``'s BLUR_HORIZONTAL then BLUR_VERTICAL passes: a 1-D
+    horizontal gather with the output pixel's σ, then a 1-D vertical gather of that result with
+    the output pixel's σ (each renormalised, clipped at the border; σ_p = 0 copies).
+
+    Equal to ``blur_exact`` where σ is constant over the window (the truncated Gaussian on a
+    square window is a product); elsewhere the vertical pass mixes rows that were blurred
+    horizontally with their own σ — the separable approximation's error (tests/test_blur.py
+    measures it on a tilted plate). Returns float64."""
+    img, s = _check(image, sigma_map, "sigma")
+    R = kernel_radius(s)
+    h = _gather(img, s, R, _gauss, offsets_1d="x")
+    return _gather(h, s, R, _gauss, offsets_1d="y")
+
+
+def blur_disk(image, radius_map):
+    """Uniform-aperture (disk) blur, beyond the paper: 2-D gather with the antialiased weight
+    clamp(r_p + 0.5 − |q − p|, 0, 1) of the output pixel's radius r_p, renormalised, clipped at
+    the border; r_p = 0 copies the pixel exactly. Not separable. Returns float64."""
+    img, r = _check(image, radius_map, "radius")
+    return _gather(img, r, kernel_radius(r, "disk"), _disk)
