@@ -647,7 +647,8 @@ def demo_effects(scene: Scene) -> Scene:
     """``scene`` lit, slightly defocused and noisy, as in the paper's §2.2 and Table 1.
 
     A spotlight beside camera 1 aimed at the plate centre with the paper's Table 1 values
-    (I_a = −10, I_i = 80 grey levels of 8 bit, shininess 400; k_r = 1, k_s = 0.5), 30 mm f/2
+    (I_a = −10, I_i = 80 grey levels of 8 bit, shininess 400) and k_r = 0.3, k_s = 0.5 (so
+    that only the highlight saturates), 30 mm f/2
     lenses with 4.4 µm pixels focused at 600 mm (the 5 mm bulge is ~1.5 px out of focus), and
     2 % Gaussian noise.
     """
@@ -657,6 +658,6 @@ def demo_effects(scene: Scene) -> Scene:
                   cutoff=20.0, edge=5.0)
     return dataclasses.replace(
         scene,
-        lighting=Lighting(ambient=-10 / 255, lights=(light,), diffuse=1.0, specular=0.5, shininess=400.0),
+        lighting=Lighting(ambient=-10 / 255, lights=(light,), diffuse=0.3, specular=0.5, shininess=400.0),
         optics=Optics(focal_length=30.0, f_number=2.0, focus_distance=600.0, pixel_pitch=pitch),
         noise=Noise(model="gaussian", sigma=2.0))
