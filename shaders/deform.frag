@@ -25,9 +25,7 @@ layout(std430, binding = 0) readonly buffer Elements { real elem_data[]; };
 flat in int v_elem;
 
 #if defined(MODE_EXACT)
-uniform real u_intr[5];
-uniform real u_dist[12];
-uniform real u_valid_r2;
+uniform sampler2D u_rays;   // rays.frag: per-sample undistorted normalized coordinates (hi, lo)
 uniform real u_ref_intr[5];
 uniform real u_ref_dist[12];
 uniform real u_ref_valid_r2;
@@ -66,8 +64,8 @@ void main() {
     eta = v_xe.y;
     float Z = v_depth;
 #else
-    real2 px = real2(gl_FragCoord.xy) / real(SS) - 0.5;  // this sample's pixel coordinates
 #if defined(MODE_Q4)
+    real2 px = real2(gl_FragCoord.xy) / real(SS) - 0.5;  // this sample's pixel coordinates
     // layout per element: uv corners (8), reference corners (8), corner depths Z (4)
     int b = v_elem * 20;
     real2 p[4], r[4];
@@ -88,8 +86,9 @@ void main() {
         P[i] = real3(elem_data[b + 3 * i], elem_data[b + 3 * i + 1], elem_data[b + 3 * i + 2]);
         R[i] = real3(elem_data[b + 12 + 3 * i], elem_data[b + 13 + 3 * i], elem_data[b + 14 + 3 * i]);
     }
-    real2 xn;
-    if (!undistort(pixel_to_normalized(px, u_intr), u_dist, u_valid_r2, xn)) discard;
+    vec4 ray = texelFetch(u_rays, ivec2(gl_FragCoord.xy), 0);
+    if (ray.x >= 1e30) discard;  // rays.frag's NO_RAY
+    real2 xn = real2(ray.xy) + real2(ray.zw);
     real Z;
     if (!intersect_ray_patch(P, normalize(real3(xn, 1.0)), xi, eta, Z)) discard;
     if (!project_camera_frame(bilinear3(R, xi, eta), u_ref_intr, u_ref_dist, u_ref_valid_r2, ref)) discard;

@@ -1,8 +1,9 @@
 // Reference-image interpolation: the GLSL twin of glsim/interp.py (same kernels, tap order
 // and index clamping). Needs the precision macros (real, real2) and exactly one of
 // INTERP_LINEAR, INTERP_CUBIC, INTERP_BSPLINE3, INTERP_BSPLINE5 defined.
-// Only +-*/, floor, clamp are used on real, so FP64 builds stay exact double arithmetic;
-// the literals are small integers or halves, exact as float and as double.
+// The position is split in real precision (integer part exact in double); the kernel weights
+// and the sum are float: the fractional offset in float errs by < 6e-8 px, and the sum has
+// float32 precision anyway (the coefficients are float32 texels).
 
 // Mirror padding of the coefficient image, px per side; keep in sync with glsim.interp.PAD.
 #define REF_PAD 4
@@ -15,7 +16,7 @@ uniform sampler2D u_ref;
 #if defined(INTERP_LINEAR)
 #define REF_TAPS 2
 #define REF_FIRST 0
-void ref_weights(real t, out real w[REF_TAPS]) {
+void ref_weights(float t, out float w[REF_TAPS]) {
     w[0] = 1.0 - t;
     w[1] = t;
 }
@@ -23,7 +24,7 @@ void ref_weights(real t, out real w[REF_TAPS]) {
 // Keys (1981) cubic convolution, a = -0.5.
 #define REF_TAPS 4
 #define REF_FIRST (-1)
-void ref_weights(real t, out real w[REF_TAPS]) {
+void ref_weights(float t, out float w[REF_TAPS]) {
     w[0] = t * (-1.0 + t * (2.0 - t)) * 0.5;
     w[1] = (2.0 + t * t * (-5.0 + 3.0 * t)) * 0.5;
     w[2] = t * (1.0 + t * (4.0 - 3.0 * t)) * 0.5;
@@ -32,8 +33,8 @@ void ref_weights(real t, out real w[REF_TAPS]) {
 #elif defined(INTERP_BSPLINE3)
 #define REF_TAPS 4
 #define REF_FIRST (-1)
-void ref_weights(real t, out real w[REF_TAPS]) {
-    real s = 1.0 - t;
+void ref_weights(float t, out float w[REF_TAPS]) {
+    float s = 1.0 - t;
     w[0] = s * s * s / 6.0;
     w[1] = (4.0 + t * t * (-6.0 + 3.0 * t)) / 6.0;
     w[2] = (1.0 + t * (3.0 + t * (3.0 - 3.0 * t))) / 6.0;
@@ -42,10 +43,10 @@ void ref_weights(real t, out real w[REF_TAPS]) {
 #elif defined(INTERP_BSPLINE5)
 #define REF_TAPS 6
 #define REF_FIRST (-2)
-void ref_weights(real t, out real w[REF_TAPS]) {
-    real s = 1.0 - t;
-    real s2 = s * s;
-    real t2 = t * t;
+void ref_weights(float t, out float w[REF_TAPS]) {
+    float s = 1.0 - t;
+    float s2 = s * s;
+    float t2 = t * t;
     w[0] = s2 * s2 * s / 120.0;
     w[1] = (26.0 + t * (-50.0 + t * (20.0 + t * (20.0 + t * (-20.0 + 5.0 * t))))) / 120.0;
     w[2] = (66.0 + t2 * (-60.0 + t2 * (30.0 - 10.0 * t))) / 120.0;
@@ -61,23 +62,24 @@ void ref_weights(real t, out real w[REF_TAPS]) {
 // Taps beyond the padded texture read its edge texels.
 float sample_ref(real2 uv) {
     real2 f = floor(uv);
-    real wx[REF_TAPS];
-    real wy[REF_TAPS];
-    ref_weights(uv.x - f.x, wx);
-    ref_weights(uv.y - f.y, wy);
+    vec2 t = vec2(uv - f);
+    float wx[REF_TAPS];
+    float wy[REF_TAPS];
+    ref_weights(t.x, wx);
+    ref_weights(t.y, wy);
     ivec2 size = textureSize(u_ref, 0);
     // Clamp before the int conversion (undefined out of range); a first tap at
     // -REF_TAPS or beyond reads only edge texels anyway.
     ivec2 base = ivec2(clamp(f + real(REF_PAD + REF_FIRST), real2(-REF_TAPS), real2(size)));
-    real acc = 0.0;
+    float acc = 0.0;
     for (int j = 0; j < REF_TAPS; ++j) {
         int row = clamp(base.y + j, 0, size.y - 1);
-        real s = 0.0;
+        float s = 0.0;
         for (int i = 0; i < REF_TAPS; ++i) {
             int col = clamp(base.x + i, 0, size.x - 1);
-            s += wx[i] * real(texelFetch(u_ref, ivec2(col, row), 0).r);
+            s += wx[i] * texelFetch(u_ref, ivec2(col, row), 0).r;
         }
         acc += wy[j] * s;
     }
-    return float(acc);
+    return acc;
 }

@@ -84,6 +84,7 @@ class GLBackend:
         self._image = reference_image
         self._textures: dict[str, object] = {}
         self._targets: dict[tuple, tuple] = {}
+        self._rays: dict[tuple, object] = {}
 
     # ---- resources -------------------------------------------------------------------------
     def _reference_texture(self, method: str):
@@ -105,7 +106,10 @@ class GLBackend:
             if depth_out:
                 color.append(ctx.texture((width, height), 1, dtype="f4"))
             depth = ctx.depth_renderbuffer((width, height))
-            self._targets[key] = (ctx.framebuffer(color_attachments=color, depth_attachment=depth), color, depth)
+            # the grey target alone, to clear it to the background grey (the others clear to 0)
+            grey_only = ctx.framebuffer(color_attachments=color[:1])
+            self._targets[key] = (ctx.framebuffer(color_attachments=color, depth_attachment=depth), color, depth,
+                                  grey_only)
         return self._targets[key]
 
     def _unbind(self) -> None:
@@ -115,15 +119,17 @@ class GLBackend:
 
     def close(self) -> None:
         self._unbind()
-        for fbo, color, depth in self._targets.values():
+        for fbo, color, depth, grey_only in self._targets.values():
             fbo.release()
+            grey_only.release()
             for t in color:
                 t.release()
             depth.release()
-        for tex in self._textures.values():
+        for tex in (*self._textures.values(), *self._rays.values()):
             tex.release()
         self._targets.clear()
         self._textures.clear()
+        self._rays.clear()
         self.programs.release()
         if self._own_ctx:
             self.ctx.release()
@@ -225,6 +231,9 @@ class GLBackend:
         tex.use(0)
         if "u_ref" in prog:
             prog["u_ref"].value = 0
+        if "u_rays" in prog:
+            self._ray_map(cam, s, fp64).use(1)
+            prog["u_rays"].value = 1
 
         verts, index, layout, attrs = self._geometry(view, opts.mode)
         vbo = ctx.buffer(verts.tobytes())
@@ -232,16 +241,14 @@ class GLBackend:
         if opts.mode != "fast":
             buffers.append(ctx.buffer(element_data(view, opts.mode, np.float64 if fp64 else np.float32).tobytes()))
             buffers[-1].bind_to_storage_buffer(0)
-        fbo, color, _ = self._target(W * s, H * s, truth, "DEPTH_OUT" in defines)
+        fbo, color, _, grey_only = self._target(W * s, H * s, truth, "DEPTH_OUT" in defines)
+        # the grey target starts at the background; truth and depth targets at zero
+        fbo.clear(0.0, 0.0, 0.0, 0.0, depth=1.0)
+        grey_only.clear(opts.background, 0.0, 0.0, 0.0)
         fbo.use()
         fbo.viewport = (0, 0, W * s, H * s)
         ctx.enable(ctx.DEPTH_TEST)
         ctx.disable(ctx.CULL_FACE)
-        fbo.clear(depth=1.0)
-        # the grey target starts at the background; truth and depth targets at zero
-        color[0].write(np.full((H * s, W * s), opts.background, np.float32).tobytes())
-        for t in color[1:]:
-            t.write(np.zeros((H * s, W * s, t.components), np.float32).tobytes())
         if len(index):
             ibo = ctx.buffer(index.tobytes())
             buffers.append(ibo)
@@ -261,6 +268,29 @@ class GLBackend:
         x = np.frombuffer(color[2].read(), np.float32).reshape(H * W, 4).astype(np.float64)
         elem = np.rint(x[:, 0]).astype(np.int64) - 1
         return color, {"element": elem, "xi": m[:, 2], "eta": m[:, 3], "ref_uv": m[:, :2] + x[:, 1:3]}
+
+    def _ray_map(self, cam, s: int, fp64: bool):
+        """Cached per camera model and supersampling: (W·s)×(H·s) RGBA32F undistorted rays."""
+        key = (cam.size, tuple(cam.intrinsics), tuple(cam.distortion.coeffs), s, fp64)
+        if key not in self._rays:
+            W, H = cam.size
+            defines = {"SS": s, **({"FP64": None} if fp64 else {})}
+            prog = self.programs.program("fullscreen.vert", "rays.frag", defines=defines)
+            self._set(prog, "u_intr", cam.intrinsics, fp64)
+            self._set(prog, "u_dist", cam.distortion.coeffs, fp64)
+            self._set(prog, "u_valid_r2", [cam.distortion.valid_radius() ** 2], fp64)
+            out = self.ctx.texture((W * s, H * s), 4, dtype="f4")
+            fbo = self.ctx.framebuffer(color_attachments=[out])
+            fbo.use()
+            fbo.viewport = (0, 0, W * s, H * s)
+            vao = self.ctx.vertex_array(prog, [])
+            vao.render(self.ctx.TRIANGLES, vertices=3)
+            check_error(self.ctx, "ray map")
+            self._unbind()
+            vao.release()
+            fbo.release()
+            self._rays[key] = out
+        return self._rays[key]
 
     def fullscreen_pass(self, frag: str, defines: dict, inputs: dict, uniforms: dict, size: tuple[int, int]):
         """Run a full-screen fragment pass into a new R32F texture of ``size`` (W, H); the
