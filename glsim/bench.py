@@ -24,14 +24,13 @@ import os
 import platform
 import statistics
 import sys
-import tempfile
 import time
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
-from . import interp, oracle, speckle
+from . import interp, io, oracle, speckle
 from .errors import GLUnavailableError
 from .render import Renderer, Result
 from .scene import INTERPOLATIONS, MODES, Plate, Scene, Specimen, Speckle, bulge_scene, stereo_rig
@@ -388,21 +387,8 @@ def markdown(report: dict) -> str:
     return "\n".join(lines) + "\n"
 
 
-def write_atomic(path: Path, text: str) -> None:
-    """Write ``text`` to a temporary file beside ``path``, then rename it over ``path``."""
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    try:
-        with os.fdopen(fd, "w") as f:
-            f.write(text)
-        os.chmod(tmp, 0o644)  # mkstemp makes it 0600
-        os.replace(tmp, path)
-    except BaseException:
-        os.unlink(tmp)
-        raise
-
-
 def main(argv: list[str]) -> int:
-    """`glsim bench accuracy [--size W H] [--reps N] [--out DIR] [--quick]`."""
+    """`glsim bench accuracy [--size W H] [--reps N] [--out DIR] [--quick]` and `glsim bench effects …`."""
     parser = argparse.ArgumentParser(prog="glsim bench")
     sub = parser.add_subparsers(dest="command", required=True)
     acc = sub.add_parser("accuracy", help="time and accuracy of every mode against the CPU oracle")
@@ -411,7 +397,16 @@ def main(argv: list[str]) -> int:
     acc.add_argument("--reps", type=int, default=5, help="timed renders per row after one warm-up (default 5)")
     acc.add_argument("--out", default="bench/results", help="directory of accuracy.json / accuracy.md")
     acc.add_argument("--quick", action="store_true", help="small image and fewer combinations (CI smoke test)")
+    eff = sub.add_parser("effects", help="time per image of each optical effect, GL and CPU")
+    eff.add_argument("--size", nargs=2, type=int, metavar=("W", "H"), help="image size (default 1624 1234)")
+    eff.add_argument("--reps", type=int, default=5, help="timed renders per camera (default 5; CPU at most 2)")
+    eff.add_argument("--out", default="bench/results", help="directory of effects.json / effects.md")
     args = parser.parse_args(argv)
+    if args.command == "effects":
+        from . import bench_effects
+        print(bench_effects.write(bench_effects.effects(tuple(args.size or FULL_SIZE), max(1, args.reps)),
+                                  Path(args.out)))
+        return 0
     if args.reps < 1 or (args.size and min(args.size) < 2):
         parser.error("--reps must be ≥ 1 and --size at least 2 2")
     size = tuple(args.size) if args.size else (QUICK_SIZE if args.quick else FULL_SIZE)
@@ -424,7 +419,7 @@ def main(argv: list[str]) -> int:
     text = markdown(report)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    write_atomic(out / "accuracy.json", json.dumps(report, indent=2) + "\n")
-    write_atomic(out / "accuracy.md", text)
+    io.write_text(out / "accuracy.json", json.dumps(report, indent=2) + "\n")
+    io.write_text(out / "accuracy.md", text)
     print(text)
     return 0

@@ -42,3 +42,16 @@ def test_quick_accuracy_report(tmp_path, capsys):
     cpu_exact = next(r for r in records if r["backend"] == "cpu" and r["mode"] == "exact")
     assert cpu_exact["map_max_px"] == 0 and cpu_exact["grey_max"] == 0  # the reference itself
     assert [t["target"] for t in report["targets"]] and len(report["peer"]) == 3
+
+
+@pytest.mark.gl
+def test_bench_effects_quick(tmp_path):
+    assert bench.main(["effects", "--size", *SIZE, "--reps", "1", "--out", str(tmp_path)]) == 0
+    report = json.loads((tmp_path / "effects.json").read_text())
+    rows = {(r["backend"], r["effects"]): r for r in report["records"]}
+    assert set(rows) == {(b, e) for b in ("gl", "cpu") for e in ("none", "lighting", "optics", "noise", "all")}
+    assert all(math.isfinite(r["seconds"]) and r["seconds"] > 0 for r in rows.values())
+    # the stages that ran are the ones the variant asked for
+    assert rows["gl", "none"]["stages"] == ["deform"] and "noise" in rows["gl", "noise"]["stages"]
+    assert rows["cpu", "lighting"]["stages"] == ["raster", "interpolate", "light"]
+    assert (tmp_path / "effects.md").read_text().startswith("# glsim effects benchmark")
