@@ -106,3 +106,16 @@ def test_wheel_ships_shaders_and_renders(tmp_path):
     done = subprocess.run([sys.executable, "-c", code], cwd=tmp_path, env=env, capture_output=True, text=True)
     assert done.returncode == 0, done.stderr
     assert done.stdout.strip().startswith(str(target))
+
+
+@pytest.mark.gl
+def test_demo_effects_variant(tmp_path, capsys):
+    out = tmp_path / "fx"
+    assert main(["demo", "--effects", "-o", str(out), "--size", "203", "154", "--n-steps", "1", "-q"]) == 0
+    scene = json.loads((out / "scene.json").read_text())
+    assert scene["lighting"]["lights"] and scene["optics"]["f_number"] == 2.0 and scene["noise"]["sigma"] == 2.0
+    plain = tmp_path / "plain"
+    assert main(["demo", "-o", str(plain), "--size", "203", "154", "--n-steps", "1", "-q"]) == 0
+    a, b = io.read_image(out / "cam0_0001.tif"), io.read_image(plain / "cam0_0001.tif")
+    assert a.shape == b.shape and not np.array_equal(a, b)
+    assert "spotlight" in capsys.readouterr().out

@@ -16,7 +16,7 @@ import pytest
 from glsim.camera import look_at, project, rodrigues, stereo_pose
 from glsim.errors import SceneError
 from glsim.reference import specimen_mesh
-from glsim.scene import Bulge, Output, Render, Scene, Speckle, bulge_scene, load_scene
+from glsim.scene import Bulge, Output, Render, Scene, Speckle, bulge_scene, demo_effects, load_scene
 
 EXAMPLES = Path(__file__).resolve().parent.parent / "examples"
 
@@ -338,3 +338,28 @@ def test_plate_inp_files_are_reproducible(tmp_path, monkeypatch):
     assert mesh.n_elements == 48 and mesh.node_labels[0] == 101 and mesh.element_labels[0] == 1001
     x = mesh.nodes[:, 0]
     np.testing.assert_allclose(mesh.displacements[2][:, 0], 0.004 * x, atol=1e-12)
+
+
+def test_bulge_effects_example_is_demo_effects():
+    scene, built_in = load_scene(EXAMPLES / "bulge_effects.toml"), demo_effects(bulge_scene())
+    assert scene.lighting == built_in.lighting and scene.noise == built_in.noise
+    assert dataclasses.replace(scene.optics, pixel_pitch=built_in.optics.pixel_pitch) == built_in.optics
+    assert scene.optics.pixel_pitch == pytest.approx(built_in.optics.pixel_pitch, rel=1e-15)
+
+
+@pytest.mark.parametrize("text,key,fix", [
+    ("[lighting]\nambiant = 0.1\n", "lighting.ambiant", "did you mean 'ambient'"),
+    ("[lighting]\ncombine = \"screen\"\n", "lighting.combine", "additive, multiplicative"),
+    ("[[lighting.lights]]\nposition = [0, 0, 0]\ncutoff = 200.0\n", "lighting.lights[0].cutoff", "half-angle"),
+    ("[[lighting.lights]]\nintensity = 0.2\n", "lighting.lights[0].position", "add position"),
+    ("[optics]\nfocal_length = 30.0\nf_number = 2.0\nfocus_distance = 20.0\npixel_pitch = 0.004\n",
+     "optics.focus_distance", "focused distance"),
+    ("[optics]\nfocal_length = 30.0\nf_number = 2.0\nfocus_distance = 600.0\n", "optics.pixel_pitch",
+     "add pixel_pitch"),
+    ("[noise]\nmodel = \"salt\"\n", "noise.model", "gaussian, heteroscedastic, poisson_gaussian"),
+    ("[noise]\nmodel = \"heteroscedastic\"\n", "noise.variance_file", "grey level;variance"),
+    ("[noise]\nmodel = \"heteroscedastic\"\nvariance_file = \"nope.csv\"\n", "noise.variance_file", "check the path"),
+])
+def test_effect_tables_reject_bad_values(tmp_path, text, key, fix):
+    with pytest.raises(SceneError, match=re.escape(key) + ".*" + re.escape(fix)):
+        load(tmp_path, CAM + text)
