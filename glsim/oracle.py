@@ -148,9 +148,10 @@ def _box(a: np.ndarray, H: int, W: int, s: int) -> np.ndarray:
     return a.reshape(H, s, W, s).mean(axis=(1, 3))
 
 
-def render_view(view: View, coeffs: np.ndarray, opts, truth: bool, fx=None):
+def render_view(view: View, sample, opts, truth: bool, fx=None):
     """Image (H, W) float32, the pixel-centre raster of :func:`rasterize` if ``truth``, and
-    the list of stages run. ``opts`` is the scene's Render; ``fx`` the Effects."""
+    the list of stages run. ``sample(uv)`` gives the reference grey at reference-image
+    coordinates; ``opts`` is the scene's Render; ``fx`` the Effects."""
     from .effects import Effects
 
     fx = fx or Effects()
@@ -160,7 +161,7 @@ def render_view(view: View, coeffs: np.ndarray, opts, truth: bool, fx=None):
     r = rasterize(view, opts.mode, s)
     hit = r["element"] >= 0
     grey = np.full(len(hit), float(opts.background))
-    grey[hit] = interp.sample(coeffs, r["ref_uv"][hit], opts.interpolation)
+    grey[hit] = sample(r["ref_uv"][hit])
     if fx.lighting is not None:
         grey[hit] = _shade(view, r, hit, grey[hit], fx)
         stages.append("light")
@@ -191,14 +192,37 @@ class CPUBackend:
     """backend="cpu": float64 numpy, the oracle. Same interface as the GL backend."""
     name = "cpu"
 
-    def __init__(self, reference_image: np.ndarray):
+    def __init__(self, reference_image: np.ndarray, dots=None):
         self._image = reference_image
-        self._coeffs: dict[str, np.ndarray] = {}
+        self._dots = dots
+        self._samplers: dict = {}
+
+    def sampler(self, interpolation: str):
+        """uv → reference grey: the interpolated image, or the exact procedural speckle."""
+        if interpolation not in self._samplers:
+            if interpolation == "procedural":
+                from . import speckle
+
+                dots = require_dots(self._dots)
+                grid = speckle.dot_grid(dots)
+                self._samplers[interpolation] = lambda uv: speckle.evaluate(dots, uv, grid)
+            else:
+                coeffs = interp.prepare(self._image, interpolation, np.float64)
+                self._samplers[interpolation] = lambda uv: interp.sample(coeffs, uv, interpolation)
+        return self._samplers[interpolation]
 
     def render_view(self, view: View, opts, truth: bool = False, effects=None):
-        if opts.interpolation not in self._coeffs:
-            self._coeffs[opts.interpolation] = interp.prepare(self._image, opts.interpolation, np.float64)
-        return render_view(view, self._coeffs[opts.interpolation], opts, truth, effects)
+        return render_view(view, self.sampler(opts.interpolation), opts, truth, effects)
 
     def close(self) -> None:
-        self._coeffs.clear()
+        self._samplers.clear()
+
+
+def require_dots(dots):
+    """The reference's dots, or the error that says procedural needs the generator."""
+    if dots is None:
+        from .errors import SceneError
+
+        raise SceneError("render.interpolation", "'procedural' needs the built-in speckle generator",
+                         "remove [speckle] image, or choose linear, cubic, bspline3 or bspline5")
+    return dots

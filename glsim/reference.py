@@ -18,9 +18,12 @@ MARGIN_PX = 8  # reference-image border around the specimen's projection
 
 @dataclass(frozen=True, eq=False)
 class Reference:
-    """The reference image (float32 (H, W) in [0, 1]) and its pinhole camera."""
+    """The reference image (float32 (H, W) in [0, 1]) and its pinhole camera; for the
+    built-in generator also its dots, which ``interpolation = "procedural"`` evaluates
+    exactly instead of interpolating the image."""
     image: np.ndarray
     camera: Camera
+    dots: speckle.Dots | None = None
 
 
 def specimen_mesh(scene: Scene) -> meshmod.Mesh:
@@ -99,6 +102,6 @@ def make_reference(scene: Scene, mesh: meshmod.Mesh) -> Reference:
     mm_per_px = sp.mm_per_px or cam_mm_per_px / sp.oversample
     cam = sp.camera or _auto_camera(mesh.nodes, cam1.center, mm_per_px, None)
     dot = sp.dot_diameter_px * cam_mm_per_px / mm_per_px
-    image = speckle.generate((cam.height, cam.width), dot, sp.density, seed=sp.seed,
+    dots = speckle.draw_dots((cam.height, cam.width), dot, sp.density, seed=sp.seed,
                              edge_px=min(1.0 * cam_mm_per_px / mm_per_px, dot))
-    return Reference(image, cam)
+    return Reference(speckle.rasterize(dots), cam, dots)

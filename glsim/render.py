@@ -60,13 +60,14 @@ class Result:
     saturated: float = 0.0            # fraction of pixels below 0 or above full scale (clipped when written)
 
 
-def make_backend(name: str, reference_image: np.ndarray, ctx=None):
-    """A backend instance by name ("gl" or "cpu"); ``ctx`` shares an existing GL context."""
+def make_backend(name: str, reference, ctx=None):
+    """A backend instance by name ("gl" or "cpu") for a :class:`Reference`; ``ctx`` shares an
+    existing GL context."""
     if name == "cpu":
-        return CPUBackend(reference_image)
+        return CPUBackend(reference.image, reference.dots)
     if name == "gl":
         from .gl.backend import GLBackend
-        return GLBackend(reference_image, ctx)
+        return GLBackend(reference.image, ctx, dots=reference.dots)
     raise SceneError("render.backend", f"{name!r} is not one of {BACKENDS}", "use 'gl' or 'cpu'")
 
 
@@ -80,7 +81,7 @@ class Renderer:
         self.mesh = mesh if mesh is not None else specimen_mesh(scene)
         self.reference = reference if reference is not None else make_reference(scene, self.mesh)
         self.backend_name = backend or scene.render.backend
-        self.backend = make_backend(self.backend_name, self.reference.image, ctx)
+        self.backend = make_backend(self.backend_name, self.reference, ctx)
 
     def __enter__(self) -> "Renderer":
         return self

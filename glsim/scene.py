@@ -45,7 +45,7 @@ Vec3 = tuple[float, float, float]
 Mat3 = tuple[Vec3, Vec3, Vec3]
 
 MODES = ("fast", "q4", "exact")
-INTERPOLATIONS = ("linear", "cubic", "bspline3", "bspline5")
+INTERPOLATIONS = ("linear", "cubic", "bspline3", "bspline5", "procedural")
 BACKENDS = ("gl", "cpu")
 PRECISIONS = ("fp32", "fp64")
 FORMATS = ("tiff", "png")

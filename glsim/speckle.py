@@ -7,6 +7,7 @@ pixel centres at integer coordinates.
 import math
 import os
 import warnings
+from dataclasses import dataclass
 
 import imageio.v3 as iio
 import numpy as np
@@ -54,19 +55,27 @@ def _edge_profile(r, radius, edge_px):
     return x * x * (3.0 - 2.0 * x)
 
 
-def generate(shape, dot_diameter_px, density=0.5, seed=0, edge_px=1.0, black=0.1, white=0.9,
-             diameter_spread=0.2):
-    """Random-disc (Boolean model) speckle pattern: dark dots on a white background.
+@dataclass(frozen=True, eq=False)
+class Dots:
+    """A Boolean-model speckle as data: dot centres (n, 2) as (u, v) = (column, row) px,
+    radii (n,) px, the smoothstep edge width px and the grey levels. Its exact grey value
+    anywhere is :func:`evaluate`; :func:`generate` samples it at the pixel centres."""
+    centres: np.ndarray
+    radii: np.ndarray
+    edge_px: float
+    black: float
+    white: float
+    shape: tuple[int, int]
 
-    Dot centres are a Poisson process, uniform over the image and a margin around it;
-    diameters are uniform in ``dot_diameter_px * (1 +- diameter_spread)``. The dot count
-    makes the expected dark-area fraction ``1 - exp(-lambda * mean dot area)`` equal to
-    ``density``. Each dot's edge is a smoothstep ramp of full width ``edge_px`` px
-    (0 = hard edge) centred on its radius; overlapping dots combine by maximum darkness.
-    Grey levels go from ``white`` (background) to ``black`` (dot cores).
+    @property
+    def reach(self) -> float:
+        """Largest distance (px) at which a dot still darkens."""
+        return float(self.radii.max(initial=0.0)) + self.edge_px / 2
 
-    Returns float32 (H, W) in [0, 1]; the same arguments give bit-identical output.
-    """
+
+def draw_dots(shape, dot_diameter_px, density=0.5, seed=0, edge_px=1.0, black=0.1, white=0.9,
+              diameter_spread=0.2) -> Dots:
+    """The random dots of :func:`generate` (same arguments, same draws)."""
     h, w = _check_shape(shape)
     diameter = _check_number("speckle.dot_diameter_px", dot_diameter_px, 2, math.inf, False, True,
                              "give a dot diameter of at least 2 px (3-5 px suits subset-based DIC)")
@@ -92,25 +101,97 @@ def generate(shape, dot_diameter_px, density=0.5, seed=0, edge_px=1.0, black=0.1
     # Centres cover the image (px centres 0..h-1, edges at -0.5, h-0.5) plus every dot that reaches it.
     lo = -0.5 - reach
     n_dots = rng.poisson(lam * (h + 2 * reach) * (w + 2 * reach))
-    centres = rng.uniform(lo, [h - lo - 1, w - lo - 1], size=(n_dots, 2))
+    rows_cols = rng.uniform(lo, [h - lo - 1, w - lo - 1], size=(n_dots, 2))
     radii = diameter / 2 * rng.uniform(1 - spread, 1 + spread, n_dots)
+    return Dots(rows_cols[:, ::-1].copy(), radii, edge_px, black, white, (h, w))
 
+
+def generate(shape, dot_diameter_px, density=0.5, seed=0, edge_px=1.0, black=0.1, white=0.9,
+             diameter_spread=0.2):
+    """Random-disc (Boolean model) speckle pattern: dark dots on a white background.
+
+    Dot centres are a Poisson process, uniform over the image and a margin around it;
+    diameters are uniform in ``dot_diameter_px * (1 +- diameter_spread)``. The dot count
+    makes the expected dark-area fraction ``1 - exp(-lambda * mean dot area)`` equal to
+    ``density``. Each dot's edge is a smoothstep ramp of full width ``edge_px`` px
+    (0 = hard edge) centred on its radius; overlapping dots combine by maximum darkness.
+    Grey levels go from ``white`` (background) to ``black`` (dot cores).
+
+    Returns float32 (H, W) in [0, 1]; the same arguments give bit-identical output.
+    """
+    return rasterize(draw_dots(shape, dot_diameter_px, density, seed, edge_px, black, white, diameter_spread))
+
+
+def rasterize(dots: Dots) -> np.ndarray:
+    """``dots`` sampled at every pixel centre of their image, float32 (H, W)."""
+    h, w = dots.shape
+    reach = dots.reach
     # A px within reach of a centre is within reach + 0.5 of the px nearest that centre.
-    half = math.ceil(reach + 0.5) - 1
+    half = max(math.ceil(reach + 0.5) - 1, 0)
     offsets = np.arange(-half, half + 1)
     pad = half + math.ceil(reach) + 1  # canvas margin: every window fits without bounds checks
     canvas = np.zeros((h + 2 * pad, w + 2 * pad))
-    for start in range(0, n_dots, _DOT_CHUNK):
-        c = centres[start:start + _DOT_CHUNK]
-        r = radii[start:start + _DOT_CHUNK]
+    for start in range(0, len(dots.radii), _DOT_CHUNK):
+        c = dots.centres[start:start + _DOT_CHUNK, ::-1]  # (row, col)
+        r = dots.radii[start:start + _DOT_CHUNK]
         near = np.rint(c).astype(np.intp)
         rows = near[:, 0, None, None] + offsets[None, :, None]
         cols = near[:, 1, None, None] + offsets[None, None, :]
         dist = np.hypot(rows - c[:, 0, None, None], cols - c[:, 1, None, None])
-        dark = _edge_profile(dist, r[:, None, None], edge_px)
+        dark = _edge_profile(dist, r[:, None, None], dots.edge_px)
         np.maximum.at(canvas, (rows + pad, cols + pad), dark)
     darkness = canvas[pad:pad + h, pad:pad + w]
-    return (white - (white - black) * darkness).astype(np.float32)
+    return (dots.white - (dots.white - dots.black) * darkness).astype(np.float32)
+
+
+@dataclass(frozen=True, eq=False)
+class DotGrid:
+    """Uniform grid over the dots for lookup: cell size ≥ their reach, so a point's dots lie
+    in its own and the 8 neighbouring cells. ``start``/``count`` (ny·nx) index ``order``."""
+    origin: tuple[float, float]
+    cell: float
+    dims: tuple[int, int]    # nx, ny
+    start: np.ndarray
+    count: np.ndarray
+    order: np.ndarray
+
+
+def dot_grid(dots: Dots) -> DotGrid:
+    """Bin the dots' centres into cells of size max(reach, 1) px (CSR layout)."""
+    cell = max(dots.reach, 1.0)
+    origin = dots.centres.min(axis=0) if len(dots.radii) else np.zeros(2)
+    ij = np.floor((dots.centres - origin) / cell).astype(np.int64)
+    nx, ny = (ij.max(axis=0) + 1) if len(dots.radii) else (1, 1)
+    flat = ij[:, 1] * nx + ij[:, 0]
+    order = np.argsort(flat, kind="stable")
+    count = np.bincount(flat, minlength=nx * ny)
+    start = np.concatenate([[0], np.cumsum(count)[:-1]])
+    return DotGrid((float(origin[0]), float(origin[1])), float(cell), (int(nx), int(ny)),
+                   start, count, order)
+
+
+def evaluate(dots: Dots, uv, grid: DotGrid | None = None) -> np.ndarray:
+    """Exact grey level of the Boolean-model speckle at reference coordinates uv (..., 2) px
+    (u = column, v = row): no interpolation. float64."""
+    grid = grid or dot_grid(dots)
+    uv = np.asarray(uv, dtype=np.float64)
+    flat_uv = uv.reshape(-1, 2)
+    darkness = np.zeros(len(flat_uv))
+    cell = np.floor((flat_uv - grid.origin) / grid.cell).astype(np.int64)
+    nx, ny = grid.dims
+    for dj in (-1, 0, 1):
+        for di in (-1, 0, 1):
+            ci, cj = cell[:, 0] + di, cell[:, 1] + dj
+            inside = (ci >= 0) & (ci < nx) & (cj >= 0) & (cj < ny)
+            k = np.where(inside, cj * nx + ci, 0)
+            n = np.where(inside, grid.count[k], 0)
+            for m in range(int(n.max(initial=0))):
+                has = n > m
+                idx = grid.order[grid.start[k[has]] + m]
+                d = np.hypot(*(flat_uv[has] - dots.centres[idx]).T)
+                darkness[has] = np.maximum(darkness[has], _edge_profile(d, dots.radii[idx], dots.edge_px))
+    grey = dots.white - (dots.white - dots.black) * darkness
+    return grey.reshape(uv.shape[:-1])
 
 
 def load_reference(path, key="speckle.image"):

@@ -5,6 +5,10 @@
 // and the sum are float: the fractional offset in float errs by < 6e-8 px, and the sum has
 // float32 precision anyway (the coefficients are float32 texels).
 
+#ifdef INTERP_PROCEDURAL
+#include "procedural.glsl"
+#else
+
 // Mirror padding of the coefficient image, px per side; keep in sync with glsim.interp.PAD.
 #define REF_PAD 4
 
@@ -83,3 +87,4 @@ float sample_ref(real2 uv) {
     }
     return acc;
 }
+#endif

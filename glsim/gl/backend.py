@@ -75,8 +75,11 @@ class GLBackend:
     """OpenGL renderer over one EGL context (its own, or a shared one passed in)."""
     name = "gl"
 
-    def __init__(self, reference_image: np.ndarray, ctx=None, shader_dirs: tuple = ()):
-        """``shader_dirs`` are searched before the packaged shaders (tests add their own)."""
+    def __init__(self, reference_image: np.ndarray, ctx=None, shader_dirs: tuple = (), dots=None):
+        """``dots``: the generator's speckle, for ``interpolation = "procedural"``;
+        ``shader_dirs`` are searched before the packaged shaders (tests add their own)."""
+        self._dots = dots
+        self._dot_buffers = None
         self._own_ctx = ctx is None
         self.ctx = ctx if ctx is not None else create_context()
         self.fp64 = "GL_ARB_gpu_shader_fp64" in self.ctx.extensions
@@ -125,8 +128,9 @@ class GLBackend:
             for t in color:
                 t.release()
             depth.release()
-        for tex in (*self._textures.values(), *self._rays.values()):
+        for tex in (*self._textures.values(), *self._rays.values(), *(self._dot_buffers or ())[:2]):
             tex.release()
+        self._dot_buffers = None
         self._targets.clear()
         self._textures.clear()
         self._rays.clear()
@@ -227,10 +231,12 @@ class GLBackend:
                     prog[name].write(np.ascontiguousarray(value).tobytes())
             buffers.append(ctx.buffer(shading_data(view, fx.normals).tobytes()))
             buffers[-1].bind_to_storage_buffer(1)
-        tex = self._reference_texture(opts.interpolation)
-        tex.use(0)
-        if "u_ref" in prog:
-            prog["u_ref"].value = 0
+        if opts.interpolation == "procedural":
+            self._bind_dots(prog)
+        else:
+            self._reference_texture(opts.interpolation).use(0)
+            if "u_ref" in prog:
+                prog["u_ref"].value = 0
         if "u_rays" in prog:
             self._ray_map(cam, s, fp64).use(1)
             prog["u_rays"].value = 1
@@ -268,6 +274,32 @@ class GLBackend:
         x = np.frombuffer(color[2].read(), np.float32).reshape(H * W, 4).astype(np.float64)
         elem = np.rint(x[:, 0]).astype(np.int64) - 1
         return color, {"element": elem, "xi": m[:, 2], "eta": m[:, 3], "ref_uv": m[:, :2] + x[:, 1:3]}
+
+    def _bind_dots(self, prog) -> None:
+        """Bind procedural.glsl's storage buffers (made once) and set its uniforms."""
+        if self._dot_buffers is None:
+            from ..oracle import require_dots
+            from ..speckle import dot_grid
+
+            dots = require_dots(self._dots)
+            grid = dot_grid(dots)
+            c = dots.centres[grid.order]
+            corner = np.asarray(grid.origin) + np.floor((c - grid.origin) / grid.cell) * grid.cell
+            dot_data = np.column_stack([c - corner, dots.radii[grid.order]]).astype(np.float32)
+            cell_data = np.column_stack([grid.start, grid.count]).astype(np.int32)
+            hi = np.asarray(grid.origin, np.float32)
+            uniforms = {"u_grid_origin_hi": tuple(hi.tolist()),
+                        "u_grid_origin_lo": tuple((np.asarray(grid.origin) - hi).tolist()),
+                        "u_grid_cell": grid.cell, "u_grid_dims": grid.dims, "u_dot_edge": dots.edge_px,
+                        "u_dot_black": dots.black, "u_dot_white": dots.white}
+            self._dot_buffers = (self.ctx.buffer(dot_data.tobytes() or bytes(12)),
+                                 self.ctx.buffer(cell_data.tobytes()), uniforms)
+        dot_buf, cell_buf, uniforms = self._dot_buffers
+        dot_buf.bind_to_storage_buffer(2)
+        cell_buf.bind_to_storage_buffer(3)
+        for name, value in uniforms.items():
+            if name in prog:
+                prog[name].value = value
 
     def _ray_map(self, cam, s: int, fp64: bool):
         """Cached per camera model and supersampling: (W·s)×(H·s) RGBA32F undistorted rays."""
