@@ -118,7 +118,8 @@ def effective_precision(renderer: Renderer, combo: Combo) -> str:
 
 def reference_images(renderer: Renderer, spps, interps) -> dict[tuple[str, int], np.ndarray]:
     """CPU exact images per (interpolation, spp), as ``oracle.render_view`` makes them but
-    rasterised once per spp and interpolated in chunks (bounded memory at 16 spp)."""
+    rasterised once per spp and sampled in chunks (bounded memory at 16 spp). Always includes
+    "procedural": the speckle model itself, the grey truth."""
     view = renderer.view(CAMERA, STEP)
     W, H = view.camera.size
     images = {}
@@ -128,11 +129,11 @@ def reference_images(renderer: Renderer, spps, interps) -> dict[tuple[str, int],
         hit = np.flatnonzero(r["element"] >= 0)
         uv = r["ref_uv"][hit]
         del r
-        for method in interps:
-            coeffs = interp.prepare(renderer.reference.image, method, np.float64)
+        for method in sorted(set(interps) | {"procedural"}):
+            sample = renderer.backend.sampler(method)
             grey = np.full(H * s * W * s, float(renderer.scene.render.background))
             for k in range(0, len(hit), SAMPLE_CHUNK):
-                grey[hit[k:k + SAMPLE_CHUNK]] = interp.sample(coeffs, uv[k:k + SAMPLE_CHUNK], method)
+                grey[hit[k:k + SAMPLE_CHUNK]] = sample(uv[k:k + SAMPLE_CHUNK])
             images[method, spp] = grey.reshape(H, s, W, s).mean(axis=(1, 3)).astype(np.float32)
     return images
 
@@ -149,10 +150,10 @@ def mapping_error(truth, exact) -> tuple[dict, np.ndarray]:
             "only_exact": int(np.count_nonzero(exact.mask & ~truth.mask))}, both
 
 
-def grey_error(image: np.ndarray, reference: np.ndarray, both: np.ndarray) -> dict:
+def grey_error(image: np.ndarray, reference: np.ndarray, both: np.ndarray, name: str = "grey") -> dict:
     """|image − reference| × 255 (8-bit grey levels) over pixels covered in both."""
     d = np.abs(image[both].astype(np.float64) - reference[both]) * 255.0
-    return {"grey_rms": float(np.sqrt(np.mean(d * d))), "grey_max": float(d.max())}
+    return {f"{name}_rms": float(np.sqrt(np.mean(d * d))), f"{name}_max": float(d.max())}
 
 
 # ---- the accuracy table ------------------------------------------------------------------------
@@ -163,7 +164,8 @@ def row(renderer: Renderer, combo: Combo, reps: int, mapping: tuple[dict, np.nda
     errors, both = mapping
     return {**dataclasses.asdict(combo), "arithmetic": effective_precision(renderer, combo),
             "reps": len(seconds), "seconds": statistics.median(seconds), "seconds_all": seconds,
-            **errors, **grey_error(last.image, references[combo.interpolation, combo.spp], both)}
+            **errors, **grey_error(last.image, references[combo.interpolation, combo.spp], both),
+            **grey_error(last.image, references["procedural", combo.spp], both, "speckle")}
 
 
 def backend_rows(renderer: Renderer, combos: list[Combo], reps: int, exact, references) -> list[dict]:
@@ -315,7 +317,7 @@ def _g(x: float | None, fmt: str = ".3g") -> str:
 
 
 COLUMNS = ("| backend | mode | arith. | interp | spp | reps | time (s) | min–max (s) | map RMS (px) "
-           "| map max (px) | > 0.01 px | only here | only exact | grey RMS | grey max |")
+           "| map max (px) | > 0.01 px | only here | only exact | grey RMS | grey max | vs speckle RMS | vs speckle max |")
 
 LEGEND = """\
 Columns. **arith.**: floating point of the mapping arithmetic actually used (GL fast is always
@@ -337,7 +339,10 @@ camera) over the pixels covered in both; at spp > 1 this includes silhouette pix
 sub-sample is covered differently, which moves the pixel by up to 0.9 × 255 / spp. The
 reference is the CPU backend in mode exact (float64 ray/patch intersection), so its own rows
 read 0; its images for every interpolation and spp come from one rasterisation per spp (the
-same code path as `glsim.oracle.render_view`).
+same code path as `glsim.oracle.render_view`). **vs speckle RMS / max**: |image − the exact
+speckle| × 255, the reference being the CPU exact mapping with `interpolation = "procedural"`
+(the Boolean speckle model evaluated at every sample, no interpolation): the total grey error
+of the row, texture interpolation included.
 """
 
 
@@ -359,7 +364,7 @@ def _record_line(r: dict) -> str:
             f"| {r['reps']} | {_g(r['seconds'])} | {_g(min(r['seconds_all']))}–{_g(max(r['seconds_all']))} "
             f"| {_g(r['map_rms_px'], '.2e')} | {_g(r['map_max_px'], '.2e')} "
             f"| {r['map_n_over']} | {r['only_here']} | {r['only_exact']} | {_g(r['grey_rms'])} "
-            f"| {_g(r['grey_max'])} |")
+            f"| {_g(r['grey_max'])} | {_g(r['speckle_rms'])} | {_g(r['speckle_max'])} |")
 
 
 def _peer_line(p: dict) -> str:
@@ -376,7 +381,7 @@ def markdown(report: dict) -> str:
              f"- Machine: `{m['node']}`, {m['cpu']}, {m['cores']} cores, Python {m['python']}",
              f"- GL: {m['gl']['vendor']} / {m['gl']['renderer']} / {m['gl']['version']}",
              f"- Date: {report['date']}; image {W}×{H}; {report['scene']}", "",
-             COLUMNS, "|" + "---|" * 15]
+             COLUMNS, "|" + "---|" * 17]
     lines += [_record_line(r) for r in report["records"]]
     lines += ["", LEGEND.format(reps=report["reps"], slow=SLOW_S, slow_reps=min(report["reps"], SLOW_REPS),
                                 cpu=min(report["reps"], CPU_REPS)),
