@@ -1,15 +1,20 @@
 """backend="gl": rasterize a :class:`~glsim.geometry.View` with OpenGL shaders.
 
-Passes: (1) the deformation pass at s×s samples per pixel into an R32F target (and the truth
-maps when asked), with a depth test; (2) for s > 1, a box-filter pass down to W×H.
+Passes, each only when the scene asks for it: the exact mode's per-camera ray map (cached);
+the deformation pass at s×s samples per pixel (reference sampling, lighting, truth maps, depth)
+with a depth test; for s > 1 the box filter down to W×H; the depth-of-field blur (separable
+Gaussian or disk); the noise pass; then one read-back.
 """
 from __future__ import annotations
+
+from dataclasses import replace
 
 import numpy as np
 
 from .. import interp
 from .. import noise
 from ..blur import kernel_radius, shader_uniforms
+from ..effects import Effects
 from ..geometry import View
 from .context import check_error, create_context
 from .programs import ProgramCache
@@ -172,8 +177,6 @@ class GLBackend:
     def render_view(self, view: View, opts, truth: bool = False, effects=None):
         """Image (H, W) float32, the pixel-centre raster if ``truth`` (as the CPU backend), and
         the list of passes run."""
-        from ..effects import Effects
-
         fx = effects or Effects()
         s = opts.supersampling
         W, H = view.camera.size
@@ -188,8 +191,9 @@ class GLBackend:
             kernel = fx.optics.kernel
             passes = ("BLUR_DISK",) if kernel == "disk" else ("BLUR_HORIZONTAL", "BLUR_VERTICAL")
             for name in passes:
-                grey = self.fullscreen_pass("blur.frag", {name: None, "MAX_RADIUS": int(kernel_radius(fx.sigma_max, kernel))},
-                                            {"u_src": grey, "u_depth": depth}, shader_uniforms(fx.optics), (W, H))
+                defines = {name: None, "MAX_RADIUS": int(kernel_radius(fx.sigma_max, kernel))}
+                grey = self.fullscreen_pass("blur.frag", defines, {"u_src": grey, "u_depth": depth},
+                                            shader_uniforms(fx.optics), (W, H))
                 temps.append(grey)
                 stages.append(name.lower())
         if fx.noise is not None:
@@ -200,7 +204,6 @@ class GLBackend:
         for t in temps:
             t.release()
         if truth and s > 1:
-            from dataclasses import replace
             _, raster = self._deform(view, replace(opts, samples_per_pixel=1), 1, True, Effects())
         return image, raster, stages
 
