@@ -161,7 +161,9 @@ def render_view(view: View, sample, opts, truth: bool, fx=None):
     r = rasterize(view, opts.mode, s)
     hit = r["element"] >= 0
     grey = np.full(len(hit), float(opts.background))
-    grey[hit] = sample(r["ref_uv"][hit])
+    idx = np.flatnonzero(hit)
+    for k in range(0, len(idx), CHUNK):  # bounded memory at high supersampling
+        grey[idx[k:k + CHUNK]] = sample(r["ref_uv"][idx[k:k + CHUNK]])
     if fx.lighting is not None:
         grey[hit] = _shade(view, r, hit, grey[hit], fx)
         stages.append("light")
