@@ -43,7 +43,8 @@ def _run(scene, out: str, args, label: str) -> int:
 
     t0 = time.perf_counter()
     w = write_sequence(scene, out, steps=_steps(args.steps), backend=args.backend,
-                       truth=args.truth, progress=None if args.quiet else _progress)
+                       truth=args.truth, progress=None if args.quiet else _progress,
+                       truth_format=args.truth_format)
     total = time.perf_counter() - t0
     n = len(w.images)
     r = scene.render
@@ -89,7 +90,9 @@ def _common(p: argparse.ArgumentParser) -> None:
     p.add_argument("--backend", choices=BACKENDS, help="override [render] backend")
     p.add_argument("--mode", choices=MODES, help="override [render] mode")
     p.add_argument("--steps", help="load steps to render, e.g. 0,2 or 0-3 (default: all)")
-    p.add_argument("--truth", action="store_true", help="also write per-pixel ground truth (.npz)")
+    p.add_argument("--truth", action="store_true", help="also write per-pixel ground truth")
+    p.add_argument("--truth-format", choices=("npz", "tiff"), default="npz",
+                   help="one .npz per image, or one float TIFF per map")
     p.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
 
 

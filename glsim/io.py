@@ -65,6 +65,22 @@ def write_truth(path: str | Path, arrays: dict[str, np.ndarray]) -> Path:
     return path
 
 
+def write_truth_tiff(stem: str | Path, arrays: dict[str, np.ndarray]) -> list[Path]:
+    """Write each truth map as a float32 TIFF ``{stem}_{name}.tif`` (multi-channel maps as
+    (H, W, C); the mask and element index as integers), atomically; returns the paths."""
+    import tifffile
+
+    paths = []
+    for name, a in arrays.items():
+        path = Path(f"{stem}_{name}.tif")
+        data = a.astype(np.uint8 if a.dtype == bool else np.int32 if a.dtype.kind == "i" else np.float32)
+        with atomic_path(path) as tmp:
+            # channels as samples of one page (H, W, C), not as RGB
+            tifffile.imwrite(tmp, data, photometric="minisblack", planarconfig="contig" if data.ndim == 3 else None)
+        paths.append(path)
+    return paths
+
+
 def write_text(path: str | Path, text: str) -> Path:
     path = Path(path)
     with atomic_path(path) as tmp:

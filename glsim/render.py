@@ -145,12 +145,16 @@ class Written:
 
 
 def write_sequence(scene: Scene, directory: str | None = None, steps=None, cameras=None,
-                   backend: str | None = None, truth: bool = False, progress=None) -> Written:
+                   backend: str | None = None, truth: bool = False, progress=None,
+                   truth_format: str = "npz") -> Written:
     """Render every camera at every step and write the images (and truth maps) atomically.
 
-    Writes ``scene.json`` (the resolved scene) first. ``progress(done, total, path)`` is called
-    after each image. Returns what was written.
+    Writes ``scene.json`` (the resolved scene) first. Truth maps go to one ``*_truth.npz``
+    per image, or with ``truth_format="tiff"`` to one float TIFF per map. ``progress(done,
+    total, path)`` is called after each image. Returns what was written.
     """
+    if truth_format not in ("npz", "tiff"):
+        raise SceneError("truth_format", f"{truth_format!r} is not npz or tiff", "use npz or tiff")
     from . import io
 
     out = Path(directory or scene.resolve(scene.output.directory))
@@ -169,9 +173,12 @@ def write_sequence(scene: Scene, directory: str | None = None, steps=None, camer
                 res = r.render(cam.name, step, truth=truth)
                 path = out / scene.output.pattern.format(camera=cam.name, step=step, ext=ext)
                 images.append(str(io.write_image(path, res.image, cam.bit_depth, scene.output.format)))
-                if truth:
+                if truth and truth_format == "npz":
                     truths.append(str(io.write_truth(path.with_name(path.stem + "_truth.npz"),
                                                      res.truth.as_dict())))
+                elif truth:
+                    truths += map(str, io.write_truth_tiff(path.with_name(path.stem + "_truth"),
+                                                          res.truth.as_dict()))
                 seconds.append(res.seconds)
                 if progress:
                     progress(len(images), total, images[-1])

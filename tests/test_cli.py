@@ -49,6 +49,14 @@ def test_render_scene_file_with_truth_matches_api(tmp_path):
     truth = np.load(out / f"{cam}_0001_truth.npz")
     assert set(truth.files) == {"mask", "element", "xi", "eta", "ref_uv", "X_undeformed", "X_deformed"}
     assert np.array_equal(truth["mask"], res.truth.mask)
+    tiff = tmp_path / "tiff"
+    assert main(["render", str(scene_file), "-o", str(tiff), "--steps", "1", "--truth", "--truth-format", "tiff",
+                 "-q"]) == 0
+    ref_uv = io.read_image(tiff / f"{cam}_0001_truth_ref_uv.tif")
+    assert ref_uv.dtype == np.float32 and ref_uv.shape == (240, 320, 2)
+    m = res.truth.mask
+    np.testing.assert_allclose(ref_uv[m], res.truth.ref_uv[m], atol=1e-4)  # float32 storage (CPU render here)
+    assert np.array_equal(io.read_image(tiff / f"{cam}_0001_truth_mask.tif").astype(bool), m)
 
 
 def test_bad_scene_gives_a_clear_message_not_a_traceback(tmp_path, capsys):
