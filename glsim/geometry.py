@@ -25,9 +25,10 @@ class View:
     reference camera's frame (mm). ``uv``: distorted pixel projections of ``Xd``.
     ``ref_uv``: reference-image coordinates of the corners. ``projectable``: all four
     corners in front of the camera and inside the distortion model's valid radius (the
-    ``fast`` and ``q4`` modes draw only these). ``bbox``: conservative pixel box
-    [u0, v0, u1, v1] (inclusive, clipped) that contains the element's image in the
-    ``exact`` mode; u1 < u0 when the element cannot be seen.
+    ``fast`` and ``q4`` modes draw only these). ``cover``: a rectangle (4 corners, px) that
+    contains the element's image, which the ``exact`` mode rasterizes; ``bbox``: the pixels
+    whose area meets it, [u0, v0, u1, v1] (inclusive, clipped; u1 < u0 when the element
+    cannot be seen).
     """
     camera: Camera
     ref_camera: Camera
@@ -36,47 +37,53 @@ class View:
     uv: np.ndarray
     ref_uv: np.ndarray
     projectable: np.ndarray
+    cover: np.ndarray
     bbox: np.ndarray
     far: float
 
 
-def _bbox_exact(cam: Camera, Xd: np.ndarray, projectable: np.ndarray, behind: np.ndarray) -> np.ndarray:
-    """Pixel boxes containing each element's distorted image.
+def _cover(cam: Camera, Xd: np.ndarray, projectable: np.ndarray, behind: np.ndarray):
+    """Conservative covers of each element's distorted image: a rectangle (M, 4, 2) px
+    oriented along the element (the exact mode rasterizes it) and its pixel box.
 
-    A bilinear patch lies in the convex hull of its corners, whose pinhole image lies in the
-    box of the corners' normalized coordinates; the box's boundary is sampled, distorted and
-    padded by twice the largest sagitta between samples plus one pixel. Elements that are not
+    A bilinear patch lies in the convex hull of its corners, bounded by segments between
+    corners; their pinhole images are straight and the distortion bends them. The six corner
+    segments are sampled in normalized coordinates and distorted; the rectangle holds the
+    samples, padded by twice the largest sagitta between samples. Elements that are not
     projectable but not wholly behind the camera get the whole image.
     """
     M = len(Xd)
     W, H = cam.size
     z = np.where(projectable[:, None], Xd[..., 2], 1.0)
     xn = Xd[..., :2] / z[..., None]
-    lo, hi = xn.min(axis=1), xn.max(axis=1)
-    n = 9
-    s = np.linspace(0.0, 1.0, n)
-    # boundary of the normalized box: 4 edges × n samples, plus mid-points between samples
-    edges = [np.stack([s, 0 * s], -1), np.stack([1 + 0 * s, s], -1),
-             np.stack([s, 1 + 0 * s], -1), np.stack([0 * s, s], -1)]
-    frac = np.concatenate(edges)                                  # (4n, 2)
-    pts = lo[:, None, :] + frac[None] * (hi - lo)[:, None, :]      # (M, 4n, 2)
+    t = np.linspace(0.0, 1.0, 9)[:, None]
+    pairs = ((0, 1), (1, 2), (2, 3), (3, 0), (0, 2), (1, 3))
+    pts = np.concatenate([xn[:, None, i] + t[None] * (xn[:, None, j] - xn[:, None, i]) for i, j in pairs], axis=1)
     k = cam.distortion.coeffs
     uv = normalized_to_pixel(distort(pts, k), cam.intrinsics)
-    mid = normalized_to_pixel(distort(0.5 * (pts[:, :-1] + pts[:, 1:]), k), cam.intrinsics)
-    sag = np.linalg.norm(mid - 0.5 * (uv[:, :-1] + uv[:, 1:]), axis=-1).max(axis=1)
-    pad = 1.0 + 2.0 * sag
-    box = np.empty((M, 4))
-    box[:, :2] = np.floor(uv.min(axis=1) - pad[:, None])
-    box[:, 2:] = np.ceil(uv.max(axis=1) + pad[:, None])
+    seg = uv.reshape(M, len(pairs), len(t), 2)
+    mid = normalized_to_pixel(distort(0.5 * (pts.reshape(seg.shape)[:, :, :-1] + pts.reshape(seg.shape)[:, :, 1:]), k),
+                              cam.intrinsics)
+    sag = np.linalg.norm(mid - 0.5 * (seg[:, :, :-1] + seg[:, :, 1:]), axis=-1).reshape(M, -1).max(axis=1)
+    pad = 2.0 * sag + 1e-3
+    corners = uv[:, ::len(t)][:, :4]                     # the distorted corners 0, 1, 2, 3
+    a = (corners[:, 1] - corners[:, 0]) + (corners[:, 2] - corners[:, 3])
+    norm = np.linalg.norm(a, axis=1, keepdims=True)
+    a = np.where(norm > 0, a / np.where(norm > 0, norm, 1.0), [1.0, 0.0])
+    b = np.stack([-a[:, 1], a[:, 0]], 1)
+    pa = np.einsum("mnd,md->mn", uv, a)
+    pb = np.einsum("mnd,md->mn", uv, b)
+    lo_a, hi_a = pa.min(1) - pad, pa.max(1) + pad
+    lo_b, hi_b = pb.min(1) - pad, pb.max(1) + pad
+    rect = np.stack([lo_a[:, None] * a + lo_b[:, None] * b, hi_a[:, None] * a + lo_b[:, None] * b,
+                     hi_a[:, None] * a + hi_b[:, None] * b, lo_a[:, None] * a + hi_b[:, None] * b], 1)
     whole = ~projectable & ~behind
-    box[whole] = (0, 0, W - 1, H - 1)
-    out = np.empty((M, 4), dtype=np.int64)
-    out[:, 0] = np.clip(box[:, 0], 0, W)
-    out[:, 1] = np.clip(box[:, 1], 0, H)
-    out[:, 2] = np.clip(box[:, 2], -1, W - 1)
-    out[:, 3] = np.clip(box[:, 3], -1, H - 1)
-    out[behind] = (0, 0, -1, -1)
-    return out
+    rect[whole] = [(-0.5, -0.5), (W - 0.5, -0.5), (W - 0.5, H - 0.5), (-0.5, H - 0.5)]
+    box = np.empty((M, 4), dtype=np.int64)  # pixels whose area meets the rectangle (any spp)
+    box[:, :2] = np.clip(np.ceil(rect.min(axis=1) - 0.5), 0, [W, H])
+    box[:, 2:] = np.clip(np.floor(rect.max(axis=1) + 0.5), -1, [W - 1, H - 1])
+    box[behind] = (0, 0, -1, -1)
+    return rect, box
 
 
 def make_view(cam: Camera, ref_cam: Camera, nodes_ref: np.ndarray, nodes_def: np.ndarray,
@@ -104,9 +111,9 @@ def make_view(cam: Camera, ref_cam: Camera, nodes_ref: np.ndarray, nodes_def: np
                       "plane or leave the distortion model's valid radius; the fast and q4 modes "
                       "drop them, the exact mode intersects them per pixel", RenderWarning, stacklevel=3)
     zmax = float(Xd[..., 2].max()) if len(Xd) else 1.0
+    cover, bbox = _cover(cam, Xd, projectable, behind)
     return View(camera=cam, ref_camera=ref_cam, Xd=Xd, Xr=Xr, uv=uv, ref_uv=ref_uv,
-                projectable=projectable, bbox=_bbox_exact(cam, Xd, projectable, behind),
-                far=max(zmax, NEAR_MM) * 1.5)
+                projectable=projectable, cover=cover, bbox=bbox, far=max(zmax, NEAR_MM) * 1.5)
 
 
 def _warn_shape(cam: Camera, Xd: np.ndarray, labels: np.ndarray | None) -> None:

@@ -23,7 +23,7 @@ def _boxes(view: View, mode: str, s: int) -> np.ndarray:
     if mode == "exact":
         b = view.bbox
         box = np.stack([b[:, 0] * s, b[:, 1] * s, b[:, 2] * s + s - 1, b[:, 3] * s + s - 1], 1)
-        box[b[:, 2] < b[:, 0]] = (0, 0, -1, -1)
+        box[(b[:, 2] < b[:, 0]) | (b[:, 3] < b[:, 1])] = (0, 0, -1, -1)
         return box
     lo = view.uv.min(axis=1)
     hi = view.uv.max(axis=1)

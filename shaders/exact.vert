@@ -1,6 +1,6 @@
-// Mode exact: a conservative pixel box per element (computed in float64 on the CPU); the
+// Mode exact: a conservative rectangle per element (computed in float64 on the CPU); the
 // fragment stage decides coverage by intersecting each pixel's ray with the element.
-in vec2 in_px;       // box corner (px)
+in vec2 in_px;       // corner of the element's cover rectangle (px, geometry.py)
 in int in_elem;
 
 uniform vec2 u_size;

@@ -154,12 +154,9 @@ class GLBackend:
         M = len(view.Xd)
         elem = np.repeat(np.arange(M, dtype=np.int32), 4)
         if mode == "exact":
-            b = view.bbox.astype(np.float32)
-            drawn = np.flatnonzero(view.bbox[:, 2] >= view.bbox[:, 0])
-            px = np.stack([np.stack([b[:, 0] - 0.5, b[:, 1] - 0.5], 1), np.stack([b[:, 2] + 0.5, b[:, 1] - 0.5], 1),
-                           np.stack([b[:, 2] + 0.5, b[:, 3] + 0.5], 1), np.stack([b[:, 0] - 0.5, b[:, 3] + 0.5], 1)], 1)
+            drawn = np.flatnonzero((view.bbox[:, 2] >= view.bbox[:, 0]) & (view.bbox[:, 3] >= view.bbox[:, 1]))
             verts = np.zeros(M * 4, dtype=[("px", "f4", 2), ("elem", "i4")])
-            verts["px"] = px.reshape(-1, 2)
+            verts["px"] = view.cover.reshape(-1, 2)
             layout = "2f 1i"
             attrs = ("in_px", "in_elem")
         else:
