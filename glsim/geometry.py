@@ -15,6 +15,8 @@ from .camera import Camera, distort, normalized_to_pixel, project_camera_frame, 
 from .errors import RenderWarning, SceneError
 
 NEAR_MM = 1e-3  # corners closer to the camera plane than this cannot be projected
+GRAZING_DEG = 85.0
+GRAZING_COS = float(np.cos(np.radians(GRAZING_DEG)))
 
 
 @dataclass(frozen=True, eq=False)
@@ -117,17 +119,24 @@ def make_view(cam: Camera, ref_cam: Camera, nodes_ref: np.ndarray, nodes_def: np
 
 
 def _warn_shape(cam: Camera, Xd: np.ndarray, labels: np.ndarray | None) -> None:
-    """Warn about zero-area and folded (bow-tie / inverted) elements, naming them."""
+    """Warn about zero-area, folded (bow-tie / inverted) and grazing elements, naming them."""
     n1 = np.cross(Xd[:, 1] - Xd[:, 0], Xd[:, 2] - Xd[:, 0])
     n2 = np.cross(Xd[:, 2] - Xd[:, 0], Xd[:, 3] - Xd[:, 0])
     area = 0.5 * (np.linalg.norm(n1, axis=1) + np.linalg.norm(n2, axis=1))
     size = np.ptp(Xd.reshape(-1, 3), axis=0).max() if len(Xd) else 1.0
     zero = area <= 1e-12 * size * size
     folded = ~zero & ((n1 * n2).sum(axis=1) < 0)
-    for bad, what in ((zero, "have zero area"), (folded, "are folded (inverted or bow-tie)")):
+    view = Xd.mean(axis=1)  # from the camera (at the origin) to the element's centre
+    normal = np.cross(Xd[:, 2] - Xd[:, 0], Xd[:, 3] - Xd[:, 1])
+    cos = np.abs((normal * view).sum(1)) / np.maximum(np.linalg.norm(normal, axis=1) * np.linalg.norm(view, axis=1),
+                                                        1e-300)
+    grazing = ~zero & (cos < GRAZING_COS)
+    for bad, what in ((zero, "have zero area"), (folded, "are folded (inverted or bow-tie)"),
+                      (grazing, f"are seen at more than {GRAZING_DEG:g}° from their normal (grazing): "
+                                "the fast and q4 modes' mapping error grows there")):
         if bad.any():
             warnings.warn(f"camera {cam.name}: elements {_labels(np.flatnonzero(bad), labels)} {what}; "
-                          "pixels that map into them stay consistent but check the mesh",
+                          "their pixels stay finite and consistent; check the mesh or the view",
                           RenderWarning, stacklevel=3)
 
 
