@@ -116,28 +116,20 @@ def inside(xi, eta, tol=INSIDE_TOL):
     return (np.abs(xi) <= 1 + tol) & (np.abs(eta) <= 1 + tol)
 
 
-def ray_basis(d):
-    """Two unit vectors orthogonal to the unit ray directions d (..., 3) and to each other."""
-    helper = np.where((np.abs(d[..., 0]) < 0.9)[..., None], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0])
-    n1 = np.cross(d, helper)
-    n1 /= np.linalg.norm(n1, axis=-1, keepdims=True)
-    return n1, np.cross(d, n1)
+def intersect_ray_patch(P, xn):
+    """Nearest intersection of the camera rays through normalized image points xn (..., 2)
+    (the ray from the origin along (x, y, 1)) with bilinear patches P (..., 4, 3) (camera
+    frame, mm).
 
-
-def intersect_ray_patch(P, d):
-    """Nearest intersection of rays from the origin along unit d (..., 3) with bilinear
-    patches P (..., 4, 3) (camera frame, mm).
-
-    The patch is projected along the ray onto the plane orthogonal to it, which turns the
-    intersection into a 2-D inverse bilinear problem with target (0, 0). Returns
-    (ξ, η, depth Z, ok); ok needs a root inside the element in front of the camera.
+    A point X lies on the ray iff X − x·Z = 0 and Y − y·Z = 0: two planes through the ray.
+    Evaluated at the corners they turn the intersection into a 2-D inverse bilinear problem
+    with target (0, 0). Returns (ξ, η, depth Z, ok); ok needs a root inside the element in
+    front of the camera.
     """
-    n1, n2 = ray_basis(d)
-    p2 = np.stack([np.einsum("...id,...d->...i", P, n1), np.einsum("...id,...d->...i", P, n2)], -1)
+    p2 = P[..., :2] - xn[..., None, :] * P[..., 2:3]
     xi, eta, ok = invert_closed(p2, np.zeros(p2.shape[:-2] + (2,)))
-    X = bilinear(P[None], xi, eta)                         # (2, ..., 3)
-    lam = np.einsum("k...d,...d->k...", X, d)
-    ok = ok & inside(xi, eta) & (lam > 0)
-    first = np.where(ok[0] & (~ok[1] | (lam[0] <= lam[1])), 0, 1)
+    Z = bilinear(P[None, ..., 2:3], xi, eta)[..., 0]        # (2, ...)
+    ok = ok & inside(xi, eta) & (Z > 0)
+    first = np.where(ok[0] & (~ok[1] | (Z[0] <= Z[1])), 0, 1)
     pick = lambda a: np.take_along_axis(a, first[None], 0)[0]  # noqa: E731
-    return pick(xi), pick(eta), pick(X[..., 2]), pick(ok)
+    return pick(xi), pick(eta), pick(Z), pick(ok)

@@ -89,7 +89,7 @@ def _q4(view: View, e, q, tol=1e-12):
 
 
 def _exact(view: View, e, rays, ray_ok):
-    xi, eta, depth, ok = bl.intersect_ray_patch(view.Xd[e], rays)
+    xi, eta, depth, ok = bl.intersect_ray_patch(view.Xd[e], rays[:, :2] / rays[:, 2:])
     ref_uv, ref_ok = project_camera_frame(bl.bilinear(view.Xr[e], xi, eta), view.ref_camera)
     return ok & ray_ok & ref_ok, depth, xi, eta, ref_uv
 

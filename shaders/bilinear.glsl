@@ -105,31 +105,27 @@ void invert_closed(real2 p[4], real2 q, out real xi[2], out real eta[2], out boo
     }
 }
 
-// Nearest intersection of the ray from the origin along unit d with the bilinear patch P
-// (camera frame, mm): project the patch along the ray and solve the 2-D inverse map at (0, 0).
-bool intersect_ray_patch(real3 P[4], real3 d, out real xi, out real eta, out real Z) {
-    real3 helper = abs(d.x) < 0.9 ? real3(1.0, 0.0, 0.0) : real3(0.0, 1.0, 0.0);
-    real3 n1 = normalize(cross(d, helper));
-    real3 n2 = cross(d, n1);
+// Nearest intersection of the camera ray through normalized image point xn (the ray from the
+// origin along (x, y, 1)) with the bilinear patch P (camera frame, mm): X - x Z = 0 and
+// Y - y Z = 0 are two planes through the ray; at the corners they give a 2-D inverse bilinear
+// problem with target (0, 0).
+bool intersect_ray_patch(real3 P[4], real2 xn, out real xi, out real eta, out real Z) {
     real2 p[4];
-    for (int i = 0; i < 4; ++i) p[i] = real2(dot(P[i], n1), dot(P[i], n2));
+    for (int i = 0; i < 4; ++i) p[i] = P[i].xy - xn * P[i].z;
     real xs[2], es[2];
     bool ok[2];
     invert_closed(p, real2(0.0), xs, es, ok);
     bool found = false;
-    real best = 0.0;
     xi = 0.0;
     eta = 0.0;
     Z = 0.0;
     for (int k = 0; k < 2; ++k) {
-        real3 X = bilinear3(P, xs[k], es[k]);
-        real lam = dot(X, d);
-        if (ok[k] && inside(xs[k], es[k], INSIDE_TOL) && lam > 0.0 && (!found || lam < best)) {
+        real z = dot(shape_functions(xs[k], es[k]), real4(P[0].z, P[1].z, P[2].z, P[3].z));
+        if (ok[k] && inside(xs[k], es[k], INSIDE_TOL) && z > 0.0 && (!found || z < Z)) {
             found = true;
-            best = lam;
             xi = xs[k];
             eta = es[k];
-            Z = X.z;
+            Z = z;
         }
     }
     return found;

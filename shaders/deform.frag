@@ -90,7 +90,7 @@ void main() {
     if (ray.x >= 1e30) discard;  // rays.frag's NO_RAY
     real2 xn = real2(ray.xy) + real2(ray.zw);
     real Z;
-    if (!intersect_ray_patch(P, normalize(real3(xn, 1.0)), xi, eta, Z)) discard;
+    if (!intersect_ray_patch(P, xn, xi, eta, Z)) discard;
     if (!project_camera_frame(bilinear3(R, xi, eta), u_ref_intr, u_ref_dist, u_ref_valid_r2, ref)) discard;
 #endif
     gl_FragDepth = float(Z) / u_far;
