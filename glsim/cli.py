@@ -80,10 +80,20 @@ def cmd_render(args) -> int:
     return _run(scene, out, args, f"glsim render {args.scene}")
 
 
-def cmd_bench(args) -> int:
-    from . import bench
+def _delegated(name: str, argv: list[str]) -> int:
+    """`glsim bench|calib|verify …`: their own argument parsers take the rest of the line."""
+    if name == "bench":
+        from .bench import main as run
+    elif name == "calib":
+        from .calib.cli import main as run
+    else:
+        from .verify import main as run
+    return run(argv)
 
-    return bench.main(args.rest)
+
+DELEGATED = {"bench": "benchmarks: glsim bench {accuracy,effects} …",
+             "calib": "calibration targets: glsim calib {library,run,study} …",
+             "verify": "independent stereo-DIC verification: glsim verify run …"}
 
 
 def _common(p: argparse.ArgumentParser) -> None:
@@ -114,15 +124,17 @@ def parser() -> argparse.ArgumentParser:
     r.add_argument("-o", "--output", help="output directory (default: [output] directory)")
     _common(r)
     r.set_defaults(func=cmd_render)
-    b = sub.add_parser("bench", help="benchmarks: glsim bench accuracy [--quick] …")
-    b.add_argument("rest", nargs=argparse.REMAINDER)
-    b.set_defaults(func=cmd_bench)
+    for name, text in DELEGATED.items():  # listed for --help; main() hands them their arguments
+        sub.add_parser(name, help=text)
     return ap
 
 
 def main(argv: list[str] | None = None) -> int:
-    args = parser().parse_args(argv)
+    argv = sys.argv[1:] if argv is None else list(argv)
     try:
+        if argv and argv[0] in DELEGATED:
+            return _delegated(argv[0], argv[1:])
+        args = parser().parse_args(argv)
         return args.func(args)
     except GlsimError as exc:
         print(f"glsim: error: {exc}", file=sys.stderr)
