@@ -24,6 +24,9 @@ def atomic_path(path: str | Path):
     os.close(fd)
     try:
         yield Path(tmp)
+        umask = os.umask(0)
+        os.umask(umask)
+        os.chmod(tmp, 0o666 & ~umask)  # mkstemp makes it private (0600); use the usual mode
         os.replace(tmp, path)
     finally:
         if os.path.exists(tmp):
