@@ -41,3 +41,19 @@ egl:
 
 clean:
 	rm -rf $(VENV) build dist *.egg-info glsim-demo
+
+# make verify: glsim's bulge images measured by an independent stereo DIC (pyvale, in its own
+# .venv-verify of about 2 GB), compared with the imposed coordinates → bench/results/verify.*
+VERIFY_VENV  := .venv-verify
+VERIFY_STAMP := $(VERIFY_VENV)/.pyvale-installed
+
+.PHONY: verify
+
+verify: venv $(VERIFY_STAMP)
+	$(BIN)/python -m glsim.verify run
+
+$(VERIFY_STAMP): verify/requirements.txt
+	test -x $(VERIFY_VENV)/bin/python || $(PYTHON) -m venv $(VERIFY_VENV)
+	$(VERIFY_VENV)/bin/python -m pip install -q --upgrade pip
+	$(VERIFY_VENV)/bin/python -m pip install -q -r verify/requirements.txt
+	touch $@
