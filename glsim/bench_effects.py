@@ -78,11 +78,13 @@ def markdown(report: dict) -> str:
              "- Effects as `glsim demo --effects`: a spotlight (Table 1 values), 30 mm f/2 depth of field "
              "focused at 600 mm, 2 % Gaussian noise.",
              "- time: median `Result.seconds` per image (both cameras) after one warm-up each; "
+             "min–max: the spread of those renders (an increment smaller than it is not resolved); "
              "added: over the no-effect row; share: added / the all-effects row's time.", "",
-             "| backend | effects | reps | time per image (s) | added (s) | share of all | stages run |",
-             "|---|---|---|---|---|---|---|"]
+             "| backend | effects | reps | time per image (s) | min–max (s) | added (s) | share of all | stages run |",
+             "|---|---|---|---|---|---|---|---|"]
     for r in report["records"]:
         lines.append(f"| {r['backend']} | {r['effects']} | {r['reps']} | {r['seconds']:.3g} | "
+                     f"{min(r['seconds_all']):.3g}–{max(r['seconds_all']):.3g} | "
                      f"{r['added_seconds']:+.3g} | {r['share_of_all']:.0%} | {', '.join(r['stages'])} |")
     return "\n".join(lines) + "\n"
 

@@ -52,6 +52,8 @@ def _run(scene, out: str, args, label: str) -> int:
           f"(render {sum(w.seconds):.2f} s, {sum(w.seconds) / max(n, 1) * 1e3:.0f} ms per image; "
           f"backend={args.backend or r.backend}, mode={r.mode}, interpolation={r.interpolation}, "
           f"spp={r.samples_per_pixel})")
+    if max(w.saturated, default=0.0) > 0:
+        print(f"saturated (clipped) pixels: up to {max(w.saturated):.2%} of an image")
     print(f"resolved scene: {w.scene_json}")
     return 0
 

@@ -141,6 +141,7 @@ class Written:
     images: tuple[str, ...]
     truth: tuple[str, ...]
     seconds: tuple[float, ...]
+    saturated: tuple[float, ...]      # per image: fraction of pixels clipped when written
     scene_json: str
 
 
@@ -159,7 +160,7 @@ def write_sequence(scene: Scene, directory: str | None = None, steps=None, camer
 
     out = Path(directory or scene.resolve(scene.output.directory))
     ext = io.EXTENSIONS[scene.output.format]
-    images, truths, seconds = [], [], []
+    images, truths, seconds, saturated = [], [], [], []
     scene_json = io.write_text(out / "scene.json", scene.to_json())
     with Renderer(scene, backend) as r:
         steps = list(range(r.mesh.n_steps)) if steps is None else list(steps)
@@ -180,6 +181,7 @@ def write_sequence(scene: Scene, directory: str | None = None, steps=None, camer
                     truths += map(str, io.write_truth_tiff(path.with_name(path.stem + "_truth"),
                                                           res.truth.as_dict()))
                 seconds.append(res.seconds)
+                saturated.append(res.saturated)
                 if progress:
                     progress(len(images), total, images[-1])
-    return Written(tuple(images), tuple(truths), tuple(seconds), str(scene_json))
+    return Written(tuple(images), tuple(truths), tuple(seconds), tuple(saturated), str(scene_json))
