@@ -596,11 +596,36 @@ def scene_from_dict(data: dict, base_dir: str | Path = ".") -> Scene:
     return Scene(cameras=tuple(cameras), base_dir=str(Path(base_dir).resolve()), **rest)
 
 
+def _from_resolved(data: dict) -> tuple[dict, str]:
+    """The layout of :meth:`Scene.to_dict` (a written ``scene.json``) as the scene-file layout:
+    no nulls, poses as ``pose = {R, t}``, and the recorded base directory."""
+    def drop_none(x):
+        if isinstance(x, dict):
+            return {k: drop_none(v) for k, v in x.items() if v is not None}
+        return [drop_none(v) for v in x] if isinstance(x, list) else x
+
+    d = drop_none(data)
+    base = d.pop("base_dir", ".")
+    posed = list(d.get("cameras", [])) + [d.get("specimen", {}), d.get("speckle", {}).get("camera", {})]
+    for table in posed:
+        if isinstance(table, dict) and "R" in table:
+            table["pose"] = {"R": table.pop("R"), "t": table.pop("t")}
+    return d, base
+
+
 def load_scene(path: str | Path) -> Scene:
-    """Read and validate a TOML scene file; relative paths in it start at its directory."""
+    """Read and validate a TOML scene file (relative paths in it start at its directory), or a
+    ``scene.json`` that glsim wrote next to its outputs (the resolved scene, re-rendered as is)."""
     path = Path(path)
     if not path.is_file():
         raise SceneError(str(path), "scene file not found", "check the path")
+    if path.suffix == ".json":
+        try:
+            data, base = _from_resolved(json.loads(path.read_text(encoding="utf-8")))
+        except (ValueError, AttributeError) as exc:
+            raise SceneError(str(path), f"is not a scene.json written by glsim ({exc})",
+                             "give a TOML scene file or an unmodified scene.json") from None
+        return scene_from_dict(data, base)
     try:
         data = tomllib.loads(path.read_text(encoding="utf-8"))
     except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
