@@ -103,5 +103,5 @@ def make_reference(scene: Scene, mesh: meshmod.Mesh) -> Reference:
     cam = sp.camera or _auto_camera(mesh.nodes, cam1.center, mm_per_px, None)
     dot = sp.dot_diameter_px * cam_mm_per_px / mm_per_px
     dots = speckle.draw_dots((cam.height, cam.width), dot, sp.density, seed=sp.seed,
-                             edge_px=min(1.0 * cam_mm_per_px / mm_per_px, dot))
+                             edge_px=min(sp.edge_px * cam_mm_per_px / mm_per_px, dot))
     return Reference(speckle.rasterize(dots), cam, dots)

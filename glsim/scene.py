@@ -67,6 +67,7 @@ class Speckle:
     dot_diameter_px: float = 5.0   # in camera-1 pixels on the specimen
     density: float = 0.5
     oversample: float = 2.0        # reference pixels per camera-1 pixel
+    edge_px: float = 1.0           # width of the dots' smooth edge, camera-1 pixels
     seed: int = 0
 
     def __post_init__(self):
@@ -80,6 +81,9 @@ class Speckle:
         _check(self.dot_diameter_px >= 2.0, "speckle.dot_diameter_px",
                f"must be ≥ 2 px, got {self.dot_diameter_px}",
                "DIC needs speckles of at least 3 camera pixels")
+        _check(0 <= self.edge_px <= self.dot_diameter_px, "speckle.edge_px",
+               f"must lie in [0, dot_diameter_px], got {self.edge_px}",
+               "the dots' edge width in camera pixels; ≥ 2 avoids aliasing at 1 sample per pixel")
         _check(0 < self.density < 1, "speckle.density", f"must lie in (0, 1), got {self.density}",
                "the covered area fraction, typically 0.5")
 
