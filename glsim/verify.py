@@ -15,6 +15,7 @@ over the compared subset centres in the reference state.
 
     python -m glsim.verify run [--size W H] [--exchange build/verify] [--results bench/results]
     python -m glsim.verify compare EXCHANGE [--results DIR]
+    python -m glsim.verify sweep | frontier     # glsim.sweep: rigid-body S-curves, accuracy frontier
 """
 from __future__ import annotations
 
@@ -362,6 +363,11 @@ def parser() -> argparse.ArgumentParser:
     cmp_.add_argument("exchange")
     for p in (run, cmp_):
         p.add_argument("--results", default="bench/results", help="where verify.json/.md go")
+    from . import sweep   # the rigid-body sweep and the frontier live in glsim.sweep
+    sweep.add_run_arguments(sub.add_parser("sweep", help="rigid-body sweep: render, verify/dic2d.py "
+                                           "(pyvale 2-D DIC), S-curves → bench/results/sweep.*"))
+    sweep.add_results_arguments(sub.add_parser("frontier", help="frontier.png and sweep.md from "
+                                               "accuracy.json (and sweep.json)"))
     return ap
 
 
@@ -374,6 +380,9 @@ def _print_summary(res: dict) -> None:
 
 def main(argv: list[str] | None = None) -> int:
     args = parser().parse_args(argv)
+    if args.command in ("sweep", "frontier"):
+        from . import sweep
+        return sweep.main_args(args)
     try:
         if args.command == "run":
             path = write_exchange(args.exchange, args.size, args.mesh_divisions, args.sigma, backend=args.backend)

@@ -1,0 +1,97 @@
+"""2-D DIC of a glsim sweep exchange folder with pyvale; runs in .venv-verify, never imports glsim.
+
+    .venv-verify/bin/python verify/dic2d.py EXCHANGE_DIR
+
+Reads ``manifest.json`` (format ``glsim-sweep/1``): the image sequences (each a reference
+image and one deformed image per imposed shift), the ROI, the seed, the
+``pyvale.dic.calculate_2d`` keyword arguments common to every run and the runs (name and
+subset size). For every sequence and run it calls ``calculate_2d(reference, [deformed…])``;
+pyvale writes one CSV per deformed image under ``EXCHANGE/dic/<sequence>/<run>/``, which
+this script gathers with ``pyvale.dic.import_2d`` into
+``EXCHANGE/measured_<sequence>_<run>.npz``:
+
+- ``ss_x``, ``ss_y`` (n,): subset centres on the reference image, px (pixel centres at
+  integers);
+- ``u``, ``v`` (shifts, n): measured displacement, px, in the order of the manifest's shifts;
+- ``valid`` (shifts, n): converged, ZNCC ≥ the threshold, finite;
+- ``cost`` (ZNCC), ``niter`` (shifts, n); ``seconds`` (the ``calculate_2d`` call) and
+  ``pyvale_version``.
+"""
+from __future__ import annotations
+
+import contextlib
+import io
+import json
+import sys
+import tempfile
+import time
+from importlib.metadata import version
+from pathlib import Path
+
+import numpy as np
+from PIL import Image
+
+
+def save_npz(path: Path, arrays: dict) -> None:
+    """Write ``arrays`` to ``path`` under a temporary name, then rename (atomic)."""
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".part.npz", dir=path.parent)
+    with open(fd, "wb") as f:
+        np.savez(f, **arrays)
+    Path(tmp).replace(path)
+
+
+def run(exchange: Path, manifest: dict, seq: dict, spec: dict) -> dict:
+    """One ``calculate_2d`` call: sequence ``seq`` with run ``spec`` (name, subset_size)."""
+    import pyvale.dic as dic
+
+    reference = exchange / seq["reference"]
+    deformed = [exchange / name for name in seq["deformed"]]
+    roi = np.asarray(Image.open(exchange / manifest["roi"])) > 0
+    out = exchange / "dic" / seq["name"] / spec["name"]
+    out.mkdir(parents=True, exist_ok=True)
+    for old in out.glob("*.csv"):
+        old.unlink()
+    kwargs = {**manifest["calculate_2d"], "subset_size": spec["subset_size"]}
+    prefix = "dic_results_"
+    t0 = time.perf_counter()
+    dic.calculate_2d(reference=reference, deformed=deformed, roi_mask=roi, seed=manifest["seed"],
+                     output_basepath=str(out), output_prefix=prefix, output_delimiter=",",
+                     print_level=0, **kwargs)
+    seconds = time.perf_counter() - t0
+    # One CSV per deformed image, named after it: read them back in the manifest's shift order.
+    files = [out / f"{prefix}{Path(name).stem}.csv" for name in seq["deformed"]]
+    missing = [str(f) for f in files if not f.is_file()]
+    if missing:
+        raise RuntimeError(f"pyvale wrote no result for {missing} (found {sorted(p.name for p in out.glob('*'))})")
+    with contextlib.redirect_stdout(io.StringIO()):   # import_2d logs every file after the first
+        res = dic.import_2d(files, delimiter=",", layout="column", print_level=0)
+    u, v = np.asarray(res.u_px, np.float64), np.asarray(res.v_px, np.float64)
+    cost = np.asarray(res.cost, np.float64)
+    valid = (np.asarray(res.converged).astype(bool) & (cost >= kwargs["threshold"])
+             & np.isfinite(u) & np.isfinite(v))
+    return {"ss_x": np.asarray(res.ss_x), "ss_y": np.asarray(res.ss_y), "u": u, "v": v, "valid": valid,
+            "cost": cost, "niter": np.asarray(res.niter), "seconds": np.float64(seconds),
+            "pyvale_version": np.str_(version("pyvale"))}
+
+
+def main(argv: list[str]) -> int:
+    if len(argv) != 1:
+        print(__doc__.split("\n\n")[1], file=sys.stderr)
+        return 2
+    exchange = Path(argv[0])
+    manifest = json.loads((exchange / "manifest.json").read_text())
+    if manifest.get("format") != "glsim-sweep/1":
+        print(f"verify/dic2d.py: {exchange}/manifest.json is not a glsim-sweep/1 manifest", file=sys.stderr)
+        return 2
+    for seq in manifest["sequences"]:
+        for spec in manifest["runs"]:
+            arrays = run(exchange, manifest, seq, spec)
+            save_npz(exchange / f"measured_{seq['name']}_{spec['name']}.npz", arrays)
+            n, ok = arrays["valid"].shape[1], int(np.all(arrays["valid"], axis=0).sum())
+            print(f"verify/dic2d.py: {seq['name']:20s} {spec['name']}: {ok}/{n} subsets valid at every "
+                  f"shift, {float(arrays['seconds']):.1f} s", flush=True)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main(sys.argv[1:]))
