@@ -831,6 +831,36 @@ def add_run_arguments(p: argparse.ArgumentParser) -> None:
     add_results_arguments(p)
 
 
+def backend_agreement(gl: dict, cpu: dict) -> dict:
+    """GL against the CPU oracle through the DIC: for every glsim sequence and subset size in
+    both sweeps, the largest |Δ bias| and |Δ std| of u over the shifts (px), next to the DIC's
+    own noise (the largest std of u on the exact model images)."""
+    key = lambda r: (r["sequence"], r["run"])  # noqa: E731
+    cpu_by = {key(r): r for r in cpu["results"]}
+    rows = []
+    for r in gl["results"]:
+        c = cpu_by.get(key(r))
+        if r["source"] == "model" or c is None:
+            continue
+        noise = max(m["max_std_u"] for m in gl["results"] if m["source"] == "model" and m["run"] == r["run"])
+        rows.append({"sequence": r["sequence"], "run": r["run"], "dic_noise_px": noise,
+                     "max_delta_bias_px": max(abs(a["bias_u"] - b["bias_u"]) for a, b in zip(r["rows"], c["rows"])),
+                     "max_delta_std_px": max(abs(a["std_u"] - b["std_u"]) for a, b in zip(r["rows"], c["rows"]))})
+    return {"gl": gl["machine"], "rows": rows}
+
+
+def backend_markdown(agreement: dict) -> str:
+    lines = ["# GL against the CPU oracle, through the DIC", "",
+             "The rigid-body sweep rendered by both backends and measured by pyvale's 2-D DIC; "
+             "Δ = GL − CPU over the 11 shifts, px; DIC noise = the largest std of u on the exact "
+             "model images.", "",
+             r"| sequence | subset | max \|Δ bias\| (px) | max \|Δ std\| (px) | DIC noise (px) |",
+             "|---|---|---|---|---|"]
+    lines += [f"| {r['sequence']} | {r['run']} | {r['max_delta_bias_px']:.2e} | {r['max_delta_std_px']:.2e} "
+              f"| {r['dic_noise_px']:.2e} |" for r in agreement["rows"]]
+    return "\n".join(lines) + "\n"
+
+
 def add_results_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--results", default="bench/results", help="where sweep.* and frontier.png go")
     p.add_argument("--accuracy", default=None, help="accuracy.json (default RESULTS/accuracy.json)")
@@ -845,11 +875,26 @@ def parser() -> argparse.ArgumentParser:
     add_results_arguments(cmp_)
     add_results_arguments(sub.add_parser("frontier", help="frontier.png and sweep.md from accuracy.json "
                                                          "(and sweep.json if present)"))
+    add_backends_arguments(sub.add_parser("backends", help="GL against the CPU oracle through the DIC, "
+                                                          "from two sweep.json files"))
     return ap
 
 
+def add_backends_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("gl_json", help="sweep.json of a --backend gl sweep")
+    p.add_argument("cpu_json", help="sweep.json of a --backend cpu sweep")
+    p.add_argument("--results", default="bench/results", help="where sweep_backends.json/.md go")
+
+
 def main_args(args: argparse.Namespace) -> int:
-    """Run a parsed ``run`` (also ``sweep``), ``compare`` or ``frontier`` command."""
+    """Run a parsed ``run`` (also ``sweep``), ``compare``, ``frontier`` or ``backends`` command."""
+    if args.command == "backends":
+        agreement = backend_agreement(*(json.loads(Path(p).read_text()) for p in (args.gl_json, args.cpu_json)))
+        out = Path(args.results)
+        io.write_text(out / "sweep_backends.json", json.dumps(agreement, indent=2) + "\n")
+        io.write_text(out / "sweep_backends.md", text := backend_markdown(agreement))
+        print(text)
+        return 0
     try:
         if args.command in ("run", "sweep"):
             t0 = time.perf_counter()

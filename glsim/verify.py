@@ -368,6 +368,8 @@ def parser() -> argparse.ArgumentParser:
                                            "(pyvale 2-D DIC), S-curves → bench/results/sweep.*"))
     sweep.add_results_arguments(sub.add_parser("frontier", help="frontier.png and sweep.md from "
                                                "accuracy.json (and sweep.json)"))
+    sweep.add_backends_arguments(sub.add_parser("backends", help="GL against the CPU oracle through "
+                                                "the DIC, from a gl and a cpu sweep.json"))
     return ap
 
 
@@ -380,7 +382,7 @@ def _print_summary(res: dict) -> None:
 
 def main(argv: list[str] | None = None) -> int:
     args = parser().parse_args(argv)
-    if args.command in ("sweep", "frontier"):
+    if args.command in ("sweep", "frontier", "backends"):
         from . import sweep
         return sweep.main_args(args)
     try:

@@ -216,3 +216,17 @@ def test_verify_cli_has_sweep_and_frontier():
     a = ap.parse_args(["frontier", "--accuracy", "acc.json"])
     assert (a.command, a.accuracy) == ("frontier", "acc.json")
     assert math.isclose(sweep.SHIFTS_PX[-1], 1.0) and len(sweep.SHIFTS_PX) == 11
+
+
+def test_backend_agreement_reports_the_largest_differences():
+    def seq(name, source, biases, stds, run="s21"):
+        return {"sequence": name, "run": run, "source": source, "max_std_u": max(stds),
+                "rows": [{"bias_u": b, "std_u": s} for b, s in zip(biases, stds)]}
+
+    gl = {"machine": {}, "results": [seq("model", "model", [0, 1e-3], [0, 2e-2]),
+                                     seq("exact-bspline3", "glsim", [0, 2e-3], [0, 1e-2])]}
+    cpu = {"machine": {}, "results": [seq("exact-bspline3", "glsim", [0, 2.5e-3], [0, 1.2e-2])]}
+    (row,) = sweep.backend_agreement(gl, cpu)["rows"]
+    assert row["sequence"] == "exact-bspline3" and row["dic_noise_px"] == 2e-2
+    assert row["max_delta_bias_px"] == pytest.approx(5e-4) and row["max_delta_std_px"] == pytest.approx(2e-3)
+    assert "| exact-bspline3 | s21 | 5.00e-04 |" in sweep.backend_markdown(sweep.backend_agreement(gl, cpu))
