@@ -53,7 +53,7 @@ def _run(scene, out: str, args, label: str) -> int:
           f"backend={args.backend or r.backend}, mode={r.mode}, interpolation={r.interpolation}, "
           f"spp={r.samples_per_pixel})")
     if max(w.saturated, default=0.0) > 0:
-        print(f"saturated (clipped) pixels: up to {max(w.saturated):.2%} of an image")
+        print(f"saturated (clipped) pixels: up to {100 * max(w.saturated):.3g} % of an image")
     print(f"resolved scene: {w.scene_json}")
     return 0
 
