@@ -92,27 +92,29 @@ class Renderer:
     def close(self) -> None:
         self.backend.close()
 
-    def view(self, camera: int | str, step: int) -> View:
-        """The per-element geometry of ``camera`` at ``step``."""
+    def view(self, camera: int | str, step: int, deformed: np.ndarray | None = None) -> View:
+        """The per-element geometry of ``camera`` at ``step`` (``deformed``: its nodes, if known)."""
         cam = self.scene.camera(camera)
-        return make_view(cam, self.reference.camera, self.mesh.nodes, self.mesh.deformed(step),
-                         self.mesh.quads, self.mesh.element_labels)
+        nodes = self.mesh.deformed(step) if deformed is None else deformed
+        return make_view(cam, self.reference.camera, self.mesh.nodes, nodes, self.mesh.quads,
+                         self.mesh.element_labels)
 
     def render(self, camera: int | str = 0, step: int = 0, truth: bool = False, **options) -> Result:
         """Render one image. ``options`` override the scene's [render] table (mode, …)."""
         opts = self.scene.replace(render=options).render if options else self.scene.render
         t0 = time.perf_counter()
-        view = self.view(camera, step)
-        fx = prepare_effects(self.scene, self.mesh.deformed(step), self.mesh.quads, view.camera,
+        deformed = self.mesh.deformed(step)
+        view = self.view(camera, step, deformed)
+        fx = prepare_effects(self.scene, deformed, self.mesh.quads, view.camera,
                              self.scene.cameras.index(view.camera), step, view.Xd[..., 2])
         image, raster, stages = self.backend.render_view(view, opts, truth, fx)
         seconds = time.perf_counter() - t0
-        tr = self._truth(view, step, raster) if truth else None
+        tr = self._truth(view, deformed, raster) if truth else None
         return Result(image=image, camera=view.camera, step=step, backend=self.backend_name,
                       options=opts, seconds=seconds, truth=tr, stages=tuple(stages),
                       saturated=float(np.mean((image < 0) | (image > 1))))
 
-    def _truth(self, view: View, step: int, raster: dict) -> Truth:
+    def _truth(self, view: View, deformed: np.ndarray, raster: dict) -> Truth:
         W, H = view.camera.size
         elem = raster["element"].reshape(H, W)
         mask = elem >= 0
@@ -124,7 +126,7 @@ class Renderer:
         Xd = np.full((H, W, 3), np.nan)
         q = self.mesh.quads[elem[mask]]
         Xu[mask] = to_camera(bilinear(self.mesh.nodes[q], xi[mask], eta[mask]), cam1)
-        Xd[mask] = to_camera(bilinear(self.mesh.deformed(step)[q], xi[mask], eta[mask]), cam1)
+        Xd[mask] = to_camera(bilinear(deformed[q], xi[mask], eta[mask]), cam1)
         return Truth(mask=mask, element=elem, xi=xi, eta=eta, ref_uv=ref, X_undeformed=Xu, X_deformed=Xd)
 
 

@@ -47,6 +47,7 @@ from .scene import Plate, Render, Scene, Specimen, Speckle
 FORMAT = "glsim-sweep/1"
 REPO = Path(__file__).resolve().parents[1]
 DIC_SCRIPT = REPO / "verify" / "dic2d.py"
+MIN_SIZE = 256  # px; at 160 px pyvale's calculate_2d writes empty results
 DIC_PYTHON = REPO / ".venv-verify" / "bin" / "python"
 
 SIZE = (512, 512)             # camera px
@@ -460,10 +461,17 @@ def plot_sweep(res: dict, path: str | Path) -> Path:
     fig.suptitle(f"Rigid-body sweep: {res['size'][0]}×{res['size'][1]} px, plate square to the camera, "
                  f"{res['mm_per_px']:.4g} mm/px; model = Boolean speckle evaluated at the exactly shifted "
                  "coordinates (hollow: 4 spp)", fontsize=10)
+    return _save(fig, path, dpi=100)
+
+
+def _save(fig, path: str | Path, dpi: int) -> Path:
+    """Lay out, write atomically as PNG and close a matplotlib figure."""
+    import matplotlib.pyplot as plt
+
     fig.tight_layout()
     path = Path(path)
     with io.atomic_path(path) as tmp:
-        fig.savefig(tmp, dpi=100, format="png")
+        fig.savefig(tmp, dpi=dpi, format="png")
     plt.close(fig)
     return path
 
@@ -582,12 +590,7 @@ def plot_frontier(accuracy: dict, sweep: dict | None, path: str | Path) -> Path:
         ax.legend(handles=seq_handles + kinds, fontsize=6, loc="lower left")
     fig.suptitle(f"glsim accuracy versus time ({accuracy['machine']['gl']['renderer']}, "
                  f"{accuracy['machine']['cores']} cores)", fontsize=10)
-    fig.tight_layout()
-    path = Path(path)
-    with io.atomic_path(path) as tmp:
-        fig.savefig(tmp, dpi=110, format="png")
-    plt.close(fig)
-    return path
+    return _save(fig, path, dpi=110)
 
 
 # ---- report ------------------------------------------------------------------------------------
@@ -897,6 +900,9 @@ def main_args(args: argparse.Namespace) -> int:
         return 0
     try:
         if args.command in ("run", "sweep"):
+            if min(args.size) < MIN_SIZE:
+                raise GlsimError(f"--size {args.size[0]} {args.size[1]}: at least {MIN_SIZE} px per side is needed "
+                                 f"(smaller plates leave pyvale's DIC too few subsets); give e.g. --size 512 512")
             t0 = time.perf_counter()
             path = write_exchange(args.exchange, tuple(args.size), backend=args.backend)
             print(f"glsim sweep: exchange folder {path.parent}/ written ({time.perf_counter() - t0:.1f} s)", flush=True)

@@ -230,3 +230,9 @@ def test_backend_agreement_reports_the_largest_differences():
     assert row["sequence"] == "exact-bspline3" and row["dic_noise_px"] == 2e-2
     assert row["max_delta_bias_px"] == pytest.approx(5e-4) and row["max_delta_std_px"] == pytest.approx(2e-3)
     assert "| exact-bspline3 | s21 | 5.00e-04 |" in sweep.backend_markdown(sweep.backend_agreement(gl, cpu))
+
+
+def test_too_small_sweep_is_refused_with_the_fix(capsys):
+    assert verify.main(["sweep", "--size", "160", "160", "--exchange", "/nonexistent/x"]) == 2
+    err = capsys.readouterr().err
+    assert "--size 160 160" in err and "--size 512 512" in err

@@ -21,13 +21,13 @@ from __future__ import annotations
 
 import json
 import sys
-import tempfile
 import time
 from importlib.metadata import version
 from pathlib import Path
 
 import numpy as np
-from PIL import Image
+
+from exchange import fresh_dir, load_roi, save_npz
 
 
 def load_calibration(path: Path):
@@ -57,25 +57,14 @@ def gather(results, threshold: float) -> dict[str, np.ndarray]:
             "valid": valid, "cost": results.cost, "stereo_cost": st.cost, "epi_dist_px": st.epi_dist_px}
 
 
-def save_npz(path: Path, arrays: dict) -> None:
-    """Write ``arrays`` to ``path`` under a temporary name, then rename (atomic)."""
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".part.npz", dir=path.parent)
-    with open(fd, "wb") as f:
-        np.savez(f, **arrays)
-    Path(tmp).replace(path)
-
-
 def run(exchange: Path, manifest: dict, spec: dict) -> dict:
     """One ``calculate_3d`` run (``spec``: name, shape_function, bit_depth); returns its arrays."""
     import pyvale.dic as dic
 
     bits = str(spec["bit_depth"])
     images = [[exchange / name for name in s["images"][bits]] for s in manifest["states"]]
-    roi = np.asarray(Image.open(exchange / manifest["roi"])) > 0
-    out = exchange / "dic" / spec["name"]
-    out.mkdir(parents=True, exist_ok=True)
-    for old in out.glob("*.csv"):
-        old.unlink()
+    roi = load_roi(exchange, manifest)
+    out = fresh_dir(exchange / "dic" / spec["name"])
     kwargs = dict(manifest["calculate_3d"])
     t0 = time.perf_counter()
     dic.calculate_3d(reference=images[0], deformed=[[pair[c] for pair in images[1:]] for c in (0, 1)],

@@ -23,21 +23,13 @@ import contextlib
 import io
 import json
 import sys
-import tempfile
 import time
 from importlib.metadata import version
 from pathlib import Path
 
 import numpy as np
-from PIL import Image
 
-
-def save_npz(path: Path, arrays: dict) -> None:
-    """Write ``arrays`` to ``path`` under a temporary name, then rename (atomic)."""
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".part.npz", dir=path.parent)
-    with open(fd, "wb") as f:
-        np.savez(f, **arrays)
-    Path(tmp).replace(path)
+from exchange import fresh_dir, load_roi, save_npz
 
 
 def run(exchange: Path, manifest: dict, seq: dict, spec: dict) -> dict:
@@ -46,11 +38,8 @@ def run(exchange: Path, manifest: dict, seq: dict, spec: dict) -> dict:
 
     reference = exchange / seq["reference"]
     deformed = [exchange / name for name in seq["deformed"]]
-    roi = np.asarray(Image.open(exchange / manifest["roi"])) > 0
-    out = exchange / "dic" / seq["name"] / spec["name"]
-    out.mkdir(parents=True, exist_ok=True)
-    for old in out.glob("*.csv"):
-        old.unlink()
+    roi = load_roi(exchange, manifest)
+    out = fresh_dir(exchange / "dic" / seq["name"] / spec["name"])
     kwargs = {**manifest["calculate_2d"], "subset_size": spec["subset_size"]}
     prefix = "dic_results_"
     t0 = time.perf_counter()
