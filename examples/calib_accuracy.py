@@ -14,10 +14,10 @@ import platform
 import time
 from pathlib import Path
 
-from glsim import io
-from glsim.calib import calibrate as cal
-from glsim.calib import library
-from glsim.calib.targets import DotGrid
+from glsim.io import images as io
+from glsim.workflows.calib import calibrate as cal
+from glsim.workflows.calib import library
+from glsim.workflows.calib.targets import DotGrid
 
 RESULTS = Path(__file__).resolve().parent.parent / "bench" / "results"
 KEYS = ("fx1", "fy1", "cx1", "cy1", "k1_1", "fx2", "fy2", "cx2", "cy2", "k1_2")

@@ -14,9 +14,10 @@ import argparse
 import time
 from pathlib import Path
 
-from glsim.calib import library, study
-from glsim.calib.poses import PoseSpec
-from glsim.calib.targets import Defects, DotGrid
+from glsim.workflows.calib import library
+from glsim.workflows.calib import study
+from glsim.workflows.calib.poses import PoseSpec
+from glsim.workflows.calib.targets import Defects, DotGrid
 
 SCALE = 0.25
 LIBRARIES = {   # name: (pairs, pose FOV, dot scatter σ mm)

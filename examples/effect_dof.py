@@ -4,8 +4,8 @@ import dataclasses
 
 from _figure import figure
 
-from glsim.blur import dof_limits, hyperfocal
-from glsim.io import write_image
+from glsim.effects.dof import dof_limits, hyperfocal
+from glsim.io.images import write_image
 from glsim.render import Renderer
 from glsim.scene import Optics, bulge_scene
 

@@ -4,7 +4,7 @@ import dataclasses
 
 from _figure import figure
 
-from glsim.io import write_image
+from glsim.io.images import write_image
 from glsim.render import Renderer
 from glsim.scene import Noise, bulge_scene
 

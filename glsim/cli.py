@@ -6,8 +6,8 @@ import sys
 import time
 from pathlib import Path
 
-from .errors import GlsimError
-from .scene import BACKENDS, MODES, bulge_scene, demo_effects, load_scene
+from glsim.errors import GlsimError
+from glsim.scene import BACKENDS, MODES, bulge_scene, demo_effects, load_scene
 
 
 def _progress(done: int, total: int, path: str) -> None:
@@ -39,7 +39,7 @@ def _overrides(scene, args):
 
 
 def _run(scene, out: str, args, label: str) -> int:
-    from .render import write_sequence
+    from glsim.render import write_sequence
 
     t0 = time.perf_counter()
     w = write_sequence(scene, out, steps=_steps(args.steps), backend=args.backend,
@@ -59,7 +59,7 @@ def _run(scene, out: str, args, label: str) -> int:
 
 
 def cmd_info(args) -> int:
-    from .gl.context import gl_context, info
+    from glsim.backends.gl.context import gl_context, info
 
     with gl_context() as ctx:
         for key, value in info(ctx).items():
@@ -85,11 +85,11 @@ def cmd_render(args) -> int:
 def _delegated(name: str, argv: list[str]) -> int:
     """`glsim bench|calib|verify …`: their own argument parsers take the rest of the line."""
     if name == "bench":
-        from .bench import main as run
+        from glsim.evaluation.accuracy import main as run
     elif name == "calib":
-        from .calib.cli import main as run
+        from glsim.workflows.calib.cli import main as run
     else:
-        from .verify import main as run
+        from glsim.evaluation.verify import main as run
     return run(argv)
 
 

@@ -15,14 +15,14 @@ from pathlib import Path
 
 import numpy as np
 
-from .bilinear import bilinear
-from .camera import Camera, to_camera
-from .errors import SceneError
-from .effects import prepare as prepare_effects
-from .geometry import View, make_view
-from .oracle import CPUBackend
-from .reference import make_reference, specimen_mesh
-from .scene import BACKENDS, Render, Scene
+from glsim.scene.bilinear import bilinear
+from glsim.scene.camera import Camera, to_camera
+from glsim.errors import SceneError
+from glsim.effects import prepare as prepare_effects
+from glsim.stages.view import View, make_view
+from glsim.backends.cpu import CPUBackend
+from glsim.stages.reference import make_reference, specimen_mesh
+from glsim.scene import BACKENDS, Render, Scene
 
 
 @dataclass(frozen=True, eq=False)
@@ -66,7 +66,7 @@ def make_backend(name: str, reference, ctx=None):
     if name == "cpu":
         return CPUBackend(reference.image, reference.dots)
     if name == "gl":
-        from .gl.backend import GLBackend
+        from glsim.backends.gl.backend import GLBackend
         return GLBackend(reference.image, ctx, dots=reference.dots)
     raise SceneError("render.backend", f"{name!r} is not one of {BACKENDS}", "use 'gl' or 'cpu'")
 
@@ -158,7 +158,7 @@ def write_sequence(scene: Scene, directory: str | None = None, steps=None, camer
     """
     if truth_format not in ("npz", "tiff"):
         raise SceneError("truth_format", f"{truth_format!r} is not npz or tiff", "use npz or tiff")
-    from . import io
+    from glsim.io import images as io
 
     out = Path(directory or scene.resolve(scene.output.directory))
     ext = io.EXTENSIONS[scene.output.format]

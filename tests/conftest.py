@@ -1,7 +1,7 @@
 """Shared fixtures: one EGL context for every GL test, its error flag checked around each."""
 import pytest
 
-from glsim.gl.context import create_context
+from glsim.backends.gl.context import create_context
 
 
 @pytest.fixture(scope="session")

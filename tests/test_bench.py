@@ -4,7 +4,7 @@ import math
 
 import pytest
 
-from glsim import bench
+from glsim.evaluation import accuracy as bench
 
 SIZE = ("203", "154")  # a very small image: the whole quick run takes a few seconds on llvmpipe
 

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 from scipy import ndimage
 
-from glsim import blur
+from glsim.effects import dof as blur
 
 # f = 30 mm, N = 8, c = 4.4 µm (one 4.4 µm pixel), focused at D = 600 mm
 F, N, PITCH, D = 30.0, 8.0, 0.0044, 600.0
@@ -240,7 +240,7 @@ def test_tilted_plate_separable_error():
 # ---------------------------------------------------------------------------- GL twin
 
 def _backend(ctx, dirs=()):
-    from glsim.gl.backend import GLBackend
+    from glsim.backends.gl.backend import GLBackend
     return GLBackend(np.zeros((4, 4), np.float32), ctx=ctx, shader_dirs=dirs)
 
 

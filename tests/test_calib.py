@@ -12,14 +12,16 @@ import math
 import numpy as np
 import pytest
 
-from glsim.calib import calibrate as cal
-from glsim.calib import detect, library as libmod, poses as posemod, study
-from glsim.calib.cli import main as calib_main
-from glsim.calib.targets import (Charuco, Chessboard, Defects, DotGrid, disc_coverage, plate_mesh, reference,
-                                 symmetries)
-from glsim.camera import Camera, project, rotation_xyz, to_camera
+from glsim.workflows.calib import calibrate as cal
+from glsim.workflows.calib import detect
+from glsim.workflows.calib import library as libmod
+from glsim.workflows.calib import poses as posemod
+from glsim.workflows.calib import study
+from glsim.workflows.calib.cli import main as calib_main
+from glsim.workflows.calib.targets import (Charuco, Chessboard, Defects, DotGrid, disc_coverage, plate_mesh, reference, symmetries)
+from glsim.scene.camera import Camera, project, rotation_xyz, to_camera
 from glsim.errors import SceneError
-from glsim.io import quantize, read_image
+from glsim.io.images import quantize, read_image
 from glsim.render import Renderer
 from glsim.scene import Scene
 

@@ -6,23 +6,7 @@ import cv2
 import numpy as np
 import pytest
 
-from glsim.camera import (
-    Camera,
-    Distortion,
-    distort,
-    distort_jacobian,
-    look_at,
-    pixel_grid,
-    pixel_rays,
-    pixel_to_normalized,
-    project,
-    project_camera_frame,
-    rodrigues,
-    rotation_xyz,
-    stereo_pose,
-    to_camera,
-    undistort,
-)
+from glsim.scene.camera import (Camera, Distortion, distort, distort_jacobian, look_at, pixel_grid, pixel_rays, pixel_to_normalized, project, project_camera_frame, rodrigues, rotation_xyz, stereo_pose, to_camera, undistort)
 from glsim.errors import SceneError
 
 W, H = 2448, 2048

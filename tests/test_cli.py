@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from glsim import io
+from glsim.io import images as io
 from glsim.cli import main
 from glsim.render import Renderer
 from glsim.scene import load_scene

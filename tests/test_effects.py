@@ -6,11 +6,10 @@ import dataclasses
 import numpy as np
 import pytest
 
-from glsim.blur import blur_sigma
-from glsim.camera import Camera
+from glsim.effects.dof import blur_sigma
+from glsim.scene.camera import Camera
 from glsim.render import Renderer
-from glsim.scene import (Light, Lighting, Noise, Optics, Plate, Render, Scene, Specimen, bulge_scene,
-                         demo_effects)
+from glsim.scene import (Light, Lighting, Noise, Optics, Plate, Render, Scene, Specimen, bulge_scene, demo_effects)
 
 SMALL = (406, 308)
 PITCH = 30.0 / (6818.0 * SMALL[0] / 1624)   # the small rig's pixel pitch for a 30 mm lens
@@ -138,9 +137,9 @@ def test_noise_on_a_flat_field_matches_the_model(backend, request):
     scene = Scene(cameras=(cam,), specimen=Specimen(plate=Plate(width=400, height=400, nx=2, ny=2), t=(0, 0, 300.0)),
                   noise=Noise(sigma=2.0))
     ctx = request.getfixturevalue("gl_ctx") if backend == "gl" else None
-    from glsim.reference import Reference, specimen_mesh
+    from glsim.stages.reference import Reference, specimen_mesh
     mesh = specimen_mesh(scene)
-    from glsim.reference import _auto_camera
+    from glsim.stages.reference import _auto_camera
     ref_cam = _auto_camera(mesh.nodes, cam.center, 1.0, (500, 500))
     flat = Reference(np.full((500, 500), 0.5, np.float32), ref_cam)
     with Renderer(scene, backend, ctx=ctx, mesh=mesh, reference=flat) as r:

@@ -12,8 +12,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from glsim.mesh import bulge_displacements, load_mesh
-from glsim.reference import specimen_mesh
+from glsim.io.meshfiles import load_mesh
+from glsim.scene.mesh import bulge_displacements
+from glsim.stages.reference import specimen_mesh
 from glsim.render import render
 from glsim.scene import load_scene
 

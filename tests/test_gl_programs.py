@@ -7,11 +7,11 @@ import cv2
 import numpy as np
 import pytest
 
-from glsim.camera import Camera, Distortion
+from glsim.scene.camera import Camera, Distortion
 from glsim.errors import GLUnavailableError, ShaderError
-from glsim.gl import context as glctx
-from glsim.gl.backend import GLBackend
-from glsim.gl.programs import ProgramCache, assemble
+from glsim.backends.gl import context as glctx
+from glsim.backends.gl.backend import GLBackend
+from glsim.backends.gl.programs import ProgramCache, assemble
 from glsim.render import Renderer
 from glsim.scene import bulge_scene
 

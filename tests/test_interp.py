@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 from scipy import ndimage
 
-from glsim import interp
+from glsim.stages import interp
 from glsim.errors import SceneError
 
 H, W = 37, 53

@@ -6,8 +6,10 @@ import numpy as np
 import pytest
 
 from glsim.errors import SceneError
-from glsim.mesh import (Mesh, bulge, bulge_displacements, disc, interpolate, load_mesh, place, place_mesh, plate,
-                        quad_normals, shape_functions, with_displacements)
+from glsim.io.meshfiles import load_mesh
+from glsim.scene.bilinear import bilinear as interpolate, shape_functions
+from glsim.scene.mesh import (Mesh, bulge, bulge_displacements, disc, place, place_mesh, plate, quad_normals,
+                              with_displacements)
 
 RNG = np.random.default_rng(7)
 GAUSS = np.array([-1, 1]) / np.sqrt(3)

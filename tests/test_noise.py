@@ -7,9 +7,9 @@ import numpy as np
 import pytest
 from scipy import stats
 
-from glsim import noise
+from glsim.effects import noise
 from glsim.errors import SceneError
-from glsim.noise import NoiseParams
+from glsim.effects.noise import NoiseParams
 
 N = 1000  # flat fields and generator checks use N × N = 1e6 samples
 SEED = 20240611
@@ -263,7 +263,7 @@ void main() {
 @pytest.mark.gl
 def test_glsl_generator_matches_numpy(gl_ctx, tmp_path):
     """Hash and uniforms bit for bit; the normal to float32 rounding (GLSL log/cos)."""
-    from glsim.gl.programs import ProgramCache
+    from glsim.backends.gl.programs import ProgramCache
 
     (tmp_path / "noise_check.comp").write_text(CHECK_COMP)
     cache = ProgramCache(gl_ctx, dirs=(tmp_path,))
@@ -296,7 +296,7 @@ def test_glsl_generator_matches_numpy(gl_ctx, tmp_path):
 @pytest.mark.parametrize("model", ["gaussian", "heteroscedastic", "poisson_gaussian"])
 @pytest.mark.parametrize("bits", [8, 16])
 def test_gl_noise_pass_matches_numpy(gl_ctx, tmp_path, model, bits):
-    from glsim.gl.backend import GLBackend
+    from glsim.backends.gl.backend import GLBackend
 
     top = 2**bits - 1
     path = write(tmp_path, "var.csv", f"grey;variance\n0;0.5\n{top // 3};3\n{top};{60 * (top / 255) ** 2}\n")

@@ -10,9 +10,9 @@ import cv2
 import numpy as np
 import pytest
 
-from glsim.camera import Camera, Distortion
+from glsim.scene.camera import Camera, Distortion
 from glsim.errors import RenderWarning
-from glsim.mesh import Mesh
+from glsim.scene.mesh import Mesh
 from glsim.render import Renderer
 from glsim.scene import Plate, Render, Scene, Specimen, bulge_scene
 
@@ -368,7 +368,7 @@ def test_pixels_exactly_on_edges_and_nodes_leave_no_holes(backend, mode, ctx_for
 def test_procedural_grey_equals_the_speckle_at_the_analytic_point(backend, tol, ctx_for):
     """Rigid shift: each pixel's grey is the speckle model's value at the analytic reference
     point (OpenCV), evaluated independently of the renderer."""
-    from glsim import speckle
+    from glsim.scene import speckle
 
     scene = plate_scene(distortion=Distortion(k1=-0.2), mode="exact", interpolation="procedural")
     with backend_renderer(scene, backend, ctx_for) as r:
@@ -380,7 +380,7 @@ def test_procedural_grey_equals_the_speckle_at_the_analytic_point(backend, tol, 
 
 
 def test_procedural_at_pixel_centres_is_the_generated_image():
-    from glsim import speckle
+    from glsim.scene import speckle
 
     dots = speckle.draw_dots((90, 120), 5.0, seed=4)
     v, u = np.mgrid[0:90, 0:120]

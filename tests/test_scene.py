@@ -13,9 +13,9 @@ import meshio
 import numpy as np
 import pytest
 
-from glsim.camera import look_at, project, rodrigues, stereo_pose
+from glsim.scene.camera import look_at, project, rodrigues, stereo_pose
 from glsim.errors import SceneError
-from glsim.reference import specimen_mesh
+from glsim.stages.reference import specimen_mesh
 from glsim.scene import Bulge, Output, Render, Scene, Speckle, bulge_scene, demo_effects, load_scene
 
 EXAMPLES = Path(__file__).resolve().parent.parent / "examples"

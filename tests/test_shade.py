@@ -6,10 +6,10 @@ import numpy as np
 import pytest
 from scipy.optimize import minimize_scalar
 
-from glsim import shade
+from glsim.effects import lighting as shade
 from glsim.errors import SceneError
-from glsim.gl.programs import ProgramCache
-from glsim.shade import LightArrays
+from glsim.backends.gl.programs import ProgramCache
+from glsim.effects.lighting import LightArrays
 
 GLSL_DIR = Path(__file__).parent / "glsl"
 

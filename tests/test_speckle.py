@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 import tifffile
 
-from glsim import speckle
+from glsim.scene import speckle
 from glsim.errors import SceneError
 
 SHAPE = (400, 400)

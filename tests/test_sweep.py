@@ -9,8 +9,10 @@ import numpy as np
 import pytest
 import tifffile
 
-from glsim import speckle, sweep, verify
-from glsim.camera import project
+from glsim.scene import speckle
+from glsim.evaluation import sweep
+from glsim.evaluation import verify
+from glsim.scene.camera import project
 from glsim.render import Renderer
 
 SIZE = (96, 96)

@@ -1,0 +1,381 @@
+"""backend="gl": rasterize a :class:`~glsim.geometry.View` with OpenGL shaders.
+
+Passes, each only when the scene asks for it: the exact mode's per-camera ray map (cached);
+the deformation pass at s×s samples per pixel (reference sampling, lighting, truth maps, depth)
+with a depth test; for s > 1 the box filter down to W×H; the depth-of-field blur (separable
+Gaussian or disk); the noise pass; then one read-back.
+"""
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+
+from glsim.stages import interp
+from glsim.effects import noise
+from glsim.effects.dof import kernel_radius, shader_uniforms
+from glsim.effects import Effects
+from glsim.stages.view import View
+from glsim.backends.gl.context import check_error, create_context
+from glsim.backends.gl.programs import ProgramCache
+
+_CORNER_XE = np.array([[-1, -1], [1, -1], [1, 1], [-1, 1]], np.float32)
+_TRIANGLES = np.array([0, 1, 2, 0, 2, 3], np.int32)
+
+
+def program_defines(opts, truth: bool, fp64: bool, fx=None) -> dict:
+    """The #defines of the deformation program for these render options and effects."""
+    d = {f"MODE_{opts.mode.upper()}": None, f"INTERP_{opts.interpolation.upper()}": None,
+         "SS": opts.supersampling}
+    if opts.precision == "fp64" and fp64 and opts.mode != "fast":
+        d["FP64"] = None
+    if truth:
+        d["TRUTH"] = None
+    if fx is not None and fx.lighting is not None:
+        d["LIGHTING"] = None
+        d["MAX_LIGHTS"] = max(1, len(fx.lighting.lights))
+        if fx.lighting.combine == "multiplicative":
+            d["LIGHT_MULTIPLICATIVE"] = None
+    if fx is not None and fx.blur:
+        d["DEPTH_OUT"] = None
+        d["DEPTH_LOCATION"] = 3 if truth else 1
+    return d
+
+
+def element_data(view: View, mode: str, dtype) -> np.ndarray:
+    """Per-element storage-buffer payload: q4 → uv (8), ref uv (8), Z (4); exact → Xd (12), Xr (12)."""
+    M = len(view.Xd)
+    if mode == "q4":
+        parts = [view.uv.reshape(M, 8), view.ref_uv.reshape(M, 8), view.Xd[..., 2]]
+    else:
+        parts = [view.Xd.reshape(M, 12), view.Xr.reshape(M, 12)]
+    return np.ascontiguousarray(np.concatenate(parts, axis=1), dtype=dtype)
+
+
+def shading_data(view: View, normals: np.ndarray) -> np.ndarray:
+    """Per-element lighting payload (float32): corners in the camera frame (12), normals (12)."""
+    M = len(view.Xd)
+    return np.ascontiguousarray(np.concatenate([view.Xd.reshape(M, 12), normals.reshape(M, 12)], 1),
+                                dtype=np.float32)
+
+
+def _light_uniforms(fx) -> dict:
+    """Uniform name → float32 array for shade.glsl (lights padded to MAX_LIGHTS ≥ 1)."""
+    L, lit = fx.lights, fx.lighting
+    n = max(1, len(L.intensity))
+
+    def pad(a, width):
+        out = np.zeros((n, width) if width > 1 else n, np.float32)
+        out[:len(a)] = a
+        return out
+
+    return {"u_light_pos": pad(L.pos, 3), "u_light_dir": pad(L.dir, 3),
+            "u_light_intensity": pad(L.intensity, 1), "u_light_att": pad(L.attenuation, 1),
+            "u_light_cos_cutoff": pad(L.cos_cutoff, 1), "u_light_cos_inner": pad(L.cos_inner, 1),
+            "u_ambient": np.float32(lit.ambient), "u_kr": np.float32(lit.diffuse),
+            "u_ks": np.float32(lit.specular), "u_shininess": np.float32(lit.shininess)}
+
+
+class GLBackend:
+    """OpenGL renderer over one EGL context (its own, or a shared one passed in)."""
+    name = "gl"
+
+    def __init__(self, reference_image: np.ndarray, ctx=None, shader_dirs: tuple = (), dots=None):
+        """``dots``: the generator's speckle, for ``interpolation = "procedural"``;
+        ``shader_dirs`` are searched before the packaged shaders (tests add their own)."""
+        self._dots = dots
+        self._dot_buffers = None
+        self._own_ctx = ctx is None
+        self.ctx = ctx if ctx is not None else create_context()
+        self.fp64 = "GL_ARB_gpu_shader_fp64" in self.ctx.extensions
+        self.programs = ProgramCache(self.ctx, shader_dirs)
+        self._image = reference_image
+        self._textures: dict[str, object] = {}
+        self._targets: dict[tuple, tuple] = {}
+        self._rays: dict[tuple, object] = {}
+
+    # ---- resources -------------------------------------------------------------------------
+    def _reference_texture(self, method: str):
+        if method not in self._textures:
+            coeffs = interp.prepare(self._image, method, np.float32)
+            tex = self.ctx.texture(coeffs.shape[::-1], 1, np.ascontiguousarray(coeffs).tobytes(), dtype="f4")
+            tex.filter = (self.ctx.NEAREST, self.ctx.NEAREST)
+            self._textures[method] = tex
+        return self._textures[method]
+
+    def _target(self, width: int, height: int, truth: bool, depth_out: bool):
+        """Cached deformation-pass framebuffer: grey, truth maps (if asked), depth Z (if asked)."""
+        key = (width, height, truth, depth_out)
+        if key not in self._targets:
+            ctx = self.ctx
+            color = [ctx.texture((width, height), 1, dtype="f4")]
+            if truth:
+                color += [ctx.texture((width, height), 4, dtype="f4"), ctx.texture((width, height), 4, dtype="f4")]
+            if depth_out:
+                color.append(ctx.texture((width, height), 1, dtype="f4"))
+            depth = ctx.depth_renderbuffer((width, height))
+            # the grey target alone, to clear it to the background grey (the others clear to 0)
+            grey_only = ctx.framebuffer(color_attachments=color[:1])
+            self._targets[key] = (ctx.framebuffer(color_attachments=color, depth_attachment=depth), color, depth,
+                                  grey_only)
+        return self._targets[key]
+
+    def _unbind(self) -> None:
+        """Bind framebuffer 0 before releasing ours: moderngl re-binds the current framebuffer
+        when it creates the next one, which fails (GL_INVALID_OPERATION) if it was deleted."""
+        self.ctx.detect_framebuffer(0).use()
+
+    def close(self) -> None:
+        self._unbind()
+        for fbo, color, depth, grey_only in self._targets.values():
+            fbo.release()
+            grey_only.release()
+            for t in color:
+                t.release()
+            depth.release()
+        for tex in (*self._textures.values(), *self._rays.values(), *(self._dot_buffers or ())[:2]):
+            tex.release()
+        self._dot_buffers = None
+        self._targets.clear()
+        self._textures.clear()
+        self._rays.clear()
+        self.programs.release()
+        if self._own_ctx:
+            self.ctx.release()
+
+    # ---- rendering -------------------------------------------------------------------------
+    @staticmethod
+    def _set(prog, name: str, values, fp64: bool) -> None:
+        if name in prog:
+            prog[name].write(np.asarray(values, dtype="f8" if fp64 else "f4").tobytes())
+
+    def _geometry(self, view: View, mode: str):
+        """Vertex data (unshared corners) and the triangle indices of the drawn elements."""
+        M = len(view.Xd)
+        elem = np.repeat(np.arange(M, dtype=np.int32), 4)
+        if mode == "exact":
+            drawn = np.flatnonzero((view.bbox[:, 2] >= view.bbox[:, 0]) & (view.bbox[:, 3] >= view.bbox[:, 1]))
+            verts = np.zeros(M * 4, dtype=[("px", "f4", 2), ("elem", "i4")])
+            verts["px"] = view.cover.reshape(-1, 2)
+            layout = "2f 1i"
+            attrs = ("in_px", "in_elem")
+        else:
+            drawn = np.flatnonzero(view.projectable)
+            verts = np.zeros(M * 4, dtype=[("pos", "f4", 3), ("ref", "f4", 2), ("xe", "f4", 2), ("elem", "i4")])
+            verts["pos"] = view.Xd.reshape(-1, 3)
+            verts["ref"] = view.ref_uv.reshape(-1, 2)
+            verts["xe"] = np.tile(_CORNER_XE, (M, 1))
+            layout = "3f 2f 2f 1i"
+            attrs = ("in_pos", "in_ref", "in_xe", "in_elem")
+        verts["elem"] = elem
+        index = (drawn[:, None] * 4 + _TRIANGLES[None]).astype(np.int32).ravel()
+        return verts, index, layout, attrs
+
+    def render_view(self, view: View, opts, truth: bool = False, effects=None):
+        """Image (H, W) float32, the pixel-centre raster if ``truth`` (as the CPU backend), and
+        the list of passes run."""
+        fx = effects or Effects()
+        s = opts.supersampling
+        W, H = view.camera.size
+        color, raster = self._deform(view, opts, s, truth and s == 1, fx)
+        stages = ["deform"]
+        grey, depth, temps = color[0], (color[-1] if fx.blur else None), []
+        if s > 1:
+            grey, depth = self._downsample(grey, depth, W, H, s)
+            temps += [grey] + ([depth] if depth is not None else [])
+            stages.append("downsample")
+        if fx.blur:
+            kernel = fx.optics.kernel
+            passes = ("BLUR_DISK",) if kernel == "disk" else ("BLUR_HORIZONTAL", "BLUR_VERTICAL")
+            for name in passes:
+                defines = {name: None, "MAX_RADIUS": int(kernel_radius(fx.sigma_max, kernel))}
+                grey = self.fullscreen_pass("blur.frag", defines, {"u_src": grey, "u_depth": depth},
+                                            shader_uniforms(fx.optics), (W, H))
+                temps.append(grey)
+                stages.append(name.lower())
+        if fx.noise is not None:
+            grey = self.noise_pass(grey, fx.noise, fx.bit_depth, fx.noise_seed, fx.variance)
+            temps.append(grey)
+            stages.append("noise")
+        image = self.read(grey)
+        for t in temps:
+            t.release()
+        if truth and s > 1:
+            _, raster = self._deform(view, replace(opts, samples_per_pixel=1), 1, True, Effects())
+        return image, raster, stages
+
+    def _deform(self, view: View, opts, s: int, truth: bool, fx):
+        """The deformation pass into the cached target; returns its color textures and, if
+        ``truth``, the read-back raster."""
+        ctx = self.ctx
+        W, H = view.camera.size
+        cam, ref_cam = view.camera, view.ref_camera
+        defines = program_defines(opts, truth, self.fp64, fx)
+        fp64 = "FP64" in defines
+        vert = "exact.vert" if opts.mode == "exact" else "deform.vert"
+        prog = self.programs.program(vert, "deform.frag", defines=defines)
+        self._set(prog, "u_intr", cam.intrinsics, fp64)
+        self._set(prog, "u_dist", cam.distortion.coeffs, fp64)
+        self._set(prog, "u_valid_r2", [cam.distortion.valid_radius() ** 2], fp64)
+        self._set(prog, "u_ref_intr", ref_cam.intrinsics, fp64)
+        self._set(prog, "u_ref_dist", ref_cam.distortion.coeffs, fp64)
+        self._set(prog, "u_ref_valid_r2", [ref_cam.distortion.valid_radius() ** 2], fp64)
+        for name, value in (("u_size", (float(W), float(H))), ("u_far", float(view.far)),
+                            ("u_ref_size", tuple(float(x) for x in ref_cam.size))):
+            if name in prog:
+                prog[name].value = value
+        buffers = []
+        if fx.lighting is not None:
+            for name, value in _light_uniforms(fx).items():
+                if name in prog:
+                    prog[name].write(np.ascontiguousarray(value).tobytes())
+            buffers.append(ctx.buffer(shading_data(view, fx.normals).tobytes()))
+            buffers[-1].bind_to_storage_buffer(1)
+        if opts.interpolation == "procedural":
+            self._bind_dots(prog)
+        else:
+            self._reference_texture(opts.interpolation).use(0)
+            if "u_ref" in prog:
+                prog["u_ref"].value = 0
+        if "u_rays" in prog:
+            self._ray_map(cam, s, fp64).use(1)
+            prog["u_rays"].value = 1
+
+        verts, index, layout, attrs = self._geometry(view, opts.mode)
+        vbo = ctx.buffer(verts.tobytes())
+        buffers.append(vbo)
+        if opts.mode != "fast":
+            buffers.append(ctx.buffer(element_data(view, opts.mode, np.float64 if fp64 else np.float32).tobytes()))
+            buffers[-1].bind_to_storage_buffer(0)
+        fbo, color, _, grey_only = self._target(W * s, H * s, truth, "DEPTH_OUT" in defines)
+        # the grey target starts at the background; truth and depth targets at zero
+        fbo.clear(0.0, 0.0, 0.0, 0.0, depth=1.0)
+        grey_only.clear(opts.background, 0.0, 0.0, 0.0)
+        fbo.use()
+        fbo.viewport = (0, 0, W * s, H * s)
+        ctx.enable(ctx.DEPTH_TEST)
+        ctx.disable(ctx.CULL_FACE)
+        if len(index):
+            ibo = ctx.buffer(index.tobytes())
+            buffers.append(ibo)
+            # attributes the compiled program does not use become padding
+            fmt = " ".join(f if a in prog else f"{int(f[:-1]) * 4}x" for f, a in zip(layout.split(), attrs))
+            used = [a for a in attrs if a in prog]
+            vao = ctx.vertex_array(prog, [(vbo, fmt, *used)], index_buffer=ibo, index_element_size=4)
+            vao.render(ctx.TRIANGLES, vertices=len(index))
+            vao.release()
+        ctx.disable(ctx.DEPTH_TEST)
+        check_error(ctx, f"deformation pass ({opts.mode})")
+        for b in buffers:
+            b.release()
+        if not truth:
+            return color, None
+        m = np.frombuffer(color[1].read(), np.float32).reshape(H * W, 4).astype(np.float64)
+        x = np.frombuffer(color[2].read(), np.float32).reshape(H * W, 4).astype(np.float64)
+        elem = np.rint(x[:, 0]).astype(np.int64) - 1
+        return color, {"element": elem, "xi": m[:, 2], "eta": m[:, 3], "ref_uv": m[:, :2] + x[:, 1:3]}
+
+    def _bind_dots(self, prog) -> None:
+        """Bind procedural.glsl's storage buffers (made once) and set its uniforms."""
+        if self._dot_buffers is None:
+            from glsim.backends.cpu import require_dots
+            from glsim.scene.speckle import dot_grid
+
+            dots = require_dots(self._dots)
+            grid = dot_grid(dots)
+            c = dots.centres[grid.order]
+            corner = np.asarray(grid.origin) + np.floor((c - grid.origin) / grid.cell) * grid.cell
+            dot_data = np.column_stack([c - corner, dots.radii[grid.order]]).astype(np.float32)
+            cell_data = np.column_stack([grid.start, grid.count]).astype(np.int32)
+            hi = np.asarray(grid.origin, np.float32)
+            uniforms = {"u_grid_origin_hi": tuple(hi.tolist()),
+                        "u_grid_origin_lo": tuple((np.asarray(grid.origin) - hi).tolist()),
+                        "u_grid_cell": grid.cell, "u_grid_dims": grid.dims, "u_dot_edge": dots.edge_px,
+                        "u_dot_black": dots.black, "u_dot_white": dots.white}
+            self._dot_buffers = (self.ctx.buffer(dot_data.tobytes() or bytes(12)),
+                                 self.ctx.buffer(cell_data.tobytes()), uniforms)
+        dot_buf, cell_buf, uniforms = self._dot_buffers
+        dot_buf.bind_to_storage_buffer(2)
+        cell_buf.bind_to_storage_buffer(3)
+        for name, value in uniforms.items():
+            if name in prog:
+                prog[name].value = value
+
+    def _ray_map(self, cam, s: int, fp64: bool):
+        """Cached per camera model and supersampling: (W·s)×(H·s) RGBA32F undistorted rays."""
+        key = (cam.size, tuple(cam.intrinsics), tuple(cam.distortion.coeffs), s, fp64)
+        if key not in self._rays:
+            W, H = cam.size
+            defines = {"SS": s, **({"FP64": None} if fp64 else {})}
+            prog = self.programs.program("fullscreen.vert", "rays.frag", defines=defines)
+            self._set(prog, "u_intr", cam.intrinsics, fp64)
+            self._set(prog, "u_dist", cam.distortion.coeffs, fp64)
+            self._set(prog, "u_valid_r2", [cam.distortion.valid_radius() ** 2], fp64)
+            out = self.ctx.texture((W * s, H * s), 4, dtype="f4")
+            fbo = self.ctx.framebuffer(color_attachments=[out])
+            fbo.use()
+            fbo.viewport = (0, 0, W * s, H * s)
+            vao = self.ctx.vertex_array(prog, [])
+            vao.render(self.ctx.TRIANGLES, vertices=3)
+            check_error(self.ctx, "ray map")
+            self._unbind()
+            vao.release()
+            fbo.release()
+            self._rays[key] = out
+        return self._rays[key]
+
+    def fullscreen_pass(self, frag: str, defines: dict, inputs: dict, uniforms: dict, size: tuple[int, int]):
+        """Run a full-screen fragment pass into a new R32F texture of ``size`` (W, H); the
+        caller releases it. ``inputs`` maps sampler names to textures or float arrays (H, W)
+        (arrays are uploaded for the pass and released after it)."""
+        ctx = self.ctx
+        W, H = size
+        prog = self.programs.program("fullscreen.vert", frag, defines=defines)
+        uploaded = []
+        for unit, (name, tex) in enumerate(inputs.items()):
+            if isinstance(tex, np.ndarray):
+                a = np.ascontiguousarray(tex, np.float32)
+                tex = ctx.texture(a.shape[::-1], 1, a.tobytes(), dtype="f4")
+                tex.filter = (ctx.NEAREST, ctx.NEAREST)
+                uploaded.append(tex)
+            if name in prog:
+                tex.use(unit)
+                prog[name].value = unit
+        for name, value in uniforms.items():
+            if name in prog:
+                prog[name].value = value
+        out = ctx.texture((W, H), 1, dtype="f4")
+        fbo = ctx.framebuffer(color_attachments=[out])
+        fbo.use()
+        fbo.viewport = (0, 0, W, H)
+        vao = ctx.vertex_array(prog, [])
+        vao.render(ctx.TRIANGLES, vertices=3)
+        check_error(ctx, f"pass {frag} {sorted(defines)}")
+        self._unbind()
+        for obj in (vao, fbo, *uploaded):
+            obj.release()
+        return out
+
+    @staticmethod
+    def read(tex) -> np.ndarray:
+        """An R32F texture as a float32 (H, W) array."""
+        W, H = tex.size
+        return np.frombuffer(tex.read(), np.float32).reshape(H, W).copy()
+
+    def _downsample(self, samples, depth, W: int, H: int, s: int):
+        """Box filter over s×s samples: grey, and the mean depth of covered samples if given."""
+        grey = self.fullscreen_pass("downsample.frag", {"SS": s}, {"u_samples": samples}, {}, (W, H))
+        if depth is None:
+            return grey, None
+        return grey, self.fullscreen_pass("downsample.frag", {"SS": s, "COVERED_MEAN": None},
+                                          {"u_samples": depth}, {}, (W, H))
+
+    def noise_pass(self, grey, params, bit_depth: int, seed: int, table=None):
+        """noise.frag on an R32F texture or (H, W) array: grey + σ(grey)·z, the same field as
+        :func:`glsim.noise.add_noise`."""
+        inputs = {"u_src": grey}
+        if params.model == "heteroscedastic":
+            inputs["u_variance"] = noise.variance_texture(table, bit_depth)
+        H, W = grey.shape if isinstance(grey, np.ndarray) else grey.size[::-1]
+        uniforms = {**noise.shader_uniforms(params, bit_depth), "u_seed": int(seed), "u_width": W}
+        return self.fullscreen_pass("noise.frag", noise.shader_defines(params), inputs, uniforms, (W, H))

@@ -1,0 +1,141 @@
+"""GLSL loader: resolves #include, prepends #version/#defines, caches programs, and turns
+driver logs into errors that name the shader file and line."""
+from __future__ import annotations
+
+import re
+from dataclasses import dataclass
+from importlib import resources
+from pathlib import Path
+
+from glsim.errors import ShaderError
+
+VERSION = "#version 450 core"
+PRECISION = """#ifdef FP64
+#define real double
+#define real2 dvec2
+#define real3 dvec3
+#define real4 dvec4
+#define real2x2 dmat2
+#define real3x3 dmat3
+#else
+#define real float
+#define real2 vec2
+#define real3 vec3
+#define real4 vec4
+#define real2x2 mat2
+#define real3x3 mat3
+#endif"""
+_INCLUDE = re.compile(r'^\s*#include\s+"([^"]+)"\s*$')
+# Mesa: "0:12(5): error: ..."; NVIDIA: "0(12) : error C1008: ..."
+_LOG_LINE = re.compile(r"^\s*\d+[:(](\d+)\)?(?:\(\d+\))?\s*:\s*(.*)$")
+
+
+def read_shader(name: str, dirs: tuple = ()) -> str:
+    """Text of a shader file: first found in ``dirs``, then in the packaged shaders."""
+    for d in dirs:
+        path = Path(d) / name
+        if path.is_file():
+            return path.read_text()
+    try:
+        return resources.files("glsim.shaders").joinpath(name).read_text()
+    except FileNotFoundError:
+        raise ShaderError(f"shader file {name!r} not found in {[str(d) for d in dirs]} or glsim.shaders") from None
+
+
+@dataclass(frozen=True)
+class Source:
+    """An assembled GLSL source and, for each of its lines, the (file, line) it came from."""
+    text: str
+    origin: tuple[tuple[str, int], ...]
+
+    def locate(self, line: int) -> str:
+        if 1 <= line <= len(self.origin):
+            f, n = self.origin[line - 1]
+            return f"{f}:{n}"
+        return f"<assembled>:{line}"
+
+
+def assemble(name: str, defines: dict | None = None, dirs: tuple = ()) -> Source:
+    """#version, one #define per item (value None → bare define), precision macros, then the
+    file with its #include "x.glsl" lines replaced (each file included once)."""
+    lines: list[str] = [VERSION]
+    origin: list[tuple[str, int]] = [("<version>", 1)]
+    for key, value in sorted((defines or {}).items()):
+        lines.append(f"#define {key}" + ("" if value is None else f" {value}"))
+        origin.append(("<defines>", len(origin)))
+    for i, text in enumerate(PRECISION.splitlines(), 1):
+        lines.append(text)
+        origin.append(("<precision>", i))
+    seen: set[str] = set()
+
+    def add(fname: str) -> None:
+        seen.add(fname)
+        for n, text in enumerate(read_shader(fname, dirs).splitlines(), 1):
+            m = _INCLUDE.match(text)
+            if m:
+                if m.group(1) not in seen:
+                    add(m.group(1))
+                continue
+            lines.append(text)
+            origin.append((fname, n))
+
+    add(name)
+    return Source("\n".join(lines) + "\n", tuple(origin))
+
+
+def translate_log(log: str, sources: dict[str, Source]) -> str:
+    """Rewrite a driver log so each line number names the shader file and line."""
+    out = []
+    stage = None
+    for line in log.splitlines():
+        key = line.strip().lower()
+        if key in sources:
+            stage = key
+        m = _LOG_LINE.match(line)
+        if m and stage:
+            out.append(f"{sources[stage].locate(int(m.group(1)))}: {m.group(2)}")
+        elif line.strip() and set(line.strip()) != {"="}:
+            out.append(line)
+    return "\n".join(out)
+
+
+class ProgramCache:
+    """Compiles programs once per (files, defines) for one GL context.
+
+    ``dirs`` are searched for shader files before the packaged ones.
+    """
+
+    def __init__(self, ctx, dirs: tuple = ()):
+        self.ctx = ctx
+        self.dirs = tuple(dirs)
+        self._programs: dict = {}
+        self.compiled: list[tuple[tuple[str, ...], dict]] = []  # what was built, for tests
+
+    def _build(self, stages: dict[str, str], defines: dict, make):
+        key = (tuple(stages.items()), tuple(sorted(defines.items())))
+        if key not in self._programs:
+            sources = {stage: assemble(f, defines, self.dirs) for stage, f in stages.items()}
+            try:
+                prog = make(**{s: src.text for s, src in sources.items()})
+            except Exception as exc:
+                files = ", ".join(stages.values())
+                raise ShaderError(f"GLSL program ({files}) failed to build with defines "
+                                  f"{defines}:\n{translate_log(str(exc), sources)}") from None
+            self._programs[key] = prog
+            self.compiled.append((tuple(stages.values()), defines))
+        return self._programs[key]
+
+    def program(self, vertex: str, fragment: str, defines: dict | None = None):
+        """A vertex + fragment program."""
+        return self._build({"vertex_shader": vertex, "fragment_shader": fragment},
+                           dict(defines or {}), self.ctx.program)
+
+    def compute(self, name: str, defines: dict | None = None):
+        """A compute shader."""
+        return self._build({"source": name}, dict(defines or {}),
+                           lambda source: self.ctx.compute_shader(source))
+
+    def release(self) -> None:
+        for prog in self._programs.values():
+            prog.release()
+        self._programs.clear()

@@ -1,0 +1,93 @@
+"""The optical effects one render needs, as plain data in the rendering camera's frame.
+
+A scene that names no effect gets ``Effects()`` (all None): the backends then run no
+lighting, blur or noise code and compile no such shader.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import typing
+
+import numpy as np
+
+from glsim.scene.camera import Camera
+from glsim.scene import Lighting, Noise, Optics, Scene
+
+if typing.TYPE_CHECKING:
+    from glsim.effects.lighting import LightArrays
+
+
+@dataclass(frozen=True, eq=False)
+class Effects:
+    """``lights``: camera-frame light arrays; ``normals``: (M, 4, 3) unit corner normals in
+    the camera frame; ``noise_seed``: this camera's and step's stream; ``variance``: the
+    heteroscedastic table (levels DN, variance DN²); ``sigma_max``: the largest blur σ (or
+    disk radius) in px over the view's depth range (0: nothing to blur)."""
+    lighting: Lighting | None = None
+    lights: LightArrays | None = None
+    normals: np.ndarray | None = None
+    optics: Optics | None = None
+    sigma_max: float = 0.0
+    noise: Noise | None = None
+    noise_seed: int = 0
+    variance: tuple | None = None
+    bit_depth: int = 8
+
+    @property
+    def blur(self) -> bool:
+        return self.optics is not None and self.sigma_max > 0
+
+
+def corner_normals(nodes: np.ndarray, quads: np.ndarray, cam: Camera, flat: bool) -> np.ndarray:
+    """(M, 4, 3) unit normals at each element's corners, camera frame."""
+    from glsim.effects import lighting as shade
+
+    if flat:
+        n = np.repeat(shade.element_normals(nodes, quads)[:, None], 4, axis=1)
+    else:
+        n = shade.vertex_normals(nodes, quads)[quads]
+    return n @ cam.rotation.T
+
+
+def max_blur(optics: Optics, depths: np.ndarray) -> float:
+    """The largest blur σ (Gaussian) or radius (disk) in px over camera-frame depths (mm)."""
+    from glsim.effects import dof as blur
+
+    z = depths[depths > 0]
+    if z.size == 0:
+        return 0.0
+    # the CoC grows monotonically away from the focus plane on either side
+    probe = np.array([z.min(), z.max()])
+    return float(np.max(blur.blur_sigma(probe, optics)))
+
+
+def prepare(scene: Scene, nodes_def: np.ndarray, quads: np.ndarray, cam: Camera, camera_index: int,
+            step: int, depths: np.ndarray) -> Effects:
+    """The :class:`Effects` of ``scene`` for one camera and step (``depths``: element corner
+    depths Z in mm, for the blur radius)."""
+    out: dict = {"bit_depth": cam.bit_depth}
+    lit = scene.lighting
+    if lit is not None:
+        from glsim.effects import lighting as shade
+
+        out.update(lighting=lit,
+                   lights=shade.lights_to_camera([_light_dict(li) for li in lit.lights], cam.rotation,
+                                                 cam.translation),
+                   normals=corner_normals(nodes_def, quads, cam, lit.normals == "flat"))
+    if scene.optics is not None:
+        out.update(optics=scene.optics, sigma_max=max_blur(scene.optics, depths))
+    nz = scene.noise
+    if nz is not None:
+        from glsim.effects import noise as noisemod
+
+        out.update(noise=nz, noise_seed=noisemod.stream_seed(scene.seed, camera_index, step))
+        if nz.model == "heteroscedastic":
+            out["variance"] = noisemod.load_variance_table(scene.resolve(nz.variance_file), cam.bit_depth)
+    return Effects(**out)
+
+
+def _light_dict(light) -> dict:
+    return {"position": light.position, "direction": light.direction, "intensity": light.intensity,
+            "attenuation": light.attenuation, "cutoff_deg": light.cutoff, "edge_deg": light.edge}
+

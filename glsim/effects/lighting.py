@@ -1,0 +1,241 @@
+"""Surface normals and the paper's Phong lighting (§2.2.1, eqs. 10–13), numpy float64.
+
+Mirrored function for function in ``shaders/shade.glsl`` (``spot_factor``, ``phong``,
+``combine``). Everything is in the rendering camera's frame (OpenCV axes, mm, camera at the
+origin) and in grey levels as fractions of full scale: the paper's Table 1 values for an 8-bit
+camera, I_a = −10 and I_i = 80 grey levels, are ``ambient=-10/255`` and ``intensity=80/255``.
+
+The illumination at a surface point X with unit normal N is (eq. 13 summed over lights)
+
+    I = I_a + Σ_i spot_i · I_i / (1 + k_i d_i²) · (k_r·max(N·L_i, 0) + k_s·[N·L_i > 0]·max(R_i·V, 0)^r)
+
+with V = normalize(−X) the direction to the camera (the paper's C), L_i = normalize(pos_i − X)
+the direction to light i, d_i = |pos_i − X|, R_i = 2(N·L_i)N − L_i the reflected light
+direction (the paper's L_s) and r the shininess. A normal facing away from the camera
+(N·V < 0) is flipped first: thin shells are seen from either side.
+
+Spotlights: cosθ_i = dot(−L_i, dir_i) is the cosine of the angle between the spot axis and the
+ray from the light to X. With a half-angle ``cutoff_deg`` and an edge width ``edge_deg`` the
+spot factor is ``smoothstep(cos(cutoff), cos(cutoff − edge), cosθ)`` when edge > 0 (GLSL's
+smoothstep, run in cos θ: 1 inside cutoff − edge, 0 outside the cutoff, 0.5 where cos θ is
+midway between the two cosines), and a hard step when edge = 0: 1 for cosθ ≥ cos(cutoff),
+else 0. Point lights have ``dir = 0`` and a spot factor of 1.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any, Sequence
+
+import numpy as np
+
+from glsim.errors import SceneError
+
+DEGENERATE_SIN = 1e-12  # |d1 × d2| ≤ this · |d1|·|d2| (diagonals parallel): zero-area element
+
+
+def _diagonal_cross(nodes, quads):
+    nodes = np.asarray(nodes, dtype=np.float64)
+    quads = np.asarray(quads, dtype=np.intp)
+    x = nodes[quads]                                   # (M, 4, 3)
+    d1 = x[:, 2] - x[:, 0]
+    d2 = x[:, 3] - x[:, 1]
+    c = np.cross(d1, d2)
+    norm = np.linalg.norm(c, axis=-1)
+    scale = np.linalg.norm(d1, axis=-1) * np.linalg.norm(d2, axis=-1)
+    ok = (norm > DEGENERATE_SIN * scale) & (norm > 0) & np.isfinite(norm)
+    return np.where(ok[:, None], c, 0.0), np.where(ok, norm, 0.0)
+
+
+def element_normals(nodes, quads) -> np.ndarray:
+    """Unit element normals (M, 3) from the cross product of the diagonals (x2−x0)×(x3−x1).
+
+    For a planar quad |(x2−x0)×(x3−x1)|/2 is its area and the normal is exact; for a warped
+    quad it is the normal of the average plane. Collapsed triangles (a, b, c, c) give their
+    triangle's normal. Zero-area elements (diagonals parallel to within DEGENERATE_SIN, or of
+    zero length) give (0, 0, 0), never NaN. The sign follows the corner order (counter-
+    clockwise seen from the normal's tip).
+    """
+    c, norm = _diagonal_cross(nodes, quads)
+    return c / np.where(norm > 0, norm, 1.0)[:, None]
+
+
+def vertex_normals(nodes, quads) -> np.ndarray:
+    """Per-node unit normals (N, 3): the area-weighted average of the adjacent elements'
+    normals (weight |d1 × d2|/2, so the sum is Σ (d1 × d2)/2), normalised.
+
+    An element counts once per distinct node (a collapsed triangle's repeated corner is not
+    counted twice). Nodes with no usable element, or whose adjacent normals cancel, get
+    (0, 0, 0).
+    """
+    nodes = np.asarray(nodes, dtype=np.float64)
+    quads = np.asarray(quads, dtype=np.intp)
+    c, norm = _diagonal_cross(nodes, quads)
+    acc = np.zeros((len(nodes), 3))
+    wsum = np.zeros(len(nodes))
+    for j in range(4):
+        first = np.ones(len(quads), dtype=bool)
+        for i in range(j):
+            first &= quads[:, j] != quads[:, i]
+        np.add.at(acc, quads[first, j], 0.5 * c[first])
+        np.add.at(wsum, quads[first, j], 0.5 * norm[first])
+    n = np.linalg.norm(acc, axis=-1)
+    ok = (n > DEGENERATE_SIN * wsum) & (n > 0)
+    return np.where(ok[:, None], acc / np.where(ok, n, 1.0)[:, None], 0.0)
+
+
+@dataclass(frozen=True)
+class LightArrays:
+    """Lights in the camera frame (mm), float64, one row per light.
+
+    ``pos`` (L, 3) position; ``dir`` (L, 3) unit spotlight axis, all zeros for a point light;
+    ``intensity`` (L,) I_i in fractions of full scale; ``attenuation`` (L,) k of 1/(1 + k d²)
+    in 1/mm²; ``cos_cutoff`` (L,) cosine of the spot half-angle (−1 for a point light);
+    ``cos_inner`` (L,) cosine of (cutoff − edge), where the smooth edge reaches 1
+    (= cos_cutoff for a hard edge).
+    """
+    pos: np.ndarray
+    dir: np.ndarray
+    intensity: np.ndarray
+    attenuation: np.ndarray
+    cos_cutoff: np.ndarray
+    cos_inner: np.ndarray
+
+    def __len__(self) -> int:
+        return len(self.intensity)
+
+
+def _get(light: Any, name: str, default=None):
+    if isinstance(light, dict):
+        return light.get(name, default)
+    return getattr(light, name, default)
+
+
+def lights_to_camera(lights_world: Sequence[Any], R=None, t=None) -> LightArrays:
+    """World-frame light descriptions → LightArrays in the camera frame X_cam = R·X_world + t.
+
+    Each light is a dict or an object with ``position`` (mm), ``direction`` (spot axis, any
+    length; None or omitted for a point light), ``intensity`` (fraction of full scale),
+    ``attenuation`` (k, 1/mm²; default 0), ``cutoff_deg`` (spot half-angle, degrees, in
+    (0, 180]; 180 or omitted = point light) and ``edge_deg`` (width of the smooth edge inside
+    the cutoff, degrees, in [0, cutoff]; default 0 = hard edge). R, t default to the identity
+    (camera 1 is the world frame). Bad values raise SceneError naming ``lights[i].key``.
+    """
+    R = np.eye(3) if R is None else np.asarray(R, dtype=np.float64)
+    t = np.zeros(3) if t is None else np.asarray(t, dtype=np.float64)
+    pos, dirs, inten, att, cc, ci = [], [], [], [], [], []
+    for i, light in enumerate(lights_world):
+        key = f"lights[{i}]"
+        p = _get(light, "position")
+        if p is None or np.shape(p) != (3,) or not np.isfinite(np.asarray(p, float)).all():
+            raise SceneError(f"{key}.position", f"must be 3 finite numbers, got {p!r}",
+                             "give the light's position in mm in the world frame")
+        intensity = float(_get(light, "intensity", 0.0))
+        if not np.isfinite(intensity):
+            raise SceneError(f"{key}.intensity", f"must be finite, got {intensity}",
+                             "give I_i as a fraction of full scale (80 grey levels of 8 bits = 80/255)")
+        k = float(_get(light, "attenuation", 0.0) or 0.0)
+        if not (np.isfinite(k) and k >= 0):
+            raise SceneError(f"{key}.attenuation", f"must be ≥ 0, got {k}", "k of 1/(1 + k d²), in 1/mm²")
+        d = _get(light, "direction")
+        cutoff = _get(light, "cutoff_deg")
+        cutoff = 180.0 if cutoff is None else float(cutoff)
+        edge = float(_get(light, "edge_deg", 0.0) or 0.0)
+        if not 0 < cutoff <= 180:
+            raise SceneError(f"{key}.cutoff_deg", f"must be in (0, 180], got {cutoff}",
+                             "the spot's half-angle in degrees (180 = point light)")
+        if d is None or cutoff == 180.0:
+            d_cam = np.zeros(3)
+            cos_c = cos_i = -1.0
+        else:
+            d = np.asarray(d, dtype=np.float64)
+            if d.shape != (3,) or not np.isfinite(d).all() or np.linalg.norm(d) == 0:
+                raise SceneError(f"{key}.direction", f"must be a non-zero 3-vector, got {d!r}",
+                                 "give the spotlight's axis, or leave it out for a point light")
+            if not 0 <= edge <= cutoff:
+                raise SceneError(f"{key}.edge_deg", f"must be in [0, cutoff_deg = {cutoff}], got {edge}",
+                                 "the width in degrees of the smooth edge inside the cutoff (0 = hard)")
+            d_cam = R @ (d / np.linalg.norm(d))
+            d_cam /= np.linalg.norm(d_cam)
+            cos_c = np.cos(np.radians(cutoff))
+            cos_i = np.cos(np.radians(cutoff - edge))
+        pos.append(R @ np.asarray(p, dtype=np.float64) + t)
+        dirs.append(d_cam)
+        inten.append(intensity)
+        att.append(k)
+        cc.append(cos_c)
+        ci.append(cos_i)
+    f = lambda v, shape: np.asarray(v, dtype=np.float64).reshape(shape)  # noqa: E731
+    n = len(pos)
+    return LightArrays(f(pos, (n, 3)), f(dirs, (n, 3)), f(inten, (n,)), f(att, (n,)), f(cc, (n,)), f(ci, (n,)))
+
+
+def spot_factor(cos_theta, cos_cutoff, cos_inner):
+    """Spotlight factor: smoothstep(cos_cutoff, cos_inner, cosθ) when cos_inner > cos_cutoff,
+    the hard step [cosθ ≥ cos_cutoff] otherwise."""
+    cos_theta, cos_cutoff, cos_inner = np.broadcast_arrays(
+        *(np.asarray(a, dtype=np.float64) for a in (cos_theta, cos_cutoff, cos_inner)))
+    smooth = cos_inner > cos_cutoff
+    width = np.where(smooth, cos_inner - cos_cutoff, 1.0)
+    s = np.clip((cos_theta - cos_cutoff) / width, 0.0, 1.0)
+    return np.where(smooth, s * s * (3.0 - 2.0 * s), (cos_theta >= cos_cutoff).astype(np.float64))
+
+
+def _normalize(v):
+    n = np.linalg.norm(v, axis=-1, keepdims=True)
+    return np.where(n > 0, v / np.where(n > 0, n, 1.0), 0.0), n[..., 0]
+
+
+def phong(X, N, lights: LightArrays, ambient: float, k_r: float, k_s: float, shininess: float):
+    """The paper's eq. 13 summed over ``lights``, in fractions of full scale (see module doc).
+
+    X (..., 3) surface points and N (..., 3) normals in the camera frame; returns I (...).
+    N is normalised here (interpolated normals need not be unit); N = 0 (degenerate) gives the
+    ambient term only. The specular power is taken only where R·V > 0 (so shininess 0 gives
+    k_s·[R·V > 0], not 0⁰) and is evaluated as exp(r·log(1 − s)) with s = |R − V|²/2 = 1 − R·V
+    for unit R, V: the same number, but in float32 (the shader) it keeps its relative accuracy
+    at the highlight, where 1 − R·V is tiny and a plain dot product near 1 loses r·2⁻²⁴.
+    """
+    X = np.asarray(X, dtype=np.float64)
+    N, _ = _normalize(np.asarray(N, dtype=np.float64))
+    X, N = np.broadcast_arrays(X, N)
+    V, _ = _normalize(-X)
+    nv = np.einsum("...d,...d->...", N, V)
+    N = np.where((nv < 0)[..., None], -N, N)
+    Xl = X[..., None, :]                                           # (..., 1, 3)
+    Nl = N[..., None, :]
+    L, d = _normalize(lights.pos - Xl)                             # (..., L, 3), (..., L)
+    nl = np.einsum("...d,...d->...", Nl, L)
+    R = 2.0 * nl[..., None] * Nl - L
+    RmV = R - V[..., None, :]
+    s = 0.5 * np.einsum("...d,...d->...", RmV, RmV)                # 1 − R·V
+    lit = (nl > 0) & (s < 1)                                       # N·L > 0 and R·V > 0
+    spec = np.where(lit, np.exp(shininess * np.log1p(-np.where(lit, s, 0.0))), 0.0)
+    cos_theta = np.einsum("...d,...d->...", -L, lights.dir)
+    is_spot = np.any(lights.dir != 0, axis=-1)
+    spot = np.where(is_spot, spot_factor(cos_theta, lights.cos_cutoff, lights.cos_inner), 1.0)
+    att = lights.intensity / (1.0 + lights.attenuation * d * d)
+    return ambient + np.sum(spot * att * (k_r * np.maximum(nl, 0.0) + k_s * spec), axis=-1)
+
+
+MODELS = ("additive", "multiplicative")
+
+
+def combine(grey, I, model: str = "additive"):
+    """Lit grey level: ``"additive"`` → grey + I (the paper adds grey levels);
+    ``"multiplicative"`` → grey · I (physically based: albedo × irradiance, I = 1 is the unlit
+    reference brightness). Not clipped: saturation is clipped and reported at quantisation."""
+    grey = np.asarray(grey, dtype=np.float64)
+    I = np.asarray(I, dtype=np.float64)
+    if model == "additive":
+        return grey + I
+    if model == "multiplicative":
+        return grey * I
+    raise ValueError(f"lighting model must be one of {MODELS}, got {model!r}")
+
+
+def saturated_fraction(image) -> float:
+    """Fraction of pixels at or beyond full scale (≥ 1) or at or below black (≤ 0)."""
+    image = np.asarray(image)
+    if image.size == 0:
+        return 0.0
+    return float(np.count_nonzero((image >= 1) | (image <= 0)) / image.size)

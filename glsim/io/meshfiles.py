@@ -1,0 +1,247 @@
+"""FE mesh files → :class:`~glsim.scene.mesh.Mesh`, read with meshio (Abaqus ``.inp``, VTK/VTU,
+Gmsh, …): Q4 quads, T3 triangles (collapsed quads), the outer faces of hex8/tet4 solids, and
+per-step displacements from point data, one file per step, or ``label;ux;uy;uz`` CSV files."""
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Sequence
+
+import meshio
+import numpy as np
+
+from glsim.errors import SceneError
+from glsim.scene.mesh import Mesh, place_mesh, quad_normals, with_displacements
+
+SOLID_FIX = "use linear quad/triangle shells or hexahedron/tetra solids (outer faces are rendered)"
+
+# Faces of meshio's (VTK/Abaqus-ordered) solids, counter-clockwise seen from outside.
+_SOLID_FACES = {
+    "hexahedron": np.array([[0, 3, 2, 1], [4, 5, 6, 7], [0, 1, 5, 4],
+                            [1, 2, 6, 5], [2, 3, 7, 6], [3, 0, 4, 7]]),
+    "tetra": np.array([[0, 2, 1], [0, 1, 3], [1, 2, 3], [0, 3, 2]]),
+}
+_IGNORED_CELLS = ("line", "vertex")
+
+def _require_file(path) -> Path:
+    path = Path(path)
+    if not path.is_file():
+        raise SceneError(str(path), "file not found", "check the path (relative paths start at the working directory)")
+    return path
+
+
+def _read_meshio(path):
+    path = _require_file(path)
+    try:
+        return meshio.read(path)
+    except Exception as exc:  # meshio's readers raise many types; wrap their words once
+        raise SceneError(str(path), f"meshio could not read it ({type(exc).__name__}: {exc})",
+                         "give an Abaqus .inp, VTK .vtk/.vtu or Gmsh .msh file") from exc
+
+
+def _xyz(points) -> np.ndarray:
+    """(N,2) or (N,3) → (N,3) with z = 0 for 2-D data."""
+    points = np.asarray(points, dtype=np.float64)
+    return np.pad(points, ((0, 0), (0, 3 - points.shape[1])))
+
+
+def _abaqus_labels(path: Path) -> tuple[list[int], list[list[int]]]:
+    """*NODE labels and, per *ELEMENT block, its integers, split the way meshio reads them.
+
+    meshio re-indexes Abaqus nodes and elements and drops their labels.
+    """
+    nodes: list[int] = []
+    elements: list[list[int]] = []
+    block = None
+    with open(path) as f:
+        for line in f:
+            if line.startswith("*"):  # keyword or ** comment: both end a data block in meshio
+                keyword = line.partition(",")[0].strip().replace("*", "").upper()
+                block = keyword if not line.startswith("**") and keyword in ("NODE", "ELEMENT") else None
+                if block == "ELEMENT":
+                    elements.append([])
+            elif line.strip() and block == "NODE":
+                nodes.append(int(line.split(",")[0]))
+            elif line.strip() and block == "ELEMENT":
+                elements[-1] += [int(k) for k in line.split(",") if k.strip()]
+    return nodes, elements
+
+
+def _labels(path: Path, raw) -> tuple[np.ndarray, list[np.ndarray]]:
+    """Node labels (N,) and per-cell-block element labels of a meshio mesh read from `path`."""
+    n = len(raw.points)
+    ordinals = np.cumsum([0] + [len(b.data) for b in raw.cells]) + 1
+    element_labels = [np.arange(ordinals[i], ordinals[i + 1]) for i in range(len(raw.cells))]
+    if path.suffix.lower() != ".inp":
+        for name in ("node_id", "label"):
+            if name in raw.point_data and np.size(raw.point_data[name]) == n:
+                return np.asarray(raw.point_data[name]).reshape(n).astype(np.int64), element_labels
+        return np.arange(1, n + 1), element_labels
+    nodes, elements = _abaqus_labels(path)
+    if len(nodes) != n:
+        raise SceneError(str(path), f"found {len(nodes)} *NODE labels for meshio's {n} nodes",
+                         "put all nodes in one *NODE block of this file (no *INCLUDE)")
+    if len(elements) == len(raw.cells) and all(len(e) == b.data.size + len(b.data)
+                                               for e, b in zip(elements, raw.cells)):
+        element_labels = [np.reshape(e, (len(b.data), -1))[:, 0] for e, b in zip(elements, raw.cells)]
+    return np.asarray(nodes, dtype=np.int64), element_labels
+
+
+def _boundary_faces(cells: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Faces (F,k) of `cells` that belong to exactly one cell, and each face's parent cell index."""
+    all_faces = cells[:, faces].reshape(-1, faces.shape[1])
+    parent = np.repeat(np.arange(len(cells)), len(faces))
+    _, inverse, counts = np.unique(np.sort(all_faces, axis=1), axis=0, return_inverse=True, return_counts=True)
+    once = counts[inverse.ravel()] == 1
+    return all_faces[once], parent[once]
+
+
+def _collapse(triangles: np.ndarray) -> np.ndarray:
+    """Triangles (a, b, c) → collapsed quads (a, b, c, c)."""
+    return np.concatenate([triangles, triangles[:, 2:]], axis=1)
+
+
+def _outward(nodes: np.ndarray, quads: np.ndarray, parent_centroids: np.ndarray) -> np.ndarray:
+    """Reverse the quads whose normal points towards their parent solid (mirrored node order).
+
+    (a, b, c, d) → (b, a, d, c) reverses the cycle and keeps a collapsed node pair last.
+    """
+    inward = np.einsum("ij,ij->i", quad_normals(nodes, quads), nodes[quads].mean(axis=1) - parent_centroids) < 0
+    return np.where(inward[:, None], quads[:, [1, 0, 3, 2]], quads)
+
+
+def _surface(path: Path, raw, nodes: np.ndarray, element_labels: list[np.ndarray]):
+    """Surface quads (M,4) and their element labels from meshio's cell blocks."""
+    quads, labels = [], []
+    for block, block_labels in zip(raw.cells, element_labels):
+        cells = np.asarray(block.data, dtype=np.int64)
+        if block.type == "quad":
+            quads.append(cells)
+            labels.append(block_labels)
+        elif block.type == "triangle":
+            quads.append(_collapse(cells))
+            labels.append(block_labels)
+        elif block.type in _SOLID_FACES:
+            faces, parent = _boundary_faces(cells, _SOLID_FACES[block.type])
+            faces = _collapse(faces) if faces.shape[1] == 3 else faces
+            quads.append(_outward(nodes, faces, nodes[cells[parent]].mean(axis=1)))
+            labels.append(block_labels[parent])
+        elif block.type not in _IGNORED_CELLS:
+            raise SceneError(str(path), f"element type '{block.type}' is not supported", SOLID_FIX)
+    if not quads or sum(map(len, quads)) == 0:
+        raise SceneError(str(path), "has no quad, triangle, hexahedron or tetra elements", SOLID_FIX)
+    return np.concatenate(quads), np.concatenate(labels)
+
+
+def _vector_field(array, n: int, key: str, name: str) -> np.ndarray:
+    """Point-data array (N,3) or (N,2) → (N,3); anything else raises SceneError."""
+    array = np.asarray(array, dtype=np.float64)
+    if array.ndim != 2 or array.shape[0] != n or array.shape[1] not in (2, 3):
+        raise SceneError(key, f"point data {name!r} has shape {array.shape}, not ({n}, 3) or ({n}, 2)",
+                         "give a displacement vector per node")
+    return _xyz(array)
+
+
+def _point_data_steps(path: Path, raw, names: Sequence[str]) -> list[np.ndarray]:
+    steps = []
+    for name in names:
+        if name not in raw.point_data:
+            raise SceneError(str(path), f"no point-data array {name!r} (has: {', '.join(raw.point_data) or 'none'})",
+                             "set point_data_steps to names from that list")
+        steps.append(_vector_field(raw.point_data[name], len(raw.points), str(path), name))
+    return steps
+
+
+def _file_step(path, n: int, field: str | None) -> np.ndarray:
+    """Displacement (N,3) from the point data of a mesh file with the same nodes in the same order."""
+    raw = _read_meshio(path)
+    key = str(path)
+    if len(raw.points) != n:
+        raise SceneError(key, f"has {len(raw.points)} nodes, the mesh has {n}",
+                         "give one file per step on the same mesh (same nodes, same order)")
+    if field is None:
+        vectors = [k for k, v in raw.point_data.items() if np.shape(v) == (n, 3)]
+        if len(vectors) != 1:
+            raise SceneError(key, f"found {len(vectors)} 3-vector point-data arrays ({', '.join(vectors) or 'none'})",
+                             "set field to the displacement array's name")
+        field = vectors[0]
+    if field not in raw.point_data:
+        raise SceneError(key, f"no point-data array {field!r} (has: {', '.join(raw.point_data) or 'none'})",
+                         "set field to a name from that list")
+    return _vector_field(raw.point_data[field], n, key, field)
+
+
+def _csv_step(path, node_labels: np.ndarray) -> np.ndarray:
+    """Displacement (N,3) from a CSV of `label;ux;uy;uz` lines (',' also accepted, one header line allowed)."""
+    path = _require_file(path)
+    index = {int(label): i for i, label in enumerate(node_labels)}
+    u = np.zeros((len(node_labels), 3))
+    given = np.zeros(len(node_labels), dtype=bool)
+    seen_data = False
+    with open(path) as f:
+        for lineno, line in enumerate(f, 1):
+            text = line.strip()
+            if not text:
+                continue
+            parts = text.split(";" if ";" in text else ",")
+            try:
+                label, values = int(parts[0]), [float(p) for p in parts[1:]]
+            except ValueError:
+                if not seen_data:  # the header line
+                    seen_data = True
+                    continue
+                raise SceneError(f"{path}:{lineno}", f"{text!r} is not numeric",
+                                 "write lines 'label;ux;uy;uz' with an integer label and numbers") from None
+            seen_data = True
+            if len(values) != 3:
+                raise SceneError(f"{path}:{lineno}", f"{len(parts)} fields instead of 4", "write 'label;ux;uy;uz'")
+            if label not in index:
+                raise SceneError(f"{path}:{lineno}", f"node label {label} is not in the mesh",
+                                 "use the mesh file's node labels")
+            if given[index[label]]:
+                raise SceneError(f"{path}:{lineno}", f"node label {label} appears twice", "give one line per node")
+            u[index[label]], given[index[label]] = values, True
+    missing = np.flatnonzero(~given)
+    if len(missing):
+        first = ", ".join(str(label) for label in node_labels[missing[:5]])
+        raise SceneError(str(path), f"{len(missing)} mesh nodes have no displacement (labels {first}"
+                         f"{', …' if len(missing) > 5 else ''})", "give one line per mesh node")
+    if not np.isfinite(u).all():
+        raise SceneError(str(path), "contains non-finite displacements", "give finite numbers")
+    return u
+
+
+def load_mesh(path, unit: str = "mm", R=None, t=None, point_data_steps: Sequence[str] | None = None,
+              displacement_files: Sequence | None = None, csv_files: Sequence | None = None,
+              field: str | None = None) -> Mesh:
+    """Read a mesh file (Abaqus .inp, VTK .vtk/.vtu, Gmsh .msh, … via meshio) as a world-frame Mesh.
+
+    quad → Q4; triangle → collapsed Q4; hexahedron / tetra → their outer faces, CCW seen
+    from outside; line/vertex cells are ignored. Node labels: Abaqus *NODE labels, else
+    point data "node_id"/"label", else 1..N; element labels: Abaqus labels (boundary faces
+    get their solid's), else the 1-based position in the file.
+
+    Load steps 1..n come from at most one of: point_data_steps (point-data names in this
+    file), displacement_files (one mesh file per step, point data `field`, default the only
+    3-vector array) or csv_files (one `label;ux;uy;uz` file per step). Coordinates and
+    displacements are in `unit`, then placed by place(…, unit, R, t).
+    """
+    sources = [s for s in (point_data_steps, displacement_files, csv_files) if s is not None]
+    if len(sources) > 1:
+        raise SceneError("specimen", "more than one displacement source given",
+                         "use only one of point_data_steps, displacement_files, csv_files")
+    raw = _read_meshio(path)
+    path = Path(path)
+    nodes = _xyz(raw.points)
+    node_labels, element_labels = _labels(path, raw)
+    quads, labels = _surface(path, raw, nodes, element_labels)
+    if point_data_steps is not None:
+        steps = _point_data_steps(path, raw, point_data_steps)
+    elif displacement_files is not None:
+        steps = [_file_step(p, len(nodes), field) for p in displacement_files]
+    else:
+        steps = [_csv_step(p, node_labels) for p in csv_files or ()]
+    try:
+        mesh = with_displacements(Mesh(nodes, quads, node_labels, labels), steps)
+    except SceneError as exc:
+        raise SceneError(str(path), str(exc)) from exc
+    return place_mesh(mesh, unit, R, t)

@@ -1,0 +1,10 @@
+"""What is rendered, free of GL: the scene model (frozen dataclasses), its file loader, the
+built-in scenes, and the models it is made of (camera, mesh, Q4 element, speckle)."""
+from glsim.scene.load import load_scene, scene_from_dict
+from glsim.scene.model import (BACKENDS, INTERPOLATIONS, MODES, Bulge, Light, Lighting, MeshFile, Noise, Optics,
+                               Output, Plate, Pose, Render, Scene, Specimen, Speckle, Stereo)
+from glsim.scene.presets import bulge_scene, demo_effects, stereo_rig
+
+__all__ = ["BACKENDS", "INTERPOLATIONS", "MODES", "Bulge", "Light", "Lighting", "MeshFile", "Noise", "Optics",
+           "Output", "Plate", "Pose", "Render", "Scene", "Specimen", "Speckle", "Stereo",
+           "bulge_scene", "demo_effects", "load_scene", "scene_from_dict", "stereo_rig"]

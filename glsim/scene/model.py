@@ -1,0 +1,560 @@
+"""Scene model: frozen dataclasses (no GL handles) describing cameras, specimen, speckle,
+render options, output and the optional effects. Each checks its own values on construction and
+raises :class:`SceneError` naming the key and the fix. Units: millimetres, pixels, degrees for
+the stereo angles, radians for ``rvec``. Files are read by :mod:`glsim.scene.load`."""
+from __future__ import annotations
+
+import dataclasses
+import difflib
+import json
+import math
+import typing
+from dataclasses import MISSING, dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from glsim.scene.camera import Camera, _check_rotation, look_at, rodrigues, stereo_pose
+from glsim.errors import SceneError
+from glsim.scene.mesh import UNITS_TO_MM
+
+Vec3 = tuple[float, float, float]
+Mat3 = tuple[Vec3, Vec3, Vec3]
+MODES = ("fast", "q4", "exact")
+INTERPOLATIONS = ("linear", "cubic", "bspline3", "bspline5", "procedural")
+BACKENDS = ("gl", "cpu")
+PRECISIONS = ("fp32", "fp64")
+FORMATS = ("tiff", "png")
+
+
+@dataclass(frozen=True)
+class Speckle:
+    """The reference speckle image and the virtual reference camera that "took" it.
+
+    Either ``image`` (a greyscale file, 8/16-bit or float in [0, 1]) or the built-in
+    generator (``image`` empty). The reference camera is ``camera`` if given, otherwise a
+    pinhole looking square onto the undeformed specimen at ``mm_per_px`` mm per reference
+    pixel; for the generator ``mm_per_px`` defaults to camera 1's scale at the specimen
+    divided by ``oversample``.
+    """
+    image: str = ""
+    camera: Camera | None = None
+    mm_per_px: float = 0.0
+    dot_diameter_px: float = 5.0   # in camera-1 pixels on the specimen
+    density: float = 0.5
+    oversample: float = 2.0        # reference pixels per camera-1 pixel
+    edge_px: float = 1.0           # width of the dots' smooth edge, camera-1 pixels
+    seed: int = 0
+
+    def __post_init__(self):
+        _check(self.mm_per_px >= 0, "speckle.mm_per_px", f"must be ≥ 0, got {self.mm_per_px}",
+               "give the reference image scale in mm per pixel (0 = automatic)")
+        _check(not self.image or self.camera is not None or self.mm_per_px > 0, "speckle.mm_per_px",
+               f"is needed with the reference image file {self.image!r}",
+               "give the image scale in mm per pixel, or a speckle.camera table")
+        _check(self.oversample > 0, "speckle.oversample", f"must be > 0, got {self.oversample}",
+               "reference pixels per camera pixel, typically 2–4")
+        _check(self.dot_diameter_px >= 2.0, "speckle.dot_diameter_px",
+               f"must be ≥ 2 px, got {self.dot_diameter_px}",
+               "DIC needs speckles of at least 3 camera pixels")
+        _check(0 <= self.edge_px <= self.dot_diameter_px, "speckle.edge_px",
+               f"must lie in [0, dot_diameter_px], got {self.edge_px}",
+               "the dots' edge width in camera pixels; ≥ 2 avoids aliasing at 1 sample per pixel")
+        _check(0 < self.density < 1, "speckle.density", f"must lie in (0, 1), got {self.density}",
+               "the covered area fraction, typically 0.5")
+
+
+@dataclass(frozen=True)
+class Plate:
+    """Built-in flat rectangular plate in its local XY plane, with rigid translations per step."""
+    width: float = 40.0
+    height: float = 30.0
+    nx: int = 8
+    ny: int = 6
+    translations: tuple[Vec3, ...] = ()   # one (dx, dy, dz) in mm per load step after step 0
+
+    def __post_init__(self):
+        for k in ("width", "height"):
+            _check(getattr(self, k) > 0, f"specimen.plate.{k}", f"must be > 0, got {getattr(self, k)}",
+                   "give it in mm")
+        for k in ("nx", "ny"):
+            _check(getattr(self, k) >= 1, f"specimen.plate.{k}", f"must be ≥ 1, got {getattr(self, k)}",
+                   "the number of elements along that side")
+        for i, tr in enumerate(self.translations):
+            _check(np.shape(tr) == (3,), f"specimen.plate.translations[{i}]", "must have 3 entries",
+                   "give [dx, dy, dz] in mm")
+
+
+@dataclass(frozen=True)
+class Bulge:
+    """Built-in bulge test (paper Table 2): clamped circular plate with the analytic field."""
+    radius: float = 50.0
+    thickness: float = 3.0
+    w0: float = 5.0
+    steps: int = 3
+    n_core: int = 8
+    n_ring: int = 8
+
+    def __post_init__(self):
+        for k in ("radius", "thickness"):
+            _check(getattr(self, k) > 0, f"specimen.bulge.{k}", f"must be > 0, got {getattr(self, k)}",
+                   "give it in mm")
+        for k in ("steps", "n_core", "n_ring"):
+            _check(getattr(self, k) >= 1, f"specimen.bulge.{k}", f"must be ≥ 1, got {getattr(self, k)}",
+                   "a count")
+
+
+@dataclass(frozen=True)
+class MeshFile:
+    """An FE mesh file read with meshio (Abaqus .inp, VTK/VTU, Gmsh .msh) and its steps.
+
+    Load steps come from at most one of ``point_data``, ``files`` and ``csv``.
+    """
+    path: str = ""
+    unit: str = "mm"
+    point_data: tuple[str, ...] = ()   # names of per-step displacement arrays in the file
+    files: tuple[str, ...] = ()        # one mesh file per step with a displacement field
+    csv: tuple[str, ...] = ()          # one `label;ux;uy;uz` file per step
+    field: str = ""                    # displacement field name in `files`
+
+    def __post_init__(self):
+        _check(bool(self.path), "specimen.mesh.path", "is empty", "give the FE mesh file, e.g. 'model.inp'")
+        _check(self.unit in UNITS_TO_MM, "specimen.mesh.unit", f"unknown unit {self.unit!r}",
+               f"use one of {', '.join(UNITS_TO_MM)}")
+        sources = [k for k in ("point_data", "files", "csv") if getattr(self, k)]
+        _check(len(sources) <= 1, f"specimen.mesh.{sources[-1] if sources else ''}",
+               f"only one displacement source may be given, got {', '.join(sources)}",
+               "keep one of point_data, files, csv")
+        _check(not self.field or bool(self.files), "specimen.mesh.field", "is only used with files",
+               "remove it, or give the per-step files")
+
+
+@dataclass(frozen=True)
+class Specimen:
+    """The FE specimen: one source (``mesh``, ``plate`` or ``bulge``) and its placement.
+
+    Placement maps specimen coordinates to the world (camera 1's frame by default):
+    X_world = R·X + t, mm. In a scene file it is the ``pose`` table (R or rvec, and t).
+    """
+    mesh: MeshFile | None = None
+    plate: Plate | None = None
+    bulge: Bulge | None = None
+    R: tuple = ((1.0, 0.0, 0.0), (0.0, 1.0, 0.0), (0.0, 0.0, 1.0))
+    t: tuple = (0.0, 0.0, 0.0)
+
+    def __post_init__(self):
+        given = [k for k in ("mesh", "plate", "bulge") if getattr(self, k) is not None]
+        _check(len(given) == 1, "specimen",
+               f"exactly one of mesh, plate, bulge must be given, got {', '.join(given) or 'none'}",
+               "keep one of [specimen.bulge], [specimen.plate], [specimen.mesh] path = 'model.inp'")
+
+
+@dataclass(frozen=True)
+class Render:
+    """How images are made. ``samples_per_pixel`` is a square (1, 4, 9, 16, …): box filter."""
+    backend: str = "gl"
+    mode: str = "exact"
+    interpolation: str = "bspline3"
+    samples_per_pixel: int = 1
+    background: float = 0.0       # grey level in [0, 1] of full scale
+    precision: str = "fp64"       # GL arithmetic of the exact mode's intersection
+
+    def __post_init__(self):
+        for key, allowed in (("backend", BACKENDS), ("mode", MODES),
+                             ("interpolation", INTERPOLATIONS), ("precision", PRECISIONS)):
+            value = getattr(self, key)
+            _check(value in allowed, f"render.{key}", f"{value!r} is not one of {allowed}",
+                   f"use one of {', '.join(allowed)}")
+        spp = self.samples_per_pixel
+        _check(isinstance(spp, (int, np.integer)) and not isinstance(spp, bool) and spp >= 1
+               and math.isqrt(spp) ** 2 == spp, "render.samples_per_pixel",
+               f"must be a perfect square ≥ 1, got {spp!r}", "use 1, 4, 9, 16, …")
+        _check(0.0 <= self.background <= 1.0, "render.background",
+               f"must lie in [0, 1], got {self.background}", "a fraction of full scale")
+
+    @property
+    def supersampling(self) -> int:
+        """Samples per pixel along each axis."""
+        return math.isqrt(self.samples_per_pixel)
+
+
+@dataclass(frozen=True)
+class Output:
+    """Where and how images are written."""
+    directory: str = "glsim-out"
+    format: str = "tiff"
+    pattern: str = "{camera}_{step:04d}.{ext}"
+
+    def __post_init__(self):
+        _check(self.format in FORMATS, "output.format", f"{self.format!r} is not one of {FORMATS}",
+               "use 'tiff' (8/16-bit) or 'png'")
+        try:
+            names = {self.pattern.format(camera=c, step=k, ext="tif") for c in "ab" for k in (0, 1)}
+        except (KeyError, IndexError, ValueError) as exc:
+            raise SceneError("output.pattern", f"{self.pattern!r} cannot be formatted ({exc!r})",
+                             "use only the fields {camera}, {step} and {ext}") from None
+        _check(len(names) == 4, "output.pattern", f"{self.pattern!r} gives two images the same file name",
+               "include both {camera} and {step}, e.g. '{camera}_{step:04d}.{ext}'")
+
+
+LIGHT_COMBINE = ("additive", "multiplicative")
+NORMALS = ("smooth", "flat")
+KERNELS = ("gaussian", "disk")
+NOISE_MODELS = ("gaussian", "heteroscedastic", "poisson_gaussian")
+
+
+def _one_of(obj, key: str, name: str, allowed) -> None:
+    value = getattr(obj, name)
+    _check(value in allowed, f"{key}.{name}", f"{value!r} is not one of {allowed}",
+           f"use one of {', '.join(allowed)}")
+
+
+@dataclass(frozen=True)
+class Light:
+    """A point light, or a spotlight when ``direction`` is given (world frame, mm).
+
+    ``intensity`` I_i in fraction of full scale (the paper's Table 1, 80 grey levels of an
+    8-bit camera, is 80/255); ``attenuation`` k of 1/(1 + k d²) in 1/mm²; ``cutoff`` the
+    spot's half-angle and ``edge`` the width of its smooth edge inside the cutoff, degrees.
+    """
+    position: Vec3
+    intensity: float = 0.3
+    attenuation: float = 0.0
+    direction: Vec3 | None = None
+    cutoff: float = 180.0
+    edge: float = 0.0
+
+    def __post_init__(self):
+        _check(0 < self.cutoff <= 180, "cutoff", f"must lie in (0, 180] degrees, got {self.cutoff}",
+               "the spotlight's half-angle")
+        _check(0 <= self.edge <= self.cutoff, "edge", f"must lie in [0, cutoff], got {self.edge}",
+               "the smooth edge's width in degrees")
+        _check(self.attenuation >= 0, "attenuation", "must be ≥ 0", "k of 1/(1 + k d²), 1/mm²")
+        _check(self.direction is None or np.linalg.norm(self.direction) > 0, "direction",
+               "must not be zero", "give the spotlight's axis, or leave it out for a point light")
+
+
+@dataclass(frozen=True)
+class Lighting:
+    """Phong reflection (paper eqs. 10–13) combined with the speckle grey level.
+
+    ``combine = "additive"``: grey + I (the paper's model, grey levels added);
+    ``"multiplicative"``: grey × I (albedo × irradiance; I = 1 is the unlit brightness).
+    ``normals = "smooth"``: vertex normals averaged over adjacent elements and interpolated
+    (the paper's adapted Gouraud); ``"flat"``: one normal per element.
+    """
+    ambient: float = 0.0
+    lights: tuple[Light, ...] = ()
+    diffuse: float = 1.0
+    specular: float = 0.0
+    shininess: float = 1.0
+    normals: str = "smooth"
+    combine: str = "additive"
+
+    def __post_init__(self):
+        _one_of(self, "lighting", "normals", NORMALS)
+        _one_of(self, "lighting", "combine", LIGHT_COMBINE)
+        _check(self.shininess > 0, "lighting.shininess", "must be > 0", "the Phong exponent r")
+
+
+@dataclass(frozen=True)
+class Optics:
+    """Lens and aperture for depth of field (paper eqs. 14–19), mm.
+
+    ``focus_distance`` is measured along the optical axis (a point's distance is its
+    camera-frame depth); ``coc_px`` is the acceptable circle of confusion in pixels.
+    """
+    focal_length: float
+    f_number: float
+    focus_distance: float
+    pixel_pitch: float
+    coc_px: float = 1.0
+    kernel: str = "gaussian"
+
+    def __post_init__(self):
+        for name in ("focal_length", "f_number", "pixel_pitch", "coc_px"):
+            _check(getattr(self, name) > 0, f"optics.{name}", f"must be > 0, got {getattr(self, name)}",
+                   "give a positive value")
+        _check(self.focus_distance > self.focal_length, "optics.focus_distance",
+               f"must exceed the focal length ({self.focal_length} mm), got {self.focus_distance}",
+               "the focused distance in mm")
+        _one_of(self, "optics", "kernel", KERNELS)
+
+
+@dataclass(frozen=True)
+class Noise:
+    """Sensor noise before quantisation (paper §2.2.3 and beyond).
+
+    ``gaussian``: σ = ``sigma`` % of the dynamic range; ``heteroscedastic``: variance per
+    grey level (DN, DN²) from the CSV ``variance_file``; ``poisson_gaussian``: shot noise of
+    I·``full_well`` electrons plus ``read_noise`` electrons rms.
+    """
+    model: str = "gaussian"
+    sigma: float = 0.0
+    variance_file: str = ""
+    full_well: float = 10000.0
+    read_noise: float = 0.0
+
+    def __post_init__(self):
+        _one_of(self, "noise", "model", NOISE_MODELS)
+        _check(self.sigma >= 0, "noise.sigma", "must be ≥ 0", "percent of the dynamic range, e.g. 2")
+        _check(self.full_well > 0 and self.read_noise >= 0, "noise.full_well",
+               "full_well must be > 0 and read_noise ≥ 0", "electrons")
+        _check(self.model != "heteroscedastic" or bool(self.variance_file), "noise.variance_file",
+               "is required by the heteroscedastic model", "give a CSV of grey level;variance")
+
+
+@dataclass(frozen=True)
+class Stereo:
+    """A camera relative to the first one (MatchID convention), mm and degrees:
+    X_cam = Rz(Psi)·Ry(Phi)·Rx(Theta)·X_cam1 + (Tx, Ty, Tz)."""
+    Tx: float
+    Ty: float
+    Tz: float
+    Theta: float
+    Phi: float
+    Psi: float
+
+
+@dataclass(frozen=True)
+class LookAt:
+    """A camera at ``eye`` looking at ``target``, image-up as close to ``up`` as possible (mm)."""
+    eye: Vec3
+    target: Vec3 = (0.0, 0.0, 0.0)
+    up: Vec3 = (0.0, -1.0, 0.0)
+
+    def __post_init__(self):
+        look_at(self.eye, self.target, self.up)  # raises SceneError("target" or "up") if degenerate
+
+
+@dataclass(frozen=True)
+class Pose:
+    """A ``pose`` table: ``R`` (3×3) or ``rvec`` (Rodrigues, rad) and ``t`` (mm), or, for
+    cameras only, ``stereo`` or ``look_at`` alone. Missing parts are the identity."""
+    R: Mat3 | None = None
+    rvec: Vec3 | None = None
+    t: Vec3 | None = None
+    stereo: Stereo | None = None
+    look_at: LookAt | None = None
+
+    def __post_init__(self):
+        given = [f.name for f in dataclasses.fields(self) if getattr(self, f.name) is not None]
+        for whole in ("stereo", "look_at"):
+            _check(whole not in given or len(given) == 1, whole,
+                   f"cannot be combined with {', '.join(k for k in given if k != whole)}",
+                   f"{whole} sets the whole pose: remove the other keys")
+        _check(self.R is None or self.rvec is None, "rvec", "R is given too",
+               "give the rotation either as R or as rvec")
+        if self.R is not None:
+            _check_rotation(self.R)
+
+    def matrices(self, first: Camera | None, camera: bool) -> tuple[np.ndarray, np.ndarray]:
+        """(R, t): world→camera for a camera (``first`` is the first camera, None for itself),
+        specimen→world otherwise."""
+        whole = "stereo" if self.stereo is not None else "look_at" if self.look_at is not None else ""
+        _check(not whole or camera, whole, "only cameras can be placed this way",
+               "place the specimen with R or rvec, and t")
+        if self.look_at is not None:
+            return look_at(self.look_at.eye, self.look_at.target, self.look_at.up)
+        if self.stereo is not None:
+            _check(first is not None, "stereo", "is relative to the first camera, so only later cameras "
+                   "can have it", "give the first camera R or rvec and t, or no pose (the world frame)")
+            return stereo_pose(first.rotation, first.translation, *dataclasses.astuple(self.stereo))
+        R = np.eye(3) if self.R is None else np.array(self.R, float)
+        t = np.zeros(3) if self.t is None else np.array(self.t, float)
+        return (R if self.rvec is None else rodrigues(self.rvec)), t
+
+
+@dataclass(frozen=True)
+class Scene:
+    """A whole virtual stereo-DIC experiment. ``base_dir`` resolves relative file paths."""
+    cameras: tuple[Camera, ...]
+    specimen: Specimen = field(default_factory=lambda: Specimen(bulge=Bulge()))
+    speckle: Speckle = field(default_factory=Speckle)
+    render: Render = field(default_factory=Render)
+    output: Output = field(default_factory=Output)
+    lighting: Lighting | None = None   # None: no lighting code runs
+    optics: Optics | None = None       # None: infinite depth of field, no blur pass
+    noise: Noise | None = None         # None: noise-free
+    seed: int = 0
+    base_dir: str = "."
+
+    def __post_init__(self):
+        _check(len(self.cameras) >= 1, "cameras", "at least one camera is needed",
+               "add a [[cameras]] table")
+        names = [c.name for c in self.cameras]
+        for i, name in enumerate(names):
+            _check(name not in names[:i], f"cameras[{i}].name",
+                   f"{name!r} is already the name of cameras[{names.index(name)}]",
+                   "give each camera a unique name")
+        files = {"speckle.image": self.speckle.image} if self.speckle.image else {}
+        if self.noise is not None and self.noise.variance_file:
+            files["noise.variance_file"] = self.noise.variance_file
+        mesh = self.specimen.mesh
+        if mesh is not None:
+            files["specimen.mesh.path"] = mesh.path
+            files.update({f"specimen.mesh.files[{i}]": p for i, p in enumerate(mesh.files)})
+            files.update({f"specimen.mesh.csv[{i}]": p for i, p in enumerate(mesh.csv)})
+        for key, path in files.items():
+            _check(self.resolve(path).is_file(), key, f"file {self.resolve(path)} not found",
+                   "check the path (relative paths start at the scene file's directory)")
+
+    def camera(self, which: int | str) -> Camera:
+        """A camera by index or name."""
+        if isinstance(which, str):
+            for cam in self.cameras:
+                if cam.name == which:
+                    return cam
+            raise SceneError("camera", f"no camera named {which!r}",
+                             f"use one of {[c.name for c in self.cameras]}")
+        if not 0 <= which < len(self.cameras):
+            raise SceneError("camera", f"index {which} out of range", f"use 0…{len(self.cameras) - 1}")
+        return self.cameras[which]
+
+    def resolve(self, path: str) -> Path:
+        """A scene-relative path made absolute."""
+        p = Path(path)
+        return p if p.is_absolute() else Path(self.base_dir) / p
+
+    def replace(self, **sections) -> "Scene":
+        """A copy with some options changed, e.g. ``scene.replace(render={"mode": "q4"})``."""
+        _reject_unknown(sections, [f.name for f in dataclasses.fields(self)], "")
+        changes = {}
+        for name, value in sections.items():
+            current = getattr(self, name)
+            if isinstance(value, dict) and current is None:   # an effect switched on
+                value = _build(typing.get_type_hints(Scene)[name].__args__[0], value, name)
+            elif isinstance(value, dict):
+                _reject_unknown(value, [f.name for f in dataclasses.fields(current) if f.init], name)
+                value = dataclasses.replace(current, **value)
+            changes[name] = value
+        return dataclasses.replace(self, **changes)
+
+    def to_dict(self) -> dict:
+        """The resolved scene (every default filled) as plain JSON-able data."""
+        return _plain(dataclasses.asdict(self))
+
+    def to_json(self) -> str:
+        return json.dumps(self.to_dict(), indent=2)
+
+
+
+def _check(ok: bool, key: str, problem: str, fix: str) -> None:
+    if not ok:
+        raise SceneError(key, problem, fix)
+
+
+def _plain(obj):
+    if isinstance(obj, dict):
+        return {k: _plain(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [_plain(v) for v in obj]
+    if isinstance(obj, np.ndarray):
+        return obj.tolist()
+    return obj
+
+
+def _tuple(a: np.ndarray) -> tuple:
+    return tuple(map(tuple, a.tolist())) if a.ndim == 2 else tuple(a.tolist())
+
+
+# Tables (TOML/JSON data) → dataclasses, with errors naming the key
+
+
+def _reject_unknown(given, allowed, key: str) -> None:
+    """Raise for the first of the keys ``given`` in table ``key`` ("" = top level) not ``allowed``."""
+    unknown = sorted(set(given) - set(allowed))
+    if unknown:
+        close = difflib.get_close_matches(unknown[0], allowed, 1)
+        hint = (f"did you mean {close[0]!r}? " if close else
+                "top-level keys must come before the first [table]; " if key and unknown[0] in SECTIONS else "")
+        raise SceneError(f"{key}.{unknown[0]}" if key else unknown[0], "unknown key",
+                         f"{hint}allowed keys in {key or 'the top level'}: {', '.join(allowed)}")
+
+
+def _within(exc: SceneError, key: str) -> SceneError:
+    """``exc`` from a validator of the table at ``key``, with its key made a full scene path.
+
+    Validators name keys relative to themselves (Camera: ``fx``; Distortion: ``distortion.k1``)
+    or in full (Plate: ``specimen.plate.nx``): ``cameras[0]`` + ``fx`` → ``cameras[0].fx``,
+    ``cameras[0].distortion`` + ``distortion.k1`` → ``cameras[0].distortion.k1``.
+    """
+    if not key or exc.key == key or exc.key.startswith((key + ".", key + "[")):
+        return exc
+    own = key.rpartition(".")[2].partition("[")[0]          # "cameras[0].distortion" → "distortion"
+    rest = exc.key[len(own):] if exc.key == own or exc.key.startswith(own + ".") else "." + exc.key
+    problem, _, fix = str(exc)[len(exc.key) + 2:].partition(" — ")
+    return SceneError(key + rest, problem, fix)
+
+
+def _coerce(value, hint, key: str):
+    """Convert a TOML value to the annotated type, or raise a SceneError naming ``key``."""
+    origin, args = typing.get_origin(hint), typing.get_args(hint)
+    if type(None) in args:                                   # X | None
+        return _coerce(value, next(a for a in args if a is not type(None)), key)
+    if dataclasses.is_dataclass(hint):
+        return _build(hint, value, key)
+    if hint is tuple or origin is tuple:                     # tuple, tuple[X, ...], tuple[X, Y, Z]
+        if not isinstance(value, list):
+            raise SceneError(key, f"expected a list, got {value!r}", "write e.g. [1, 2, 3]")
+        if not args:
+            return tuple(tuple(v) if isinstance(v, list) else v for v in value)
+        if args[-1] is not Ellipsis and len(value) != len(args):
+            raise SceneError(key, f"expected a list of {len(args)}, got {value!r}",
+                             f"give exactly {len(args)} entries")
+        hints = [args[0]] * len(value) if args[-1] is Ellipsis else args
+        return tuple(_coerce(v, h, f"{key}[{i}]") for i, (v, h) in enumerate(zip(value, hints)))
+    if hint in (int, float):
+        if isinstance(value, bool) or not isinstance(value, int if hint is int else (int, float)):
+            raise SceneError(key, f"expected {'an integer' if hint is int else 'a number'}, got {value!r}",
+                             "write e.g. 4" if hint is int else "write e.g. 1.0")
+        if not math.isfinite(value):
+            raise SceneError(key, f"must be finite, got {value}", "give a finite number")
+        return hint(value)
+    if hint in (str, bool) and not isinstance(value, hint):
+        raise SceneError(key, f"expected {'a string' if hint is str else 'true or false'}, got {value!r}",
+                         'write it in quotes, e.g. "x"' if hint is str else "write true or false")
+    return value
+
+
+SECTIONS = ("cameras", "specimen", "speckle", "render", "output", "lighting", "optics", "noise",
+            "seed")  # top level of a file
+
+# Values a TOML table may leave out although the dataclass requires them.
+TABLE_DEFAULTS = {Camera: {"name": "reference"}}
+
+
+def _build(cls, table, key: str, first: Camera | None = None, **defaults):
+    """Build dataclass ``cls`` from the TOML table at ``key``.
+
+    Unknown keys, wrong types, missing required keys and the class's own checks all raise
+    a SceneError naming the full key. Camera and Specimen take a ``pose`` table (see Pose)
+    instead of their fields R and t; ``first`` is the first camera, for stereo poses.
+    """
+    if not isinstance(table, dict):
+        raise SceneError(key, f"expected a table, got {table!r}", f"write {key} as a table of key = value")
+    fields = [f for f in dataclasses.fields(cls) if f.init]
+    names = [f.name for f in fields]
+    posed = cls in (Camera, Specimen)
+    allowed = [n for n in names if not (posed and n in ("R", "t"))] + ["pose"] * posed
+    _reject_unknown(table, allowed, key)
+    hints = typing.get_type_hints(cls)
+    kwargs = {**TABLE_DEFAULTS.get(cls, {}), **defaults}
+    for name, value in table.items():
+        if name == "pose":
+            pose = _coerce(value, Pose, f"{key}.pose")
+            try:
+                R, t = pose.matrices(first, camera=cls is Camera)
+            except SceneError as exc:
+                raise _within(exc, f"{key}.pose") from None
+            kwargs.update(R=_tuple(R), t=_tuple(t))
+        else:
+            kwargs[name] = _coerce(value, hints[name], f"{key}.{name}")
+    missing = [f.name for f in fields
+               if f.name not in kwargs and f.default is MISSING and f.default_factory is MISSING]
+    if missing:
+        raise SceneError(f"{key}.{missing[0]}", "is required", f"add {', '.join(missing)} to {key}")
+    try:
+        return cls(**kwargs)
+    except SceneError as exc:
+        raise _within(exc, key) from None

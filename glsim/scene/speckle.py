@@ -1,0 +1,354 @@
+"""Reference speckle images: synthetic Boolean-model patterns, loading from file, statistics.
+
+Grey levels are float32 in [0, 1] of full scale; images are (H, W) = (rows, cols) with
+pixel centres at integer coordinates.
+"""
+
+import math
+import os
+import warnings
+from dataclasses import dataclass
+
+import imageio.v3 as iio
+import numpy as np
+import tifffile
+from scipy import fft, ndimage, optimize
+
+from glsim.errors import SceneError
+
+_DOT_CHUNK = 20000  # dots rasterised per np.maximum.at call; bounds temporary memory
+
+
+def _check_number(key, value, lo, hi, lo_open, hi_open, fix):
+    try:
+        x = float(value)
+    except (TypeError, ValueError):
+        raise SceneError(key, f"expected a number, got {value!r}", fix) from None
+    too_low = x <= lo if lo_open else x < lo
+    too_high = x >= hi if hi_open else x > hi
+    if not math.isfinite(x) or too_low or too_high:
+        interval = f"{'(' if lo_open else '['}{lo:g}, {hi:g}{')' if hi_open else ']'}"
+        raise SceneError(key, f"{value!r} is outside {interval}", fix)
+    return x
+
+
+def _check_shape(shape):
+    try:
+        h, w = (int(n) for n in shape)
+        ok = (h, w) == tuple(shape) and h > 0 and w > 0
+    except (TypeError, ValueError):
+        ok = False
+    if not ok:
+        raise SceneError("speckle.shape", f"expected (rows, cols) of positive integers, got {shape!r}",
+                         "give the image size in px, e.g. [1200, 1600]")
+    return h, w
+
+
+def _edge_profile(r, radius, edge_px):
+    """Darkness in [0, 1] at distance r from a dot centre: smoothstep over edge_px, 0.5 at the radius.
+
+    Nonzero only for r < radius + edge_px / 2 (strictly; also for the hard edge, edge_px = 0).
+    """
+    if edge_px == 0:
+        return (r < radius).astype(np.float64)
+    x = np.clip(0.5 - (r - radius) / edge_px, 0.0, 1.0)
+    return x * x * (3.0 - 2.0 * x)
+
+
+@dataclass(frozen=True, eq=False)
+class Dots:
+    """A Boolean-model speckle as data: dot centres (n, 2) as (u, v) = (column, row) px,
+    radii (n,) px, the smoothstep edge width px and the grey levels. Its exact grey value
+    anywhere is :func:`evaluate`; :func:`generate` samples it at the pixel centres."""
+    centres: np.ndarray
+    radii: np.ndarray
+    edge_px: float
+    black: float
+    white: float
+    shape: tuple[int, int]
+
+    @property
+    def reach(self) -> float:
+        """Largest distance (px) at which a dot still darkens."""
+        return float(self.radii.max(initial=0.0)) + self.edge_px / 2
+
+
+def draw_dots(shape, dot_diameter_px, density=0.5, seed=0, edge_px=1.0, black=0.1, white=0.9,
+              diameter_spread=0.2) -> Dots:
+    """The random dots of :func:`generate` (same arguments, same draws)."""
+    h, w = _check_shape(shape)
+    diameter = _check_number("speckle.dot_diameter_px", dot_diameter_px, 2, math.inf, False, True,
+                             "give a dot diameter of at least 2 px (3-5 px suits subset-based DIC)")
+    density = _check_number("speckle.density", density, 0, 1, True, True,
+                            "give the dark-area fraction strictly between 0 and 1, e.g. 0.5")
+    edge_px = _check_number("speckle.edge_px", edge_px, 0, diameter, False, False,
+                            "give an edge width between 0 (hard) and the dot diameter, e.g. 1.0")
+    spread = _check_number("speckle.diameter_spread", diameter_spread, 0, 1, False, True,
+                           "give the relative diameter spread in [0, 1), e.g. 0.2")
+    black = _check_number("speckle.black", black, 0, 1, False, False, "give a grey level in [0, 1]")
+    white = _check_number("speckle.white", white, 0, 1, False, False, "give a grey level in [0, 1]")
+    if black >= white:
+        raise SceneError("speckle.black", f"black ({black:g}) must be darker than white ({white:g})",
+                         "give black < white, e.g. black = 0.1, white = 0.9")
+    if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
+        raise SceneError("speckle.seed", f"expected a non-negative integer, got {seed!r}",
+                         "give an integer seed >= 0, e.g. 0")
+
+    rng = np.random.default_rng(seed)
+    reach = diameter * (1 + spread) / 2 + edge_px / 2  # a dot darkens only px closer than this
+    mean_area = math.pi / 4 * diameter**2 * (1 + spread**2 / 3)  # E[d^2] of a uniform diameter
+    lam = -math.log1p(-density) / mean_area  # dots per px^2
+    # Centres cover the image (px centres 0..h-1, edges at -0.5, h-0.5) plus every dot that reaches it.
+    lo = -0.5 - reach
+    n_dots = rng.poisson(lam * (h + 2 * reach) * (w + 2 * reach))
+    rows_cols = rng.uniform(lo, [h - lo - 1, w - lo - 1], size=(n_dots, 2))
+    radii = diameter / 2 * rng.uniform(1 - spread, 1 + spread, n_dots)
+    return Dots(rows_cols[:, ::-1].copy(), radii, edge_px, black, white, (h, w))
+
+
+def generate(shape, dot_diameter_px, density=0.5, seed=0, edge_px=1.0, black=0.1, white=0.9,
+             diameter_spread=0.2):
+    """Random-disc (Boolean model) speckle pattern: dark dots on a white background.
+
+    Dot centres are a Poisson process, uniform over the image and a margin around it;
+    diameters are uniform in ``dot_diameter_px * (1 +- diameter_spread)``. The dot count
+    makes the expected dark-area fraction ``1 - exp(-lambda * mean dot area)`` equal to
+    ``density``. Each dot's edge is a smoothstep ramp of full width ``edge_px`` px
+    (0 = hard edge) centred on its radius; overlapping dots combine by maximum darkness.
+    Grey levels go from ``white`` (background) to ``black`` (dot cores).
+
+    Returns float32 (H, W) in [0, 1]; the same arguments give bit-identical output.
+    """
+    return rasterize(draw_dots(shape, dot_diameter_px, density, seed, edge_px, black, white, diameter_spread))
+
+
+def rasterize(dots: Dots) -> np.ndarray:
+    """``dots`` sampled at every pixel centre of their image, float32 (H, W)."""
+    h, w = dots.shape
+    reach = dots.reach
+    # A px within reach of a centre is within reach + 0.5 of the px nearest that centre.
+    half = max(math.ceil(reach + 0.5) - 1, 0)
+    offsets = np.arange(-half, half + 1)
+    pad = half + math.ceil(reach) + 1  # canvas margin: every window fits without bounds checks
+    canvas = np.zeros((h + 2 * pad, w + 2 * pad))
+    for start in range(0, len(dots.radii), _DOT_CHUNK):
+        c = dots.centres[start:start + _DOT_CHUNK, ::-1]  # (row, col)
+        r = dots.radii[start:start + _DOT_CHUNK]
+        near = np.rint(c).astype(np.intp)
+        rows = near[:, 0, None, None] + offsets[None, :, None]
+        cols = near[:, 1, None, None] + offsets[None, None, :]
+        dist = np.hypot(rows - c[:, 0, None, None], cols - c[:, 1, None, None])
+        dark = _edge_profile(dist, r[:, None, None], dots.edge_px)
+        np.maximum.at(canvas, (rows + pad, cols + pad), dark)
+    darkness = canvas[pad:pad + h, pad:pad + w]
+    return (dots.white - (dots.white - dots.black) * darkness).astype(np.float32)
+
+
+@dataclass(frozen=True, eq=False)
+class DotGrid:
+    """Uniform grid over the dots for lookup: cell size ≥ their reach, so a point's dots lie
+    in its own and the 8 neighbouring cells. ``start``/``count`` (ny·nx) index ``order``."""
+    origin: tuple[float, float]
+    cell: float
+    dims: tuple[int, int]    # nx, ny
+    start: np.ndarray
+    count: np.ndarray
+    order: np.ndarray
+
+
+def dot_grid(dots: Dots) -> DotGrid:
+    """Bin the dots' centres into cells of size max(reach, 1) px (CSR layout)."""
+    cell = max(dots.reach, 1.0)
+    origin = dots.centres.min(axis=0) if len(dots.radii) else np.zeros(2)
+    ij = np.floor((dots.centres - origin) / cell).astype(np.int64)
+    nx, ny = (ij.max(axis=0) + 1) if len(dots.radii) else (1, 1)
+    flat = ij[:, 1] * nx + ij[:, 0]
+    order = np.argsort(flat, kind="stable")
+    count = np.bincount(flat, minlength=nx * ny)
+    start = np.concatenate([[0], np.cumsum(count)[:-1]])
+    return DotGrid((float(origin[0]), float(origin[1])), float(cell), (int(nx), int(ny)),
+                   start, count, order)
+
+
+def evaluate(dots: Dots, uv, grid: DotGrid | None = None) -> np.ndarray:
+    """Exact grey level of the Boolean-model speckle at reference coordinates uv (..., 2) px
+    (u = column, v = row): no interpolation. float64."""
+    grid = grid or dot_grid(dots)
+    uv = np.asarray(uv, dtype=np.float64)
+    flat_uv = uv.reshape(-1, 2)
+    darkness = np.zeros(len(flat_uv))
+    cell = np.floor((flat_uv - grid.origin) / grid.cell).astype(np.int64)
+    nx, ny = grid.dims
+    for dj in (-1, 0, 1):
+        for di in (-1, 0, 1):
+            ci, cj = cell[:, 0] + di, cell[:, 1] + dj
+            inside = (ci >= 0) & (ci < nx) & (cj >= 0) & (cj < ny)
+            k = np.where(inside, cj * nx + ci, 0)
+            n = np.where(inside, grid.count[k], 0)
+            for m in range(int(n.max(initial=0))):
+                has = n > m
+                idx = grid.order[grid.start[k[has]] + m]
+                d = np.hypot(*(flat_uv[has] - dots.centres[idx]).T)
+                darkness[has] = np.maximum(darkness[has], _edge_profile(d, dots.radii[idx], dots.edge_px))
+    grey = dots.white - (dots.white - dots.black) * darkness
+    return grey.reshape(uv.shape[:-1])
+
+
+def load_reference(path, key="speckle.image"):
+    """Greyscale reference image from file as float32 (H, W) in [0, 1] of full scale.
+
+    8-bit / 16-bit integer images are scaled by 1/255 / 1/65535; float images are kept
+    as they are and must lie in [0, 1]. TIFF files are read with tifffile, others with
+    imageio. Colour, multi-page or unreadable files raise SceneError(key, ...) naming the path.
+    """
+    path = os.fspath(path)
+    if not os.path.isfile(path):
+        raise SceneError(key, f"file not found: {path}",
+                         "give an existing image file (path relative to the scene file)")
+    try:
+        if path.lower().endswith((".tif", ".tiff")):
+            img = tifffile.imread(path)
+        else:
+            with warnings.catch_warnings():  # imageio's plugin probing warns about deprecated plugins
+                warnings.simplefilter("ignore", DeprecationWarning)
+                img = iio.imread(path)
+    except Exception as exc:  # any reader failure is a bad input file
+        raise SceneError(key, f"cannot read image {path}: {exc}",
+                         "give a greyscale TIFF or PNG (8-bit, 16-bit or float)") from None
+    img = np.asarray(img)
+    if img.ndim == 3 and img.shape[-1] == 1:
+        img = img[..., 0]
+    if img.ndim == 3 and img.shape[-1] in (2, 3, 4):
+        raise SceneError(key, f"{path} is a colour image (shape {img.shape})",
+                         "convert it to a single-channel greyscale image before use")
+    if img.ndim != 2:
+        raise SceneError(key, f"{path} is not a single greyscale image (shape {img.shape})",
+                         "give a single-page, single-channel greyscale image")
+    if img.dtype == np.uint8:
+        return (img / 255.0).astype(np.float32)
+    if img.dtype == np.uint16:
+        return (img / 65535.0).astype(np.float32)
+    if np.issubdtype(img.dtype, np.floating):
+        img = img.astype(np.float32)
+        if not np.all(np.isfinite(img)):
+            raise SceneError(key, f"{path} has NaN or infinite grey levels", "give finite grey levels in [0, 1]")
+        if img.min() < 0 or img.max() > 1:
+            raise SceneError(key, f"{path} has float grey levels outside [0, 1] "
+                             f"(min {img.min():g}, max {img.max():g})",
+                             "scale the image to [0, 1] of full scale, or save it as 8- or 16-bit")
+        return img
+    raise SceneError(key, f"{path} has unsupported pixel type {img.dtype}",
+                     "save it as 8-bit, 16-bit or float (in [0, 1]) greyscale")
+
+
+def autocorrelation(img, max_lag):
+    """Normalised autocorrelation of the mean-subtracted image at lags (dy, dx) in [-max_lag, max_lag]^2.
+
+    Each lag is averaged over its overlapping pixel pairs only (no wrap-around).
+    Returns (2 max_lag + 1, 2 max_lag + 1) with lag 0 = 1 at the centre; NaN for a flat image.
+    """
+    x = np.asarray(img, dtype=np.float64)
+    x = x - x.mean()
+    h, w = x.shape
+    # Zero padding by max_lag keeps the wanted lags free of wrap-around.
+    size = (fft.next_fast_len(h + max_lag, real=True), fft.next_fast_len(w + max_lag, real=True))
+    spec = fft.rfft2(x, s=size)
+    full = fft.irfft2(spec * np.conj(spec), s=size)
+    lags = np.arange(-max_lag, max_lag + 1)
+    local = full[np.ix_(lags % size[0], lags % size[1])]
+    pairs = (h - np.abs(lags))[:, None] * (w - np.abs(lags))[None, :]
+    cov = local / pairs
+    c0 = cov[max_lag, max_lag]
+    return cov / c0 if c0 > 0 else np.full_like(cov, np.nan)
+
+
+def _hwhm(acf):
+    """Lag (px) where the mean of the four axis profiles of ``acf`` first falls to one half."""
+    m = acf.shape[0] // 2
+    profile = (acf[m, m:] + acf[m, m::-1] + acf[m:, m] + acf[m::-1, m]) / 4
+    below = np.nonzero(profile < 0.5)[0]
+    if below.size == 0:
+        return float("nan")
+    k = below[0]
+    return float(k - 1 + (profile[k - 1] - 0.5) / (profile[k - 1] - profile[k]))
+
+
+def _disc_covariogram(x):
+    """Overlap area of two unit-diameter discs at centre distance x, over the disc area."""
+    x = np.minimum(x, 1.0)
+    return 2 / np.pi * (np.arccos(x) - x * np.sqrt(1 - x * x))
+
+
+def _boolean_dot_diameter(dark, max_lag):
+    """Dot diameter (px) of a Boolean disc model fitted to the dark phase's autocorrelation.
+
+    For discs of diameter D at light fraction q, the light (or dark) indicator has
+    autocorrelation q (q^(-g(r / D)) - 1) / (1 - q), g the normalised disc covariogram;
+    unlike component sizes this does not grow where dots overlap. Point sampling at
+    pixel centres leaves the covariance unbiased.
+    """
+    q = 1.0 - dark.mean()
+    if not 0 < q < 1:
+        return float("nan")
+    acf = autocorrelation(dark, max_lag)
+    r_half = _hwhm(acf)
+    if not math.isfinite(r_half):
+        return float("nan")
+    # The model is zero beyond r = D, about 3 HWHM at q = 0.5; fit a little past that.
+    m = min(max_lag, math.ceil(5 * r_half) + 2)
+    dy, dx = np.mgrid[-m:m + 1, -m:m + 1]
+    r = np.hypot(dy, dx)
+    measured = acf[max_lag - m:max_lag + m + 1, max_lag - m:max_lag + m + 1]
+
+    def misfit(d):
+        model = q * (q ** -_disc_covariogram(r / d) - 1) / (1 - q)
+        return float(np.sum((measured - model) ** 2))
+
+    return float(optimize.minimize_scalar(misfit, bounds=(0.5, 4 * m), method="bounded").x)
+
+
+def _component_diameters(dark):
+    """Equivalent diameters sqrt(4 area / pi) (px) of the 4-connected dark components not touching the border."""
+    labels, n = ndimage.label(dark)
+    areas = np.bincount(labels.ravel(), minlength=n + 1)
+    keep = np.ones(n + 1, bool)
+    keep[0] = False
+    keep[np.concatenate([labels[0], labels[-1], labels[:, 0], labels[:, -1]])] = False
+    return np.sqrt(4 * areas[keep] / np.pi)
+
+
+def speckle_stats(img, threshold=None):
+    """What a DIC user checks in a speckle pattern, as a dict.
+
+    The dark phase is the pixels below ``threshold`` (default: mid grey, halfway between
+    the 1st and 99th grey-level percentiles).
+
+    - ``speckle_diameter_px``: median equivalent diameter of the dark speckles (connected
+      components not touching the border); overlapping dots merge, so at densities
+      around 0.5 this exceeds the dot diameter, and it is meaningless above about 0.65
+      where the dark phase percolates
+    - ``n_speckles``: number of those speckles
+    - ``dot_diameter_px``: dot diameter of a random-disc (Boolean) model fitted to the
+      dark phase's autocorrelation; recovers ``generate``'s ``dot_diameter_px`` at any density
+    - ``covered_fraction``: dark-phase fraction of the pixels
+    - ``grey_mean``, ``grey_std``: grey-level mean and standard deviation
+    - ``autocorr_radius_px``: half width at half maximum (px) of the grey-level autocorrelation
+    """
+    x = np.asarray(img, dtype=np.float64)
+    if x.ndim != 2 or min(x.shape) < 8:
+        raise ValueError(f"expected a 2-D (H, W) image of at least 8x8 px, got shape {x.shape}")
+    if threshold is None:
+        lo, hi = np.percentile(x, [1, 99])
+        threshold = (lo + hi) / 2
+    dark = x < threshold
+    max_lag = min(x.shape) // 4
+    diameters = _component_diameters(dark)
+    return {
+        "speckle_diameter_px": float(np.median(diameters)) if diameters.size else float("nan"),
+        "n_speckles": int(diameters.size),
+        "dot_diameter_px": _boolean_dot_diameter(dark, max_lag),
+        "covered_fraction": float(dark.mean()),
+        "grey_mean": float(x.mean()),
+        "grey_std": float(x.std()),
+        "autocorr_radius_px": _hwhm(autocorrelation(x, max_lag)),
+    }

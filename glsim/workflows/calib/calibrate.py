@@ -1,0 +1,381 @@
+"""Stereo calibration of a library: detection in every pair, cv2.calibrateCamera per camera,
+then cv2.stereoCalibrate refining everything together (a full bundle: intrinsics, distortion,
+extrinsics and every target pose), and the comparison with the true rig.
+
+Outputs of :func:`run` (in ``out_dir``): ``calibration.yaml`` (OpenCV FileStorage, same keys
+as the library's rig.yaml), ``report.json`` (RMS, estimates, errors against the truth,
+detection errors), ``residuals.csv`` (one line per pair and camera) and ``epipolar.png`` (the
+epipolar-distance map over camera 2's field of view, like the paper's Fig. 14).
+"""
+from __future__ import annotations
+
+import csv
+import io as _io
+import json
+import math
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from glsim.io import images as io
+from glsim.scene.camera import Camera, distort, normalized_to_pixel, pixel_rays, project
+from glsim.errors import SceneError
+from glsim.workflows.calib import library as libmod
+from glsim.workflows.calib.detect import detect_dots
+from glsim.workflows.calib.poses import rig_frame
+
+MODELS = {  # distortion terms estimated → OpenCV flags
+    "k1": ("CALIB_FIX_K2", "CALIB_FIX_K3", "CALIB_ZERO_TANGENT_DIST"),
+    "k1k2": ("CALIB_FIX_K3", "CALIB_ZERO_TANGENT_DIST"),
+    "k1k2p1p2": ("CALIB_FIX_K3",),
+    "k1k2p1p2k3": (),
+}
+CRITERIA = (3, 200, 1e-12)   # cv2.TERM_CRITERIA_COUNT | EPS, max iterations, epsilon
+BIAS_OUTLINE_POINTS = 128    # polygon vertices per dot in the perspective-bias correction
+
+
+@dataclass(frozen=True, eq=False)
+class StereoCalibration:
+    """A stereo calibration in OpenCV's terms: K (3×3 px), D (k1 k2 p1 p2 k3), camera 2
+    relative to camera 1 X_cam2 = R·X_cam1 + T (mm), E, F; ``rms`` is stereoCalibrate's
+    RMS reprojection error over both cameras (px), ``rms1``/``rms2`` calibrateCamera's;
+    ``per_view`` (n, 2) RMS per pair and camera; ``rvecs``/``tvecs`` (n, 3) each pair's
+    target pose in camera 1 (Rodrigues, mm); ``pairs`` the library pairs used."""
+    K1: np.ndarray
+    D1: np.ndarray
+    K2: np.ndarray
+    D2: np.ndarray
+    R: np.ndarray
+    T: np.ndarray
+    E: np.ndarray
+    F: np.ndarray
+    rms: float
+    rms1: float
+    rms2: float
+    per_view: np.ndarray
+    rvecs: np.ndarray
+    tvecs: np.ndarray
+    pairs: tuple[int, ...]
+    image_size: tuple[int, int]
+
+
+def model_flags(model: str) -> int:
+    import cv2
+    if model not in MODELS:
+        raise SceneError("model", f"{model!r} is not one of {list(MODELS)}", "choose the distortion terms to fit")
+    flags = cv2.CALIB_FIX_SKEW if hasattr(cv2, "CALIB_FIX_SKEW") else 0
+    for name in MODELS[model]:
+        flags |= getattr(cv2, name)
+    return flags
+
+
+def calibrate(object_points: list[np.ndarray], points1: list[np.ndarray], points2: list[np.ndarray],
+              image_size: tuple[int, int], model: str = "k1k2p1p2k3", pairs=None) -> StereoCalibration:
+    """Calibrate from matched views: ``object_points[i]`` (n_i, 3) mm and their images in
+    camera 1 and 2 (n_i, 2) px. Each camera first alone, then both together."""
+    import cv2
+    if len(object_points) < 3:
+        raise SceneError("pairs", f"only {len(object_points)} usable pairs", "a calibration needs at least 3")
+    flags = model_flags(model)
+    obj = [np.asarray(o, np.float32).reshape(-1, 1, 3) for o in object_points]
+    im1 = [np.asarray(p, np.float32).reshape(-1, 1, 2) for p in points1]
+    im2 = [np.asarray(p, np.float32).reshape(-1, 1, 2) for p in points2]
+    rms1, K1, D1, *_ = cv2.calibrateCamera(obj, im1, image_size, None, None, flags=flags, criteria=CRITERIA)
+    rms2, K2, D2, *_ = cv2.calibrateCamera(obj, im2, image_size, None, None, flags=flags, criteria=CRITERIA)
+    rms, K1, D1, K2, D2, R, T, E, F, rvecs, tvecs, per_view = cv2.stereoCalibrateExtended(
+        obj, im1, im2, K1, D1, K2, D2, image_size, np.eye(3), np.zeros((3, 1)),
+        flags=flags | cv2.CALIB_USE_INTRINSIC_GUESS, criteria=CRITERIA)
+    return StereoCalibration(K1=K1, D1=D1.ravel(), K2=K2, D2=D2.ravel(), R=R, T=T.ravel(), E=E, F=F,
+                             rms=float(rms), rms1=float(rms1), rms2=float(rms2), per_view=np.asarray(per_view),
+                             rvecs=np.asarray(rvecs).reshape(-1, 3), tvecs=np.asarray(tvecs).reshape(-1, 3),
+                             pairs=tuple(range(len(obj)) if pairs is None else pairs), image_size=tuple(image_size))
+
+
+def write_yaml(path, c: StereoCalibration) -> Path:
+    """The calibration as OpenCV YAML: library.write_rig_yaml's keys plus E, F and rms."""
+    return libmod.write_rig_yaml(path, c.K1, c.D1, c.K2, c.D2, c.R, c.T, c.image_size, E=c.E, F=c.F, rms=c.rms)
+
+
+def rotation_angle(Ra: np.ndarray, Rb: np.ndarray) -> float:
+    """The angle (deg) of the rotation Ra·Rbᵀ."""
+    c = (np.trace(np.asarray(Ra) @ np.asarray(Rb).T) - 1) / 2
+    return math.degrees(math.acos(max(-1.0, min(1.0, c))))
+
+
+def parameters(K1, D1, K2, D2, R, T) -> dict[str, float]:
+    """Flat named parameters (paper/MatchID style): fx1 … k3_1, fx2 … k3_2, Tx Ty Tz (mm),
+    Theta Phi Psi (deg)."""
+    out = {}
+    for i, (K, D) in enumerate(((K1, D1), (K2, D2)), 1):
+        D = np.pad(np.ravel(D), (0, 5))[:5]
+        out.update({f"fx{i}": K[0, 0], f"fy{i}": K[1, 1], f"cx{i}": K[0, 2], f"cy{i}": K[1, 2],
+                    f"k1_{i}": D[0], f"k2_{i}": D[1], f"p1_{i}": D[2], f"p2_{i}": D[3], f"k3_{i}": D[4]})
+    out.update(dict(zip(("Tx", "Ty", "Tz"), np.ravel(T))))
+    out.update(dict(zip(("Theta", "Phi", "Psi"), libmod.matchid_angles(np.asarray(R)))))
+    return {k: float(v) for k, v in out.items()}
+
+
+def true_parameters(cam1: Camera, cam2: Camera) -> dict[str, float]:
+    R, T = libmod.stereo_extrinsics(cam1, cam2)
+    return parameters(cam1.K, cam1.distortion.coeffs, cam2.K, cam2.distortion.coeffs, R, T)
+
+
+def errors(c: StereoCalibration, cam1: Camera, cam2: Camera) -> dict[str, float]:
+    """Estimate − truth for every parameter, plus |T error| (mm) and the rotation error (deg)."""
+    est = parameters(c.K1, c.D1, c.K2, c.D2, c.R, c.T)
+    true = true_parameters(cam1, cam2)
+    out = {k: est[k] - true[k] for k in est}
+    R, T = libmod.stereo_extrinsics(cam1, cam2)
+    out["T_norm"] = float(np.linalg.norm(c.T - T))
+    out["rotation_deg"] = rotation_angle(c.R, R)
+    return out
+
+
+def undistort_px(uv: np.ndarray, K: np.ndarray, D: np.ndarray) -> np.ndarray:
+    """Distorted pixels (n, 2) → undistorted pixels of the same K (OpenCV, iterated to 1e-12)."""
+    import cv2
+    crit = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 100, 1e-12)
+    return cv2.undistortPoints(np.asarray(uv, np.float64).reshape(-1, 1, 2), K, D, P=K,
+                               criteria=crit).reshape(-1, 2)
+
+
+def epipolar_distance(c: StereoCalibration, uv1: np.ndarray, uv2: np.ndarray) -> np.ndarray:
+    """Distance (px, in camera 2's undistorted image) of each ``uv2`` from the epipolar line
+    of ``uv1`` under calibration ``c`` (both distorted pixel positions)."""
+    p1 = np.c_[undistort_px(uv1, c.K1, c.D1), np.ones(len(uv1))]
+    p2 = np.c_[undistort_px(uv2, c.K2, c.D2), np.ones(len(uv2))]
+    lines = p1 @ np.asarray(c.F).T
+    return np.abs(np.sum(lines * p2, axis=1)) / np.hypot(lines[:, 0], lines[:, 1])
+
+
+def epipolar_map(c: StereoCalibration, cam1: Camera, cam2: Camera, step: int = 8):
+    """The epipolar distance of the truly corresponding points of the rig's working plane
+    (through the convergence point, facing the rig) over camera 1's image, every ``step`` px:
+    ``(u, v, d)`` with d (px) NaN where camera 2 does not see the point."""
+    W, H = cam1.size
+    u, v = np.meshgrid(np.arange(0, W, step, dtype=float), np.arange(0, H, step, dtype=float))
+    uv1 = np.stack([u.ravel(), v.ravel()], axis=1)
+    d, ok = pixel_rays(uv1, cam1)                            # camera 1 frame
+    B, o = rig_frame((cam1, cam2))
+    n = B[:, 2]
+    X1 = d * ((o @ n) / (d @ n))[:, None]
+    Xw = (X1 - cam1.translation) @ cam1.rotation             # camera 1 → world
+    uv2, ok2 = project(Xw, cam2)
+    seen = ok & ok2 & (uv2[:, 0] >= 0) & (uv2[:, 0] <= cam2.width - 1) & (uv2[:, 1] >= 0) & \
+        (uv2[:, 1] <= cam2.height - 1)
+    dist = np.full(len(uv1), np.nan)
+    dist[seen] = epipolar_distance(c, uv1[seen], uv2[seen])
+    return u, v, dist.reshape(u.shape)
+
+
+def pyplot():
+    """matplotlib.pyplot on the Agg backend, or a SceneError saying how to install it."""
+    try:
+        import matplotlib
+    except ModuleNotFoundError:
+        raise SceneError("matplotlib", "is not installed; the calibration figures need it",
+                         "pip install 'glsim[calib]' (or matplotlib)") from None
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    return plt
+
+
+def write_epipolar_png(path, u, v, d, title: str = "") -> Path:
+    """The epipolar-distance map as a colour image with a scale (matplotlib)."""
+    plt = pyplot()
+    fig, ax = plt.subplots(figsize=(6.4, 5.0), dpi=120)
+    step = u[0, 1] - u[0, 0] if u.shape[1] > 1 else 1
+    im = ax.imshow(d, extent=(u.min() - step / 2, u.max() + step / 2, v.max() + step / 2, v.min() - step / 2),
+                   cmap="viridis")
+    fig.colorbar(im, ax=ax, label="epipolar distance [px]")
+    ax.set_xlabel("u [px] (camera 1)")
+    ax.set_ylabel("v [px]")
+    ax.set_title(title or f"max {np.nanmax(d):.3g} px")
+    path = Path(path)
+    with io.atomic_path(path) as tmp:
+        fig.savefig(tmp, format="png", bbox_inches="tight")
+    plt.close(fig)
+    return path
+
+
+# --- a library end to end ----------------------------------------------------------------------
+
+def detect_library(lib: libmod.Library, min_points: int, processes: int = 1, progress=None) -> dict:
+    """Detections of every pair, cached in ``detections_min{min_points}.npz`` in the library:
+    {pair index: (points of camera 1, of camera 2, …)}, each (N, 2) px with NaN rows where a
+    dot was lost, or None where a camera's grid was not found. New pairs are added to the
+    cache; delete it to detect again."""
+    cache = lib.directory / f"detections_min{min_points}.npz"
+    done = {}
+    if cache.is_file():
+        with np.load(cache) as z:
+            done = {int(k[1:]): z[k] for k in z.files}
+    target = libmod.target_to_dict(lib.target)
+    jobs = [(p["pair"], [str(lib.image_path(p, c)) for c in lib.cameras], [c.bit_depth for c in lib.cameras],
+             target, min_points) for p in lib.pairs if p["pair"] not in done]
+    if jobs:
+        if processes > 1:
+            import multiprocessing as mp
+            with mp.get_context("spawn").Pool(processes) as pool:
+                results = _collect(pool.imap_unordered(_detect_job, jobs, chunksize=4), len(jobs), progress)
+        else:
+            results = _collect(map(_detect_job, jobs), len(jobs), progress)
+        done.update(results)
+        with io.atomic_path(cache) as tmp:
+            with open(tmp, "wb") as f:
+                np.savez(f, **{f"p{k}": v for k, v in done.items()})
+    return {k: tuple(None if np.all(np.isnan(v[c])) else v[c] for c in range(len(lib.cameras)))
+            for k, v in done.items()}
+
+
+def _collect(results, total: int, progress) -> list:
+    out = []
+    for k, r in enumerate(results, 1):
+        out.append(r)
+        if progress:
+            progress(k, total)
+    return out
+
+
+def _detect_job(job) -> tuple[int, np.ndarray]:
+    """One pair: (index, (cameras, N, 2) points, all NaN for a camera that found no grid)."""
+    index, paths, bits, target, min_points = job
+    target = libmod.target_from_dict(target)
+    dets = [detect_dots(io.read_image(p), target, b, min_points) for p, b in zip(paths, bits)]
+    return index, np.stack([d.points if d is not None else np.full((target.n_points, 2), np.nan) for d in dets])
+
+
+def usable(detections: dict, pairs, min_points: int):
+    """``(indices, object-point masks)`` of the pairs both cameras detected with ≥ min_points
+    common dots."""
+    out = []
+    for i in pairs:
+        if i not in detections:
+            raise SceneError("pairs", f"pair {i} has no detection", "detect the library first (detect_library)")
+        d1, d2 = detections[i][:2]
+        if d1 is None or d2 is None:
+            continue
+        mask = ~np.isnan(d1[:, 0]) & ~np.isnan(d2[:, 0])
+        if mask.sum() >= min_points:
+            out.append((i, mask))
+    return out
+
+
+def centroid_bias(target, R, t, K, D, points: np.ndarray) -> np.ndarray:
+    """Image centroid − projected centre (n, 2) px of the nominal dots ``points`` (indices)
+    of ``target`` in the pose X_cam = R·X + t through camera (K, D) — the perspective bias.
+    The outlines are BIAS_OUTLINE_POINTS-gons: 2e-5 px from the limit for a 35° tilt at full
+    size (the ground truth uses 512). OpenCV's model in numpy (4× faster than projectPoints)."""
+    a = np.linspace(0.0, 2 * np.pi, BIAS_OUTLINE_POINTS, endpoint=False)
+    ring = np.stack([np.cos(a), np.sin(a), 0 * a], axis=1)
+    centres = target.points()[points]
+    outline = centres[:, None] + target.diameters()[points, None, None] / 2 * ring
+    k = np.pad(np.ravel(D), (0, 12))[:12]
+    intr = (K[0, 0], K[1, 1], K[0, 1], K[0, 2], K[1, 2])
+
+    def proj(X):
+        Xc = X @ np.asarray(R).T + t
+        return normalized_to_pixel(distort(Xc[..., :2] / Xc[..., 2:], k), intr)
+    return libmod.polygon_centroid(proj(outline)) - proj(centres)
+
+
+def calibrate_pairs(lib: libmod.Library, detections: dict, pairs, model: str, min_points: int,
+                    bias_iterations: int = 0) -> StereoCalibration:
+    """Calibrate from the chosen library pairs (those with too few dots are left out).
+
+    ``bias_iterations`` > 0 corrects the perspective bias of dot centroids (the centroid of
+    a dot's image is not the image of its centre): the bias of every dot is predicted from
+    the current calibration and the target's nominal geometry, subtracted from the
+    detections, and the calibration repeated (Heikkilä 2000)."""
+    import cv2
+    obj = lib.target.points()
+    use = usable(detections, pairs, min_points)
+    idx = [np.flatnonzero(m) for _, m in use]
+    pts = [[detections[i][c][m] for i, m in use] for c in (0, 1)]
+    c = calibrate([obj[k] for k in idx], *pts, lib.cameras[0].size, model, [i for i, _ in use])
+    for _ in range(bias_iterations):
+        corrected = [[], []]
+        for v, k in enumerate(idx):
+            R1 = cv2.Rodrigues(c.rvecs[v])[0]
+            poses = ((R1, c.tvecs[v], c.K1, c.D1), (c.R @ R1, c.R @ c.tvecs[v] + c.T, c.K2, c.D2))
+            for cam, (R, t, K, D) in enumerate(poses):
+                corrected[cam].append(pts[cam][v] - centroid_bias(lib.target, R, t, K, D, k))
+        c = calibrate([obj[k] for k in idx], *corrected, lib.cameras[0].size, model, c.pairs)
+    return c
+
+
+def detection_errors(lib: libmod.Library, detections: dict) -> dict:
+    """Detected − true image position of every dot found, against the projected dot centre
+    and against the true centroid of its image: mean |e|, RMS, max and mean vector (px)."""
+    e = {"projected": [], "centroid": []}
+    for pair in lib.pairs:
+        for c, cam in enumerate(lib.cameras):
+            pts = detections[pair["pair"]][c]
+            if pts is None:
+                continue
+            truth = libmod.image_truth(lib, pair, cam)
+            for k in e:
+                diff = pts - truth[k]
+                e[k].append(diff[~np.isnan(diff[:, 0])])
+    out = {}
+    for k, v in e.items():
+        v = np.concatenate(v) if v else np.zeros((0, 2))
+        r = np.linalg.norm(v, axis=1)
+        out[k] = {"n": len(v), "mean": float(r.mean()) if len(r) else math.nan,
+                  "rms": float(np.sqrt((r ** 2).mean())) if len(r) else math.nan,
+                  "max": float(r.max()) if len(r) else math.nan, "bias": v.mean(0).tolist() if len(v) else []}
+    return out
+
+
+def run(library_dir, out_dir=None, model: str = "k1k2p1p2k3", min_points: int | None = None,
+        bias_iterations: int = 1, processes: int = 1, progress=None) -> dict:
+    """Detect, calibrate and report a whole library (see the module text); returns the report.
+
+    ``min_points``: dots both views of a pair need (default half the target's);
+    ``bias_iterations``: perspective-bias corrections (see :func:`calibrate_pairs`)."""
+    t0 = time.perf_counter()
+    lib = libmod.load_library(library_dir)
+    if len(lib.cameras) != 2:
+        raise SceneError("cameras", f"the library has {len(lib.cameras)} cameras", "stereo calibration needs 2")
+    min_points = min_points or (lib.target.n_points + 1) // 2
+    out = Path(out_dir) if out_dir else lib.directory / "calibration"
+    dets = detect_library(lib, min_points, processes, progress)
+    c = calibrate_pairs(lib, dets, sorted(dets), model, min_points, bias_iterations)
+    cam1, cam2 = lib.cameras
+    write_yaml(out / "calibration.yaml", c)
+    u, v, d = epipolar_map(c, cam1, cam2)
+    write_epipolar_png(out / "epipolar.png", u, v, d, f"epipolar distance, max {np.nanmax(d):.3g} px")
+    report = {"library": str(lib.directory), "model": model, "min_points": min_points,
+              "bias_iterations": bias_iterations,
+              "pairs": len(lib.pairs), "pairs_used": len(c.pairs),
+              "rms": c.rms, "rms_cam1": c.rms1, "rms_cam2": c.rms2,
+              "estimate": parameters(c.K1, c.D1, c.K2, c.D2, c.R, c.T),
+              "truth": true_parameters(cam1, cam2), "errors": errors(c, cam1, cam2),
+              "epipolar_max_px": float(np.nanmax(d)), "detection": detection_errors(lib, dets),
+              "seconds": time.perf_counter() - t0}
+    io.write_text(out / "report.json", json.dumps(report, indent=1))
+    io.write_text(out / "residuals.csv", _residuals_csv(lib, dets, c))
+    return report
+
+
+def _residuals_csv(lib: libmod.Library, dets: dict, c: StereoCalibration) -> str:
+    """pair, kind, camera, dots found, reprojection RMS (px), mean detection error against the
+    true centroid and the projected centre (px)."""
+    buf = _io.StringIO()
+    w = csv.writer(buf)
+    w.writerow(["pair", "kind", "camera", "used", "dots", "reprojection_rms_px", "det_err_centroid_px",
+                "det_err_projected_px"])
+    rms = {i: c.per_view[k] for k, i in enumerate(c.pairs)}
+    for pair in lib.pairs:
+        i = pair["pair"]
+        for ci, cam in enumerate(lib.cameras):
+            pts = dets[i][ci]
+            truth = libmod.image_truth(lib, pair, cam)
+            ok = ~np.isnan(pts[:, 0]) if pts is not None else np.zeros(lib.target.n_points, bool)
+            err = {k: float(np.linalg.norm(pts[ok] - truth[k][ok], axis=1).mean()) if ok.any() else ""
+                   for k in ("centroid", "projected")}
+            w.writerow([i, pair["kind"], cam.name, int(i in rms), int(ok.sum()),
+                        f"{rms[i][ci]:.6f}" if i in rms else "", err["centroid"], err["projected"]])
+    return buf.getvalue()
