@@ -50,12 +50,12 @@ VERIFY_STAMP := $(VERIFY_VENV)/.pyvale-installed
 .PHONY: verify sweep
 
 verify: venv $(VERIFY_STAMP)
-	$(BIN)/python -m glsim.evaluation.verify run
+	$(BIN)/glsim verify run
 
 # make sweep: rigid-body sweep 0…1 px measured by pyvale's 2-D DIC (verify/dic2d.py, same
 # .venv-verify) → bench/results/sweep.{json,md,png} and frontier.png (from accuracy.json)
 sweep: venv $(VERIFY_STAMP)
-	$(BIN)/python -m glsim.evaluation.verify sweep
+	$(BIN)/glsim verify sweep
 
 $(VERIFY_STAMP): verify/requirements.txt
 	test -x $(VERIFY_VENV)/bin/python || $(PYTHON) -m venv $(VERIFY_VENV)

@@ -4,6 +4,7 @@ from __future__ import annotations
 import argparse
 import sys
 import time
+import warnings
 from pathlib import Path
 
 from glsim.errors import GlsimError
@@ -39,15 +40,20 @@ def _overrides(scene, args):
 
 
 def _run(scene, out: str, args, label: str) -> int:
-    from glsim.render import write_sequence
+    from glsim.workflows.sequence import write_sequence
 
     t0 = time.perf_counter()
     w = write_sequence(scene, out, steps=_steps(args.steps), backend=args.backend,
                        truth=args.truth, progress=None if args.quiet else _progress,
-                       truth_format=args.truth_format)
+                       truth_format=args.truth_format, force=args.force)
     total = time.perf_counter() - t0
     n = len(w.images)
     r = scene.render
+    if w.removed:
+        print(f"--force: removed {len(w.removed)} images and truth files of the earlier render in {out}/")
+    if w.kept:
+        print(f"resumed: kept {len(w.kept)} images (with their truth) already rendered in {out}/ "
+              f"from the same scene")
     print(f"{label}: wrote {n} images ({len(w.truth)} truth files) to {out}/ in {total:.2f} s "
           f"(render {sum(w.seconds):.2f} s, {sum(w.seconds) / max(n, 1) * 1e3:.0f} ms per image; "
           f"backend={args.backend or r.backend}, mode={r.mode}, interpolation={r.interpolation}, "
@@ -85,11 +91,11 @@ def cmd_render(args) -> int:
 def _delegated(name: str, argv: list[str]) -> int:
     """`glsim bench|calib|verify …`: their own argument parsers take the rest of the line."""
     if name == "bench":
-        from glsim.evaluation.accuracy import main as run
+        from glsim.evaluation.cli import bench_main as run
     elif name == "calib":
         from glsim.workflows.calib.cli import main as run
     else:
-        from glsim.evaluation.verify import main as run
+        from glsim.evaluation.cli import verify_main as run
     return run(argv)
 
 
@@ -103,8 +109,13 @@ def _common(p: argparse.ArgumentParser) -> None:
     p.add_argument("--mode", choices=MODES, help="override [render] mode")
     p.add_argument("--steps", help="load steps to render, e.g. 0,2 or 0-3 (default: all)")
     p.add_argument("--truth", action="store_true", help="also write per-pixel ground truth")
-    p.add_argument("--truth-format", choices=("npz", "tiff"), default="npz",
-                   help="one .npz per image, or one float TIFF per map")
+    p.add_argument("--truth-format", choices=("npz", "tiff", "tiff64"), default="npz",
+                   help="one .npz per image (float64), or one TIFF per map: tiff stores float32 "
+                        "(positions to ~1e-4 mm), tiff64 float64")
+    p.add_argument("--force", action="store_true",
+                   help="replace a render of another scene in the output directory (its images and "
+                        "truth are removed first); without it such a directory is refused, and one "
+                        "holding the same scene is resumed")
     p.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
 
 
@@ -131,8 +142,15 @@ def parser() -> argparse.ArgumentParser:
     return ap
 
 
+def _format_warning(message, category, filename, lineno, line=None) -> str:
+    """Warnings on the command line: one line with the message, no source location or line."""
+    kind = "" if category.__module__.startswith("glsim") or category is UserWarning else f" ({category.__name__})"
+    return f"glsim: warning{kind}: {message}\n"
+
+
 def main(argv: list[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else list(argv)
+    formatwarning, warnings.formatwarning = warnings.formatwarning, _format_warning
     try:
         if argv and argv[0] in DELEGATED:
             return _delegated(argv[0], argv[1:])
@@ -142,8 +160,11 @@ def main(argv: list[str] | None = None) -> int:
         print(f"glsim: error: {exc}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
-        print("glsim: interrupted (no partial files were left)", file=sys.stderr)
+        print("glsim: interrupted (no partial files were left; run the same command again to resume)",
+              file=sys.stderr)
         return 130
+    finally:
+        warnings.formatwarning = formatwarning
 
 
 if __name__ == "__main__":

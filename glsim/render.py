@@ -11,18 +11,16 @@ from __future__ import annotations
 import dataclasses
 import time
 from dataclasses import dataclass
-from pathlib import Path
 
 import numpy as np
 
 from glsim.scene.bilinear import bilinear
 from glsim.scene.camera import Camera, to_camera
-from glsim.errors import SceneError
 from glsim.effects import prepare as prepare_effects
 from glsim.stages.view import View, make_view
-from glsim.backends.cpu import CPUBackend
+from glsim.backends import make_backend
 from glsim.stages.reference import make_reference, specimen_mesh
-from glsim.scene import BACKENDS, Render, Scene
+from glsim.scene import Render, Scene
 
 
 @dataclass(frozen=True, eq=False)
@@ -58,17 +56,6 @@ class Result:
     truth: Truth | None = None
     stages: tuple[str, ...] = ()      # the pipeline stages / GL passes that ran
     saturated: float = 0.0            # fraction of pixels below 0 or above full scale (clipped when written)
-
-
-def make_backend(name: str, reference, ctx=None):
-    """A backend instance by name ("gl" or "cpu") for a :class:`Reference`; ``ctx`` shares an
-    existing GL context."""
-    if name == "cpu":
-        return CPUBackend(reference.image, reference.dots)
-    if name == "gl":
-        from glsim.backends.gl.backend import GLBackend
-        return GLBackend(reference.image, ctx, dots=reference.dots)
-    raise SceneError("render.backend", f"{name!r} is not one of {BACKENDS}", "use 'gl' or 'cpu'")
 
 
 class Renderer:
@@ -135,55 +122,3 @@ def render(scene: Scene, camera: int | str = 0, step: int = 0, backend: str | No
     """Render one image of ``scene`` (convenience wrapper around :class:`Renderer`)."""
     with Renderer(scene, backend) as r:
         return r.render(camera, step, truth, **options)
-
-
-@dataclass(frozen=True)
-class Written:
-    """What :func:`write_sequence` wrote: image paths, truth paths and seconds per render."""
-    images: tuple[str, ...]
-    truth: tuple[str, ...]
-    seconds: tuple[float, ...]
-    saturated: tuple[float, ...]      # per image: fraction of pixels clipped when written
-    scene_json: str
-
-
-def write_sequence(scene: Scene, directory: str | None = None, steps=None, cameras=None,
-                   backend: str | None = None, truth: bool = False, progress=None,
-                   truth_format: str = "npz") -> Written:
-    """Render every camera at every step and write the images (and truth maps) atomically.
-
-    Writes ``scene.json`` (the resolved scene) first. Truth maps go to one ``*_truth.npz``
-    per image, or with ``truth_format="tiff"`` to one float TIFF per map. ``progress(done,
-    total, path)`` is called after each image. Returns what was written.
-    """
-    if truth_format not in ("npz", "tiff"):
-        raise SceneError("truth_format", f"{truth_format!r} is not npz or tiff", "use npz or tiff")
-    from glsim.io import images as io
-
-    out = Path(directory or scene.resolve(scene.output.directory))
-    ext = io.EXTENSIONS[scene.output.format]
-    images, truths, seconds, saturated = [], [], [], []
-    scene_json = io.write_text(out / "scene.json", scene.to_json())
-    with Renderer(scene, backend) as r:
-        steps = list(range(r.mesh.n_steps)) if steps is None else list(steps)
-        for s in steps:
-            if not 0 <= s < r.mesh.n_steps:
-                raise SceneError("steps", f"step {s} does not exist", f"use 0…{r.mesh.n_steps - 1}")
-        cams = [scene.camera(c) for c in (cameras if cameras is not None else range(len(scene.cameras)))]
-        total = len(cams) * len(steps)
-        for step in steps:
-            for cam in cams:
-                res = r.render(cam.name, step, truth=truth)
-                path = out / scene.output.pattern.format(camera=cam.name, step=step, ext=ext)
-                images.append(str(io.write_image(path, res.image, cam.bit_depth, scene.output.format)))
-                if truth and truth_format == "npz":
-                    truths.append(str(io.write_truth(path.with_name(path.stem + "_truth.npz"),
-                                                     res.truth.as_dict())))
-                elif truth:
-                    truths += map(str, io.write_truth_tiff(path.with_name(path.stem + "_truth"),
-                                                          res.truth.as_dict()))
-                seconds.append(res.seconds)
-                saturated.append(res.saturated)
-                if progress:
-                    progress(len(images), total, images[-1])
-    return Written(tuple(images), tuple(truths), tuple(seconds), tuple(saturated), str(scene_json))

@@ -1,5 +1,5 @@
 // Inverse bilinear (Q4) mapping and ray / bilinear-patch intersection: the GLSL twin of
-// glsim/bilinear.py (same names and steps). Corners in FE order 0:(-1,-1) 1:(1,-1) 2:(1,1) 3:(-1,1).
+// glsim/scene/bilinear.py (same names and steps). Corners in FE order 0:(-1,-1) 1:(1,-1) 2:(1,1) 3:(-1,1).
 #ifdef FP64
 #define NEWTON_TOL 1e-12
 #define INSIDE_TOL 1e-9

@@ -1,4 +1,4 @@
-// Depth-of-field blur, one full-screen pass (the GLSL twin of glsim/blur.py):
+// Depth-of-field blur, one full-screen pass (the GLSL twin of glsim/effects/dof.py):
 //   BLUR_HORIZONTAL, then BLUR_VERTICAL on its output: separable truncated Gaussian
 //     (blur_separable), window |k| <= ceil(3 sigma), renormalised, clipped at the border;
 //   BLUR_DISK: 2-D gather with the antialiased aperture weight clamp(r + 0.5 - |d|, 0, 1)

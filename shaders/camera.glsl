@@ -1,8 +1,8 @@
-// Camera model: the GLSL twin of glsim/camera.py (same function names, argument order, conventions).
+// Camera model: the GLSL twin of glsim/scene/camera.py (same function names, argument order, conventions).
 // Needs the loader's precision macros (real, real2, real3, real2x2; double precision when FP64).
 //   k[12]    = (k1, k2, p1, p2, k3, k4, k5, k6, s1, s2, s3, s4), OpenCV order, no tilt
 //   intr[5]  = (fx, fy, skew, cx, cy) px; pixel centres at integer coordinates
-//   valid_r2 = glsim.camera.valid_radius(k)^2, the squared normalized radius where the
+//   valid_r2 = glsim.scene.camera.valid_radius(k)^2, the squared normalized radius where the
 //              radial mapping stops increasing (may be +inf)
 
 // Residual tolerance of undistort, relative to 1 + |xd|. In single precision distort's own

@@ -1,4 +1,4 @@
-// Depth of field (reference paper eqs. 17-19): the GLSL twin of glsim/blur.py (coc_px,
+// Depth of field (reference paper eqs. 17-19): the GLSL twin of glsim/effects/dof.py (coc_px,
 // blur_sigma, blur_radius; same formulas, same in-focus rule). Lengths in mm, blur in pixels.
 // Evaluated in float: CoC = f^2 |P - D| / (N (P - f) D) is eq. 19 rewritten without the
 // cancellation of V_D - V_P (P - D of two float32 depths is exact by Sterbenz's lemma when

@@ -1,4 +1,4 @@
-// Reference-image interpolation: the GLSL twin of glsim/interp.py (same kernels, tap order
+// Reference-image interpolation: the GLSL twin of glsim/stages/interp.py (same kernels, tap order
 // and index clamping). Needs the precision macros (real, real2) and exactly one of
 // INTERP_LINEAR, INTERP_CUBIC, INTERP_BSPLINE3, INTERP_BSPLINE5 defined.
 // The position is split in real precision (integer part exact in double); the kernel weights
@@ -9,10 +9,10 @@
 #include "procedural.glsl"
 #else
 
-// Mirror padding of the coefficient image, px per side; keep in sync with glsim.interp.PAD.
+// Mirror padding of the coefficient image, px per side; keep in sync with glsim.stages.interp.PAD.
 #define REF_PAD 4
 
-// Padded coefficient image (R32F, glsim.interp.prepare): texel (i, j) = padded column i, row j.
+// Padded coefficient image (R32F, glsim.stages.interp.prepare): texel (i, j) = padded column i, row j.
 uniform sampler2D u_ref;
 
 // ref_weights(t, w): per-axis weights at fractional offset t in [0, 1); tap k multiplies

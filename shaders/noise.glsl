@@ -1,4 +1,4 @@
-// Camera sensor noise: the GLSL twin of glsim/noise.py (same names and steps).
+// Camera sensor noise: the GLSL twin of glsim/effects/noise.py (same names and steps).
 // A counter-based generator (PCG hash, uint arithmetic wraps as numpy's uint32), so GL and
 // the numpy oracle draw the same uniforms bit for bit; only float32 log/sqrt/cos differ.
 // Pick the model with one of NOISE_GAUSSIAN, NOISE_HETEROSCEDASTIC, NOISE_POISSON_GAUSSIAN.

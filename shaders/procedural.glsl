@@ -1,4 +1,4 @@
-// Procedural reference speckle: the Boolean model of glsim/speckle.py (Dots) evaluated exactly
+// Procedural reference speckle: the Boolean model of glsim/scene/speckle.py (Dots) evaluated exactly
 // at uv, so no texture interpolation enters the image. Same smoothstep edge profile and
 // max-darkness union as speckle.evaluate; dots found through a uniform grid (speckle.dot_grid)
 // whose cells are at least the dots' reach wide, so the 3 x 3 cells around uv hold them all.

@@ -1,4 +1,4 @@
-// Phong lighting (paper §2.2.1, eq. 13 summed over lights): the GLSL twin of glsim/shade.py
+// Phong lighting (paper §2.2.1, eq. 13 summed over lights): the GLSL twin of glsim/effects/lighting.py
 // (same names and formula). Float only (GLSL pow is float-only). Camera frame, mm, camera at
 // the origin; grey levels in fractions of full scale. MAX_LIGHTS (>= 1) is #defined by the
 // loader; a light with u_light_intensity = 0 contributes nothing. LIGHT_MULTIPLICATIVE picks

@@ -1,10 +1,10 @@
-"""glsim.bench: the quick accuracy benchmark runs end to end and writes a sane report."""
+"""glsim bench: the quick accuracy benchmark runs end to end and writes a sane report."""
 import json
 import math
 
 import pytest
 
-from glsim.evaluation import accuracy as bench
+from glsim.evaluation import accuracy, cli
 
 SIZE = ("203", "154")  # a very small image: the whole quick run takes a few seconds on llvmpipe
 
@@ -19,12 +19,12 @@ def _numbers(record):
 
 @pytest.mark.gl
 def test_quick_accuracy_report(tmp_path, capsys):
-    rc = bench.main(["accuracy", "--quick", "--size", *SIZE, "--reps", "1", "--out", str(tmp_path)])
+    rc = cli.bench_main(["accuracy", "--quick", "--size", *SIZE, "--reps", "1", "--out", str(tmp_path)])
     assert rc == 0
     report = json.loads((tmp_path / "accuracy.json").read_text())
     assert (tmp_path / "accuracy.md").read_text() in capsys.readouterr().out
     records = report["records"]
-    combos = bench.combinations(quick=True)
+    combos = accuracy.combinations(quick=True)
     assert len(records) == len(combos)
     assert {(r["backend"], r["mode"], r["interpolation"], r["spp"], r["precision"]) for r in records} == {
         (c.backend, c.mode, c.interpolation, c.spp, c.precision) for c in combos}
@@ -46,7 +46,7 @@ def test_quick_accuracy_report(tmp_path, capsys):
 
 @pytest.mark.gl
 def test_bench_effects_quick(tmp_path):
-    assert bench.main(["effects", "--size", *SIZE, "--reps", "1", "--out", str(tmp_path)]) == 0
+    assert cli.bench_main(["effects", "--size", *SIZE, "--reps", "1", "--out", str(tmp_path)]) == 0
     report = json.loads((tmp_path / "effects.json").read_text())
     rows = {(r["backend"], r["effects"]): r for r in report["records"]}
     assert set(rows) == {(b, e) for b in ("gl", "cpu") for e in ("none", "lighting", "optics", "noise", "all")}

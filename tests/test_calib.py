@@ -12,6 +12,7 @@ import math
 import numpy as np
 import pytest
 
+from glsim.io.calibfiles import euler_xyz, read_rig_yaml
 from glsim.workflows.calib import calibrate as cal
 from glsim.workflows.calib import detect
 from glsim.workflows.calib import library as libmod
@@ -134,7 +135,7 @@ def test_paper_rig_is_table8():
     assert (c1.fx, c2.fx, c1.cx, c1.cy, c1.size) == (2900, 3115, 812, 617, (1624, 1234))
     assert (c1.distortion.k1, c1.distortion.k2, c2.distortion.k1, c2.distortion.k2) == (-0.46, -0.166, -0.35, -0.01)
     R, T = libmod.stereo_extrinsics(c1, c2)
-    assert np.allclose(T, [144, -12.8, 60]) and np.allclose(libmod.matchid_angles(R), (-1.85, -22.8, -1.9))
+    assert np.allclose(T, [144, -12.8, 60]) and np.allclose(euler_xyz(R), (-1.85, -22.8, -1.9))
     s1, _ = libmod.paper_rig(0.25)
     assert s1.size == (406, 308) and s1.fx == 725 and s1.cx == (812.5 * 0.25 - 0.5)
 
@@ -174,13 +175,13 @@ def test_dot_truth_centroid_equals_projection_when_fronto_parallel_without_disto
 def test_rig_yaml_round_trip(tmp_path):
     c1, c2 = libmod.paper_rig()
     path = libmod.write_true_rig(tmp_path / "rig.yaml", c1, c2)
-    y = libmod.read_rig_yaml(path)
+    y = read_rig_yaml(path)
     R, T = libmod.stereo_extrinsics(c1, c2)
     assert np.array_equal(y["K1"], c1.K) and np.array_equal(y["K2"], c2.K)
     assert np.array_equal(y["D1"], [-0.46, -0.166, 0, 0, 0]) and np.array_equal(y["D2"], [-0.35, -0.01, 0, 0, 0])
     assert np.array_equal(y["R"], R) and np.array_equal(y["T"], T) and y["image_size"] == (1624, 1234)
     with pytest.raises(SceneError, match="not found"):
-        libmod.read_rig_yaml(tmp_path / "missing.yaml")
+        read_rig_yaml(tmp_path / "missing.yaml")
 
 
 # --- the rendered library (GL) ------------------------------------------------------------------------
@@ -286,7 +287,7 @@ def test_stereo_calibration_at_ci_size(ci_library, ci_detections, tmp_path):
     assert rep["epipolar_max_px"] < 0.05
     for name in ("calibration.yaml", "report.json", "residuals.csv", "epipolar.png"):
         assert (tmp_path / "cal" / name).is_file()
-    y = libmod.read_rig_yaml(tmp_path / "cal" / "calibration.yaml")
+    y = read_rig_yaml(tmp_path / "cal" / "calibration.yaml")
     assert np.allclose(y["K1"][0, 0], rep["estimate"]["fx1"])
     assert np.allclose(y["T"], [rep["estimate"][k] for k in ("Tx", "Ty", "Tz")])
     rows = list(csv.DictReader(open(tmp_path / "cal" / "residuals.csv")))

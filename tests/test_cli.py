@@ -104,6 +104,8 @@ def test_wheel_ships_shaders_and_renders(tmp_path):
     import zipfile
     names = zipfile.ZipFile(wheel).namelist()
     assert "glsim/shaders/deform.frag" in names and "glsim/shaders/camera.glsl" in names
+    packages = {str(f.relative_to(ROOT)) for f in (ROOT / "glsim").rglob("__init__.py")}
+    assert packages <= set(names), f"add {sorted(packages - set(names))} to pyproject's packages"
     target = tmp_path / "site"
     subprocess.run([sys.executable, "-m", "pip", "install", "-q", "--no-deps", "--target", str(target), str(wheel)],
                    check=True)

@@ -1,4 +1,4 @@
-"""Sensor noise (glsim/noise.py, shaders/noise.glsl, shaders/noise.frag): the counter-based
+"""Sensor noise (glsim/effects/noise.py, shaders/noise.glsl, shaders/noise.frag): the counter-based
 generator, the three noise models on flat fields, variance-file validation, and the GL pass
 against numpy."""
 from __future__ import annotations

@@ -1,5 +1,5 @@
-"""Normals and the paper's Phong lighting (§2.2.1, eqs. 10–13): glsim/shade.py against
-analytic results, and shaders/shade.glsl against glsim/shade.py."""
+"""Normals and the paper's Phong lighting (§2.2.1, eqs. 10–13): glsim/effects/lighting.py against
+analytic results, and shaders/shade.glsl against glsim/effects/lighting.py."""
 from pathlib import Path
 
 import numpy as np

@@ -10,8 +10,7 @@ import pytest
 import tifffile
 
 from glsim.scene import speckle
-from glsim.evaluation import sweep
-from glsim.evaluation import verify
+from glsim.evaluation import cli, frontier, sweep, sweep_report
 from glsim.scene.camera import project
 from glsim.render import Renderer
 
@@ -187,7 +186,7 @@ def test_analyse_report_and_frontier(exchange, tmp_path):
     acc = tmp_path / "accuracy.json"
     acc.write_text(json.dumps(_accuracy()))
     results = tmp_path / "results"
-    sweep.report(exchange, results, acc)
+    sweep_report.report(exchange, results, acc)
     for name in ("sweep.json", "sweep.png", "sweep.md", "frontier.png"):
         assert (results / name).stat().st_size > 0
     md = (results / "sweep.md").read_text()
@@ -198,21 +197,21 @@ def test_analyse_report_and_frontier(exchange, tmp_path):
 def test_frontier_from_synthetic_accuracy(tmp_path):
     """`frontier` needs only accuracy.json (the sweep panel is added when sweep.json exists)."""
     (tmp_path / "accuracy.json").write_text(json.dumps(_accuracy()))
-    assert sweep.main(["frontier", "--results", str(tmp_path)]) == 0
+    assert cli.verify_main(["frontier", "--results", str(tmp_path)]) == 0
     assert (tmp_path / "frontier.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     md = (tmp_path / "sweep.md").read_text()
     assert "Pareto" in md and "S-curve" in md          # title only: no sweep measured
     assert "## S-curve amplitudes" not in md
-    assert sweep.main(["frontier", "--results", str(tmp_path / "none")]) == 2   # no accuracy.json
+    assert cli.verify_main(["frontier", "--results", str(tmp_path / "none")]) == 2   # no accuracy.json
 
 
 def test_pareto():
     pts = [(1.0, 5.0), (2.0, 1.0), (1.5, 6.0), (3.0, 1.0), (0.5, 9.0), (4.0, 0.5)]
-    assert sweep.pareto(pts) == [4, 0, 1, 5]
+    assert frontier.pareto(pts) == [4, 0, 1, 5]
 
 
 def test_verify_cli_has_sweep_and_frontier():
-    ap = verify.parser()
+    ap = cli.verify_parser()
     a = ap.parse_args(["sweep", "--size", "256", "256", "--exchange", "x"])
     assert (a.command, a.size, a.exchange, a.results) == ("sweep", [256, 256], "x", "bench/results")
     a = ap.parse_args(["frontier", "--accuracy", "acc.json"])
@@ -228,13 +227,13 @@ def test_backend_agreement_reports_the_largest_differences():
     gl = {"machine": {}, "results": [seq("model", "model", [0, 1e-3], [0, 2e-2]),
                                      seq("exact-bspline3", "glsim", [0, 2e-3], [0, 1e-2])]}
     cpu = {"machine": {}, "results": [seq("exact-bspline3", "glsim", [0, 2.5e-3], [0, 1.2e-2])]}
-    (row,) = sweep.backend_agreement(gl, cpu)["rows"]
+    (row,) = sweep_report.backend_agreement(gl, cpu)["rows"]
     assert row["sequence"] == "exact-bspline3" and row["dic_noise_px"] == 2e-2
     assert row["max_delta_bias_px"] == pytest.approx(5e-4) and row["max_delta_std_px"] == pytest.approx(2e-3)
-    assert "| exact-bspline3 | s21 | 5.00e-04 |" in sweep.backend_markdown(sweep.backend_agreement(gl, cpu))
+    assert "| exact-bspline3 | s21 | 5.00e-04 |" in sweep_report.backend_markdown(sweep_report.backend_agreement(gl, cpu))
 
 
 def test_too_small_sweep_is_refused_with_the_fix(capsys):
-    assert verify.main(["sweep", "--size", "160", "160", "--exchange", "/nonexistent/x"]) == 2
+    assert cli.verify_main(["sweep", "--size", "160", "160", "--exchange", "/nonexistent/x"]) == 2
     err = capsys.readouterr().err
     assert "--size 160 160" in err and "--size 512 512" in err

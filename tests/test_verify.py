@@ -8,7 +8,8 @@ import numpy as np
 import pytest
 import tifffile
 
-from glsim.evaluation import verify
+from glsim.evaluation import cli, verify
+from glsim.io import calibfiles
 from glsim.scene.camera import Camera, Distortion, project, rotation_xyz, stereo_pose, to_camera
 from glsim.errors import GlsimError
 
@@ -65,7 +66,7 @@ def _rig(first_pose: bool) -> tuple[Camera, Camera]:
 def test_euler_xyz_inverts_rotation_xyz():
     rng = np.random.default_rng(1)
     for angles in rng.uniform([-170, -85, -170], [170, 85, 170], size=(50, 3)):
-        back = verify.euler_xyz(rotation_xyz(*angles))
+        back = calibfiles.euler_xyz(rotation_xyz(*angles))
         np.testing.assert_allclose(back, angles, atol=1e-10)
         np.testing.assert_allclose(rotation_xyz(*back), rotation_xyz(*angles), atol=1e-15)
 
@@ -73,7 +74,7 @@ def test_euler_xyz_inverts_rotation_xyz():
 @pytest.mark.parametrize("first_pose", [False, True])
 def test_pyvale_calibration_reprojects_like_glsim(first_pose):
     cam1, cam2 = _rig(first_pose)
-    calib = json.loads(json.dumps(verify.pyvale_calibration(cam1, cam2)))   # as written to disk
+    calib = json.loads(json.dumps(calibfiles.pyvale_calibration(cam1, cam2)))   # as written to disk
     rng = np.random.default_rng(2)
     X_world = rng.uniform([-60, -50, 560], [60, 50, 640], size=(200, 3))
     X_cam0 = to_camera(X_world, cam1)
@@ -84,7 +85,7 @@ def test_pyvale_calibration_reprojects_like_glsim(first_pose):
 
 
 def test_pyvale_calibration_of_the_bulge_rig_is_the_stereo_pose():
-    cal = verify.pyvale_calibration(*verify.verify_scene(SIZE).cameras)
+    cal = calibfiles.pyvale_calibration(*verify.verify_scene(SIZE).cameras)
     np.testing.assert_allclose(cal["rotation"], [0.0, 30.0, 0.0], atol=1e-12)
     assert cal["cam0"]["distortion"] == [0.0] * 5
 
@@ -94,7 +95,7 @@ def test_pyvale_calibration_rejects_terms_pyvale_lacks():
     thin_prism = Camera("c", cam2.size, cam2.fx, cam2.fy, cam2.cx, cam2.cy,
                         distortion=Distortion(k1=0.1, s1=1e-3), R=cam2.R, t=cam2.t)
     with pytest.raises(GlsimError, match="k1, k2, p1, p2, k3"):
-        verify.pyvale_calibration(cam1, thin_prism)
+        calibfiles.pyvale_calibration(cam1, thin_prism)
 
 
 # ---- truth at subset centres ------------------------------------------------------------------
@@ -146,7 +147,7 @@ def test_exchange_folder_is_complete_and_consistent(exchange):
     cameras = verify.verify_scene(SIZE, 8).cameras
     assert json.loads((exchange / manifest["scene"]).read_text())["cameras"][1]["fx"] == cameras[1].fx
     assert json.loads((exchange / manifest["calibration"]).read_text()) == \
-        json.loads(json.dumps(verify.pyvale_calibration(*cameras)))
+        json.loads(json.dumps(calibfiles.pyvale_calibration(*cameras)))
 
 
 def test_roi_keeps_the_plate_inside_the_radius(exchange):
@@ -212,7 +213,7 @@ def test_report_on_a_synthetic_measurement(exchange, tmp_path):
 
 def test_cli_compare_and_missing_dic_environment(exchange, tmp_path, capsys):
     _synthetic_measurement(exchange, np.zeros(3))
-    assert verify.main(["compare", str(exchange), "--results", str(tmp_path)]) == 0
+    assert cli.verify_main(["compare", str(exchange), "--results", str(tmp_path)]) == 0
     assert (tmp_path / "verify.md").exists()
     with pytest.raises(GlsimError, match="make verify"):
         verify.run_dic(exchange, python=tmp_path / "no-python")

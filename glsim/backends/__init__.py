@@ -1,0 +1,19 @@
+"""Backends: the same scene rendered by the float64 CPU oracle (:mod:`glsim.backends.cpu`) or by
+OpenGL shaders (:mod:`glsim.backends.gl`, the only place moderngl is imported). Both take a
+:class:`~glsim.stages.view.View` per image in ``render_view`` and return the same results."""
+from __future__ import annotations
+
+from glsim.errors import SceneError
+from glsim.scene import BACKENDS
+
+
+def make_backend(name: str, reference, ctx=None):
+    """A backend instance by name ("gl" or "cpu") for a :class:`Reference`; ``ctx`` shares an
+    existing GL context."""
+    if name == "cpu":
+        from glsim.backends.cpu import CPUBackend
+        return CPUBackend(reference.image, reference.dots)
+    if name == "gl":
+        from glsim.backends.gl.backend import GLBackend
+        return GLBackend(reference.image, ctx, dots=reference.dots)
+    raise SceneError("render.backend", f"{name!r} is not one of {BACKENDS}", "use 'gl' or 'cpu'")

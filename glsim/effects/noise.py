@@ -25,7 +25,7 @@ Random numbers
     :func:`stream_seed` (scene seed, camera index, step).
 
 Noise models (σ in full-scale units, grey levels in [0, 1]; noise is added before
-quantisation and is not clipped — :func:`glsim.io.quantize` clips)
+quantisation and is not clipped — :func:`glsim.io.images.quantize` clips)
     ``gaussian``          σ = sigma % of the dynamic range 2^bits grey levels, constant
                           (2 % of 8 bit = 5.12 DN → 5.12/255 of full scale).
     ``heteroscedastic``   variance per grey level from a CSV file ``grey;variance`` in DN and

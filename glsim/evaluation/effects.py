@@ -43,7 +43,7 @@ def time_variant(scene, backend: str, reps: int, ctx=None) -> dict:
 
 
 def effects(size: tuple[int, int], reps: int) -> dict:
-    from glsim.evaluation.accuracy import machine_info
+    from glsim.evaluation.report import machine_info
     from glsim.backends.gl.context import create_context, info
 
     base = bulge_scene(size=size, steps=1)

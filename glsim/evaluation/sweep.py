@@ -1,11 +1,11 @@
-"""Rigid-body sweep (the DIC S-curve) and the accuracy/time frontier.
+"""Rigid-body sweep (the DIC S-curve): scene, exactly shifted model images, exchange folder, analysis.
 
 **Sweep.** A flat plate square to one camera (512×512 px, 0.1 mm/px at 300 mm, the plate
 480 × 420 px) is translated along the image x axis by 0.0, 0.1, …, 1.0 px (converted to mm
 with the camera's scale at the plate). Each sequence is rendered by glsim (modes fast, q4 and
 exact with cubic B-spline interpolation; exact with ``interpolation = "procedural"``, the
 Boolean speckle evaluated at every sample) and, as the bias-free reference, built directly
-from the speckle model: :func:`glsim.speckle.evaluate` at the exactly shifted reference
+from the speckle model: :func:`glsim.scene.speckle.evaluate` at the exactly shifted reference
 coordinates of every sample (the pixel's ray met with the plate's plane in float64, the shift
 removed, projected into the reference camera), box-filtered as the renderer does. The
 images go, 16-bit, into an exchange folder; ``verify/dic2d.py`` (in ``.venv-verify``, no
@@ -14,22 +14,18 @@ displacements with the imposed shifts: bias (mean of measured − imposed over t
 and its std versus the sub-pixel shift, per sequence, and the paired difference to the model
 sequence at the same subsets (the generator's own share of the error).
 
-**Frontier.** Error versus time per image for every row of ``bench/results/accuracy.json``
-(mapping RMS and grey RMS against the exact speckle), with the sweep's DIC-measured bias
-for the sequences it ran.
+The report (figure, markdown) is :mod:`glsim.evaluation.sweep_report`, the accuracy–time
+frontier :mod:`glsim.evaluation.frontier`.
 
-    python -m glsim.sweep run [--exchange build/sweep] [--results bench/results] [--backend gl]
-    python -m glsim.sweep compare EXCHANGE [--results bench/results]
-    python -m glsim.sweep frontier [--results bench/results] [--accuracy FILE]
+    glsim verify sweep [--exchange build/sweep] [--results bench/results] [--backend gl]
+    glsim verify sweep-compare EXCHANGE [--results bench/results]
 """
 from __future__ import annotations
 
-import argparse
 import datetime
 import json
 import math
 import subprocess
-import sys
 import time
 from pathlib import Path
 
@@ -37,6 +33,7 @@ import numpy as np
 import tifffile
 from scipy import ndimage
 
+from glsim.evaluation.report import gl_info, machine_info
 from glsim.io import images as io
 from glsim.scene import speckle
 from glsim.scene.camera import Camera, pixel_rays, project_camera_frame, to_camera
@@ -92,7 +89,7 @@ def camera(size=SIZE) -> Camera:
 
 def mm_per_px(cam: Camera, distance: float = DISTANCE) -> float:
     """Camera scale (mm per px) on a fronto-parallel plane ``distance`` mm in front of it,
-    :func:`glsim.reference.camera_scale` of a point on its axis: Z / √(fx·fy)."""
+    :func:`glsim.stages.reference.camera_scale` of a point on its axis: Z / √(fx·fy)."""
     return camera_scale(cam, np.array([[0.0, 0.0, distance]]))
 
 
@@ -243,9 +240,6 @@ def write_exchange(out: str | Path, size=SIZE, shifts_px=SHIFTS_PX, sequences=SE
     image from the model image of the same shift and (``apparent``) the generator's shift
     error from :func:`apparent_shift`; the ROI, seed, ``calculate_2d`` arguments and the runs.
     """
-    from glsim.evaluation.accuracy import machine_info
-    from glsim.evaluation.verify import _gl_info
-
     out = Path(out)
     shifts_px = [float(s) for s in shifts_px]
     n = len(shifts_px)
@@ -304,7 +298,7 @@ def write_exchange(out: str | Path, size=SIZE, shifts_px=SHIFTS_PX, sequences=SE
                     e["apparent_u"] = [p[0] for p in fits[e["name"]]]
                     e["apparent_v"] = [p[1] for p in fits[e["name"]]]
         t_end = time.perf_counter()
-        machine = machine_info(_gl_info(r))
+        machine = machine_info(gl_info(r))
     with io.atomic_path(out / "roi.tif") as tmp:
         tifffile.imwrite(tmp, roi.astype(np.uint8) * 255, photometric="minisblack")
     io.write_text(out / "scene.json", scene.to_json())
@@ -398,6 +392,14 @@ def analyse(exchange: str | Path) -> dict:
 
 
 # ---- plots -------------------------------------------------------------------------------------
+
+
+# ---- report ------------------------------------------------------------------------------------
+
+
+# ---- command line ------------------------------------------------------------------------------
+
+
 STYLE = {"model": ("k", "o", "-"), "exact-procedural": ("tab:green", "s", "--"),
          "exact-bspline3": ("tab:blue", "^", "-"), "q4-bspline3": ("tab:orange", "v", "-."),
          "fast-bspline3": ("tab:red", "D", ":"), "model-spp4": ("0.5", "o", "-"),
@@ -408,527 +410,7 @@ def _style(name: str):
     return STYLE.get(name, ("tab:gray", "P", "-"))
 
 
-def plot_sweep(res: dict, path: str | Path) -> Path:
-    """The S-curves: per DIC run (columns) the bias and std of u − shift and the paired
-    difference to the model sequence versus the shift; below, the DIC-free apparent-shift error
-    of each glsim sequence and its grey RMS against the model images."""
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    runs = [r["name"] for r in res["runs"]]
-    ncol = max(len(runs), 2)
-    fig, axes = plt.subplots(4, ncol, figsize=(6.2 * ncol, 14.0), squeeze=False)
-    for j, run in enumerate(runs):
-        rows = [r for r in res["results"] if r["run"] == run]
-        size = rows[0]["subset_size"] if rows else "?"
-        for r in rows:
-            c, m, ls = _style(r["sequence"])
-            s = [x["shift_px"] for x in r["rows"]]
-            kw = dict(color=c, marker=m, ls=ls, label=r["sequence"], ms=5, mfc="none" if r["spp"] > 1 else c)
-            axes[0, j].plot(s, [x["bias_u"] for x in r["rows"]], **kw)
-            axes[1, j].plot(s, [x["std_u"] for x in r["rows"]], **kw)
-            if r["source"] != "model" and "gen_u" in r["rows"][0]:
-                axes[2, j].plot(s, [x["gen_u"] for x in r["rows"]], **kw)
-        axes[0, j].set_title(f"pyvale 2-D DIC, subset {size} px, step {res['calculate_2d']['subset_step']}, "
-                             f"{res['calculate_2d']['shape_function'].lower()}, 16-bit")
-        axes[0, j].set_ylabel("DIC bias: mean(u − shift) (px)")
-        axes[1, j].set_ylabel("DIC std(u − shift) over subsets (px)")
-        axes[2, j].set_ylabel("DIC generator share: mean(u − u_model) (px)")
-        axes[0, j].legend(fontsize=7, ncol=2)
-    first = [r for r in res["results"] if r["run"] == runs[0]] if runs else []
-    for r in first:
-        if r["source"] == "model":
-            continue
-        c, m, ls = _style(r["sequence"])
-        s = [x["shift_px"] for x in r["rows"]]
-        kw = dict(color=c, marker=m, ls=ls, label=r["sequence"], ms=5, mfc="none" if r["spp"] > 1 else c)
-        if "apparent_u" in r["rows"][0]:
-            axes[3, 0].plot(s, [x["apparent_u"] for x in r["rows"]], **kw)
-        axes[3, 1].semilogy(s, [max(x["grey_rms_vs_model"] * 255, 1e-6) for x in r["rows"]], **kw)
-    axes[3, 0].set_ylabel("apparent shift − shift (px), no DIC")
-    axes[3, 0].set_title("generator alone: least-squares fit of the exact model", fontsize=9)
-    axes[3, 1].set_ylabel("grey RMS vs model image (8-bit levels)")
-    axes[3, 1].set_title("grey difference from the exactly shifted model, ROI", fontsize=9)
-    axes[3, 1].legend(fontsize=7, ncol=2)
-    for ax in axes.ravel():
-        if ax.has_data():
-            ax.set_xlabel("imposed shift (px)")
-            ax.grid(True, alpha=0.3)
-            if ax.get_yscale() == "linear":
-                ax.axhline(0.0, color="0.6", lw=0.6)
-        else:
-            ax.set_visible(False)
-    fig.suptitle(f"Rigid-body sweep: {res['size'][0]}×{res['size'][1]} px, plate square to the camera, "
-                 f"{res['mm_per_px']:.4g} mm/px; model = Boolean speckle evaluated at the exactly shifted "
-                 "coordinates (hollow: 4 spp)", fontsize=10)
-    return _save(fig, path, dpi=100)
-
-
-def _save(fig, path: str | Path, dpi: int) -> Path:
-    """Lay out, write atomically as PNG and close a matplotlib figure."""
-    import matplotlib.pyplot as plt
-
-    fig.tight_layout()
-    path = Path(path)
-    with io.atomic_path(path) as tmp:
-        fig.savefig(tmp, dpi=dpi, format="png")
-    plt.close(fig)
-    return path
-
-
-INTERP_COLOURS = {"linear": "tab:gray", "cubic": "tab:orange", "bspline3": "tab:blue",
-                  "bspline5": "tab:purple", "procedural": "tab:green"}
-MODE_MARKERS = {"fast": "o", "q4": "s", "exact": "^"}
-FLOOR = {"map": 1e-13, "grey": 1e-4}      # where 0 is drawn on the log axes
-
-
-def _label(rec: dict) -> str:
-    arith = rec.get("arithmetic", rec.get("precision", ""))
-    return f"{rec['backend']} {rec['mode']} {arith} {rec['interpolation']} {rec['spp']}spp"
-
-
-def pareto(points: list[tuple[float, float]]) -> list[int]:
-    """Indices of the points no other point beats in both coordinates (smaller is better),
-    sorted by the first coordinate."""
-    order = sorted(range(len(points)), key=lambda i: (points[i][0], points[i][1]))
-    front, best = [], math.inf
-    for i in order:
-        if points[i][1] < best:
-            front.append(i)
-            best = points[i][1]
-    return front
-
-
-def accuracy_lookup(accuracy: dict, backend: str, mode: str, interpolation: str, spp: int,
-                    arithmetic: str | None = None) -> dict | None:
-    """The accuracy.json record of a configuration (GL: fp64 precision unless ``arithmetic``)."""
-    for rec in accuracy["records"]:
-        if (rec["backend"], rec["mode"], rec["interpolation"], rec["spp"]) == (backend, mode, interpolation, spp) \
-                and (rec.get("precision", "fp64") == "fp64" if arithmetic is None else rec.get("arithmetic") == arithmetic):
-            return rec
-    return None
-
-
-def plot_frontier(accuracy: dict, sweep: dict | None, path: str | Path) -> Path:
-    """Log–log error versus time per image: mapping RMS and grey RMS against the exact speckle
-    for every accuracy.json row (colour: interpolation, marker: mode, size: spp, hollow: CPU,
-    thin: GL fp32), the Pareto front of each; with ``sweep``, the DIC-measured max |bias| and
-    max |generator bias| of its sequences at the time accuracy.json gives their configuration."""
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-    from matplotlib.lines import Line2D
-
-    panels = [("map_rms_px", "mapping RMS |ref_uv − exact| (reference px)", "map"),
-              ("speckle_rms", "grey RMS vs exact speckle (8-bit grey levels)", "grey")]
-    n = len(panels) + (sweep is not None)
-    fig, axes = plt.subplots(1, n, figsize=(6.2 * n, 5.6), squeeze=False)
-    axes = axes[0]
-    recs = accuracy["records"]
-    for ax, (key, ylabel, floor) in zip(axes, panels):
-        pts = [(rec["seconds"], max(rec[key], FLOOR[floor])) for rec in recs]
-        for rec, (x, y) in zip(recs, pts):
-            c = INTERP_COLOURS.get(rec["interpolation"], "k")
-            cpu = rec["backend"] == "cpu"
-            fp32 = rec["backend"] == "gl" and rec["mode"] == "exact" and rec.get("precision") == "fp32"
-            ax.scatter([x], [y], s=18 + 5 * rec["spp"], marker=MODE_MARKERS.get(rec["mode"], "d"),
-                       facecolors="none" if cpu else c, edgecolors=c, linewidths=0.6 if fp32 else 1.2,
-                       alpha=0.45 if fp32 else 0.9)
-        # Rows whose error is exactly 0 are the reference itself (CPU exact for the mapping): drawn
-        # at the floor, left out of the front.
-        cand = [i for i, rec in enumerate(recs) if rec[key] > 0]
-        front = [cand[i] for i in pareto([pts[i] for i in cand])]
-        ax.plot([pts[i][0] for i in front], [pts[i][1] for i in front], color="k", lw=0.8, alpha=0.6,
-                label="Pareto front")
-        default = accuracy_lookup(accuracy, "gl", "exact", "bspline3", 1)
-        if default:
-            ax.annotate("default\n(exact, bspline3, 1 spp)", (default["seconds"], max(default[key], FLOOR[floor])),
-                        xytext=(12, -24), textcoords="offset points", fontsize=7, arrowprops={"arrowstyle": "->", "lw": 0.6})
-        ax.set_xscale("log")
-        ax.set_yscale("log")
-        ax.set_xlabel("time per image (s), " + f"{accuracy['size'][0]}×{accuracy['size'][1]}")
-        ax.set_ylabel(ylabel + f" (0 drawn at {FLOOR[floor]:.0e})")
-        ax.grid(True, which="both", alpha=0.25)
-    handles = ([Line2D([], [], color=c, marker="o", ls="", label=i) for i, c in INTERP_COLOURS.items()]
-               + [Line2D([], [], color="k", marker=m, ls="", mfc="none", label=md) for md, m in MODE_MARKERS.items()]
-               + [Line2D([], [], color="k", lw=0.8, label="Pareto front")])
-    axes[0].legend(handles=handles, fontsize=7, loc="center left", title="size ∝ spp; hollow: CPU",
-                   title_fontsize=7)
-    if sweep is not None:
-        ax = axes[-1]
-        run = sweep["runs"][0]["name"]
-        seq_handles = []
-        for r in sweep["results"]:
-            if r["run"] != run:
-                continue
-            c, m, _ = _style(r["sequence"])
-            if r["source"] == "model":
-                ax.axhline(r["max_abs_bias_u"], color=c, ls="--", lw=0.8)
-                seq_handles.append(Line2D([], [], color=c, ls="--", lw=0.8,
-                                          label=f"{r['sequence']}: the DIC's own max |bias| {r['max_abs_bias_u']:.1e}"))
-                continue
-            rec = accuracy_lookup(accuracy, "gl", r["mode"], r["interpolation"], r["spp"])
-            if rec is None:
-                continue
-            x = rec["seconds"] * (1.0 + 0.04 * ("q4" in r["sequence"]))   # q4 and exact overlap otherwise
-            ax.scatter([x], [r["max_abs_bias_u"]], color=c, marker=m, s=40)
-            if r.get("max_abs_gen_u") is not None:
-                ax.scatter([x], [max(r["max_abs_gen_u"], 1e-8)], color=c, marker=m, s=14, alpha=0.7)
-            if r.get("max_abs_apparent_u") is not None:
-                ax.scatter([x], [max(r["max_abs_apparent_u"], 1e-8)], facecolors="none", edgecolors=c, marker=m, s=60)
-            seq_handles.append(Line2D([], [], color=c, marker=m, ls="", label=r["sequence"]))
-        kinds = [Line2D([], [], color="k", marker="o", ls="", ms=7, label="DIC max |u − shift| (bias)"),
-                 Line2D([], [], color="k", marker="o", ls="", ms=4, alpha=0.7, label="DIC max |u − u_model| (generator share)"),
-                 Line2D([], [], color="k", marker="o", ls="", ms=8, mfc="none", label="max |apparent shift error| (generator, no DIC)")]
-        ax.set_xscale("log")
-        ax.set_yscale("log")
-        ax.set_xlabel(f"time per image (s), {accuracy['size'][0]}×{accuracy['size'][1]} (accuracy.json)")
-        ax.set_ylabel("error over the rigid sweep 0…1 px (px)")
-        ax.set_title(f"rigid sweep (plate square to the camera), pyvale subset {sweep['runs'][0]['subset_size']} px",
-                     fontsize=9)
-        ax.grid(True, which="both", alpha=0.25)
-        ax.legend(handles=seq_handles + kinds, fontsize=6, loc="lower left")
-    fig.suptitle(f"glsim accuracy versus time ({accuracy['machine']['gl']['renderer']}, "
-                 f"{accuracy['machine']['cores']} cores)", fontsize=10)
-    return _save(fig, path, dpi=110)
-
-
-# ---- report ------------------------------------------------------------------------------------
-def _e(x) -> str:
-    return "–" if x is None else f"{x:.1e}"
-
-
 def _by(sweep: dict, run: str | None = None) -> dict:
     """sweep results of one run (default the first) by sequence name."""
     run = run or sweep["runs"][0]["name"]
     return {r["sequence"]: r for r in sweep["results"] if r["run"] == run}
-
-
-def sweep_markdown(sweep: dict) -> list[str]:
-    """The sweep part of sweep.md: settings, amplitudes, per-shift tables, timings."""
-    m, c2 = sweep["machine"], sweep["calculate_2d"]
-    runs = sweep["runs"]
-    first = _by(sweep)
-    lines = [
-        f"- Machine: `{m['node']}`, {m['cpu']}, {m['cores']} cores; GL: {m['gl']['renderer']}; {sweep['date']}",
-        f"- Scene: one {sweep['size'][0]}×{sweep['size'][1]} px camera square onto a flat 48 × 42 mm plate at "
-        f"300 mm ({sweep['mm_per_px']:.5g} mm/px), built-in speckle (5 px dots, 1 px edges, seed "
-        f"{sweep['speckle_seed']}), no lighting, blur or noise; {sweep['bit_depth']}-bit TIFF; shifts along "
-        f"{sweep['direction']}: " + ", ".join(f"{s:g}" for s in sweep["shifts_px"]) + " px = "
-        + ", ".join(f"{s:.4g}" for s in sweep["shift_mm"]) + " mm",
-        "- Sequences: `model` = the Boolean speckle evaluated exactly (`speckle.evaluate`) at the exactly "
-        "shifted reference coordinates of every sample (float64 ray–plane), box-filtered like the renderer; "
-        f"the others are glsim renders (backend {sweep['backend']}) named mode-interpolation; `-spp4`: 2×2 "
-        "samples per pixel, otherwise 1",
-        f"- DIC: pyvale {next(iter(first.values()))['pyvale']} `calculate_2d`, "
-        + ", ".join(f"`{k}={v}`" for k, v in c2.items())
-        + "; runs " + ", ".join(f"{r['name']} (subset {r['subset_size']} px)" for r in runs)
-        + f"; ROI {sweep['roi_pixels']} px (plate covered at every shift, eroded {ROI_MARGIN_PX} px)",
-        "- **DIC bias** = mean over the valid subsets of (u − imposed shift), **std** its population std "
-        "(v: imposed 0); **DIC generator share** = mean of (u − u_model) at the same subsets, the model "
-        "sequence with the same spp (the DIC's own subset-wise error cancels in the pair); **generator "
-        "alone** = `apparent_shift`: the shift (u, v) that makes the exact model best fit the glsim image "
-        f"in least squares (Gauss–Newton, every {APPARENT_STRIDE}nd row and column of the ROI, the model "
-        "evaluated at any shift, so no interpolation and no DIC), minus the imposed shift; **grey RMS** = "
-        "|image − model image| over the ROI in 8-bit grey levels (float images, before quantisation)",
-        "", "## S-curve amplitudes (maximum over the 11 shifts)", "",
-        "| sequence | render (s/image) | " + " | ".join(f"{r['name']} max abs bias (px) | {r['name']} max std (px)"
-                                                  for r in runs)
-        + f" | DIC generator share, {runs[0]['name']} (px) | generator alone, u (px) | generator alone, v (px) "
-          "| grey RMS vs model |",
-        "|---|---|" + "---|---|" * len(runs) + "---|---|---|---|"]
-    for name, r in first.items():
-        cells = []
-        for run in runs:
-            rr = _by(sweep, run["name"])[name]
-            cells += [_e(rr["max_abs_bias_u"]), _e(rr["max_std_u"])]
-        grey = r["max_grey_rms_vs_model"] * 255
-        lines.append(f"| {name} | {r['render_seconds_median']:.3f} | " + " | ".join(cells)
-                     + f" | {_e(r['max_abs_gen_u'])} | {_e(r['max_abs_apparent_u'])} | "
-                     f"{_e(r['max_abs_apparent_v'])} | {'0' if r['source'] == 'model' else format(grey, '.2g')} |")
-    lines += ["", f"Valid subsets: " + ", ".join(f"{run['name']} {next(iter(_by(sweep, run['name']).values()))['n_valid']}"
-                                                 f"/{next(iter(_by(sweep, run['name']).values()))['n_subsets']}"
-                                                 for run in runs)
-              + " (every sequence, every shift). Render times are medians per 512×512 image on this machine "
-                "(the model: the numpy evaluation in float64).", ""]
-    for run in runs:
-        rows = _by(sweep, run["name"])
-        lines += [f"## DIC bias ± std per shift, {run['name']} (subset {run['subset_size']} px), px", "",
-                  "| shift (px) | " + " | ".join(rows) + " |", "|---|" + "---|" * len(rows)]
-        for k, sh in enumerate(sweep["shifts_px"]):
-            lines.append(f"| {sh:.1f} | " + " | ".join(
-                f"{r['rows'][k]['bias_u']:+.1e} ± {r['rows'][k]['std_u']:.1e}" for r in rows.values()) + " |")
-        lines.append("")
-    gen = [r for r in first.values() if r["source"] != "model"]
-    lines += ["## Generator error per shift", "",
-              f"Per glsim sequence: generator alone u (px, no DIC) / DIC generator share mean(u − u_model) "
-              f"({runs[0]['name']}, px) / grey RMS vs model (8-bit levels).", "",
-              "| shift (px) | " + " | ".join(r["sequence"] for r in gen) + " |", "|---|" + "---|" * len(gen)]
-    for k, sh in enumerate(sweep["shifts_px"]):
-        lines.append(f"| {sh:.1f} | " + " | ".join(
-            f"{r['rows'][k].get('apparent_u', float('nan')):+.1e} / {r['rows'][k].get('gen_u', float('nan')):+.1e} / "
-            f"{r['rows'][k]['grey_rms_vs_model'] * 255:.2g}" for r in gen) + " |")
-    sec = sweep.get("seconds") or {}
-    dic = sum(r["dic_seconds"] for r in sweep["results"])
-    lines += ["", f"Timings: render, model images and writing {sec.get('render_and_write', float('nan')):.0f} s; "
-              f"apparent-shift fits {sec.get('apparent_shift', float('nan')):.0f} s; pyvale `calculate_2d` "
-              f"{dic:.0f} s in all ({len(sweep['results'])} sequence × run calls).", ""]
-    return lines
-
-
-def frontier_facts(accuracy: dict, sweep: dict | None) -> dict:
-    """The numbers the default-mode paragraph quotes: accuracy.json rows (bulge, GL fp64) and
-    the sweep's amplitudes (first run)."""
-    f = {}
-    for mode in ("fast", "q4", "exact"):
-        for interp in ("bspline3", "procedural"):
-            for spp in (1, 4, 16):
-                rec = accuracy_lookup(accuracy, "gl", mode, interp, spp)
-                if rec:
-                    f[(mode, interp, spp)] = rec
-    if sweep is not None:
-        f["sweep"] = _by(sweep)
-    return f
-
-
-def frontier_markdown(accuracy: dict, sweep: dict | None) -> list[str]:
-    """The frontier section: the Pareto rows of each error measure, and which default the data support."""
-    lines = ["## Frontier (`frontier.png`)", "",
-             f"From `accuracy.json` ({accuracy['scene']}, {accuracy['size'][0]}×{accuracy['size'][1]}, "
-             f"{accuracy['date']}): error versus median time per image. Pareto-optimal rows (no other row is "
-             "both faster and more accurate; error 0 marks the reference itself and is left out):", ""]
-    recs = accuracy["records"]
-    for key, name, floor in (("map_rms_px", "mapping RMS (px)", "map"),
-                             ("speckle_rms", "grey RMS vs exact speckle (8-bit levels)", "grey")):
-        cand = [i for i, r in enumerate(recs) if r[key] > 0]
-        pts = [(recs[i]["seconds"], recs[i][key]) for i in cand]
-        lines += [f"| {name}: row | time (s) | error |", "|---|---|---|"]
-        for j in pareto(pts):
-            r = recs[cand[j]]
-            lines.append(f"| {_label(r)} | {r['seconds']:.3g} | {r[key]:.3g} |")
-        lines.append("")
-    f = frontier_facts(accuracy, sweep)
-    lines += ["## Which default the data support", ""]
-    eb, fb, qb = f.get(("exact", "bspline3", 1)), f.get(("fast", "bspline3", 1)), f.get(("q4", "bspline3", 1))
-    ep, ep4, eb4 = f.get(("exact", "procedural", 1)), f.get(("exact", "procedural", 4)), f.get(("exact", "bspline3", 4))
-    sw = f.get("sweep")
-    if eb and fb and qb:
-        lines.append(
-            f"- **Mode: `exact`.** On the bulge, GL `exact` maps every pixel to within {eb['map_max_px']:.0e} px "
-            f"({eb['seconds']:.3f} s per 1624×1234 image with bspline3); `fast` is {eb['seconds'] / fb['seconds']:.1f}× "
-            f"and `q4` {eb['seconds'] / qb['seconds']:.1f}× faster but misplace the speckle by "
-            f"{fb['map_rms_px']:.3f} px RMS ({fb['map_max_px']:.2f} max) and {qb['map_rms_px']:.3f} px RMS "
-            f"({qb['map_max_px']:.2f} max): {min(fb['map_rms_px'], qb['map_rms_px']) / 1e-3:.0f} to "
-            f"{max(fb['map_max_px'], qb['map_max_px']) / 1e-3:.0f} times the 1e-3 px that `glsim verify` asks of a DIC, so "
-            "their images cannot be the ground truth of a sub-pixel DIC check.")
-    if sw and {"exact-bspline3", "q4-bspline3", "fast-bspline3"} <= set(sw):
-        d_fast = max(abs(a.get("apparent_u", 0) - b.get("apparent_u", 0))
-                     for a, b in zip(sw["fast-bspline3"]["rows"], sw["exact-bspline3"]["rows"]))
-        d_q4 = max(abs(a.get("apparent_u", 0) - b.get("apparent_u", 0))
-                   for a, b in zip(sw["q4-bspline3"]["rows"], sw["exact-bspline3"]["rows"]))
-        lines.append(
-            f"- The rigid sweep does not separate the modes: a plate square to a distortion-free camera "
-            f"projects affinely, which `fast` and `q4` reproduce exactly, so their S-curves coincide with "
-            f"`exact`'s (generator-alone shift differs from exact by {d_q4:.1e} px for q4 and {d_fast:.1e} px "
-            "for fast, its fp32 arithmetic). Their mapping error needs perspective, curvature or distortion "
-            "(the bulge above).")
-    if sw and "model" in sw and "exact-procedural" in sw and "exact-bspline3" in sw:
-        mo, pr, bs = sw["model"], sw["exact-procedural"], sw["exact-bspline3"]
-        mo4, bs4 = sw.get("model-spp4"), sw.get("exact-bspline3-spp4")
-        lines.append(
-            f"- **Interpolation.** The DIC's own S-curve (pyvale on the exact model images) reaches "
-            f"{mo['max_abs_bias_u']:.1e} px bias and {mo['max_std_u']:.1e} px std at 1 spp"
-            + (f", {mo4['max_abs_bias_u']:.1e} and {mo4['max_std_u']:.1e} px at 4 spp" if mo4 else "")
-            + f". `exact`/`procedural` images equal the model images (grey RMS "
-            f"{pr['max_grey_rms_vs_model'] * 255:.0e} 8-bit levels): pyvale reads them to within "
-            f"{pr['max_abs_gen_u']:.0e} px of the model and the generator-alone shift error is "
-            f"{pr['max_abs_apparent_u']:.0e} px. `exact`/`bspline3` (the current default) interpolates the "
-            f"2×-oversampled reference image, a {bs['max_grey_rms_vs_model'] * 255:.1f}-level RMS grey error "
-            f"that displaces the speckle by up to {bs['max_abs_apparent_u']:.1e} px (period 0.5 px = one "
-            f"reference pixel, zero where the reference coordinates are whole pixels: the interpolation's "
-            f"own error at the fractional position)"
-            + (f", {bs4['max_abs_apparent_u']:.1e} px at 4 spp" if bs4 else "")
-            + f"; pyvale, which only compares the images with each other, reads up to "
-            f"{bs['max_abs_gen_u']:.1e} px of it"
-            + (f" ({bs4['max_abs_gen_u']:.1e} px at 4 spp)" if bs4 else "")
-            + " — the size of `glsim verify`'s 1e-3 px goal.")
-    if eb and ep:
-        t_sweep = ""
-        if sw and "exact-procedural" in sw:
-            t_sweep = (f"; {sw['exact-procedural']['render_seconds_median']:.3f} against "
-                       f"{sw['exact-bspline3']['render_seconds_median']:.3f} s per 512×512 image in the sweep")
-        better = (sw and "exact-procedural" in sw and sw["exact-procedural"]["max_abs_apparent_u"] is not None
-                  and sw["exact-procedural"]["max_abs_apparent_u"] < 0.01 * sw["exact-bspline3"]["max_abs_apparent_u"]
-                  and ep["seconds"] < 2.0 * eb["seconds"])
-        lines.append(
-            f"- **Cost.** `procedural` takes {ep['seconds']:.3f} s against {eb['seconds']:.3f} s per 1624×1234 "
-            f"image ({ep['seconds'] / eb['seconds']:.1f}×{t_sweep}); its grey error against the exact speckle is "
-            f"{ep['speckle_rms']:.1e} levels RMS against {eb['speckle_rms']:.2f} for bspline3 — bspline3 does "
-            f"not reach that even at 16 spp ({f[('exact', 'bspline3', 16)]['speckle_rms']:.2f} levels, "
-            f"{f[('exact', 'bspline3', 16)]['seconds']:.2f} s)."
-            if ("exact", "bspline3", 16) in f else
-            f"- **Cost.** `procedural` takes {ep['seconds']:.3f} s against {eb['seconds']:.3f} s per image.")
-        if ep4 and sw and "model-spp4" in sw:
-            lines.append(
-                f"- **Samples per pixel.** 4 spp ({ep4['seconds']:.2f} s with procedural) halves the DIC's own "
-                f"error on this speckle (its 1-px dot edges alias at 1 spp), but that is the DIC's error, not the "
-                "generator's: the generator is exact at any spp in `exact`/`procedural`.")
-        if better:
-            lines.append(
-                "- **Conclusion.** The data support `exact` as the default mode, and `procedural` rather than "
-                "`bspline3` as the default interpolation whenever the reference is the built-in generator: it "
-                "removes a generator error of the order of a DIC's own bias for less than twice the time. "
-                "`bspline3` remains the only choice for reference images from file and for low-passed "
-                "references (as `glsim verify` uses), where there are no dots to evaluate; its error there "
-                "depends on how much of the reference lies near its Nyquist frequency (this sweep measures "
-                "the unfiltered 1-px-edge speckle, the hard case, not the low-passed one). "
-                "`exact`/`bspline3` is defensible for speed, not as bias-free ground truth.")
-        else:
-            lines.append("- **Conclusion.** The data support keeping `exact`/`bspline3`: `procedural` does not "
-                         "reduce the generator's error enough for its cost here.")
-    lines.append("")
-    return lines
-
-
-def results_markdown(sweep: dict | None, accuracy: dict | None) -> str:
-    """sweep.md: the sweep (if measured) and the frontier (if accuracy.json exists)."""
-    lines = ["# Rigid-body sweep (DIC S-curve) and accuracy/time frontier", "",
-             "Regenerate: `make sweep` (render, pyvale, report) or `python -m glsim.sweep frontier` "
-             "(frontier.png and this file from sweep.json and accuracy.json).", ""]
-    if sweep is not None:
-        lines += sweep_markdown(sweep)
-    if accuracy is not None:
-        lines += frontier_markdown(accuracy, sweep)
-    return "\n".join(lines) + "\n"
-
-
-def report(exchange: str | Path | None, results_dir: str | Path, accuracy_path: str | Path | None = None) -> dict | None:
-    """Analyse the exchange folder (if given) into sweep.json/png, then write sweep.md and
-    frontier.png from sweep.json and accuracy.json (whichever exist)."""
-    results_dir = Path(results_dir)
-    sweep = None
-    if exchange is not None:
-        sweep = analyse(exchange)
-        io.write_text(results_dir / "sweep.json", json.dumps(sweep, indent=2))
-        plot_sweep(sweep, results_dir / "sweep.png")
-    elif (results_dir / "sweep.json").is_file():
-        sweep = json.loads((results_dir / "sweep.json").read_text())
-    accuracy_path = Path(accuracy_path) if accuracy_path else results_dir / "accuracy.json"
-    accuracy = json.loads(accuracy_path.read_text()) if accuracy_path.is_file() else None
-    if accuracy is not None:
-        plot_frontier(accuracy, sweep, results_dir / "frontier.png")
-    if sweep is not None or accuracy is not None:
-        io.write_text(results_dir / "sweep.md", results_markdown(sweep, accuracy))
-    return sweep
-
-
-# ---- command line ------------------------------------------------------------------------------
-def add_run_arguments(p: argparse.ArgumentParser) -> None:
-    """Options of ``run`` (shared with ``glsim verify sweep``)."""
-    p.add_argument("--exchange", default="build/sweep", help="exchange folder (default build/sweep)")
-    p.add_argument("--size", type=int, nargs=2, default=SIZE, metavar=("W", "H"),
-                   help="image size in px (the plate scales with it; default 512 512)")
-    p.add_argument("--backend", choices=("gl", "cpu"), default="gl")
-    p.add_argument("--python", default=str(DIC_PYTHON), help="interpreter with pyvale")
-    p.add_argument("--script", default=str(DIC_SCRIPT))
-    add_results_arguments(p)
-
-
-def backend_agreement(gl: dict, cpu: dict) -> dict:
-    """GL against the CPU oracle through the DIC: for every glsim sequence and subset size in
-    both sweeps, the largest |Δ bias| and |Δ std| of u over the shifts (px), next to the DIC's
-    own noise (the largest std of u on the exact model images)."""
-    key = lambda r: (r["sequence"], r["run"])  # noqa: E731
-    cpu_by = {key(r): r for r in cpu["results"]}
-    rows = []
-    for r in gl["results"]:
-        c = cpu_by.get(key(r))
-        if r["source"] == "model" or c is None:
-            continue
-        noise = max(m["max_std_u"] for m in gl["results"] if m["source"] == "model" and m["run"] == r["run"])
-        rows.append({"sequence": r["sequence"], "run": r["run"], "dic_noise_px": noise,
-                     "max_delta_bias_px": max(abs(a["bias_u"] - b["bias_u"]) for a, b in zip(r["rows"], c["rows"])),
-                     "max_delta_std_px": max(abs(a["std_u"] - b["std_u"]) for a, b in zip(r["rows"], c["rows"]))})
-    return {"gl": gl["machine"], "rows": rows}
-
-
-def backend_markdown(agreement: dict) -> str:
-    lines = ["# GL against the CPU oracle, through the DIC", "",
-             "The rigid-body sweep rendered by both backends and measured by pyvale's 2-D DIC; "
-             "Δ = GL − CPU over the 11 shifts, px; DIC noise = the largest std of u on the exact "
-             "model images.", "",
-             r"| sequence | subset | max \|Δ bias\| (px) | max \|Δ std\| (px) | DIC noise (px) |",
-             "|---|---|---|---|---|"]
-    lines += [f"| {r['sequence']} | {r['run']} | {r['max_delta_bias_px']:.2e} | {r['max_delta_std_px']:.2e} "
-              f"| {r['dic_noise_px']:.2e} |" for r in agreement["rows"]]
-    return "\n".join(lines) + "\n"
-
-
-def add_results_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--results", default="bench/results", help="where sweep.* and frontier.png go")
-    p.add_argument("--accuracy", default=None, help="accuracy.json (default RESULTS/accuracy.json)")
-
-
-def parser() -> argparse.ArgumentParser:
-    ap = argparse.ArgumentParser(prog="python -m glsim.sweep", description=__doc__.split("\n\n")[0])
-    sub = ap.add_subparsers(dest="command", required=True)
-    add_run_arguments(sub.add_parser("run", help="render the sweep, run verify/dic2d.py, report"))
-    cmp_ = sub.add_parser("compare", help="report an exchange folder's DIC results again")
-    cmp_.add_argument("exchange")
-    add_results_arguments(cmp_)
-    add_results_arguments(sub.add_parser("frontier", help="frontier.png and sweep.md from accuracy.json "
-                                                         "(and sweep.json if present)"))
-    add_backends_arguments(sub.add_parser("backends", help="GL against the CPU oracle through the DIC, "
-                                                          "from two sweep.json files"))
-    return ap
-
-
-def add_backends_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("gl_json", help="sweep.json of a --backend gl sweep")
-    p.add_argument("cpu_json", help="sweep.json of a --backend cpu sweep")
-    p.add_argument("--results", default="bench/results", help="where sweep_backends.json/.md go")
-
-
-def main_args(args: argparse.Namespace) -> int:
-    """Run a parsed ``run`` (also ``sweep``), ``compare``, ``frontier`` or ``backends`` command."""
-    if args.command == "backends":
-        agreement = backend_agreement(*(json.loads(Path(p).read_text()) for p in (args.gl_json, args.cpu_json)))
-        out = Path(args.results)
-        io.write_text(out / "sweep_backends.json", json.dumps(agreement, indent=2) + "\n")
-        io.write_text(out / "sweep_backends.md", text := backend_markdown(agreement))
-        print(text)
-        return 0
-    try:
-        if args.command in ("run", "sweep"):
-            if min(args.size) < MIN_SIZE:
-                raise GlsimError(f"--size {args.size[0]} {args.size[1]}: at least {MIN_SIZE} px per side is needed "
-                                 f"(smaller plates leave pyvale's DIC too few subsets); give e.g. --size 512 512")
-            t0 = time.perf_counter()
-            path = write_exchange(args.exchange, tuple(args.size), backend=args.backend)
-            print(f"glsim sweep: exchange folder {path.parent}/ written ({time.perf_counter() - t0:.1f} s)", flush=True)
-            seconds = run_dic(args.exchange, args.python, args.script)
-            print(f"glsim sweep: DIC {seconds:.1f} s", flush=True)
-        exchange = args.exchange if args.command in ("run", "sweep", "compare") else None
-        if exchange is None and not Path(args.accuracy or Path(args.results) / "accuracy.json").is_file():
-            raise GlsimError(f"{args.accuracy or Path(args.results) / 'accuracy.json'} not found: "
-                             "run `glsim bench accuracy` first, or give --accuracy")
-        sweep = report(exchange, args.results, args.accuracy)
-    except GlsimError as exc:
-        print(f"glsim sweep: error: {exc}", file=sys.stderr)
-        return 2
-    if sweep is not None:
-        for r in sweep["results"]:
-            print(f"{r['sequence']:18s} {r['run']}: max |bias u| {r['max_abs_bias_u']:.2e} px, max std "
-                  f"{r['max_std_u']:.2e} px, max |u − u_model| {_e(r['max_abs_gen_u'])} px")
-    print(f"glsim sweep: wrote {args.results}/" + ("sweep.json, sweep.png, " if exchange else "")
-          + "sweep.md, frontier.png")
-    return 0
-
-
-def main(argv: list[str] | None = None) -> int:
-    return main_args(parser().parse_args(argv))
-
-
-if __name__ == "__main__":
-    sys.exit(main())

@@ -13,18 +13,15 @@ are X_cam1 = Rz(psi)·Ry(phi)·Rx(theta)·X_cam0 + T (degrees, mm), the same con
 glsim's ``stereo`` pose. Differences in px are mm / M with M = mean Z / √(fx·fy) (mm per px)
 over the compared subset centres in the reference state.
 
-    python -m glsim.verify run [--size W H] [--exchange build/verify] [--results bench/results]
-    python -m glsim.verify compare EXCHANGE [--results DIR]
-    python -m glsim.verify sweep | frontier     # glsim.sweep: rigid-body S-curves, accuracy frontier
+    glsim verify run [--size W H] [--exchange build/verify] [--results bench/results]
+    glsim verify compare EXCHANGE [--results DIR]
 """
 from __future__ import annotations
 
-import argparse
 import datetime
 import json
 import math
 import subprocess
-import sys
 import time
 from pathlib import Path
 
@@ -33,7 +30,8 @@ import tifffile
 from scipy import ndimage
 
 from glsim.io import images as io
-from glsim.evaluation.accuracy import machine_info
+from glsim.io.calibfiles import pyvale_calibration
+from glsim.evaluation.report import gl_info, machine_info
 from glsim.scene.bilinear import bilinear
 from glsim.scene.camera import Camera, to_camera
 from glsim.errors import GlsimError
@@ -101,37 +99,6 @@ def smoothed_reference(scene: Scene, mesh, sigma_px: float) -> Reference:
 
 
 # ---- calibration in pyvale's convention ----------------------------------------------------------
-def euler_xyz(R) -> np.ndarray:
-    """(theta, phi, psi) in degrees with R = Rz(psi)·Ry(phi)·Rx(theta), the inverse of
-    :func:`glsim.camera.rotation_xyz` (phi in (−90°, 90°))."""
-    R = np.asarray(R, dtype=np.float64)
-    theta = math.atan2(R[2, 1], R[2, 2])
-    phi = math.atan2(-R[2, 0], math.hypot(R[0, 0], R[1, 0]))
-    psi = math.atan2(R[1, 0], R[0, 0])
-    return np.degrees([theta, phi, psi])
-
-
-def pyvale_intrinsics(cam: Camera) -> dict:
-    """``pyvale.calib.CamIntrinsics`` fields (px): OpenCV's model with [k1, k2, p1, p2, k3]."""
-    k = cam.distortion.coeffs
-    if np.any(k[5:]):
-        raise GlsimError(f"camera {cam.name}: pyvale models only k1, k2, p1, p2, k3; "
-                         f"k4…k6 and s1…s4 must be 0, got {k[5:].tolist()}")
-    return {"fx": cam.fx, "fy": cam.fy, "fs": cam.skew, "cx": cam.cx, "cy": cam.cy,
-            "distortion": k[:5].tolist()}
-
-
-def pyvale_calibration(cam_a: Camera, cam_b: Camera) -> dict:
-    """``pyvale.calib.Calib`` fields: ``cam_a`` is pyvale's camera 0, ``cam_b`` camera 1;
-    X_b = Rz(psi)·Ry(phi)·Rx(theta)·X_a + T with ``rotation`` = [theta, phi, psi] (deg) and
-    ``translation`` = T (mm), from the two world→camera poses."""
-    Ra, Rb = cam_a.rotation, cam_b.rotation
-    R = Rb @ Ra.T
-    T = cam_b.translation - R @ cam_a.translation
-    return {"convention": "X_cam1 = Rz(psi) Ry(phi) Rx(theta) X_cam0 + T; rotation = [theta, phi, psi] "
-                          "deg, translation = T mm; OpenCV distortion [k1, k2, p1, p2, k3]",
-            "cam0": pyvale_intrinsics(cam_a), "cam1": pyvale_intrinsics(cam_b),
-            "translation": T.tolist(), "rotation": euler_xyz(R).tolist()}
 
 
 # ---- truth, ROI and exchange folder ------------------------------------------------------------
@@ -195,7 +162,7 @@ def write_exchange(out: str | Path, size=FULL_SIZE, mesh_divisions: int = MESH_D
                 if res.truth is not None:
                     truth = res.truth
             states.append({"step": step, "label": "undeformed" if step == 0 else "deformed", "images": images})
-        machine = machine_info(_gl_info(r))
+        machine = machine_info(gl_info(r))
     seconds = time.perf_counter() - t0
     roi = roi_mask(truth, scene, roi_radius_mm)
     maps = {f"X_step{s['step']}": material_positions(mesh, truth, s["step"], scene.cameras[0]) for s in states}
@@ -211,13 +178,6 @@ def write_exchange(out: str | Path, size=FULL_SIZE, mesh_divisions: int = MESH_D
                 "roi_radius_mm": roi_radius_mm, "backend": backend, "render_seconds": seconds,
                 "machine": machine}
     return io.write_text(out / "manifest.json", json.dumps(manifest, indent=2))
-
-
-def _gl_info(renderer: Renderer) -> dict:
-    if renderer.backend_name != "gl":
-        return {"vendor": "-", "renderer": "CPU oracle (numpy float64)", "version": "-"}
-    from glsim.backends.gl.context import info
-    return info(renderer.backend.ctx)
 
 
 def run_dic(exchange: str | Path, python: str | Path = DIC_PYTHON, script: str | Path = DIC_SCRIPT) -> None:
@@ -346,58 +306,3 @@ def report(exchange: str | Path, results_dir: str | Path) -> dict:
 
 
 # ---- command line -------------------------------------------------------------------------------
-def parser() -> argparse.ArgumentParser:
-    ap = argparse.ArgumentParser(prog="glsim verify", description=__doc__.split("\n\n")[0])
-    sub = ap.add_subparsers(dest="command", required=True)
-    run = sub.add_parser("run", help="render, run the DIC (verify/dic.py in .venv-verify), compare")
-    run.add_argument("--size", type=int, nargs=2, default=FULL_SIZE, metavar=("W", "H"),
-                     help="image size in px (the rig scales with it; default 1624 1234)")
-    run.add_argument("--exchange", default="build/verify", help="exchange folder (default build/verify)")
-    run.add_argument("--mesh-divisions", type=int, default=MESH_DIVISIONS)
-    run.add_argument("--sigma", type=float, default=SPECKLE_SIGMA_PX,
-                     help="speckle Gaussian low-pass, camera-1 px (0: none)")
-    run.add_argument("--backend", choices=("gl", "cpu"), default="gl")
-    run.add_argument("--python", default=str(DIC_PYTHON), help="interpreter with pyvale")
-    run.add_argument("--script", default=str(DIC_SCRIPT))
-    cmp_ = sub.add_parser("compare", help="compare an exchange folder's DIC results again")
-    cmp_.add_argument("exchange")
-    for p in (run, cmp_):
-        p.add_argument("--results", default="bench/results", help="where verify.json/.md go")
-    from glsim.evaluation import sweep   # the rigid-body sweep and the frontier live in glsim.sweep
-    sweep.add_run_arguments(sub.add_parser("sweep", help="rigid-body sweep: render, verify/dic2d.py "
-                                           "(pyvale 2-D DIC), S-curves → bench/results/sweep.*"))
-    sweep.add_results_arguments(sub.add_parser("frontier", help="frontier.png and sweep.md from "
-                                               "accuracy.json (and sweep.json)"))
-    sweep.add_backends_arguments(sub.add_parser("backends", help="GL against the CPU oracle through "
-                                                "the DIC, from a gl and a cpu sweep.json"))
-    return ap
-
-
-def _print_summary(res: dict) -> None:
-    for run in res["runs"]:
-        for s in run["states"]:
-            cells = ", ".join(f"{r['dir']} {r['mean_px']:+.1e}±{r['std_px']:.1e}" for r in s["rows"])
-            print(f"{run['name']:12s} {s['label']:10s} px: {cells}")
-
-
-def main(argv: list[str] | None = None) -> int:
-    args = parser().parse_args(argv)
-    if args.command in ("sweep", "frontier", "backends"):
-        from glsim.evaluation import sweep
-        return sweep.main_args(args)
-    try:
-        if args.command == "run":
-            path = write_exchange(args.exchange, args.size, args.mesh_divisions, args.sigma, backend=args.backend)
-            print(f"glsim verify: exchange folder {path.parent}/ written")
-            run_dic(args.exchange, args.python, args.script)
-        res = report(args.exchange, args.results)
-    except GlsimError as exc:
-        print(f"glsim verify: error: {exc}", file=sys.stderr)
-        return 2
-    _print_summary(res)
-    print(f"glsim verify: wrote {Path(args.results) / 'verify.json'} and verify.md")
-    return 0
-
-
-if __name__ == "__main__":
-    sys.exit(main())

@@ -348,7 +348,7 @@ def _finite(v, key, fix) -> float:
 
 
 def _check_rotation(R) -> tuple:
-    fix = "give a proper rotation matrix, e.g. from a Rodrigues vector with glsim.camera.rodrigues(rvec)"
+    fix = "give a proper rotation matrix, e.g. from a Rodrigues vector with glsim.scene.camera.rodrigues(rvec)"
     m = np.asarray(R, dtype=np.float64) if _numeric(R) else np.full(1, np.nan)
     if m.shape != (3, 3) or not np.all(np.isfinite(m)):
         raise SceneError("R", f"must be a 3×3 matrix of finite numbers, got {R!r}", fix)

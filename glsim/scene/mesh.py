@@ -44,6 +44,8 @@ class Mesh:
     element_labels (M,) int64 as in the source file; displacements: one (N,3) float64
     array (mm) per load step, step 0 = undeformed (all zeros). Leaving displacements
     empty gives the single zero step. Arrays are stored as read-only copies.
+    step_times: the solver's time of each load step where the source stores one (an
+    Exodus II / .pvd / XDMF time series), None for a step without one; empty otherwise.
     """
 
     nodes: np.ndarray
@@ -51,6 +53,7 @@ class Mesh:
     node_labels: np.ndarray
     element_labels: np.ndarray
     displacements: tuple[np.ndarray, ...] = ()
+    step_times: tuple[float | None, ...] = ()
 
     def __post_init__(self):
         nodes = np.asarray(self.nodes)
@@ -77,13 +80,19 @@ class Mesh:
         steps = tuple(self.displacements) or (np.zeros((n, 3)),)
         for k, u in enumerate(steps):
             u = np.asarray(u)
-            if u.shape != (n, 3) or not np.isfinite(u).all():
-                raise SceneError(f"mesh.displacements[{k}]", f"shape {u.shape} or values are not ({n}, 3) finite",
-                                 "give one finite (N, 3) array per step")
+            if u.shape != (n, 3):
+                raise SceneError(f"mesh.displacements[{k}]", f"load step {k} has shape {u.shape}, not ({n}, 3)",
+                                 "give one (N, 3) array (ux, uy, uz per node) per step")
+            check_finite(u, np.asarray(self.node_labels), f"mesh.displacements[{k}]", f"load step {k}")
         if np.any(np.asarray(steps[0]) != 0):
             raise SceneError("mesh.displacements[0]", "step 0 is not all zeros",
                              "step 0 is the undeformed state; use with_displacements() to prepend it")
+        times = tuple(None if t is None else float(t) for t in self.step_times)
+        if times and len(times) != len(steps):
+            raise SceneError("mesh.step_times", f"{len(times)} times for {len(steps)} load steps",
+                             "give one time (or None) per load step, or none at all")
         set_ = object.__setattr__
+        set_(self, "step_times", times)
         set_(self, "nodes", _frozen(nodes, np.float64))
         set_(self, "quads", _frozen(quads, np.int64))
         set_(self, "node_labels", _frozen(self.node_labels, np.int64))
@@ -110,9 +119,22 @@ class Mesh:
         return self.nodes + self.displacements[step]
 
 
+def check_finite(u: np.ndarray, node_labels: np.ndarray, key: str, what: str) -> None:
+    """Raise SceneError naming ``what``, the count and the first node label where the (N, 3)
+    displacement ``u`` is NaN or infinite."""
+    bad = ~np.isfinite(np.asarray(u, dtype=np.float64)).all(axis=1)
+    if bad.any():
+        first = np.flatnonzero(bad)[0]
+        label = node_labels[first] if np.shape(node_labels) == (len(u),) else first + 1
+        raise SceneError(key, f"{what} has non-finite (NaN or inf) displacements at {int(bad.sum())} of "
+                         f"{len(u)} nodes, first at node label {int(label)}: {np.asarray(u)[first].tolist()}",
+                         "give finite numbers for every node (0 where a node does not move)")
+
+
 def with_displacements(mesh: Mesh, steps: Sequence[np.ndarray]) -> Mesh:
-    """New Mesh with displacements (zeros, *steps): `steps` are load steps 1..n, (N,3) mm."""
-    return dataclasses.replace(mesh, displacements=(np.zeros((mesh.n_nodes, 3)), *steps))
+    """New Mesh with displacements (zeros, *steps): `steps` are load steps 1..n, (N,3) mm
+    (and no step times)."""
+    return dataclasses.replace(mesh, displacements=(np.zeros((mesh.n_nodes, 3)), *steps), step_times=())
 
 
 # --- units and placement ----------------------------------------------------------------

@@ -1,4 +1,4 @@
-// Runs shaders/shade.glsl on a batch of points for comparison with glsim/shade.py in
+// Runs shaders/shade.glsl on a batch of points for comparison with glsim/effects/lighting.py in
 // tests/test_shade.py: per point, phong(X, N) and combine(grey, phong(X, N)).
 #include "shade.glsl"
 

@@ -20,6 +20,7 @@ from pathlib import Path
 import numpy as np
 
 from glsim.io import images as io
+from glsim.io.calibfiles import euler_xyz, write_rig_yaml
 from glsim.scene.camera import Camera, distort, normalized_to_pixel, pixel_rays, project
 from glsim.errors import SceneError
 from glsim.workflows.calib import library as libmod
@@ -94,8 +95,8 @@ def calibrate(object_points: list[np.ndarray], points1: list[np.ndarray], points
 
 
 def write_yaml(path, c: StereoCalibration) -> Path:
-    """The calibration as OpenCV YAML: library.write_rig_yaml's keys plus E, F and rms."""
-    return libmod.write_rig_yaml(path, c.K1, c.D1, c.K2, c.D2, c.R, c.T, c.image_size, E=c.E, F=c.F, rms=c.rms)
+    """The calibration as OpenCV YAML: :func:`~glsim.io.calibfiles.write_rig_yaml`'s keys plus E, F and rms."""
+    return write_rig_yaml(path, c.K1, c.D1, c.K2, c.D2, c.R, c.T, c.image_size, E=c.E, F=c.F, rms=c.rms)
 
 
 def rotation_angle(Ra: np.ndarray, Rb: np.ndarray) -> float:
@@ -113,7 +114,7 @@ def parameters(K1, D1, K2, D2, R, T) -> dict[str, float]:
         out.update({f"fx{i}": K[0, 0], f"fy{i}": K[1, 1], f"cx{i}": K[0, 2], f"cy{i}": K[1, 2],
                     f"k1_{i}": D[0], f"k2_{i}": D[1], f"p1_{i}": D[2], f"p2_{i}": D[3], f"k3_{i}": D[4]})
     out.update(dict(zip(("Tx", "Ty", "Tz"), np.ravel(T))))
-    out.update(dict(zip(("Theta", "Phi", "Psi"), libmod.matchid_angles(np.asarray(R)))))
+    out.update(dict(zip(("Theta", "Phi", "Psi"), euler_xyz(R))))
     return {k: float(v) for k, v in out.items()}
 
 

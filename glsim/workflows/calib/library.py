@@ -4,7 +4,7 @@ normal pipeline, with per-pair ground truth and the true rig calibration.
 Layout of a library directory::
 
     library.json          what was made: target, cameras, poses spec, render options, seed
-    rig.yaml              the true calibration, OpenCV FileStorage (see :func:`write_rig_yaml`)
+    rig.yaml              the true calibration, OpenCV FileStorage (see :func:`glsim.io.calibfiles.write_rig_yaml`)
     pairs/0000_cam0.tif   images, one per camera (8-bit TIFF for 8-bit cameras)
     pairs/0000.json       the pair's ground truth, written last (a pair is done when it exists)
 
@@ -15,7 +15,6 @@ from __future__ import annotations
 
 import dataclasses
 import json
-import math
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -24,6 +23,7 @@ from typing import Callable
 import numpy as np
 
 from glsim.io import images as io
+from glsim.io.calibfiles import opencv_distortion, write_rig_yaml
 from glsim.scene.camera import Camera, Distortion, project, stereo_pose
 from glsim.errors import SceneError
 from glsim.render import Renderer
@@ -137,61 +137,6 @@ def stereo_extrinsics(cam1: Camera, cam2: Camera) -> tuple[np.ndarray, np.ndarra
     """(R, T): camera 2 relative to camera 1, X_cam2 = R·X_cam1 + T (OpenCV's stereoCalibrate)."""
     R = cam2.rotation @ cam1.rotation.T
     return R, cam2.translation - R @ cam1.translation
-
-
-def matchid_angles(R: np.ndarray) -> tuple[float, float, float]:
-    """(Theta, Phi, Psi) degrees with R = Rz(Psi)·Ry(Phi)·Rx(Theta) (see camera.rotation_xyz)."""
-    phi = math.asin(max(-1.0, min(1.0, -R[2, 0])))
-    theta = math.atan2(R[2, 1], R[2, 2])
-    psi = math.atan2(R[1, 0], R[0, 0])
-    return math.degrees(theta), math.degrees(phi), math.degrees(psi)
-
-
-def write_rig_yaml(path, K1, D1, K2, D2, R, T, image_size, **extra) -> Path:
-    """OpenCV FileStorage YAML: image_size [W, H], K1 D1 K2 D2 (D = k1 k2 p1 p2 k3 …), R, T
-    (X_cam2 = R·X_cam1 + T, mm), the same extrinsics as MatchID's Tx Ty Tz (mm) and
-    Theta Phi Psi (deg), then ``extra`` (matrices or numbers). Written atomically."""
-    import cv2
-    path = Path(path)
-    with io.atomic_path(path) as tmp:
-        fs = cv2.FileStorage(str(tmp), cv2.FILE_STORAGE_WRITE)
-        fs.write("image_size", np.asarray(image_size, np.int32).reshape(1, 2))
-        for name, m in (("K1", K1), ("D1", D1), ("K2", K2), ("D2", D2), ("R", R), ("T", T)):
-            fs.write(name, np.asarray(m, np.float64).reshape(-1, 3) if name in ("K1", "K2", "R")
-                     else np.asarray(m, np.float64).reshape(1, -1) if name.startswith("D")
-                     else np.asarray(m, np.float64).reshape(3, 1))
-        for name, v in zip(("Tx", "Ty", "Tz"), np.ravel(T)):
-            fs.write(name, float(v))
-        for name, v in zip(("Theta", "Phi", "Psi"), matchid_angles(np.asarray(R, float))):
-            fs.write(name, v)
-        for name, v in extra.items():
-            fs.write(name, np.asarray(v, np.float64) if np.ndim(v) else float(v))
-        fs.release()
-    return path
-
-
-def read_rig_yaml(path) -> dict[str, np.ndarray]:
-    """The matrices of a rig YAML (K1 D1 K2 D2 R T image_size), as written by write_rig_yaml."""
-    import cv2
-    path = Path(path)
-    if not path.is_file():
-        raise SceneError(str(path), "file not found", "give a calibration YAML written by glsim calib")
-    fs = cv2.FileStorage(str(path), cv2.FILE_STORAGE_READ)
-    out = {k: fs.getNode(k).mat() for k in ("K1", "D1", "K2", "D2", "R", "T", "image_size")}
-    fs.release()
-    missing = [k for k, v in out.items() if v is None]
-    if missing:
-        raise SceneError(str(path), f"has no {', '.join(missing)}", "give a calibration YAML written by glsim calib")
-    out["D1"], out["D2"], out["T"] = out["D1"].ravel(), out["D2"].ravel(), out["T"].ravel()
-    out["image_size"] = tuple(int(v) for v in out["image_size"].ravel())
-    return out
-
-
-def opencv_distortion(cam: Camera) -> np.ndarray:
-    """The camera's coefficients as OpenCV's shortest sufficient distCoeffs (5, 8 or 12)."""
-    c = cam.distortion.coeffs
-    n = 12 if np.any(c[8:]) else 8 if np.any(c[5:8]) else 5
-    return c[:n]
 
 
 def write_true_rig(path, cam1: Camera, cam2: Camera) -> Path:

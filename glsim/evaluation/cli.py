@@ -1,0 +1,197 @@
+"""The evaluation command lines: ``glsim bench {accuracy,effects}`` and ``glsim verify {run,
+compare,sweep,sweep-compare,frontier,backends}``.
+
+Committed results live in ``bench/results``; only a full-size run writes there by default. A
+quick or reduced run writes to ``build/bench`` unless ``--out`` names another directory, and is
+refused with ``--out bench/results``, so the committed figures change only by a full run.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from pathlib import Path
+
+from glsim.errors import GLUnavailableError, GlsimError
+from glsim.io import images as io
+
+RESULTS = Path("bench/results")      # committed results (full runs only)
+SCRATCH = Path("build/bench")        # quick and reduced runs
+
+
+# ---- glsim verify sweep / sweep-compare / frontier / backends ----------------------------------
+def add_sweep_arguments(p: argparse.ArgumentParser) -> None:
+    """Options of ``glsim verify sweep``."""
+    from glsim.evaluation.sweep import DIC_PYTHON, DIC_SCRIPT, SIZE
+    p.add_argument("--exchange", default="build/sweep", help="exchange folder (default build/sweep)")
+    p.add_argument("--size", type=int, nargs=2, default=SIZE, metavar=("W", "H"),
+                   help="image size in px (the plate scales with it; default 512 512)")
+    p.add_argument("--backend", choices=("gl", "cpu"), default="gl")
+    p.add_argument("--python", default=str(DIC_PYTHON), help="interpreter with pyvale")
+    p.add_argument("--script", default=str(DIC_SCRIPT))
+    add_results_arguments(p)
+
+
+def add_results_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--results", default="bench/results", help="where sweep.* and frontier.png go")
+    p.add_argument("--accuracy", default=None, help="accuracy.json (default RESULTS/accuracy.json)")
+
+
+def add_backends_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("gl_json", help="sweep.json of a --backend gl sweep")
+    p.add_argument("cpu_json", help="sweep.json of a --backend cpu sweep")
+    p.add_argument("--results", default="bench/results", help="where sweep_backends.json/.md go")
+
+
+def sweep_command(args: argparse.Namespace) -> int:
+    """Run a parsed ``sweep``, ``sweep-compare``, ``frontier`` or ``backends`` command."""
+    from glsim.evaluation.sweep import MIN_SIZE, run_dic, write_exchange
+    from glsim.evaluation.sweep_report import _e, backend_agreement, backend_markdown, report
+
+    if args.command == "backends":
+        agreement = backend_agreement(*(json.loads(Path(p).read_text()) for p in (args.gl_json, args.cpu_json)))
+        out = Path(args.results)
+        io.write_text(out / "sweep_backends.json", json.dumps(agreement, indent=2) + "\n")
+        io.write_text(out / "sweep_backends.md", text := backend_markdown(agreement))
+        print(text)
+        return 0
+    try:
+        if args.command == "sweep":
+            if min(args.size) < MIN_SIZE:
+                raise GlsimError(f"--size {args.size[0]} {args.size[1]}: at least {MIN_SIZE} px per side is needed "
+                                 f"(smaller plates leave pyvale's DIC too few subsets); give e.g. --size 512 512")
+            t0 = time.perf_counter()
+            path = write_exchange(args.exchange, tuple(args.size), backend=args.backend)
+            print(f"glsim sweep: exchange folder {path.parent}/ written ({time.perf_counter() - t0:.1f} s)", flush=True)
+            seconds = run_dic(args.exchange, args.python, args.script)
+            print(f"glsim sweep: DIC {seconds:.1f} s", flush=True)
+        exchange = args.exchange if args.command in ("sweep", "sweep-compare") else None
+        if exchange is None and not Path(args.accuracy or Path(args.results) / "accuracy.json").is_file():
+            raise GlsimError(f"{args.accuracy or Path(args.results) / 'accuracy.json'} not found: "
+                             "run `glsim bench accuracy` first, or give --accuracy")
+        sweep = report(exchange, args.results, args.accuracy)
+    except GlsimError as exc:
+        print(f"glsim sweep: error: {exc}", file=sys.stderr)
+        return 2
+    if sweep is not None:
+        for r in sweep["results"]:
+            print(f"{r['sequence']:18s} {r['run']}: max |bias u| {r['max_abs_bias_u']:.2e} px, max std "
+                  f"{r['max_std_u']:.2e} px, max |u − u_model| {_e(r['max_abs_gen_u'])} px")
+    print(f"glsim sweep: wrote {args.results}/" + ("sweep.json, sweep.png, " if exchange else "")
+          + "sweep.md, frontier.png")
+    return 0
+
+
+# ---- glsim verify -------------------------------------------------------------------------------
+def verify_parser() -> argparse.ArgumentParser:
+    from glsim.evaluation.verify import DIC_PYTHON, DIC_SCRIPT, FULL_SIZE, MESH_DIVISIONS, SPECKLE_SIGMA_PX
+
+    ap = argparse.ArgumentParser(prog="glsim verify", description="the independent stereo-DIC check "
+                                 "(pyvale in .venv-verify), the rigid-body sweep and the frontier")
+    sub = ap.add_subparsers(dest="command", required=True)
+    run = sub.add_parser("run", help="render, run the DIC (verify/dic.py in .venv-verify), compare")
+    run.add_argument("--size", type=int, nargs=2, default=FULL_SIZE, metavar=("W", "H"),
+                     help="image size in px (the rig scales with it; default 1624 1234)")
+    run.add_argument("--exchange", default="build/verify", help="exchange folder (default build/verify)")
+    run.add_argument("--mesh-divisions", type=int, default=MESH_DIVISIONS)
+    run.add_argument("--sigma", type=float, default=SPECKLE_SIGMA_PX,
+                     help="speckle Gaussian low-pass, camera-1 px (0: none)")
+    run.add_argument("--backend", choices=("gl", "cpu"), default="gl")
+    run.add_argument("--python", default=str(DIC_PYTHON), help="interpreter with pyvale")
+    run.add_argument("--script", default=str(DIC_SCRIPT))
+    cmp_ = sub.add_parser("compare", help="compare an exchange folder's DIC results again")
+    cmp_.add_argument("exchange")
+    for p in (run, cmp_):
+        p.add_argument("--results", default="bench/results", help="where verify.json/.md go")
+    add_sweep_arguments(sub.add_parser("sweep", help="rigid-body sweep: render, verify/dic2d.py "
+                                       "(pyvale 2-D DIC), S-curves → bench/results/sweep.*"))
+    again = sub.add_parser("sweep-compare", help="report a sweep exchange folder's DIC results again")
+    again.add_argument("exchange")
+    add_results_arguments(again)
+    add_results_arguments(sub.add_parser("frontier", help="frontier.png and sweep.md from "
+                                         "accuracy.json (and sweep.json)"))
+    add_backends_arguments(sub.add_parser("backends", help="GL against the CPU oracle through "
+                                          "the DIC, from a gl and a cpu sweep.json"))
+    return ap
+
+
+def _print_summary(res: dict) -> None:
+    for run in res["runs"]:
+        for s in run["states"]:
+            cells = ", ".join(f"{r['dir']} {r['mean_px']:+.1e}±{r['std_px']:.1e}" for r in s["rows"])
+            print(f"{run['name']:12s} {s['label']:10s} px: {cells}")
+
+
+def verify_main(argv: list[str] | None = None) -> int:
+    """``glsim verify …``; returns the exit status."""
+    from glsim.evaluation.verify import report, run_dic, write_exchange
+
+    args = verify_parser().parse_args(argv)
+    if args.command in ("sweep", "sweep-compare", "frontier", "backends"):
+        return sweep_command(args)
+    try:
+        if args.command == "run":
+            path = write_exchange(args.exchange, args.size, args.mesh_divisions, args.sigma, backend=args.backend)
+            print(f"glsim verify: exchange folder {path.parent}/ written")
+            run_dic(args.exchange, args.python, args.script)
+        res = report(args.exchange, args.results)
+    except GlsimError as exc:
+        print(f"glsim verify: error: {exc}", file=sys.stderr)
+        return 2
+    _print_summary(res)
+    print(f"glsim verify: wrote {Path(args.results) / 'verify.json'} and verify.md")
+    return 0
+
+
+# ---- glsim bench -------------------------------------------------------------------------------
+def results_dir(out: str | None, full: bool, command: str) -> Path:
+    """Where a benchmark writes: ``--out`` if given, else bench/results for a full run and
+    build/bench otherwise; a reduced run aimed at the committed results is refused."""
+    if out is None:
+        return RESULTS if full else SCRATCH
+    if not full and Path(out).resolve() == RESULTS.resolve():
+        raise GlsimError(f"--out {out}: a quick or reduced `glsim bench {command}` would overwrite the committed "
+                         f"full-size results; leave out --out (it writes to {SCRATCH}) or run at full size")
+    return Path(out)
+
+
+def bench_main(argv: list[str]) -> int:
+    """``glsim bench accuracy [--size W H] [--reps N] [--out DIR] [--quick]`` and ``glsim bench
+    effects …``; returns the exit status."""
+    from glsim.evaluation import accuracy, effects
+
+    parser = argparse.ArgumentParser(prog="glsim bench")
+    sub = parser.add_subparsers(dest="command", required=True)
+    acc = sub.add_parser("accuracy", help="time and accuracy of every mode against the CPU oracle")
+    acc.add_argument("--size", nargs=2, type=int, metavar=("W", "H"),
+                     help="image size in px (default 1624 1234; with --quick 406 308)")
+    acc.add_argument("--reps", type=int, default=5, help="timed renders per row after one warm-up (default 5)")
+    acc.add_argument("--quick", action="store_true", help="small image and fewer combinations (CI smoke test)")
+    eff = sub.add_parser("effects", help="time per image of each optical effect, GL and CPU")
+    eff.add_argument("--size", nargs=2, type=int, metavar=("W", "H"), help="image size (default 1624 1234)")
+    eff.add_argument("--reps", type=int, default=5, help="timed renders per camera (default 5; CPU at most 2)")
+    for p, name in ((acc, "accuracy"), (eff, "effects")):
+        p.add_argument("--out", default=None, help=f"directory of {name}.json / {name}.md (default {RESULTS} for a "
+                       f"full-size run, {SCRATCH} otherwise)")
+    args = parser.parse_args(argv)
+    if args.reps < 1 or (args.size and min(args.size) < 2):
+        parser.error("--reps must be ≥ 1 and --size at least 2 2")
+    quick = getattr(args, "quick", False)
+    size = tuple(args.size) if args.size else (accuracy.QUICK_SIZE if quick else accuracy.FULL_SIZE)
+    try:
+        out = results_dir(args.out, size == accuracy.FULL_SIZE and not quick, args.command)
+        if args.command == "effects":
+            print(effects.write(effects.effects(size, args.reps), out))
+            return 0
+        report = accuracy.accuracy(size, args.reps, quick)
+    except GlsimError as exc:
+        print(f"glsim bench: error: {exc}", file=sys.stderr)
+        return 2 if not isinstance(exc, GLUnavailableError) else 1
+    report["targets"] = accuracy.targets(report)
+    text = accuracy.markdown(report)
+    out.mkdir(parents=True, exist_ok=True)
+    io.write_text(out / "accuracy.json", json.dumps(report, indent=2) + "\n")
+    io.write_text(out / "accuracy.md", text)
+    print(text)
+    return 0

@@ -1,0 +1,47 @@
+"""What every benchmark and verification report shares: the machine it ran on, the GL renderer,
+atomic writing of results files and figures."""
+from __future__ import annotations
+
+import os
+import platform
+from pathlib import Path
+
+from glsim.io import images as io
+from glsim.render import Renderer
+
+
+def cpu_model() -> str:
+    """The CPU's model name from /proc/cpuinfo (platform.processor() elsewhere)."""
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                return line.split(":", 1)[1].strip()
+    except OSError:
+        pass
+    return platform.processor() or "unknown"
+
+
+def machine_info(gl_info: dict) -> dict:
+    """Host name, CPU, core count, Python, and the GL vendor/renderer/version."""
+    return {"node": platform.node(), "cpu": cpu_model(), "cores": os.cpu_count(),
+            "python": platform.python_version(),
+            "gl": {k: gl_info[k] for k in ("vendor", "renderer", "version")}}
+
+
+def gl_info(renderer: Renderer) -> dict:
+    if renderer.backend_name != "gl":
+        return {"vendor": "-", "renderer": "CPU oracle (numpy float64)", "version": "-"}
+    from glsim.backends.gl.context import info
+    return info(renderer.backend.ctx)
+
+
+def save_figure(fig, path: str | Path, dpi: int) -> Path:
+    """Lay out, write atomically as PNG and close a matplotlib figure."""
+    import matplotlib.pyplot as plt
+
+    fig.tight_layout()
+    path = Path(path)
+    with io.atomic_path(path) as tmp:
+        fig.savefig(tmp, dpi=dpi, format="png")
+    plt.close(fig)
+    return path

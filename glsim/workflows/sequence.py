@@ -1,0 +1,209 @@
+"""Render a scene's cameras over its load steps into a directory: images, truth and the
+resolved ``scene.json``.
+
+Rules of the output directory (README "Output directory"):
+
+* Nothing is written until the whole scene and every input it names (mesh, displacement files,
+  reference image, noise table) has been read and checked, and the steps and cameras asked for
+  exist: an error leaves the directory as it was (and creates none).
+* A directory that is not empty must hold a render of the same scene (its ``scene.json`` equal
+  to this one): the render then resumes, keeping the images (with their truth) already there.
+  Anything else is refused unless ``force``: then the images and truth of the render there are
+  removed first (other files are kept) and everything is rendered anew.
+* An image and its truth maps appear together or not at all (see
+  :func:`glsim.io.images.write_image_with_truth`).
+"""
+from __future__ import annotations
+
+import dataclasses
+import json
+import os
+import re
+import string
+from dataclasses import dataclass
+from pathlib import Path
+
+from glsim.errors import SceneError
+from glsim.io import images as io
+from glsim.render import Renderer, Truth
+from glsim.scene import Scene
+
+TRUTH_MAPS = tuple(f.name for f in dataclasses.fields(Truth))
+
+
+@dataclass(frozen=True)
+class Written:
+    """What :func:`write_sequence` wrote: image paths, truth paths and seconds per render;
+    ``kept``: images of an earlier run of the same scene that were already there."""
+    images: tuple[str, ...]
+    truth: tuple[str, ...]
+    seconds: tuple[float, ...]
+    saturated: tuple[float, ...]      # per image: fraction of pixels clipped when written
+    scene_json: str
+    kept: tuple[str, ...] = ()
+    removed: tuple[str, ...] = ()     # files of an earlier render removed by force=True
+
+
+def write_sequence(scene: Scene, directory: str | None = None, steps=None, cameras=None,
+                   backend: str | None = None, truth: bool = False, progress=None,
+                   truth_format: str = "npz", force: bool = False) -> Written:
+    """Render every camera at every step and write the images (and truth maps) atomically.
+
+    ``backend`` overrides ``[render] backend`` (and is recorded in ``scene.json``). Truth maps
+    go to one ``*_truth.npz`` per image, or with ``truth_format="tiff"`` (float32) or
+    ``"tiff64"`` (float64) to one TIFF per map. ``force`` replaces a render of another scene
+    in ``directory`` (see the module text). ``progress(done, total, path)`` is called after
+    each image. Returns what was written.
+    """
+    if truth_format not in io.TRUTH_FORMATS:
+        raise SceneError("truth_format", f"{truth_format!r} is not one of {io.TRUTH_FORMATS}",
+                         f"use one of {', '.join(io.TRUTH_FORMATS)}")
+    if backend and backend != scene.render.backend:
+        scene = scene.replace(render={"backend": backend})
+    out = Path(directory or scene.resolve(scene.output.directory))
+    resume = _check_directory(out, scene, force)
+    ext = io.EXTENSIONS[scene.output.format]
+    with Renderer(scene) as r:                      # reads and checks mesh, steps' files, reference
+        n = r.mesh.n_steps
+        steps = list(range(n)) if steps is None else list(steps)
+        for s in steps:
+            if not 0 <= s < n:
+                raise SceneError("steps", f"step {s} does not exist (the scene has steps 0…{n - 1})",
+                                 f"use steps from 0…{n - 1}, e.g. --steps 0-{n - 1}")
+        cams = [scene.camera(c) for c in (cameras if cameras is not None else range(len(scene.cameras)))]
+        _check_effect_inputs(scene, cams)
+        # Everything is read and checked: from here on files are written.
+        removed = _remove_previous(out, scene) if force and not resume else []
+        scene_json = io.write_text(out / "scene.json", scene.to_json())
+        images, truths, seconds, saturated, kept = [], [], [], [], []
+        total = len(cams) * len(steps)
+        for step in steps:
+            for cam in cams:
+                path = out / scene.output.pattern.format(camera=cam.name, step=step, ext=ext)
+                want = io.truth_paths(path, TRUTH_MAPS, truth_format) if truth else []
+                if resume and path.is_file() and all(p.is_file() for p in want):
+                    kept.append(str(path))
+                else:
+                    res = r.render(cam.name, step, truth=truth)
+                    img, tps = io.write_image_with_truth(path, res.image, cam.bit_depth, scene.output.format,
+                                                         res.truth.as_dict() if truth else None, truth_format)
+                    images.append(str(img))
+                    truths += map(str, tps)
+                    seconds.append(res.seconds)
+                    saturated.append(res.saturated)
+                if progress:
+                    progress(len(images) + len(kept), total, str(path))
+    return Written(tuple(images), tuple(truths), tuple(seconds), tuple(saturated), str(scene_json),
+                   tuple(kept), tuple(map(str, removed)))
+
+
+def _check_effect_inputs(scene: Scene, cams) -> None:
+    """Read the files the effects need at render time (the noise variance table)."""
+    nz = scene.noise
+    if nz is not None and nz.model == "heteroscedastic":
+        from glsim.effects import noise as noisemod
+        for bits in sorted({c.bit_depth for c in cams}):
+            noisemod.load_variance_table(scene.resolve(nz.variance_file), bits)
+
+
+# --- the output directory ----------------------------------------------------------------------
+
+FORCE_FIX = ("write to a new directory (-o), or pass --force (force=True) to replace the render there "
+             "(its images and truth are removed first; other files are kept)")
+
+
+def _check_directory(out: Path, scene: Scene, force: bool) -> bool:
+    """True to resume a render of the same scene in ``out``; False for a new render. Raises
+    SceneError for a directory holding something else, unless ``force``."""
+    if out.exists() and not out.is_dir():
+        raise SceneError(str(out), "is a file, not a directory", "give a directory for the images")
+    if not out.is_dir() or not any(out.iterdir()):
+        return False
+    old = _read_json(out / "scene.json")
+    new = json.loads(scene.to_json())
+    if old == new:
+        return not force
+    if force:
+        return False
+    if old is None and (out / "scene.json").exists():
+        problem = "holds a scene.json that is not glsim's"
+    elif old is None:
+        names = sorted(p.name for p in out.iterdir())
+        shown = ", ".join(names[:3]) + (", …" if len(names) > 3 else "")
+        problem = f"is not empty ({len(names)} entries: {shown}) and holds no scene.json of a render"
+    else:
+        problem = f"holds a render of another scene (scene.json differs: {_first_difference(old, new)})"
+    raise SceneError(str(out), problem, FORCE_FIX)
+
+
+def _read_json(path: Path):
+    try:
+        data = json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, ValueError, UnicodeDecodeError):
+        return None
+    return data if isinstance(data, dict) else None
+
+
+def _first_difference(old, new, key: str = "") -> str:
+    """The first key whose value differs, as ``key: X there, Y now``."""
+    if isinstance(old, dict) and isinstance(new, dict):
+        for k in list(new) + [k for k in old if k not in new]:
+            if old.get(k, _MISSING) != new.get(k, _MISSING):
+                return _first_difference(old.get(k, _MISSING), new.get(k, _MISSING), f"{key}.{k}" if key else k)
+    if isinstance(old, list) and isinstance(new, list) and len(old) == len(new):
+        for i, (a, b) in enumerate(zip(old, new)):
+            if a != b:
+                return _first_difference(a, b, f"{key}[{i}]")
+    show = lambda v: "absent" if v is _MISSING else _short(v)  # noqa: E731
+    return f"{key or 'the scene'} is {show(old)} there, {show(new)} now"
+
+
+_MISSING = object()
+
+
+def _short(value) -> str:
+    text = json.dumps(value)
+    return text if len(text) <= 60 else text[:57] + "…"
+
+
+def _image_regex(data: dict) -> re.Pattern:
+    """The relative paths of the images a scene (as in its scene.json) names, as a regex."""
+    output = data.get("output") or {}
+    pattern = output.get("pattern", "{camera}_{step:04d}.{ext}")
+    ext = io.EXTENSIONS.get(output.get("format", "tiff"), "tif")
+    names = [c.get("name", "") for c in data.get("cameras", []) if isinstance(c, dict)]
+    fields = {"camera": "(?:" + "|".join(map(re.escape, names or ["[^/]+"])) + ")", "step": r"-?\d+",
+              "ext": re.escape(ext)}
+    regex = ""
+    for literal, field, _, _ in string.Formatter().parse(pattern):
+        regex += re.escape(literal) + (fields.get(field, "[^/]*") if field is not None else "")
+    return re.compile(regex)
+
+
+def _is_output(rel: str, regexes) -> bool:
+    """Whether ``rel`` (relative posix path) is an image, truth file or leftover temporary of them."""
+    parent, _, name = rel.rpartition("/")
+    if name.startswith(".") and ".part" in name:          # a temporary of an interrupted write
+        name = name[1:].rpartition(".part")[0].rpartition(".")[0]
+    candidates = [name]
+    stem, sep, _ = name.rpartition("_truth")
+    if sep:
+        candidates += [f"{stem}.{e}" for e in io.EXTENSIONS.values()]
+    return any(rx.fullmatch(f"{parent}/{c}" if parent else c) for rx in regexes for c in candidates)
+
+
+def _remove_previous(out: Path, scene: Scene) -> list[Path]:
+    """Remove the images, truth files and temporaries of the render in ``out`` (as named by its
+    scene.json, and by this scene); other files stay."""
+    if not out.is_dir():
+        return []
+    regexes = [_image_regex(json.loads(scene.to_json()))]
+    old = _read_json(out / "scene.json")
+    if old is not None:
+        regexes.append(_image_regex(old))
+    removed = []
+    for p in sorted(out.rglob("*")):
+        if p.is_file() and _is_output(p.relative_to(out).as_posix(), regexes):
+            os.unlink(p)
+            removed.append(p)
+    return removed

@@ -1,0 +1,35 @@
+"""The package layout the README's "Layout" section states: layers import only downwards (or
+within their own folder), and only the GL backend imports moderngl."""
+import ast
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1] / "glsim"
+LAYERS = ("errors", "scene", "io", "stages", "effects", "backends", "render", "workflows", "evaluation", "cli")
+
+
+def _imports(path: Path) -> set[str]:
+    names = set()
+    for node in ast.walk(ast.parse(path.read_text())):
+        if isinstance(node, ast.ImportFrom) and node.module:
+            names.add(node.module)
+        elif isinstance(node, ast.Import):
+            names.update(a.name for a in node.names)
+    return names
+
+
+def _layer(module: str) -> str:
+    return module.split(".")[1] if module.count(".") else ""
+
+
+def test_layers_import_only_downwards_and_gl_alone_imports_moderngl():
+    upward, moderngl = [], []
+    for f in ROOT.rglob("*.py"):
+        mod = ".".join(("glsim",) + f.relative_to(ROOT).with_suffix("").parts)
+        own = _layer(mod) or "cli"
+        for name in _imports(f):
+            if name.split(".")[0] == "moderngl" and not mod.startswith("glsim.backends.gl"):
+                moderngl.append(mod)
+            if name.startswith("glsim.") and LAYERS.index(_layer(name)) > LAYERS.index(own.removesuffix(".py")):
+                upward.append(f"{mod} imports {name}")
+    assert not moderngl, f"moderngl imported outside glsim.backends.gl: {moderngl}"
+    assert not upward, "imports against the layer order " + " → ".join(LAYERS) + ":\n" + "\n".join(sorted(upward))
