@@ -1,6 +1,8 @@
 """Stage "write": quantised images, truth maps and the resolved scene, written atomically
 (temporary name in the same directory, then rename), so an interrupted run leaves no
-truncated file."""
+truncated file. An image and its truth maps are written as one group
+(:func:`write_image_with_truth`): all under temporary names, then renamed truth first and the
+image last, so an image on disk always has its complete truth beside it."""
 from __future__ import annotations
 
 import contextlib
@@ -13,24 +15,40 @@ import numpy as np
 from glsim.errors import SceneError
 
 EXTENSIONS = {"tiff": "tif", "png": "png"}
+TRUTH_FORMATS = ("npz", "tiff", "tiff64")   # tiff: float32 maps; tiff64: float64 maps
+
+
+@contextlib.contextmanager
+def atomic_paths(paths):
+    """Yield temporary paths next to each of ``paths``; on success rename them onto ``paths``
+    in the order given (put the file whose presence marks the group complete last). On any
+    exception, KeyboardInterrupt included, every temporary file is removed and nothing renamed."""
+    paths = [Path(p) for p in paths]
+    tmps = []
+    try:
+        for path in paths:
+            path.parent.mkdir(parents=True, exist_ok=True)
+            fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".part" + path.suffix, dir=path.parent)
+            os.close(fd)
+            tmps.append(Path(tmp))
+        yield list(tmps)
+        umask = os.umask(0)
+        os.umask(umask)
+        for tmp, path in zip(tmps, paths):
+            os.chmod(tmp, 0o666 & ~umask)
+        for tmp, path in zip(tmps, paths):
+            os.replace(tmp, path)
+    finally:
+        for tmp in tmps:
+            if os.path.exists(tmp):
+                os.unlink(tmp)
 
 
 @contextlib.contextmanager
 def atomic_path(path: str | Path):
     """Yield a temporary path next to ``path``; rename it onto ``path`` only on success."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".part" + path.suffix, dir=path.parent)
-    os.close(fd)
-    try:
-        yield Path(tmp)
-        umask = os.umask(0)
-        os.umask(umask)
-        os.chmod(tmp, 0o666 & ~umask)  # mkstemp makes it private (0600); use the usual mode
-        os.replace(tmp, path)
-    finally:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
+    with atomic_paths([path]) as (tmp,):
+        yield tmp
 
 
 def quantize(image: np.ndarray, bit_depth: int) -> np.ndarray:
@@ -43,45 +61,96 @@ def quantize(image: np.ndarray, bit_depth: int) -> np.ndarray:
     return q.astype(np.uint8 if bit_depth == 8 else np.uint16)
 
 
+def _image_file(tmp: Path, data: np.ndarray, fmt: str) -> None:
+    if fmt == "tiff":
+        import tifffile
+        tifffile.imwrite(tmp, data, photometric="minisblack")
+    elif fmt == "png":
+        import imageio.v3 as iio
+        iio.imwrite(tmp, data, extension=".png")
+    else:
+        raise SceneError("output.format", f"{fmt!r} is not supported", "use 'tiff' or 'png'")
+
+
 def write_image(path: str | Path, image: np.ndarray, bit_depth: int, fmt: str = "tiff") -> Path:
     """Quantise and write one grey image (TIFF or PNG) atomically; returns the path."""
     data = quantize(image, bit_depth)
     path = Path(path)
     with atomic_path(path) as tmp:
-        if fmt == "tiff":
-            import tifffile
-            tifffile.imwrite(tmp, data, photometric="minisblack")
-        elif fmt == "png":
-            import imageio.v3 as iio
-            iio.imwrite(tmp, data, extension=".png")
-        else:
-            raise SceneError("output.format", f"{fmt!r} is not supported", "use 'tiff' or 'png'")
+        _image_file(tmp, data, fmt)
     return path
+
+
+def _npz_file(tmp: Path, arrays: dict[str, np.ndarray]) -> None:
+    with open(tmp, "wb") as f:
+        np.savez_compressed(f, **arrays)
 
 
 def write_truth(path: str | Path, arrays: dict[str, np.ndarray]) -> Path:
     """Write truth maps as one compressed .npz, atomically."""
     path = Path(path)
     with atomic_path(path) as tmp:
-        with open(tmp, "wb") as f:
-            np.savez_compressed(f, **arrays)
+        _npz_file(tmp, arrays)
     return path
 
 
-def write_truth_tiff(stem: str | Path, arrays: dict[str, np.ndarray]) -> list[Path]:
-    """Write each truth map as a float32 TIFF ``{stem}_{name}.tif`` (multi-channel maps as
-    (H, W, C); the mask and element index as integers), atomically; returns the paths."""
-    import tifffile
+TRUTH_TIFF_DTYPES = ("float32", "float64")
 
-    paths = []
-    for name, a in arrays.items():
-        path = Path(f"{stem}_{name}.tif")
-        data = a.astype(np.uint8 if a.dtype == bool else np.int32 if a.dtype.kind == "i" else np.float32)
-        with atomic_path(path) as tmp:
-            # channels as samples of one page (H, W, C), not as RGB
-            tifffile.imwrite(tmp, data, photometric="minisblack", planarconfig="contig" if data.ndim == 3 else None)
-        paths.append(path)
+
+def _tiff_map(tmp: Path, a: np.ndarray, float_dtype: str = "float32") -> None:
+    import tifffile
+    data = a.astype(np.uint8 if a.dtype == bool else np.int32 if a.dtype.kind == "i" else float_dtype)
+    # channels as samples of one page (H, W, C), not as RGB
+    tifffile.imwrite(tmp, data, photometric="minisblack", planarconfig="contig" if data.ndim == 3 else None)
+
+
+def truth_tiff_paths(stem: str | Path, names) -> list[Path]:
+    """The files :func:`write_truth_tiff` writes for the maps ``names``."""
+    return [Path(f"{stem}_{name}.tif") for name in names]
+
+
+def write_truth_tiff(stem: str | Path, arrays: dict[str, np.ndarray], float_dtype: str = "float32") -> list[Path]:
+    """Write each truth map as a float TIFF ``{stem}_{name}.tif`` (float32 by default, or
+    ``float_dtype="float64"``; multi-channel maps as (H, W, C); the mask and element index as
+    integers), atomically as one group; returns the paths."""
+    paths = truth_tiff_paths(stem, arrays)
+    with atomic_paths(paths) as tmps:
+        for tmp, a in zip(tmps, arrays.values()):
+            _tiff_map(tmp, a, float_dtype)
     return paths
+
+
+def truth_paths(image_path: str | Path, names, truth_format: str = "npz") -> list[Path]:
+    """The truth files that go with ``image_path``: ``{stem}_truth.npz``, or for
+    ``truth_format`` "tiff"/"tiff64" one ``{stem}_truth_{name}.tif`` per map in ``names``."""
+    p = Path(image_path)
+    if truth_format == "npz":
+        return [p.with_name(p.stem + "_truth.npz")]
+    return truth_tiff_paths(p.with_name(p.stem + "_truth"), names)
+
+
+def write_image_with_truth(path: str | Path, image: np.ndarray, bit_depth: int, fmt: str = "tiff",
+                           truth: dict[str, np.ndarray] | None = None,
+                           truth_format: str = "npz") -> tuple[Path, list[Path]]:
+    """Write an image and its truth maps together or not at all: every file under a
+    temporary name first, then renamed truth first and the image last (so an image on disk
+    always has its whole truth). ``truth_format``: "npz" (one compressed file, float64),
+    "tiff" (one float32 TIFF per map) or "tiff64" (float64 TIFFs). Returns (image, truth paths)."""
+    if truth_format not in TRUTH_FORMATS:
+        raise SceneError("truth_format", f"{truth_format!r} is not one of {TRUTH_FORMATS}",
+                         f"use one of {', '.join(TRUTH_FORMATS)}")
+    data = quantize(image, bit_depth)
+    path = Path(path)
+    tpaths = truth_paths(path, truth or {}, truth_format) if truth is not None else []
+    with atomic_paths([*tpaths, path]) as tmps:
+        if truth is not None and truth_format == "npz":
+            _npz_file(tmps[0], truth)
+        elif truth is not None:
+            dtype = "float64" if truth_format == "tiff64" else "float32"
+            for tmp, a in zip(tmps, truth.values()):
+                _tiff_map(tmp, a, dtype)
+        _image_file(tmps[-1], data, fmt)
+    return path, tpaths
 
 
 def write_text(path: str | Path, text: str) -> Path:

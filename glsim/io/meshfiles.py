@@ -3,6 +3,7 @@ Gmsh, …): Q4 quads, T3 triangles (collapsed quads), the outer faces of hex8/te
 per-step displacements from point data, one file per step, or ``label;ux;uy;uz`` CSV files."""
 from __future__ import annotations
 
+import json
 from pathlib import Path
 from typing import Sequence
 
@@ -10,7 +11,7 @@ import meshio
 import numpy as np
 
 from glsim.errors import SceneError
-from glsim.scene.mesh import Mesh, place_mesh, quad_normals, with_displacements
+from glsim.scene.mesh import Mesh, check_finite, place_mesh, quad_normals, with_displacements
 
 SOLID_FIX = "use linear quad/triangle shells or hexahedron/tetra solids (outer faces are rendered)"
 
@@ -132,26 +133,35 @@ def _surface(path: Path, raw, nodes: np.ndarray, element_labels: list[np.ndarray
     return np.concatenate(quads), np.concatenate(labels)
 
 
-def _vector_field(array, n: int, key: str, name: str) -> np.ndarray:
-    """Point-data array (N,3) or (N,2) → (N,3); anything else raises SceneError."""
+def _vector_field(array, n: int, key: str, name: str, step: int, node_labels: np.ndarray) -> np.ndarray:
+    """Point-data array ``name`` → the (N,3) displacement of load ``step``; 2-component or
+    otherwise shaped arrays and non-finite values raise SceneError naming the array."""
     array = np.asarray(array, dtype=np.float64)
-    if array.ndim != 2 or array.shape[0] != n or array.shape[1] not in (2, 3):
-        raise SceneError(key, f"point data {name!r} has shape {array.shape}, not ({n}, 3) or ({n}, 2)",
-                         "give a displacement vector per node")
-    return _xyz(array)
+    if array.ndim == 2 and array.shape == (n, 2):
+        raise SceneError(key, f"point-data array {name!r} (load step {step}) has 2 components per node, "
+                         "not 3 (ux, uy, uz)", "write the displacement with 3 components (uz = 0 for a "
+                         "plane field); glsim does not guess which plane 2 components lie in")
+    if array.ndim != 2 or array.shape != (n, 3):
+        raise SceneError(key, f"point-data array {name!r} (load step {step}) has shape {array.shape}, "
+                         f"not ({n}, 3)", "give a displacement vector (ux, uy, uz) per node")
+    check_finite(array, node_labels, key, f"point-data array {name!r} (load step {step})")
+    return array
 
 
-def _point_data_steps(path: Path, raw, names: Sequence[str]) -> list[np.ndarray]:
+def _point_data_steps(path: Path, raw, names: Sequence[str], node_labels: np.ndarray) -> list[np.ndarray]:
     steps = []
-    for name in names:
+    for i, name in enumerate(names):
         if name not in raw.point_data:
-            raise SceneError(str(path), f"no point-data array {name!r} (has: {', '.join(raw.point_data) or 'none'})",
-                             "set point_data_steps to names from that list")
-        steps.append(_vector_field(raw.point_data[name], len(raw.points), str(path), name))
+            have = list(raw.point_data)
+            raise SceneError(str(path), f"has no point-data array {name!r} (point_data[{i}], load step {i + 1}); "
+                             f"it has: {', '.join(have) or 'none'}",
+                             "set specimen.mesh.point_data to names from that list, one array per load step "
+                             f"after the reference, e.g. {json.dumps(have[:3] or ['u1', 'u2', 'u3'])}")
+        steps.append(_vector_field(raw.point_data[name], len(raw.points), str(path), name, i + 1, node_labels))
     return steps
 
 
-def _file_step(path, n: int, field: str | None) -> np.ndarray:
+def _file_step(path, n: int, field: str | None, step: int, node_labels: np.ndarray) -> np.ndarray:
     """Displacement (N,3) from the point data of a mesh file with the same nodes in the same order."""
     raw = _read_meshio(path)
     key = str(path)
@@ -162,20 +172,21 @@ def _file_step(path, n: int, field: str | None) -> np.ndarray:
         vectors = [k for k, v in raw.point_data.items() if np.shape(v) == (n, 3)]
         if len(vectors) != 1:
             raise SceneError(key, f"found {len(vectors)} 3-vector point-data arrays ({', '.join(vectors) or 'none'})",
-                             "set field to the displacement array's name")
+                             "set field (specimen.mesh.field) to the displacement array's name")
         field = vectors[0]
     if field not in raw.point_data:
         raise SceneError(key, f"no point-data array {field!r} (has: {', '.join(raw.point_data) or 'none'})",
-                         "set field to a name from that list")
-    return _vector_field(raw.point_data[field], n, key, field)
+                         "set field (specimen.mesh.field) to a name from that list")
+    return _vector_field(raw.point_data[field], n, key, field, step, node_labels)
 
 
-def _csv_step(path, node_labels: np.ndarray) -> np.ndarray:
+def _csv_step(path, node_labels: np.ndarray, step: int = 1) -> np.ndarray:
     """Displacement (N,3) from a CSV of `label;ux;uy;uz` lines (',' also accepted, one header line allowed)."""
     path = _require_file(path)
     index = {int(label): i for i, label in enumerate(node_labels)}
     u = np.zeros((len(node_labels), 3))
     given = np.zeros(len(node_labels), dtype=bool)
+    bad: list = []          # (line, label, values) of non-finite displacements
     seen_data = False
     with open(path) as f:
         for lineno, line in enumerate(f, 1):
@@ -199,14 +210,18 @@ def _csv_step(path, node_labels: np.ndarray) -> np.ndarray:
                                  "use the mesh file's node labels")
             if given[index[label]]:
                 raise SceneError(f"{path}:{lineno}", f"node label {label} appears twice", "give one line per node")
+            if not np.isfinite(values).all():
+                bad.append((lineno, label, values))
             u[index[label]], given[index[label]] = values, True
     missing = np.flatnonzero(~given)
     if len(missing):
         first = ", ".join(str(label) for label in node_labels[missing[:5]])
         raise SceneError(str(path), f"{len(missing)} mesh nodes have no displacement (labels {first}"
                          f"{', …' if len(missing) > 5 else ''})", "give one line per mesh node")
-    if not np.isfinite(u).all():
-        raise SceneError(str(path), "contains non-finite displacements", "give finite numbers")
+    if bad:
+        lineno, label, values = bad[0]
+        raise SceneError(f"{path}:{lineno}", f"load step {step}: non-finite (NaN or inf) displacement {values} of "
+                         f"node label {label} ({len(bad)} such lines in the file)", "give finite numbers for every node")
     return u
 
 
@@ -222,8 +237,10 @@ def load_mesh(path, unit: str = "mm", R=None, t=None, point_data_steps: Sequence
 
     Load steps 1..n come from at most one of: point_data_steps (point-data names in this
     file), displacement_files (one mesh file per step, point data `field`, default the only
-    3-vector array) or csv_files (one `label;ux;uy;uz` file per step). Coordinates and
-    displacements are in `unit`, then placed by place(…, unit, R, t).
+    3-vector array) or csv_files (one `label;ux;uy;uz` file per step). Each step's
+    displacement is the total from the reference (step 0), not an increment, with 3
+    components per node (2-component arrays are refused). Coordinates and displacements are
+    in `unit`, then placed by place(…, unit, R, t).
     """
     sources = [s for s in (point_data_steps, displacement_files, csv_files) if s is not None]
     if len(sources) > 1:
@@ -235,11 +252,11 @@ def load_mesh(path, unit: str = "mm", R=None, t=None, point_data_steps: Sequence
     node_labels, element_labels = _labels(path, raw)
     quads, labels = _surface(path, raw, nodes, element_labels)
     if point_data_steps is not None:
-        steps = _point_data_steps(path, raw, point_data_steps)
+        steps = _point_data_steps(path, raw, point_data_steps, node_labels)
     elif displacement_files is not None:
-        steps = [_file_step(p, len(nodes), field) for p in displacement_files]
+        steps = [_file_step(p, len(nodes), field, k, node_labels) for k, p in enumerate(displacement_files, 1)]
     else:
-        steps = [_csv_step(p, node_labels) for p in csv_files or ()]
+        steps = [_csv_step(p, node_labels, k) for k, p in enumerate(csv_files or (), 1)]
     try:
         mesh = with_displacements(Mesh(nodes, quads, node_labels, labels), steps)
     except SceneError as exc:

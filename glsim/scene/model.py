@@ -27,6 +27,9 @@ PRECISIONS = ("fp32", "fp64")
 FORMATS = ("tiff", "png")
 
 
+GENERATOR_KEYS = ("dot_diameter_px", "density", "oversample", "edge_px", "seed")
+
+
 @dataclass(frozen=True)
 class Speckle:
     """The reference speckle image and the virtual reference camera that "took" it.
@@ -47,6 +50,13 @@ class Speckle:
     seed: int = 0
 
     def __post_init__(self):
+        if self.image:   # the generator's settings would be ignored without a word
+            for f in dataclasses.fields(self):
+                if f.name in GENERATOR_KEYS and getattr(self, f.name) != f.default:
+                    raise SceneError(f"speckle.{f.name}", f"is a setting of the built-in speckle generator, "
+                                     f"which is not used with speckle.image = {self.image!r}",
+                                     f"remove {f.name} (the image is used as it is), or remove image to "
+                                     f"generate the pattern")
         _check(self.mm_per_px >= 0, "speckle.mm_per_px", f"must be ≥ 0, got {self.mm_per_px}",
                "give the reference image scale in mm per pixel (0 = automatic)")
         _check(not self.image or self.camera is not None or self.mm_per_px > 0, "speckle.mm_per_px",
@@ -345,6 +355,13 @@ class Pose:
                    f"{whole} sets the whole pose: remove the other keys")
         _check(self.R is None or self.rvec is None, "rvec", "R is given too",
                "give the rotation either as R or as rvec")
+        if self.rvec is not None:
+            angle = float(np.linalg.norm(self.rvec))
+            _check(angle <= math.pi + 1e-9, "rvec",
+                   f"{list(self.rvec)} turns by |rvec| = {angle:.4g} rad ({math.degrees(angle):.4g}°), "
+                   f"more than π: it looks like degrees",
+                   f"rvec is in radians (axis × angle): write {_radians(self.rvec)} for these degrees, "
+                   f"or give the rotation as R")
         if self.R is not None:
             _check_rotation(self.R)
 
@@ -437,6 +454,10 @@ class Scene:
     def to_json(self) -> str:
         return json.dumps(self.to_dict(), indent=2)
 
+
+
+def _radians(degrees) -> str:
+    return "[" + ", ".join(f"{math.radians(v):.4g}" for v in degrees) + "]"
 
 
 def _check(ok: bool, key: str, problem: str, fix: str) -> None:

@@ -3,6 +3,7 @@ image with the virtual reference camera that took it (paper §2.1, Fig. 1)."""
 from __future__ import annotations
 
 import math
+import warnings
 from dataclasses import dataclass
 
 import numpy as np
@@ -10,7 +11,7 @@ import numpy as np
 from glsim.scene import mesh as meshmod
 from glsim.scene import speckle
 from glsim.scene.camera import Camera, look_at, project_camera_frame, to_camera
-from glsim.errors import SceneError
+from glsim.errors import RenderWarning, SceneError
 from glsim.io.meshfiles import load_mesh
 from glsim.scene import Scene
 
@@ -98,11 +99,63 @@ def make_reference(scene: Scene, mesh: meshmod.Mesh) -> Reference:
                                  f"{image.shape[::-1]}", "give the reference image's size")
         else:  # the scene requires mm_per_px > 0 when there is no camera
             cam = _auto_camera(mesh.nodes, cam1.center, sp.mm_per_px, image.shape[::-1])
+        check_coverage(mesh, cam, sp.mm_per_px if sp.camera is None else 0.0)
         return Reference(image, cam)
     cam_mm_per_px = camera_scale(cam1, mesh.nodes)
     mm_per_px = sp.mm_per_px or cam_mm_per_px / sp.oversample
     cam = sp.camera or _auto_camera(mesh.nodes, cam1.center, mm_per_px, None)
+    if sp.camera is not None:
+        check_coverage(mesh, cam)
     dot = sp.dot_diameter_px * cam_mm_per_px / mm_per_px
     dots = speckle.draw_dots((cam.height, cam.width), dot, sp.density, seed=sp.seed,
                              edge_px=min(sp.edge_px * cam_mm_per_px / mm_per_px, dot))
     return Reference(speckle.rasterize(dots), cam, dots)
+
+
+def coverage(mesh: meshmod.Mesh, cam: Camera, n: int = 4) -> float:
+    """The fraction of the undeformed specimen's area that ``cam`` (the reference camera) sees
+    inside its image, from n×n points per element weighted by element area."""
+    q = mesh.nodes[mesh.quads]                                        # (M, 4, 3)
+    g = (np.arange(n) + 0.5) / n * 2 - 1
+    xi, eta = (a.ravel() for a in np.meshgrid(g, g))
+    w = np.stack([(1 - xi) * (1 - eta), (1 + xi) * (1 - eta), (1 + xi) * (1 + eta), (1 - xi) * (1 + eta)], 1) / 4
+    pts = np.einsum("sk,mkd->msd", w, q)                              # (M, n², 3)
+    area = 0.5 * (np.linalg.norm(np.cross(q[:, 1] - q[:, 0], q[:, 2] - q[:, 0]), axis=1)
+                  + np.linalg.norm(np.cross(q[:, 2] - q[:, 0], q[:, 3] - q[:, 0]), axis=1))
+    uv, ok = project_camera_frame(to_camera(pts, cam), cam)
+    W, H = cam.size
+    inside = ok & (uv[..., 0] >= -0.5) & (uv[..., 0] <= W - 0.5) & (uv[..., 1] >= -0.5) & (uv[..., 1] <= H - 0.5)
+    total = float(area.sum()) * n * n
+    return float((inside * area[:, None]).sum() / total) if total > 0 else 1.0
+
+
+def check_coverage(mesh: meshmod.Mesh, cam: Camera, mm_per_px: float = 0.0, tolerance: float = 1e-3) -> float:
+    """Warn (RenderWarning, with the numbers) when the reference image does not cover the
+    specimen: the specimen outside it renders as background and is masked in the truth.
+    ``mm_per_px``: the image scale, for the message, when the reference camera is automatic
+    (the image is then centred on the specimen). Returns the covered fraction."""
+    frac = coverage(mesh, cam)
+    if frac >= 1.0 - tolerance:
+        return frac
+    uv, ok = project_camera_frame(to_camera(mesh.nodes, cam), cam)
+    W, H = cam.size
+    lo, hi = uv[ok].min(axis=0), uv[ok].max(axis=0)
+    where = f"the specimen's reference view spans u {lo[0]:.0f}…{hi[0]:.0f}, v {lo[1]:.0f}…{hi[1]:.0f} px"
+    key = "speckle.image"
+    if mm_per_px > 0:
+        need = [int(math.ceil(2 * max(abs(lo[i] - c), abs(hi[i] - c)))) + 1
+                for i, c in ((0, cam.cx), (1, cam.cy))]
+        scale = mm_per_px * max(need[0] / W, need[1] / H)
+        where = (f"the image is {W}×{H} px = {W * mm_per_px:.4g}×{H * mm_per_px:.4g} mm at {mm_per_px:g} mm/px, "
+                 f"centred on the specimen, whose reference view spans {(hi[0] - lo[0]) * mm_per_px:.4g}"
+                 f"×{(hi[1] - lo[1]) * mm_per_px:.4g} mm")
+        fix = (f"give an image of at least {need[0]}×{need[1]} px at {mm_per_px:g} mm/px, or set "
+               f"speckle.mm_per_px ≥ {scale:.4g} to stretch this one over the specimen")
+    else:
+        key = "speckle.camera"
+        where += f" of the {W}×{H} px reference image"
+        fix = "give a larger image, or a speckle.camera that sees the whole specimen"
+    warnings.warn(f"{key}: the reference image covers only {100 * frac:.3g} % of the specimen's "
+                  f"area ({where}); the rest renders as background and is masked (NaN, element −1) in "
+                  f"the truth — {fix}", RenderWarning, stacklevel=2)
+    return frac
