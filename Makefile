@@ -5,13 +5,17 @@ BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.glsim-installed
 EGL_PKGS := libegl1 libegl-mesa0 libgl1-mesa-dri libgbm1
 
-.PHONY: demo test test-gl bench venv egl clean
+.PHONY: demo test test-gl bench venv egl clean readme-check
 
 demo: venv
 	$(BIN)/glsim demo
 
-test: venv
+test: venv readme-check
 	$(BIN)/python -m pytest -q -ra
+
+# every measured figure in README.md and docs/ equals what its bench/results file gives
+readme-check: venv
+	$(BIN)/glsim docs --check
 
 test-gl: venv
 	$(BIN)/python -m pytest -q -m gl

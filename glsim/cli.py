@@ -89,11 +89,13 @@ def cmd_render(args) -> int:
 
 
 def _delegated(name: str, argv: list[str]) -> int:
-    """`glsim bench|calib|verify …`: their own argument parsers take the rest of the line."""
+    """`glsim bench|calib|verify|docs …`: their own argument parsers take the rest of the line."""
     if name == "bench":
         from glsim.evaluation.cli import bench_main as run
     elif name == "calib":
         from glsim.workflows.calib.cli import main as run
+    elif name == "docs":
+        from glsim.evaluation.cli import docs_main as run
     else:
         from glsim.evaluation.cli import verify_main as run
     return run(argv)
@@ -101,7 +103,8 @@ def _delegated(name: str, argv: list[str]) -> int:
 
 DELEGATED = {"bench": "benchmarks: glsim bench {accuracy,effects} …",
              "calib": "calibration targets: glsim calib {library,run,study} …",
-             "verify": "independent stereo-DIC verification: glsim verify run …"}
+             "verify": "independent stereo-DIC verification: glsim verify run …",
+             "docs": "README/docs figures from bench/results: glsim docs [--check]"}
 
 
 def _common(p: argparse.ArgumentParser) -> None:

@@ -55,3 +55,23 @@ def test_bench_effects_quick(tmp_path):
     assert rows["gl", "none"]["stages"] == ["deform"] and "noise" in rows["gl", "noise"]["stages"]
     assert rows["cpu", "lighting"]["stages"] == ["raster", "interpolate", "light"]
     assert (tmp_path / "effects.md").read_text().startswith("# glsim effects benchmark")
+
+
+def test_reduced_runs_never_overwrite_the_committed_results(tmp_path, capsys, monkeypatch):
+    """A quick or reduced run aimed at bench/results is refused before anything runs; without
+    --out it goes to build/bench. The targets table says what a reduced run did not measure."""
+    committed = cli.RESULTS / "accuracy.json"
+    before = committed.read_bytes() if committed.exists() else None
+    assert cli.bench_main(["accuracy", "--quick", "--out", str(cli.RESULTS)]) == 2
+    err = capsys.readouterr().err
+    assert "--out bench/results" in err and "build/bench" in err and "full size" in err
+    assert cli.bench_main(["effects", "--size", *SIZE, "--out", str(cli.RESULTS)]) == 2
+    assert (committed.read_bytes() if committed.exists() else None) == before
+    assert cli.results_dir(None, full=False, command="accuracy") == cli.SCRATCH
+    assert cli.results_dir(None, full=True, command="accuracy") == cli.RESULTS
+    report = {"size": [203, 154], "records": [
+        {"backend": "gl", "mode": "exact", "precision": "fp64", "arithmetic": "fp64", "map_max_px": 1e-12,
+         "interpolation": "linear", "spp": 1, "seconds": 0.01},
+        {"backend": "gl", "mode": "fast", "precision": "fp64", "arithmetic": "fp32", "map_max_px": 0.1,
+         "interpolation": "linear", "spp": 1, "seconds": 0.01}]}
+    assert [accuracy._met(t) for t in accuracy.targets(report)] == ["yes", "not measured at 1624×1234"]

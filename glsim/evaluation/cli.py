@@ -1,5 +1,5 @@
-"""The evaluation command lines: ``glsim bench {accuracy,effects}`` and ``glsim verify {run,
-compare,sweep,sweep-compare,frontier,backends}``.
+"""The evaluation command lines: ``glsim bench {accuracy,effects}``, ``glsim verify {run,
+compare,sweep,sweep-compare,frontier,backends}`` and ``glsim docs [--check]``.
 
 Committed results live in ``bench/results``; only a full-size run writes there by default. A
 quick or reduced run writes to ``build/bench`` unless ``--out`` names another directory, and is
@@ -194,4 +194,35 @@ def bench_main(argv: list[str]) -> int:
     io.write_text(out / "accuracy.json", json.dumps(report, indent=2) + "\n")
     io.write_text(out / "accuracy.md", text)
     print(text)
+    return 0
+
+
+# ---- glsim docs --------------------------------------------------------------------------------
+def docs_main(argv: list[str]) -> int:
+    """``glsim docs [--check] [--root DIR]``: regenerate (or check) the README/docs figures that
+    come from bench/results; returns the exit status (1 when --check finds a difference)."""
+    from glsim.evaluation import docs
+
+    parser = argparse.ArgumentParser(prog="glsim docs", description="README and docs figures from the results files")
+    parser.add_argument("--check", action="store_true", help="fail if any generated region differs; write nothing")
+    parser.add_argument("--root", default=".", help="repository root (default: the working directory)")
+    args = parser.parse_args(argv)
+    root = Path(args.root)
+    try:
+        if args.check:
+            diffs = docs.check(root)
+            for d in diffs:
+                print(d)
+            if diffs:
+                print("glsim docs: generated regions differ from bench/results; run `glsim docs` to regenerate "
+                      "them (edit the text outside the regions, or the generator in glsim/evaluation/docs.py)",
+                      file=sys.stderr)
+                return 1
+            print("glsim docs: every generated region matches its results file")
+            return 0
+        changed = docs.write(root)
+    except GlsimError as exc:
+        print(f"glsim docs: error: {exc}", file=sys.stderr)
+        return 2
+    print(f"glsim docs: regenerated {', '.join(changed) if changed else 'nothing (all up to date)'}")
     return 0

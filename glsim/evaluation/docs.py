@@ -1,0 +1,249 @@
+"""Figures in README.md and docs/ generated from the results files (``glsim docs [--check]``).
+
+A generated region is delimited in the markdown by
+
+    <!-- generated: NAME from SOURCE[, SOURCE…] -->
+    …
+    <!-- end generated -->
+
+and its body is what ``GENERATORS[NAME]`` makes of the named results files (paths relative to
+the repository). ``glsim docs`` rewrites every region; ``glsim docs --check`` (``make
+readme-check``, part of ``make test``) fails naming each region whose text differs. Timing
+figures come first as ratios measured in one run, then absolute times with the machine, which
+vary from machine to machine.
+"""
+from __future__ import annotations
+
+import difflib
+import json
+import re
+from pathlib import Path
+
+from glsim.errors import GlsimError
+from glsim.io import images as io
+
+FILES = ("README.md", "docs/calib.md", "docs/verify.md")
+REGION = re.compile(r"(<!-- generated: (?P<name>[\w-]+) from (?P<sources>[^>]+?) -->\n)(?P<body>.*?)(<!-- end generated -->)",
+                    re.S)
+
+
+# ---- formatting ------------------------------------------------------------------------------
+def _s(x: float | None, digits: int = 2) -> str:
+    """``x`` to ``digits`` significant digits, plainly for 1e-3 ≤ |x| < 1e4, else as 1.2e-05 → 1.2e-5."""
+    if x is None:
+        return "–"
+    if x == 0:
+        return "0"
+    if 1e-3 <= abs(x) < 1e4:
+        return f"{x:#.{digits}g}".rstrip(".")
+    m, e = f"{x:.{digits - 1}e}".split("e")
+    return f"{m}e{int(e)}"
+
+
+def _ratio(a: float, b: float) -> str:
+    return f"{a / b:.2g}×" if a / b < 10 else f"{a / b:.0f}×"
+
+
+def machine_line(m: dict) -> str:
+    gl = m.get("gl", {})
+    return (f"{m.get('cpu', '?')}, {m.get('cores', '?')} cores, {gl.get('renderer', 'no GL')}"
+            if isinstance(m, dict) else str(m))
+
+
+# ---- accuracy.json ---------------------------------------------------------------------------
+EXCERPT = (("gl", "fast", "linear", 1, "fp64"), ("gl", "fast", "bspline3", 1, "fp64"),
+           ("gl", "q4", "bspline3", 1, "fp64"), ("gl", "exact", "bspline3", 1, "fp64"),
+           ("gl", "exact", "bspline3", 4, "fp64"), ("gl", "exact", "bspline3", 1, "fp32"),
+           ("gl", "exact", "procedural", 1, "fp64"), ("gl", "exact", "procedural", 4, "fp64"),
+           ("cpu", "exact", "bspline3", 1, "fp64"))
+
+
+def _record(acc: dict, backend: str, mode: str, interp: str, spp: int, precision: str = "fp64") -> dict:
+    for r in acc["records"]:
+        if (r["backend"], r["mode"], r["interpolation"], r["spp"], r["precision"]) == (backend, mode, interp, spp, precision):
+            return r
+    raise GlsimError(f"accuracy.json has no row {backend} {mode} {interp} {spp} spp {precision}: "
+                     "run `glsim bench accuracy` at full size")
+
+
+def accuracy_table(acc: dict) -> str:
+    base = _record(acc, "gl", "exact", "bspline3", 1)
+    lines = [f"Bulge, camera 0 at the full bulge, {acc['size'][0]}×{acc['size'][1]}; time relative to GL exact "
+             f"fp64 bspline3 at 1 spp in the same run, then the median per image on {machine_line(acc['machine'])} "
+             f"({acc['date'][:10]}); mapping error in reference-image px against the float64 exact oracle; grey "
+             "error in 8-bit grey levels against the exact speckle.", "",
+             "| backend | mode | arithmetic | interpolation | spp | time ratio | time (s) | mapping RMS / max (px) "
+             "| grey RMS vs exact speckle |", "|---|---|---|---|---|---|---|---|---|"]
+    for key in EXCERPT:
+        r = _record(acc, *key)
+        mode = "exact (oracle)" if r["backend"] == "cpu" else "q4 (paper)" if r["mode"] == "q4" else r["mode"]
+        mapping = "0" if r["map_max_px"] == 0 else f"{_s(r['map_rms_px'])} / {_s(r['map_max_px'])}"
+        lines.append(f"| {r['backend']} | {mode} | {r['arithmetic']} | {r['interpolation']} | {r['spp']} | "
+                     f"{_ratio(r['seconds'], base['seconds'])} | {_s(r['seconds'])} | {mapping} | "
+                     f"{_s(r['speckle_rms'])} |")
+    return "\n".join(lines)
+
+
+def accuracy_facts(acc: dict) -> str:
+    ex, ex32 = _record(acc, "gl", "exact", "bspline3", 1), _record(acc, "gl", "exact", "bspline3", 1, "fp32")
+    gl = [r for r in acc["records"] if r["backend"] == "gl" and r["precision"] == "fp64"]
+    approx = [r for r in gl if r["mode"] in ("fast", "q4")]
+    grey1 = [r["speckle_rms"] for r in gl if r["spp"] == 1 and r["interpolation"] != "procedural"]
+    cpu = {(r["mode"], r["interpolation"]): r["seconds"] for r in acc["records"] if r["backend"] == "cpu" and r["spp"] == 1}
+    speedups = [cpu[m, i] / _record(acc, "gl", m, i, 1)["seconds"] for m, i in cpu]
+    fast = {r["interpolation"]: r["seconds"] / ex["seconds"] for r in gl if r["mode"] == "fast" and r["spp"] == 1}
+    q4 = _record(acc, "gl", "q4", "bspline3", 1)
+    return "\n".join([
+        f"- GL `exact` (fp64) maps every pixel within {_s(max(r['map_max_px'] for r in gl if r['mode'] == 'exact'))} px "
+        "of the float64 oracle; its fp32 variant errs by up to "
+        f"{_s(ex32['map_max_px'])} px and takes {_ratio(ex32['seconds'], ex['seconds'])} the fp64 time.",
+        f"- `fast` and the paper's `q4` misplace the speckle by up to {_s(max(r['map_max_px'] for r in approx))} px "
+        f"(RMS {_s(min(r['map_rms_px'] for r in approx))}–{_s(max(r['map_rms_px'] for r in approx))} px); at 1 spp "
+        f"`q4` takes {_ratio(q4['seconds'], ex['seconds'])} and `fast` "
+        f"{_ratio(min(fast.values()), 1)}–{_ratio(max(fast.values()), 1)} the time of `exact`.",
+        f"- Texture interpolation of the generated speckle leaves {_s(min(grey1))}–{_s(max(grey1))} grey levels RMS "
+        "at 1 spp; the procedural speckle "
+        f"{_s(_record(acc, 'gl', 'exact', 'procedural', 1)['speckle_rms'])}.",
+        f"- The GL path is {_ratio(min(speedups), 1)}–{_ratio(max(speedups), 1)} faster than the numpy oracle at 1 spp "
+        "(same modes and interpolations).",
+    ])
+
+
+def peer(acc: dict) -> str:
+    p = {x["name"].split()[0] if x["name"].startswith("riley") else x["name"]: x for x in acc["peer"]}
+    riley, q4, ex = p.get("riley-raster"), p.get("glsim GL q4 fp64"), p.get("glsim GL exact fp64")
+    if not (riley and q4 and ex) or "ok" != riley["status"]:
+        return "riley-raster was not installed in the run that wrote accuracy.json."
+    name = next(x["name"] for x in acc["peer"] if x["name"].startswith("riley"))
+    return (f"Peer, same run, interleaved ({machine_line(acc['machine'])}): glsim GL takes "
+            f"{_ratio(q4['seconds'], riley['seconds'])} the time of {name} (pyvale's SIMD CPU rasteriser) in q4 mode and "
+            f"{_ratio(ex['seconds'], riley['seconds'])} in exact mode, on a face-on plate covering "
+            f"{riley['coverage']:.0%} of the image, cubic interpolation, 4 spp ({_s(riley['seconds'])} s, "
+            f"{_s(q4['seconds'])} s, {_s(ex['seconds'])} s).")
+
+
+# ---- effects.json ----------------------------------------------------------------------------
+def effects(eff: dict) -> str:
+    rows = {(r["backend"], r["effects"]): r["seconds"] for r in eff["records"]}
+    g, c = (lambda e: rows["gl", e]), (lambda e: rows["cpu", e])
+    inc = ", ".join(f"{name} {100 * (g(e) - g('none')) / g('none'):+.0f} %"
+                    for e, name in (("lighting", "lighting"), ("optics", "depth of field"), ("noise", "noise")))
+    return (f"Same run, bulge stereo pair at {eff['size'][0]}×{eff['size'][1]}, exact mode: on GL, {inc} over the "
+            f"effect-free image, all three {_ratio(g('all'), g('none'))} its time; the CPU oracle takes "
+            f"{_ratio(c('none'), g('none'))} GL's time without effects and {_ratio(c('all'), g('all'))} with all. "
+            f"Absolute: GL {_s(g('none'))} s and {_s(g('all'))} s per image, CPU {_s(c('none'))} s and {_s(c('all'))} s "
+            f"({machine_line(eff['machine'])}, {eff['date'][:10]}).")
+
+
+# ---- verify.json -----------------------------------------------------------------------------
+def verify_table(ver: dict) -> str:
+    runs = {r["name"]: r for r in ver["runs"]}
+    quad, aff = runs["quadratic"], runs["table3"]
+    lines = ["| state | dir | glsim + pyvale, quadratic subsets: mean / std (px) | affine (Table 3) | paper (Tables 4–5) |",
+             "|---|---|---|---|---|"]
+    for sq, sa in zip(quad["states"], aff["states"]):
+        for rq, ra in zip(sq["rows"], sa["rows"]):
+            if rq["dir"] not in "XYZ":
+                continue
+            paper = ver["paper_px"][sq["label"]][rq["dir"]]
+            lines.append(f"| {sq['label']} | {rq['dir']} | {_s(rq['mean_px'])} / {_s(rq['std_px'])} | "
+                         f"{_s(ra['mean_px'])} / {_s(ra['std_px'])} | {_s(paper[0], 3)} / {_s(paper[1], 3)} |")
+    return "\n".join(lines)
+
+
+# ---- sweep.json, sweep_backends.json ---------------------------------------------------------
+def sweep(sw: dict, backends: dict) -> str:
+    by = {(r["sequence"], r["run"]): r for r in sw["results"]}
+    run = sw["runs"][0]["name"]
+    model, proc, bsp = by["model", run], by["exact-procedural", run], by["exact-bspline3", run]
+    noise = [r["max_std_u"] for r in sw["results"] if r["source"] == "model"]
+    exact_rows = [r for r in backends["rows"] if r["sequence"].startswith("exact")]
+    return (f"The DIC's own S-curve on the exactly shifted model images is ±{_s(model['max_abs_bias_u'])} px at one "
+            f"sample per pixel (subset {model['subset_size']} px). `exact` with the procedural speckle adds "
+            f"{_s(proc['max_abs_gen_u'])} px to it; B-spline interpolation of the generated reference moves the speckle "
+            f"by up to {_s(bsp['max_abs_apparent_u'])} px (zero at whole and half pixels), of which the DIC sees "
+            f"{_s(bsp['max_abs_gen_u'])} px. The same sweep rendered by the CPU oracle differs from GL by at most "
+            f"{_s(max(r['max_delta_bias_px'] for r in backends['rows']))} px in bias "
+            f"({_s(max(r['max_delta_bias_px'] for r in exact_rows))} px in exact mode), against the DIC's own scatter "
+            f"of {_s(min(noise))}–{_s(max(noise))} px.")
+
+
+# ---- calib_accuracy.json ---------------------------------------------------------------------
+def calibration(cal: dict) -> str:
+    f = cal["runs"]["full"]
+    plain, fixed = f["bias_iterations_0"], f["bias_iterations_1"]
+
+    def worst(r, keys):
+        return max(abs(r[k]) for k in keys)
+    rel, pp, k1 = ("fx1_rel", "fy1_rel", "fx2_rel", "fy2_rel"), ("cx1_px", "cy1_px", "cx2_px", "cy2_px"), ("k1_1_rel", "k1_2_rel")
+    W, H = f["image_size"]
+    return (f"On a perfect target at {W}×{H} detection errs by {_s(f['detection']['centroid']['mean'])} px mean "
+            f"({_s(f['detection']['centroid']['max'])} max) against the true centroid, while the centroid sits "
+            f"{_s(f['detection']['projected']['mean'])} px (mean; {_s(f['detection']['projected']['max'])} max) from the "
+            f"projected centre (perspective bias). `glsim calib run` corrects that bias with one extra pass by default: "
+            f"with {f['pairs']} pairs, fx/fy within {_s(100 * worst(fixed, rel))} %, cx/cy within {_s(worst(fixed, pp))} px, "
+            f"k1 within {_s(100 * worst(fixed, k1))} %, stereo translation {_s(fixed['T_norm_mm'])} mm, rotation "
+            f"{_s(fixed['rotation_deg'])}°, RMS {_s(fixed['rms_px'])} px (plain OpenCV: cx/cy within "
+            f"{_s(worst(plain, pp))} px, rotation {_s(plain['rotation_deg'])}°).")
+
+
+def calibration_detection(cal: dict) -> str:
+    lines = ["| image size | vs true centroid: mean / RMS / max (px) | vs projected centre: mean / max (px) |",
+             "|---|---|---|"]
+    for run in cal["runs"].values():
+        c, p = run["detection"]["centroid"], run["detection"]["projected"]
+        lines.append(f"| {run['image_size'][0]} × {run['image_size'][1]} | {_s(c['mean'])} / {_s(c['rms'])} / "
+                     f"{_s(c['max'])} | {_s(p['mean'])} / {_s(p['max'])} |")
+    return "\n".join(lines)
+
+
+GENERATORS = {"accuracy-table": accuracy_table, "accuracy-facts": accuracy_facts, "peer": peer,
+              "effects": effects, "verify-table": verify_table, "sweep": sweep, "calibration": calibration,
+              "calibration-detection": calibration_detection}
+
+
+# ---- regions ---------------------------------------------------------------------------------
+def render_region(name: str, sources: list[str], root: Path) -> str:
+    """The body of one generated region (ending in a newline)."""
+    if name not in GENERATORS:
+        raise GlsimError(f"generated region {name!r}: unknown; use one of {', '.join(GENERATORS)}")
+    data = []
+    for s in sources:
+        path = root / s
+        if not path.is_file():
+            raise GlsimError(f"generated region {name!r}: results file {s} not found — run the benchmark that writes it")
+        data.append(json.loads(path.read_text()))
+    return GENERATORS[name](*data).rstrip("\n") + "\n"
+
+
+def regenerate(text: str, root: Path) -> str:
+    """``text`` with every generated region's body made anew from its results files."""
+    def sub(m):
+        sources = [s.strip() for s in m["sources"].split(",")]
+        return m.group(1) + render_region(m["name"], sources, root) + m.group(5)
+    return REGION.sub(sub, text)
+
+
+def check(root: Path, files=FILES) -> list[str]:
+    """A diff per file whose generated regions differ from their results files (empty: all agree)."""
+    out = []
+    for f in files:
+        path = root / f
+        if not path.is_file():
+            continue
+        text = path.read_text()
+        new = regenerate(text, root)
+        if new != text:
+            out.append("".join(difflib.unified_diff(text.splitlines(True), new.splitlines(True), f, f + " (generated)")))
+    return out
+
+
+def write(root: Path, files=FILES) -> list[str]:
+    """Rewrite the generated regions in place; the files that changed."""
+    changed = []
+    for f in files:
+        path = root / f
+        if path.is_file() and (new := regenerate(text := path.read_text(), root)) != text:
+            io.write_text(path, new)
+            changed.append(f)
+    return changed

@@ -1,0 +1,38 @@
+"""README and docs figures are generated from bench/results (glsim docs): the committed text
+matches its results files, and a changed digit inside a generated region is caught."""
+import re
+import shutil
+from pathlib import Path
+
+from glsim.evaluation import cli, docs
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def test_committed_docs_match_their_results_files():
+    assert docs.check(ROOT) == []
+    text = (ROOT / "README.md").read_text()
+    names = set(re.findall(r"<!-- generated: ([\w-]+) from", text))
+    assert {"accuracy-table", "accuracy-facts", "peer", "effects", "verify-table", "sweep", "calibration"} <= names
+
+
+def test_a_changed_digit_inside_a_region_fails_the_check(tmp_path, capsys):
+    for f in docs.FILES:
+        if (ROOT / f).exists():
+            (tmp_path / f).parent.mkdir(parents=True, exist_ok=True)
+            shutil.copy(ROOT / f, tmp_path / f)
+    shutil.copytree(ROOT / "bench" / "results", tmp_path / "bench" / "results")
+    readme = tmp_path / "README.md"
+    text = readme.read_text()
+    start = text.index("<!-- generated: verify-table")
+    i = start + re.search(r"\d", text[start + 60:]).start() + 60     # a digit inside the table
+    changed = text[:i] + str((int(text[i]) + 1) % 10) + text[i + 1:]
+    readme.write_text(changed)
+    assert cli.docs_main(["--check", "--root", str(tmp_path)]) == 1
+    assert readme.read_text() == changed                           # --check writes nothing
+    assert "+++ README.md (generated)" in capsys.readouterr().out   # the diff names the file
+    assert cli.docs_main(["--root", str(tmp_path)]) == 0             # regenerating restores it
+    assert readme.read_text() == text
+    outside = text.replace("Stereo-DIC measures", "Stereo DIC measures") if "Stereo-DIC measures" in text else text + "\n9\n"
+    readme.write_text(outside)
+    assert cli.docs_main(["--check", "--root", str(tmp_path)]) == 0   # text outside regions is free
