@@ -114,11 +114,19 @@ class Bulge:
                    "a count")
 
 
+EXODUS_SUFFIXES = (".e", ".exo", ".ex2", ".exii", ".g", ".gen")
+TIME_SERIES_SUFFIXES = EXODUS_SUFFIXES + (".pvd", ".xdmf", ".xmf")   # XDMF: when it holds a time series
+
+
 @dataclass(frozen=True)
 class MeshFile:
-    """An FE mesh file read with meshio (Abaqus .inp, VTK/VTU, Gmsh .msh) and its steps.
+    """An FE mesh file and its steps: read with meshio (Abaqus .inp, VTK/VTU, Gmsh .msh), or a
+    time series (Exodus II, ParaView .pvd, XDMF) with one load step per stored time.
 
-    Load steps come from at most one of ``point_data``, ``files`` and ``csv``.
+    Single-state files: load steps come from at most one of ``point_data``, ``files`` and
+    ``csv``. Time series: ``displacement`` names one vector field or the x, y[, z] component
+    fields (default: found by the usual names, e.g. disp_x/disp_y/disp_z); ``times`` (the
+    file's own time values) or ``steps`` (stored-step indices) select, default all.
     """
     path: str = ""
     unit: str = "mm"
@@ -126,6 +134,9 @@ class MeshFile:
     files: tuple[str, ...] = ()        # one mesh file per step with a displacement field
     csv: tuple[str, ...] = ()          # one `label;ux;uy;uz` file per step
     field: str = ""                    # displacement field name in `files`
+    displacement: str | tuple[str, ...] = ()  # time series: a vector field, or component fields
+    times: tuple[float, ...] = ()      # time series: the stored times to render
+    steps: tuple[int, ...] = ()        # time series: the stored-step indices to render
 
     def __post_init__(self):
         _check(bool(self.path), "specimen.mesh.path", "is empty", "give the FE mesh file, e.g. 'model.inp'")
@@ -137,6 +148,23 @@ class MeshFile:
                "keep one of point_data, files, csv")
         _check(not self.field or bool(self.files), "specimen.mesh.field", "is only used with files",
                "remove it, or give the per-step files")
+        names = (self.displacement,) if isinstance(self.displacement, str) else self.displacement
+        _check(isinstance(names, (list, tuple)) and len(names) <= 3 and all(isinstance(n, str) for n in names),
+               "specimen.mesh.displacement", f"{self.displacement!r} is not 1–3 field names",
+               'give a vector field "u" or component fields ["disp_x", "disp_y", "disp_z"]')
+        object.__setattr__(self, "displacement", tuple(names))
+        _check(not (self.times and self.steps), "specimen.mesh.steps", "times and steps both given",
+               "keep one of them")
+        suffix = Path(self.path).suffix.lower()
+        series = [k for k in ("displacement", "times", "steps") if getattr(self, k)]
+        _check(not series or suffix in TIME_SERIES_SUFFIXES, f"specimen.mesh.{series[0] if series else ''}",
+               f"is only used with time-series files, not {suffix or 'this'} files",
+               f"give an Exodus II ({', '.join(EXODUS_SUFFIXES)}), .pvd or XDMF time series, or use "
+               "point_data, files or csv")
+        single = [k for k in ("point_data", "files", "csv", "field") if getattr(self, k)]
+        _check(not single or suffix not in EXODUS_SUFFIXES + (".pvd",), f"specimen.mesh.{single[0] if single else ''}",
+               f"is for single-state files; {suffix} files hold their own time steps",
+               "use displacement = [...] and times or steps instead")
 
 
 @dataclass(frozen=True)

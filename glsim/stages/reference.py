@@ -13,6 +13,7 @@ from glsim.scene import speckle
 from glsim.scene.camera import Camera, look_at, project_camera_frame, to_camera
 from glsim.errors import RenderWarning, SceneError
 from glsim.io.meshfiles import load_mesh
+from glsim.io.series import is_time_series, load_series
 from glsim.scene import Scene
 
 MARGIN_PX = 8  # reference-image border around the specimen's projection
@@ -41,11 +42,18 @@ def specimen_mesh(scene: Scene) -> meshmod.Mesh:
         m = meshmod.with_displacements(m, steps)
     else:
         f = sp.mesh  # path, unit and sources were validated by the scene
-        m = load_mesh(
-            scene.resolve(f.path), unit=f.unit,
-            point_data_steps=list(f.point_data) or None,
-            displacement_files=[scene.resolve(x) for x in f.files] or None,
-            csv_files=[scene.resolve(x) for x in f.csv] or None, field=f.field or None)
+        if is_time_series(scene.resolve(f.path)):
+            m = load_series(scene.resolve(f.path), unit=f.unit, displacement=f.displacement,
+                            times=f.times, steps=f.steps)
+        elif f.displacement or f.times or f.steps:
+            raise SceneError("specimen.mesh.path", f"{f.path} holds no time series (an XDMF file without "
+                             "a temporal collection)", "use point_data, files or csv with single-state files")
+        else:
+            m = load_mesh(
+                scene.resolve(f.path), unit=f.unit,
+                point_data_steps=list(f.point_data) or None,
+                displacement_files=[scene.resolve(x) for x in f.files] or None,
+                csv_files=[scene.resolve(x) for x in f.csv] or None, field=f.field or None)
     return meshmod.place_mesh(m, "mm", np.asarray(sp.R, float), np.asarray(sp.t, float))
 
 

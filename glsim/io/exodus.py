@@ -1,0 +1,179 @@
+"""Exodus II results (MOOSE, Cubit, SEACAS, …) read through netCDF4, every stored time step.
+
+The netCDF layout of Exodus II (Sandia's "Exodus II: a finite element data model"):
+dimensions ``num_nodes``, ``num_dim``, ``num_el_blk``, ``num_el_in_blk{i}``,
+``num_nod_per_el{i}``, ``time_step``; variables ``coordx/coordy/coordz`` (or ``coord``
+(num_dim, num_nodes)), ``connect{i}`` (1-based, attribute ``elem_type``), ``eb_names``,
+``eb_prop1`` (block ids), ``node_num_map``, ``elem_num_map``, ``time_whole``,
+``name_nod_var`` and ``vals_nod_var{j}`` (time_step, num_nodes) or ``vals_nod_var``
+(time_step, num_nod_var, num_nodes).
+
+Linear element types as solvers spell them: QUAD/QUAD4/SHELL/SHELL4, TRI/TRI3/TRISHELL3,
+HEX/HEX8, TETRA/TETRA4/TET4 (the node orders are VTK's, so meshio's face tables apply);
+quadratic ones (QUAD8/9, TRI6/7, HEX20/27, TETRA10/14 …) are rejected by name; bars, beams
+and spheres are ignored. Labels are the file's own node and element numbers.
+"""
+from __future__ import annotations
+
+import contextlib
+import re
+from pathlib import Path
+from typing import Iterator
+
+import numpy as np
+
+from glsim.errors import SceneError
+from glsim.io.series import QUADRATIC_FIX, Series
+from glsim.io.meshfiles import SOLID_FIX
+
+# element family → (meshio type, linear node count)
+_LINEAR = {"QUAD": ("quad", 4), "SHELL": ("quad", 4), "QUADRILATERAL": ("quad", 4),
+           "TRI": ("triangle", 3), "TRIANGLE": ("triangle", 3), "TRISHELL": ("triangle", 3),
+           "HEX": ("hexahedron", 8), "HEXAHEDRON": ("hexahedron", 8),
+           "TET": ("tetra", 4), "TETRA": ("tetra", 4), "TETRAHEDRON": ("tetra", 4)}
+_IGNORED = ("BAR", "BEAM", "TRUSS", "EDGE", "SPHERE", "CIRCLE", "POINT", "NULL", "SUPERELEMENT")
+
+
+def _netcdf4():
+    try:
+        import netCDF4
+    except ImportError as exc:  # a dependency; only a broken install gets here
+        raise SceneError("netCDF4", "is not installed, Exodus II files cannot be read",
+                         "pip install netCDF4") from exc
+    return netCDF4
+
+
+def _strings(ds, name: str) -> list[str] | None:
+    if name not in ds.variables:
+        return None
+    raw = np.asarray(ds.variables[name][:])
+    if raw.ndim == 1:
+        raw = raw[None]
+    return ["".join(c.decode("latin-1") if isinstance(c, bytes) else str(c) for c in row).split("\0")[0].strip()
+            for row in raw]
+
+
+def _dim(ds, name: str, default: int | None = None) -> int:
+    if name in ds.dimensions:
+        return len(ds.dimensions[name])
+    if default is None:
+        raise KeyError(name)
+    return default
+
+
+def element_type(elem_type: str, nodes_per_element: int, where: str, block: str) -> str | None:
+    """The meshio cell type of an Exodus ``elem_type`` with that node count; None: ignored."""
+    spelled = elem_type.strip().upper()
+    m = re.fullmatch(r"([A-Z]+?)(\d*)", spelled)
+    family = m.group(1) if m else spelled
+    if family in _IGNORED:
+        return None
+    if family in _LINEAR:
+        kind, count = _LINEAR[family]
+        if nodes_per_element == count:
+            return kind
+        if nodes_per_element > count:
+            raise SceneError(where, f"{block} has {elem_type} elements ({nodes_per_element} nodes each): "
+                             + QUADRATIC_FIX)
+        raise SceneError(where, f"{block} has {elem_type} elements with {nodes_per_element} nodes each",
+                         f"a {family} element needs {count} nodes")
+    raise SceneError(where, f"{block} has element type {elem_type!r}, which is not supported", SOLID_FIX)
+
+
+@contextlib.contextmanager
+def open_exodus(path) -> Iterator[Series]:
+    """Open an Exodus II file as a :class:`~glsim.io.series.Series` (nodal fields read lazily)."""
+    path = Path(path)
+    netCDF4 = _netcdf4()
+    where = str(path)
+    try:
+        ds = netCDF4.Dataset(path, "r")
+    except OSError as exc:
+        raise SceneError(where, f"is not a netCDF file, so not Exodus II ({exc})",
+                         "give an Exodus II result (.e/.exo), e.g. MOOSE's *_out.e") from None
+    try:
+        ds.set_auto_mask(False)
+        yield _series(ds, path)
+    finally:
+        ds.close()
+
+
+def _series(ds, path: Path) -> Series:
+    where = str(path)
+    try:
+        n_nodes, n_dim = _dim(ds, "num_nodes"), _dim(ds, "num_dim")
+    except KeyError as exc:
+        raise SceneError(where, f"has no dimension {exc.args[0]!r}, so is not an Exodus II file "
+                         f"(dimensions: {', '.join(ds.dimensions) or 'none'})",
+                         "give an Exodus II result (.e/.exo)") from None
+    v = ds.variables
+    if "coordx" in v:
+        axes = ["coordx", "coordy", "coordz"][:n_dim]
+        missing = [a for a in axes if a not in v]
+        if missing:
+            raise SceneError(where, f"has no coordinate variable {missing[0]!r} for its {n_dim} dimensions",
+                             "write coordx, coordy (and coordz in 3-D)")
+        coords = np.stack([np.asarray(v[a][:], dtype=np.float64) for a in axes], axis=1)
+    elif "coord" in v:
+        coords = np.asarray(v["coord"][:], dtype=np.float64).reshape(n_dim, n_nodes).T
+    else:
+        raise SceneError(where, "has no coordinates (neither coordx/coordy/coordz nor coord)",
+                         "give an Exodus II file with its nodes")
+    if coords.shape != (n_nodes, n_dim) or n_dim not in (2, 3):
+        raise SceneError(where, f"coordinates of shape {coords.shape} for {n_nodes} nodes in {n_dim} dimensions",
+                         "give 2-D or 3-D nodes")
+    points = np.pad(coords, ((0, 0), (0, 3 - n_dim)))
+    node_labels = (np.asarray(v["node_num_map"][:], dtype=np.int64) if "node_num_map" in v
+                   else np.arange(1, n_nodes + 1))
+
+    n_blocks = _dim(ds, "num_el_blk", 0)
+    names = _strings(ds, "eb_names") or [""] * n_blocks
+    ids = np.asarray(v["eb_prop1"][:]).tolist() if "eb_prop1" in v else list(range(1, n_blocks + 1))
+    counts = [_dim(ds, f"num_el_in_blk{i}", 0) for i in range(1, n_blocks + 1)]
+    n_elem = sum(counts)
+    elem_labels = (np.asarray(v["elem_num_map"][:], dtype=np.int64) if "elem_num_map" in v
+                   else np.arange(1, n_elem + 1))
+    if len(elem_labels) != n_elem:
+        raise SceneError(where, f"elem_num_map has {len(elem_labels)} numbers for {n_elem} elements",
+                         "write one number per element")
+    if len(node_labels) != n_nodes:
+        raise SceneError(where, f"node_num_map has {len(node_labels)} numbers for {n_nodes} nodes",
+                         "write one number per node")
+    offsets = np.cumsum([0] + counts)
+    cells, cell_labels, block_names = [], [], []
+    for i, count in enumerate(counts):
+        block_id = ids[i] if i < len(ids) else i + 1
+        label = (f"element block {names[i]!r} (id {block_id})" if i < len(names) and names[i]
+                 else f"element block id {block_id}")
+        if count == 0 or f"connect{i + 1}" not in v:
+            continue
+        conn_var = v[f"connect{i + 1}"]
+        elem_type = getattr(conn_var, "elem_type", "")
+        conn = np.asarray(conn_var[:], dtype=np.int64).reshape(count, -1)
+        kind = element_type(elem_type, conn.shape[1], where, label)
+        if kind is None:
+            continue
+        if conn.min() < 1 or conn.max() > n_nodes:
+            raise SceneError(where, f"{label} refers to nodes {conn.min()}..{conn.max()}, outside 1..{n_nodes}",
+                             "connectivity is 1-based node positions")
+        cells.append((kind, conn - 1))
+        cell_labels.append(elem_labels[offsets[i]:offsets[i + 1]])
+        block_names.append(label)
+
+    n_times = _dim(ds, "time_step", 0)
+    times = (np.asarray(v["time_whole"][:], dtype=np.float64).reshape(-1)[:n_times] if "time_whole" in v
+             else np.arange(n_times, dtype=np.float64))
+    fields = {name: 1 for name in (_strings(ds, "name_nod_var") or []) if name}
+    index = {name: j for j, name in enumerate(_strings(ds, "name_nod_var") or [])}
+
+    def read(name: str, k: int) -> np.ndarray:
+        j = index[name]
+        if f"vals_nod_var{j + 1}" in v:
+            return np.asarray(v[f"vals_nod_var{j + 1}"][k, :], dtype=np.float64)
+        if "vals_nod_var" in v:
+            return np.asarray(v["vals_nod_var"][k, j, :], dtype=np.float64)
+        raise SceneError(where, f"names nodal variable {name!r} but stores no values for it "
+                         f"(no vals_nod_var{j + 1} or vals_nod_var)", "write the file with its nodal values")
+
+    return Series(path=path, points=points, dim=n_dim, cells=cells, cell_labels=cell_labels,
+                  node_labels=node_labels, times=times, fields=fields, read=read, block_names=block_names)
