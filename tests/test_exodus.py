@@ -415,3 +415,15 @@ def test_pyvale_moose_outputs():
     for name, kind in (("case17_out.e", "QUAD9"), ("case16_out.e", "HEX20"), ("case00_TET10_out.e", "TETRA10")):
         with pytest.raises(SceneError, match=f"{name}: element block .* has {kind} elements .*quadratic"):
             load_series(PYVALE / name)
+
+
+def test_sequence_writes_the_step_times(tmp_path):
+    import json
+
+    from glsim.workflows.sequence import write_sequence
+    path, _ = plate_2d(tmp_path)
+    scene = scene_for(path, size=(80, 60), fx=450.0, unit="cm", times=[125.0, 200.0])
+    written = write_sequence(scene, tmp_path / "out")
+    assert len(written.images) == 3                    # undeformed step 0, t = 125, t = 200
+    steps = json.loads((tmp_path / "out" / "steps.json").read_text())["steps"]
+    assert steps == [{"step": 0, "time": None}, {"step": 1, "time": 125.0}, {"step": 2, "time": 200.0}]

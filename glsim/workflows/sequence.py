@@ -12,6 +12,8 @@ Rules of the output directory (README "Output directory"):
   removed first (other files are kept) and everything is rendered anew.
 * An image and its truth maps appear together or not at all (see
   :func:`glsim.io.images.write_image_with_truth`).
+* For a time-series mesh (Exodus II, .pvd, XDMF) ``steps.json`` beside ``scene.json`` gives
+  the solver's time of each load step (null for an undeformed step 0 glsim put in front).
 """
 from __future__ import annotations
 
@@ -75,6 +77,9 @@ def write_sequence(scene: Scene, directory: str | None = None, steps=None, camer
         # Everything is read and checked: from here on files are written.
         removed = _remove_previous(out, scene) if force and not resume else []
         scene_json = io.write_text(out / "scene.json", scene.to_json())
+        if r.mesh.step_times:                       # a time series: the solver's time of each step
+            io.write_text(out / "steps.json", json.dumps({"steps": [
+                {"step": k, "time": t} for k, t in enumerate(r.mesh.step_times)]}, indent=1))
         images, truths, seconds, saturated, kept = [], [], [], [], []
         total = len(cams) * len(steps)
         for step in steps:
