@@ -79,7 +79,7 @@ def write_sequence(scene: Scene, directory: str | None = None, steps=None, camer
         scene_json = io.write_text(out / "scene.json", scene.to_json())
         if r.mesh.step_times:                       # a time series: the solver's time of each step
             io.write_text(out / "steps.json", json.dumps({"steps": [
-                {"step": k, "time": t} for k, t in enumerate(r.mesh.step_times)]}, indent=1))
+                {"step": k, "time": t} for k, t in enumerate(r.mesh.step_times)]}))
         images, truths, seconds, saturated, kept = [], [], [], [], []
         total = len(cams) * len(steps)
         for step in steps:
