@@ -466,3 +466,26 @@ def test_example_scene_renders_the_file_displacement():
     assert mesh.step_times == (0.0, 50.0, 100.0)
     assert specimen_mesh(scene.replace(specimen={"mesh": dataclasses.replace(
         scene.specimen.mesh, times=())})).n_steps == 11
+
+
+def test_load_mesh_reads_time_series_whole(tmp_path):
+    from glsim.io.meshfiles import load_mesh
+
+    path, written = plate_2d(tmp_path)
+    mesh = load_mesh(path, unit="cm")                     # not meshio's single state: every time
+    assert mesh.n_steps == 4 and mesh.step_times == tuple(TIMES_2D)
+    assert np.allclose(mesh.displacements[2][3], written[int(mesh.node_labels[3])][2] * 10.0)
+    with pytest.raises(SceneError, match=r"plate2d\.e: holds its own time steps"):
+        load_mesh(path, point_data_steps=["disp_x"])
+
+
+def test_two_component_vector_only_on_a_plane_mesh(tmp_path):
+    points, quads = _tri_plate()
+    points[:, 2] = 0.1 * points[:, 0]                     # a tilted plate: which plane would 2 components be in?
+    meshio.write(tmp_path / "tilted.vtu", meshio.Mesh(points, [("quad", quads)],
+                                                      point_data={"u": np.ones((len(points), 2))}))
+    (tmp_path / "tilted.pvd").write_text('<VTKFile type="Collection"><Collection>'
+                                         '<DataSet timestep="1" file="tilted.vtu"/></Collection></VTKFile>')
+    with pytest.raises(SceneError, match=r"tilted\.pvd: nodal field 'u' has 2 components per node on a mesh "
+                                         r"that is not plane"):
+        load_series(tmp_path / "tilted.pvd", displacement="u")

@@ -281,6 +281,10 @@ def _check_displacement(s: Series, names: Sequence[str]) -> list[str | None]:
         if s.fields[name] == 1:
             raise SceneError(str(s.path), f"nodal field {name!r} is a scalar, not a displacement vector; {s.summary()}",
                              "name the component fields, e.g. displacement = [\"disp_x\", \"disp_y\", \"disp_z\"]")
+        if s.fields[name] == 2 and s.dim == 3:
+            raise SceneError(str(s.path), f"nodal field {name!r} has 2 components per node on a mesh that is "
+                             "not plane (z = 0)", "write the displacement with 3 components; glsim does not guess "
+                             "which plane 2 components lie in")
         return [name]
     out: list[str | None] = []
     for axis, name in zip("xyz", names):
