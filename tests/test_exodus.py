@@ -489,3 +489,15 @@ def test_two_component_vector_only_on_a_plane_mesh(tmp_path):
     with pytest.raises(SceneError, match=r"tilted\.pvd: nodal field 'u' has 2 components per node on a mesh "
                                          r"that is not plane"):
         load_series(tmp_path / "tilted.pvd", displacement="u")
+
+
+def test_default_fields_need_z_in_3d(tmp_path):
+    cube = np.array([[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0], [0, 0, 1], [1, 0, 1], [1, 1, 1], [0, 1, 1]], float)
+    zeros = np.zeros((2, 8))
+    path = write_exodus(tmp_path / "cube.e", cube, [("c", "HEX", np.arange(1, 9)[None])], [0.0, 1.0],
+                        {"disp_x": zeros + [[0], [1]], "disp_y": zeros})
+    with pytest.raises(SceneError, match=r"cube\.e: no displacement field found by name.*fields in cube\.e: "
+                                         r"disp_x, disp_y; times 0–1, 2 steps"):
+        load_series(path)
+    mesh = load_series(path, displacement=["disp_x", "disp_y", ""])     # an explicit zero z
+    assert mesh.n_steps == 2 and np.allclose(mesh.displacements[1], [1, 0, 0])

@@ -163,8 +163,8 @@ def _series(ds, path: Path) -> Series:
     n_times = _dim(ds, "time_step", 0)
     times = (np.asarray(v["time_whole"][:], dtype=np.float64).reshape(-1)[:n_times] if "time_whole" in v
              else np.arange(n_times, dtype=np.float64))
-    fields = {name: 1 for name in (_strings(ds, "name_nod_var") or []) if name}
-    index = {name: j for j, name in enumerate(_strings(ds, "name_nod_var") or [])}
+    index = {name: j for j, name in enumerate(_strings(ds, "name_nod_var") or []) if name}
+    fields = {name: 1 for name in index}   # Exodus nodal variables are scalars (disp_x, disp_y, …)
 
     def read(name: str, k: int) -> np.ndarray:
         j = index[name]

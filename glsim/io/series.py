@@ -262,8 +262,8 @@ def _default_displacement(s: Series) -> tuple[str, ...]:
             return (lower[name],)
     for prefix in COMPONENT_PREFIXES:
         comps = [lower.get(prefix + axis) for axis in "xyz"]
-        if comps[0] and comps[1] and all(s.fields[c] == 1 for c in comps if c):
-            return tuple(c or "" for c in comps) if comps[2] or s.dim == 3 else tuple(comps[:2])
+        if comps[0] and comps[1] and (comps[2] or s.dim == 2) and all(s.fields[c] == 1 for c in comps if c):
+            return tuple(c for c in comps if c)   # a 2-D result has no z component: zero
     if len(vectors) == 1:
         return (vectors[0],)
     raise SceneError(str(s.path), "no displacement field found by name", "set [specimen.mesh] displacement = "
