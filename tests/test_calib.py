@@ -349,7 +349,12 @@ def test_cli_library_is_deterministic_and_run_reports(ci_library, ci_detections,
     args = ["library", "default", "--scale", str(CI_SCALE), "--seed", str(CI_SEED), "--noise", "0", "-o", str(out)]
     assert calib_main(args + ["--pairs", "3"]) == 0                       # extends the library
     assert (out / "pairs" / "0002.json").is_file() and (out / "pairs" / "0000.json").stat().st_mtime_ns == first
-    assert calib_main(args + ["--pairs", "2"]) == 2                       # cannot shrink it
+    capsys.readouterr()
+    assert calib_main(args + ["--pairs", "2"]) == 0                       # has them already: kept as it is
+    assert "(2 asked for" in capsys.readouterr().out
+    assert (out / "pairs" / "0000.json").stat().st_mtime_ns == first
+    other = ["library", "default", "--scale", str(CI_SCALE), "--seed", "8", "--noise", "0", "-o", str(out)]
+    assert calib_main(other + ["--pairs", "2"]) == 2                      # other settings: refused
     assert "other settings" in capsys.readouterr().err
     assert calib_main(["run", str(ci_library.directory), "-o", str(tmp_path / "cal")]) == 0
     assert "RMS" in capsys.readouterr().out

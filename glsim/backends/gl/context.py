@@ -63,11 +63,32 @@ def info(ctx) -> dict:
         "vendor": ctx.info["GL_VENDOR"],
         "renderer": ctx.info["GL_RENDERER"],
         "version": ctx.info["GL_VERSION"],
-        "glsl": ctx.info.get("GL_SHADING_LANGUAGE_VERSION", ""),
+        "glsl": _glsl_version(ctx),
         "egl_device": _egl_device(),
         "max_texture_size": ctx.info["GL_MAX_TEXTURE_SIZE"],
         "fp64": "GL_ARB_gpu_shader_fp64" in exts,
     }
+
+
+def _glsl_version(ctx) -> str:
+    """GL_SHADING_LANGUAGE_VERSION (moderngl's ctx.info leaves it out): asked of the driver
+    through EGL, else derived from the context version (GLSL 4.50 for GL 4.5)."""
+    text = ctx.info.get("GL_SHADING_LANGUAGE_VERSION", "")
+    if not text:
+        try:
+            egl = ctypes.CDLL(ctypes.util.find_library("EGL"))
+            egl.eglGetProcAddress.restype = ctypes.c_void_p
+            egl.eglGetProcAddress.argtypes = [ctypes.c_char_p]
+            address = egl.eglGetProcAddress(b"glGetString")
+            if address:
+                value = ctypes.CFUNCTYPE(ctypes.c_char_p, ctypes.c_uint)(address)(0x8B8C)  # GL_SHADING_LANGUAGE_VERSION
+                text = (value or b"").decode(errors="replace")
+        except (OSError, AttributeError, TypeError, ValueError):
+            text = ""
+    if not text:
+        code = ctx.version_code
+        text = f"{code // 100}.{code % 100:02d} (from the GL version)"
+    return text
 
 
 def _egl_device() -> str:

@@ -264,6 +264,48 @@ def usable(detections: dict, pairs, min_points: int):
     return out
 
 
+def default_min_points(target) -> int:
+    """Dots both views of a pair need by default: half the target's."""
+    return (target.n_points + 1) // 2
+
+
+def write_usable_library(rig, target, n_usable: int, out_dir, max_pairs: int | None = None,
+                         min_points: int | None = None, processes: int = 1, progress=None,
+                         **options) -> tuple[libmod.Library, list[int]]:
+    """A library with at least ``n_usable`` pairs that :func:`run` can use (both cameras detect
+    ≥ ``min_points`` common dots): draws pairs with :func:`~library.write_library` (``options``
+    go to it), detects them (cached for ``run``), and draws more until enough are usable or
+    ``max_pairs`` (default 4 × n_usable) are drawn; then raises SceneError saying how many are.
+    Returns the library and its usable pairs. Libraries of other than 2 cameras are not counted."""
+    if n_usable < 1:
+        raise SceneError("pairs", f"must be ≥ 1, got {n_usable}", "give the number of usable pairs wanted")
+    max_pairs = max(max_pairs or 4 * n_usable, n_usable)
+    n = n_usable
+    manifest = Path(out_dir) / "library.json"
+    if manifest.is_file():                # an existing library is extended, never shrunk
+        try:
+            n = max(n, int(json.loads(manifest.read_text())["n_pairs"]))
+        except (ValueError, KeyError, TypeError):
+            pass
+    while True:
+        lib = libmod.write_library(rig, target, n, out_dir, progress=progress, **options)
+        if len(lib.cameras) != 2:
+            return lib, [p["pair"] for p in lib.pairs]
+        mp = min_points or default_min_points(lib.target)
+        dets = detect_library(lib, mp, processes)
+        good = [i for i, _ in usable(dets, sorted(dets), mp)]
+        if len(good) >= n_usable or n >= max_pairs:
+            break
+        rate = max(len(good), 1) / n       # draw as many more as this rate says are needed, and one
+        n = min(max_pairs, max(n + 1, math.ceil(n_usable / rate) + 1))
+    if len(good) < n_usable:
+        raise SceneError("pairs", f"only {len(good)} of the {n} pairs drawn are usable (both cameras detect "
+                         f"≥ {mp} common dots), {n_usable} were asked for; the library in {out_dir} keeps them",
+                         "raise --max-pairs, ask for fewer pairs, or place the target nearer the centre "
+                         "(--fov centre)")
+    return lib, good
+
+
 def centroid_bias(target, R, t, K, D, points: np.ndarray) -> np.ndarray:
     """Image centroid − projected centre (n, 2) px of the nominal dots ``points`` (indices)
     of ``target`` in the pose X_cam = R·X + t through camera (K, D) — the perspective bias.
@@ -340,7 +382,7 @@ def run(library_dir, out_dir=None, model: str = "k1k2p1p2k3", min_points: int | 
     lib = libmod.load_library(library_dir)
     if len(lib.cameras) != 2:
         raise SceneError("cameras", f"the library has {len(lib.cameras)} cameras", "stereo calibration needs 2")
-    min_points = min_points or (lib.target.n_points + 1) // 2
+    min_points = min_points or default_min_points(lib.target)
     out = Path(out_dir) if out_dir else lib.directory / "calibration"
     dets = detect_library(lib, min_points, processes, progress)
     c = calibrate_pairs(lib, dets, sorted(dets), model, min_points, bias_iterations)

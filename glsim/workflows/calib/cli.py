@@ -1,6 +1,7 @@
 """``glsim calib …``: calibration libraries, calibrations and Monte-Carlo studies.
 
-    glsim calib library SCENE.toml|default --pairs N -o DIR [--scale S] [--seed K] [--fov full|centre]
+    glsim calib library SCENE.toml|default --pairs N -o DIR [--max-pairs M] [--min-points N] [--scale S]
+                        [--seed K] [--fov full|centre]
                         [--sigma MM] [--pitch-error E] [--target-seed K] [--rows 9 --cols 9 --pitch 10
                         --dot 5] [--spp 16] [--backend gl|cpu]
     glsim calib run DIR [-o OUT] [--model k1k2p1p2k3] [--min-points N] [--bias-iterations 1] [-j PROCS]
@@ -41,7 +42,13 @@ def parser() -> argparse.ArgumentParser:
     lib = sub.add_parser("library", help="render a library of stereo pairs of a dot-grid target")
     lib.add_argument("scene", help="a scene TOML (its cameras and [render] options, with --spp), or "
                                    "'default' for the paper's Table 8 rig (exact mode)")
-    lib.add_argument("--pairs", type=int, required=True, help="number of stereo pairs")
+    lib.add_argument("--pairs", type=int, required=True,
+                     help="stereo pairs `calib run` can use (both cameras see enough dots): pairs are drawn "
+                          "until there are this many")
+    lib.add_argument("--max-pairs", type=int, default=None,
+                     help="pairs drawn at most before giving up (default 4 × --pairs)")
+    lib.add_argument("--min-points", type=int, default=None,
+                     help="dots both views of a usable pair detect (default: half; as for calib run)")
     lib.add_argument("-o", "--output", required=True, help="library directory")
     lib.add_argument("--scale", type=float, default=1.0, help="image size factor for 'default' (0.25: 406×308)")
     lib.add_argument("--seed", type=int, default=0)
@@ -92,20 +99,64 @@ def _library(a) -> int:
         rig = load_scene(a.scene).replace(render={"samples_per_pixel": a.spp})
     params = rig.noise or (Noise(sigma=a.noise) if a.noise > 0 else None)
     noise = None if params is None else (lambda image, cam, seed: add_noise(image, params, cam.bit_depth, seed))
-    lib = libmod.write_library(rig, target, a.pairs, a.output, seed=a.seed, backend=a.backend,
-                               spec=PoseSpec(fov=a.fov), noise=noise, progress=_progress("pairs"))
+    lib, good = cal.write_usable_library(rig, target, a.pairs, a.output, a.max_pairs, a.min_points,
+                                         progress=_progress("pairs"), seed=a.seed, backend=a.backend,
+                                         spec=PoseSpec(fov=a.fov), noise=noise)
     complete = sum(all(c["complete"] for c in p["cameras"].values()) for p in lib.pairs)
-    print(f"{len(lib.pairs)} pairs in {a.output} ({complete} wholly in view in every camera)")
+    print(f"{len(lib.pairs)} pairs drawn in {a.output}: {len(good)} usable by `glsim calib run` "
+          f"({a.pairs} asked for; {complete} wholly in view in every camera)")
     return 0
+
+
+# Units of the calibration parameters (report.json names): px, mm, deg; distortion is unitless.
+UNITS = {"fx": "px", "fy": "px", "cx": "px", "cy": "px", "Tx": "mm", "Ty": "mm", "Tz": "mm",
+         "Theta": "deg", "Phi": "deg", "Psi": "deg"}
+ROWS = (("fx1", "fy1", "cx1", "cy1"), ("k1_1", "k2_1", "p1_1", "p2_1", "k3_1"),
+        ("fx2", "fy2", "cx2", "cy2"), ("k1_2", "k2_2", "p1_2", "p2_2", "k3_2"),
+        ("Tx", "Ty", "Tz"), ("Theta", "Phi", "Psi"))
+
+
+def unit(name: str) -> str:
+    """The unit of a calibration parameter ("" for the distortion coefficients)."""
+    return UNITS.get(name.rstrip("12") if name[:1] in "fc" else name, "")
+
+
+def error_lines(errors: dict[str, float]) -> list[str]:
+    """Every parameter's error (estimate − truth) with its unit, the largest of each unit marked
+    with ◀, and a last line naming those largest errors."""
+    names = [n for row in ROWS for n in row if n in errors]
+    worst = {}
+    for n in names:
+        u = unit(n)
+        if u not in worst or abs(errors[n]) > abs(errors[worst[u]]):
+            worst[u] = n
+    marked = set(worst.values())
+
+    def item(n: str) -> str:
+        u = unit(n)
+        return f"{n} {errors[n]:+.4g}{' ' + u if u else ''}{' ◀' if n in marked else ''}"
+
+    lines = ["errors (estimate − truth; ◀ the largest of its unit):"]
+    for row in ROWS:
+        shown = [item(n) for n in row if n in errors]
+        if shown:
+            tail = "  (distortion, unitless)" if not unit(row[0]) else ""
+            lines.append("  " + ",  ".join(shown) + tail)
+    extra = [f"|T error| {errors['T_norm']:.4g} mm" if "T_norm" in errors else "",
+             f"rotation error {errors['rotation_deg']:.4g} deg" if "rotation_deg" in errors else ""]
+    if any(extra):
+        lines.append("  " + ",  ".join(x for x in extra if x))
+    order = ("px", "mm", "deg", "")
+    lines.append("largest: " + ", ".join(
+        f"{worst[u]} {errors[worst[u]]:+.4g}{' ' + u if u else ' (distortion)'}" for u in order if u in worst))
+    return lines
 
 
 def _run(a) -> int:
     rep = cal.run(a.library, a.output, a.model, a.min_points, a.bias_iterations, a.processes, _progress("detect"))
-    e = rep["errors"]
     print(f"{rep['pairs_used']}/{rep['pairs']} pairs used, RMS {rep['rms']:.4f} px, "
           f"max epipolar distance {rep['epipolar_max_px']:.4f} px")
-    print("errors: " + ", ".join(f"{k} {e[k]:+.4g}" for k in ("fx1", "fy1", "cx1", "cy1", "k1_1", "fx2", "k1_2",
-                                                                 "T_norm", "rotation_deg")))
+    print("\n".join(error_lines(rep["errors"])))
     det = rep["detection"]
     print(f"detection: mean |error| {det['centroid']['mean']:.4f} px against the true centroid, "
           f"{det['projected']['mean']:.4f} px against the projected centre")
