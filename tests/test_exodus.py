@@ -403,6 +403,7 @@ def test_pyvale_moose_outputs():
     with netCDF4.Dataset(PYVALE / "case18_out.e") as ds:      # 2-D plate in metres, 200 QUAD4, 41 times
         names = [n.strip() for n in netCDF4.chartostring(ds["name_nod_var"][:])]
         ux = np.asarray(ds[f"vals_nod_var{names.index('disp_x') + 1}"][:])
+        uy = np.asarray(ds[f"vals_nod_var{names.index('disp_y') + 1}"][:])
         labels = np.asarray(ds["node_num_map"][:])
     mesh = load_series(PYVALE / "case18_out.e", unit="m")
     assert (mesh.n_nodes, mesh.n_elements, mesh.n_steps) == (231, 200, 41)
@@ -411,6 +412,11 @@ def test_pyvale_moose_outputs():
     rows = [order[int(label)] for label in mesh.node_labels]
     for k in (1, 20, 40):
         assert np.allclose(mesh.displacements[k][:, 0], ux[k, rows] * 1000.0)
+    # truth of rendered steps = the file's field (plate 100 × 50 mm from the origin, centred in view)
+    written = {int(label): np.stack([ux[:, i], uy[:, i], 0 * ux[:, i]], 1) for i, label in enumerate(labels)}
+    scene = scene_for(PYVALE / "case18_out.e", size=(320, 200), fx=780.0, unit="m", steps=[0, 20, 40],
+                      displacement=["disp_x", "disp_y", "disp_z"]).replace(specimen={"t": (-50.0, -25.0, DIST)})
+    assert check_truth(scene, written, [0, 20, 40], scale=1000.0, min_pixels=20000).step_times == (0.0, 100.0, 200.0)
     tet = load_series(PYVALE / "case26_out.e", unit="m", steps=[0, 10])   # TETRA4
     assert tet.n_steps == 2 and tet.step_times == (0.0, 10.0)
     for name, kind in (("case17_out.e", "QUAD9"), ("case16_out.e", "HEX20"), ("case00_TET10_out.e", "TETRA10")):
