@@ -88,6 +88,35 @@ def cmd_render(args) -> int:
     return _run(scene, out, args, f"glsim render {args.scene}")
 
 
+def _rig_cameras(source: Path, names, size):
+    """The two cameras of a scene file, a calibration result folder or a rig file in any format."""
+    from glsim.io.calibfiles import import_rig
+
+    if source.is_dir():
+        found = [source / n for n in ("calibration.yaml", "rig.yaml") if (source / n).is_file()]
+        if not found:
+            raise GlsimError(f"{source}: holds no calibration.yaml (glsim calib run) or rig.yaml (glsim calib "
+                             "library); give a scene file, such a folder or a rig file")
+        return import_rig(found[0], "opencv")
+    if source.suffix in (".toml", ".json") and source.name != "calibration.json":
+        scene = load_scene(source)
+        if len(scene.cameras) < 2:
+            raise GlsimError(f"{source}: the scene has {len(scene.cameras)} camera; a rig needs two")
+        a, b = (int(n) if str(n).isdigit() else n for n in names)
+        return scene.camera(a), scene.camera(b)
+    return import_rig(source, image_size=size)
+
+
+def cmd_rig_export(args) -> int:
+    from glsim.io.calibfiles import export_rig
+
+    a, b = _rig_cameras(Path(args.source), args.cameras, args.size)
+    path = export_rig(args.output, a, b, args.format)
+    print(f"glsim rig export: wrote {path} ({args.format or path.suffix[1:]}; camera 0 = {a.name}, "
+          f"camera 1 = {b.name})")
+    return 0
+
+
 def _delegated(name: str, argv: list[str]) -> int:
     """`glsim bench|calib|verify|docs …`: their own argument parsers take the rest of the line."""
     if name == "bench":
@@ -140,6 +169,18 @@ def parser() -> argparse.ArgumentParser:
     r.add_argument("-o", "--output", help="output directory (default: [output] directory)")
     _common(r)
     r.set_defaults(func=cmd_render)
+    from glsim.io.calibfiles import FORMATS
+
+    rig = sub.add_parser("rig", help="stereo rig files for DIC packages").add_subparsers(dest="rig", required=True)
+    x = rig.add_parser("export", help="write a scene's true rig, a calibrated rig or a rig file in another format")
+    x.add_argument("source", help="scene (.toml / scene.json), glsim calib output folder, or rig file "
+                                  f"({', '.join(f'{f} {e}' for f, e in FORMATS.items())})")
+    x.add_argument("--format", choices=tuple(FORMATS), help="output format (default: from -o's extension)")
+    x.add_argument("-o", "--output", required=True, help="file to write")
+    x.add_argument("--cameras", nargs=2, default=(0, 1), metavar=("A", "B"),
+                   help="the scene's cameras for camera 0 and 1 (names or indices; default the first two)")
+    x.add_argument("--size", type=int, nargs=2, metavar=("W", "H"), help="image size for a MatchID source")
+    x.set_defaults(func=cmd_rig_export)
     for name, text in DELEGATED.items():  # listed for --help; main() hands them their arguments
         sub.add_parser(name, help=text)
     return ap

@@ -23,7 +23,7 @@ from typing import Callable
 import numpy as np
 
 from glsim.io import images as io
-from glsim.io.calibfiles import opencv_distortion, write_rig_yaml
+from glsim.io.calibfiles import opencv_distortion, stereo_extrinsics, write_rig_yaml
 from glsim.scene.camera import Camera, Distortion, project, stereo_pose
 from glsim.errors import SceneError
 from glsim.render import Renderer
@@ -131,12 +131,6 @@ def camera_from_dict(d: dict) -> Camera:
     d = dict(d)
     d["distortion"] = Distortion(**d["distortion"])
     return Camera(**d)
-
-
-def stereo_extrinsics(cam1: Camera, cam2: Camera) -> tuple[np.ndarray, np.ndarray]:
-    """(R, T): camera 2 relative to camera 1, X_cam2 = R·X_cam1 + T (OpenCV's stereoCalibrate)."""
-    R = cam2.rotation @ cam1.rotation.T
-    return R, cam2.translation - R @ cam1.translation
 
 
 def write_true_rig(path, cam1: Camera, cam2: Camera) -> Path:
