@@ -1,16 +1,15 @@
 // Inverse bilinear (Q4) mapping and ray / bilinear-patch intersection: the GLSL twin of
 // glsim/scene/bilinear.py (same names and steps). Corners in FE order 0:(-1,-1) 1:(1,-1) 2:(1,1) 3:(-1,1).
+// Coverage follows the tie rule of glsim/scene/bilinear.py (owned): near an edge the edge
+// function decides, computed `precise` (no fused multiply-add) so that two elements sharing
+// an edge get exactly opposite values; exact ties go to the element on the +x (then +y) side.
 #ifdef FP64
 #define NEWTON_TOL 1e-12
-#define INSIDE_TOL 1e-9
+#define NEAR_TOL 1e-6
 #else
 #define NEWTON_TOL 1e-6
-#define INSIDE_TOL 1e-5
+#define NEAR_TOL 1e-3
 #endif
-// q4 coverage comes from rasterizing float32 vertex positions; a fragment the rasterizer gives
-// to this element may map a hair outside it (|xi| up to ~1 + 1e-5). Accepting it avoids holes
-// on shared edges; the bilinear field is continuous there, so the extrapolation is harmless.
-#define RASTER_INSIDE_TOL 1e-4
 #define NEWTON_MAX_ITER 20
 #define POLISH_RANGE 1.5  // closed-form roots beyond |xi|, |eta| > 1.5 are not polished
 
@@ -31,8 +30,69 @@ real3 bilinear3(real3 p[4], real xi, real eta) {
     return N.x * p[0] + N.y * p[1] + N.z * p[2] + N.w * p[3];
 }
 
-bool inside(real xi, real eta, real tol) {
-    return abs(xi) <= 1.0 + tol && abs(eta) <= 1.0 + tol;
+// Edge functions of the 2-D quad p at q (edge k from corner k to k+1): E = cross(p_i - q, p_j - q),
+// positive left of i -> j, and its gradient m in q.
+void edge_functions_2d(real2 p[4], real2 q, out real E[4], out real2 m[4]) {
+    for (int k = 0; k < 4; ++k) {
+        int j = (k + 1) & 3;
+        precise real2 a = p[k] - q;
+        precise real2 b = p[j] - q;
+        precise real e = a.x * b.y - a.y * b.x;
+        E[k] = e;
+        m[k] = real2(p[k].y - p[j].y, p[j].x - p[k].x);
+    }
+}
+
+// Edge functions of patch P for the ray (xn, 1): E = (xn, 1) . (P_i x P_j), and the gradient in xn.
+void edge_functions_ray(real3 P[4], real2 xn, out real E[4], out real2 m[4]) {
+    for (int k = 0; k < 4; ++k) {
+        int j = (k + 1) & 3;
+        precise real mx = P[k].y * P[j].z - P[k].z * P[j].y;
+        precise real my = P[k].z * P[j].x - P[k].x * P[j].z;
+        precise real mz = P[k].x * P[j].y - P[k].y * P[j].x;
+        precise real e = (xn.x * mx + xn.y * my) + mz;
+        E[k] = e;
+        m[k] = real2(mx, my);
+    }
+}
+
+// The tie rule for one edge (orientation s = +-1): s E > 0, or s E == 0 and the inward normal
+// s m points to +x, or with zero x to +y. A collapsed edge (m = 0) decides nothing.
+bool edge_owns(real E, real2 m, real s) {
+    if (m.x == 0.0 && m.y == 0.0) return true;
+    precise real sE = s * E;
+    precise real2 sm = s * m;
+    return sE > 0.0 || (sE == 0.0 && (sm.x > 0.0 || (sm.x == 0.0 && sm.y > 0.0)));
+}
+
+// Coverage under the tie rule: (xi, eta) within NEAR_TOL of the element, and every edge the
+// sample is within NEAR_TOL of owns it.
+bool owned(real xi, real eta, real E[4], real2 m[4], real s) {
+    if (!(abs(xi) <= 1.0 + NEAR_TOL && abs(eta) <= 1.0 + NEAR_TOL)) return false;
+    bool near[4] = bool[4](eta <= -1.0 + NEAR_TOL, xi >= 1.0 - NEAR_TOL, eta >= 1.0 - NEAR_TOL,
+                           xi <= -1.0 + NEAR_TOL);
+    for (int k = 0; k < 4; ++k)
+        if (near[k] && !edge_owns(E[k], m[k], s)) return false;
+    return true;
+}
+
+real sign_or(real a, real b) { return a != 0.0 ? sign(a) : sign(b); }
+
+// Local orientation of the 2-D map at (xi, eta): sign(det J), else the sign of the signed area.
+real orientation_2d(real2 p[4], real xi, real eta) {
+    real2 a = 0.25 * ((p[1] - p[0]) * (1.0 - eta) + (p[2] - p[3]) * (1.0 + eta));
+    real2 b = 0.25 * ((p[3] - p[0]) * (1.0 - xi) + (p[2] - p[1]) * (1.0 + xi));
+    real area = cross2(p[1] - p[0], p[2] - p[0]) + cross2(p[2] - p[0], p[3] - p[0]);
+    return sign_or(a.x * b.y - a.y * b.x, area);
+}
+
+// Local orientation of patch P seen from the camera centre: sign(X . (X_xi x X_eta)), else the
+// sign of the volume of the pyramid camera-quad.
+real orientation_ray(real3 P[4], real xi, real eta) {
+    real3 a = 0.25 * ((P[1] - P[0]) * (1.0 - eta) + (P[2] - P[3]) * (1.0 + eta));
+    real3 b = 0.25 * ((P[3] - P[0]) * (1.0 - xi) + (P[2] - P[1]) * (1.0 + xi));
+    real vol = dot(P[0], cross(P[1], P[2]) + cross(P[2], P[3]));
+    return sign_or(dot(bilinear3(P, xi, eta), cross(a, b)), vol);
 }
 
 // One Gauss-Newton update (paper eqs. 5-9); det = 0 means a singular Jacobian.
@@ -108,20 +168,24 @@ void invert_closed(real2 p[4], real2 q, out real xi[2], out real eta[2], out boo
 // Nearest intersection of the camera ray through normalized image point xn (the ray from the
 // origin along (x, y, 1)) with the bilinear patch P (camera frame, mm): X - x Z = 0 and
 // Y - y Z = 0 are two planes through the ray; at the corners they give a 2-D inverse bilinear
-// problem with target (0, 0).
+// problem with target (0, 0). A root counts where the tie rule (owned) gives it to this element.
 bool intersect_ray_patch(real3 P[4], real2 xn, out real xi, out real eta, out real Z) {
     real2 p[4];
     for (int i = 0; i < 4; ++i) p[i] = P[i].xy - xn * P[i].z;
     real xs[2], es[2];
     bool ok[2];
     invert_closed(p, real2(0.0), xs, es, ok);
+    real E[4];
+    real2 m[4];
+    edge_functions_ray(P, xn, E, m);
     bool found = false;
     xi = 0.0;
     eta = 0.0;
     Z = 0.0;
     for (int k = 0; k < 2; ++k) {
         real z = dot(shape_functions(xs[k], es[k]), real4(P[0].z, P[1].z, P[2].z, P[3].z));
-        if (ok[k] && inside(xs[k], es[k], INSIDE_TOL) && z > 0.0 && (!found || z < Z)) {
+        if (ok[k] && z > 0.0 && (!found || z < Z) &&
+            owned(xs[k], es[k], E, m, orientation_ray(P, xs[k], es[k]))) {
             found = true;
             xi = xs[k];
             eta = es[k];

@@ -11,7 +11,8 @@ import numpy as np
 
 from glsim.scene import bilinear as bl
 from glsim.stages import interp
-from glsim.scene.camera import pixel_grid, pixel_rays, project_camera_frame
+from glsim.scene.camera import pixel_grid, pixel_to_normalized, project_camera_frame, undistort
+from glsim.stages.truth import fast_local_coords
 from glsim.stages.view import View
 
 CHUNK = 1 << 21  # candidate (element, sample) pairs evaluated at once
@@ -82,14 +83,16 @@ def _fast(view: View, e, q):
 
 
 def _q4(view: View, e, q, tol=1e-12):
-    xi, eta, conv = bl.invert_newton(view.uv[e], q, tol=tol, max_iter=50)
-    ok = conv & bl.inside(xi, eta)
+    p = view.uv[e]
+    xi, eta, conv = bl.invert_newton(p, q, tol=tol, max_iter=50)
+    E, m = bl.edge_functions_2d(p, q)
+    ok = conv & bl.owned(xi, eta, E, m, bl.orientation_2d(p, xi, eta))  # the shared tie rule
     depth = bl.bilinear(view.Xd[e, :, 2:], xi, eta)[:, 0]
     return ok, depth, xi, eta, bl.bilinear(view.ref_uv[e], xi, eta)
 
 
-def _exact(view: View, e, rays, ray_ok):
-    xi, eta, depth, ok = bl.intersect_ray_patch(view.Xd[e], rays[:, :2] / rays[:, 2:])
+def _exact(view: View, e, xn, ray_ok):
+    xi, eta, depth, ok = bl.intersect_ray_patch(view.Xd[e], xn)
     ref_uv, ref_ok = project_camera_frame(bl.bilinear(view.Xr[e], xi, eta), view.ref_camera)
     return ok & ray_ok & ref_ok, depth, xi, eta, ref_uv
 
@@ -106,7 +109,8 @@ def rasterize(view: View, mode: str, s: int = 1) -> dict:
     best = {"element": np.full(n, -1, np.int64), "depth": np.full(n, np.inf),
             "xi": np.zeros(n), "eta": np.zeros(n), "ref_uv": np.zeros((n, 2))}
     if mode == "exact":
-        rays, ray_ok = pixel_rays(grid, view.camera)
+        # normalized undistorted coordinates as the GL ray map stores them (no normalisation)
+        rays, ray_ok = undistort(pixel_to_normalized(grid, view.camera.intrinsics), view.camera.distortion.coeffs)
     rw, rh = view.ref_camera.size
     for e, idx in _candidates(_boxes(view, mode, s), W * s):
         q = grid[idx]
@@ -187,7 +191,11 @@ def render_view(view: View, sample, opts, truth: bool, fx=None):
         stages.append("noise")
     if not truth:
         return image, None, stages
-    return image, (r if s == 1 else rasterize(view, opts.mode, 1)), stages
+    r = r if s == 1 else rasterize(view, opts.mode, 1)
+    if opts.mode == "fast":  # truth at the material point that coloured the pixel
+        t = np.flatnonzero(r["element"] >= 0)
+        r["xi"][t], r["eta"][t] = fast_local_coords(view, r["element"][t], r["ref_uv"][t], r["xi"][t], r["eta"][t])
+    return image, r, stages
 
 
 class CPUBackend:

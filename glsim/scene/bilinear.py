@@ -2,6 +2,18 @@
 
 Mirrored function for function in ``shaders/bilinear.glsl``. Corners follow the FE order
 0:(ξ,η)=(−1,−1), 1:(1,−1), 2:(1,1), 3:(−1,1); the forward map is x = Σ Φᵢ(ξ,η) pᵢ.
+
+Coverage (which element owns a sample) follows one tie rule, the same here and in GLSL: a
+sample whose (ξ, η) lies within ``NEAR_TOL`` of an element edge is decided by that edge's
+*edge function* E (in pixel space for ``q4``, in ray space — the plane through the camera
+centre and the edge — for ``exact``), which is computed so that two elements sharing an edge
+get exactly opposite values. The sample is owned where the element lies on its positive side
+(s·E > 0, s the element's local orientation); where E is exactly 0 it is owned by the element
+that contains the sample moved by an infinitesimal step to the right (+x), or, on an edge
+parallel to x, down (+y): the top-left rule of rasterizers, written as a symbolic
+perturbation. So every sample inside a conforming mesh belongs to exactly one element, and an
+axis-aligned outline [u0, u1] × [v0, v1] covers u0 ≤ u < u1, v0 ≤ v < v1. See
+docs/hard_cases.md.
 """
 from __future__ import annotations
 
@@ -9,6 +21,8 @@ import numpy as np
 
 POLISH_RANGE = 1.5  # closed-form roots farther out than this are rejected unpolished
 INSIDE_TOL = 1e-9  # |ξ|, |η| ≤ 1 + INSIDE_TOL counts as inside (pixels exactly on an edge)
+NEAR_TOL = 1e-6  # |ξ|, |η| within this of 1: the edge function decides (tie rule above)
+EDGES = ((0, 1), (1, 2), (2, 3), (3, 0))  # edge k: η = −1, ξ = +1, η = +1, ξ = −1
 
 
 def shape_functions(xi, eta):
@@ -116,6 +130,70 @@ def inside(xi, eta, tol=INSIDE_TOL):
     return (np.abs(xi) <= 1 + tol) & (np.abs(eta) <= 1 + tol)
 
 
+def edge_functions_2d(p, q):
+    """Edge functions of the 2-D quads p (..., 4, 2) at points q (..., 2): E (..., 4), positive
+    left of edge i → j, and their gradients m (..., 4, 2). E = cross(pᵢ − q, pⱼ − q) is exactly
+    antisymmetric in (i, j), so two elements sharing an edge get exactly opposite values."""
+    q = np.asarray(q, dtype=np.float64)[..., None, :]
+    i, j = [k for k, _ in EDGES], [k for _, k in EDGES]
+    a, b = p[..., i, :] - q, p[..., j, :] - q
+    E = a[..., 0] * b[..., 1] - a[..., 1] * b[..., 0]
+    m = np.stack([p[..., i, 1] - p[..., j, 1], p[..., j, 0] - p[..., i, 0]], -1)
+    return E, m
+
+
+def edge_functions_ray(P, xn):
+    """Edge functions of patches P (..., 4, 3) (camera frame) for the rays (xn, 1), xn (..., 2):
+    E = (xn, 1) · (Pᵢ × Pⱼ), the side of the plane through the camera centre and edge i → j
+    (exactly antisymmetric in (i, j)), and the gradients m (..., 4, 2) of E in xn."""
+    i, j = [k for k, _ in EDGES], [k for _, k in EDGES]
+    A, B = P[..., i, :], P[..., j, :]
+    mx = A[..., 1] * B[..., 2] - A[..., 2] * B[..., 1]
+    my = A[..., 2] * B[..., 0] - A[..., 0] * B[..., 2]
+    mz = A[..., 0] * B[..., 1] - A[..., 1] * B[..., 0]
+    x, y = xn[..., 0:1], xn[..., 1:2]
+    return (x * mx + y * my) + mz, np.stack([mx, my], -1)
+
+
+def edge_owns(E, m, s):
+    """The tie rule for one edge: the element (local orientation s = ±1, broadcast with E) owns
+    the sample if s·E > 0, or if s·E = 0 and its inward normal s·m points to +x, or, with a
+    zero x component, to +y. A collapsed edge (m = 0) decides nothing."""
+    s = np.asarray(s, dtype=np.float64)
+    sE, smx, smy = s * E, s * m[..., 0], s * m[..., 1]
+    collapsed = (m[..., 0] == 0) & (m[..., 1] == 0)
+    return collapsed | (sE > 0) | ((sE == 0) & ((smx > 0) | ((smx == 0) & (smy > 0))))
+
+
+def owned(xi, eta, E, m, s, tol=NEAR_TOL):
+    """Coverage under the tie rule: (ξ, η) within [−1 − tol, 1 + tol]², and for each edge the
+    sample is within ``tol`` of, :func:`edge_owns`. E, m: (..., 4), (..., 4, 2); s (...,)."""
+    ok = (np.abs(xi) <= 1 + tol) & (np.abs(eta) <= 1 + tol)
+    near = np.stack([eta <= -1 + tol, xi >= 1 - tol, eta >= 1 - tol, xi <= -1 + tol], -1)
+    own = edge_owns(E, m, np.asarray(s, dtype=np.float64)[..., None])
+    return ok & (~near | own).all(-1)
+
+
+def orientation_2d(p, xi, eta):
+    """Local orientation (sign of det J, ±1) of the 2-D map at (ξ, η); where det J = 0 (a
+    collapsed corner) the sign of the element's signed area; 0 for zero-area elements."""
+    _, a, b = _residual_jacobian(p, xi, eta, 0.0)
+    det = a[..., 0] * b[..., 1] - a[..., 1] * b[..., 0]
+    area = _cross(p[..., 1, :] - p[..., 0, :], p[..., 2, :] - p[..., 0, :]) + \
+        _cross(p[..., 2, :] - p[..., 0, :], p[..., 3, :] - p[..., 0, :])
+    return np.where(det != 0, np.sign(det), np.sign(area))
+
+
+def orientation_ray(P, xi, eta):
+    """Local orientation of patch P seen from the camera centre: the sign of X · (X_ξ × X_η)
+    at (ξ, η); where that is 0, the sign of the pyramid volume camera–quad; ±1 or 0."""
+    X, a, b = _residual_jacobian(P, xi, eta, 0.0)
+    local = np.einsum("...d,...d->...", X, np.cross(a, b))
+    P0, P1, P2, P3 = (P[..., k, :] for k in range(4))
+    vol = np.einsum("...d,...d->...", P0, np.cross(P1, P2) + np.cross(P2, P3))
+    return np.where(local != 0, np.sign(local), np.sign(vol))
+
+
 def intersect_ray_patch(P, xn):
     """Nearest intersection of the camera rays through normalized image points xn (..., 2)
     (the ray from the origin along (x, y, 1)) with bilinear patches P (..., 4, 3) (camera
@@ -124,12 +202,20 @@ def intersect_ray_patch(P, xn):
     A point X lies on the ray iff X − x·Z = 0 and Y − y·Z = 0: two planes through the ray.
     Evaluated at the corners they turn the intersection into a 2-D inverse bilinear problem
     with target (0, 0). Returns (ξ, η, depth Z, ok); ok needs a root inside the element in
-    front of the camera.
+    front of the camera and owned under the tie rule (module docstring).
     """
     p2 = P[..., :2] - xn[..., None, :] * P[..., 2:3]
     xi, eta, ok = invert_closed(p2, np.zeros(p2.shape[:-2] + (2,)))
     Z = bilinear(P[None, ..., 2:3], xi, eta)[..., 0]        # (2, ...)
-    ok = ok & inside(xi, eta) & (Z > 0)
+    ok = ok & (Z > 0) & inside(xi, eta, NEAR_TOL)
+    near = ok & ((np.abs(xi) >= 1 - NEAR_TOL) | (np.abs(eta) >= 1 - NEAR_TOL))
+    if near.any():  # the tie rule, only where it can matter (it costs more than the root)
+        batch = np.broadcast_shapes(P.shape[:-2], xn.shape[:-1])
+        P, xn = np.broadcast_to(P, batch + (4, 3)), np.broadcast_to(xn, batch + (2,))
+        k, *rest = np.nonzero(near)
+        Ps, xs, es = P[tuple(rest)], xi[near], eta[near]
+        E, m = edge_functions_ray(Ps, xn[tuple(rest)])
+        ok[near] = owned(xs, es, E, m, orientation_ray(Ps, xs, es))
     first = np.where(ok[0] & (~ok[1] | (Z[0] <= Z[1])), 0, 1)
     pick = lambda a: np.take_along_axis(a, first[None], 0)[0]  # noqa: E731
     return pick(xi), pick(eta), pick(Z), pick(ok)

@@ -17,6 +17,7 @@ from glsim.errors import RenderWarning, SceneError
 NEAR_MM = 1e-3  # corners closer to the camera plane than this cannot be projected
 GRAZING_DEG = 85.0
 GRAZING_COS = float(np.cos(np.radians(GRAZING_DEG)))
+COVER_PAD_PX = 1.0 / 8.0  # cover rectangles reach this far beyond the element's image
 
 
 @dataclass(frozen=True, eq=False)
@@ -67,7 +68,10 @@ def _cover(cam: Camera, Xd: np.ndarray, projectable: np.ndarray, behind: np.ndar
     mid = normalized_to_pixel(distort(0.5 * (pts.reshape(seg.shape)[:, :, :-1] + pts.reshape(seg.shape)[:, :, 1:]), k),
                               cam.intrinsics)
     sag = np.linalg.norm(mid - 0.5 * (seg[:, :, :-1] + seg[:, :, 1:]), axis=-1).reshape(M, -1).max(axis=1)
-    pad = 2.0 * sag + 1e-3
+    # the rasterizer snaps cover vertices to its sub-pixel grid (1/256 px on llvmpipe, 1/16 on
+    # some GPUs) and rounds them to float32: pad by more than either, so every pixel centre
+    # the element may own gets a fragment and the fragment stage's tie rule decides
+    pad = 2.0 * sag + COVER_PAD_PX + 1e-6 * (np.abs(uv).max(axis=(1, 2)) + W + H)
     corners = uv[:, ::len(t)][:, :4]                     # the distorted corners 0, 1, 2, 3
     a = (corners[:, 1] - corners[:, 0]) + (corners[:, 2] - corners[:, 3])
     norm = np.linalg.norm(a, axis=1, keepdims=True)

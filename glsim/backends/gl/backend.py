@@ -15,6 +15,8 @@ from glsim.stages import interp
 from glsim.effects import noise
 from glsim.effects.dof import kernel_radius, shader_uniforms
 from glsim.effects import Effects
+from glsim.scene.camera import pixel_to_normalized, undistort
+from glsim.stages import truth
 from glsim.stages.view import View
 from glsim.backends.gl.context import check_error, create_context
 from glsim.backends.gl.programs import ProgramCache
@@ -153,8 +155,9 @@ class GLBackend:
         """Vertex data (unshared corners) and the triangle indices of the drawn elements."""
         M = len(view.Xd)
         elem = np.repeat(np.arange(M, dtype=np.int32), 4)
-        if mode == "exact":
-            drawn = np.flatnonzero((view.bbox[:, 2] >= view.bbox[:, 0]) & (view.bbox[:, 3] >= view.bbox[:, 1]))
+        if mode != "fast":  # padded cover rectangles; the fragment stage's tie rule decides coverage
+            seen = (view.bbox[:, 2] >= view.bbox[:, 0]) & (view.bbox[:, 3] >= view.bbox[:, 1])
+            drawn = np.flatnonzero(seen & (view.projectable if mode == "q4" else True))
             verts = np.zeros(M * 4, dtype=[("px", "f4", 2), ("elem", "i4")])
             verts["px"] = view.cover.reshape(-1, 2)
             layout = "2f 1i"
@@ -212,7 +215,7 @@ class GLBackend:
         cam, ref_cam = view.camera, view.ref_camera
         defines = program_defines(opts, truth, self.fp64, fx)
         fp64 = "FP64" in defines
-        vert = "exact.vert" if opts.mode == "exact" else "deform.vert"
+        vert = "deform.vert" if opts.mode == "fast" else "exact.vert"
         prog = self.programs.program(vert, "deform.frag", defines=defines)
         self._set(prog, "u_intr", cam.intrinsics, fp64)
         self._set(prog, "u_dist", cam.distortion.coeffs, fp64)
@@ -273,7 +276,35 @@ class GLBackend:
         m = np.frombuffer(color[1].read(), np.float32).reshape(H * W, 4).astype(np.float64)
         x = np.frombuffer(color[2].read(), np.float32).reshape(H * W, 4).astype(np.float64)
         elem = np.rint(x[:, 0]).astype(np.int64) - 1
-        return color, {"element": elem, "xi": m[:, 2], "eta": m[:, 3], "ref_uv": m[:, :2] + x[:, 1:3]}
+        raster = {"element": elem, "xi": m[:, 2], "eta": m[:, 3], "ref_uv": m[:, :2] + x[:, 1:3]}
+        return color, self._float64_truth(view, opts.mode, raster, fp64)
+
+    def _float64_truth(self, view: View, mode: str, raster: dict, fp64: bool) -> dict:
+        """Replace the float32 (ξ, η) read back by float64 ones (glsim.stages.truth): two Newton
+        steps on the pixel's ray (exact; the ray map's hi/lo pair in fp64 builds) or pixel
+        (q4); in fast mode the material point the reference camera sees at ``ref_uv``."""
+        hit = np.flatnonzero(raster["element"] >= 0)
+        if not hit.size:
+            return raster
+        W, H = view.camera.size
+        e, xi, eta = raster["element"][hit], raster["xi"][hit], raster["eta"][hit]
+        if mode == "exact":
+            key = (view.camera.size, tuple(view.camera.intrinsics), tuple(view.camera.distortion.coeffs), 1, fp64)
+            if fp64 and key in self._rays:
+                rays = np.frombuffer(self._rays[key].read(), np.float32).reshape(H * W, 4)[hit].astype(np.float64)
+                xn = rays[:, :2] + rays[:, 2:]
+            else:
+                cam = view.camera
+                q = np.column_stack([hit % W, hit // W]).astype(np.float64)
+                xn, _ = undistort(pixel_to_normalized(q, cam.intrinsics), cam.distortion.coeffs)
+            xi, eta = truth.polish_exact(view, e, xn, xi, eta)
+        elif mode == "q4":
+            xi, eta = truth.polish_q4(view, e, np.column_stack([hit % W, hit // W]).astype(np.float64), xi, eta)
+        else:
+            xi, eta = truth.fast_local_coords(view, e, raster["ref_uv"][hit], xi, eta)
+        raster["xi"], raster["eta"] = raster["xi"].copy(), raster["eta"].copy()
+        raster["xi"][hit], raster["eta"][hit] = xi, eta
+        return raster
 
     def _bind_dots(self, prog) -> None:
         """Bind procedural.glsl's storage buffers (made once) and set its uniforms."""
