@@ -390,9 +390,11 @@ def _pyvale_exodus_dir():
     if given:
         return Path(given)
     spec = importlib.util.find_spec("pyvale")
-    if spec is None or not spec.submodule_search_locations:
-        return None
-    return Path(list(spec.submodule_search_locations)[0]) / "data" / "simulation" / "exodus"
+    if spec is not None and spec.submodule_search_locations:
+        return Path(list(spec.submodule_search_locations)[0]) / "data" / "simulation" / "exodus"
+    verify_venv = sorted((Path(__file__).resolve().parent.parent / ".venv-verify").glob(   # `make verify`'s
+        "lib/python*/site-packages/pyvale/data/simulation/exodus"))
+    return verify_venv[0] if verify_venv else None
 
 
 PYVALE = _pyvale_exodus_dir()
