@@ -56,8 +56,14 @@ def _nan_displacement(d):
     return write_scene(d, mesh=False), "'u2' (load step 2)"
 
 
-@pytest.mark.parametrize("make", [_bad_point_data, _bad_csv, _bad_reference, _nan_displacement],
-                         ids=["point-data name", "csv line", "reference image", "NaN displacement"])
+def _bad_noise_table(d):
+    path = write_scene(d, extra='[noise]\nmodel = "heteroscedastic"\nvariance_file = "v.csv"\n')
+    (d / "v.csv").write_text("grey;variance\n0;abc\n")
+    return path, "v.csv:2: expected two numbers"
+
+
+@pytest.mark.parametrize("make", [_bad_point_data, _bad_csv, _bad_reference, _nan_displacement, _bad_noise_table],
+                         ids=["point-data name", "csv line", "reference image", "NaN displacement", "noise table"])
 def test_an_input_error_writes_nothing(tmp_path, capsys, make):
     """The user's case: an error found in the mesh, a CSV or the reference image left scene.json."""
     scene_file, culprit = make(tmp_path / "in")
