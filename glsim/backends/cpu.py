@@ -72,7 +72,10 @@ def _fast(view: View, e, q):
         l1 = bl._cross(q - a, c - a) / safe
         l2 = bl._cross(b - a, q - a) / safe
         lam = np.stack([1 - l1 - l2, l1, l2], -1)
-        hit = (den != 0) & (lam >= -1e-12).all(-1) & ~ok
+        # coverage: the shared tie rule on the triangle's edge functions (as GL's rasterizer,
+        # which however snaps the vertices to its sub-pixel grid first)
+        E, m = bl.edge_functions_2d(uv, q, edges=tuple(zip(tri, tri[1:] + tri[:1])))
+        hit = (den != 0) & ~ok & bl.edge_owns(E, m, np.sign(den)[:, None]).all(-1)
         w = lam / z[:, tri]
         w /= np.where(hit, w.sum(-1), 1.0)[:, None]
         out_ref = np.where(hit[:, None], np.einsum("nk,nkd->nd", w, view.ref_uv[e][:, tri]), out_ref)

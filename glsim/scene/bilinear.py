@@ -130,12 +130,13 @@ def inside(xi, eta, tol=INSIDE_TOL):
     return (np.abs(xi) <= 1 + tol) & (np.abs(eta) <= 1 + tol)
 
 
-def edge_functions_2d(p, q):
-    """Edge functions of the 2-D quads p (..., 4, 2) at points q (..., 2): E (..., 4), positive
-    left of edge i → j, and their gradients m (..., 4, 2). E = cross(pᵢ − q, pⱼ − q) is exactly
-    antisymmetric in (i, j), so two elements sharing an edge get exactly opposite values."""
+def edge_functions_2d(p, q, edges=EDGES):
+    """Edge functions of the 2-D quads p (..., 4, 2) at points q (..., 2): E (..., K), positive
+    left of edge i → j, and their gradients m (..., K, 2), for the K ``edges`` (i, j). E =
+    cross(pᵢ − q, pⱼ − q) is exactly antisymmetric in (i, j), so two elements sharing an edge
+    get exactly opposite values."""
     q = np.asarray(q, dtype=np.float64)[..., None, :]
-    i, j = [k for k, _ in EDGES], [k for _, k in EDGES]
+    i, j = [k for k, _ in edges], [k for _, k in edges]
     a, b = p[..., i, :] - q, p[..., j, :] - q
     E = a[..., 0] * b[..., 1] - a[..., 1] * b[..., 0]
     m = np.stack([p[..., i, 1] - p[..., j, 1], p[..., j, 0] - p[..., i, 0]], -1)

@@ -102,6 +102,33 @@ def test_subpixel_shift_sweep_coverage_is_exact(backend, mode, ctx_for):
             assert np.array_equal(t.element, want), (d, int((t.element != want).sum()))
 
 
+def test_subpixel_shift_sweep_fast_mode_oracle_is_exact():
+    """The oracle's fast mode follows the same tie rule on its triangles' edges."""
+    with Renderer(aligned_plate(SHIFTS[1:]), "cpu") as r:
+        for step, d in enumerate(SHIFTS):
+            t = r.render(0, step, truth=True, mode="fast").truth
+            assert np.array_equal(t.element, analytic_owner(d, -d / 2)), d
+
+
+@pytest.mark.gl
+def test_subpixel_shift_sweep_fast_mode_gl(gl_ctx):
+    """GL's fast mode is covered by the rasterizer, which snaps vertices to 1/256 px (llvmpipe):
+    exact at ties (shift 0) and for shifts beyond 1/512 px; a shift up to 1/512 px
+    can move one outline row or column (documented limit), never open an interior hole."""
+    with Renderer(aligned_plate(SHIFTS[1:]), "gl", ctx=gl_ctx) as r:
+        for step, d in enumerate(SHIFTS):
+            t = r.render(0, step, truth=True, mode="fast").truth
+            want = analytic_owner(d, -d / 2) >= 0
+            if all(c == 0 or abs(c) > 1 / 512 for c in (d, d / 2)):
+                assert np.array_equal(t.mask, want), d
+            eroded, dilated = want.copy(), want.copy()
+            for ax in (0, 1):
+                for k in (1, -1):
+                    eroded &= np.roll(want, k, ax)
+                    dilated |= np.roll(want, k, ax)
+            assert t.mask[eroded].all() and not t.mask[~dilated].any(), d
+
+
 @pytest.mark.gl
 @pytest.mark.parametrize("mode", ["exact", "q4"])
 def test_subpixel_shift_sweep_gl_equals_oracle(mode, gl_ctx):
