@@ -29,7 +29,7 @@ class Truth:
 
     ``element``: element index (−1 = background); ``xi``, ``eta``: local coordinates in
     [−1, 1] (FE corner order); ``ref_uv``: reference-image coordinates (px) the pixel was
-    given; ``X_undeformed``/``X_deformed``: the material point in camera 1's frame (mm),
+    given; ``X_undeformed``/``X_deformed``: the material point in camera 0's frame (mm),
     evaluated in float64 from (element, ξ, η).
     """
     mask: np.ndarray

@@ -25,7 +25,7 @@ from glsim.scene.load import scene_from_dict  # noqa: E402
 from glsim.stages.reference import specimen_mesh  # noqa: E402
 
 RNG = np.random.default_rng(20)
-DIST = 300.0       # mm from camera 1 (the world frame) to the specimen
+DIST = 300.0       # mm from camera 0 (the world frame) to the specimen
 
 
 # --- an Exodus II writer that follows the netCDF layout --------------------------------------

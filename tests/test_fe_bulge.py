@@ -104,14 +104,14 @@ def test_fe_scene_loads_like_bulge_example(name):
     np.testing.assert_array_equal(mesh.node_labels, np.arange(1, N_NODES + 1))
     np.testing.assert_array_equal(mesh.element_labels, np.arange(1, N_ELEMENTS + 1))
     assert np.all(mesh.quads[:, 2] == mesh.quads[:, 3])          # T3 stored as collapsed Q4
-    # millimetres, placed 600 mm in front of camera 1, bulging towards the cameras (−z)
+    # millimetres, placed 600 mm in front of camera 0, bulging towards the cameras (−z)
     Rp, t = np.asarray(scene.specimen.R), np.asarray(scene.specimen.t)
     local = (mesh.nodes - t) @ Rp
     assert np.abs(local[:, 2]).max() < 1e-9 and np.hypot(local[:, 0], local[:, 1]).max() == pytest.approx(R)
     w0 = CASES[name][1] * R ** 4 / (64 * D)
     u_local = mesh.displacements[N_STEPS] @ Rp
     assert -u_local[0, 2] == pytest.approx(w0, rel=CENTRE_REL)
-    assert mesh.displacements[N_STEPS][0, 2] < 0                 # towards camera 1
+    assert mesh.displacements[N_STEPS][0, 2] < 0                 # towards camera 0
 
 
 def test_fe_scene_renders_small_cpu_image():

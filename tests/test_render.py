@@ -74,7 +74,7 @@ def test_exact_mapping_equals_analytic_shift(backend, tol, distortion, ctx_for):
             assert m.sum() > 0.3 * m.size
             err = np.linalg.norm(truth.ref_uv[m] - expected[m], axis=-1)
             assert err.max() <= tol, (step, err.max())
-            # material points in camera 1's frame: deformed − undeformed = the imposed shift
+            # material points in camera 0's frame: deformed − undeformed = the imposed shift
             moved = truth.X_deformed[m] - truth.X_undeformed[m]
             assert np.abs(moved - shift).max() < 1e-9
 

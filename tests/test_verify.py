@@ -51,7 +51,7 @@ def _pyvale_project(X_cam0: np.ndarray, calib: dict, camera: int) -> np.ndarray:
 
 
 def _rig(first_pose: bool) -> tuple[Camera, Camera]:
-    """Two distorted cameras with skew; camera 1 at the world origin or placed elsewhere."""
+    """Two distorted cameras with skew; camera 0 at the world origin or placed elsewhere."""
     R1 = rotation_xyz(2.0, -3.0, 1.5) if first_pose else np.eye(3)
     t1 = np.array([5.0, -8.0, 12.0]) if first_pose else np.zeros(3)
     R2, t2 = stereo_pose(R1, t1, -310.0, 4.0, 85.0, 1.2, 29.0, -0.7)
@@ -119,7 +119,7 @@ def test_truth_maps_reproject_onto_their_pixels(exchange):
     truth = np.load(exchange / "truth.npz")
     cam1 = verify.verify_scene(SIZE, 8).cameras[0]
     rows, cols = np.nonzero(truth["mask"])
-    uv, ok = project(truth["X_step0"][rows, cols], cam1)   # camera 1 is the world frame
+    uv, ok = project(truth["X_step0"][rows, cols], cam1)   # camera 0 is the world frame
     assert ok.all() and np.max(np.abs(uv - np.stack([cols, rows], axis=1))) < 1e-6
     moved = np.linalg.norm(truth["X_step1"] - truth["X_step0"], axis=-1)[truth["mask"]]
     assert 4.9 < moved.max() < 5.2   # the 5 mm bulge (plus the surface fibre's radial motion)

@@ -118,7 +118,7 @@ def lights_to_camera(lights_world: Sequence[Any], R=None, t=None) -> LightArrays
     ``attenuation`` (k, 1/mm²; default 0), ``cutoff_deg`` (spot half-angle, degrees, in
     (0, 180]; 180 or omitted = point light) and ``edge_deg`` (width of the smooth edge inside
     the cutoff, degrees, in [0, cutoff]; default 0 = hard edge). R, t default to the identity
-    (camera 1 is the world frame). Bad values raise SceneError naming ``lights[i].key``.
+    (camera 0 is the world frame). Bad values raise SceneError naming ``lights[i].key``.
     """
     R = np.eye(3) if R is None else np.asarray(R, dtype=np.float64)
     t = np.zeros(3) if t is None else np.asarray(t, dtype=np.float64)

@@ -96,7 +96,7 @@ def verify_parser() -> argparse.ArgumentParser:
     run.add_argument("--exchange", default="build/verify", help="exchange folder (default build/verify)")
     run.add_argument("--mesh-divisions", type=int, default=MESH_DIVISIONS)
     run.add_argument("--sigma", type=float, default=SPECKLE_SIGMA_PX,
-                     help="speckle Gaussian low-pass, camera-1 px (0: none)")
+                     help="speckle Gaussian low-pass, camera-0 px (0: none)")
     run.add_argument("--backend", choices=("gl", "cpu"), default="gl")
     run.add_argument("--python", default=str(DIC_PYTHON), help="interpreter with pyvale")
     run.add_argument("--script", default=str(DIC_SCRIPT))

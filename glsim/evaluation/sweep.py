@@ -115,7 +115,7 @@ def sweep_scene(size=SIZE, shifts_px=SHIFTS_PX, seed: int = SEED, spp: int = 1) 
 def model_image(scene: Scene, reference: Reference, translation, spp: int = 1,
                 grid: speckle.DotGrid | None = None, dtype=np.float32,
                 pixels: np.ndarray | None = None) -> np.ndarray:
-    """The speckle model seen by camera 1 with the plate translated by ``translation`` (mm,
+    """The speckle model seen by camera 0 with the plate translated by ``translation`` (mm,
     world): for every sample of the s×s grid (the renderer's sample positions), the pixel's ray
     meets the plate's plane (float64), the translation is removed, the material point is
     projected into the reference camera and :func:`speckle.evaluate` gives the exact grey
@@ -138,7 +138,7 @@ def model_image(scene: Scene, reference: Reference, translation, spp: int = 1,
     samples = np.stack(np.broadcast_arrays(su, sv), axis=-1)          # (n, s, s, 2)
     d = np.asarray(translation, np.float64)
     R_sp, t_sp = np.asarray(sp.R, np.float64), np.asarray(sp.t, np.float64)
-    # The plate's plane after the translation, in camera 1's frame: point P and normal n.
+    # The plate's plane after the translation, in camera 0's frame: point P and normal n.
     P = to_camera(t_sp + d, cam)
     n = cam.rotation @ R_sp[:, 2]
     rays, ok = pixel_rays(samples, cam)

@@ -7,8 +7,8 @@ calibration, truth maps; JSON/npz/TIFF only), runs ``verify/dic.py`` in its own 
 (``.venv-verify``, which never imports glsim) and compares the measured coordinates at the
 DIC's subset centres with the imposed ones, as the paper's Tables 4 and 5.
 
-Conventions: mm; pixels with centres at integers; glsim's camera 1 (``cameras[0]``, the world
-frame) is pyvale's camera 0, glsim's camera 2 is pyvale's camera 1; pyvale's stereo extrinsics
+Conventions: mm; pixels with centres at integers; glsim's camera 0 (``cameras[0]``, the world
+frame) is pyvale's camera 0, glsim's camera 1 pyvale's camera 1; pyvale's stereo extrinsics
 are X_cam1 = Rz(psi)·Ry(phi)·Rx(theta)·X_cam0 + T (degrees, mm), the same convention as
 glsim's ``stereo`` pose. Differences in px are mm / M with M = mean Z / √(fx·fy) (mm per px)
 over the compared subset centres in the reference state.
@@ -47,7 +47,7 @@ DIC_PYTHON = REPO / ".venv-verify" / "bin" / "python"
 FULL_SIZE = (1624, 1234)      # paper Table 3
 DEFORMED_STEP = 1             # bulge_scene(steps=1): step 1 is the full 5 mm bulge
 MESH_DIVISIONS = 32           # n_core = n_ring of the built-in disc mesh (default 8)
-SPECKLE_SIGMA_PX = 1.0        # Gaussian low-pass of the speckle, camera-1 pixels
+SPECKLE_SIGMA_PX = 1.0        # Gaussian low-pass of the speckle, camera-0 pixels
 ROI_RADIUS_MM = 45.0          # ROI: material points within this radius of the plate centre
 SEED = 0                      # speckle seed
 BIT_DEPTHS = (16, 8)
@@ -84,7 +84,7 @@ def verify_scene(size=FULL_SIZE, mesh_divisions: int = MESH_DIVISIONS) -> Scene:
 
 
 def smoothed_reference(scene: Scene, mesh, sigma_px: float) -> Reference:
-    """The scene's generated speckle low-passed by a Gaussian of ``sigma_px`` camera-1 pixels.
+    """The scene's generated speckle low-passed by a Gaussian of ``sigma_px`` camera-0 pixels.
 
     The built-in dots have 1-px edges: sampled at pixel centres they alias, and a DIC that
     interpolates the images cannot match them to 1e-3 px. The paper's pattern had "smooth
@@ -93,7 +93,7 @@ def smoothed_reference(scene: Scene, mesh, sigma_px: float) -> Reference:
     ref = make_reference(scene, mesh)
     if sigma_px <= 0:
         return ref
-    sigma = sigma_px * scene.speckle.oversample   # reference pixels per camera-1 pixel
+    sigma = sigma_px * scene.speckle.oversample   # reference pixels per camera-0 pixel
     image = ndimage.gaussian_filter(ref.image.astype(np.float64), sigma, mode="nearest")
     return Reference(image.astype(np.float32), ref.camera)
 
@@ -103,7 +103,7 @@ def smoothed_reference(scene: Scene, mesh, sigma_px: float) -> Reference:
 
 # ---- truth, ROI and exchange folder ------------------------------------------------------------
 def material_positions(mesh, truth: Truth, step: int, cam1: Camera) -> np.ndarray:
-    """(H, W, 3) mm in camera 1's frame: where the material point seen at each pixel of
+    """(H, W, 3) mm in camera 0's frame: where the material point seen at each pixel of
     ``truth`` (a step-0 render) is at ``step``; NaN off the specimen."""
     out = np.full(truth.mask.shape + (3,), np.nan)
     m = truth.mask
@@ -115,12 +115,12 @@ def material_positions(mesh, truth: Truth, step: int, cam1: Camera) -> np.ndarra
 def roi_mask(truth: Truth, scene: Scene, radius_mm: float) -> np.ndarray:
     """Pixels whose undeformed material point lies within ``radius_mm`` of the plate axis.
 
-    The specimen pose maps plate coordinates to the world: X = R·x + t; camera 1 is the world.
+    The specimen pose maps plate coordinates to the world: X = R·x + t; camera 0 is the world.
     """
     sp = scene.specimen
     X = np.where(truth.mask[..., None], truth.X_undeformed, 0.0)
     cam1 = scene.cameras[0]
-    world = (X - cam1.translation) @ cam1.rotation          # camera 1 → world
+    world = (X - cam1.translation) @ cam1.rotation          # camera 0 → world
     local = (world - np.asarray(sp.t)) @ np.asarray(sp.R)   # world → plate (Rᵀ·(X − t))
     return truth.mask & (np.hypot(local[..., 0], local[..., 1]) <= radius_mm)
 
@@ -133,7 +133,7 @@ def seed_point(roi: np.ndarray) -> list[int]:
 
 
 def image_name(camera: int, step: int, bits: int) -> str:
-    """Exchange-folder image name; ``cam0`` is glsim's camera 1 and pyvale's camera 0."""
+    """Exchange-folder image name; ``cam0`` is camera 0 of glsim and of pyvale."""
     return f"cam{camera}_{step:04d}_{bits}bit.tif"
 
 
@@ -142,9 +142,9 @@ def write_exchange(out: str | Path, size=FULL_SIZE, mesh_divisions: int = MESH_D
                    backend: str = "gl", runs=RUNS) -> Path:
     """Render the bulge pair and write the exchange folder; returns ``manifest.json``'s path.
 
-    Files: ``cam{0,1}_{step}_{16,8}bit.tif``, ``roi.tif`` (uint8 0/255 on camera 1's
+    Files: ``cam{0,1}_{step}_{16,8}bit.tif``, ``roi.tif`` (uint8 0/255 on camera 0's
     reference image), ``calibration.json`` (pyvale's ``Calib``), ``truth.npz`` (``mask`` and
-    ``X_step{k}``: (H, W, 3) mm, camera 1's frame, the material point seen at each reference
+    ``X_step{k}``: (H, W, 3) mm, camera 0's frame, the material point seen at each reference
     pixel at step k), ``scene.json`` and ``manifest.json`` (written last).
     """
     out = Path(out)
@@ -270,7 +270,7 @@ def results_markdown(res: dict) -> str:
              f"{res['render_seconds']:.1f} s",
              f"- DIC: pyvale {res['runs'][0]['pyvale']} `calculate_3d` with "
              + ", ".join(f"`{k}={v}`" for k, v in res["calculate_3d"].items()),
-             "- Differences are DIC − imposed at the subset centres, camera 1's frame; std is the "
+             "- Differences are DIC − imposed at the subset centres, camera 0's frame; std is the "
              "population std; px = mm / M, M = mean Z / √(fx·fy) over the compared subset centres in "
              "the reference state (mm per px)",
              f"- Goal: |mean| ≤ {GOAL_PX['mean']:.0e} px and std ≤ {GOAL_PX['std']:.0e} px; paper: "

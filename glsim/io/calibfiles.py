@@ -3,7 +3,7 @@
 OpenCV FileStorage YAML (:func:`write_rig_yaml`, :func:`read_rig_yaml`) and pyvale's
 ``Calib`` fields (:func:`pyvale_calibration`). Every writer takes the world→camera poses of
 :class:`~glsim.scene.camera.Camera` (OpenCV axes, mm) and states the stereo extrinsics as
-camera 2 relative to camera 1: X_cam2 = R·X_cam1 + T, R = Rz(Psi)·Ry(Phi)·Rx(Theta)
+camera 1 relative to camera 0: X_cam1 = R·X_cam0 + T, R = Rz(Psi)·Ry(Phi)·Rx(Theta)
 (:func:`euler_xyz` gives Theta, Phi, Psi in degrees, as MatchID and pyvale name them).
 """
 from __future__ import annotations
@@ -51,7 +51,7 @@ def pyvale_calibration(cam_a: Camera, cam_b: Camera) -> dict:
 
 def write_rig_yaml(path, K1, D1, K2, D2, R, T, image_size, **extra) -> Path:
     """OpenCV FileStorage YAML: image_size [W, H], K1 D1 K2 D2 (D = k1 k2 p1 p2 k3 …), R, T
-    (X_cam2 = R·X_cam1 + T, mm), the same extrinsics as MatchID's Tx Ty Tz (mm) and
+    (X_cam1 = R·X_cam0 + T, mm), the same extrinsics as MatchID's Tx Ty Tz (mm) and
     Theta Phi Psi (deg), then ``extra`` (matrices or numbers). Written atomically."""
     import cv2
     path = Path(path)
@@ -98,7 +98,7 @@ def opencv_distortion(cam: Camera) -> np.ndarray:
 
 # ---- one rig, four formats ---------------------------------------------------------------------
 # A rig is two glsim Cameras (world→camera poses, OpenCV intrinsics and distortion). Formats that
-# store camera 2 relative to camera 1 (OpenCV YAML, MatchID, pyvale) read back with camera 1 as the
+# store camera 1 relative to camera 0 (OpenCV YAML, MatchID, pyvale) read back with camera 0 as the
 # world frame; DICe's XML stores each camera's world→camera pose and reads back unchanged.
 FORMATS = {"opencv": ".yaml", "matchid": ".caldat", "dice": ".xml", "pyvale": ".json"}
 _BROWN5 = ("k1", "k2", "p1", "p2", "k3")            # what MatchID and pyvale can hold

@@ -449,9 +449,9 @@ def rotation_xyz(theta, phi, psi):
 
 
 def stereo_pose(cam1_R, cam1_t, Tx, Ty, Tz, theta, phi, psi):
-    """Camera 2's world→camera pose ``(R2, t2)`` from camera 1's and the stereo extrinsics.
+    """Camera 1's world→camera pose ``(R2, t2)`` from camera 0's and the stereo extrinsics.
 
-    The extrinsics map camera 1's frame to camera 2's: ``X_cam2 = Rs·X_cam1 + T``
+    The extrinsics map camera 0's frame to camera 1's: ``X_cam1 = Rs·X_cam0 + T``
     with ``Rs = rotation_xyz(theta, phi, psi)`` (degrees) and ``T = (Tx, Ty, Tz)`` mm.
     """
     rs = rotation_xyz(theta, phi, psi)

@@ -37,16 +37,16 @@ class Speckle:
     Either ``image`` (a greyscale file, 8/16-bit or float in [0, 1]) or the built-in
     generator (``image`` empty). The reference camera is ``camera`` if given, otherwise a
     pinhole looking square onto the undeformed specimen at ``mm_per_px`` mm per reference
-    pixel; for the generator ``mm_per_px`` defaults to camera 1's scale at the specimen
+    pixel; for the generator ``mm_per_px`` defaults to camera 0's scale at the specimen
     divided by ``oversample``.
     """
     image: str = ""
     camera: Camera | None = None
     mm_per_px: float = 0.0
-    dot_diameter_px: float = 5.0   # in camera-1 pixels on the specimen
+    dot_diameter_px: float = 5.0   # in camera-0 pixels on the specimen
     density: float = 0.5
-    oversample: float = 2.0        # reference pixels per camera-1 pixel
-    edge_px: float = 1.0           # width of the dots' smooth edge, camera-1 pixels
+    oversample: float = 2.0        # reference pixels per camera-0 pixel
+    edge_px: float = 1.0           # width of the dots' smooth edge, camera-0 pixels
     seed: int = 0
 
     def __post_init__(self):
@@ -171,7 +171,7 @@ class MeshFile:
 class Specimen:
     """The FE specimen: one source (``mesh``, ``plate`` or ``bulge``) and its placement.
 
-    Placement maps specimen coordinates to the world (camera 1's frame by default):
+    Placement maps specimen coordinates to the world (camera 0's frame by default):
     X_world = R·X + t, mm. In a scene file it is the ``pose`` table (R or rvec, and t).
     """
     mesh: MeshFile | None = None
@@ -345,7 +345,7 @@ class Noise:
 @dataclass(frozen=True)
 class Stereo:
     """A camera relative to the first one (MatchID convention), mm and degrees:
-    X_cam = Rz(Psi)·Ry(Phi)·Rx(Theta)·X_cam1 + (Tx, Ty, Tz)."""
+    X_cam = Rz(Psi)·Ry(Phi)·Rx(Theta)·X_cam0 + (Tx, Ty, Tz)."""
     Tx: float
     Ty: float
     Tz: float

@@ -12,12 +12,12 @@ from glsim.scene.model import Bulge, Light, Lighting, Noise, Optics, Render, Sce
 def stereo_rig(size=(1624, 1234), fx=6818.0, distance=600.0, stereo_angle=30.0,
                distortion: Distortion = Distortion(), bit_depth: int = 8) -> tuple[Camera, Camera]:
     """Two identical cameras converging by ``stereo_angle`` (deg) on a point ``distance`` mm in
-    front of camera 1, which is the world frame. The default is Table 2/3: 30 mm lenses with
+    front of camera 0, which is the world frame. The default is Table 2/3: 30 mm lenses with
     4.4 µm pixels (fx = 6818 px), 1624×1234 px, ≈ 0.088 mm/px at 600 mm."""
     W, H = size
     half = math.radians(stereo_angle / 2)
     target = np.array([0.0, 0.0, distance])
-    # Camera 1 at the origin; camera 2 mirrored about the bisector plane of the rig.
+    # Camera 0 at the origin; camera 1 mirrored about the bisector plane of the rig.
     eye2 = np.array([2 * distance * math.sin(half) * math.cos(half),
                      0.0, 2 * distance * math.sin(half) ** 2])
     R2, t2 = look_at(eye2, target, np.array([0.0, -1.0, 0.0]))
@@ -29,7 +29,7 @@ def stereo_rig(size=(1624, 1234), fx=6818.0, distance=600.0, stereo_angle=30.0,
 def bulge_scene(size=(1624, 1234), steps: int = 3, **render) -> Scene:
     """The paper's bulge test (Tables 2–3): R = 50 mm plate, 5 mm bulge, 30° stereo rig.
 
-    The plate faces the bisector of the two optical axes, 600 mm from camera 1, and bulges
+    The plate faces the bisector of the two optical axes, 600 mm from camera 0, and bulges
     towards the cameras.
     """
     cam0, cam1 = stereo_rig(size=size, fx=6818.0 * size[0] / 1624)
@@ -43,7 +43,7 @@ def bulge_scene(size=(1624, 1234), steps: int = 3, **render) -> Scene:
 def demo_effects(scene: Scene) -> Scene:
     """``scene`` lit, slightly defocused and noisy, as in the paper's §2.2 and Table 1.
 
-    A spotlight beside camera 1 aimed at the plate centre with the paper's Table 1 values
+    A spotlight beside camera 0 aimed at the plate centre with the paper's Table 1 values
     (I_a = −10, I_i = 80 grey levels of 8 bit, shininess 400) and k_r = 0.3, k_s = 0.5 (so
     that only the highlight saturates), 30 mm f/2
     lenses with 4.4 µm pixels focused at 600 mm (the 5 mm bulge is ~1.5 px out of focus), and
