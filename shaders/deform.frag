@@ -23,6 +23,8 @@ in float v_depth;
 layout(std430, binding = 0) readonly buffer Elements { real elem_data[]; };
 #endif
 flat in int v_elem;
+// samples that hit the specimen but map outside the reference image (reset before each pass)
+layout(std430, binding = 4) buffer Dropped { uint dropped_samples; };
 
 #if defined(MODE_EXACT)
 uniform sampler2D u_rays;   // rays.frag: per-sample undistorted normalized coordinates (hi, lo)
@@ -96,12 +98,17 @@ void main() {
     real2 xn = real2(ray.xy) + real2(ray.zw);
     real Z;
     if (!intersect_ray_patch(P, xn, xi, eta, Z)) discard;
-    if (!project_camera_frame(bilinear3(R, xi, eta), u_ref_intr, u_ref_dist, u_ref_valid_r2, ref)) discard;
+    if (!project_camera_frame(bilinear3(R, xi, eta), u_ref_intr, u_ref_dist, u_ref_valid_r2, ref)) {
+        atomicAdd(dropped_samples, 1u);
+        discard;
+    }
 #endif
     gl_FragDepth = float(Z) / u_far;
 #endif
-    if (ref.x < -0.5 || ref.y < -0.5 || ref.x > real(u_ref_size.x) - 0.5 || ref.y > real(u_ref_size.y) - 0.5)
+    if (ref.x < -0.5 || ref.y < -0.5 || ref.x > real(u_ref_size.x) - 0.5 || ref.y > real(u_ref_size.y) - 0.5) {
+        atomicAdd(dropped_samples, 1u);  // counted for the warning (glsim.stages.view.warn_dropped)
         discard;
+    }
     float grey = sample_ref(ref);
 #ifdef LIGHTING
     grey = combine(grey, light_at(v_elem, xi, eta));

@@ -13,7 +13,7 @@ from glsim.scene import bilinear as bl
 from glsim.stages import interp
 from glsim.scene.camera import pixel_grid, pixel_to_normalized, project_camera_frame, undistort
 from glsim.stages.truth import fast_local_coords
-from glsim.stages.view import View
+from glsim.stages.view import View, warn_dropped
 
 CHUNK = 1 << 21  # candidate (element, sample) pairs evaluated at once
 
@@ -97,14 +97,16 @@ def _q4(view: View, e, q, tol=1e-12):
 def _exact(view: View, e, xn, ray_ok):
     xi, eta, depth, ok = bl.intersect_ray_patch(view.Xd[e], xn)
     ref_uv, ref_ok = project_camera_frame(bl.bilinear(view.Xr[e], xi, eta), view.ref_camera)
-    return ok & ray_ok & ref_ok, depth, xi, eta, ref_uv
+    # a point the reference camera cannot see counts as outside the reference image (NaN)
+    return ok & ray_ok, depth, xi, eta, np.where(ref_ok[:, None], ref_uv, np.nan)
 
 
 def rasterize(view: View, mode: str, s: int = 1) -> dict:
     """Nearest element per sample on the s×s-per-pixel grid.
 
     Returns flat arrays over the (H·s)·(W·s) samples: ``element`` (−1 where none), ``xi``,
-    ``eta``, ``ref_uv`` (reference-image px) and ``depth`` (camera Z, mm).
+    ``eta``, ``ref_uv`` (reference-image px), ``depth`` (camera Z, mm) and ``dropped``
+    (samples that hit an element whose reference point lies outside the reference image).
     """
     W, H = view.camera.size
     grid = pixel_grid(view.camera, s * s).reshape(-1, 2)
@@ -115,6 +117,7 @@ def rasterize(view: View, mode: str, s: int = 1) -> dict:
         # normalized undistorted coordinates as the GL ray map stores them (no normalisation)
         rays, ray_ok = undistort(pixel_to_normalized(grid, view.camera.intrinsics), view.camera.distortion.coeffs)
     rw, rh = view.ref_camera.size
+    dropped = np.zeros(n, bool)  # hit the specimen, but the reference point is outside the image
     for e, idx in _candidates(_boxes(view, mode, s), W * s):
         q = grid[idx]
         if mode == "fast":
@@ -123,7 +126,9 @@ def rasterize(view: View, mode: str, s: int = 1) -> dict:
             ok, depth, xi, eta, ref = _q4(view, e, q)
         else:
             ok, depth, xi, eta, ref = _exact(view, e, rays[idx], ray_ok[idx])
-        ok &= (ref[:, 0] >= -0.5) & (ref[:, 0] <= rw - 0.5) & (ref[:, 1] >= -0.5) & (ref[:, 1] <= rh - 0.5)
+        inside_ref = (ref[:, 0] >= -0.5) & (ref[:, 0] <= rw - 0.5) & (ref[:, 1] >= -0.5) & (ref[:, 1] <= rh - 0.5)
+        dropped[idx[ok & ~inside_ref]] = True
+        ok &= inside_ref
         k = np.flatnonzero(ok)
         order = k[np.lexsort((e[k], depth[k], idx[k]))]
         first = order[np.unique(idx[order], return_index=True)[1]]
@@ -134,6 +139,7 @@ def rasterize(view: View, mode: str, s: int = 1) -> dict:
         best["xi"][t] = xi[win]
         best["eta"][t] = eta[win]
         best["ref_uv"][t] = ref[win]
+    best["dropped"] = dropped & (best["element"] < 0)
     return best
 
 
@@ -166,6 +172,7 @@ def render_view(view: View, sample, opts, truth: bool, fx=None):
     s = opts.supersampling
     stages = ["raster", "interpolate"]
     r = rasterize(view, opts.mode, s)
+    warn_dropped(view.camera, int(r["dropped"].sum()), s)
     hit = r["element"] >= 0
     grey = np.full(len(hit), float(opts.background))
     idx = np.flatnonzero(hit)

@@ -17,6 +17,8 @@ from glsim.errors import RenderWarning, SceneError
 NEAR_MM = 1e-3  # corners closer to the camera plane than this cannot be projected
 GRAZING_DEG = 85.0
 GRAZING_COS = float(np.cos(np.radians(GRAZING_DEG)))
+ZERO_AREA_REL = 1e-12  # element area ≤ this × the median element's: "zero area"
+TINY_AREA_REL = 1e-6  # ≤ this × the median: "tiny" (still drawn, watertight)
 COVER_PAD_PX = 1.0 / 8.0  # cover rectangles reach this far beyond the element's image
 
 
@@ -123,25 +125,43 @@ def make_view(cam: Camera, ref_cam: Camera, nodes_ref: np.ndarray, nodes_def: np
 
 
 def _warn_shape(cam: Camera, Xd: np.ndarray, labels: np.ndarray | None) -> None:
-    """Warn about zero-area, folded (bow-tie / inverted) and grazing elements, naming them."""
+    """Warn about zero-area, tiny, folded (bow-tie / inverted) and grazing elements, naming
+    each element once, under its first problem in that order. Areas are relative to the
+    mesh's median element."""
     n1 = np.cross(Xd[:, 1] - Xd[:, 0], Xd[:, 2] - Xd[:, 0])
     n2 = np.cross(Xd[:, 2] - Xd[:, 0], Xd[:, 3] - Xd[:, 0])
     area = 0.5 * (np.linalg.norm(n1, axis=1) + np.linalg.norm(n2, axis=1))
-    size = np.ptp(Xd.reshape(-1, 3), axis=0).max() if len(Xd) else 1.0
-    zero = area <= 1e-12 * size * size
-    folded = ~zero & ((n1 * n2).sum(axis=1) < 0)
+    positive = area[area > 0]
+    median = float(np.median(positive)) if positive.size else 0.0
+    zero = area <= ZERO_AREA_REL * median
+    tiny = ~zero & (area <= TINY_AREA_REL * median)
+    folded = ~zero & ~tiny & ((n1 * n2).sum(axis=1) < 0)
     view = Xd.mean(axis=1)  # from the camera (at the origin) to the element's centre
     normal = np.cross(Xd[:, 2] - Xd[:, 0], Xd[:, 3] - Xd[:, 1])
     cos = np.abs((normal * view).sum(1)) / np.maximum(np.linalg.norm(normal, axis=1) * np.linalg.norm(view, axis=1),
                                                         1e-300)
-    grazing = ~zero & (cos < GRAZING_COS)
-    for bad, what in ((zero, "have zero area"), (folded, "are folded (inverted or bow-tie)"),
+    grazing = ~zero & ~tiny & ~folded & (cos < GRAZING_COS)
+    for bad, what in ((zero, "have zero area"),
+                      (tiny, f"are tiny (area below {TINY_AREA_REL:g} of the median element's)"),
+                      (folded, "are folded (inverted or bow-tie)"),
                       (grazing, f"are seen at more than {GRAZING_DEG:g}° from their normal (grazing): "
                                 "the fast and q4 modes' mapping error grows there")):
         if bad.any():
             warnings.warn(f"camera {cam.name}: elements {_labels(np.flatnonzero(bad), labels)} {what}; "
                           "their pixels stay finite and consistent; check the mesh or the view",
                           RenderWarning, stacklevel=3)
+
+
+def warn_dropped(cam: Camera, count: int, s: int) -> None:
+    """Warn, with their number, about samples that hit the specimen but whose reference point
+    lies outside the reference image (or cannot be projected into it): they are left at the
+    background grey."""
+    if count > 0:
+        where = "pixels" if s == 1 else f"samples ({s}×{s} per pixel)"
+        warnings.warn(f"camera {cam.name}: {count} {where} see the specimen but map outside the "
+                      "reference image and are left at the background; enlarge the reference "
+                      "image (speckle.mm_per_px or size) or check the reference camera",
+                      RenderWarning, stacklevel=4)
 
 
 def _labels(idx: np.ndarray, labels: np.ndarray | None, most: int = 8) -> str:

@@ -17,7 +17,7 @@ from glsim.effects.dof import kernel_radius, shader_uniforms
 from glsim.effects import Effects
 from glsim.scene.camera import pixel_to_normalized, undistort
 from glsim.stages import truth
-from glsim.stages.view import View
+from glsim.stages.view import View, warn_dropped
 from glsim.backends.gl.context import check_error, create_context
 from glsim.backends.gl.programs import ProgramCache
 
@@ -204,10 +204,10 @@ class GLBackend:
         for t in temps:
             t.release()
         if truth and s > 1:
-            _, raster = self._deform(view, replace(opts, samples_per_pixel=1), 1, True, Effects())
+            _, raster = self._deform(view, replace(opts, samples_per_pixel=1), 1, True, Effects(), warn=False)
         return image, raster, stages
 
-    def _deform(self, view: View, opts, s: int, truth: bool, fx):
+    def _deform(self, view: View, opts, s: int, truth: bool, fx, warn: bool = True):
         """The deformation pass into the cached target; returns its color textures and, if
         ``truth``, the read-back raster."""
         ctx = self.ctx
@@ -227,7 +227,9 @@ class GLBackend:
                             ("u_ref_size", tuple(float(x) for x in ref_cam.size))):
             if name in prog:
                 prog[name].value = value
-        buffers = []
+        dropped = ctx.buffer(bytes(4))  # deform.frag counts samples mapping outside the reference
+        dropped.bind_to_storage_buffer(4)
+        buffers = [dropped]
         if fx.lighting is not None:
             for name, value in _light_uniforms(fx).items():
                 if name in prog:
@@ -269,6 +271,9 @@ class GLBackend:
             vao.release()
         ctx.disable(ctx.DEPTH_TEST)
         check_error(ctx, f"deformation pass ({opts.mode})")
+        if warn:
+            ctx.memory_barrier()  # shader storage writes visible to the read-back
+            warn_dropped(cam, int(np.frombuffer(dropped.read(), np.uint32)[0]), s)
         for b in buffers:
             b.release()
         if not truth:
