@@ -53,7 +53,7 @@ def test_two_component_displacements_are_refused(tmp_path, capsys):
     arrays = {"u1": np.zeros((n, 3)), "u2": np.full((n, 2), 0.01)}
     write_mesh(tmp_path / "plate.vtu", arrays)
     err = _render_error(write_scene(tmp_path, mesh=False), tmp_path, capsys)
-    assert (f"plate.vtu: point-data array 'u2' (load step 2) has 2 components per node, not 3 (ux, uy, uz) — "
+    assert ("plate.vtu: point-data array 'u2' (load step 2) has 2 components per node, not 3 (ux, uy, uz) — "
             "write the displacement with 3 components (uz = 0 for a plane field)") in err
 
 

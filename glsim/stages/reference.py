@@ -151,7 +151,7 @@ def check_coverage(mesh: meshmod.Mesh, cam: Camera, mm_per_px: float = 0.0, tole
     where = f"the specimen's reference view spans u {lo[0]:.0f}…{hi[0]:.0f}, v {lo[1]:.0f}…{hi[1]:.0f} px"
     key = "speckle.image"
     if mm_per_px > 0:
-        need = [int(math.ceil(2 * max(abs(lo[i] - c), abs(hi[i] - c)))) + 1
+        need = [math.ceil(2 * max(abs(lo[i] - c), abs(hi[i] - c))) + 1
                 for i, c in ((0, cam.cx), (1, cam.cy))]
         scale = mm_per_px * max(need[0] / W, need[1] / H)
         where = (f"the image is {W}×{H} px = {W * mm_per_px:.4g}×{H * mm_per_px:.4g} mm at {mm_per_px:g} mm/px, "
