@@ -118,13 +118,16 @@ ROWS = (("fx1", "fy1", "cx1", "cy1"), ("k1_1", "k2_1", "p1_1", "p2_1", "k3_1"),
 
 def unit(name: str) -> str:
     """The unit of a calibration parameter ("" for the distortion coefficients)."""
-    return UNITS.get(name.rstrip("12") if name[:1] in "fc" else name, "")
+    return UNITS.get(name.rstrip("0123456789") if name[:1] in "fc" else name, "")
 
 
 def error_lines(errors: dict[str, float]) -> list[str]:
     """Every parameter's error (estimate − truth) with its unit, the largest of each unit marked
     with ◀, and a last line naming those largest errors."""
-    names = [n for row in ROWS for n in row if n in errors]
+    rows = [row for row in ROWS if any(n in errors for n in row)]
+    rest = tuple(n for n in errors if n not in {m for row in ROWS for m in row} | {"T_norm", "rotation_deg"})
+    rows += [rest] if rest else []          # parameters under other names are printed too
+    names = [n for row in rows for n in row if n in errors]
     worst = {}
     for n in names:
         u = unit(n)
@@ -137,10 +140,10 @@ def error_lines(errors: dict[str, float]) -> list[str]:
         return f"{n} {errors[n]:+.4g}{' ' + u if u else ''}{' ◀' if n in marked else ''}"
 
     lines = ["errors (estimate − truth; ◀ the largest of its unit):"]
-    for row in ROWS:
+    for row in rows:
         shown = [item(n) for n in row if n in errors]
         if shown:
-            tail = "  (distortion, unitless)" if not unit(row[0]) else ""
+            tail = "  (distortion, unitless)" if all(not unit(n) for n in row) else ""
             lines.append("  " + ",  ".join(shown) + tail)
     extra = [f"|T error| {errors['T_norm']:.4g} mm" if "T_norm" in errors else "",
              f"rotation error {errors['rotation_deg']:.4g} deg" if "rotation_deg" in errors else ""]
