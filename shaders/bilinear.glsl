@@ -65,10 +65,15 @@ bool edge_owns(real E, real2 m, real s) {
     return sE > 0.0 || (sE == 0.0 && (sm.x > 0.0 || (sm.x == 0.0 && sm.y > 0.0)));
 }
 
+bool in_range(real xi, real eta) { return abs(xi) <= 1.0 + NEAR_TOL && abs(eta) <= 1.0 + NEAR_TOL; }
+
+// Within NEAR_TOL of an edge: only there the edge functions are needed (callers skip them elsewhere).
+bool near_edge(real xi, real eta) { return max(abs(xi), abs(eta)) >= 1.0 - NEAR_TOL; }
+
 // Coverage under the tie rule: (xi, eta) within NEAR_TOL of the element, and every edge the
 // sample is within NEAR_TOL of owns it.
 bool owned(real xi, real eta, real E[4], real2 m[4], real s) {
-    if (!(abs(xi) <= 1.0 + NEAR_TOL && abs(eta) <= 1.0 + NEAR_TOL)) return false;
+    if (!in_range(xi, eta)) return false;
     bool near[4] = bool[4](eta <= -1.0 + NEAR_TOL, xi >= 1.0 - NEAR_TOL, eta >= 1.0 - NEAR_TOL,
                            xi <= -1.0 + NEAR_TOL);
     for (int k = 0; k < 4; ++k)
@@ -175,22 +180,23 @@ bool intersect_ray_patch(real3 P[4], real2 xn, out real xi, out real eta, out re
     real xs[2], es[2];
     bool ok[2];
     invert_closed(p, real2(0.0), xs, es, ok);
-    real E[4];
-    real2 m[4];
-    edge_functions_ray(P, xn, E, m);
     bool found = false;
     xi = 0.0;
     eta = 0.0;
     Z = 0.0;
     for (int k = 0; k < 2; ++k) {
         real z = dot(shape_functions(xs[k], es[k]), real4(P[0].z, P[1].z, P[2].z, P[3].z));
-        if (ok[k] && z > 0.0 && (!found || z < Z) &&
-            owned(xs[k], es[k], E, m, orientation_ray(P, xs[k], es[k]))) {
-            found = true;
-            xi = xs[k];
-            eta = es[k];
-            Z = z;
+        if (!(ok[k] && z > 0.0 && (!found || z < Z) && in_range(xs[k], es[k]))) continue;
+        if (near_edge(xs[k], es[k])) {  // the tie rule
+            real E[4];
+            real2 m[4];
+            edge_functions_ray(P, xn, E, m);
+            if (!owned(xs[k], es[k], E, m, orientation_ray(P, xs[k], es[k]))) continue;
         }
+        found = true;
+        xi = xs[k];
+        eta = es[k];
+        Z = z;
     }
     return found;
 }

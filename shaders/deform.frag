@@ -76,11 +76,13 @@ void main() {
         r[i] = real2(elem_data[b + 8 + 2 * i], elem_data[b + 9 + 2 * i]);
     }
     // the cover rectangle (exact.vert) is padded; the shared tie rule decides coverage
-    if (!invert_newton(p, px, xi, eta)) discard;
-    real E[4];
-    real2 m[4];
-    edge_functions_2d(p, px, E, m);
-    if (!owned(xi, eta, E, m, orientation_2d(p, xi, eta))) discard;
+    if (!invert_newton(p, px, xi, eta) || !in_range(xi, eta)) discard;
+    if (near_edge(xi, eta)) {
+        real E[4];
+        real2 m[4];
+        edge_functions_2d(p, px, E, m);
+        if (!owned(xi, eta, E, m, orientation_2d(p, xi, eta))) discard;
+    }
     ref = bilinear2(r, xi, eta);
     real4 N = shape_functions(xi, eta);
     real Z = dot(N, real4(elem_data[b + 16], elem_data[b + 17], elem_data[b + 18], elem_data[b + 19]));
