@@ -157,8 +157,9 @@ def results_dir(out: str | None, full: bool, command: str) -> Path:
 
 
 def bench_main(argv: list[str]) -> int:
-    """``glsim bench accuracy [--size W H] [--reps N] [--out DIR] [--quick]`` and ``glsim bench
-    effects …``; returns the exit status."""
+    """``glsim bench accuracy [--size W H] [--reps N] [--out DIR] [--quick]``, ``glsim bench
+    effects …`` and ``glsim bench library [--size W H] [--images N] [--max-workers N]``; returns
+    the exit status."""
     from glsim.evaluation import accuracy, effects
 
     parser = argparse.ArgumentParser(prog="glsim bench")
@@ -171,7 +172,12 @@ def bench_main(argv: list[str]) -> int:
     eff = sub.add_parser("effects", help="time per image of each optical effect, GL and CPU")
     eff.add_argument("--size", nargs=2, type=int, metavar=("W", "H"), help="image size (default 1624 1234)")
     eff.add_argument("--reps", type=int, default=5, help="timed renders per camera (default 5; CPU at most 2)")
-    for p, name in ((acc, "accuracy"), (eff, "effects")):
+    lib = sub.add_parser("library", help="library images/s: render only vs end to end, workers 1…N, memory")
+    lib.add_argument("--size", nargs=2, type=int, metavar=("W", "H"), help="image size (default 1624 1234)")
+    lib.add_argument("--images", type=int, default=100, help="images per run (default 100; the full run needs ≥ 100)")
+    lib.add_argument("--max-workers", type=int, default=None, help="largest worker count (default: one per core)")
+    lib.set_defaults(reps=1)
+    for p, name in ((acc, "accuracy"), (eff, "effects"), (lib, "library")):
         p.add_argument("--out", default=None, help=f"directory of {name}.json / {name}.md (default {RESULTS} for a "
                        f"full-size run, {SCRATCH} otherwise)")
     args = parser.parse_args(argv)
@@ -181,6 +187,15 @@ def bench_main(argv: list[str]) -> int:
     size = tuple(args.size) if args.size else (accuracy.QUICK_SIZE if quick else accuracy.FULL_SIZE)
     try:
         out = results_dir(args.out, size == accuracy.FULL_SIZE and not quick, args.command)
+        if args.command == "library":
+            from glsim.evaluation import library_bench
+            if args.images < 1 or (args.max_workers is not None and args.max_workers < 1):
+                parser.error("--images and --max-workers must be ≥ 1")
+            size = tuple(args.size) if args.size else library_bench.FULL_SIZE
+            full = size == library_bench.FULL_SIZE and args.images >= library_bench.FULL_IMAGES
+            out = results_dir(args.out, full, "library")
+            print(library_bench.write(library_bench.bench(size, args.images, args.max_workers), out))
+            return 0
         if args.command == "effects":
             print(effects.write(effects.effects(size, args.reps), out))
             return 0

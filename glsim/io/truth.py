@@ -1,0 +1,511 @@
+"""Compact ground truth: per pixel the element index and the local coordinates (ξ, η) — which,
+with the mesh and its displacements, determine every other truth map — stored losslessly in a
+fraction of the space of the full float64 maps, and read back as full maps on demand.
+
+A library writes per image one ``{stem}.truth`` file and per distinct specimen one geometry
+file (``geometry/{hash}.npz``: placed undeformed nodes, quads, element labels, the
+displacements of the rendered load steps). ``load(path)`` reads a truth file;
+:meth:`CompactTruth.maps` returns the same maps as ``Renderer.render(..., truth=True).truth``
+(bit for bit for ``element``, ``xi``, ``eta``, ``X_undeformed``, ``X_deformed``), and
+:meth:`CompactTruth.at` gives the 3-D reference and deformed positions and the displacement at
+any camera-1 pixel coordinates in the reference state (what a DIC result is compared with).
+
+File layout (version 1), little endian::
+
+    b"GLTRUTH1"  uint64 header length  header (UTF-8 JSON)  blobs…
+
+The header names the image's camera, camera 1 (the frame of the positions), the reference
+camera, the render mode, the load step, the geometry file (relative path and SHA-256) and the
+blobs (offset and length after the header). Blob ``element``: the (H, W) int32 element map
+(−1 = background), zstd. Blob ``local``: (ξ, η) of the covered pixels in raster order. For
+``dtype = "float64"`` (default, lossless) each value's IEEE bits, as int64, are predicted along
+the row from the previous two pixels of the same element (second difference; first difference
+or none at the start of a run), the residuals zigzag-coded, byte-shuffled and zstd-compressed:
+decoding is exact integer arithmetic, so the values come back bit for bit. ``dtype =
+"float32"`` stores the values rounded to float32 (|Δξ| ≤ 3e-8), byte-shuffled and zstd'd.
+
+Only numpy, zstandard and glsim's scene layer are used: no GL, no renderer.
+"""
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import json
+import os
+import struct
+from dataclasses import dataclass
+from functools import cached_property
+from pathlib import Path
+
+import numpy as np
+
+from glsim.errors import GlsimError
+from glsim.scene.bilinear import bilinear, intersect_ray_patch
+from glsim.scene.camera import Camera, Distortion, pixel_to_normalized, project_camera_frame, to_camera, undistort
+
+MAGIC = b"GLTRUTH1"
+FORMAT = "glsim-compact-truth"
+VERSION = 1
+DTYPES = ("float64", "float32")
+ZSTD_LEVEL = 3
+SUFFIX = ".truth"
+
+
+class TruthFileError(GlsimError):
+    """A truth or geometry file that cannot be read (the message names the file and why)."""
+
+
+# ---- the lossless float64 coder ------------------------------------------------------------------
+
+def _runs(element: np.ndarray):
+    """Covered pixels in raster order and where each continues its left neighbour's element
+    run (``same1``) and that run for two pixels (``same2``)."""
+    H, W = element.shape
+    flat = element.ravel()
+    idx = np.flatnonzero(flat >= 0)
+    e = flat[idx]
+    same1 = np.zeros(len(idx), bool)
+    same1[1:] = (idx[1:] == idx[:-1] + 1) & (e[1:] == e[:-1]) & (idx[1:] % W != 0)
+    same2 = np.zeros(len(idx), bool)
+    same2[2:] = same1[2:] & same1[1:-1]
+    return idx, same1, same2
+
+
+def _shuffle(a: np.ndarray) -> bytes:
+    """Byte planes: all first bytes, then all second bytes, … (compresses small integers well)."""
+    return np.ascontiguousarray(np.ascontiguousarray(a).view(np.uint8).reshape(-1, a.itemsize).T).tobytes()
+
+
+def _unshuffle(data: bytes, dtype, n: int) -> np.ndarray:
+    size = np.dtype(dtype).itemsize
+    planes = np.frombuffer(data, np.uint8)
+    if planes.size != n * size:
+        raise ValueError(f"{planes.size} bytes where {n} values of {size} bytes were expected")
+    return np.ascontiguousarray(planes.reshape(size, n).T).view(dtype).ravel()
+
+
+def _seg_cumsum(v: np.ndarray, start: np.ndarray) -> np.ndarray:
+    """Cumulative sums of int64 ``v`` restarting wherever ``start`` (start[0] is True);
+    wraps modulo 2⁶⁴ like the encoder's differences, so the round trip is exact."""
+    cs = np.cumsum(v, dtype=np.int64)
+    before = np.concatenate((np.zeros(1, np.int64), cs[:-1]))
+    first = np.maximum.accumulate(np.where(start, np.arange(len(v)), 0))
+    return cs - before[first]
+
+
+def encode_local(values: np.ndarray, same1: np.ndarray, same2: np.ndarray) -> np.ndarray:
+    """float64 values (n,) → zigzag residual codes (n,) uint64 (see the module text)."""
+    iv = np.ascontiguousarray(values, np.float64).view(np.int64)
+    r = iv.copy()
+    with np.errstate(over="ignore"):
+        d1 = iv[1:] - iv[:-1]
+        r[1:] = np.where(same1[1:], d1, r[1:])
+        r[2:] = np.where(same2[2:], d1[1:] - d1[:-1], r[2:])
+    u = r.view(np.uint64)
+    return (u << np.uint64(1)) ^ (r >> np.int64(63)).view(np.uint64)
+
+
+def decode_local(codes: np.ndarray, same1: np.ndarray, same2: np.ndarray) -> np.ndarray:
+    """The inverse of :func:`encode_local`: exact, bit for bit."""
+    if not len(codes):
+        return np.zeros(0)
+    r = (codes >> np.uint64(1)).view(np.int64) ^ -(codes & np.uint64(1)).view(np.int64)
+    with np.errstate(over="ignore"):
+        d = _seg_cumsum(np.where(same1, r, 0), ~same2)          # first differences inside runs
+        iv = _seg_cumsum(np.where(same1, d, r), ~same1)
+    return iv.view(np.float64)
+
+
+def _zstd():
+    import zstandard
+    return zstandard
+
+
+# ---- cameras in the header ------------------------------------------------------------------------
+
+def camera_dict(cam: Camera) -> dict:
+    d = dataclasses.asdict(cam)
+    d["size"] = list(cam.size)
+    d["R"] = [list(r) for r in cam.R]
+    d["t"] = list(cam.t)
+    return d
+
+
+def camera_from_dict(d: dict) -> Camera:
+    d = dict(d)
+    d["distortion"] = Distortion(**d.get("distortion", {}))
+    d["size"] = tuple(d["size"])
+    d["R"] = tuple(tuple(r) for r in d["R"])
+    d["t"] = tuple(d["t"])
+    return Camera(**d)
+
+
+# ---- geometry files -------------------------------------------------------------------------------
+
+def geometry_arrays(nodes, quads, displacements: dict[int, np.ndarray], element_labels=None) -> dict:
+    """The arrays of a geometry file: placed undeformed nodes (N, 3) mm, quads (M, 4), the
+    displacements (S, N, 3) of the load steps ``steps`` (S,), element labels (M,)."""
+    steps = sorted(displacements)
+    return {"nodes": np.asarray(nodes, np.float64), "quads": np.asarray(quads, np.int64),
+            "steps": np.asarray(steps, np.int64),
+            "displacements": np.stack([np.asarray(displacements[s], np.float64) for s in steps]) if steps
+            else np.zeros((0,) + np.shape(nodes)),
+            "element_labels": np.asarray(element_labels if element_labels is not None
+                                         else np.arange(len(quads)), np.int64)}
+
+
+def geometry_bytes(arrays: dict) -> bytes:
+    """A geometry file's bytes (an .npz, deflate level 1; deterministic: fixed zip timestamps)."""
+    import io as _io
+    import zipfile
+    buf = _io.BytesIO()
+    with zipfile.ZipFile(buf, "w", zipfile.ZIP_DEFLATED, compresslevel=1) as z:
+        for name, a in arrays.items():
+            item = _io.BytesIO()
+            np.lib.format.write_array(item, np.ascontiguousarray(a), allow_pickle=False)
+            info = zipfile.ZipInfo(name + ".npy", date_time=(1980, 1, 1, 0, 0, 0))
+            info.compress_type = zipfile.ZIP_DEFLATED
+            z.writestr(info, item.getvalue())
+    return buf.getvalue()
+
+
+@dataclass(frozen=True, eq=False)
+class Geometry:
+    nodes: np.ndarray
+    quads: np.ndarray
+    steps: tuple[int, ...]
+    displacements: np.ndarray
+    element_labels: np.ndarray
+
+    def deformed(self, step: int) -> np.ndarray:
+        if step not in self.steps:
+            raise TruthFileError(f"load step {step} is not in the geometry file (it holds steps "
+                                 f"{list(self.steps)}); ask for one of those")
+        return self.nodes + self.displacements[self.steps.index(step)]
+
+
+def read_geometry(path: str | Path) -> Geometry:
+    path = Path(path)
+    try:
+        with np.load(path, allow_pickle=False) as z:
+            a = {k: z[k] for k in ("nodes", "quads", "steps", "displacements", "element_labels")}
+    except (OSError, ValueError, KeyError) as exc:
+        raise TruthFileError(f"{path}: not a readable glsim geometry file ({exc}); re-run the library "
+                             "command on its directory to write it again") from None
+    return Geometry(a["nodes"], a["quads"], tuple(int(s) for s in a["steps"]), a["displacements"],
+                    a["element_labels"])
+
+
+# ---- writing ----------------------------------------------------------------------------------------
+
+def encode(element: np.ndarray, xi: np.ndarray, eta: np.ndarray, header: dict,
+           dtype: str = "float64") -> bytes:
+    """A truth file's bytes. ``element`` (H, W) int (−1 background), ``xi``/``eta`` (H, W)
+    float64 (values outside the covered pixels are ignored); ``header``: the metadata
+    (cameras, mode, step, geometry, …; see :func:`image_header`)."""
+    if dtype not in DTYPES:
+        raise GlsimError(f"truth dtype {dtype!r} is not one of {DTYPES}; use float64 (lossless) or float32")
+    element = np.asarray(element)
+    H, W = element.shape
+    el = np.ascontiguousarray(element, np.int32)
+    idx, same1, same2 = _runs(el)
+    cz = _zstd().ZstdCompressor(level=ZSTD_LEVEL)
+    xs, es = np.asarray(xi, np.float64).ravel()[idx], np.asarray(eta, np.float64).ravel()[idx]
+    if dtype == "float64":
+        local = np.concatenate([encode_local(xs, same1, same2), encode_local(es, same1, same2)])
+        codec = "int64-row-delta2-zigzag+shuffle+zstd"
+    else:
+        local = np.concatenate([xs, es]).astype(np.float32)
+        codec = "float32+shuffle+zstd"
+    blobs = [("element", cz.compress(el.tobytes())), ("local", cz.compress(_shuffle(local)))]
+    offsets, pos = {}, 0
+    for name, b in blobs:
+        offsets[name] = [pos, len(b)]
+        pos += len(b)
+    head = {"format": FORMAT, "version": VERSION, "size": [W, H], "covered": int(len(idx)), "dtype": dtype,
+            "codec": {"element": "int32+zstd", "local": codec}, **header, "blobs": offsets}
+    text = json.dumps(head, sort_keys=True).encode()
+    return b"".join([MAGIC, struct.pack("<Q", len(text)), text] + [b for _, b in blobs])
+
+
+def image_header(camera: Camera, camera1: Camera, reference_camera: Camera, mode: str, step: int,
+                 geometry: str, geometry_sha256: str) -> dict:
+    """The metadata of one image's truth. ``geometry``: the geometry file's path relative to
+    the truth file's directory."""
+    return {"camera": camera_dict(camera), "camera1": camera_dict(camera1),
+            "reference_camera": camera_dict(reference_camera), "mode": mode, "step": int(step),
+            "geometry": geometry, "geometry_sha256": geometry_sha256}
+
+
+# ---- reading ----------------------------------------------------------------------------------------
+
+@dataclass(frozen=True, eq=False)
+class Maps:
+    """Full per-pixel truth maps, as :class:`glsim.render.Truth` (NaN where not ``mask``)."""
+    mask: np.ndarray
+    element: np.ndarray
+    xi: np.ndarray
+    eta: np.ndarray
+    ref_uv: np.ndarray
+    X_undeformed: np.ndarray
+    X_deformed: np.ndarray
+
+    def as_dict(self) -> dict[str, np.ndarray]:
+        return {f.name: getattr(self, f.name) for f in dataclasses.fields(self)}
+
+
+@dataclass(frozen=True, eq=False)
+class PointTruth:
+    """Ground truth at given camera-1 pixel coordinates of the reference state (camera 1's
+    frame, mm): ``valid`` where the pixel's ray meets the specimen; NaN elsewhere."""
+    points: np.ndarray
+    valid: np.ndarray
+    element: np.ndarray
+    xi: np.ndarray
+    eta: np.ndarray
+    X_undeformed: np.ndarray
+    X_deformed: np.ndarray
+    step: int
+
+    @property
+    def displacement(self) -> np.ndarray:
+        return self.X_deformed - self.X_undeformed
+
+
+class CompactTruth:
+    """One image's truth as read from a ``.truth`` file: ``element``, ``xi``, ``eta``,
+    ``mask`` decoded on access; :meth:`maps` and :meth:`at` need the geometry file."""
+
+    def __init__(self, path: Path, header: dict, blobs: bytes, geometry: Geometry | None = None):
+        self.path = path
+        self.header = header
+        self._blobs = blobs
+        self._geometry = geometry
+
+    # -- metadata
+    @property
+    def size(self) -> tuple[int, int]:
+        return tuple(self.header["size"])
+
+    @property
+    def step(self) -> int:
+        return int(self.header["step"])
+
+    @property
+    def mode(self) -> str:
+        return self.header["mode"]
+
+    @cached_property
+    def camera(self) -> Camera:
+        return camera_from_dict(self.header["camera"])
+
+    @cached_property
+    def camera1(self) -> Camera:
+        return camera_from_dict(self.header["camera1"])
+
+    @cached_property
+    def reference_camera(self) -> Camera:
+        return camera_from_dict(self.header["reference_camera"])
+
+    # -- the stored maps
+    def _blob(self, name: str) -> bytes:
+        off, n = self.header["blobs"][name]
+        try:
+            return _zstd().ZstdDecompressor().decompress(self._blobs[off:off + n])
+        except Exception as exc:  # zstd's own error type
+            raise TruthFileError(f"{self.path}: blob {name!r} does not decompress ({exc}); the file is "
+                                 "damaged: run `glsim library DIR --verify`, then the library command "
+                                 "again to re-render it") from None
+
+    @cached_property
+    def element(self) -> np.ndarray:
+        """(H, W) int64 element index (0-based, the mesh's quads order; −1 = background)."""
+        W, H = self.size
+        return np.frombuffer(self._blob("element"), np.int32).reshape(H, W).astype(np.int64)
+
+    @property
+    def mask(self) -> np.ndarray:
+        return self.element >= 0
+
+    @cached_property
+    def _local(self) -> tuple[np.ndarray, np.ndarray]:
+        W, H = self.size
+        idx, same1, same2 = _runs(self.element)
+        n = len(idx)
+        raw = self._blob("local")
+        if self.header["dtype"] == "float64":
+            codes = _unshuffle(raw, np.uint64, 2 * n)
+            vals = [decode_local(codes[:n], same1, same2), decode_local(codes[n:], same1, same2)]
+        else:
+            v = _unshuffle(raw, np.float32, 2 * n).astype(np.float64)
+            vals = [v[:n], v[n:]]
+        out = []
+        for v in vals:
+            a = np.full(H * W, np.nan)
+            a[idx] = v
+            out.append(a.reshape(H, W))
+        return out[0], out[1]
+
+    @property
+    def xi(self) -> np.ndarray:
+        return self._local[0]
+
+    @property
+    def eta(self) -> np.ndarray:
+        return self._local[1]
+
+    # -- geometry
+    @property
+    def geometry(self) -> Geometry:
+        if self._geometry is None:
+            path = self.path.parent / self.header["geometry"]
+            if not path.is_file():
+                raise TruthFileError(f"{self.path}: its geometry file {path} is missing; keep the library's "
+                                     "geometry/ folder beside the variant folders, or re-run the library "
+                                     "command on the directory to write it")
+            self._geometry = read_geometry(path)
+        return self._geometry
+
+    def maps(self) -> Maps:
+        """The full maps, as the renderer's ``Truth`` (X in camera 1's frame, mm)."""
+        g, mask = self.geometry, self.mask
+        W, H = self.size
+        e = self.element[mask]
+        xi, eta = self.xi[mask], self.eta[mask]
+        q = g.quads[e]
+        cam1 = self.camera1
+        Xu = np.full((H, W, 3), np.nan)
+        Xd = np.full((H, W, 3), np.nan)
+        Xu[mask] = to_camera(bilinear(g.nodes[q], xi, eta), cam1)
+        Xd[mask] = to_camera(bilinear(g.deformed(self.step)[q], xi, eta), cam1)
+        ref = np.full((H, W, 2), np.nan)
+        rc = self.reference_camera
+        Xr = to_camera(g.nodes, rc)[g.quads][e]
+        if self.mode == "q4":      # the paper's mapping: corners' reference points, bilinearly
+            corners, _ = project_camera_frame(Xr, rc)
+            ref[mask] = bilinear(corners, xi, eta)
+        else:                      # the reference camera's projection of the material point
+            ref[mask] = project_camera_frame(bilinear(Xr, xi, eta), rc)[0]
+        return Maps(mask=mask, element=self.element, xi=self.xi, eta=self.eta, ref_uv=ref,
+                    X_undeformed=Xu, X_deformed=Xd)
+
+    def at(self, points, step: int | None = None) -> PointTruth:
+        """Ground truth at ``points`` (N, 2) — pixel coordinates (u, v) of camera 1 in the
+        reference (undeformed) state, as a DIC reports its subset centres: the material point
+        there (camera 1's ray intersected exactly with the undeformed mesh, the nearest hit),
+        its position undeformed and at ``step`` (default: this image's step), camera 1's frame,
+        mm. Points whose ray misses the specimen are ``valid`` False and NaN."""
+        return points_truth(self.geometry, self.camera1, points, self.step if step is None else step)
+
+
+def points_truth(g: Geometry, cam1: Camera, points, step: int) -> PointTruth:
+    """See :meth:`CompactTruth.at`."""
+    pts = np.asarray(points, np.float64).reshape(-1, 2)
+    n = len(pts)
+    xn, ray_ok = undistort(pixel_to_normalized(pts, cam1.intrinsics), cam1.distortion.coeffs)
+    P = to_camera(g.nodes, cam1)[g.quads]                            # (M, 4, 3) camera-1 frame
+    front = (P[..., 2] > 0).all(axis=1)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        proj = P[..., :2] / np.where(front[:, None], P[..., 2], 1.0)[..., None]
+    lo, hi = proj.min(axis=1), proj.max(axis=1)
+    pad = 1e-9 * (1.0 + np.abs(proj).max(axis=1))
+    lo, hi = lo - pad, hi + pad
+    lo[~front], hi[~front] = -np.inf, np.inf                         # crosses the camera plane: always a candidate
+    pe, pp = _candidates(lo, hi, xn, ray_ok)
+    best_e = np.full(n, -1, np.int64)
+    best_xi, best_eta = np.full(n, np.nan), np.full(n, np.nan)
+    if len(pe):
+        xi, eta, z, ok = intersect_ray_patch(P[pe], xn[pp])
+        k = np.flatnonzero(ok)
+        order = k[np.lexsort((pe[k], z[k], pp[k]))]                   # per point: nearest, then lowest index
+        first = order[np.unique(pp[order], return_index=True)[1]]
+        best_e[pp[first]] = pe[first]
+        best_xi[pp[first]], best_eta[pp[first]] = xi[first], eta[first]
+    valid = best_e >= 0
+    Xu = np.full((n, 3), np.nan)
+    Xd = np.full((n, 3), np.nan)
+    q = g.quads[best_e[valid]]
+    Xu[valid] = to_camera(bilinear(g.nodes[q], best_xi[valid], best_eta[valid]), cam1)
+    Xd[valid] = to_camera(bilinear(g.deformed(step)[q], best_xi[valid], best_eta[valid]), cam1)
+    return PointTruth(points=pts, valid=valid, element=best_e, xi=best_xi, eta=best_eta,
+                      X_undeformed=Xu, X_deformed=Xd, step=step)
+
+
+def _candidates(lo, hi, xn, ok, cells: int = 64):
+    """(element, point) pairs whose element box (normalized coordinates) holds the point,
+    through a uniform grid of cells over the points' extent."""
+    pts = np.flatnonzero(ok)
+    if not len(pts) or not len(lo):
+        return np.zeros(0, np.int64), np.zeros(0, np.int64)
+    x = xn[pts]
+    x0, x1 = x.min(axis=0), x.max(axis=0)
+    span = np.maximum(x1 - x0, 1e-12)
+    cell = lambda v: np.clip(np.floor((v - x0) / span * cells), 0, cells - 1).astype(np.int64)  # noqa: E731
+    inside = (hi >= x0).all(axis=1) & (lo <= x1).all(axis=1)
+    els = np.flatnonzero(inside)
+    c0, c1 = cell(np.maximum(lo[els], x0)), cell(np.minimum(hi[els], x1))
+    nx, ny = c1[:, 0] - c0[:, 0] + 1, c1[:, 1] - c0[:, 1] + 1
+    cnt = nx * ny
+    e = np.repeat(els, cnt)
+    local = np.arange(cnt.sum()) - np.repeat(np.cumsum(cnt) - cnt, cnt)
+    ex = np.repeat(c0[:, 0], cnt) + local % np.repeat(nx, cnt)
+    ey = np.repeat(c0[:, 1], cnt) + local // np.repeat(nx, cnt)
+    ecell = ey * cells + ex
+    pc = cell(x)
+    pcell = pc[:, 1] * cells + pc[:, 0]
+    order = np.argsort(ecell, kind="stable")
+    ecell, e = ecell[order], e[order]
+    start = np.searchsorted(ecell, pcell, "left")
+    stop = np.searchsorted(ecell, pcell, "right")
+    cnt = stop - start
+    p = np.repeat(pts, cnt)
+    local = np.arange(cnt.sum()) - np.repeat(np.cumsum(cnt) - cnt, cnt)
+    pe = e[np.repeat(start, cnt) + local]
+    keep = ((xn[p] >= lo[pe]) & (xn[p] <= hi[pe])).all(axis=1)
+    return pe[keep], p[keep]
+
+
+def read(path: str | Path, geometry: Geometry | None = None) -> CompactTruth:
+    """Read a ``.truth`` file (the maps are decoded when first used)."""
+    path = Path(path)
+    try:
+        data = path.read_bytes()
+    except OSError as exc:
+        raise TruthFileError(f"{path}: cannot be read ({exc.strerror or exc}); check the path") from None
+    if data[:8] != MAGIC or len(data) < 16:
+        raise TruthFileError(f"{path}: not a glsim compact truth file (it does not start with {MAGIC!r}); "
+                             "give a .truth file written by `glsim library`")
+    (n,) = struct.unpack("<Q", data[8:16])
+    try:
+        header = json.loads(data[16:16 + n])
+    except ValueError as exc:
+        raise TruthFileError(f"{path}: its header is damaged ({exc}); re-render it with the library command") from None
+    if header.get("format") != FORMAT or header.get("version") != VERSION:
+        raise TruthFileError(f"{path}: format {header.get('format')!r} version {header.get('version')!r} is not "
+                             f"{FORMAT!r} version {VERSION}; read it with the glsim that wrote it")
+    blobs = data[16 + n:]
+    end = max((o + k for o, k in header["blobs"].values()), default=0)
+    if len(blobs) < end:
+        raise TruthFileError(f"{path}: truncated ({len(blobs)} of {end} data bytes); re-render it with the "
+                             "library command (it re-renders files that fail their checksum)")
+    return CompactTruth(path, header, blobs, geometry)
+
+
+load = read
+
+
+def sha256_bytes(data: bytes) -> str:
+    return hashlib.sha256(data).hexdigest()
+
+
+def sha256_file(path: str | Path, chunk: int = 1 << 20) -> str:
+    h = hashlib.sha256()
+    with open(path, "rb") as f:
+        while block := f.read(chunk):
+            h.update(block)
+    return h.hexdigest()
+
+
+def relpath(target: str | Path, start: str | Path) -> str:
+    """``target`` relative to directory ``start``, with forward slashes."""
+    return Path(os.path.relpath(target, start)).as_posix()

@@ -1,0 +1,129 @@
+"""The library's index: ``manifest.csv`` (one row per image) and ``library.json`` (the spec,
+its expansion and fingerprint), both written atomically so that an interrupted run leaves
+files that load.
+
+Columns of ``manifest.csv``, in order:
+
+==================  ==========================================================================
+``variant``         variant id (``v0000`` …; its folder holds ``scene.json``, images, truth)
+one per vary key    the value of each varied parameter, named by its dotted path
+``camera``          camera name
+``step``            load step
+``file``            the image, relative to the library root
+``bytes``           its size
+``sha256``          its SHA-256 (hex)
+``truth_file``      the compact truth (``.truth``), relative to the root; empty without truth
+``truth_bytes``     its size (0 without truth)
+``truth_sha256``    its SHA-256 (empty without truth)
+``render_s``        seconds the render took (with GL truth read-back when truth is on)
+``truth_s``         seconds encoding the compact truth
+``encode_s``        seconds encoding the image (quantise, TIFF/PNG, hash)
+``write_s``         seconds writing both files
+``saturated``       fraction of pixels clipped when quantised
+==================  ==========================================================================
+
+Values of varied parameters are JSON (numbers as Python writes them, strings quoted, lists
+as lists). Rows are sorted by variant, camera (in scene order) and step, so a library
+rendered with any number of workers has the same manifest apart from the timing columns.
+"""
+from __future__ import annotations
+
+import csv
+import io as _io
+import json
+from pathlib import Path
+
+from glsim.io import images as io
+
+FILE_COLUMNS = ("camera", "step", "file", "bytes", "sha256", "truth_file", "truth_bytes", "truth_sha256")
+TIME_COLUMNS = ("render_s", "truth_s", "encode_s", "write_s", "saturated")
+MANIFEST = "manifest.csv"
+LIBRARY = "library.json"
+GEOMETRY_DIR = "geometry"
+
+
+def columns(keys) -> list[str]:
+    return ["variant", *keys, *FILE_COLUMNS, *TIME_COLUMNS]
+
+
+def manifest_text(plan, records: dict) -> str:
+    """The CSV of ``records`` ((variant, camera, step) → record), in the plan's job order."""
+    buf = _io.StringIO()
+    w = csv.writer(buf, lineterminator="\n")
+    w.writerow(columns(plan.keys))
+    for job in plan.jobs:
+        rec = records.get((job.variant, job.camera, job.step))
+        if rec is None:
+            continue
+        params = plan.variant(job.variant).params
+        w.writerow([job.variant, *(json.dumps(params[k]) for k in plan.keys),
+                    *(rec[c] for c in FILE_COLUMNS),
+                    *(f"{rec[c]:.6g}" if isinstance(rec.get(c), float) else rec.get(c, "") for c in TIME_COLUMNS)])
+    return buf.getvalue()
+
+
+def write_manifest(out: Path, plan, records: dict) -> Path:
+    return io.write_text(out / MANIFEST, manifest_text(plan, records))
+
+
+def read_manifest(out: Path) -> dict:
+    """(variant, camera, step) → record, from ``manifest.csv`` (empty if there is none)."""
+    path = Path(out) / MANIFEST
+    if not path.is_file():
+        return {}
+    records = {}
+    with open(path, newline="", encoding="utf-8") as f:
+        for row in csv.DictReader(f):
+            try:
+                rec = dict(row)
+                rec["step"] = int(rec["step"])
+                rec["bytes"] = int(rec["bytes"])
+                rec["truth_bytes"] = int(rec["truth_bytes"] or 0)
+                for c in TIME_COLUMNS:
+                    rec[c] = float(rec[c]) if rec.get(c) not in (None, "") else float("nan")
+            except (KeyError, ValueError, TypeError):
+                continue
+            records[(rec["variant"], rec["camera"], rec["step"])] = rec
+    return records
+
+
+def library_info(plan, fingerprint: str) -> dict:
+    return {"format": "glsim-library", "version": 1, "fingerprint": fingerprint, "spec": plan.source,
+            "base_dir": plan.base_dir, "mode": plan.mode, "seed": plan.seed, "keys": list(plan.keys),
+            "truth": plan.truth, "truth_dtype": plan.truth_dtype, "cameras": list(plan.cameras),
+            "steps": list(plan.steps), "columns": columns(plan.keys),
+            "variants": [{"id": v.id, "params": v.params} for v in plan.variants],
+            "images": len(plan.jobs),
+            "jobs": [[j.variant, j.camera, j.step, j.image, j.truth] for j in plan.jobs]}
+
+
+class StoredPlan:
+    """What ``library.json`` says the library holds (the keys, variants and images), enough to
+    check and index it without the spec's inputs."""
+
+    def __init__(self, info: dict):
+        from glsim.workflows.library.spec import Job
+
+        self.keys = tuple(info["keys"])
+        self.params = {v["id"]: v["params"] for v in info["variants"]}
+        self.jobs = tuple(Job(*j) for j in info["jobs"])
+
+    def variant(self, vid: str):
+        return _Params(self.params[vid])
+
+
+class _Params:
+    def __init__(self, params):
+        self.params = params
+
+
+def write_library_info(out: Path, info: dict) -> Path:
+    return io.write_text(out / LIBRARY, json.dumps(info, indent=1, sort_keys=True) + "\n")
+
+
+def read_library_info(out: Path) -> dict | None:
+    try:
+        data = json.loads((Path(out) / LIBRARY).read_text(encoding="utf-8"))
+    except (OSError, ValueError, UnicodeDecodeError):
+        return None
+    return data if isinstance(data, dict) and data.get("format") == "glsim-library" else None

@@ -1,0 +1,441 @@
+"""Run a library plan: write its folders, render what is missing (in this process, a local
+process pool or on a Dask cluster), keep the manifest current, resume and verify.
+
+The directory rules:
+
+* Nothing is written before the whole spec is expanded and checked (:mod:`.spec`).
+* A directory holding a library of the same plan (same fingerprint in ``library.json``) is
+  resumed: images whose files exist with the size and SHA-256 of their manifest row are kept,
+  everything else is rendered (again). Any other non-empty directory is refused, unless
+  ``force`` and it holds a library: then that library's files are removed first.
+* Images and their truth are renamed into place as one group (:mod:`.worker`); the manifest
+  is rewritten atomically every ``flush_s`` seconds and at the end, so it always loads. An image
+  written after the last manifest flush of an interrupted run has no row, and is rendered again
+  (deterministically: the same bytes) when the run is resumed.
+* Temporaries of interrupted writes (``.NAME.*.part*``) are removed when a run starts and ends.
+"""
+from __future__ import annotations
+
+import json
+import math
+import os
+import shutil
+import sys
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from glsim.errors import GlsimError
+from glsim.io import images as io
+from glsim.io import truth as truthio
+from glsim.workflows.library import manifest as mf
+from glsim.workflows.library.spec import Plan, mesh_key
+from glsim.workflows.library.worker import WriteError, make_task, render_task
+
+CHUNK = 8          # images per task at most (a variant with more is split)
+
+
+class LibraryError(GlsimError):
+    """The library directory cannot be used as asked (the message says why and the fix)."""
+
+
+@dataclass
+class Summary:
+    """What a run did."""
+    out: str
+    total: int = 0
+    written: int = 0
+    kept: int = 0
+    failed: list = field(default_factory=list)      # (variant, message)
+    seconds: float = 0.0
+    bytes: int = 0
+    render_s: float = 0.0
+    truth_s: float = 0.0
+    encode_s: float = 0.0
+    write_s: float = 0.0
+    workers: int = 1
+    engine: str = "local"
+    pool_restarts: int = 0
+
+    def text(self) -> str:
+        n = max(self.written, 1)
+        rate = self.written / self.seconds if self.seconds > 0 else 0.0
+        lines = [f"glsim library: {self.written} images written, {self.kept} kept, {len(self.failed)} failed "
+                 f"of {self.total}, in {self.seconds:.1f} s ({rate:.2f} images/s, "
+                 f"{self.bytes / 1e6 / max(self.seconds, 1e-9):.1f} MB/s; {self.engine}, {self.workers} worker"
+                 f"{'s' if self.workers != 1 else ''}) → {self.out}/"]
+        if self.written:
+            lines.append(f"time per image, summed over workers: render {self.render_s / n:.3f} s, truth "
+                         f"{self.truth_s / n:.3f} s, encode {self.encode_s / n:.3f} s, write {self.write_s / n:.3f} s")
+        if self.pool_restarts:
+            lines.append(f"a worker process died {self.pool_restarts}× and its tasks were run again")
+        for vid, msg in self.failed[:5]:
+            lines.append(f"failed: {vid}: {msg}")
+        if self.failed:
+            lines.append("run the same command again to retry the failed images (the others are kept)")
+        return "\n".join(lines)
+
+
+# ---- the directory ----------------------------------------------------------------------------------
+
+def _first_difference(old: dict, plan: Plan) -> str:
+    new = mf.library_info(plan, "")
+    for key in ("keys", "mode", "seed", "truth", "truth_dtype", "cameras", "steps", "images"):
+        if old.get(key) != new.get(key):
+            return f"{key} is {json.dumps(old.get(key))} there, {json.dumps(new.get(key))} now"
+    ov, nv = old.get("variants", []), new["variants"]
+    if len(ov) != len(nv):
+        return f"{len(ov)} variants there, {len(nv)} now"
+    for a, b in zip(ov, nv):
+        if a != b:
+            return f"variant {b['id']} has {json.dumps(a.get('params'))} there, {json.dumps(b['params'])} now"
+    return "the base scene differs"
+
+
+def _prepare_directory(out: Path, plan: Plan, fingerprint: str, force: bool) -> bool:
+    """True to resume; False for a new library. Raises LibraryError for a directory that holds
+    something else."""
+    if out.exists() and not out.is_dir():
+        raise LibraryError(f"{out}: is a file, not a directory — give a directory for the library (-o)")
+    if not out.is_dir() or not any(out.iterdir()):
+        return False
+    info = mf.read_library_info(out)
+    if info is not None and info.get("fingerprint") == fingerprint and not force:
+        return True
+    if info is None:
+        names = sorted(p.name for p in out.iterdir())
+        shown = ", ".join(names[:3]) + (", …" if len(names) > 3 else "")
+        raise LibraryError(f"{out}: is not empty ({len(names)} entries: {shown}) and holds no library — "
+                           "write the library to a new or empty directory (-o)")
+    if not force:
+        raise LibraryError(f"{out}: holds a library of another spec ({_first_difference(info, plan)}) — write to "
+                           "a new directory (-o), or pass --force to replace it (its variant folders, geometry, "
+                           "manifest and library.json are removed first)")
+    for v in info.get("variants", []):
+        vid = str(v.get("id", ""))
+        if vid.startswith("v") and vid[1:].isdigit() and (out / vid).is_dir():
+            shutil.rmtree(out / vid)
+    for name in (mf.GEOMETRY_DIR,):
+        if (out / name).is_dir():
+            shutil.rmtree(out / name)
+    for name in (mf.MANIFEST, mf.LIBRARY):
+        if (out / name).is_file():
+            os.unlink(out / name)
+    return False
+
+
+def _check_writable(out: Path) -> None:
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+        with io.atomic_path(out / ".glsim-write-test") as tmp:
+            tmp.write_bytes(b"ok")
+        os.unlink(out / ".glsim-write-test")
+    except OSError as exc:
+        raise WriteError(f"{out}: cannot be written ({exc.strerror or exc}) — give a writable directory (-o)"
+                         + (" with free space" if exc.errno == 28 else "")) from None
+
+
+def _write_if_changed(path: Path, data: bytes) -> None:
+    try:
+        if path.read_bytes() == data:
+            return
+    except OSError:
+        pass
+    with io.atomic_path(path) as tmp:
+        tmp.write_bytes(data)
+
+
+def _write_setup(out: Path, plan: Plan, fingerprint: str) -> dict:
+    """library.json, each variant's scene.json and the geometry files; returns
+    mesh key → (geometry path relative to out, its SHA-256)."""
+    mf.write_library_info(out, mf.library_info(plan, fingerprint))
+    geometry = {}
+    for v in plan.variants:
+        key = mesh_key(v.scene)
+        if key not in geometry:
+            mesh = plan.meshes[key]
+            steps = sorted({j.step for j in plan.jobs if j.variant == v.id} | set(plan.steps))
+            steps = [s for s in steps if s < mesh.n_steps]
+            arrays = truthio.geometry_arrays(mesh.nodes, mesh.quads, {s: mesh.displacements[s] for s in steps},
+                                             mesh.element_labels)
+            data = truthio.geometry_bytes(arrays)
+            sha = truthio.sha256_bytes(data)
+            rel = f"{mf.GEOMETRY_DIR}/{sha[:16]}.npz"
+            _write_if_changed(out / rel, data)
+            geometry[key] = (rel, sha)
+        _write_if_changed(out / v.id / "scene.json", v.scene.to_json().encode())
+    return geometry
+
+
+def sweep_temporaries(out: Path) -> int:
+    """Remove temporaries that interrupted writes left (``.NAME.XXXX.part…``)."""
+    n = 0
+    for p in out.rglob(".*.part*"):
+        if p.is_file() and ".part" in p.name:
+            try:
+                os.unlink(p)
+                n += 1
+            except OSError:
+                pass
+    return n
+
+
+def _file_ok(path: Path, size: int, sha: str) -> bool:
+    try:
+        return path.stat().st_size == size and truthio.sha256_file(path) == sha
+    except OSError:
+        return False
+
+
+def check_records(out: Path, plan: Plan, records: dict) -> tuple[dict, list]:
+    """The records whose files exist with their size and SHA-256, and a list of problems
+    (job, what) for every other image of the plan."""
+    good, problems = {}, []
+    for job in plan.jobs:
+        key = (job.variant, job.camera, job.step)
+        rec = records.get(key)
+        if rec is None:
+            problems.append((job, "no manifest row" if not (out / job.image).exists() else
+                             "image present but not in the manifest (written after its last update)"))
+            continue
+        if rec.get("file") != job.image or rec.get("truth_file", "") != job.truth:
+            problems.append((job, "manifest row names other files"))
+            continue
+        if not _file_ok(out / job.image, rec["bytes"], rec["sha256"]):
+            problems.append((job, "image missing or fails its size/SHA-256"))
+            continue
+        if job.truth and not _file_ok(out / job.truth, rec["truth_bytes"], rec["truth_sha256"]):
+            problems.append((job, "truth missing or fails its size/SHA-256"))
+            continue
+        good[key] = rec
+    return good, problems
+
+
+# ---- running -----------------------------------------------------------------------------------------
+
+def _tasks(out: Path, plan: Plan, todo, geometry: dict) -> list[dict]:
+    by_variant: dict[str, list] = {}
+    for job in todo:
+        by_variant.setdefault(job.variant, []).append(job)
+    tasks = []
+    for vid, jobs in by_variant.items():
+        v = plan.variant(vid)
+        rel, sha = geometry[mesh_key(v.scene)]
+        for k in range(0, len(jobs), CHUNK):
+            tasks.append(make_task(v, jobs[k:k + CHUNK], out, rel, sha, plan.truth_dtype))
+    return tasks
+
+
+class _Progress:
+    def __init__(self, total: int, enabled: bool):
+        self.total, self.enabled = total, enabled
+        self.t0 = time.perf_counter()
+        self.done = 0
+        self.bytes = 0
+
+    def update(self, records) -> None:
+        self.done += len(records)
+        self.bytes += sum(r["bytes"] + r["truth_bytes"] for r in records)
+        if not self.enabled:
+            return
+        dt = max(time.perf_counter() - self.t0, 1e-9)
+        rate = self.done / dt
+        eta = (self.total - self.done) / rate if rate > 0 else math.inf
+        eta_s = f"{int(eta // 60)}m{int(eta % 60):02d}s" if math.isfinite(eta) else "?"
+        sys.stderr.write(f"\rglsim library: {self.done}/{self.total} images  {rate:.2f} images/s  "
+                         f"{self.bytes / 1e6 / dt:.1f} MB/s  ETA {eta_s}   ")
+        if self.done >= self.total:
+            sys.stderr.write("\n")
+        sys.stderr.flush()
+
+    def end(self) -> None:
+        if self.enabled and self.done < self.total:
+            sys.stderr.write("\n")
+            sys.stderr.flush()
+
+
+def default_workers() -> int:
+    """One per GPU where EGL lists GPUs (they would share one GPU otherwise), else one per core."""
+    from glsim.workflows.library.worker import gpu_count
+    return gpu_count() or os.cpu_count() or 1
+
+
+def _run_inprocess(tasks, on_done):
+    from glsim.workflows.library import worker
+    try:
+        for t in tasks:
+            on_done(t, worker_result(t))
+    finally:
+        worker.release()
+
+
+def worker_result(task):
+    """Run a task and return ("ok", records) or ("error", message); WriteError propagates."""
+    try:
+        return "ok", render_task(task)
+    except WriteError:
+        raise
+    except GlsimError as exc:
+        return "error", str(exc)
+    except (RuntimeError, ValueError, ArithmeticError) as exc:
+        return "error", f"{type(exc).__name__}: {exc}"
+
+
+def _run_pool(tasks, workers: int, on_done, summary: Summary):
+    import multiprocessing as mp
+    from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
+    from concurrent.futures.process import BrokenProcessPool
+
+    from glsim.workflows.library.worker import pool_init
+
+    pending = list(tasks)
+    while pending:
+        ex = ProcessPoolExecutor(max_workers=workers, mp_context=mp.get_context("spawn"), initializer=pool_init)
+        futures = {ex.submit(worker_result, t): t for t in pending}
+        broken = False
+        try:
+            while futures:
+                done, _ = wait(list(futures), return_when=FIRST_COMPLETED)
+                for f in done:
+                    t = futures.pop(f)
+                    try:
+                        result = f.result()
+                    except BrokenProcessPool:
+                        broken = True
+                        continue
+                    pending.remove(t)
+                    on_done(t, result)
+                if broken:
+                    break
+        except BaseException:
+            for p in list(getattr(ex, "_processes", {}).values()):
+                p.terminate()
+            ex.shutdown(wait=False, cancel_futures=True)
+            raise
+        ex.shutdown(wait=not broken, cancel_futures=True)
+        if broken:
+            summary.pool_restarts += 1
+            if summary.pool_restarts > 3:
+                raise LibraryError(f"worker processes died {summary.pool_restarts} times (killed, or out of memory); "
+                                   f"{len(pending)} tasks were not rendered — run the same command again to resume, "
+                                   "with fewer --workers if memory is short")
+
+
+def _run_dask(tasks, scheduler: str, on_done, summary: Summary, fingerprint: str):
+    try:
+        from distributed import Client, as_completed
+    except ImportError:
+        raise LibraryError("--scheduler needs Dask distributed — install it with pip install 'glsim[dask]' "
+                           "(or pip install distributed)") from None
+    try:
+        client = Client(scheduler, timeout="15s")
+    except (OSError, TimeoutError) as exc:
+        raise LibraryError(f"--scheduler {scheduler}: no Dask scheduler answered ({exc}) — start one with "
+                           "`dask scheduler` and workers with `dask worker ADDRESS --nthreads 1`, and give its "
+                           "tcp://HOST:PORT") from None
+    try:
+        summary.workers = len(client.scheduler_info().get("workers", {}))
+        futures = {}
+        for i, t in enumerate(tasks):
+            f = client.submit(worker_result, t, key=f"glsim-library-{fingerprint[:12]}-{i:06d}", pure=False)
+            futures[f] = t
+        for f in as_completed(list(futures)):
+            try:
+                result = f.result()
+            except WriteError:
+                raise
+            except Exception as exc:   # KilledWorker and the like: the task failed on every try
+                result = ("error", f"{type(exc).__name__}: {exc}")
+            on_done(futures[f], result)
+    finally:
+        client.close()
+
+
+def run(plan: Plan, out: str | Path, workers: int | None = None, scheduler: str | None = None,
+        force: bool = False, progress: bool = False, flush_s: float = 2.0) -> Summary:
+    """Render ``plan`` into ``out`` (see the module text); returns the :class:`Summary`."""
+    out = Path(out)
+    t0 = time.perf_counter()
+    fingerprint = plan.fingerprint()
+    resume = _prepare_directory(out, plan, fingerprint, force)
+    _check_writable(out)
+    sweep_temporaries(out)
+    geometry = _write_setup(out, plan, fingerprint)
+    records, todo = {}, list(plan.jobs)
+    if resume:
+        records, problems = check_records(out, plan, mf.read_manifest(out))
+        todo = [job for job, _ in problems]
+    workers = default_workers() if workers is None else workers
+    if workers < 1:
+        raise LibraryError(f"--workers {workers}: must be ≥ 1 — give the number of worker processes")
+    summary = Summary(out=str(out), total=len(plan.jobs), kept=len(records),
+                      workers=min(workers, max(1, len(todo))), engine="dask" if scheduler else "local")
+    tasks = _tasks(out, plan, todo, geometry)
+    bar = _progress = _Progress(len(todo), progress)
+    last_flush = [time.perf_counter()]
+
+    def on_done(task, result):
+        status, payload = result
+        if status == "error":
+            summary.failed.append((task["variant"], payload))
+            return
+        for rec in payload:
+            records[(rec["variant"], rec["camera"], rec["step"])] = rec
+            summary.written += 1
+            summary.bytes += rec["bytes"] + rec["truth_bytes"]
+            for c in ("render_s", "truth_s", "encode_s", "write_s"):
+                setattr(summary, c, getattr(summary, c) + rec[c])
+        bar.update(payload)
+        if time.perf_counter() - last_flush[0] >= flush_s:
+            mf.write_manifest(out, plan, records)
+            last_flush[0] = time.perf_counter()
+
+    try:
+        if not tasks:
+            pass
+        elif scheduler:
+            _run_dask(tasks, scheduler, on_done, summary, fingerprint)
+        elif summary.workers == 1:
+            _run_inprocess(tasks, on_done)
+        else:
+            _run_pool(tasks, summary.workers, on_done, summary)
+    finally:
+        _progress.end()
+        try:
+            mf.write_manifest(out, plan, records)
+        except OSError:
+            pass
+        sweep_temporaries(out)
+    summary.seconds = time.perf_counter() - t0
+    return summary
+
+
+# ---- verify --------------------------------------------------------------------------------------------
+
+def verify(out: str | Path) -> tuple[int, list[str]]:
+    """Check every image and truth file of the library in ``out`` against its manifest row
+    (and the geometry files against the truth headers' SHA-256). Returns (good, problems)."""
+    out = Path(out)
+    info = mf.read_library_info(out)
+    if info is None:
+        raise LibraryError(f"{out}: holds no library (no readable library.json) — give a directory that "
+                           "`glsim library SPEC -o DIR` wrote")
+    plan = mf.StoredPlan(info)
+    good, problems = check_records(out, plan, mf.read_manifest(out))
+    lines = [f"{job.image}: {what}" for job, what in problems]
+    seen = set()
+    for rec in good.values():
+        if not rec.get("truth_file"):
+            continue
+        try:
+            t = truthio.read(out / rec["truth_file"])
+        except GlsimError as exc:
+            lines.append(str(exc))
+            continue
+        geo = ((out / rec["truth_file"]).parent / t.header["geometry"]).resolve()
+        if geo in seen:
+            continue
+        seen.add(geo)
+        if not geo.is_file() or truthio.sha256_file(geo) != t.header["geometry_sha256"]:
+            lines.append(f"{geo}: geometry file missing or fails its SHA-256")
+    return len(good), lines

@@ -1,0 +1,500 @@
+"""Library specs: a base scene plus ``[vary]``, expanded into checked variants before anything
+is rendered or written.
+
+A spec is a TOML file::
+
+    scene = "bulge.toml"        # the base scene file (relative to the spec), or an inline [scene] table
+    seed = 1                    # seed of every random draw (required when there is one)
+    mode = "grid"               # grid: every combination; zip: i-th values together; random: n draws
+    n = 10                      # random mode: the number of variants
+    cameras = ["cam0", "cam1"]  # names or indices (default: every camera)
+    steps = [0, 3]              # load steps, or "0-3" (default: every step)
+    truth = true                # compact truth (element + ξ, η) per image
+    truth_dtype = "float64"     # float64 (lossless) or float32
+
+    [vary]                      # dotted paths into the scene → values
+    noise.sigma = [0.5, 1.0, 2.0]                   # a list
+    speckle.seed = {range = [0, 10]}                # start, stop[, step] (stop excluded)
+    optics.f_number = {linspace = [2, 8, 4]}        # start, stop, count
+    "cameras.1.pose.stereo.Phi" = {uniform = [25, 35], n = 3}   # draws: uniform, normal = [mean, std],
+                                                    # integers = [lo, hi) , choice = [...]
+
+Draws need ``n`` (how many values) in grid and zip modes; in random mode every key is drawn
+afresh for each of the ``n`` variants (lists, ranges and linspaces by uniform choice). Each key
+has its own random stream, seeded from ``seed`` and the key's name, so adding a key does not
+change the others' values. A path's parts are table keys, list indices (``cameras.1``,
+``lighting.lights.0``) or a camera's name (``cameras.cam1.fx``); missing tables are created
+(``noise.sigma`` switches noise on).
+"""
+from __future__ import annotations
+
+import copy
+import hashlib
+import itertools
+import json
+import math
+import zlib
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from glsim.errors import GlsimError, SceneError
+from glsim.io.images import EXTENSIONS
+from glsim.scene import Scene, scene_from_dict
+from glsim.scene.load import _from_resolved
+
+try:
+    import tomllib
+except ModuleNotFoundError:  # Python 3.10
+    import tomli as tomllib
+
+MODES = ("grid", "zip", "random")
+TOP_KEYS = ("scene", "seed", "mode", "n", "cameras", "steps", "truth", "truth_dtype", "vary")
+LISTS = ("range", "linspace")
+DRAWS = ("uniform", "normal", "integers", "choice")
+GENERATORS = LISTS + DRAWS
+TRUTH_DTYPES = ("float64", "float32")
+
+
+class SpecError(GlsimError):
+    """A spec that cannot be expanded: the message names the variant and key and the fix."""
+
+
+def _fail(key: str, problem: str, fix: str) -> None:
+    raise SpecError(f"{key}: {problem} — {fix}")
+
+
+@dataclass(frozen=True)
+class Variant:
+    """One scene of the library: ``params`` maps each varied path to its value."""
+    id: str
+    index: int
+    params: dict
+    scene: Scene
+
+    def label(self) -> str:
+        return ", ".join(f"{k}={_show(v)}" for k, v in self.params.items())
+
+
+@dataclass(frozen=True)
+class Job:
+    """One image: variant, camera name, load step and the files (relative to the library)."""
+    variant: str
+    camera: str
+    step: int
+    image: str
+    truth: str           # "" without truth
+
+
+@dataclass(frozen=True)
+class Plan:
+    """A spec expanded: every variant checked, every image named."""
+    source: dict                  # the spec as read (with the base scene inlined)
+    base_dir: str
+    keys: tuple[str, ...]
+    mode: str
+    seed: int | None
+    truth: bool
+    truth_dtype: str
+    cameras: tuple[str, ...]
+    steps: tuple[int, ...]
+    variants: tuple[Variant, ...]
+    jobs: tuple[Job, ...]
+    meshes: dict = field(default_factory=dict)     # specimen key → placed Mesh (checked)
+
+    def fingerprint(self) -> str:
+        """SHA-256 of what the library holds: every variant's resolved scene, the images, truth."""
+        h = hashlib.sha256()
+        h.update(json.dumps({"truth": self.truth, "truth_dtype": self.truth_dtype, "keys": self.keys,
+                             "jobs": [(j.variant, j.camera, j.step, j.image, j.truth) for j in self.jobs]},
+                            sort_keys=True).encode())
+        for v in self.variants:
+            h.update(v.id.encode())
+            h.update(json.dumps(v.params, sort_keys=True).encode())
+            h.update(v.scene.to_json().encode())
+        return h.hexdigest()
+
+    def variant(self, vid: str) -> Variant:
+        return self.variants[int(vid[1:])]
+
+
+def _show(v) -> str:
+    return json.dumps(v) if not isinstance(v, float) else repr(v)
+
+
+# ---- reading --------------------------------------------------------------------------------------
+
+def read_spec(path: str | Path) -> tuple[dict, Path]:
+    """The spec's table and its directory."""
+    path = Path(path)
+    if not path.is_file():
+        raise SpecError(f"{path}: spec file not found — check the path (a library spec is a TOML file)")
+    try:
+        data = tomllib.loads(path.read_text(encoding="utf-8"))
+    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
+        raise SpecError(f"{path}: is not a valid TOML file ({exc}) — fix the syntax there") from None
+    return data, path.resolve().parent
+
+
+def _base_scene(spec: dict, spec_dir: Path) -> tuple[dict, str]:
+    """The base scene as a scene-file table and its base directory."""
+    if "scene" not in spec:
+        _fail("scene", "is required", 'give the base scene: scene = "bulge.toml" (relative to the spec) or an '
+              "inline [scene] table with [[scene.cameras]], [scene.specimen], …")
+    sc = spec["scene"]
+    if isinstance(sc, dict):
+        return copy.deepcopy(sc), str(spec_dir)
+    if not isinstance(sc, str):
+        _fail("scene", f"expected a file name or a table, got {sc!r}", 'write scene = "bulge.toml" or [scene]')
+    p = Path(sc)
+    p = p if p.is_absolute() else spec_dir / p
+    if not p.is_file():
+        _fail("scene", f"file {p} not found", "check the path (relative paths start at the spec's directory)")
+    if p.suffix == ".json":
+        try:
+            data, base = _from_resolved(json.loads(p.read_text(encoding="utf-8")))
+        except (ValueError, AttributeError) as exc:
+            _fail("scene", f"{p} is not a scene.json written by glsim ({exc})", "give a TOML scene file")
+        return data, base
+    try:
+        return tomllib.loads(p.read_text(encoding="utf-8")), str(p.resolve().parent)
+    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
+        _fail("scene", f"{p} is not a valid TOML file ({exc})", "fix the syntax there")
+
+
+def _flatten(vary, prefix: str = "") -> list[tuple[str, object]]:
+    """[vary] → [(dotted path, list or generator table)] in file order."""
+    out = []
+    for k, v in vary.items():
+        path = f"{prefix}.{k}" if prefix else str(k)
+        if isinstance(v, dict) and not (set(v) & set(GENERATORS)):
+            if not v:
+                _fail(f"vary.{path}", "is an empty table", "give a list of values or a generator table")
+            out += _flatten(v, path)
+        else:
+            out.append((path, v))
+    return out
+
+
+def _seed_for(seed: int, key: str) -> np.random.Generator:
+    return np.random.default_rng(np.random.SeedSequence([seed, zlib.crc32(key.encode())]))
+
+
+def _plain(v):
+    if isinstance(v, np.generic):
+        return v.item()
+    return v
+
+
+def _numbers(key: str, name: str, value, count: int | tuple) -> list:
+    counts = count if isinstance(count, tuple) else (count,)
+    if (not isinstance(value, list) or len(value) not in counts
+            or not all(isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x) for x in value)):
+        want = " or ".join(map(str, counts))
+        _fail(f"vary.{key}.{name}", f"expected a list of {want} numbers, got {value!r}",
+              {"range": "write range = [start, stop] or [start, stop, step]",
+               "linspace": "write linspace = [start, stop, count]",
+               "uniform": "write uniform = [low, high]", "normal": "write normal = [mean, std]",
+               "integers": "write integers = [low, high] (high excluded)"}[name])
+    return value
+
+
+class _Key:
+    """One varied path: its fixed values (lists, ranges) or its draw."""
+
+    def __init__(self, path: str, value, mode: str, seed: int | None):
+        self.path = path
+        self.kind = "list"
+        self.draw = None
+        key = f"vary.{path}"
+        if isinstance(value, list):
+            if not value:
+                _fail(key, "is an empty list", "give at least one value")
+            self.values = list(value)
+            return
+        if not isinstance(value, dict):
+            _fail(key, f"expected a list of values or a generator table, got {value!r}",
+                  f"write e.g. {path} = [1, 2] or {path} = {{range = [0, 10]}}")
+        gens = [g for g in GENERATORS if g in value]
+        extra = sorted(set(value) - set(GENERATORS) - {"n"})
+        if len(gens) != 1 or extra:
+            _fail(key, f"has {', '.join(map(repr, gens + extra)) or 'no generator'}",
+                  f"give exactly one of {', '.join(GENERATORS)} (and n for draws)")
+        name = gens[0]
+        arg = value[name]
+        n = value.get("n")
+        if name in LISTS:
+            if n is not None:
+                _fail(f"{key}.n", f"is not used with {name}", f"remove n; {name} gives its own values")
+            if name == "range":
+                a = _numbers(path, name, arg, (2, 3))
+                start, stop, step = a[0], a[1], (a[2] if len(a) == 3 else 1)
+                if step == 0 or (stop - start) / step <= 0:
+                    _fail(f"{key}.range", f"{arg} gives no values", "give start < stop with a positive step")
+                count = math.ceil((stop - start) / step - 1e-9)
+                integer = all(isinstance(x, int) for x in (start, stop, step))
+                self.values = [start + i * step if integer else float(start + i * step) for i in range(count)]
+            else:
+                a = _numbers(path, name, arg, 3)
+                if not (isinstance(a[2], int) and a[2] >= 1):
+                    _fail(f"{key}.linspace", f"count {a[2]!r} is not an integer ≥ 1", "write linspace = [2, 8, 4]")
+                self.values = [float(x) for x in np.linspace(a[0], a[1], a[2])]
+            if len(self.values) > 1_000_000:
+                _fail(key, f"gives {len(self.values)} values", "use fewer (a library of millions of variants "
+                      "is surely a mistake)")
+            return
+        self.kind = "draw"
+        if name == "choice":
+            if not isinstance(arg, list) or not arg:
+                _fail(f"{key}.choice", f"expected a non-empty list, got {arg!r}", "write choice = [3, 5, 7]")
+        else:
+            a = _numbers(path, name, arg, 2)
+            if name == "uniform" and not a[0] < a[1]:
+                _fail(f"{key}.uniform", f"low {a[0]} is not below high {a[1]}", "write uniform = [low, high]")
+            if name == "normal" and a[1] < 0:
+                _fail(f"{key}.normal", f"std {a[1]} is negative", "write normal = [mean, std] with std ≥ 0")
+            if name == "integers" and not (all(isinstance(x, int) for x in a) and a[0] < a[1]):
+                _fail(f"{key}.integers", f"{a} is not [low, high) with integers low < high",
+                      "write integers = [0, 1000] (high excluded)")
+        self.draw = (name, arg)
+        if seed is None:
+            _fail("seed", f"is required: vary.{path} is a random draw",
+                  "add seed = 1 at the top of the spec (the same seed gives the same library)")
+        if mode == "random":
+            if n is not None:
+                _fail(f"{key}.n", "is not used in random mode", "remove it; the top-level n sets the number of variants")
+        else:
+            if not (isinstance(n, int) and not isinstance(n, bool) and n >= 1):
+                _fail(f"{key}.n" if n is not None else key,
+                      f"a {name} draw needs n (how many values) in {mode} mode" + (f", got {n!r}" if n is not None else ""),
+                      f"add n = 5 to the table, or use mode = \"random\"")
+            self.values = self.sample(_seed_for(seed, path), n)
+
+    def sample(self, rng: np.random.Generator, n: int) -> list:
+        if self.draw is None:          # random mode over fixed values: uniform choice
+            return [self.values[i] for i in rng.integers(0, len(self.values), n)]
+        name, arg = self.draw
+        if name == "uniform":
+            return [float(x) for x in rng.uniform(arg[0], arg[1], n)]
+        if name == "normal":
+            return [float(x) for x in rng.normal(arg[0], arg[1], n)]
+        if name == "integers":
+            return [int(x) for x in rng.integers(arg[0], arg[1], n)]
+        return [_plain(arg[i]) for i in rng.integers(0, len(arg), n)]
+
+
+def _assign(data: dict, path: str, value) -> None:
+    """Set ``path`` (dotted) in the scene table ``data``; missing tables are made."""
+    parts = path.split(".")
+    cur = data
+    where = []
+    for i, part in enumerate(parts):
+        last = i == len(parts) - 1
+        if isinstance(cur, list):
+            if part.lstrip("-").isdigit():
+                k = int(part)
+                if not 0 <= k < len(cur):
+                    _fail(f"vary.{path}", f"{'.'.join(where) or 'the scene'} has {len(cur)} entries "
+                          f"(indices 0…{len(cur) - 1}), not {k}", "use an existing index")
+            else:
+                names = [c.get("name") if isinstance(c, dict) else None for c in cur]
+                if part not in names:
+                    _fail(f"vary.{path}", f"{'.'.join(where)} has no entry named {part!r}",
+                          f"use an index 0…{len(cur) - 1}" + (f" or a name of {[n for n in names if n]}"
+                                                              if any(names) else ""))
+                k = names.index(part)
+        elif isinstance(cur, dict):
+            k = part
+            if not last and k not in cur:
+                if parts[i + 1].isdigit():
+                    _fail(f"vary.{path}", f"{'.'.join(where + [part])} is not in the base scene", "vary an "
+                          "existing list entry (add it to the base scene first)")
+                cur[k] = {}
+        else:
+            _fail(f"vary.{path}", f"{'.'.join(where)} is a value ({cur!r}), not a table or list",
+                  "the path must end at the value to vary")
+        if last:
+            cur[k] = value
+        else:
+            cur = cur[k]
+        where.append(part)
+
+
+def _camera_names(data: dict) -> list[str]:
+    cams = data.get("cameras")
+    if not isinstance(cams, list):
+        return []
+    return [c.get("name", f"cam{i}") if isinstance(c, dict) else f"cam{i}" for i, c in enumerate(cams)]
+
+
+def _steps(value) -> list[int] | None:
+    if value is None:
+        return None
+    if isinstance(value, str):
+        out = []
+        try:
+            for part in value.split(","):
+                a, _, b = part.partition("-")
+                out += list(range(int(a), int(b) + 1)) if b else [int(a)]
+        except ValueError:
+            _fail("steps", f"cannot read {value!r}", 'write steps = [0, 3] or "0-3"')
+        return out
+    if isinstance(value, list) and value and all(isinstance(s, int) and not isinstance(s, bool) for s in value):
+        return list(value)
+    _fail("steps", f"expected a list of load steps, got {value!r}", 'write steps = [0, 3] or "0-3"')
+
+
+def expand(spec: dict, spec_dir: str | Path = ".") -> Plan:
+    """Expand and check a spec table (see the module text). Raises SpecError naming the key
+    (and the variant) and the fix; reads every input the variants need (meshes, displacement
+    files, noise tables) but writes nothing."""
+    from glsim.workflows.sequence import _check_effect_inputs
+    from glsim.stages.reference import specimen_mesh
+
+    unknown = sorted(set(spec) - set(TOP_KEYS))
+    if unknown:
+        import difflib
+        close = difflib.get_close_matches(unknown[0], TOP_KEYS, 1)
+        _fail(unknown[0], "unknown key", (f"did you mean {close[0]!r}? " if close else "")
+              + f"a spec has {', '.join(TOP_KEYS)} (scene keys go in the base scene or [vary])")
+    spec_dir = Path(spec_dir)
+    base, base_dir = _base_scene(spec, spec_dir)
+    mode = spec.get("mode", "grid")
+    if mode not in MODES:
+        _fail("mode", f"{mode!r} is not one of {MODES}", "grid: every combination; zip: values side by side; "
+              "random: n random draws")
+    seed = spec.get("seed")
+    if seed is not None and not (isinstance(seed, int) and not isinstance(seed, bool) and seed >= 0):
+        _fail("seed", f"expected an integer ≥ 0, got {seed!r}", "write seed = 1")
+    n = spec.get("n")
+    if mode == "random":
+        if not (isinstance(n, int) and not isinstance(n, bool) and n >= 1):
+            _fail("n", f"random mode needs n ≥ 1 variants, got {n!r}", "add n = 10 at the top of the spec")
+        if seed is None:
+            _fail("seed", "is required in random mode", "add seed = 1 (the same seed gives the same library)")
+    elif n is not None:
+        _fail("n", f"is only used in random mode (mode is {mode!r})", "remove n, or set mode = \"random\"")
+    truth = spec.get("truth", True)
+    if not isinstance(truth, bool):
+        _fail("truth", f"expected true or false, got {truth!r}", "write truth = true")
+    dtype = spec.get("truth_dtype", "float64")
+    if dtype not in TRUTH_DTYPES:
+        _fail("truth_dtype", f"{dtype!r} is not one of {TRUTH_DTYPES}",
+              "float64 is lossless; float32 is about 2.5× smaller (ξ, η within 3e-8)")
+    vary = spec.get("vary", {})
+    if not isinstance(vary, dict):
+        _fail("vary", f"expected a table, got {vary!r}", "write [vary] with path = [values]")
+    keys = [_Key(p, v, mode, seed) for p, v in _flatten(vary)]
+
+    # the variants' values
+    if mode == "grid":
+        rows = list(itertools.product(*[k.values for k in keys])) if keys else [()]
+    elif mode == "zip":
+        lengths = {k.path: len(k.values) for k in keys}
+        if len(set(lengths.values())) > 1:
+            _fail("vary", f"zip mode needs lists of one length, got {', '.join(f'{p}: {m}' for p, m in lengths.items())}",
+                  "give every key the same number of values, or use mode = \"grid\"")
+        rows = list(zip(*[k.values for k in keys])) if keys else [()]
+    else:
+        cols = [k.sample(_seed_for(seed, k.path), n) for k in keys]
+        rows = list(zip(*cols)) if keys else [()] * n
+    if len(rows) > 1_000_000:
+        _fail("vary", f"gives {len(rows)} variants", "use fewer values or the random mode")
+    width = max(4, len(str(len(rows) - 1)))
+
+    cam_sel = spec.get("cameras")
+    if cam_sel is not None and not (isinstance(cam_sel, list) and cam_sel
+                                    and all(isinstance(c, (str, int)) and not isinstance(c, bool) for c in cam_sel)):
+        _fail("cameras", f"expected a list of camera names or indices, got {cam_sel!r}", 'write cameras = ["cam0"]')
+    steps = _steps(spec.get("steps"))
+
+    variants, jobs, meshes = [], [], {}
+    for i, row in enumerate(rows):
+        vid = f"v{i:0{width}d}"
+        params = {k.path: _plain(v) for k, v in zip(keys, row)}
+        data = copy.deepcopy(base)
+        where = f"variant {vid}" + (f" ({', '.join(f'{p}={_show(v)}' for p, v in params.items())})" if params else "")
+        try:
+            for p, v in params.items():
+                _assign(data, p, v)
+            scene = scene_from_dict(data, base_dir)
+        except SpecError as exc:
+            raise SpecError(f"{where}: {exc}") from None
+        except SceneError as exc:
+            varied = [p for p in params if exc.key == p or exc.key.startswith(p + ".")
+                      or _index_path(exc.key) == p or _index_path(exc.key).startswith(p + ".")]
+            hint = f" (set by vary.{varied[0]})" if varied else ""
+            raise SpecError(f"{where}: {exc}{hint}") from None
+        names = [c.name for c in scene.cameras]
+        cams = names if cam_sel is None else []
+        for c in cam_sel or []:
+            if isinstance(c, int):
+                if not 0 <= c < len(names):
+                    raise SpecError(f"{where}: cameras: index {c} does not exist (the scene has cameras 0…"
+                                    f"{len(names) - 1}: {names}) — use one of them")
+                c = names[c]
+            elif c not in names:
+                raise SpecError(f"{where}: cameras: no camera named {c!r} — use one of {names}")
+            cams.append(c)
+        if len(set(cams)) != len(cams):
+            _fail("cameras", f"{cam_sel} names a camera twice", "list each camera once")
+        mkey = mesh_key(scene)
+        if mkey not in meshes:
+            try:
+                meshes[mkey] = specimen_mesh(scene)
+            except SceneError as exc:
+                raise SpecError(f"{where}: {exc}") from None
+        nsteps = meshes[mkey].n_steps
+        vsteps = list(range(nsteps)) if steps is None else steps
+        for s in vsteps:
+            if not 0 <= s < nsteps:
+                raise SpecError(f"{where}: steps: step {s} does not exist (the specimen has steps 0…{nsteps - 1}) "
+                                f"— use steps from 0…{nsteps - 1}")
+        try:
+            _check_effect_inputs(scene, [scene.camera(c) for c in cams])
+        except SceneError as exc:
+            raise SpecError(f"{where}: {exc}") from None
+        ext = EXTENSIONS[scene.output.format]
+        for s in vsteps:
+            for c in cams:
+                image = f"{vid}/" + scene.output.pattern.format(camera=c, step=s, ext=ext)
+                stem = image.rsplit(".", 1)[0]
+                jobs.append(Job(vid, c, s, image, stem + ".truth" if truth else ""))
+        variants.append(Variant(vid, i, params, scene))
+    if not jobs:
+        _fail("cameras", "no image to render", "select at least one camera and step")
+    all_steps = tuple(sorted({j.step for j in jobs}))
+    all_cams = tuple(dict.fromkeys(j.camera for j in jobs))
+    return Plan(source={**spec, "scene": base} if not isinstance(spec.get("scene"), dict) else dict(spec),
+                base_dir=base_dir, keys=tuple(k.path for k in keys), mode=mode, seed=seed, truth=truth,
+                truth_dtype=dtype, cameras=all_cams, steps=all_steps, variants=tuple(variants), jobs=tuple(jobs),
+                meshes=meshes)
+
+
+def _index_path(key: str) -> str:
+    """``cameras[1].pose.stereo.Phi`` → ``cameras.1.pose.stereo.Phi``."""
+    return key.replace("[", ".").replace("]", "")
+
+
+def mesh_key(scene: Scene) -> str:
+    """What the specimen mesh depends on (variants with the same key share one mesh)."""
+    d = scene.to_dict()
+    return json.dumps({"specimen": d["specimen"], "base_dir": d["base_dir"]}, sort_keys=True)
+
+
+def reference_key(scene: Scene, backend: str) -> str:
+    """What a Renderer's mesh, reference image and backend depend on: variants with the same key
+    are rendered by one Renderer (one GL context, textures and programs)."""
+    d = scene.to_dict()
+    return json.dumps({"specimen": d["specimen"], "speckle": d["speckle"], "camera1": d["cameras"][0],
+                       "base_dir": d["base_dir"], "backend": backend}, sort_keys=True)
+
+
+def load_plan(path: str | Path) -> Plan:
+    """Read and expand a spec file."""
+    spec, spec_dir = read_spec(path)
+    try:
+        return expand(spec, spec_dir)
+    except SpecError as exc:
+        raise SpecError(f"{path}: {exc}") from None

@@ -1,0 +1,238 @@
+"""The worker side of a library: render a task (some images of one variant) and write its files.
+
+A task is plain data (the variant's resolved scene as JSON, the images, the output directory)
+so that it runs the same in this process, in a local process pool or on a Dask worker. Each
+worker thread holds one GL context, made when its first task runs, and one
+:class:`~glsim.render.Renderer`, reused for the next variant when that shares the mesh,
+reference image and backend (only the scene's options change); otherwise the old renderer's
+GL resources are released and a new one made on the same context. A GL context is current on
+one thread, so the context and renderer are per thread (``threading.local``).
+
+Encoding (quantising, TIFF/PNG, compact truth) and writing run on a writer thread while the
+next image renders. Every image and its truth are written as one group under temporary names
+and renamed truth first, image last (:func:`glsim.io.images.atomic_paths`): a task killed at
+any moment leaves no truncated file under a final name, and a task run twice (a Dask worker
+that died and its task rerun elsewhere) writes the same bytes again.
+"""
+from __future__ import annotations
+
+import io as _io
+import queue
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+
+from glsim.errors import GlsimError
+from glsim.io import images as io
+from glsim.io import truth as truthio
+from glsim.render import Renderer
+
+_LOCAL = threading.local()
+
+
+class CompactRaster:
+    """The truth a library stores: the renderer's raster at pixel centres, no full maps."""
+
+    def __init__(self, element, xi, eta):
+        self.element, self.xi, self.eta = element, xi, eta
+
+
+class CompactRenderer(Renderer):
+    """A Renderer whose truth is only (element, ξ, η): the float64 maps that
+    :meth:`Renderer._truth` would build are what the compact truth file determines, so the
+    library does not compute them."""
+
+    def _truth(self, view, deformed, raster) -> CompactRaster:
+        W, H = view.camera.size
+        return CompactRaster(raster["element"].reshape(H, W), raster["xi"].reshape(H, W),
+                             raster["eta"].reshape(H, W))
+
+
+def _scene(scene_json: str):
+    import json
+
+    from glsim.scene import scene_from_dict
+    from glsim.scene.load import _from_resolved
+    return scene_from_dict(*_from_resolved(json.loads(scene_json)))
+
+
+def renderer_for(scene, backend: str | None = None) -> Renderer:
+    """This thread's renderer for ``scene``: the current one if it shares mesh, reference
+    and backend (its scene swapped), else a new one on this thread's GL context."""
+    from glsim.workflows.library.spec import reference_key
+
+    backend = backend or scene.render.backend
+    key = reference_key(scene, backend)
+    r = getattr(_LOCAL, "renderer", None)
+    if r is not None and _LOCAL.key == key:
+        r.scene = scene            # same mesh, reference, textures and programs; new options
+        return r
+    if r is not None:
+        r.close()                  # the old variant's textures, programs, targets (not the context)
+        _LOCAL.renderer = None
+    ctx = None
+    if backend == "gl":
+        ctx = getattr(_LOCAL, "ctx", None)
+        if ctx is None:
+            from glsim.backends.gl.context import create_context
+            ctx = _LOCAL.ctx = create_context()
+    _LOCAL.renderer = CompactRenderer(scene, backend, ctx=ctx)
+    _LOCAL.key = key
+    return _LOCAL.renderer
+
+
+def release() -> None:
+    """Close this thread's renderer and context (tests and the in-process runner call it)."""
+    r = getattr(_LOCAL, "renderer", None)
+    if r is not None:
+        r.close()
+    ctx = getattr(_LOCAL, "ctx", None)
+    if ctx is not None:
+        ctx.release()
+    _LOCAL.renderer = _LOCAL.ctx = _LOCAL.key = None
+
+
+# ---- encoding and writing ------------------------------------------------------------------------
+
+def image_bytes(image: np.ndarray, bit_depth: int, fmt: str) -> bytes:
+    """The bytes :func:`glsim.io.images.write_image` would write."""
+    data = io.quantize(image, bit_depth)
+    buf = _io.BytesIO()
+    if fmt == "tiff":
+        import tifffile
+        tifffile.imwrite(buf, data, photometric="minisblack")
+        return buf.getvalue()
+    import imageio.v3 as iio
+    return iio.imwrite("<bytes>", data, extension=".png")
+
+
+def write_group(files: list[tuple[Path, bytes]]) -> None:
+    """Write (path, bytes) pairs as one group: temporaries first, renamed in the order given."""
+    with io.atomic_paths([p for p, _ in files]) as tmps:
+        for tmp, (_, data) in zip(tmps, files):
+            with open(tmp, "wb") as f:
+                f.write(data)
+
+
+def _encode_and_write(out: Path, job: dict, res, header: dict | None, dtype: str) -> dict:
+    t0 = time.perf_counter()
+    cam = res.camera
+    data = image_bytes(res.image, cam.bit_depth, job["format"])
+    t1 = time.perf_counter()
+    files = []
+    rec = {"variant": job["variant"], "camera": job["camera"], "step": job["step"], "file": job["image"],
+           "bytes": len(data), "sha256": truthio.sha256_bytes(data), "truth_file": job["truth"],
+           "truth_bytes": 0, "truth_sha256": "", "render_s": res.seconds, "saturated": res.saturated}
+    if job["truth"]:
+        t = res.truth
+        tdata = truthio.encode(t.element, t.xi, t.eta, header, dtype)
+        rec["truth_bytes"], rec["truth_sha256"] = len(tdata), truthio.sha256_bytes(tdata)
+        files.append((out / job["truth"], tdata))
+    t2 = time.perf_counter()
+    files.append((out / job["image"], data))
+    write_group(files)
+    t3 = time.perf_counter()
+    rec.update(encode_s=t1 - t0, truth_s=t2 - t1, write_s=t3 - t2)
+    return rec
+
+
+class _Writer:
+    """One background thread encoding and writing while the caller renders the next image."""
+
+    def __init__(self, depth: int = 2):
+        self.q: queue.Queue = queue.Queue(depth)
+        self.records: list[dict] = []
+        self.error: BaseException | None = None
+        self.thread = threading.Thread(target=self._run, daemon=True)
+        self.thread.start()
+
+    def _run(self):
+        while True:
+            item = self.q.get()
+            if item is None:
+                return
+            if self.error is None:
+                try:
+                    self.records.append(_encode_and_write(*item))
+                except BaseException as exc:  # reported by close()
+                    self.error = exc
+
+    def put(self, *item):
+        if self.error is not None:
+            raise self.error
+        self.q.put(item)
+
+    def close(self) -> list[dict]:
+        self.q.put(None)
+        self.thread.join()
+        if self.error is not None:
+            raise self.error
+        return self.records
+
+
+def render_task(task: dict) -> list[dict]:
+    """Render and write the images of ``task`` (see :func:`make_task`); returns one manifest
+    record per image. Raises :class:`WriteError` when a file cannot be written."""
+    out = Path(task["out"])
+    scene = _scene(task["scene"])
+    r = renderer_for(scene, task.get("backend"))
+    writer = _Writer()
+    try:
+        try:
+            for job in task["jobs"]:
+                res = r.render(job["camera"], job["step"], truth=bool(job["truth"]))
+                header = None
+                if job["truth"]:
+                    header = truthio.image_header(res.camera, scene.cameras[0], r.reference.camera,
+                                                  res.options.mode, job["step"],
+                                                  truthio.relpath(out / task["geometry"], (out / job["truth"]).parent),
+                                                  task["geometry_sha256"])
+                writer.put(out, job, res, header, task["truth_dtype"])
+        except BaseException:
+            try:
+                writer.close()
+            except BaseException:
+                pass
+            raise
+        return writer.close()
+    except OSError as exc:
+        raise WriteError(f"{exc.filename or out}: cannot be written ({exc.strerror or exc})"
+                         + (" — the disk is full: free space, then run the same command again to resume"
+                            if getattr(exc, "errno", None) == 28 else
+                            " — check that the directory is writable, then run the same command again "
+                            "to resume")) from None
+
+
+class WriteError(GlsimError):
+    """A library file could not be written (disk full, permissions); resuming fixes it."""
+
+
+def make_task(variant, jobs, out: Path, geometry: str, geometry_sha256: str, truth_dtype: str) -> dict:
+    """The plain-data task of ``jobs`` (all of ``variant``)."""
+    scene = variant.scene
+    return {"variant": variant.id, "scene": scene.to_json(), "out": str(out), "backend": scene.render.backend,
+            "geometry": geometry, "geometry_sha256": geometry_sha256, "truth_dtype": truth_dtype,
+            "jobs": [{"variant": j.variant, "camera": j.camera, "step": j.step, "image": j.image, "truth": j.truth,
+                      "format": scene.output.format} for j in jobs]}
+
+
+# ---- process pools ---------------------------------------------------------------------------------
+
+def pool_init() -> None:
+    """Local pool workers leave Ctrl-C to the parent (which stops them)."""
+    import signal
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+
+
+def gpu_count() -> int:
+    """EGL devices that are GPUs (not Mesa's software device); 0 when unknown."""
+    try:
+        from glsim.backends.gl.context import _egl_device
+        devices = [d for d in _egl_device().split("; ") if d]
+    except Exception:
+        return 0
+    if devices in (["unknown"], ["none"]):
+        return 0
+    return sum("EGL_MESA_device_software" not in d for d in devices)

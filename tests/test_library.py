@@ -1,0 +1,362 @@
+"""glsim library: spec expansion and its rejections, the library layout and manifest, compact
+truth against the renderer, determinism across worker counts and engines, resume, verify,
+interrupt safety (kill-and-resume), Dask on localhost, and the reduced benchmark."""
+import csv
+import os
+import random
+import shutil
+import signal
+import socket
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from glsim.errors import GlsimError
+from glsim.io import images as io
+from glsim.io import truth as T
+from glsim.render import Renderer
+from glsim.workflows.library import expand, load_plan, run, verify
+from glsim.workflows.library import manifest as mf
+from glsim.workflows.library.spec import SpecError
+
+GLSIM = [sys.executable, "-m", "glsim.cli"]
+
+SCENE = """
+[scene]
+seed = 0
+[[scene.cameras]]
+name = "cam0"
+size = [64, 48]
+fx = 360.0
+fy = 360.0
+cx = 31.5
+cy = 23.5
+[[scene.cameras]]
+name = "cam1"
+size = [64, 48]
+fx = 360.0
+fy = 360.0
+cx = 31.5
+cy = 23.5
+[scene.cameras.pose.stereo]
+Tx = -60.0
+Ty = 0.0
+Tz = 5.0
+Theta = 0.0
+Phi = 11.0
+Psi = 0.0
+[scene.specimen.plate]
+width = 40.0
+height = 30.0
+nx = 4
+ny = 3
+translations = [[0.1, 0.0, 0.0], [0.25, -0.1, 0.3]]
+[scene.specimen.pose]
+rvec = [0.0, 0.2, 0.0]
+t = [0.0, 0.0, 300.0]
+[scene.speckle]
+dot_diameter_px = 4.0
+"""
+
+SPEC = """seed = 3
+steps = [0, 2]
+""" + SCENE + """
+[vary]
+noise.sigma = [0.5, 2.0]
+speckle.seed = {integers = [0, 100], n = 2}
+"""
+
+
+def _spec(tmp_path, text=SPEC, name="spec.toml") -> Path:
+    p = tmp_path / name
+    p.write_text(text)
+    return p
+
+
+def _files(d: Path) -> dict[str, bytes]:
+    return {p.relative_to(d).as_posix(): p.read_bytes() for p in sorted(d.rglob("*"))
+            if p.is_file() and p.name not in (mf.MANIFEST, mf.LIBRARY)}
+
+
+def _manifest_rows(d: Path, drop=mf.TIME_COLUMNS):
+    with open(d / mf.MANIFEST, newline="") as f:
+        return [{k: v for k, v in row.items() if k not in drop} for row in csv.DictReader(f)]
+
+
+@pytest.fixture(scope="module")
+def reference_library(tmp_path_factory):
+    """The spec rendered once, uninterrupted, in this process (1 worker)."""
+    tmp = tmp_path_factory.mktemp("ref")
+    spec = _spec(tmp)
+    s = run(load_plan(spec), tmp / "lib", workers=1)
+    assert s.written == 16 and not s.failed
+    return spec, tmp / "lib"
+
+
+# ---- spec expansion ----------------------------------------------------------------------------------
+
+def test_grid_zip_random_and_generators(tmp_path):
+    grid = expand(_toml(SPEC), tmp_path)
+    assert [v.params for v in grid.variants][:2] == [{"noise.sigma": 0.5, "speckle.seed": 51},
+                                                     {"noise.sigma": 0.5, "speckle.seed": 39}]
+    assert len(grid.variants) == 4 and len(grid.jobs) == 16           # 2 cameras × 2 steps each
+    assert grid.variants[3].scene.noise.sigma == 2.0 and grid.variants[3].scene.speckle.seed == 39
+    z = expand(_toml("mode = 'zip'\n" + SCENE + "[vary]\nnoise.sigma = {linspace = [1, 2, 3]}\n"
+                     "'speckle.seed' = {range = [5, 11, 2]}\n"), tmp_path)
+    assert [tuple(v.params.values()) for v in z.variants] == [(1.0, 5), (1.5, 7), (2.0, 9)]
+    text = ("mode = 'random'\nn = 5\nseed = 9\n" + SCENE + "[vary]\nnoise.sigma = {uniform = [1, 3]}\n"
+            "speckle.seed = [1, 2, 3]\n'cameras.cam1.pose.stereo.Phi' = {normal = [11, 0.5]}\n")
+    a, b = expand(_toml(text), tmp_path), expand(_toml(text), tmp_path)
+    assert len(a.variants) == 5 and [v.params for v in a.variants] == [v.params for v in b.variants]
+    assert all(1 <= v.params["noise.sigma"] < 3 and v.params["speckle.seed"] in (1, 2, 3) for v in a.variants)
+    assert a.variants[0].scene.cameras[1].R != a.variants[1].scene.cameras[1].R
+    # a key's draws do not depend on the other keys
+    c = expand(_toml(text.replace("speckle.seed = [1, 2, 3]\n", "")), tmp_path)
+    assert [v.params["noise.sigma"] for v in c.variants] == [v.params["noise.sigma"] for v in a.variants]
+    other = expand(_toml(text.replace("seed = 9", "seed = 10")), tmp_path)
+    assert [v.params for v in other.variants] != [v.params for v in a.variants]
+    # a scene file by name, cameras and steps selected
+    (tmp_path / "base.toml").write_text(SCENE.replace("[scene]\n", "").replace("[scene.", "["))
+    f = expand(_toml("scene = 'base.toml'\ncameras = ['cam1']\nsteps = '1-2'\n[vary]\nnoise.sigma = [1]\n"),
+               tmp_path)
+    assert [(j.camera, j.step, j.image) for j in f.jobs] == [("cam1", 1, "v0000/cam1_0001.tif"),
+                                                            ("cam1", 2, "v0000/cam1_0002.tif")]
+
+
+def _toml(text):
+    import tomllib
+    return tomllib.loads(text)
+
+
+@pytest.mark.parametrize("extra, vary, message", [
+    ("colour = 1\n", "", r"colour: unknown key"),
+    ("mode = 'cube'\n", "", r"mode: 'cube' is not one of"),
+    ("mode = 'zip'\n", "noise.sigma = [1, 2]\nspeckle.seed = [1, 2, 3]\n",
+     r"zip mode needs lists of one length, got noise.sigma: 2, speckle.seed: 3"),
+    ("seed = 1\n", "noise.sigma = {uniform = [1, 2]}\n", r"vary.noise.sigma: a uniform draw needs n .* add n = 5"),
+    ("", "noise.sigma = {uniform = [1, 2], n = 3}\n", r"seed: is required: vary.noise.sigma is a random draw"),
+    ("", "noise.sigma = {range = [3, 1]}\n", r"vary.noise.sigma.range: \[3, 1\] gives no values"),
+    ("", "noise.sigma = {uniform = [1, 2], range = [1, 2]}\n", r"give exactly one of"),
+    ("", "'cameras.5.fx' = [300.0]\n", r"variant v0000 \(cameras.5.fx=300.0\): vary.cameras.5.fx: cameras has 2 "
+                                       r"entries \(indices 0…1\), not 5"),
+    ("", "noise.sigma = [1.0, -2.0]\n", r"variant v0001 \(noise.sigma=-2.0\): noise.sigma: must be ≥ 0 — percent.*"
+                                        r"\(set by vary.noise.sigma\)"),
+    ("", "noise.sgima = [1.0]\n", r"variant v0000 .*noise.sgima: unknown key — did you mean 'sigma'"),
+    ("", "'cameras.1.fx' = ['wide']\n", r"cameras\[1\].fx: expected a number, got 'wide'"),
+    ("cameras = ['cam7']\n", "", r"cameras: no camera named 'cam7' — use one of \['cam0', 'cam1'\]"),
+    ("steps = [0, 9]\n", "", r"steps: step 9 does not exist \(the specimen has steps 0…2\)"),
+    ("mode = 'random'\nseed = 1\n", "", r"n: random mode needs n ≥ 1 variants"),
+])
+def test_every_bad_spec_is_refused_naming_variant_key_and_fix_and_nothing_is_written(tmp_path, capsys, extra, vary,
+                                                                                     message):
+    from glsim.cli import main
+    spec = _spec(tmp_path, extra + SCENE + "[vary]\n" + vary)
+    out = tmp_path / "never"
+    assert main(["library", str(spec), "-o", str(out)]) == 2
+    err = capsys.readouterr().err
+    import re
+    assert err.startswith("glsim library: error: ") and re.search(message, err), err
+    assert not out.exists()
+
+
+def test_missing_scene_file_and_directory_rules(tmp_path, reference_library):
+    with pytest.raises(SpecError, match=r"scene: file .*nope.toml not found — check the path"):
+        load_plan(_spec(tmp_path, "scene = 'nope.toml'\n"))
+    plan = load_plan(_spec(tmp_path))
+    busy = tmp_path / "busy"
+    busy.mkdir()
+    (busy / "notes.txt").write_text("mine")
+    with pytest.raises(GlsimError, match="is not empty .* holds no library"):
+        run(plan, busy, workers=1)
+    other = load_plan(_spec(tmp_path, SPEC.replace("[0.5, 2.0]", "[0.5, 3.0]"), "other.toml"))
+    lib = tmp_path / "lib"
+    shutil.copytree(reference_library[1], lib)
+    with pytest.raises(GlsimError, match=r"holds a library of another spec \(variant v0002 has .*--force"):
+        run(other, lib, workers=1)
+    s = run(other, lib, workers=1, force=True)
+    assert s.written == 16 and s.kept == 0 and verify(lib)[1] == []
+
+
+# ---- the library --------------------------------------------------------------------------------------
+
+def test_layout_manifest_images_and_truth(reference_library, tmp_path):
+    spec, lib = reference_library
+    rows = _manifest_rows(lib, drop=())
+    assert list(rows[0]) == ["variant", "noise.sigma", "speckle.seed", "camera", "step", "file", "bytes", "sha256",
+                             "truth_file", "truth_bytes", "truth_sha256", "render_s", "truth_s", "encode_s",
+                             "write_s", "saturated"]
+    assert [(r["variant"], r["camera"], r["step"]) for r in rows[:3]] == [("v0000", "cam0", "0"), ("v0000", "cam1", "0"),
+                                                                         ("v0000", "cam0", "2")]
+    assert rows[2]["noise.sigma"] == "0.5" and rows[2]["speckle.seed"] == "51"
+    for r in rows:
+        assert T.sha256_file(lib / r["file"]) == r["sha256"] and int(r["bytes"]) == (lib / r["file"]).stat().st_size
+        assert T.sha256_file(lib / r["truth_file"]) == r["truth_sha256"]
+        assert float(r["render_s"]) > 0
+    # a variant's images are what glsim render writes for its scene.json, its truth the renderer's maps
+    from glsim.scene import load_scene
+    scene = load_scene(lib / "v0003" / "scene.json")
+    assert scene.noise.sigma == 2.0 and scene.speckle.seed == 39
+    with Renderer(scene) as r:
+        res = r.render("cam1", 2, truth=True)
+    io.write_image(tmp_path / "x.tif", res.image, 8)
+    assert (tmp_path / "x.tif").read_bytes() == (lib / "v0003" / "cam1_0002.tif").read_bytes()
+    maps = T.load(lib / "v0003" / "cam1_0002.truth").maps()
+    for name in ("element", "xi", "eta", "X_undeformed", "X_deformed"):
+        np.testing.assert_array_equal(getattr(maps, name), getattr(res.truth, name), err_msg=name)
+    np.testing.assert_allclose(maps.ref_uv, res.truth.ref_uv, atol=1e-4, equal_nan=True)
+    assert len(list((lib / "geometry").iterdir())) == 1                 # one specimen: one geometry file
+
+
+def test_one_and_two_workers_give_the_same_bytes_and_resume_renders_only_what_is_bad(reference_library, tmp_path):
+    spec, ref = reference_library
+    lib = tmp_path / "lib2"
+    s = run(load_plan(spec), lib, workers=2)
+    assert s.workers == 2 and s.written == 16 and not s.failed
+    assert _files(lib) == _files(ref)
+    assert _manifest_rows(lib) == _manifest_rows(ref)
+    # damage one image, remove one truth file: resume renders those two images only
+    img = lib / "v0001" / "cam0_0002.tif"
+    img.write_bytes(img.read_bytes()[:-7] + b"garbage")
+    (lib / "v0002" / "cam1_0000.truth").unlink()
+    r = subprocess.run(GLSIM + ["library", str(lib), "--verify"], capture_output=True, text=True)
+    assert r.returncode == 1 and "14 images good, 2 problems" in r.stdout, r.stdout
+    assert "v0001/cam0_0002.tif: image missing or fails its size/SHA-256" in r.stdout
+    s = run(load_plan(spec), lib, workers=1)
+    assert (s.written, s.kept) == (2, 14)
+    assert _files(lib) == _files(ref)
+    r = subprocess.run(GLSIM + ["library", str(lib), "--verify"], capture_output=True, text=True)
+    assert r.returncode == 0 and "16 images good, 0 problems" in r.stdout
+
+
+def test_kill_and_resume_gives_the_bytes_of_an_uninterrupted_run(reference_library, tmp_path):
+    spec, ref = reference_library
+    lib = tmp_path / "killed"
+    rng = random.Random(5)
+    env = dict(os.environ, PYTHONUNBUFFERED="1")
+    for delay in [rng.uniform(0.6, 1.6) for _ in range(3)]:
+        p = subprocess.Popen(GLSIM + ["library", str(spec), "-o", str(lib), "--workers", "1", "-q"], env=env,
+                             stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+        time.sleep(delay)
+        p.send_signal(signal.SIGKILL)
+        p.wait()
+        if (lib / mf.MANIFEST).exists():                  # the manifest always loads
+            mf.read_manifest(lib)
+        for f in lib.rglob("*.tif"):                       # no truncated image under a final name
+            assert io.read_image(f).shape == (48, 64)
+    p = subprocess.Popen(GLSIM + ["library", str(spec), "-o", str(lib), "--workers", "1", "-q"],
+                         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    time.sleep(0.8)
+    p.send_signal(signal.SIGINT)                          # Ctrl-C: a clear message, nothing partial
+    _, err = p.communicate()
+    assert p.returncode in (0, 130), err
+    assert p.returncode == 0 or ("interrupted" in err and "no partial files" in err and "Traceback" not in err)
+    r = subprocess.run(GLSIM + ["library", str(spec), "-o", str(lib), "--workers", "1", "-q"],
+                       capture_output=True, text=True)
+    assert r.returncode == 0, r.stderr
+    assert _files(lib) == _files(ref)
+    assert not [p for p in lib.rglob("*") if ".part" in p.name]
+
+
+def test_disk_full_is_a_clear_error_and_resumes(reference_library, tmp_path, monkeypatch):
+    spec, ref = reference_library
+    from glsim.workflows.library import worker
+    real, calls = worker.write_group, []
+
+    def full(files):
+        calls.append(1)
+        if len(calls) > 5:
+            raise OSError(28, "No space left on device", str(files[0][0]))
+        real(files)
+
+    monkeypatch.setattr(worker, "write_group", full)
+    lib = tmp_path / "full"
+    with pytest.raises(GlsimError, match=r"cam1_0000.truth: cannot be written \(No space left on device\) — the disk is full: free space, then run the "
+                                         "same command again"):
+        run(load_plan(spec), lib, workers=1)
+    monkeypatch.setattr(worker, "write_group", real)
+    kept = len(mf.read_manifest(lib))     # the finished tasks' images (a task reports when it ends)
+    assert kept == 4 and not [p for p in lib.rglob("*") if ".part" in p.name]
+    s = run(load_plan(spec), lib, workers=1)
+    assert (s.written, s.kept) == (16 - kept, kept) and _files(lib) == _files(ref)
+
+
+def test_dry_run_prints_the_table_and_writes_nothing(tmp_path):
+    spec = _spec(tmp_path)
+    out = tmp_path / "spec"
+    r = subprocess.run(GLSIM + ["library", str(spec), "--dry-run"], capture_output=True, text=True)
+    assert r.returncode == 0, r.stderr
+    lines = r.stdout.splitlines()
+    assert lines[0].split() == ["variant", "noise.sigma", "speckle.seed", "images"]
+    assert lines[1].split() == ["v0000", "0.5", "51", "4"]
+    assert "4 variants, 16 images" in r.stdout and "estimated:" in r.stdout and "nothing was written" in r.stdout
+    assert not out.exists()
+
+
+# ---- Dask ---------------------------------------------------------------------------------------------
+
+def _free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def test_dask_cluster_with_a_worker_killed_gives_the_same_library(reference_library, tmp_path):
+    pytest.importorskip("distributed")
+    spec, ref = reference_library
+    try:
+        port = _free_port()
+    except OSError as exc:
+        pytest.skip(f"cannot open a localhost port for the Dask scheduler ({exc})")
+    bindir = Path(sys.executable).parent
+    address = f"tcp://127.0.0.1:{port}"
+    env = dict(os.environ, DASK_DISTRIBUTED__WORKER__DAEMON="False")
+    procs = [subprocess.Popen([str(bindir / "dask"), "scheduler", "--host", "127.0.0.1", "--port", str(port),
+                               "--no-dashboard"], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, env=env)]
+    try:
+        for _ in range(2):
+            procs.append(subprocess.Popen([str(bindir / "dask"), "worker", address, "--nthreads", "1", "--nworkers", "1",
+                                           "--no-dashboard", "--no-nanny"],
+                                          stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, env=env))
+        from distributed import Client
+        with Client(address, timeout="20s") as c:
+            c.wait_for_workers(2, timeout=30)
+        lib = tmp_path / "dask"
+        p = subprocess.Popen(GLSIM + ["library", str(spec), "-o", str(lib), "--scheduler", address, "-q"],
+                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        deadline = time.time() + 30
+        while time.time() < deadline and not list(lib.glob("v*/*.truth")):
+            time.sleep(0.05)
+        procs[1].send_signal(signal.SIGKILL)                # one worker dies mid-run
+        out, err = p.communicate(timeout=120)
+        assert p.returncode == 0, err
+        assert "16 images written" in out and "dask" in out
+        assert _files(lib) == _files(ref)
+        assert _manifest_rows(lib) == _manifest_rows(ref)
+    finally:
+        for q in procs[::-1]:
+            if q.poll() is None:
+                q.terminate()
+        for q in procs:
+            try:
+                q.wait(timeout=10)
+            except subprocess.TimeoutExpired:
+                q.kill()
+
+
+# ---- benchmark ------------------------------------------------------------------------------------------
+
+def test_reduced_benchmark_writes_its_tables(tmp_path):
+    out = tmp_path / "bench"
+    r = subprocess.run(GLSIM + ["bench", "library", "--size", "64", "48", "--images", "8", "--max-workers", "2",
+                                "--out", str(out)], capture_output=True, text=True)
+    assert r.returncode == 0, r.stderr
+    import json
+    res = json.loads((out / "library.json").read_text())
+    assert {"render_only", "end_to_end_images", "end_to_end_truth", "workers", "machine"} <= set(res)
+    assert [w["workers"] for w in res["workers"]] == [1, 2]
+    assert res["end_to_end_truth"]["truth_mb_per_image"] > 0 and res["peak_rss_mb"] > 0
+    assert "images/s" in (out / "library.md").read_text()
