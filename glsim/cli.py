@@ -127,6 +127,8 @@ def _delegated(name: str, argv: list[str]) -> int:
         from glsim.evaluation.cli import docs_main as run
     elif name == "library":
         from glsim.workflows.library.cli import main as run
+    elif name == "preview":
+        from glsim.workflows.preview.cli import main as run
     else:
         from glsim.evaluation.cli import verify_main as run
     return run(argv)
@@ -135,6 +137,7 @@ def _delegated(name: str, argv: list[str]) -> int:
 DELEGATED = {"bench": "benchmarks: glsim bench {accuracy,effects} …",
              "calib": "calibration targets: glsim calib {library,run,study} …",
              "verify": "independent stereo-DIC verification: glsim verify run …",
+             "preview": "interactive preview window: glsim preview SCENE.toml [--screenshot out.png]",
              "docs": "README/docs figures from bench/results: glsim docs [--check]",
              "library": "image libraries from a spec: glsim library SPEC.toml -o DIR [--workers N] …"}
 
