@@ -151,6 +151,31 @@ def verify_table(ver: dict) -> str:
     return "\n".join(lines)
 
 
+def verify_runs_table(ver: dict) -> str:
+    """Every DIC run side by side (bold: outside the goal), the paper's figures, subsets compared."""
+    goal, runs = ver["goal_px"], ver["runs"]
+
+    def cell(x, limit):
+        return f"**{_s(x)}**" if abs(x) > limit else _s(x)
+    head = "| state | dir | " + " | ".join(f"{r['name']} mean | {r['name']} std" for r in runs) + " | paper mean | paper std |"
+    lines = [head, "|" + "---|" * (4 + 2 * len(runs))]
+    for i, state in enumerate(runs[0]["states"]):
+        for j, row in enumerate(state["rows"]):
+            if row["dir"] not in ("X", "Y", "Z", "W"):
+                continue
+            cells = []
+            for r in runs:
+                x = r["states"][i]["rows"][j]
+                cells += [cell(x["mean_px"], goal["mean"]), cell(x["std_px"], goal["std"])]
+            paper = ver["paper_px"].get(state["label"], {}).get(row["dir"])
+            label = "W (displ.)" if row["dir"] == "W" else row["dir"]
+            lines.append(f"| {state['label']} | {label} | " + " | ".join(cells) + " | "
+                         + (f"{_s(paper[0], 3)} | {_s(paper[1], 3)}" if paper else "– | –") + " |")
+    lines += ["", "Subsets compared: " + ", ".join(f"{r['n_compared']}/{r['n_subsets']} ({r['name']})" for r in runs)
+              + f". Bold: outside the goal (|mean| ≤ {goal['mean']:g} px, std ≤ {goal['std']:g} px)."]
+    return "\n".join(lines)
+
+
 # ---- sweep.json, sweep_backends.json ---------------------------------------------------------
 def sweep(sw: dict, backends: dict) -> str:
     by = {(r["sequence"], r["run"]): r for r in sw["results"]}
@@ -166,6 +191,24 @@ def sweep(sw: dict, backends: dict) -> str:
             f"{_s(max(r['max_delta_bias_px'] for r in backends['rows']))} px in bias "
             f"({_s(max(r['max_delta_bias_px'] for r in exact_rows))} px in exact mode), against the DIC's own scatter "
             f"of {_s(min(noise))}–{_s(max(noise))} px.")
+
+
+def sweep_table(sw: dict) -> str:
+    """Per sequence: render time, DIC bias and std per subset size, generator share and alone (px)."""
+    runs = [r["name"] for r in sw["runs"]]
+    by = {(r["sequence"], r["run"]): r for r in sw["results"]}
+    seqs = list(dict.fromkeys(r["sequence"] for r in sw["results"]))
+    lines = [f"| sequence | render (s) | DIC max abs bias {' / '.join(runs)} | DIC max std {' / '.join(runs)} "
+             "| DIC generator share | generator alone |", "|---|---|---|---|---|---|"]
+    for s in seqs:
+        rs = [by[s, r] for r in runs if (s, r) in by]
+        first = rs[0]
+        render = (f"(numpy {_s(first['render_seconds_median'])})" if first["source"] == "model"
+                  else _s(first["render_seconds_median"]))
+        lines.append(f"| {s} | {render} | {' / '.join(_s(r['max_abs_bias_u']) for r in rs)} | "
+                     f"{' / '.join(_s(r['max_std_u']) for r in rs)} | {_s(first['max_abs_gen_u'])} | "
+                     f"{_s(first['max_abs_apparent_u'])} |")
+    return "\n".join(lines)
 
 
 # ---- calib_accuracy.json ---------------------------------------------------------------------
@@ -198,7 +241,8 @@ def calibration_detection(cal: dict) -> str:
 
 
 GENERATORS = {"accuracy-table": accuracy_table, "accuracy-facts": accuracy_facts, "peer": peer,
-              "effects": effects, "verify-table": verify_table, "sweep": sweep, "calibration": calibration,
+              "effects": effects, "verify-table": verify_table,
+              "verify-runs-table": verify_runs_table, "sweep-table": sweep_table, "sweep": sweep, "calibration": calibration,
               "calibration-detection": calibration_detection}
 
 
