@@ -117,6 +117,15 @@ def cmd_rig_export(args) -> int:
     return 0
 
 
+def cmd_compare(args) -> int:
+    from glsim.evaluation.compare import run
+
+    res = run(args.result, args.truth, args.step, args.output)
+    print(res["markdown"], end="")
+    print(f"glsim compare: wrote compare.json, compare.md and compare.png to {res['out']}/")
+    return 0
+
+
 def _delegated(name: str, argv: list[str]) -> int:
     """`glsim bench|calib|verify|docs …`: their own argument parsers take the rest of the line."""
     if name == "bench":
@@ -147,9 +156,10 @@ def _common(p: argparse.ArgumentParser) -> None:
     p.add_argument("--mode", choices=MODES, help="override [render] mode")
     p.add_argument("--steps", help="load steps to render, e.g. 0,2 or 0-3 (default: all)")
     p.add_argument("--truth", action="store_true", help="also write per-pixel ground truth")
-    p.add_argument("--truth-format", choices=("npz", "tiff", "tiff64"), default="npz",
+    p.add_argument("--truth-format", choices=("npz", "tiff", "tiff64", "vtk"), default="npz",
                    help="one .npz per image (float64), or one TIFF per map: tiff stores float32 "
-                        "(positions to ~1e-4 mm), tiff64 float64")
+                        "(positions to ~1e-4 mm), tiff64 float64; vtk: one ParaView .vti per image "
+                        "and the FE mesh as mesh.pvd (float64)")
     p.add_argument("--force", action="store_true",
                    help="replace a render of another scene in the output directory (its images and "
                         "truth are removed first); without it such a directory is refused, and one "
@@ -187,6 +197,12 @@ def parser() -> argparse.ArgumentParser:
                    help="the scene's cameras for camera 0 and 1 (names or indices; default the first two)")
     x.add_argument("--size", type=int, nargs=2, metavar=("W", "H"), help="image size for a MatchID source")
     x.set_defaults(func=cmd_rig_export)
+    c = sub.add_parser("compare", help="a DIC result (CSV or verify's .npz) against the ground truth of a render")
+    c.add_argument("result", help="CSV with u, v (camera 0 reference px) and X, Y, Z and/or U, V, W (mm)")
+    c.add_argument("--truth", required=True, help="the render's output folder (its scene.json)")
+    c.add_argument("--step", type=int, required=True, help="the load step the DIC result measured")
+    c.add_argument("-o", "--output", help="where compare.{json,md,png} go (default: RESULT's folder/compare)")
+    c.set_defaults(func=cmd_compare)
     for name, text in DELEGATED.items():  # listed for --help; main() hands them their arguments
         sub.add_parser(name, help=text)
     return ap

@@ -18,7 +18,7 @@ import pytest
 netCDF4 = pytest.importorskip("netCDF4")
 
 from glsim.errors import SceneError  # noqa: E402
-from glsim.io.series import load_series  # noqa: E402
+from glsim.io.fe import load_series  # noqa: E402
 from glsim.render import Renderer  # noqa: E402
 from glsim.scene.bilinear import shape_functions  # noqa: E402
 from glsim.scene.load import scene_from_dict  # noqa: E402
@@ -477,7 +477,7 @@ def test_example_scene_renders_the_file_displacement():
 
 
 def test_load_mesh_reads_time_series_whole(tmp_path):
-    from glsim.io.meshfiles import load_mesh
+    from glsim.io.fe import load_mesh
 
     path, written = plate_2d(tmp_path)
     mesh = load_mesh(path, unit="cm")                     # not meshio's single state: every time

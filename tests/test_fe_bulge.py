@@ -12,7 +12,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from glsim.io.meshfiles import load_mesh
+from glsim.io.fe import load_mesh
 from glsim.scene.mesh import bulge_displacements
 from glsim.stages.reference import specimen_mesh
 from glsim.render import render

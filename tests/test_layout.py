@@ -1,5 +1,6 @@
 """The package layout the README's "Layout" section states: layers import only downwards (or
-within their own folder), and only the GL backend imports moderngl."""
+within their own folder), no module imports itself through others (no circles, lazy imports
+included), and only the GL backend imports moderngl."""
 import ast
 from pathlib import Path
 
@@ -12,6 +13,7 @@ def _imports(path: Path) -> set[str]:
     for node in ast.walk(ast.parse(path.read_text())):
         if isinstance(node, ast.ImportFrom) and node.module:
             names.add(node.module)
+            names.update(f"{node.module}.{a.name}" for a in node.names)   # `from pkg import module`
         elif isinstance(node, ast.Import):
             names.update(a.name for a in node.names)
     return names
@@ -33,3 +35,24 @@ def test_layers_import_only_downwards_and_gl_alone_imports_moderngl():
                 upward.append(f"{mod} imports {name}")
     assert not moderngl, f"moderngl imported outside glsim.backends.gl: {moderngl}"
     assert not upward, "imports against the layer order " + " → ".join(LAYERS) + ":\n" + "\n".join(sorted(upward))
+
+
+def test_no_import_circles():
+    mods = {".".join(("glsim",) + f.relative_to(ROOT).with_suffix("").parts).removesuffix(".__init__"): f
+            for f in ROOT.rglob("*.py")}
+    graph = {m: {n for n in _imports(f) if n in mods and n != m and not n.startswith(m + ".")}
+             for m, f in mods.items()}
+    state, cycles = {}, []
+
+    def visit(m, path):
+        state[m] = 1
+        for n in graph[m]:
+            if state.get(n) == 1:
+                cycles.append(path[path.index(n):] + [n])
+            elif n not in state:
+                visit(n, path + [n])
+        state[m] = 2
+    for m in sorted(graph):
+        if m not in state:
+            visit(m, [m])
+    assert not cycles, "import circles:\n" + "\n".join(" → ".join(c) for c in cycles)

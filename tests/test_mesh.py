@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from glsim.errors import SceneError
-from glsim.io.meshfiles import load_mesh
+from glsim.io.fe import load_mesh
 from glsim.scene.bilinear import bilinear as interpolate, shape_functions
 from glsim.scene.mesh import (Mesh, bulge, bulge_displacements, disc, place, place_mesh, plate, quad_normals,
                               with_displacements)

@@ -18,6 +18,7 @@ import tifffile
 from _user_scene import snapshot, write_scene
 from glsim.cli import main
 from glsim.errors import RenderWarning, SceneError
+from glsim.io import atomic
 from glsim.io import images as io
 from glsim.scene import load_scene
 from glsim.workflows.sequence import write_sequence
@@ -186,7 +187,7 @@ def test_truth_is_renamed_before_its_image(tmp_path, monkeypatch):
             raise KeyboardInterrupt
         real(src, dst)
 
-    monkeypatch.setattr(io.os, "replace", replace)
+    monkeypatch.setattr(atomic.os, "replace", replace)
     truth = {"mask": np.ones((2, 3), bool), "xi": np.zeros((2, 3))}
     with pytest.raises(KeyboardInterrupt):
         io.write_image_with_truth(tmp_path / "a.tif", np.zeros((2, 3)), 8, "tiff", truth, "tiff")

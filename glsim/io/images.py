@@ -5,50 +5,15 @@ truncated file. An image and its truth maps are written as one group
 image last, so an image on disk always has its complete truth beside it."""
 from __future__ import annotations
 
-import contextlib
-import os
-import tempfile
 from pathlib import Path
 
 import numpy as np
 
 from glsim.errors import SceneError
+from glsim.io.atomic import atomic_path, atomic_paths
 
 EXTENSIONS = {"tiff": "tif", "png": "png"}
-TRUTH_FORMATS = ("npz", "tiff", "tiff64")   # tiff: float32 maps; tiff64: float64 maps
-
-
-@contextlib.contextmanager
-def atomic_paths(paths):
-    """Yield temporary paths next to each of ``paths``; on success rename them onto ``paths``
-    in the order given (put the file whose presence marks the group complete last). On any
-    exception, KeyboardInterrupt included, every temporary file is removed and nothing renamed."""
-    paths = [Path(p) for p in paths]
-    tmps = []
-    try:
-        for path in paths:
-            path.parent.mkdir(parents=True, exist_ok=True)
-            fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".part" + path.suffix, dir=path.parent)
-            os.close(fd)
-            tmps.append(Path(tmp))
-        yield list(tmps)
-        umask = os.umask(0)
-        os.umask(umask)
-        for tmp, path in zip(tmps, paths):
-            os.chmod(tmp, 0o666 & ~umask)
-        for tmp, path in zip(tmps, paths):
-            os.replace(tmp, path)
-    finally:
-        for tmp in tmps:
-            if os.path.exists(tmp):
-                os.unlink(tmp)
-
-
-@contextlib.contextmanager
-def atomic_path(path: str | Path):
-    """Yield a temporary path next to ``path``; rename it onto ``path`` only on success."""
-    with atomic_paths([path]) as (tmp,):
-        yield tmp
+TRUTH_FORMATS = ("npz", "tiff", "tiff64", "vtk")   # tiff: float32 maps; tiff64: float64; vtk: one .vti
 
 
 def quantize(image: np.ndarray, bit_depth: int) -> np.ndarray:
@@ -121,11 +86,11 @@ def write_truth_tiff(stem: str | Path, arrays: dict[str, np.ndarray], float_dtyp
 
 
 def truth_paths(image_path: str | Path, names, truth_format: str = "npz") -> list[Path]:
-    """The truth files that go with ``image_path``: ``{stem}_truth.npz``, or for
-    ``truth_format`` "tiff"/"tiff64" one ``{stem}_truth_{name}.tif`` per map in ``names``."""
+    """The truth files that go with ``image_path``: ``{stem}_truth.npz`` (or ``.vti`` for "vtk"),
+    or for ``truth_format`` "tiff"/"tiff64" one ``{stem}_truth_{name}.tif`` per map in ``names``."""
     p = Path(image_path)
-    if truth_format == "npz":
-        return [p.with_name(p.stem + "_truth.npz")]
+    if truth_format in ("npz", "vtk"):
+        return [p.with_name(p.stem + ("_truth.npz" if truth_format == "npz" else "_truth.vti"))]
     return truth_tiff_paths(p.with_name(p.stem + "_truth"), names)
 
 
@@ -135,7 +100,8 @@ def write_image_with_truth(path: str | Path, image: np.ndarray, bit_depth: int, 
     """Write an image and its truth maps together or not at all: every file under a
     temporary name first, then renamed truth first and the image last (so an image on disk
     always has its whole truth). ``truth_format``: "npz" (one compressed file, float64),
-    "tiff" (one float32 TIFF per map) or "tiff64" (float64 TIFFs). Returns (image, truth paths)."""
+    "tiff" (one float32 TIFF per map), "tiff64" (float64 TIFFs) or "vtk" (one ParaView ImageData
+    ``.vti``, :mod:`glsim.io.vtkfiles`). Returns (image, truth paths)."""
     if truth_format not in TRUTH_FORMATS:
         raise SceneError("truth_format", f"{truth_format!r} is not one of {TRUTH_FORMATS}",
                          f"use one of {', '.join(TRUTH_FORMATS)}")
@@ -145,6 +111,9 @@ def write_image_with_truth(path: str | Path, image: np.ndarray, bit_depth: int, 
     with atomic_paths([*tpaths, path]) as tmps:
         if truth is not None and truth_format == "npz":
             _npz_file(tmps[0], truth)
+        elif truth is not None and truth_format == "vtk":
+            from glsim.io.vtkfiles import write_vti_file
+            write_vti_file(tmps[0], truth)
         elif truth is not None:
             dtype = "float64" if truth_format == "tiff64" else "float32"
             for tmp, a in zip(tmps, truth.values()):

@@ -225,7 +225,7 @@ def _csv_step(path, node_labels: np.ndarray, step: int = 1) -> np.ndarray:
     return u
 
 
-def load_mesh(path, unit: str = "mm", R=None, t=None, point_data_steps: Sequence[str] | None = None,
+def read_mesh_file(path, unit: str = "mm", R=None, t=None, point_data_steps: Sequence[str] | None = None,
               displacement_files: Sequence | None = None, csv_files: Sequence | None = None,
               field: str | None = None) -> Mesh:
     """Read a mesh file (Abaqus .inp, VTK .vtk/.vtu, Gmsh .msh, … via meshio) as a world-frame Mesh.
@@ -240,19 +240,13 @@ def load_mesh(path, unit: str = "mm", R=None, t=None, point_data_steps: Sequence
     3-vector array) or csv_files (one `label;ux;uy;uz` file per step). Each step's
     displacement is the total from the reference (step 0), not an increment, with 3
     components per node (2-component arrays are refused). Coordinates and displacements are
-    in `unit`, then placed by place(…, unit, R, t). Time series (Exodus II, .pvd, XDMF) go to
-    :func:`glsim.io.series.load_series` (all stored times, displacement fields found by name).
+    in `unit`, then placed by place(…, unit, R, t). Single-state files only: use
+    :func:`glsim.io.fe.load_mesh`, which also reads time series.
     """
     sources = [s for s in (point_data_steps, displacement_files, csv_files) if s is not None]
     if len(sources) > 1:
         raise SceneError("specimen", "more than one displacement source given",
                          "use only one of point_data_steps, displacement_files, csv_files")
-    from glsim.io.series import is_time_series, load_series  # builds on this module
-    if is_time_series(path):  # Exodus II, .pvd, XDMF time series: every stored time is a step
-        if sources:
-            raise SceneError(str(path), "holds its own time steps", "read it with glsim.io.series.load_series("
-                             "path, displacement=…, times=…) or give no displacement source")
-        return load_series(path, unit, R, t)
     raw = _read_meshio(path)
     path = Path(path)
     nodes = _xyz(raw.points)

@@ -3,7 +3,7 @@ per stored time: Exodus II (:mod:`glsim.io.exodus`), ParaView ``.pvd`` collectio
 files and XDMF time series (meshio's ``TimeSeriesReader``).
 
 Each reader opens its file as a :class:`Series` (mesh, node/element labels, stored times, and
-the nodal fields, read lazily per time); :func:`load_series` picks the displacement fields and
+the nodal fields, read lazily per time); :func:`glsim.io.fe.load_series` picks the displacement fields and
 the times, and builds the surface with the outer-face logic of :mod:`glsim.io.meshfiles`.
 
 Load steps: the undeformed mesh is step 0. If the first selected time has zero displacement
@@ -24,11 +24,10 @@ import meshio
 import numpy as np
 
 from glsim.errors import SceneError
-from glsim.io.meshfiles import SOLID_FIX, _require_file, _surface, _xyz
-from glsim.scene.mesh import Mesh, place_mesh
-from glsim.scene.model import EXODUS_SUFFIXES, TIME_SERIES_SUFFIXES
+from glsim.io.meshfiles import SOLID_FIX, _surface, _xyz
+from glsim.scene.model import TIME_SERIES_SUFFIXES
 
-__all__ = ["Series", "is_time_series", "load_series", "open_series"]
+__all__ = ["Series", "is_time_series"]
 
 LINEAR_CELLS = ("quad", "triangle", "hexahedron", "tetra")
 IGNORED_CELLS = ("line", "vertex")
@@ -86,25 +85,6 @@ def is_time_series(path) -> bool:
         except OSError:
             return False
     return suffix in TIME_SERIES_SUFFIXES
-
-
-@contextlib.contextmanager
-def open_series(path) -> Iterator[Series]:
-    """Open an Exodus II, .pvd or XDMF time-series file as a :class:`Series` (closed on exit)."""
-    path = _require_file(path)
-    suffix = path.suffix.lower()
-    if suffix in EXODUS_SUFFIXES:
-        from glsim.io.exodus import open_exodus
-        with open_exodus(path) as series:
-            yield series
-    elif suffix == ".pvd":
-        yield _open_pvd(path)
-    elif suffix in (".xdmf", ".xmf"):
-        with _open_xdmf(path) as series:
-            yield series
-    else:
-        raise SceneError(str(path), f"suffix {path.suffix!r} is not a time-series format",
-                         f"give an Exodus II ({', '.join(EXODUS_SUFFIXES)}), .pvd or XDMF time-series file")
 
 
 # --- ParaView .pvd ----------------------------------------------------------------------
@@ -384,38 +364,3 @@ def _series_surface(s: Series):
     return _surface(s.path, SimpleNamespace(cells=blocks), s.points, labels)  # all of meshio.Mesh it reads
 
 
-def load_series(path, unit: str = "mm", R=None, t=None, displacement: str | Sequence[str] = (),
-                times: Sequence[float] = (), steps: Sequence[int] = ()) -> Mesh:
-    """Read an Exodus II, .pvd or XDMF time series as a world-frame Mesh, one load step per
-    selected stored time (see the module docstring for step 0), with ``step_times``.
-
-    displacement: one vector field name, or the x, y[, z] component field names ("" or,
-    in a 2-D file, a missing z component: zero); default: found by the usual names.
-    times (the file's time values) or steps (stored-step indices) select; default all.
-    Coordinates and displacements are in `unit`, then placed by place(…, unit, R, t).
-    """
-    names = (displacement,) if isinstance(displacement, str) else tuple(displacement)
-    if len(names) > 3:
-        raise SceneError("specimen.mesh.displacement", f"{len(names)} names given",
-                         "give one vector field, or 2–3 component fields")
-    with open_series(path) as s:
-        picked = _select(s, times, steps)
-        quads, labels = _series_surface(s)
-        n = len(s.points)
-        if picked:
-            fields = _check_displacement(s, names or _default_displacement(s))
-            us = [_displacement(s, fields, k) for k in picked]
-        else:
-            us = []
-        step_times = [float(s.times[k]) for k in picked]
-        if us and not np.any(us[0]):
-            displacements, step_times = us, step_times
-        elif us:
-            displacements, step_times = [np.zeros((n, 3))] + us, [None] + step_times
-        else:
-            displacements, step_times = [], []
-        try:
-            mesh = Mesh(s.points, quads, s.node_labels, labels, tuple(displacements), tuple(step_times))
-        except SceneError as exc:
-            raise SceneError(str(s.path), str(exc)) from exc
-    return place_mesh(mesh, unit, R, t)

@@ -12,8 +12,8 @@ from glsim.scene import mesh as meshmod
 from glsim.scene import speckle
 from glsim.scene.camera import Camera, look_at, project_camera_frame, to_camera
 from glsim.errors import RenderWarning, SceneError
-from glsim.io.meshfiles import load_mesh
-from glsim.io.series import is_time_series, load_series
+from glsim.io.fe import load_mesh, load_series
+from glsim.io.series import is_time_series
 from glsim.scene import Scene
 
 MARGIN_PX = 8  # reference-image border around the specimen's projection

@@ -77,6 +77,9 @@ def write_sequence(scene: Scene, directory: str | None = None, steps=None, camer
         # Everything is read and checked: from here on files are written.
         removed = _remove_previous(out, scene) if force and not resume else []
         scene_json = io.write_text(out / "scene.json", scene.to_json())
+        if truth and truth_format == "vtk":         # the FE mesh beside the .vti truth, for ParaView
+            from glsim.io.vtkfiles import write_mesh_series
+            write_mesh_series(out, r.mesh, scene.cameras[0])
         if r.mesh.step_times:                       # a time series: the solver's time of each step
             io.write_text(out / "steps.json", json.dumps({"steps": [
                 {"step": k, "time": t} for k, t in enumerate(r.mesh.step_times)]}))
@@ -190,6 +193,8 @@ def _is_output(rel: str, regexes) -> bool:
     parent, _, name = rel.rpartition("/")
     if name.startswith(".") and ".part" in name:          # a temporary of an interrupted write
         name = name[1:].rpartition(".part")[0].rpartition(".")[0]
+    if not parent and re.fullmatch(r"mesh(_\d{4}\.vtu|\.pvd)", name):   # --truth-format vtk's FE mesh
+        return True
     candidates = [name]
     stem, sep, _ = name.rpartition("_truth")
     if sep:

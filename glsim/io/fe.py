@@ -1,0 +1,87 @@
+"""FE results, one entry point: :func:`load_mesh` reads any mesh file as a world-frame
+:class:`~glsim.scene.mesh.Mesh` — single-state files through meshio (:mod:`glsim.io.meshfiles`),
+time series (Exodus II through netCDF4, ParaView ``.pvd``, XDMF) one load step per stored time
+(:func:`load_series`)."""
+from __future__ import annotations
+
+import contextlib
+from typing import Iterator, Sequence
+
+import numpy as np
+
+from glsim.errors import SceneError
+from glsim.io.exodus import open_exodus
+from glsim.io.meshfiles import _require_file, read_mesh_file
+from glsim.io.series import (Series, _check_displacement, _default_displacement, _displacement, _open_pvd, _open_xdmf,
+                             _select, _series_surface, is_time_series)
+from glsim.scene.mesh import Mesh, place_mesh
+from glsim.scene.model import EXODUS_SUFFIXES
+
+
+@contextlib.contextmanager
+def open_series(path) -> Iterator[Series]:
+    """Open an Exodus II, .pvd or XDMF time-series file as a :class:`Series` (closed on exit)."""
+    path = _require_file(path)
+    suffix = path.suffix.lower()
+    if suffix in EXODUS_SUFFIXES:
+        with open_exodus(path) as series:
+            yield series
+    elif suffix == ".pvd":
+        yield _open_pvd(path)
+    elif suffix in (".xdmf", ".xmf"):
+        with _open_xdmf(path) as series:
+            yield series
+    else:
+        raise SceneError(str(path), f"suffix {path.suffix!r} is not a time-series format",
+                         f"give an Exodus II ({', '.join(EXODUS_SUFFIXES)}), .pvd or XDMF time-series file")
+
+
+def load_series(path, unit: str = "mm", R=None, t=None, displacement: str | Sequence[str] = (),
+                times: Sequence[float] = (), steps: Sequence[int] = ()) -> Mesh:
+    """Read an Exodus II, .pvd or XDMF time series as a world-frame Mesh, one load step per
+    selected stored time (see the module docstring for step 0), with ``step_times``.
+
+    displacement: one vector field name, or the x, y[, z] component field names ("" or,
+    in a 2-D file, a missing z component: zero); default: found by the usual names.
+    times (the file's time values) or steps (stored-step indices) select; default all.
+    Coordinates and displacements are in `unit`, then placed by place(…, unit, R, t).
+    """
+    names = (displacement,) if isinstance(displacement, str) else tuple(displacement)
+    if len(names) > 3:
+        raise SceneError("specimen.mesh.displacement", f"{len(names)} names given",
+                         "give one vector field, or 2–3 component fields")
+    with open_series(path) as s:
+        picked = _select(s, times, steps)
+        quads, labels = _series_surface(s)
+        n = len(s.points)
+        if picked:
+            fields = _check_displacement(s, names or _default_displacement(s))
+            us = [_displacement(s, fields, k) for k in picked]
+        else:
+            us = []
+        step_times = [float(s.times[k]) for k in picked]
+        if us and not np.any(us[0]):
+            displacements, step_times = us, step_times
+        elif us:
+            displacements, step_times = [np.zeros((n, 3))] + us, [None] + step_times
+        else:
+            displacements, step_times = [], []
+        try:
+            mesh = Mesh(s.points, quads, s.node_labels, labels, tuple(displacements), tuple(step_times))
+        except SceneError as exc:
+            raise SceneError(str(s.path), str(exc)) from exc
+    return place_mesh(mesh, unit, R, t)
+
+
+def load_mesh(path, unit: str = "mm", R=None, t=None, point_data_steps: Sequence[str] | None = None,
+              displacement_files: Sequence | None = None, csv_files: Sequence | None = None,
+              field: str | None = None) -> Mesh:
+    """Any FE mesh file as a world-frame Mesh: a time series (Exodus II, .pvd, XDMF) with every
+    stored time as a load step (:func:`load_series`, fields found by name), any other file through
+    :func:`glsim.io.meshfiles.read_mesh_file` with the displacement source given."""
+    if is_time_series(path):
+        if any(s is not None for s in (point_data_steps, displacement_files, csv_files)):
+            raise SceneError(str(path), "holds its own time steps", "read it with glsim.io.fe.load_series("
+                             "path, displacement=…, times=…) or give no displacement source")
+        return load_series(path, unit, R, t)
+    return read_mesh_file(path, unit, R, t, point_data_steps, displacement_files, csv_files, field)
