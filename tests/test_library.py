@@ -261,6 +261,49 @@ def test_kill_and_resume_gives_the_bytes_of_an_uninterrupted_run(reference_libra
     assert not [p for p in lib.rglob("*") if ".part" in p.name]
 
 
+def _pool_workers(pid: int) -> list[int]:
+    try:
+        kids = Path(f"/proc/{pid}/task/{pid}/children").read_text().split()
+    except OSError:
+        return []
+    out = []
+    for k in kids:
+        try:
+            if b"spawn_main" in Path(f"/proc/{k}/cmdline").read_bytes():
+                out.append(int(k))
+        except OSError:
+            pass
+    return out
+
+
+def test_a_killed_pool_worker_is_replaced_and_the_library_completes(reference_library, tmp_path):
+    spec, ref = reference_library
+    if not Path("/proc/self/task").is_dir():
+        pytest.skip("needs /proc to find the pool's worker processes")
+    lib = tmp_path / "pool"
+    p = subprocess.Popen(GLSIM + ["library", str(spec), "-o", str(lib), "--workers", "2", "-q"],
+                         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    deadline = time.time() + 30
+    while time.time() < deadline and not (kids := _pool_workers(p.pid)):
+        time.sleep(0.02)
+    assert kids, "no pool worker appeared"
+    os.kill(kids[0], signal.SIGKILL)
+    out, err = p.communicate(timeout=120)
+    assert p.returncode == 0, err
+    assert "a worker process died 1× and its tasks were run again" in out
+    assert _files(lib) == _files(ref)
+
+
+def test_examples_expand(tmp_path):
+    root = Path(__file__).resolve().parents[1] / "examples"
+    noise = load_plan(root / "library_noise.toml")
+    assert (len(noise.variants), len(noise.jobs)) == (50, 200)
+    assert noise.variants[13].params == {"noise.sigma": 1.0, "speckle.seed": 3}
+    stereo = load_plan(root / "library_stereo.toml")
+    phis = [np.degrees(np.arccos(np.array(v.scene.cameras[1].R)[0, 0])) for v in stereo.variants]
+    np.testing.assert_allclose(phis, [10, 20, 30, 40], atol=1e-9)
+
+
 def test_disk_full_is_a_clear_error_and_resumes(reference_library, tmp_path, monkeypatch):
     spec, ref = reference_library
     from glsim.workflows.library import worker

@@ -22,7 +22,7 @@ from pathlib import Path
 from glsim.errors import GlsimError
 from glsim.io import images as io
 
-FILES = ("README.md", "docs/calib.md", "docs/verify.md")
+FILES = ("README.md", "docs/calib.md", "docs/verify.md", "docs/library.md")
 REGION = re.compile(r"(<!-- generated: (?P<name>[\w-]+) from (?P<sources>[^>]+?) -->\n)(?P<body>.*?)(<!-- end generated -->)",
                     re.S)
 
@@ -240,10 +240,16 @@ def calibration_detection(cal: dict) -> str:
     return "\n".join(lines)
 
 
+# ---- library.json ------------------------------------------------------------------------------
+def library(lib: dict) -> str:
+    from glsim.evaluation.library_bench import summary
+    return summary(lib)
+
+
 GENERATORS = {"accuracy-table": accuracy_table, "accuracy-facts": accuracy_facts, "peer": peer,
               "effects": effects, "verify-table": verify_table,
               "verify-runs-table": verify_runs_table, "sweep-table": sweep_table, "sweep": sweep, "calibration": calibration,
-              "calibration-detection": calibration_detection}
+              "calibration-detection": calibration_detection, "library": library}
 
 
 # ---- regions ---------------------------------------------------------------------------------
