@@ -189,26 +189,33 @@ def _file_ok(path: Path, size: int, sha: str) -> bool:
 
 def check_records(out: Path, plan: Plan, records: dict) -> tuple[dict, list]:
     """The records whose files exist with their size and SHA-256, and a list of problems
-    (job, what) for every other image of the plan."""
+    (job, what) for every other image of the plan (files hashed on a few threads)."""
+    from concurrent.futures import ThreadPoolExecutor
+
     good, problems = {}, []
-    for job in plan.jobs:
-        key = (job.variant, job.camera, job.step)
-        rec = records.get(key)
-        if rec is None:
-            problems.append((job, "no manifest row" if not (out / job.image).exists() else
-                             "image present but not in the manifest (written after its last update)"))
-            continue
-        if rec.get("file") != job.image or rec.get("truth_file", "") != job.truth:
-            problems.append((job, "manifest row names other files"))
-            continue
-        if not _file_ok(out / job.image, rec["bytes"], rec["sha256"]):
-            problems.append((job, "image missing or fails its size/SHA-256"))
-            continue
-        if job.truth and not _file_ok(out / job.truth, rec["truth_bytes"], rec["truth_sha256"]):
-            problems.append((job, "truth missing or fails its size/SHA-256"))
-            continue
-        good[key] = rec
+    with ThreadPoolExecutor(max_workers=min(8, (os.cpu_count() or 1) + 2)) as pool:
+        results = list(pool.map(lambda job: _check_job(out, job, records), plan.jobs))
+    for job, (rec, what) in zip(plan.jobs, results):
+        if what:
+            problems.append((job, what))
+        else:
+            good[(job.variant, job.camera, job.step)] = rec
     return good, problems
+
+
+def _check_job(out: Path, job, records: dict) -> tuple[dict | None, str]:
+    """(the job's record, "") if its files are good, else (None, what is wrong)."""
+    rec = records.get((job.variant, job.camera, job.step))
+    if rec is None:
+        return None, ("no manifest row" if not (out / job.image).exists() else
+                      "image present but not in the manifest (written after its last update)")
+    if rec.get("file") != job.image or rec.get("truth_file", "") != job.truth:
+        return None, "manifest row names other files"
+    if not _file_ok(out / job.image, rec["bytes"], rec["sha256"]):
+        return None, "image missing or fails its size/SHA-256"
+    if job.truth and not _file_ok(out / job.truth, rec["truth_bytes"], rec["truth_sha256"]):
+        return None, "truth missing or fails its size/SHA-256"
+    return rec, ""
 
 
 # ---- running -----------------------------------------------------------------------------------------
