@@ -53,10 +53,23 @@ def _table(plan, limit: int = 40) -> str:
     return "\n".join([line(head)] + [line(r) for r in shown])
 
 
+def speedup(workers: int) -> float:
+    """Measured end-to-end speed-up of ``workers`` over one (bench/results/library.json), else
+    the worker count."""
+    try:
+        rates = {w["workers"]: w["images_per_s"] for w in json.loads(BENCH.read_text())["workers"]}
+        return rates[workers] / rates[1]
+    except (OSError, ValueError, KeyError, TypeError, ZeroDivisionError):
+        return float(workers)
+
+
+BENCH = Path("bench/results/library.json")
+
+
 def estimate(plan) -> tuple[float, int, str]:
     """(seconds, bytes, where the time figures come from) for rendering ``plan`` on one worker."""
     per_mp, truth_mp, source = dict(S_PER_MP), TRUTH_S_PER_MP, "a 2-core llvmpipe machine (built-in figures)"
-    bench = Path("bench/results/library.json")
+    bench = BENCH
     try:
         b = json.loads(bench.read_text())
         mp = b["config"]["width"] * b["config"]["height"] / 1e6
@@ -132,7 +145,7 @@ def main(argv: list[str] | None = None) -> int:
             print(f"{len(plan.variants)} variants, {len(plan.jobs)} images (cameras {', '.join(plan.cameras)}; steps "
                   f"{', '.join(map(str, plan.steps))}), truth {plan.truth_dtype if plan.truth else 'off'}")
             print(f"estimated: {_size(size)} on disk; {_duration(seconds)} on one worker, about "
-                  f"{_duration(seconds / max(1, min(w, len(plan.jobs))) )} with {w} (rough: from {source})")
+                  f"{_duration(seconds / max(1.0, speedup(min(w, len(plan.jobs)))))} with {w} (rough: from {source})")
             print("dry run: nothing was written")
             return 0
         summary = runner.run(plan, out, workers=args.workers, scheduler=args.scheduler, force=args.force,

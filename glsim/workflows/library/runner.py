@@ -152,7 +152,9 @@ def _write_setup(out: Path, plan: Plan, fingerprint: str) -> dict:
     geometry = {}
     for v in plan.variants:
         key = mesh_key(v.scene)
-        if key not in geometry:
+        if key not in geometry and not plan.truth:
+            geometry[key] = ("", "")           # only truth files refer to geometry
+        elif key not in geometry:
             mesh = plan.meshes[key]
             steps = sorted({j.step for j in plan.jobs if j.variant == v.id} | set(plan.steps))
             steps = [s for s in steps if s < mesh.n_steps]
