@@ -374,7 +374,7 @@ def test_charuco_library_with_a_noise_hook(tmp_path, gl_ctx):
 
     lib = libmod.write_library(libmod.paper_rig(CI_SCALE), target, 1, tmp_path, seed=2,
                                spec=posemod.PoseSpec(fov="centre"), noise=noise, ctx=gl_ctx)
-    assert len(set(seeds)) == 2 and lib.manifest["noise"] is True
+    assert len(set(seeds)) == 2 and lib.manifest["noise"] == {"hook": "test_charuco_library_with_a_noise_hook.<locals>.noise"}
     for cam in lib.cameras:
         corners, ids, _, _ = cv2.aruco.CharucoDetector(target.board()).detectBoard(read_image(lib.image_path(lib.pairs[0], cam)))
         truth = libmod.image_truth(lib, lib.pairs[0], cam)["projected"][ids.ravel()]
@@ -394,3 +394,168 @@ def test_cli_library_default_noise_is_table_8s_two_percent(ci_library, tmp_path)
     assert abs(d[inside].std() - 5.12) < 0.3        # 2 % of 8 bit, plus quantisation
     assert calib_main(args[:-2] + ["-o", str(tmp_path / "again")]) == 0
     assert (tmp_path / "again" / "pairs" / name).read_bytes() == (out / "pairs" / name).read_bytes()
+
+
+# --- bad inputs: every one named, nothing half-written (issue 13) ------------------------------------
+
+def _copy_library(src, dst, pairs=None):
+    """A copy of a library (its cache too); ``pairs``: only these pair indices."""
+    import shutil
+    dst.mkdir(parents=True)
+    for f in src.iterdir():
+        if f.is_file():
+            shutil.copy2(f, dst / f.name)
+    (dst / "pairs").mkdir()
+    for f in (src / "pairs").iterdir():
+        if pairs is None or int(f.name[:4]) in pairs:
+            shutil.copy2(f, dst / "pairs" / f.name)
+    return dst
+
+
+def _run_error(args, capsys) -> str:
+    assert calib_main(args) == 2
+    err = capsys.readouterr().err
+    assert "Traceback" not in err and err.splitlines()[-1].startswith("glsim calib: "), err
+    return err.splitlines()[-1]
+
+
+@pytest.mark.gl
+def test_broken_pair_json_is_named(ci_library, tmp_path, capsys):
+    lib = _copy_library(ci_library.directory, tmp_path / "lib", pairs=range(4))
+    p = lib / "pairs" / "0001.json"
+    text = p.read_text()
+    p.write_text(text[: len(text) // 2])                                  # cut off
+    err = _run_error(["run", str(lib), "-o", str(tmp_path / "cal")], capsys)
+    assert "0001.json" in err and "not valid JSON" in err and "delete it" in err
+    assert not (tmp_path / "cal").exists()
+    pair = json.loads(text)
+    del pair["cameras"]["cam0"]["centroid"]
+    p.write_text(json.dumps(pair))
+    err = _run_error(["run", str(lib)], capsys)
+    assert "0001.json" in err and "cameras.cam0 lacks centroid" in err
+    pair = json.loads(text)
+    pair["cameras"]["cam1"]["projected"] = pair["cameras"]["cam1"]["projected"][:-1]
+    p.write_text(json.dumps(pair))
+    assert "cameras.cam1.projected has 80 entries, the target has 81" in _run_error(["run", str(lib)], capsys)
+
+
+@pytest.mark.gl
+def test_broken_library_json_is_named(ci_library, tmp_path, capsys):
+    lib = _copy_library(ci_library.directory, tmp_path / "lib", pairs=range(2))
+    m = lib / "library.json"
+    text = m.read_text()
+    m.write_text(text[:100])
+    err = _run_error(["run", str(lib)], capsys)
+    assert "library.json" in err and "not valid JSON" in err
+    manifest = json.loads(text)
+    del manifest["cameras"]
+    m.write_text(json.dumps(manifest))
+    assert "library.json: lacks cameras" in _run_error(["run", str(lib)], capsys)
+    manifest = json.loads(text)
+    manifest["target"]["rows"] = "nine"
+    m.write_text(json.dumps(manifest))
+    assert "target" in _run_error(["run", str(lib)], capsys)
+    # extending it is refused too, with the same message (the settings cannot be compared)
+    m.write_text(text[:100])
+    err = _run_error(["library", "default", "--scale", str(CI_SCALE), "--pairs", "3", "--seed", str(CI_SEED),
+                      "--noise", "0", "-o", str(lib)], capsys)
+    assert "library.json" in err and "not valid JSON" in err
+
+
+@pytest.mark.gl
+def test_missing_or_damaged_images_are_named_despite_the_cache(ci_library, ci_detections, tmp_path, capsys):
+    lib = _copy_library(ci_library.directory, tmp_path / "lib")
+    assert list(lib.glob("detections_*.npz"))                              # the cache came along
+    image = lib / "pairs" / "0002_cam1.tif"
+    data = image.read_bytes()
+    image.unlink()
+    err = _run_error(["run", str(lib), "-o", str(tmp_path / "cal")], capsys)
+    assert "0002_cam1.tif" in err and "is missing" in err and "cache cannot stand in" in err
+    image.write_bytes(data[: len(data) // 2])                               # cut off
+    err = _run_error(["run", str(lib), "-o", str(tmp_path / "cal")], capsys)
+    assert "0002_cam1.tif" in err and "SHA-256" in err
+    assert not (tmp_path / "cal").exists()
+    # a pair written before checksums were recorded: the image itself is read and named
+    pair = json.loads((lib / "pairs" / "0002.json").read_text())
+    del pair["cameras"]["cam1"]["sha256"]
+    (lib / "pairs" / "0002.json").write_text(json.dumps(pair))
+    err = _run_error(["run", str(lib), "-o", str(tmp_path / "cal")], capsys)
+    assert "0002_cam1.tif" in err and "cannot be read" in err
+    image.write_bytes(data)                                                 # restored: runs again
+    assert calib_main(["run", str(lib), "-o", str(tmp_path / "cal")]) == 0
+
+
+@pytest.mark.gl
+def test_detection_cache_follows_the_images(ci_library, ci_detections, tmp_path):
+    lib = libmod.load_library(_copy_library(ci_library.directory, tmp_path / "lib", pairs=range(3)))
+    first = cal.detect_library(lib, 41)
+    # another pair's image in place of pair 1's (and its checksum): detected anew, not from the cache
+    for cam in lib.cameras:
+        (lib.directory / "pairs" / f"0001_{cam.name}.tif").write_bytes(
+            (ci_library.directory / "pairs" / f"0005_{cam.name}.tif").read_bytes())
+    p = json.loads((lib.directory / "pairs" / "0001.json").read_text())
+    for cam in lib.cameras:
+        p["cameras"][cam.name]["sha256"] = libmod._sha256(lib.directory / "pairs" / f"0001_{cam.name}.tif")
+    (lib.directory / "pairs" / "0001.json").write_text(json.dumps(p))
+    again = cal.detect_library(libmod.load_library(lib.directory), 41)
+    assert np.array_equal(again[0][0], first[0][0], equal_nan=True)
+    assert np.array_equal(again[1][0], ci_detections[5][0], equal_nan=True)
+
+
+@pytest.mark.gl
+def test_calib_run_outputs_appear_together(ci_library, ci_detections, tmp_path, monkeypatch, capsys):
+    lib = _copy_library(ci_library.directory, tmp_path / "lib")
+    out = tmp_path / "cal"
+    out.mkdir()
+    (out / "report.json").write_text("old")
+
+    def fail(*args, **kwargs):
+        raise SceneError("matplotlib", "is not installed", "pip install matplotlib")
+    monkeypatch.setattr(cal, "write_epipolar_png", fail)
+    err = _run_error(["run", str(lib), "-o", str(out)], capsys)
+    assert "matplotlib" in err
+    assert sorted(f.name for f in out.iterdir()) == ["report.json"] and (out / "report.json").read_text() == "old"
+    monkeypatch.undo()
+    assert calib_main(["run", str(lib), "-o", str(out)]) == 0
+    assert sorted(f.name for f in out.iterdir()) == ["calibration.yaml", "epipolar.png", "report.json", "residuals.csv"]
+
+
+@pytest.mark.gl
+def test_library_settings_are_recorded_and_checked(ci_library, tmp_path, capsys):
+    out = tmp_path / "lib"
+    base = ["library", "default", "--scale", str(CI_SCALE), "--seed", "3", "-o", str(out)]
+    err = _run_error(base + ["--pairs", "1", "--noise", "-1"], capsys)
+    assert "--noise: must be ≥ 0" in err and not out.exists()
+    assert calib_main(base + ["--pairs", "1", "--noise", "1.5", "--max-pairs", "1"]) in (0, 2)
+    capsys.readouterr()
+    m = json.loads((out / "library.json").read_text())
+    assert m["noise"]["sigma"] == 1.5 and m["noise"]["model"] == "gaussian" and m["seed"] == 3
+    assert m["target"]["px_per_mm"] == 10 and m["blur"] is None and m["lighting"] is None
+    pair = json.loads((out / "pairs" / "0000.json").read_text())
+    assert pair["settings_sha256"] == libmod.settings_hash(m)
+    before = sorted(f.name for f in (out / "pairs").iterdir())
+    for extra, named in ((["--noise", "0"], "noise: {"), (["--noise", "2"], "noise.sigma: 1.5 in the library, 2.0"),
+                         (["--noise", "1.5", "--seed", "4"], "seed: 3 in the library, 4 asked (--seed)"),
+                         (["--noise", "1.5", "--sigma", "0.05"], "target.defects.sigma"),
+                         (["--noise", "1.5", "--px-per-mm", "20"], "target.px_per_mm"),
+                         (["--noise", "1.5", "--fov", "centre"], "poses.fov"),
+                         (["--noise", "1.5", "--spp", "4"], "render.samples_per_pixel")):
+        err = _run_error(base + ["--pairs", "2"] + extra, capsys)
+        assert "other settings" in err and named in err, (extra, err)
+    err = _run_error(["library", "default", "--scale", "0.3", "--seed", "3", "--noise", "1.5", "-o", str(out),
+                      "--pairs", "2"], capsys)
+    assert "cameras[0].cx" in err and "--scale" in err
+    assert sorted(f.name for f in (out / "pairs").iterdir()) == before       # nothing added
+    # library.json lost, pairs kept: a rerun with other settings is still refused by the pairs
+    (out / "library.json").unlink()
+    err = _run_error(base + ["--pairs", "2", "--noise", "0"], capsys)
+    assert "0000.json" in err and "other settings" in err
+
+
+@pytest.mark.gl
+def test_calib_run_on_a_chessboard_library_is_refused_by_name(tmp_path, gl_ctx, capsys):
+    target = Chessboard(rows=5, cols=6, square=12.0, px_per_mm=5)
+    libmod.write_library(libmod.paper_rig(CI_SCALE), target, 1, tmp_path / "cb", seed=2,
+                         spec=posemod.PoseSpec(fov="centre"), ctx=gl_ctx)
+    err = _run_error(["run", str(tmp_path / "cb")], capsys)
+    assert "Chessboard" in err and "library.json" in err

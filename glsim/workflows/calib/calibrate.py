@@ -20,11 +20,13 @@ from pathlib import Path
 import numpy as np
 
 from glsim.io import images as io
+from glsim.io.atomic import atomic_paths
 from glsim.io.calibfiles import euler_xyz, write_rig_yaml
 from glsim.scene.camera import Camera, distort, normalized_to_pixel, pixel_rays, project
 from glsim.errors import SceneError
 from glsim.workflows.calib import library as libmod
-from glsim.workflows.calib.detect import detect_dots
+from glsim.workflows.calib.detect import VERSION as DETECTOR_VERSION, detect_dots
+from glsim.workflows.calib.targets import DotGrid
 from glsim.workflows.calib.poses import rig_frame
 
 MODELS = {  # distortion terms estimated → OpenCV flags
@@ -203,19 +205,62 @@ def write_epipolar_png(path, u, v, d, title: str = "") -> Path:
 
 # --- a library end to end ----------------------------------------------------------------------
 
-def detect_library(lib: libmod.Library, min_points: int, processes: int = 1, progress=None) -> dict:
-    """Detections of every pair, cached in ``detections_min{min_points}.npz`` in the library:
-    {pair index: (points of camera 1, of camera 2, …)}, each (N, 2) px with NaN rows where a
-    dot was lost, or None where a camera's grid was not found. New pairs are added to the
-    cache; delete it to detect again."""
-    cache = lib.directory / f"detections_min{min_points}.npz"
-    done = {}
+def supported(lib: libmod.Library) -> None:
+    """SceneError unless ``calib run``/``study`` can calibrate the library's target."""
+    if not isinstance(lib.target, DotGrid):
+        raise SceneError(str(lib.directory / "library.json"),
+                         f"holds a {type(lib.target).__name__} target; detection and calibration take dot grids only",
+                         "make a dot-grid library (`glsim calib library` draws DotGrid targets)")
+
+
+def cache_path(lib: libmod.Library, min_points: int, method: str = "fit") -> Path:
+    return lib.directory / f"detections_v{DETECTOR_VERSION}_{method}_min{min_points}.npz"
+
+
+def image_checksums(lib: libmod.Library, pair: dict) -> list[str]:
+    """SHA-256 of each camera's image of ``pair``; SceneError naming an image that is missing, or
+    that differs from the checksum its pair JSON recorded when it was rendered."""
+    out = []
+    for cam in lib.cameras:
+        path = lib.image_path(pair, cam)
+        json_path = lib.directory / "pairs" / f"{libmod.pair_name(pair['pair'])}.json"
+        if not path.is_file():
+            raise SceneError(str(path), "is missing (its pair's ground truth and any detection cache cannot stand in "
+                             "for it)", f"restore it, or {libmod._pair_fix(json_path)}")
+        sha = libmod._sha256(path)
+        recorded = pair["cameras"][cam.name].get("sha256")
+        if recorded is not None and recorded != sha:
+            raise SceneError(str(path), f"differs from the image {json_path.name} recorded when it was rendered "
+                             "(SHA-256 mismatch: cut off, overwritten or edited)",
+                             f"restore it, or {libmod._pair_fix(json_path)}")
+        out.append(sha)
+    return out
+
+
+def detect_library(lib: libmod.Library, min_points: int, processes: int = 1, progress=None,
+                   method: str = "fit") -> dict:
+    """Detections of every pair: {pair index: (points of camera 1, of camera 2, …)}, each (N, 2)
+    px with NaN rows where a dot was lost, or None where a camera's grid was not found.
+
+    Cached in ``detections_v{DETECTOR_VERSION}_{method}_min{min_points}.npz`` in the library,
+    keyed by the SHA-256 of each pair's images: a pair whose images changed is detected again,
+    a missing or damaged image is named (SceneError), never passed over from the cache. New
+    pairs are added to the cache; delete it to detect again."""
+    supported(lib)
+    cache = cache_path(lib, min_points, method)
+    done, keys = {}, {}
     if cache.is_file():
-        with np.load(cache) as z:
-            done = {int(k[1:]): z[k] for k in z.files}
+        try:
+            with np.load(cache) as z:
+                done = {int(k[1:]): z[k] for k in z.files if k.startswith("p")}
+                keys = {int(k[1:]): [str(x) for x in z[k]] for k in z.files if k.startswith("s")}
+        except Exception:                       # an unreadable cache is rebuilt, not trusted
+            done, keys = {}, {}
+    sums = {p["pair"]: image_checksums(lib, p) for p in lib.pairs}
+    done = {k: v for k, v in done.items() if k in sums and keys.get(k) == sums[k]}
     target = libmod.target_to_dict(lib.target)
     jobs = [(p["pair"], [str(lib.image_path(p, c)) for c in lib.cameras], [c.bit_depth for c in lib.cameras],
-             target, min_points) for p in lib.pairs if p["pair"] not in done]
+             [c.size for c in lib.cameras], target, min_points, method) for p in lib.pairs if p["pair"] not in done]
     if jobs:
         if processes > 1:
             import multiprocessing as mp
@@ -223,12 +268,17 @@ def detect_library(lib: libmod.Library, min_points: int, processes: int = 1, pro
                 results = _collect(pool.imap_unordered(_detect_job, jobs, chunksize=4), len(jobs), progress)
         else:
             results = _collect(map(_detect_job, jobs), len(jobs), progress)
-        done.update(results)
+        for index, r in results:
+            if isinstance(r, tuple):            # (file, problem, fix) from the worker
+                raise SceneError(*r)
+            done[index] = r
+        arrays = {f"p{k}": v for k, v in done.items()}
+        arrays.update({f"s{k}": np.array(sums[k]) for k in done})
         with io.atomic_path(cache) as tmp:
             with open(tmp, "wb") as f:
-                np.savez(f, **{f"p{k}": v for k, v in done.items()})
+                np.savez(f, **arrays)
     return {k: tuple(None if np.all(np.isnan(v[c])) else v[c] for c in range(len(lib.cameras)))
-            for k, v in done.items()}
+            for k, v in done.items() if k in sums}
 
 
 def _collect(results, total: int, progress) -> list:
@@ -240,11 +290,34 @@ def _collect(results, total: int, progress) -> list:
     return out
 
 
-def _detect_job(job) -> tuple[int, np.ndarray]:
-    """One pair: (index, (cameras, N, 2) points, all NaN for a camera that found no grid)."""
-    index, paths, bits, target, min_points = job
+def _read_view(path: str, bits: int, size) -> np.ndarray:
+    """A library image, or SceneError naming it (unreadable, or not the camera's size)."""
+    json_path = Path(path).parent / f"{Path(path).name.split('_')[0]}.json"
+    fix = f"restore it, or {libmod._pair_fix(json_path)}"
+    try:
+        image = io.read_image(path)
+    except FileNotFoundError:
+        raise SceneError(path, "is missing", fix) from None
+    except Exception as exc:
+        raise SceneError(path, f"cannot be read as an image ({type(exc).__name__}: {exc})", fix) from None
+    W, H = size
+    if image.shape != (H, W):
+        raise SceneError(path, f"is {image.shape[1]}×{image.shape[0]} px, the camera's images are {W}×{H}", fix)
+    return image
+
+
+def _detect_job(job) -> tuple[int, object]:
+    """One pair: (index, (cameras, N, 2) points, all NaN for a camera that found no grid), or
+    (index, (file, problem, fix)) for a bad image (SceneErrors do not cross process pools)."""
+    index, paths, bits, sizes, target, min_points, method = job
     target = libmod.target_from_dict(target)
-    dets = [detect_dots(io.read_image(p), target, b, min_points) for p, b in zip(paths, bits)]
+    try:
+        dets = [detect_dots(_read_view(p, b, s), target, b, min_points, method) for p, b, s in zip(paths, bits, sizes)]
+    except SceneError as exc:
+        text = str(exc)
+        key, _, rest = text.partition(": ")
+        problem, _, fix = rest.partition(" — ")
+        return index, (key, problem, fix)
     return index, np.stack([d.points if d is not None else np.full((target.n_points, 2), np.nan) for d in dets])
 
 
@@ -381,15 +454,15 @@ def run(library_dir, out_dir=None, model: str = "k1k2p1p2k3", min_points: int | 
     t0 = time.perf_counter()
     lib = libmod.load_library(library_dir)
     if len(lib.cameras) != 2:
-        raise SceneError("cameras", f"the library has {len(lib.cameras)} cameras", "stereo calibration needs 2")
+        raise SceneError(str(lib.directory / "library.json"), f"the library has {len(lib.cameras)} cameras",
+                         "stereo calibration needs 2")
+    supported(lib)
     min_points = min_points or default_min_points(lib.target)
     out = Path(out_dir) if out_dir else lib.directory / "calibration"
     dets = detect_library(lib, min_points, processes, progress)
     c = calibrate_pairs(lib, dets, sorted(dets), model, min_points, bias_iterations)
     cam1, cam2 = lib.cameras
-    write_yaml(out / "calibration.yaml", c)
     u, v, d = epipolar_map(c, cam1, cam2)
-    write_epipolar_png(out / "epipolar.png", u, v, d, f"epipolar distance, max {np.nanmax(d):.3g} px")
     report = {"library": str(lib.directory), "model": model, "min_points": min_points,
               "bias_iterations": bias_iterations,
               "pairs": len(lib.pairs), "pairs_used": len(c.pairs),
@@ -398,8 +471,15 @@ def run(library_dir, out_dir=None, model: str = "k1k2p1p2k3", min_points: int | 
               "truth": true_parameters(cam1, cam2), "errors": errors(c, cam1, cam2),
               "epipolar_max_px": float(np.nanmax(d)), "detection": detection_errors(lib, dets),
               "seconds": time.perf_counter() - t0}
-    io.write_text(out / "report.json", json.dumps(report, indent=1))
-    io.write_text(out / "residuals.csv", _residuals_csv(lib, dets, c))
+    residuals = _residuals_csv(lib, dets, c)
+    # every output under a temporary name first, then all renamed (report.json, the mark of a
+    # finished calibration, last): an error or an interrupt leaves the directory as it was
+    names = ("calibration.yaml", "epipolar.png", "residuals.csv", "report.json")
+    with atomic_paths([out / n for n in names]) as (t_yaml, t_png, t_csv, t_report):
+        write_yaml(t_yaml, c)
+        write_epipolar_png(t_png, u, v, d, f"epipolar distance, max {np.nanmax(d):.3g} px")
+        Path(t_csv).write_text(residuals)
+        Path(t_report).write_text(json.dumps(report, indent=1))
     return report
 
 

@@ -3,7 +3,8 @@
     glsim calib library SCENE.toml|default --pairs N -o DIR [--max-pairs M] [--min-points N] [--scale S]
                         [--seed K] [--fov full|centre]
                         [--sigma MM] [--pitch-error E] [--target-seed K] [--rows 9 --cols 9 --pitch 10
-                        --dot 5] [--spp 16] [--backend gl|cpu]
+                        --dot 5] [--px-per-mm auto] [--noise 2] [--blur] [--lighting] [--spp 16]
+                        [--backend gl|cpu]
     glsim calib run DIR [-o OUT] [--model k1k2p1p2k3] [--min-points N] [--bias-iterations 1] [-j PROCS]
     glsim calib study {images,fov,quality} LIB [LIB …] -o OUT [--sizes 10 25 50] [--runs 100]
                       [--seed K] [--model …] [--bias-iterations 1] [-j PROCS]
@@ -15,8 +16,7 @@ import sys
 import time
 from pathlib import Path
 
-from glsim.errors import GlsimError
-from glsim.effects.noise import add_noise
+from glsim.errors import GlsimError, SceneError
 from glsim.scene import Noise, Render, Scene, load_scene
 from glsim.workflows.calib import calibrate as cal
 from glsim.workflows.calib import library as libmod
@@ -66,6 +66,12 @@ def parser() -> argparse.ArgumentParser:
     lib.add_argument("--noise", type=float, default=2.0,
                      help="Gaussian sensor noise, %% of the dynamic range (Table 8: 2; 0 = none); "
                           "a scene's own [noise] table takes precedence")
+    lib.add_argument("--px-per-mm", default="auto",
+                     help="resolution of the target's reference image; 'auto': ≥ 4 reference px per image px "
+                          "(35 for the full-size Table 8 rig, 10 at --scale 0.25), so that the reference's pixels "
+                          "do not show in the dots' edges")
+    lib.add_argument("--blur", action="store_true", help="apply the scene's [optics] depth of field to every image")
+    lib.add_argument("--lighting", action="store_true", help="apply the scene's [lighting] to every image")
 
     run = sub.add_parser("run", help="detect, calibrate and report a library")
     run.add_argument("library", help="library directory")
@@ -91,17 +97,28 @@ def parser() -> argparse.ArgumentParser:
 
 
 def _library(a) -> int:
-    target = DotGrid(rows=a.rows, cols=a.cols, pitch=a.pitch, dot_diameter=a.dot,
-                     defects=Defects(sigma=a.sigma, pitch_error=a.pitch_error, seed=a.target_seed))
+    if not a.noise >= 0:
+        raise SceneError("--noise", f"must be ≥ 0 (percent of the dynamic range), got {a.noise:g}",
+                         "give 0 for noise-free images, or e.g. 2 (Table 8)")
     if a.scene == "default":
         rig = Scene(cameras=libmod.paper_rig(a.scale), render=Render(mode="exact", samples_per_pixel=a.spp))
     else:
         rig = load_scene(a.scene).replace(render={"samples_per_pixel": a.spp})
-    params = rig.noise or (Noise(sigma=a.noise) if a.noise > 0 else None)
-    noise = None if params is None else (lambda image, cam, seed: add_noise(image, params, cam.bit_depth, seed))
+    spec = PoseSpec(fov=a.fov)
+    if a.px_per_mm == "auto":
+        ppm = libmod.auto_px_per_mm(rig.cameras, spec)
+    else:
+        try:
+            ppm = float(a.px_per_mm)
+        except ValueError:
+            raise SceneError("--px-per-mm", f"{a.px_per_mm!r} is not a number", "give px per mm, or auto") from None
+    target = DotGrid(rows=a.rows, cols=a.cols, pitch=a.pitch, dot_diameter=a.dot, px_per_mm=ppm,
+                     defects=Defects(sigma=a.sigma, pitch_error=a.pitch_error, seed=a.target_seed))
+    noise = rig.noise or (Noise(sigma=a.noise) if a.noise > 0 else None)
+    effects = tuple(e for e, on in (("blur", a.blur), ("lighting", a.lighting)) if on)
     lib, good = cal.write_usable_library(rig, target, a.pairs, a.output, a.max_pairs, a.min_points,
                                          progress=_progress("pairs"), seed=a.seed, backend=a.backend,
-                                         spec=PoseSpec(fov=a.fov), noise=noise)
+                                         spec=spec, noise=noise, effects=effects)
     complete = sum(all(c["complete"] for c in p["cameras"].values()) for p in lib.pairs)
     print(f"{len(lib.pairs)} pairs drawn in {a.output}: {len(good)} usable by `glsim calib run` "
           f"({a.pairs} asked for; {complete} wholly in view in every camera)")
