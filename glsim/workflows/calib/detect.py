@@ -451,6 +451,34 @@ def refine_fit(image: np.ndarray, points: np.ndarray, target: DotGrid, band: flo
     return e.centres, e.areas / cell, e
 
 
+def centre_bound(image: np.ndarray, e: Ellipses, sigma: float, band=EDGE_BAND) -> np.ndarray:
+    """The Cramér–Rao bound of each dot's centre (N, 2, 2 covariance, px²; NaN where lost) for
+    white noise of σ = ``sigma`` (grey, full scale) on ``image``: (JᵀJ/σ²)⁻¹ of the model of
+    :func:`fit_ellipses` at the fitted ``e`` over its band. No unbiased estimator of a dot's
+    centre from these pixels does better."""
+    n = len(e.centres)
+    band = np.broadcast_to(np.asarray(band, float), (n,))
+    out = np.full((n, 2, 2), np.nan)
+    for k in np.flatnonzero(np.isfinite(e.centres[:, 0])):
+        bp = _band_pixels(image, e, k, band[k])
+        if bp is None:
+            continue
+        th = np.array([[*e.centres[k], e.M[k, 0, 0], e.M[k, 0, 1], e.M[k, 1, 1], e.background[k], e.contrast[k],
+                        e.edge[k]]])
+        _, J = _model(bp[0][None], bp[1][None], np.ones((1, len(bp[1])), bool), th)
+        out[k] = np.linalg.inv(J[0].T @ J[0])[:2, :2] * sigma ** 2
+    return out
+
+
+def mean_norm(cov: np.ndarray) -> np.ndarray:
+    """E|x| for x ~ N(0, cov), cov (..., 2, 2) (Gauss–Hermite quadrature, 24 × 24 nodes)."""
+    z, w = np.polynomial.hermite_e.hermegauss(24)
+    w = w / w.sum()
+    lam = np.clip(np.linalg.eigvalsh(cov), 0, None)
+    r = np.sqrt(lam[..., 0, None, None] * z[:, None] ** 2 + lam[..., 1, None, None] * z[None, :] ** 2)
+    return (r * w[:, None] * w[None, :]).sum(axis=(-1, -2))
+
+
 def _start(image, points, target):
     e_col, e_row = grid_vectors(points, target.rows, target.cols)
     ring = (float(np.max(target.diameters())) / 2 / target.pitch + WINDOW) / 2
@@ -562,7 +590,9 @@ def orient(points: np.ndarray, area: np.ndarray, target: DotGrid) -> np.ndarray 
 
     Mirror orderings are excluded by the handedness a camera sees the printed face with
     (columns × rows turning clockwise in the image); among the remaining turns, the one whose
-    marker cells show the markers' area ratio wins. Without markers the turn whose column
+    marker cells show the markers' area ratio wins (|log(area / median area) − log(expected
+    ratio)| summed over the marker cells: below MARKER_TOLERANCE per marker, and less than half
+    the next turn's). Without markers the turn whose column
     direction points most to the image's right is chosen (consistent between the cameras of a
     rig as long as the target is not rolled near ±45°/90°)."""
     rows, cols = target.rows, target.cols
@@ -576,10 +606,11 @@ def orient(points: np.ndarray, area: np.ndarray, target: DotGrid) -> np.ndarray 
     if not target.markers:
         return max(candidates, key=lambda c: c[1][0] / np.linalg.norm(c[1]))[0]
     expected = np.log((target.diameters() / target.dot_diameter) ** 2)
+    cells = expected != 0                       # the marker cells: only they decide (noise elsewhere does not add up)
     ref = np.nanmedian(area)
 
     def misfit(perm):
-        return np.nansum(np.abs(np.log(np.clip(area[perm] / ref, 1e-6, None)) - expected))
+        return np.nansum(np.abs(np.log(np.clip(area[perm][cells] / ref, 1e-6, None)) - expected[cells]))
 
     scores = sorted((misfit(perm), i) for i, (perm, _) in enumerate(candidates))
     best, i = scores[0]
