@@ -338,11 +338,17 @@ def _run_dask(tasks, scheduler: str, on_done, summary: Summary, fingerprint: str
                            "(or pip install distributed)") from None
     try:
         client = Client(scheduler, timeout="15s")
-    except (OSError, TimeoutError) as exc:
-        raise LibraryError(f"--scheduler {scheduler}: no Dask scheduler answered ({exc}) — start one with "
-                           "`dask scheduler` and workers with `dask worker ADDRESS --nthreads 1`, and give its "
-                           "tcp://HOST:PORT") from None
+    except Exception as exc:   # OSError, TimeoutError, ValueError for a malformed address
+        raise LibraryError(f"--scheduler {scheduler}: no Dask scheduler answered ({type(exc).__name__}: {exc}) — "
+                           "start one with `dask scheduler` and workers with `dask worker ADDRESS --nthreads 1`, and "
+                           "give its tcp://HOST:PORT") from None
     try:
+        try:
+            client.wait_for_workers(1, timeout=60)
+        except Exception:
+            raise LibraryError(f"--scheduler {scheduler}: no Dask worker joined within 60 s — start workers with "
+                               f"`dask worker {scheduler} --nthreads 1` (glsim installed, the library directory "
+                               "on a filesystem they can write)") from None
         summary.workers = len(client.scheduler_info().get("workers", {}))
         futures = {}
         for i, t in enumerate(tasks):
