@@ -17,6 +17,7 @@ import numpy as np
 from glsim.scene.bilinear import bilinear
 from glsim.scene.camera import Camera, to_camera
 from glsim.effects import prepare as prepare_effects
+from glsim.stages.geometry import MeshGeometry, ViewSpec
 from glsim.stages.view import View, make_view
 from glsim.backends import make_backend
 from glsim.stages.reference import make_reference, specimen_mesh
@@ -69,6 +70,7 @@ class Renderer:
         self.reference = reference if reference is not None else make_reference(scene, self.mesh)
         self.backend_name = backend or scene.render.backend
         self.backend = make_backend(self.backend_name, self.reference, ctx)
+        self._geometry: MeshGeometry | None = None
 
     def __enter__(self) -> "Renderer":
         return self
@@ -80,20 +82,39 @@ class Renderer:
         self.backend.close()
 
     def view(self, camera: int | str, step: int, deformed: np.ndarray | None = None) -> View:
-        """The per-element geometry of ``camera`` at ``step`` (``deformed``: its nodes, if known)."""
+        """The per-element geometry of ``camera`` at ``step`` (``deformed``: its nodes, if known)
+        as a full numpy :class:`View` (O(elements); what the CPU oracle renders), with warnings."""
         cam = self.scene.camera(camera)
         nodes = self.mesh.deformed(step) if deformed is None else deformed
         return make_view(cam, self.reference.camera, self.mesh.nodes, nodes, self.mesh.quads,
                          self.mesh.element_labels)
 
+    @property
+    def geometry(self) -> MeshGeometry:
+        """The mesh as the GL path holds it: per renderer, per load step (cached), per view O(1)."""
+        if self._geometry is None:
+            self._geometry = MeshGeometry(self.mesh, self.reference.camera)
+        return self._geometry
+
     def render(self, camera: int | str = 0, step: int = 0, truth: bool = False, **options) -> Result:
-        """Render one image. ``options`` override the scene's [render] table (mode, …)."""
+        """Render one image. ``options`` override the scene's [render] table (mode, …).
+
+        GL: the view is a :class:`ViewSpec` (the camera's transform; the per-element work runs
+        on the GPU from the mesh uploaded once and the step's nodes uploaded once); the CPU
+        oracle gets the full numpy :class:`View`."""
         opts = self.scene.replace(render=options).render if options else self.scene.render
         t0 = time.perf_counter()
-        deformed = self.mesh.deformed(step)
-        view = self.view(camera, step, deformed)
-        fx = prepare_effects(self.scene, deformed, self.mesh.quads, view.camera,
-                             self.scene.cameras.index(view.camera), step, view.Xd[..., 2])
+        cam = self.scene.camera(camera)
+        if self.backend_name == "gl":
+            view = self.geometry.view(cam, step)
+            deformed = view.step_geo.deformed
+            depths = view.corner_depths() if self.scene.optics is not None else np.empty(0)
+        else:
+            deformed = self.mesh.deformed(step)
+            view = self.view(camera, step, deformed)
+            depths = view.Xd[..., 2]
+        fx = prepare_effects(self.scene, deformed, self.mesh.quads, cam, self.scene.cameras.index(cam), step,
+                             depths)
         image, raster, stages = self.backend.render_view(view, opts, truth, fx)
         seconds = time.perf_counter() - t0
         tr = self._truth(view, deformed, raster) if truth else None
@@ -101,7 +122,7 @@ class Renderer:
                       options=opts, seconds=seconds, truth=tr, stages=tuple(stages),
                       saturated=float(np.mean((image < 0) | (image > 1))))
 
-    def _truth(self, view: View, deformed: np.ndarray, raster: dict) -> Truth:
+    def _truth(self, view: View | ViewSpec, deformed: np.ndarray, raster: dict) -> Truth:
         W, H = view.camera.size
         elem = raster["element"].reshape(H, W)
         mask = elem >= 0

@@ -19,8 +19,18 @@ in vec2 v_ref;
 in vec2 v_xe;
 in float v_depth;
 #else
-// Per-element data written by glsim/gl/backend.py (element_data), float64 or float32 as `real`.
+// Per-view element records written by view.comp, float64 or float32 as `real`: exact: corners
+// in the camera frame (12); q4: distorted pixel corners (8) and depths Z (4).
 layout(std430, binding = 0) readonly buffer Elements { real elem_data[]; };
+// the mesh, uploaded once per renderer (glsim.backends.gl.backend): connectivity and, per
+// node, reference-image coordinates (q4) or the undeformed position in the reference camera's
+// frame (exact)
+layout(std430, binding = 5) readonly buffer Quads { ivec4 quads[]; };
+#if defined(MODE_Q4)
+layout(std430, binding = 7) readonly buffer RefUV { real ref_uv[]; };
+#else
+layout(std430, binding = 8) readonly buffer RefXr { real ref_xr[]; };
+#endif
 #endif
 flat in int v_elem;
 // samples that hit the specimen but map outside the reference image (reset before each pass)
@@ -68,13 +78,9 @@ void main() {
 #else
 #if defined(MODE_Q4)
     real2 px = real2(gl_FragCoord.xy) / real(SS) - 0.5;  // this sample's pixel coordinates
-    // layout per element: uv corners (8), reference corners (8), corner depths Z (4)
-    int b = v_elem * 20;
-    real2 p[4], r[4];
-    for (int i = 0; i < 4; ++i) {
-        p[i] = real2(elem_data[b + 2 * i], elem_data[b + 2 * i + 1]);
-        r[i] = real2(elem_data[b + 8 + 2 * i], elem_data[b + 9 + 2 * i]);
-    }
+    int b = v_elem * 12;
+    real2 p[4];
+    for (int i = 0; i < 4; ++i) p[i] = real2(elem_data[b + 2 * i], elem_data[b + 2 * i + 1]);
     // the cover rectangle (exact.vert) is padded; the shared tie rule decides coverage
     if (!invert_newton(p, px, xi, eta) || !in_range(xi, eta)) discard;
     if (near_edge(xi, eta)) {
@@ -83,23 +89,24 @@ void main() {
         edge_functions_2d(p, px, E, m);
         if (!owned(xi, eta, E, m, orientation_2d(p, xi, eta))) discard;
     }
+    ivec4 q = quads[v_elem];
+    real2 r[4];
+    for (int i = 0; i < 4; ++i) r[i] = real2(ref_uv[2 * q[i]], ref_uv[2 * q[i] + 1]);
     ref = bilinear2(r, xi, eta);
     real4 N = shape_functions(xi, eta);
-    real Z = dot(N, real4(elem_data[b + 16], elem_data[b + 17], elem_data[b + 18], elem_data[b + 19]));
+    real Z = dot(N, real4(elem_data[b + 8], elem_data[b + 9], elem_data[b + 10], elem_data[b + 11]));
 #else
-    // layout per element: deformed corners in the camera frame (12), undeformed corners in
-    // the reference camera's frame (12), mm
-    int b = v_elem * 24;
-    real3 P[4], R[4];
-    for (int i = 0; i < 4; ++i) {
-        P[i] = real3(elem_data[b + 3 * i], elem_data[b + 3 * i + 1], elem_data[b + 3 * i + 2]);
-        R[i] = real3(elem_data[b + 12 + 3 * i], elem_data[b + 13 + 3 * i], elem_data[b + 14 + 3 * i]);
-    }
+    int b = v_elem * 12;
+    real3 P[4];
+    for (int i = 0; i < 4; ++i) P[i] = real3(elem_data[b + 3 * i], elem_data[b + 3 * i + 1], elem_data[b + 3 * i + 2]);
     vec4 ray = texelFetch(u_rays, ivec2(gl_FragCoord.xy), 0);
     if (ray.x >= 1e30) discard;  // rays.frag's NO_RAY
     real2 xn = real2(ray.xy) + real2(ray.zw);
     real Z;
     if (!intersect_ray_patch(P, xn, xi, eta, Z)) discard;
+    ivec4 q = quads[v_elem];
+    real3 R[4];  // undeformed corners in the reference camera's frame (mm)
+    for (int i = 0; i < 4; ++i) R[i] = real3(ref_xr[3 * q[i]], ref_xr[3 * q[i] + 1], ref_xr[3 * q[i] + 2]);
     if (!project_camera_frame(bilinear3(R, xi, eta), u_ref_intr, u_ref_dist, u_ref_valid_r2, ref)) {
         atomicAdd(dropped_samples, 1u);
         discard;

@@ -1,13 +1,14 @@
-// Mode exact: a conservative rectangle per element (computed in float64 on the CPU); the
-// fragment stage decides coverage by intersecting each pixel's ray with the element.
-in vec2 in_px;       // corner of the element's cover rectangle (px, geometry.py)
-in int in_elem;
+// Modes exact and q4: each element's conservative cover rectangle, written per view by
+// view.comp; the fragment stage decides coverage (the shared tie rule). No vertex attributes:
+// vertex 4 e + i is corner i of element e's rectangle (index buffer: two triangles each).
+layout(std430, binding = 9) readonly buffer Cover { vec2 cover[]; };
 
 uniform vec2 u_size;
 
 flat out int v_elem;
 
 void main() {
-    gl_Position = vec4((in_px + 0.5) / u_size * 2.0 - 1.0, 0.0, 1.0);
-    v_elem = in_elem;
+    vec2 px = cover[gl_VertexID];
+    gl_Position = vec4((px + 0.5) / u_size * 2.0 - 1.0, 0.0, 1.0);
+    v_elem = gl_VertexID >> 2;
 }

@@ -69,7 +69,8 @@ def test_programs_carry_only_the_scene_effects(effects_scene, gl_ctx):
         assert len(deform) == 1
         extra = set(deform[0]) - {"MODE_EXACT", "INTERP_BSPLINE3", "SS", "FP64"}
         assert extra == expect, effect
-        passes = {files[1] for files, _ in compiled} - {"deform.frag", "rays.frag"}  # rays: exact mode's ray map
+        # rays: exact mode's ray map; view.comp: its per-view element pass (covers on the GPU)
+        passes = {files[-1] for files, _ in compiled} - {"deform.frag", "rays.frag", "view.comp"}
         assert passes == {"lighting": set(), "optics": {"blur.frag"}, "noise": {"noise.frag"}, None: set()}[effect]
         assert ("noise" in res.stages) == (effect == "noise")
 

@@ -1,17 +1,22 @@
 """Stage "mesh → camera": per-element data of one camera view of one load step, in float64.
 
 Everything is expressed relative to the rendering camera's centre (its own frame) on the CPU
-in float64 before any upload, so a specimen metres from the world origin keeps its precision
-in float32 shaders. Both backends consume a :class:`View`.
+in float64, so a specimen metres from the world origin keeps its precision. The CPU oracle
+consumes a full :class:`View` (:func:`make_view`, numpy, chunked so that 10⁶ elements fit in
+memory); the GL backend computes the same per-element data on the GPU from the mesh uploaded
+once (``shaders/view.glsl``, the GLSL twin of :func:`cover_rectangles`) and takes a
+:class:`glsim.stages.geometry.ViewSpec` instead.
 """
 from __future__ import annotations
 
+import functools
 import warnings
 from dataclasses import dataclass
 
 import numpy as np
 
-from glsim.scene.camera import Camera, distort, normalized_to_pixel, project_camera_frame, to_camera
+from glsim.scene.camera import (Camera, distort, normalized_to_pixel, pixel_to_normalized, project_camera_frame,
+                                to_camera, undistort)
 from glsim.errors import RenderWarning, SceneError
 
 NEAR_MM = 1e-3  # corners closer to the camera plane than this cannot be projected
@@ -20,6 +25,11 @@ GRAZING_COS = float(np.cos(np.radians(GRAZING_DEG)))
 ZERO_AREA_REL = 1e-12  # element area ≤ this × the median element's: "zero area"
 TINY_AREA_REL = 1e-6  # ≤ this × the median: "tiny" (still drawn, watertight)
 COVER_PAD_PX = 1.0 / 8.0  # cover rectangles reach this far beyond the element's image
+COVER_SEGMENTS = ((0, 1), (1, 2), (2, 3), (3, 0), (0, 2), (1, 3))  # the corners' convex hull's edges
+COVER_FINE_INTERVALS = 8  # intervals per segment where one segment's sagitta is not negligible
+COVER_COARSE_SAG_PX = 1.0 / 64.0  # largest whole-segment sagitta (px) drawn from corners and midpoints
+COVER_BOUNDARY_INTERVALS = 8  # intervals per side of an unprojectable element's footprint box
+CHUNK_ELEMENTS = 1 << 15  # elements whose covers are computed at once (bounds memory)
 
 
 @dataclass(frozen=True, eq=False)
@@ -46,110 +56,284 @@ class View:
     bbox: np.ndarray
     far: float
 
+    def subset(self, elements: np.ndarray) -> "View":
+        """The view of ``elements`` only (indices into this view's elements)."""
+        return View(camera=self.camera, ref_camera=self.ref_camera, Xd=self.Xd[elements], Xr=self.Xr[elements],
+                    uv=self.uv[elements], ref_uv=self.ref_uv[elements], projectable=self.projectable[elements],
+                    cover=self.cover[elements], bbox=self.bbox[elements], far=self.far)
 
-def _cover(cam: Camera, Xd: np.ndarray, projectable: np.ndarray, behind: np.ndarray):
-    """Conservative covers of each element's distorted image: a rectangle (M, 4, 2) px
-    oriented along the element (the exact mode rasterizes it) and its pixel box.
+    def corner_depths(self) -> np.ndarray:
+        """Camera-frame Z (mm) of every element corner."""
+        return self.Xd[..., 2]
 
-    A bilinear patch lies in the convex hull of its corners, bounded by segments between
-    corners; their pinhole images are straight and the distortion bends them. The six corner
-    segments are sampled in normalized coordinates and distorted; the rectangle holds the
-    samples, padded by twice the largest sagitta between samples. Elements that are not
-    projectable but not wholly behind the camera get the whole image.
-    """
-    M = len(Xd)
-    W, H = cam.size
-    z = np.where(projectable[:, None], Xd[..., 2], 1.0)
-    xn = Xd[..., :2] / z[..., None]
-    t = np.linspace(0.0, 1.0, 9)[:, None]
-    pairs = ((0, 1), (1, 2), (2, 3), (3, 0), (0, 2), (1, 3))
-    pts = np.concatenate([xn[:, None, i] + t[None] * (xn[:, None, j] - xn[:, None, i]) for i, j in pairs], axis=1)
-    k = cam.distortion.coeffs
-    uv = normalized_to_pixel(distort(pts, k), cam.intrinsics)
-    seg = uv.reshape(M, len(pairs), len(t), 2)
-    mid = normalized_to_pixel(distort(0.5 * (pts.reshape(seg.shape)[:, :, :-1] + pts.reshape(seg.shape)[:, :, 1:]), k),
-                              cam.intrinsics)
-    sag = np.linalg.norm(mid - 0.5 * (seg[:, :, :-1] + seg[:, :, 1:]), axis=-1).reshape(M, -1).max(axis=1)
-    # the rasterizer snaps cover vertices to its sub-pixel grid (1/256 px on llvmpipe, 1/16 on
-    # some GPUs) and rounds them to float32: pad by more than either, so every pixel centre
-    # the element may own gets a fragment and the fragment stage's tie rule decides
-    pad = 2.0 * sag + COVER_PAD_PX + 1e-6 * (np.abs(uv).max(axis=(1, 2)) + W + H)
-    corners = uv[:, ::len(t)][:, :4]                     # the distorted corners 0, 1, 2, 3
-    a = (corners[:, 1] - corners[:, 0]) + (corners[:, 2] - corners[:, 3])
-    norm = np.linalg.norm(a, axis=1, keepdims=True)
-    a = np.where(norm > 0, a / np.where(norm > 0, norm, 1.0), [1.0, 0.0])
+
+# ---- conservative covers ---------------------------------------------------------------------
+@functools.lru_cache(maxsize=64)
+def _ray_radius(size: tuple, intr: tuple, k: tuple) -> float:
+    k = np.asarray(k)
+    rv = _valid_radius(k)
+    W, H = size
+    n = max(W, H) // 2 + 2
+    u = np.linspace(-0.5, W - 0.5, n)
+    v = np.linspace(-0.5, H - 0.5, n)
+    border = np.concatenate([np.stack([u, np.full(n, -0.5)], 1), np.stack([u, np.full(n, H - 0.5)], 1),
+                             np.stack([np.full(n, -0.5), v], 1), np.stack([np.full(n, W - 0.5), v], 1)])
+    xn, ok = undistort(pixel_to_normalized(border, np.asarray(intr)), k)
+    if not ok.all():      # some pixels have no ray: they lie beyond the valid radius
+        return rv
+    return min(rv, 1.01 * float(np.linalg.norm(xn, axis=1).max()))
+
+
+def _valid_radius(k) -> float:
+    from glsim.scene.camera import valid_radius
+    return valid_radius(k)
+
+
+def ray_radius(cam: Camera) -> float:
+    """An upper bound of |xn| (normalized undistorted radius) over the rays of every sample of
+    ``cam``'s image: the valid radius, or 1 % beyond the largest ray of the image border where
+    that is smaller (the undistorted radius grows with the distorted one). May be inf."""
+    return _ray_radius(tuple(cam.size), tuple(cam.intrinsics.tolist()), tuple(cam.distortion.coeffs.tolist()))
+
+
+def _oriented_rect(uv: np.ndarray, a: np.ndarray, pad: np.ndarray) -> np.ndarray:
+    """Rectangles (m, 4, 2) along unit axes a (m, 2) holding the points uv (m, n, 2), padded."""
     b = np.stack([-a[:, 1], a[:, 0]], 1)
     pa = np.einsum("mnd,md->mn", uv, a)
     pb = np.einsum("mnd,md->mn", uv, b)
     lo_a, hi_a = pa.min(1) - pad, pa.max(1) + pad
     lo_b, hi_b = pb.min(1) - pad, pb.max(1) + pad
-    rect = np.stack([lo_a[:, None] * a + lo_b[:, None] * b, hi_a[:, None] * a + lo_b[:, None] * b,
+    return np.stack([lo_a[:, None] * a + lo_b[:, None] * b, hi_a[:, None] * a + lo_b[:, None] * b,
                      hi_a[:, None] * a + hi_b[:, None] * b, lo_a[:, None] * a + hi_b[:, None] * b], 1)
-    whole = ~projectable & ~behind
-    rect[whole] = [(-0.5, -0.5), (W - 0.5, -0.5), (W - 0.5, H - 0.5), (-0.5, H - 0.5)]
+
+
+def _pad(cam: Camera, uv: np.ndarray, sag: np.ndarray) -> np.ndarray:
+    # the rasterizer snaps cover vertices to its sub-pixel grid (1/256 px on llvmpipe, 1/16 on
+    # some GPUs) and rounds them to float32: pad by more than either, so every pixel centre
+    # the element may own gets a fragment and the fragment stage's tie rule decides
+    W, H = cam.size
+    return 2.0 * sag + COVER_PAD_PX + 1e-6 * (np.abs(uv).max(axis=(1, 2)) + W + H)
+
+
+def _projectable_covers(cam: Camera, Xd: np.ndarray) -> np.ndarray:
+    """Covers of elements whose corners all project: the convex hull of the corners is bounded
+    by the six corner segments, whose pinhole images are straight and which the distortion
+    bends. Each segment is distorted at its ends and midpoint; where no midpoint strays more
+    than COVER_COARSE_SAG_PX from its chord, the rectangle holds corners and midpoints padded
+    by twice the largest such sagitta, else the segments are sampled at COVER_FINE_INTERVALS
+    intervals and padded by twice the largest sagitta between samples."""
+    k, intr = cam.distortion.coeffs, cam.intrinsics
+    M = len(Xd)
+    xn = Xd[..., :2] / Xd[..., 2:3]
+    i, j = np.array(COVER_SEGMENTS).T
+    uvc = normalized_to_pixel(distort(xn, k), intr)
+    uvm = normalized_to_pixel(distort(0.5 * (xn[:, i] + xn[:, j]), k), intr)
+    sag = np.linalg.norm(uvm - 0.5 * (uvc[:, i] + uvc[:, j]), axis=-1).max(axis=1)
+    a = (uvc[:, 1] - uvc[:, 0]) + (uvc[:, 2] - uvc[:, 3])
+    norm = np.linalg.norm(a, axis=1, keepdims=True)
+    a = np.where(norm > 0, a / np.where(norm > 0, norm, 1.0), [1.0, 0.0])
+    pts = np.concatenate([uvc, uvm], axis=1)
+    rect = np.empty((M, 4, 2))
+    coarse = sag <= COVER_COARSE_SAG_PX
+    rect[coarse] = _oriented_rect(pts[coarse], a[coarse], _pad(cam, pts[coarse], sag[coarse]))
+    fine = np.flatnonzero(~coarse)
+    if fine.size:
+        n = COVER_FINE_INTERVALS
+        t = np.linspace(0.0, 1.0, n + 1)[:, None]
+        x = xn[fine]
+        seg = np.stack([x[:, None, a_] + t[None] * (x[:, None, b_] - x[:, None, a_]) for a_, b_ in COVER_SEGMENTS], 1)
+        uvs = normalized_to_pixel(distort(seg, k), intr)                           # (f, 6, n + 1, 2)
+        mids = normalized_to_pixel(distort(0.5 * (seg[:, :, :-1] + seg[:, :, 1:]), k), intr)
+        sag_f = np.linalg.norm(mids - 0.5 * (uvs[:, :, :-1] + uvs[:, :, 1:]), axis=-1).reshape(len(fine), -1).max(1)
+        uvs = uvs.reshape(len(fine), -1, 2)
+        rect[fine] = _oriented_rect(uvs, a[fine], _pad(cam, uvs, sag_f))
+    return rect
+
+
+def footprint_box(Xd: np.ndarray, radius: float):
+    """Bounding box [x0, y0, x1, y1] (m, 4) in normalized undistorted coordinates of the rays
+    (x, y, 1) that can meet an element which does not project (a corner behind the camera
+    or beyond the valid radius), clipped to |x|, |y| ≤ ``radius`` (no sample's ray lies
+    beyond it): the element lies in the convex hull of its corners, whose rays are the
+    projections of the corners in front of the camera plus, for each corner i in front and
+    j behind, the direction z_i·P_j − z_j·P_i of their segment's crossing of the plane (a
+    point at infinity)."""
+    z = Xd[..., 2]
+    front = z > 0
+    with np.errstate(divide="ignore", invalid="ignore"):
+        p = Xd[..., :2] / np.where(front, z, 1.0)[..., None]
+    lo = np.where(front[..., None], p, np.inf).min(axis=1)
+    hi = np.where(front[..., None], p, -np.inf).max(axis=1)
+    for i in range(4):
+        for j in range(4):
+            cross = front[:, i] & ~front[:, j]
+            d = z[:, i, None] * Xd[:, j, :2] - z[:, j, None] * Xd[:, i, :2]
+            zero = cross & (d == 0).all(axis=1)
+            lo = np.where((cross[:, None] & (d < 0)) | zero[:, None], -np.inf, lo)
+            hi = np.where((cross[:, None] & (d > 0)) | zero[:, None], np.inf, hi)
+    lo, hi = np.maximum(lo, -radius), np.minimum(hi, radius)
+    return np.concatenate([lo, hi], axis=1)
+
+
+def _unprojectable_covers(cam: Camera, Xd: np.ndarray, radius: float):
+    """Covers (m, 4, 2) and visibility (m,) of elements that do not project: the boundary of
+    their footprint box (:func:`footprint_box`), each sample pulled radially onto the disc of
+    ``radius`` (which then also covers the disc's boundary inside the box), distorted, and
+    padded by twice the largest sagitta between samples."""
+    k, intr = cam.distortion.coeffs, cam.intrinsics
+    W, H = cam.size
+    m = len(Xd)
+    if not np.isfinite(radius):  # nothing bounds the rays: the whole image
+        rect = np.broadcast_to(np.array([(-0.5, -0.5), (W - 0.5, -0.5), (W - 0.5, H - 0.5), (-0.5, H - 0.5)]),
+                               (m, 4, 2)).copy()
+        return rect, np.ones(m, bool)
+    box = footprint_box(Xd, radius)
+    seen = (box[:, 0] <= box[:, 2]) & (box[:, 1] <= box[:, 3])
+    box = np.where(seen[:, None], box, 0.0)
+    corners = box[:, [[0, 1], [2, 1], [2, 3], [0, 3]]]                                     # (m, 4, 2)
+    n = COVER_BOUNDARY_INTERVALS
+    t = (np.arange(2 * n) / (2 * n))[:, None]
+    sides = np.concatenate([corners[:, s, None] + t[None] * (corners[:, (s + 1) % 4, None] - corners[:, s, None])
+                            for s in range(4)], axis=1)                                      # (m, 8n, 2)
+    r = np.linalg.norm(sides, axis=-1, keepdims=True)
+    sides = sides * np.minimum(1.0, radius / np.where(r > 0, r, 1.0))
+    uv = normalized_to_pixel(distort(sides, k), intr)
+    pts, mids = uv[:, 0::2], uv[:, 1::2]
+    sag = np.linalg.norm(mids - 0.5 * (pts + np.roll(pts, -1, axis=1)), axis=-1).max(axis=1)
+    rect = _oriented_rect(uv, np.broadcast_to([1.0, 0.0], (m, 2)), _pad(cam, uv, sag))
+    return rect, seen
+
+
+def cover_rectangles(cam: Camera, Xd: np.ndarray, projectable: np.ndarray, behind: np.ndarray):
+    """Conservative covers of each element's distorted image: a rectangle (M, 4, 2) px (the
+    exact mode rasterizes it; ``shaders/view.glsl`` computes the same on the GPU) and its
+    pixel box [u0, v0, u1, v1] (M, 4), empty (u1 < u0) where the element cannot be seen.
+
+    Projectable elements: :func:`_projectable_covers`. Elements that do not project but are
+    not wholly behind the camera: :func:`_unprojectable_covers`, bounded by the rays the
+    image's samples can have (:func:`ray_radius`), so that an element beyond the valid radius
+    or crossing the camera plane is not tested against the whole image. Computed in chunks
+    of CHUNK_ELEMENTS elements.
+    """
+    M = len(Xd)
+    W, H = cam.size
+    rect = np.zeros((M, 4, 2))
+    seen = ~behind.copy()
+    radius = ray_radius(cam)
+    for s in range(0, M, CHUNK_ELEMENTS):
+        sl = slice(s, min(M, s + CHUNK_ELEMENTS))
+        p = np.flatnonzero(projectable[sl]) + s
+        if p.size:
+            rect[p] = _projectable_covers(cam, Xd[p])
+        u = np.flatnonzero(~projectable[sl] & ~behind[sl]) + s
+        if u.size:
+            rect[u], seen[u] = _unprojectable_covers(cam, Xd[u], radius)
     box = np.empty((M, 4), dtype=np.int64)  # pixels whose area meets the rectangle (any spp)
     box[:, :2] = np.clip(np.ceil(rect.min(axis=1) - 0.5), 0, [W, H])
     box[:, 2:] = np.clip(np.floor(rect.max(axis=1) + 0.5), -1, [W - 1, H - 1])
-    box[behind] = (0, 0, -1, -1)
+    box[~seen] = (0, 0, -1, -1)
     return rect, box
 
 
+# ---- the view --------------------------------------------------------------------------------
+def check_reference(ref_ok: np.ndarray, element_labels: np.ndarray | None) -> None:
+    """Raise if the reference camera cannot project every corner (ref_ok: (M, 4) or (M,))."""
+    ok = ref_ok.all(axis=1) if ref_ok.ndim == 2 else ref_ok
+    if not ok.all():
+        bad = np.flatnonzero(~ok)
+        raise SceneError("speckle.camera", f"the reference camera cannot see elements "
+                         f"{_labels(bad, element_labels)}", "place it so the whole undeformed specimen "
+                         "is in front of it and inside its distortion model's valid radius")
+
+
 def make_view(cam: Camera, ref_cam: Camera, nodes_ref: np.ndarray, nodes_def: np.ndarray,
-              quads: np.ndarray, element_labels: np.ndarray | None = None) -> View:
+              quads: np.ndarray, element_labels: np.ndarray | None = None, warn: bool = True) -> View:
     """Build the :class:`View` of the deformed nodes (world, mm) seen by ``cam``.
 
     ``nodes_ref`` are the undeformed nodes (world, mm), projected by ``ref_cam`` to the
-    reference image. Warns (naming elements) about elements that only the exact mode draws.
+    reference image. Warns (naming elements, :func:`warn_problems`) about degenerate elements
+    and elements that only the exact mode draws, unless ``warn`` is False.
     """
     Xd = to_camera(nodes_def, cam)[quads]
     Xr = to_camera(nodes_ref, ref_cam)[quads]
     uv, ok = project_camera_frame(Xd, cam)
     ref_uv, ref_ok = project_camera_frame(Xr, ref_cam)
-    if not ref_ok.all():
-        bad = np.flatnonzero(~ref_ok.all(axis=1))
-        raise SceneError("speckle.camera", f"the reference camera cannot see elements "
-                         f"{_labels(bad, element_labels)}", "place it so the whole undeformed specimen "
-                         "is in front of it and inside its distortion model's valid radius")
-    _warn_shape(cam, Xd, element_labels)
+    check_reference(ref_ok, element_labels)
     projectable = ok.all(axis=1)
     behind = (Xd[..., 2] <= NEAR_MM).all(axis=1)
-    if (~projectable & ~behind).any():
-        bad = np.flatnonzero(~projectable & ~behind)
-        warnings.warn(f"camera {cam.name}: elements {_labels(bad, element_labels)} cross the camera "
-                      "plane or leave the distortion model's valid radius; the fast and q4 modes "
-                      "drop them, the exact mode intersects them per pixel", RenderWarning, stacklevel=3)
+    if warn:
+        shape = shape_problems(Xd)
+        problems = {**shape, "grazing": grazing(Xd) & ~shape["excluded"], "unprojectable": ~projectable & ~behind}
+        warn_problems(cam, problems, element_labels)
     zmax = float(Xd[..., 2].max()) if len(Xd) else 1.0
-    cover, bbox = _cover(cam, Xd, projectable, behind)
+    cover, bbox = cover_rectangles(cam, Xd, projectable, behind)
     return View(camera=cam, ref_camera=ref_cam, Xd=Xd, Xr=Xr, uv=uv, ref_uv=ref_uv,
                 projectable=projectable, cover=cover, bbox=bbox, far=max(zmax, NEAR_MM) * 1.5)
 
 
-def _warn_shape(cam: Camera, Xd: np.ndarray, labels: np.ndarray | None) -> None:
-    """Warn about zero-area, tiny, folded (bow-tie / inverted) and grazing elements, naming
-    each element once, under its first problem in that order. Areas are relative to the
-    mesh's median element."""
-    n1 = np.cross(Xd[:, 1] - Xd[:, 0], Xd[:, 2] - Xd[:, 0])
-    n2 = np.cross(Xd[:, 2] - Xd[:, 0], Xd[:, 3] - Xd[:, 0])
+# ---- warnings ---------------------------------------------------------------------------------
+def element_areas(X: np.ndarray):
+    """Areas (M,) of the two triangles (0, 1, 2) + (0, 2, 3) and whether their normals oppose
+    (a bow-tie or inverted element); invariant under rigid motions, so once per load step."""
+    n1 = np.cross(X[:, 1] - X[:, 0], X[:, 2] - X[:, 0])
+    n2 = np.cross(X[:, 2] - X[:, 0], X[:, 3] - X[:, 0])
     area = 0.5 * (np.linalg.norm(n1, axis=1) + np.linalg.norm(n2, axis=1))
+    return area, (n1 * n2).sum(axis=1) < 0
+
+
+def shape_problems(X: np.ndarray, chunk: int = CHUNK_ELEMENTS) -> dict[str, np.ndarray]:
+    """Zero-area, tiny and folded elements (bool (M,) each, exclusive in that order), relative
+    to the mesh's median element area, from the corners X (M, 4, 3) in any Cartesian frame;
+    ``excluded`` is their union (such elements are not also named as grazing)."""
+    M = len(X)
+    area, opposed = np.empty(M), np.empty(M, bool)
+    for s in range(0, M, chunk):
+        area[s:s + chunk], opposed[s:s + chunk] = element_areas(X[s:s + chunk])
     positive = area[area > 0]
     median = float(np.median(positive)) if positive.size else 0.0
     zero = area <= ZERO_AREA_REL * median
     tiny = ~zero & (area <= TINY_AREA_REL * median)
-    folded = ~zero & ~tiny & ((n1 * n2).sum(axis=1) < 0)
-    view = Xd.mean(axis=1)  # from the camera (at the origin) to the element's centre
-    normal = np.cross(Xd[:, 2] - Xd[:, 0], Xd[:, 3] - Xd[:, 1])
-    cos = np.abs((normal * view).sum(1)) / np.maximum(np.linalg.norm(normal, axis=1) * np.linalg.norm(view, axis=1),
-                                                        1e-300)
-    grazing = ~zero & ~tiny & ~folded & (cos < GRAZING_COS)
-    for bad, what in ((zero, "have zero area"),
-                      (tiny, f"are tiny (area below {TINY_AREA_REL:g} of the median element's)"),
-                      (folded, "are folded (inverted or bow-tie)"),
-                      (grazing, f"are seen at more than {GRAZING_DEG:g}° from their normal (grazing): "
-                                "the fast and q4 modes' mapping error grows there")):
-        if bad.any():
-            warnings.warn(f"camera {cam.name}: elements {_labels(np.flatnonzero(bad), labels)} {what}; "
+    folded = ~zero & ~tiny & opposed
+    return {"zero": zero, "tiny": tiny, "folded": folded, "excluded": zero | tiny | folded}
+
+
+def grazing(Xd: np.ndarray, chunk: int = CHUNK_ELEMENTS) -> np.ndarray:
+    """Elements seen at more than GRAZING_DEG from their normal (bool (M,)), from the corners
+    in the camera frame (the camera at the origin)."""
+    out = np.empty(len(Xd), bool)
+    for s in range(0, len(Xd), chunk):
+        X = Xd[s:s + chunk]
+        view = X.mean(axis=1)  # from the camera (at the origin) to the element's centre
+        normal = np.cross(X[:, 2] - X[:, 0], X[:, 3] - X[:, 1])
+        cos = np.abs((normal * view).sum(1)) / np.maximum(np.linalg.norm(normal, axis=1) * np.linalg.norm(view, axis=1),
+                                                            1e-300)
+        out[s:s + chunk] = cos < GRAZING_COS
+    return out
+
+
+def warn_problems(cam: Camera, problems: dict, labels: np.ndarray | None, stacklevel: int = 4) -> None:
+    """The element warnings of one view: zero area, tiny, folded, grazing (each element named
+    once, under its first problem) and elements that cross the camera plane or leave the
+    valid radius. ``problems`` maps those names to bool masks (M,) or sorted index arrays."""
+    def idx(a):
+        a = np.asarray(a)
+        return np.flatnonzero(a) if a.dtype == bool else a
+
+    for key, what in (("zero", "have zero area"),
+                      ("tiny", f"are tiny (area below {TINY_AREA_REL:g} of the median element's)"),
+                      ("folded", "are folded (inverted or bow-tie)"),
+                      ("grazing", f"are seen at more than {GRAZING_DEG:g}° from their normal (grazing): "
+                                  "the fast and q4 modes' mapping error grows there")):
+        bad = idx(problems.get(key, ()))
+        if bad.size:
+            warnings.warn(f"camera {cam.name}: elements {_labels(bad, labels)} {what}; "
                           "their pixels stay finite and consistent; check the mesh or the view",
-                          RenderWarning, stacklevel=3)
+                          RenderWarning, stacklevel=stacklevel)
+    bad = idx(problems.get("unprojectable", ()))
+    if bad.size:
+        warnings.warn(f"camera {cam.name}: elements {_labels(bad, labels)} cross the camera "
+                      "plane or leave the distortion model's valid radius; the fast and q4 modes "
+                      "drop them, the exact mode intersects them per pixel", RenderWarning, stacklevel=stacklevel)
 
 
 def warn_dropped(cam: Camera, count: int, s: int) -> None:
@@ -165,6 +349,6 @@ def warn_dropped(cam: Camera, count: int, s: int) -> None:
 
 
 def _labels(idx: np.ndarray, labels: np.ndarray | None, most: int = 8) -> str:
-    names = (labels[idx] if labels is not None else idx).tolist()
-    more = f" and {len(names) - most} more" if len(names) > most else ""
+    names = (labels[idx[:most + 1]] if labels is not None else idx[:most + 1]).tolist()
+    more = f" and {len(idx) - most} more" if len(idx) > most else ""
     return ", ".join(map(str, names[:most])) + more

@@ -1,4 +1,8 @@
-"""backend="gl": rasterize a :class:`~glsim.geometry.View` with OpenGL shaders.
+"""backend="gl": render a :class:`~glsim.stages.geometry.ViewSpec` with OpenGL shaders.
+
+The mesh is uploaded once per renderer and the deformed nodes once per load step
+(:mod:`glsim.backends.gl.geometry`); per view the CPU sets uniforms and issues a compute
+dispatch (modes exact and q4: element records, cover rectangles) and one draw call.
 
 Passes, each only when the scene asks for it: the exact mode's per-camera ray map (cached);
 the deformation pass at s×s samples per pixel (reference sampling, lighting, truth maps, depth)
@@ -17,12 +21,11 @@ from glsim.effects.dof import kernel_radius, shader_uniforms
 from glsim.effects import Effects
 from glsim.scene.camera import pixel_to_normalized, undistort
 from glsim.stages import truth
-from glsim.stages.view import View, warn_dropped
+from glsim.stages.geometry import ViewSpec
+from glsim.stages.view import warn_dropped, warn_problems
 from glsim.backends.gl.context import check_error, create_context
+from glsim.backends.gl.geometry import GeometryBuffers
 from glsim.backends.gl.programs import ProgramCache
-
-_CORNER_XE = np.array([[-1, -1], [1, -1], [1, 1], [-1, 1]], np.float32)
-_TRIANGLES = np.array([0, 1, 2, 0, 2, 3], np.int32)
 
 
 def program_defines(opts, truth: bool, fp64: bool, fx=None) -> dict:
@@ -44,20 +47,13 @@ def program_defines(opts, truth: bool, fp64: bool, fx=None) -> dict:
     return d
 
 
-def element_data(view: View, mode: str, dtype) -> np.ndarray:
-    """Per-element storage-buffer payload: q4 → uv (8), ref uv (8), Z (4); exact → Xd (12), Xr (12)."""
-    M = len(view.Xd)
-    if mode == "q4":
-        parts = [view.uv.reshape(M, 8), view.ref_uv.reshape(M, 8), view.Xd[..., 2]]
-    else:
-        parts = [view.Xd.reshape(M, 12), view.Xr.reshape(M, 12)]
-    return np.ascontiguousarray(np.concatenate(parts, axis=1), dtype=dtype)
-
-
-def shading_data(view: View, normals: np.ndarray) -> np.ndarray:
-    """Per-element lighting payload (float32): corners in the camera frame (12), normals (12)."""
-    M = len(view.Xd)
-    return np.ascontiguousarray(np.concatenate([view.Xd.reshape(M, 12), normals.reshape(M, 12)], 1),
+def shading_data(view: ViewSpec, normals: np.ndarray) -> np.ndarray:
+    """Per-element lighting payload (float32): corners in the camera frame (12), normals (12).
+    O(M) on the CPU per view: lighting is the one effect whose per-element data are not yet
+    computed on the GPU."""
+    Xd = view.corners()
+    M = len(Xd)
+    return np.ascontiguousarray(np.concatenate([Xd.reshape(M, 12), normals.reshape(M, 12)], 1),
                                 dtype=np.float32)
 
 
@@ -95,6 +91,7 @@ class GLBackend:
         self._textures: dict[str, object] = {}
         self._targets: dict[tuple, tuple] = {}
         self._rays: dict[tuple, object] = {}
+        self.geometry: GeometryBuffers | None = None  # the mesh's buffers (one mesh at a time)
 
     # ---- resources -------------------------------------------------------------------------
     def _reference_texture(self, method: str):
@@ -141,6 +138,9 @@ class GLBackend:
         self._targets.clear()
         self._textures.clear()
         self._rays.clear()
+        if self.geometry is not None:
+            self.geometry.release()
+            self.geometry = None
         self.programs.release()
         if self._own_ctx:
             self.ctx.release()
@@ -151,30 +151,15 @@ class GLBackend:
         if name in prog:
             prog[name].write(np.asarray(values, dtype="f8" if fp64 else "f4").tobytes())
 
-    def _geometry(self, view: View, mode: str):
-        """Vertex data (unshared corners) and the triangle indices of the drawn elements."""
-        M = len(view.Xd)
-        elem = np.repeat(np.arange(M, dtype=np.int32), 4)
-        if mode != "fast":  # padded cover rectangles; the fragment stage's tie rule decides coverage
-            seen = (view.bbox[:, 2] >= view.bbox[:, 0]) & (view.bbox[:, 3] >= view.bbox[:, 1])
-            drawn = np.flatnonzero(seen & (view.projectable if mode == "q4" else True))
-            verts = np.zeros(M * 4, dtype=[("px", "f4", 2), ("elem", "i4")])
-            verts["px"] = view.cover.reshape(-1, 2)
-            layout = "2f 1i"
-            attrs = ("in_px", "in_elem")
-        else:
-            drawn = np.flatnonzero(view.projectable)
-            verts = np.zeros(M * 4, dtype=[("pos", "f4", 3), ("ref", "f4", 2), ("xe", "f4", 2), ("elem", "i4")])
-            verts["pos"] = view.Xd.reshape(-1, 3)
-            verts["ref"] = view.ref_uv.reshape(-1, 2)
-            verts["xe"] = np.tile(_CORNER_XE, (M, 1))
-            layout = "3f 2f 2f 1i"
-            attrs = ("in_pos", "in_ref", "in_xe", "in_elem")
-        verts["elem"] = elem
-        index = (drawn[:, None] * 4 + _TRIANGLES[None]).astype(np.int32).ravel()
-        return verts, index, layout, attrs
+    def _buffers(self, view: ViewSpec) -> GeometryBuffers:
+        """The mesh's GL buffers (made when a renderer's mesh is first drawn on this backend)."""
+        if self.geometry is None or self.geometry.geo is not view.mesh_geo:
+            if self.geometry is not None:
+                self.geometry.release()
+            self.geometry = GeometryBuffers(self.ctx, self.programs, view.mesh_geo)
+        return self.geometry
 
-    def render_view(self, view: View, opts, truth: bool = False, effects=None):
+    def render_view(self, view: ViewSpec, opts, truth: bool = False, effects=None):
         """Image (H, W) float32, the pixel-centre raster if ``truth`` (as the CPU backend), and
         the list of passes run."""
         fx = effects or Effects()
@@ -207,7 +192,7 @@ class GLBackend:
             _, raster = self._deform(view, replace(opts, samples_per_pixel=1), 1, True, Effects(), warn=False)
         return image, raster, stages
 
-    def _deform(self, view: View, opts, s: int, truth: bool, fx, warn: bool = True):
+    def _deform(self, view: ViewSpec, opts, s: int, truth: bool, fx, warn: bool = True):
         """The deformation pass into the cached target; returns its color textures and, if
         ``truth``, the read-back raster."""
         ctx = self.ctx
@@ -216,10 +201,19 @@ class GLBackend:
         defines = program_defines(opts, truth, self.fp64, fx)
         fp64 = "FP64" in defines
         vert = "deform.vert" if opts.mode == "fast" else "exact.vert"
+        geo = self._buffers(view)
+
+        def camera_uniforms(p):
+            self._set(p, "u_intr", cam.intrinsics, fp64)
+            self._set(p, "u_dist", cam.distortion.coeffs, fp64)
+            self._set(p, "u_valid_r2", [cam.distortion.valid_radius() ** 2], fp64)
+
+        if opts.mode != "fast":  # element records and cover rectangles of this view, on the GPU
+            geo.view_pass(view, opts.mode, fp64, camera_uniforms)
         prog = self.programs.program(vert, "deform.frag", defines=defines)
-        self._set(prog, "u_intr", cam.intrinsics, fp64)
-        self._set(prog, "u_dist", cam.distortion.coeffs, fp64)
-        self._set(prog, "u_valid_r2", [cam.distortion.valid_radius() ** 2], fp64)
+        geo.bind(view, fp64)
+        geo.set_uniforms(prog, view, fp64)
+        camera_uniforms(prog)
         self._set(prog, "u_ref_intr", ref_cam.intrinsics, fp64)
         self._set(prog, "u_ref_dist", ref_cam.distortion.coeffs, fp64)
         self._set(prog, "u_ref_valid_r2", [ref_cam.distortion.valid_radius() ** 2], fp64)
@@ -246,12 +240,6 @@ class GLBackend:
             self._ray_map(cam, s, fp64).use(1)
             prog["u_rays"].value = 1
 
-        verts, index, layout, attrs = self._geometry(view, opts.mode)
-        vbo = ctx.buffer(verts.tobytes())
-        buffers.append(vbo)
-        if opts.mode != "fast":
-            buffers.append(ctx.buffer(element_data(view, opts.mode, np.float64 if fp64 else np.float32).tobytes()))
-            buffers[-1].bind_to_storage_buffer(0)
         fbo, color, _, grey_only = self._target(W * s, H * s, truth, "DEPTH_OUT" in defines)
         # the grey target starts at the background; truth and depth targets at zero
         fbo.clear(0.0, 0.0, 0.0, 0.0, depth=1.0)
@@ -260,19 +248,13 @@ class GLBackend:
         fbo.viewport = (0, 0, W * s, H * s)
         ctx.enable(ctx.DEPTH_TEST)
         ctx.disable(ctx.CULL_FACE)
-        if len(index):
-            ibo = ctx.buffer(index.tobytes())
-            buffers.append(ibo)
-            # attributes the compiled program does not use become padding
-            fmt = " ".join(f if a in prog else f"{int(f[:-1]) * 4}x" for f, a in zip(layout.split(), attrs))
-            used = [a for a in attrs if a in prog]
-            vao = ctx.vertex_array(prog, [(vbo, fmt, *used)], index_buffer=ibo, index_element_size=4)
-            vao.render(ctx.TRIANGLES, vertices=len(index))
-            vao.release()
+        geo.draw(prog)
         ctx.disable(ctx.DEPTH_TEST)
         check_error(ctx, f"deformation pass ({opts.mode})")
+        ctx.memory_barrier()  # shader storage writes visible to the read-backs
+        problems = geo.problems(view)  # read (and cleared) after every pass
         if warn:
-            ctx.memory_barrier()  # shader storage writes visible to the read-back
+            warn_problems(cam, problems, view.mesh_geo.labels, stacklevel=5)
             warn_dropped(cam, int(np.frombuffer(dropped.read(), np.uint32)[0]), s)
         for b in buffers:
             b.release()
@@ -284,7 +266,7 @@ class GLBackend:
         raster = {"element": elem, "xi": m[:, 2], "eta": m[:, 3], "ref_uv": m[:, :2] + x[:, 1:3]}
         return color, self._float64_truth(view, opts.mode, raster, fp64)
 
-    def _float64_truth(self, view: View, mode: str, raster: dict, fp64: bool) -> dict:
+    def _float64_truth(self, view: ViewSpec, mode: str, raster: dict, fp64: bool) -> dict:
         """Replace the float32 (ξ, η) read back by float64 ones (glsim.stages.truth): two Newton
         steps on the pixel's ray (exact; the ray map's hi/lo pair in fp64 builds) or pixel
         (q4); in fast mode the material point the reference camera sees at ``ref_uv``."""
@@ -293,6 +275,8 @@ class GLBackend:
             return raster
         W, H = view.camera.size
         e, xi, eta = raster["element"][hit], raster["xi"][hit], raster["eta"][hit]
+        elements, e = np.unique(e, return_inverse=True)
+        view = view.subset(elements)   # the covered elements' numpy view only
         if mode == "exact":
             key = (view.camera.size, tuple(view.camera.intrinsics), tuple(view.camera.distortion.coeffs), 1, fp64)
             if fp64 and key in self._rays:

@@ -1,0 +1,177 @@
+"""The mesh on the GPU: uploaded once per renderer and once per load step; per view only uniforms,
+one compute dispatch (modes exact and q4) and one draw call.
+
+Buffers (std430 bindings, see ``shaders/view.glsl``): 5 connectivity (ivec4 per element),
+6 the step's deformed nodes relative to the mesh's origin, 7 reference-image coordinates per
+node, 8 undeformed nodes in the reference camera's frame, 10 the warnings' bitsets, 11 the
+step's zero-area/tiny/folded bitset; per view, written by ``view.comp``: 0 the element records
+deform.frag reads, 9 the cover rectangles exact.vert draws. Node data exist in float64 for
+FP64 programs and float32 for the others, each made when first needed.
+
+The CPU work per view does not depend on the element count: uniforms, a dispatch, a draw with
+an index buffer made once, and a 16-byte read of the "any problem" markers (the bitsets are
+read, and cleared, only when an element has a problem to name).
+"""
+from __future__ import annotations
+
+from collections import OrderedDict
+
+import numpy as np
+
+from glsim.stages.geometry import STEPS_KEPT, MeshGeometry, ViewSpec
+from glsim.stages.view import GRAZING_COS, NEAR_MM, ray_radius
+
+_CORNERS = np.array([0, 1, 2, 0, 2, 3], np.uint32)  # two triangles per element, as the oracle's fast mode
+_GROUP = 64          # view.comp's local size
+_MAX_GROUPS = 65535  # per dispatch dimension
+
+
+def _bitset_words(M: int) -> int:
+    return max(1, (M + 31) // 32)
+
+
+def pack_bits(mask: np.ndarray) -> np.ndarray:
+    """A bool mask (M,) as little-endian uint32 words (bit e of word e // 32)."""
+    words = _bitset_words(len(mask))
+    out = np.zeros(words * 4, np.uint8)
+    packed = np.packbits(mask, bitorder="little")
+    out[:len(packed)] = packed
+    return out.view("<u4")
+
+
+def unpack_bits(words: bytes, M: int) -> np.ndarray:
+    return np.unpackbits(np.frombuffer(words, np.uint8), bitorder="little")[:M].astype(bool)
+
+
+class GeometryBuffers:
+    """The GL buffers of one :class:`~glsim.stages.geometry.MeshGeometry` on one context."""
+
+    def __init__(self, ctx, programs, geo: MeshGeometry):
+        self.ctx = ctx
+        self.programs = programs
+        self.geo = geo
+        self.M = len(geo.quads)
+        self._bufs: dict = {}
+        self._steps: OrderedDict = OrderedDict()
+        self.uploads = {"mesh": 0, "step": 0}   # what was uploaded (tests)
+        self.view_passes = 0
+
+    # ---- uploads ---------------------------------------------------------------------------
+    def _buffer(self, key, make):
+        if key not in self._bufs:
+            self._bufs[key] = make()
+        return self._bufs[key]
+
+    def _mesh_buffers(self, fp64: bool):
+        geo, ctx = self.geo, self.ctx
+        dt = np.float64 if fp64 else np.float32
+        quads = self._buffer("quads", lambda: ctx.buffer(np.ascontiguousarray(geo.quads, np.int32).tobytes()))
+        if ("ref_uv", fp64) not in self._bufs:
+            Xr, ref_uv = geo.reference()   # raises here if the reference camera cannot see the mesh
+            self._bufs["ref_uv", fp64] = ctx.buffer(np.ascontiguousarray(ref_uv, dt).tobytes())
+            self._bufs["ref_xr", fp64] = ctx.buffer(np.ascontiguousarray(Xr, dt).tobytes())
+            self.uploads["mesh"] += 1
+        words = _bitset_words(self.M)
+        flags = self._buffer("flags", lambda: ctx.buffer(bytes(16 + 8 * words)))
+        return quads, self._bufs["ref_uv", fp64], self._bufs["ref_xr", fp64], flags
+
+    def index_buffer(self):
+        """Six indices per element into the 4 M attribute-less vertices (made once)."""
+        def make():
+            idx = (np.arange(self.M, dtype=np.uint32)[:, None] * 4 + _CORNERS[None]).ravel()
+            return self.ctx.buffer(idx.tobytes())
+        return self._buffer("index", make)
+
+    def _step_buffers(self, view: ViewSpec, fp64: bool):
+        key = (view.step_geo.index, fp64)
+        if key in self._steps and self._steps[key][0] is view.step_geo:
+            self._steps.move_to_end(key)
+            return self._steps[key][1:]
+        if key in self._steps:
+            for b in self._steps.pop(key)[1:]:
+                b.release()
+        sg = view.step_geo
+        nodes = self.ctx.buffer(np.ascontiguousarray(sg.local, np.float64 if fp64 else np.float32).tobytes())
+        excluded = sg.shape()["excluded"]
+        has = bool(excluded.any())
+        bits = self.ctx.buffer(pack_bits(excluded).tobytes() if has else bytes(4))
+        self._steps[key] = (sg, nodes, bits, has)
+        self.uploads["step"] += 1
+        while len(self._steps) > 2 * STEPS_KEPT:
+            for b in self._steps.popitem(last=False)[1][1:3]:
+                b.release()
+        return nodes, bits, has
+
+    def bind(self, view: ViewSpec, fp64: bool) -> None:
+        """Upload what this view needs (at most once per renderer / step) and bind it."""
+        quads, ref_uv, ref_xr, flags = self._mesh_buffers(fp64)
+        nodes, bits, _ = self._step_buffers(view, fp64)
+        for binding, buf in ((5, quads), (6, nodes), (7, ref_uv), (8, ref_xr), (10, flags), (11, bits)):
+            buf.bind_to_storage_buffer(binding)
+
+    def set_uniforms(self, prog, view: ViewSpec, fp64: bool) -> None:
+        """The view's transform and the constants of view.glsl."""
+        _, _, has = self._step_buffers(view, fp64)
+        dt = "f8" if fp64 else "f4"
+        values = {"u_rot": view.rotation.ravel(), "u_trans": view.translation, "u_near": [NEAR_MM],
+                  "u_grazing_cos": [GRAZING_COS]}
+        r = ray_radius(view.camera)
+        values["u_ray_r"] = [r if np.isfinite(r) else -1.0]
+        for name, v in values.items():
+            if name in prog:
+                prog[name].write(np.asarray(v, dtype=dt).tobytes())
+        for name, v in (("u_excluded", int(has)), ("u_flag_words", _bitset_words(self.M)), ("u_count", self.M)):
+            if name in prog:
+                prog[name].value = v
+
+    # ---- the per-view pass -----------------------------------------------------------------
+    def view_pass(self, view: ViewSpec, mode: str, fp64: bool, camera_uniforms) -> None:
+        """view.comp: element records (binding 0) and cover rectangles (binding 9) of this view."""
+        defines = {f"MODE_{mode.upper()}": None, **({"FP64": None} if fp64 else {})}
+        prog = self.programs.compute("view.comp", defines)
+        self.bind(view, fp64)
+        self.set_uniforms(prog, view, fp64)
+        camera_uniforms(prog)
+        if "u_size" in prog:
+            prog["u_size"].value = tuple(float(x) for x in view.camera.size)
+        size = 8 if fp64 else 4
+        elem = self._buffer(("elem", fp64), lambda: self.ctx.buffer(reserve=max(1, self.M * 12 * size)))
+        cover = self._buffer("cover", lambda: self.ctx.buffer(reserve=max(1, self.M * 4 * 8)))
+        elem.bind_to_storage_buffer(0)
+        cover.bind_to_storage_buffer(9)
+        groups = (self.M + _GROUP - 1) // _GROUP
+        gx = min(groups, _MAX_GROUPS)
+        prog.run(group_x=gx, group_y=(groups + gx - 1) // gx)
+        self.ctx.memory_barrier()
+        self.view_passes += 1
+
+    def draw(self, prog) -> None:
+        """All elements' triangles (attribute-less vertices, the index buffer made once)."""
+        vao = self.ctx.vertex_array(prog, [], index_buffer=self.index_buffer(), index_element_size=4)
+        vao.render(self.ctx.TRIANGLES, vertices=6 * self.M)
+        vao.release()
+
+    def problems(self, view: ViewSpec) -> dict:
+        """This view's element problems: the step's shape problems and what the GPU marked
+        (grazing, does not project), as sorted index arrays. Reads 16 bytes, and the bitsets
+        (then cleared) only where something was marked."""
+        flags = self._bufs["flags"]
+        any_ = np.frombuffer(flags.read(size=16), np.uint32)
+        out = {k: v for k, v in view.step_geo.shape().items() if k != "excluded"}
+        if any_[:2].any():
+            words = _bitset_words(self.M)
+            bits = flags.read(size=8 * words, offset=16)
+            for k, name in enumerate(("grazing", "unprojectable")):
+                if any_[k]:
+                    out[name] = np.flatnonzero(unpack_bits(bits[4 * words * k:4 * words * (k + 1)], self.M))
+            flags.write(bytes(16 + 8 * words))
+        return out
+
+    def release(self) -> None:
+        for b in self._bufs.values():
+            b.release()
+        for entry in self._steps.values():
+            for b in entry[1:3]:
+                b.release()
+        self._bufs.clear()
+        self._steps.clear()

@@ -1,0 +1,170 @@
+"""The mesh as the GPU path holds it: uploaded once per renderer, per load step and per view.
+
+- :class:`MeshGeometry` (one per :class:`~glsim.render.Renderer`): the connectivity, the
+  reference camera's view of the undeformed nodes (camera-frame positions and reference-image
+  coordinates, per node) and a local origin; the reference check runs once.
+- :class:`StepGeometry` (one per load step, shared by every camera): the deformed nodes
+  relative to that origin in float64, a bounding sphere, and the shape problems that do not
+  depend on the camera (zero area, tiny, folded; relative to the step's median element).
+- :class:`ViewSpec` (one per image): the camera and the rigid transform from the local
+  frame to the camera frame, ``X_cam = R·(X − origin) + t``, computed in float64 from the
+  camera's pose: O(1) work. The backend derives everything per element on the GPU
+  (``shaders/view.glsl``); the numpy :class:`~glsim.stages.view.View` of the same view is
+  built only on demand (:meth:`ViewSpec.view`, :meth:`ViewSpec.subset`: truth polishing,
+  lighting), never for a plain render.
+"""
+from __future__ import annotations
+
+from collections import OrderedDict
+from dataclasses import dataclass
+
+import numpy as np
+
+from glsim.scene.camera import Camera, project_camera_frame, to_camera
+from glsim.stages.view import NEAR_MM, View, check_reference, make_view, shape_problems
+
+STEPS_KEPT = 2  # load steps whose deformed nodes stay cached (and uploaded)
+
+
+class MeshGeometry:
+    """A mesh and the reference camera, in the forms the per-view work starts from."""
+
+    def __init__(self, mesh, ref_camera: Camera):
+        self.mesh = mesh
+        self.ref_camera = ref_camera
+        used = np.unique(mesh.quads)
+        self.used_nodes = used
+        self.origin = mesh.nodes[used].mean(axis=0)
+        self._reference = None
+        self._steps: OrderedDict = OrderedDict()
+        self.step_builds = 0      # how many StepGeometry were made (tests)
+
+    @property
+    def quads(self) -> np.ndarray:
+        return self.mesh.quads
+
+    @property
+    def labels(self) -> np.ndarray:
+        return self.mesh.element_labels
+
+    def reference(self) -> tuple[np.ndarray, np.ndarray]:
+        """Per node: undeformed position in the reference camera's frame (N, 3) and its
+        reference-image coordinates (N, 2); raises (naming elements) if the reference camera
+        cannot see the whole specimen. Computed once."""
+        if self._reference is None:
+            Xr = to_camera(self.mesh.nodes, self.ref_camera)
+            ref_uv, ok = project_camera_frame(Xr, self.ref_camera)
+            check_reference(ok[self.mesh.quads], self.labels)
+            self._reference = (Xr, ref_uv)
+        return self._reference
+
+    def step(self, step: int) -> "StepGeometry":
+        """The :class:`StepGeometry` of load step ``step`` (cached for the last STEPS_KEPT steps)."""
+        if step in self._steps:
+            self._steps.move_to_end(step)
+            return self._steps[step]
+        geo = StepGeometry(self, step, self.mesh.deformed(step))
+        self.step_builds += 1
+        self._steps[step] = geo
+        while len(self._steps) > STEPS_KEPT:
+            self._steps.popitem(last=False)
+        return geo
+
+    def view(self, cam: Camera, step: int) -> "ViewSpec":
+        """The :class:`ViewSpec` of ``cam`` at ``step``: O(1) once the step is known."""
+        return ViewSpec(cam, self.ref_camera, self, self.step(step))
+
+
+class StepGeometry:
+    """One load step: deformed nodes relative to the mesh's origin (float64, (N, 3)), their
+    bounding sphere over the used nodes, and the camera-independent shape problems."""
+
+    def __init__(self, mesh_geo: MeshGeometry, step: int, deformed: np.ndarray):
+        self.mesh_geo = mesh_geo
+        self.index = step
+        self.deformed = deformed
+        self.local = deformed - mesh_geo.origin
+        used = self.local[mesh_geo.used_nodes]
+        self.centre = used.mean(axis=0)
+        self.radius = float(np.sqrt(((used - self.centre) ** 2).sum(axis=1).max()))
+        self._shape = None
+
+    def shape(self) -> dict[str, np.ndarray]:
+        """Zero-area, tiny and folded elements (:func:`glsim.stages.view.shape_problems`), from
+        the local frame (rigid motions leave them unchanged); computed once per step."""
+        if self._shape is None:
+            problems = shape_problems(_Corners(self.local, self.mesh_geo.quads))
+            self._shape = {k: (v if k == "excluded" else np.flatnonzero(v)) for k, v in problems.items()}
+        return self._shape
+
+
+class _Corners:
+    """``local[quads]`` sliced lazily (len and slicing only), so chunked callers never hold
+    the whole (M, 4, 3) array."""
+
+    def __init__(self, nodes: np.ndarray, quads: np.ndarray):
+        self.nodes, self.quads = nodes, quads
+
+    def __len__(self) -> int:
+        return len(self.quads)
+
+    def __getitem__(self, sl) -> np.ndarray:
+        return self.nodes[self.quads[sl]]
+
+
+@dataclass(frozen=True, eq=False)
+class ViewSpec:
+    """One camera's view of one step as the GPU path takes it: O(1) data.
+
+    ``rotation`` (3×3) and ``translation`` (3,) map the local frame (nodes − origin) to the
+    camera frame in float64; ``far`` bounds every corner's depth (from the step's bounding
+    sphere) with the same margin as :class:`~glsim.stages.view.View`.
+    """
+    camera: Camera
+    ref_camera: Camera
+    mesh_geo: MeshGeometry
+    step_geo: StepGeometry
+
+    @property
+    def rotation(self) -> np.ndarray:
+        return self.camera.rotation
+
+    @property
+    def translation(self) -> np.ndarray:
+        """The camera-frame position of the local origin, R·origin + t (float64)."""
+        return self.camera.rotation @ self.mesh_geo.origin + self.camera.translation
+
+    @property
+    def far(self) -> float:
+        zc = float(self.rotation[2] @ self.step_geo.centre + self.translation[2])
+        return max(zc + self.step_geo.radius, NEAR_MM) * 1.5
+
+    def corner_depths(self) -> np.ndarray:
+        """Camera-frame Z (mm) of every node the elements use: the same extremes as every
+        corner's (O(N), for the depth-of-field radius only)."""
+        used = self.step_geo.local[self.mesh_geo.used_nodes]
+        return used @ self.rotation[2] + self.translation[2]
+
+    def corners(self) -> np.ndarray:
+        """Every element's corners in the camera frame (M, 4, 3), O(M) numpy (lighting only)."""
+        return to_camera(self.step_geo.deformed, self.camera)[self.mesh_geo.quads]
+
+    def view(self) -> View:
+        """The full numpy :class:`View` (O(M); the oracle's input), without warnings."""
+        geo = self.mesh_geo
+        return make_view(self.camera, self.ref_camera, geo.mesh.nodes, self.step_geo.deformed, geo.quads,
+                         geo.labels, warn=False)
+
+    def subset(self, elements: np.ndarray) -> View:
+        """The numpy :class:`View` of ``elements`` only, O(len(elements)), for the truth
+        polishing of the pixels they cover: corners, projections and reference coordinates;
+        no covers (``cover`` zero, ``bbox`` empty)."""
+        geo = self.mesh_geo
+        q = geo.quads[elements]
+        Xd = to_camera(self.step_geo.deformed[q], self.camera)
+        uv, ok = project_camera_frame(Xd, self.camera)
+        Xr, ref_uv = geo.reference()
+        m = len(q)
+        return View(camera=self.camera, ref_camera=self.ref_camera, Xd=Xd, Xr=Xr[q], uv=uv, ref_uv=ref_uv[q],
+                    projectable=ok.all(axis=1), cover=np.zeros((m, 4, 2)),
+                    bbox=np.tile(np.array([0, 0, -1, -1], np.int64), (m, 1)), far=self.far)

@@ -1,0 +1,52 @@
+// Per-view element pass (modes exact and q4): from the mesh uploaded once and the step's nodes,
+// each element's record for deform.frag, its conservative cover rectangle for exact.vert
+// (glsim.stages.view.cover_rectangles) and its problems for the warnings. Compile-time:
+// MODE_Q4 or MODE_EXACT, FP64.
+#define COVER
+#include "camera.glsl"
+#include "view.glsl"
+
+layout(local_size_x = 64) in;
+
+uniform int u_count;        // elements
+uniform real u_valid_r2;
+
+// exact: corners in the camera frame (12, mm); q4: distorted pixel corners (8) and depths Z (4)
+layout(std430, binding = 0) writeonly buffer Elements { real elem_data[]; };
+layout(std430, binding = 9) writeonly buffer Cover { vec2 cover[]; };  // 4 corners per element (px)
+
+void main() {
+    int e = int((gl_WorkGroupID.y * gl_NumWorkGroups.x + gl_WorkGroupID.x) * gl_WorkGroupSize.x
+                + gl_LocalInvocationID.x);
+    if (e >= u_count) return;
+    real3 P[4];
+    element_corners(e, P);
+    bool projectable = corners_projectable(P, u_valid_r2);
+    bool behind = corners_behind(P);
+    record_flags(e, P, projectable, behind);
+    int b = 12 * e;
+#if defined(MODE_Q4)
+    for (int i = 0; i < 4; ++i) {
+        real2 uv;
+        project_camera_frame(P[i], u_intr, u_dist, u_valid_r2, uv);
+        elem_data[b + 2 * i] = uv.x;
+        elem_data[b + 2 * i + 1] = uv.y;
+        elem_data[b + 8 + i] = P[i].z;
+    }
+    bool drawn = projectable && !behind;   // q4 draws only elements that project
+#else
+    for (int i = 0; i < 4; ++i) {
+        elem_data[b + 3 * i] = P[i].x;
+        elem_data[b + 3 * i + 1] = P[i].y;
+        elem_data[b + 3 * i + 2] = P[i].z;
+    }
+    bool drawn = !behind;
+#endif
+    vec2 rect[4];
+    if (drawn) {
+        if (projectable) projectable_cover(P, rect);
+        else drawn = unprojectable_cover(P, rect);
+    }
+    if (!drawn) rect = vec2[4](vec2(-16.0), vec2(-16.0), vec2(-16.0), vec2(-16.0));  // zero area, culled
+    for (int i = 0; i < 4; ++i) cover[4 * e + i] = rect[i];
+}
