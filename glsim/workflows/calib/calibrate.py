@@ -25,8 +25,8 @@ from glsim.io.calibfiles import euler_xyz, write_rig_yaml
 from glsim.scene.camera import Camera, distort, normalized_to_pixel, pixel_rays, project
 from glsim.errors import SceneError
 from glsim.workflows.calib import library as libmod
-from glsim.workflows.calib.detect import VERSION as DETECTOR_VERSION, detect_dots
-from glsim.workflows.calib.targets import DotGrid
+from glsim.workflows.calib.detect import VERSION as DETECTOR_VERSION, default_method, detect_target
+from glsim.workflows.calib.targets import Charuco, Chessboard, DotGrid
 from glsim.workflows.calib.poses import rig_frame
 
 MODELS = {  # distortion terms estimated → OpenCV flags
@@ -206,14 +206,21 @@ def write_epipolar_png(path, u, v, d, title: str = "") -> Path:
 # --- a library end to end ----------------------------------------------------------------------
 
 def supported(lib: libmod.Library) -> None:
-    """SceneError unless ``calib run``/``study`` can calibrate the library's target."""
-    if not isinstance(lib.target, DotGrid):
+    """SceneError unless ``calib run``/``study`` can detect the library's target."""
+    if not isinstance(lib.target, (DotGrid, Chessboard, Charuco)):
         raise SceneError(str(lib.directory / "library.json"),
-                         f"holds a {type(lib.target).__name__} target; detection and calibration take dot grids only",
-                         "make a dot-grid library (`glsim calib library` draws DotGrid targets)")
+                         f"holds a {type(lib.target).__name__} target, which cannot be detected",
+                         "make a DotGrid, Chessboard or Charuco library")
+    t = lib.target
+    if isinstance(t, Chessboard) and (t.rows + t.cols) % 2 == 0:
+        raise SceneError(str(lib.directory / "library.json"),
+                         f"holds a {t.rows} × {t.cols} chessboard, which looks the same after a half turn: its corners "
+                         "cannot be numbered as the truth's", "use a board with rows + cols odd (e.g. 7 × 10 squares), "
+                         "or a ChArUco board")
 
 
-def cache_path(lib: libmod.Library, min_points: int, method: str = "fit") -> Path:
+def cache_path(lib: libmod.Library, min_points: int, method: str | None = None) -> Path:
+    method = method or default_method(lib.target)
     return lib.directory / f"detections_v{DETECTOR_VERSION}_{method}_min{min_points}.npz"
 
 
@@ -238,15 +245,18 @@ def image_checksums(lib: libmod.Library, pair: dict) -> list[str]:
 
 
 def detect_library(lib: libmod.Library, min_points: int, processes: int = 1, progress=None,
-                   method: str = "fit") -> dict:
+                   method: str | None = None) -> dict:
     """Detections of every pair: {pair index: (points of camera 1, of camera 2, …)}, each (N, 2)
     px with NaN rows where a dot was lost, or None where a camera's grid was not found.
 
+    ``method``: the dot estimator (detect.METHODS; default the model fit); chessboards and
+    ChArUco boards are found by OpenCV's detectors (detect.detect_chessboard/detect_charuco).
     Cached in ``detections_v{DETECTOR_VERSION}_{method}_min{min_points}.npz`` in the library,
     keyed by the SHA-256 of each pair's images: a pair whose images changed is detected again,
     a missing or damaged image is named (SceneError), never passed over from the cache. New
     pairs are added to the cache; delete it to detect again."""
     supported(lib)
+    method = method or default_method(lib.target)
     cache = cache_path(lib, min_points, method)
     done, keys = {}, {}
     if cache.is_file():
@@ -312,13 +322,14 @@ def _detect_job(job) -> tuple[int, object]:
     index, paths, bits, sizes, target, min_points, method = job
     target = libmod.target_from_dict(target)
     try:
-        dets = [detect_dots(_read_view(p, b, s), target, b, min_points, method) for p, b, s in zip(paths, bits, sizes)]
+        dets = [detect_target(_read_view(p, b, s), target, b, min_points, method) for p, b, s in zip(paths, bits, sizes)]
     except SceneError as exc:
         text = str(exc)
         key, _, rest = text.partition(": ")
         problem, _, fix = rest.partition(" — ")
         return index, (key, problem, fix)
-    return index, np.stack([d.points if d is not None else np.full((target.n_points, 2), np.nan) for d in dets])
+    n = len(target.points())
+    return index, np.stack([d.points if d is not None else np.full((n, 2), np.nan) for d in dets])
 
 
 def usable(detections: dict, pairs, min_points: int):
@@ -338,8 +349,8 @@ def usable(detections: dict, pairs, min_points: int):
 
 
 def default_min_points(target) -> int:
-    """Dots both views of a pair need by default: half the target's."""
-    return (target.n_points + 1) // 2
+    """Points (dots, corners) both views of a pair need by default: half the target's."""
+    return (len(target.points()) + 1) // 2
 
 
 def write_usable_library(rig, target, n_usable: int, out_dir, max_pairs: int | None = None,
@@ -411,7 +422,7 @@ def calibrate_pairs(lib: libmod.Library, detections: dict, pairs, model: str, mi
     idx = [np.flatnonzero(m) for _, m in use]
     pts = [[detections[i][c][m] for i, m in use] for c in (0, 1)]
     c = calibrate([obj[k] for k in idx], *pts, lib.cameras[0].size, model, [i for i, _ in use])
-    for _ in range(bias_iterations):
+    for _ in range(bias_iterations if isinstance(lib.target, DotGrid) else 0):   # corners have no such bias
         corrected = [[], []]
         for v, k in enumerate(idx):
             R1 = cv2.Rodrigues(c.rvecs[v])[0]
@@ -425,7 +436,7 @@ def calibrate_pairs(lib: libmod.Library, detections: dict, pairs, model: str, mi
 def detection_errors(lib: libmod.Library, detections: dict) -> dict:
     """Detected − true image position of every dot found, against the projected dot centre
     and against the true centroid of its image: mean |e|, RMS, max and mean vector (px)."""
-    e = {"projected": [], "centroid": []}
+    e = {"projected": [], "centroid": []} if isinstance(lib.target, DotGrid) else {"projected": []}
     for pair in lib.pairs:
         for c, cam in enumerate(lib.cameras):
             pts = detections[pair["pair"]][c]
@@ -496,8 +507,8 @@ def _residuals_csv(lib: libmod.Library, dets: dict, c: StereoCalibration) -> str
         for ci, cam in enumerate(lib.cameras):
             pts = dets[i][ci]
             truth = libmod.image_truth(lib, pair, cam)
-            ok = ~np.isnan(pts[:, 0]) if pts is not None else np.zeros(lib.target.n_points, bool)
-            err = {k: float(np.linalg.norm(pts[ok] - truth[k][ok], axis=1).mean()) if ok.any() else ""
+            ok = ~np.isnan(pts[:, 0]) if pts is not None else np.zeros(len(lib.target.points()), bool)
+            err = {k: float(np.linalg.norm(pts[ok] - truth[k][ok], axis=1).mean()) if ok.any() and k in truth else ""
                    for k in ("centroid", "projected")}
             w.writerow([i, pair["kind"], cam.name, int(i in rms), int(ok.sum()),
                         f"{rms[i][ci]:.6f}" if i in rms else "", err["centroid"], err["projected"]])

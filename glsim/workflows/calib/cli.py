@@ -178,8 +178,11 @@ def _run(a) -> int:
           f"max epipolar distance {rep['epipolar_max_px']:.4f} px")
     print("\n".join(error_lines(rep["errors"])))
     det = rep["detection"]
-    print(f"detection: mean |error| {det['centroid']['mean']:.4f} px against the true centroid, "
-          f"{det['projected']['mean']:.4f} px against the projected centre")
+    if "centroid" in det:
+        print(f"detection: mean |error| {det['centroid']['mean']:.4f} px against the true centroid, "
+              f"{det['projected']['mean']:.4f} px against the projected centre")
+    else:
+        print(f"detection: mean |error| {det['projected']['mean']:.4f} px against the projected corners")
     return 0
 
 

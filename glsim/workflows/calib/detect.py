@@ -27,7 +27,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from glsim.errors import SceneError
-from glsim.workflows.calib.targets import DotGrid
+from glsim.workflows.calib.targets import Charuco, Chessboard, DotGrid
 
 WINDOW = 0.45          # half-width of the start (and centroid) window, in local grid spacings
 ITERATIONS = 4         # centroid passes, each re-centring the window
@@ -637,3 +637,97 @@ def detect_dots(image: np.ndarray, target: DotGrid, bit_depth: int | None = None
     if ok.sum() < (target.n_points if min_points is None else min_points):
         return None
     return Detection(points=points, blobs=blobs, ok=ok)
+
+
+# --- chessboards and ChArUco boards ------------------------------------------------------------------
+
+def _gray8(image: np.ndarray) -> np.ndarray:
+    return np.clip(np.rint(image * 255), 0, 255).astype(np.uint8)
+
+
+def orient_chessboard(image: np.ndarray, corners: np.ndarray, target: Chessboard) -> np.ndarray | None:
+    """The permutation that puts findChessboardCorners' corners (R × C inner corners in its own
+    order) into the target's row-major order, or None if the board's squares do not say which.
+
+    Mirrors are excluded by handedness (as for dots); among the turns, the one whose squares
+    are dark where the board's are (the top-left square is dark) wins by the grey levels at the
+    square centres. A board with rows + cols even looks the same after a half turn: None."""
+    from scipy.ndimage import map_coordinates
+    R, C = target.rows - 1, target.cols - 1
+    best = []
+    for perm in grid_permutations(R, C):
+        g = corners[perm].reshape(R, C, 2)
+        e_col, e_row = (g[:, 1:] - g[:, :-1]).mean(axis=(0, 1)), (g[1:] - g[:-1]).mean(axis=(0, 1))
+        if e_col[0] * e_row[1] - e_col[1] * e_row[0] <= 0:
+            continue
+        centres = (g[:-1, :-1] + g[:-1, 1:] + g[1:, :-1] + g[1:, 1:]) / 4          # square (i + 1, j + 1)
+        grey = map_coordinates(image, [centres[..., 1].ravel(), centres[..., 0].ravel()], order=1).reshape(R - 1, C - 1)
+        i, j = np.indices(grey.shape)
+        dark = (i + j) % 2 == 0
+        best.append((float(grey[~dark].mean() - grey[dark].mean()), perm))
+    if not best:
+        return None
+    best.sort(key=lambda x: -x[0])
+    contrast = abs(target.light_grey - target.dark_grey)
+    if best[0][0] < 0.5 * contrast or (len(best) > 1 and best[1][0] > 0.5 * contrast):
+        return None
+    return best[0][1]
+
+
+def detect_chessboard(image: np.ndarray, target: Chessboard, bit_depth: int | None = None,
+                      min_points: int | None = None) -> Detection | None:
+    """Inner corners of ``target`` by cv2.findChessboardCornersSB (exhaustive, sub-pixel
+    accuracy), in the target's order (:func:`orient_chessboard`); None if not found or its
+    orientation is ambiguous. OpenCV needs every corner in view."""
+    import cv2
+    img = to_unit(image, bit_depth)
+    R, C = target.rows - 1, target.cols - 1
+    found, corners = cv2.findChessboardCornersSB(_gray8(img), (C, R),
+                                                 flags=cv2.CALIB_CB_EXHAUSTIVE | cv2.CALIB_CB_ACCURACY)
+    if not found:
+        return None
+    pts = corners.reshape(-1, 2).astype(np.float64)
+    perm = orient_chessboard(img, pts, target)
+    if perm is None:
+        return None
+    pts = pts[perm]
+    return Detection(points=pts, blobs=pts.copy(), ok=np.ones(len(pts), bool))
+
+
+def detect_charuco(image: np.ndarray, target: Charuco, bit_depth: int | None = None,
+                   min_points: int | None = None) -> Detection | None:
+    """ChArUco corners by cv2.aruco.CharucoDetector (markers identify the corners, so a part of
+    the board is enough), in the target's order (OpenCV's corner ids); NaN for corners not
+    found. None if fewer than ``min_points`` (default 4) are."""
+    import cv2
+    img = to_unit(image, bit_depth)
+    corners, ids, _, _ = cv2.aruco.CharucoDetector(target.board()).detectBoard(_gray8(img))
+    n = len(target.points())
+    if ids is None or len(ids) < max(min_points or 4, 4):
+        return None
+    pts = np.full((n, 2), np.nan)
+    pts[ids.ravel()] = corners.reshape(-1, 2)
+    return Detection(points=pts, blobs=pts.copy(), ok=~np.isnan(pts[:, 0]))
+
+
+def default_method(target) -> str:
+    """The detector used for ``target``: the model fit for dot grids, OpenCV's for boards."""
+    if isinstance(target, DotGrid):
+        return "fit"
+    if isinstance(target, Chessboard):
+        return "chessboard"
+    if isinstance(target, Charuco):
+        return "charuco"
+    raise SceneError("target", f"{type(target).__name__} cannot be detected", "use DotGrid, Chessboard or Charuco")
+
+
+def detect_target(image: np.ndarray, target, bit_depth: int | None = None, min_points: int | None = None,
+                  method: str | None = None) -> Detection | None:
+    """Detect any target: :func:`detect_dots` (``method``: one of METHODS), :func:`detect_chessboard`
+    or :func:`detect_charuco`."""
+    method = method or default_method(target)
+    if isinstance(target, DotGrid):
+        return detect_dots(image, target, bit_depth, min_points, method)
+    if isinstance(target, Chessboard):
+        return detect_chessboard(image, target, bit_depth, min_points)
+    return detect_charuco(image, target, bit_depth, min_points)

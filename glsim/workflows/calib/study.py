@@ -155,8 +155,7 @@ def run_study(study: str, library_dirs, out_csv, sizes=None, runs=None, seed: in
         runs = runs * len(sizes)
     if len(runs) != len(sizes):
         raise SceneError("runs", f"{len(runs)} run counts for {len(sizes)} sizes", "give one per size, or one for all")
-    n_points = next(iter(libs.values())).target.n_points
-    min_points = min_points or (n_points + 1) // 2
+    min_points = min_points or cal.default_min_points(next(iter(libs.values())).target)
     detections = {label: cal.detect_library(lib, min_points, processes) for label, lib in libs.items()}
 
     path = Path(out_csv)
