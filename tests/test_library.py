@@ -237,6 +237,23 @@ def test_a_reused_renderer_gives_the_bytes_of_a_fresh_one(tmp_path):
             assert (tmp_path / "x.tif").read_bytes() == (tmp_path / "lib" / "v0003" / f"{cam}_0002.tif").read_bytes()
 
 
+def test_float32_truth_png_images_and_no_truth(tmp_path):
+    spec = _spec(tmp_path, "steps = [1]\ncameras = ['cam1']\ntruth_dtype = 'float32'\n" + SCENE
+                 + "[scene.output]\nformat = 'png'\npattern = '{camera}/{step:02d}.{ext}'\n[vary]\nnoise.sigma = [1.0]\n")
+    s = run(load_plan(spec), tmp_path / "lib", workers=1)
+    assert s.written == 1 and verify(tmp_path / "lib") == (1, [])
+    t = T.load(tmp_path / "lib" / "v0000" / "cam1" / "01.truth")
+    assert t.header["dtype"] == "float32" and io.read_image(tmp_path / "lib" / "v0000" / "cam1" / "01.png").shape == (48, 64)
+    with Renderer(load_plan(spec).variants[0].scene) as r:
+        full = r.render("cam1", 1, truth=True).truth
+    assert np.nanmax(np.abs(t.xi - full.xi)) <= 2 ** -25
+    off = _spec(tmp_path, "truth = false\nsteps = [1]\n" + SCENE + "[vary]\nnoise.sigma = [1.0]\n", "off.toml")
+    s = run(load_plan(off), tmp_path / "off", workers=1)
+    rows = _manifest_rows(tmp_path / "off")
+    assert s.written == 2 and rows[0]["truth_file"] == "" and rows[0]["truth_bytes"] == "0"
+    assert not list((tmp_path / "off").rglob("*.truth")) and not (tmp_path / "off" / "geometry").exists()
+
+
 def test_one_and_two_workers_give_the_same_bytes_and_resume_renders_only_what_is_bad(reference_library, tmp_path,
                                                                                     capsys):
     spec, ref = reference_library
