@@ -582,3 +582,49 @@ def test_calib_run_on_chessboard_and_charuco_libraries(tmp_path, gl_ctx, capsys)
                                tmp_path / "sym", seed=2, spec=posemod.PoseSpec(fov="centre"), ctx=gl_ctx)
     err = _run_error(["run", str(bad.directory)], capsys)
     assert "7 × 9 chessboard" in err and "half turn" in err
+
+
+def test_settings_hash_takes_numbers_as_numbers():
+    assert libmod.settings_hash({"noise": {"sigma": 2}, "n_pairs": 3}) == \
+        libmod.settings_hash({"noise": {"sigma": 2.0}, "n_pairs": 5})
+    assert libmod.settings_hash({"noise": {"sigma": 2}}) != libmod.settings_hash({"noise": {"sigma": 1}})
+    assert libmod.auto_px_per_mm(libmod.paper_rig(1.0)) == 35 and libmod.auto_px_per_mm(libmod.paper_rig(0.25)) == 10
+
+
+@pytest.mark.gl
+def test_library_with_blur_and_lighting(ci_library, tmp_path, gl_ctx, capsys):
+    """Calibration libraries take the scene's depth of field and lighting when asked, recorded in
+    library.json; asking without the scene's table is refused by name."""
+    from glsim.scene import Light, Lighting, Optics, Render
+    optics = Optics(focal_length=25.0, f_number=2.0, focus_distance=300.0, pixel_pitch=0.0138)
+    lighting = Lighting(ambient=0.0, lights=(Light(position=(300.0, -200.0, 0.0), intensity=0.4),),
+                        combine="multiplicative")
+    scene = Scene(cameras=libmod.paper_rig(CI_SCALE), render=Render(mode="exact", samples_per_pixel=16),
+                  optics=optics, lighting=lighting)
+    lib = libmod.write_library(scene, DotGrid(), 1, tmp_path / "fx", seed=CI_SEED, effects=("blur", "lighting"),
+                               ctx=gl_ctx)
+    assert lib.manifest["blur"]["f_number"] == 2.0 and lib.manifest["lighting"]["combine"] == "multiplicative"
+    name = f"0000_{lib.cameras[0].name}.tif"
+    plain = read_image(ci_library.directory / "pairs" / name).astype(float)
+    img = read_image(tmp_path / "fx" / "pairs" / name).astype(float)
+    assert np.abs(img - plain).max() > 20                                   # visibly blurred and lit
+    with pytest.raises(SceneError, match="effects.blur.*no \\[optics\\]"):
+        libmod.write_library(libmod.paper_rig(CI_SCALE), DotGrid(), 1, tmp_path / "no", effects=("blur",))
+    err = _run_error(["library", "default", "--scale", str(CI_SCALE), "--pairs", "1", "--blur", "-o",
+                      str(tmp_path / "cli")], capsys)
+    assert "[optics]" in err and not (tmp_path / "cli").exists()
+
+
+@pytest.mark.gl
+def test_quality_study_goes_round_the_target_seeds(ci_library, ci_detections, tmp_path, gl_ctx):
+    """Several libraries of one σ (one per --target-seed): run r uses the r mod m-th, so the
+    runs of a σ average over printed targets."""
+    other = libmod.write_library(libmod.paper_rig(CI_SCALE), DotGrid(defects=Defects(seed=5)), 8, tmp_path / "t5",
+                                 seed=CI_SEED, ctx=gl_ctx)
+    rows = study.run_study("quality", [other.directory, ci_library.directory], tmp_path / "q.csv", sizes=(6,),
+                           runs=(4,), seed=2)
+    assert [(r["label"], r["run"], r["target_seed"]) for r in sorted(rows, key=lambda r: int(r["run"]))] == \
+        [("0", "0", "0"), ("0", "1", "5"), ("0", "2", "0"), ("0", "3", "5")]
+    with pytest.raises(SceneError, match="repeat a target seed"):
+        study.run_study("quality", [ci_library.directory, ci_library.directory], tmp_path / "r.csv", sizes=(6,),
+                        runs=(1,))

@@ -251,11 +251,23 @@ def _json_ready(x):
     return json.loads(json.dumps(x))
 
 
+def _canonical(x):
+    """Numbers as floats (2 and 2.0 are the same setting), containers recursively."""
+    if isinstance(x, dict):
+        return {k: _canonical(v) for k, v in x.items()}
+    if isinstance(x, (list, tuple)):
+        return [_canonical(v) for v in x]
+    if isinstance(x, (int, float)) and not isinstance(x, bool):
+        return float(x)
+    return x
+
+
 def settings_hash(manifest: dict) -> str:
-    """SHA-256 of a manifest's image-shaping settings (everything but n_pairs and timing): each
-    pair JSON carries it, so pairs made with other settings are found even without library.json."""
+    """SHA-256 of a manifest's image-shaping settings (everything but n_pairs and timing; numbers
+    compared as floats): each pair JSON carries it, so pairs made with other settings are found
+    even without library.json."""
     keep = {k: v for k, v in manifest.items() if k not in ("seconds_per_pair", "n_pairs")}
-    return hashlib.sha256(json.dumps(keep, sort_keys=True).encode()).hexdigest()
+    return hashlib.sha256(json.dumps(_canonical(keep), sort_keys=True).encode()).hexdigest()
 
 
 # library.json key → how `glsim calib library` sets it (for messages)

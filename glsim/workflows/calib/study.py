@@ -7,8 +7,14 @@ Studies
                  of pairs (Fig. 11) and their covariance (Fig. 12).
     ``fov``      libraries made with PoseSpec(fov="full") and fov="centre" → the k1 error
                  (Fig. 13) and epipolar distances (Fig. 14, Table 7) of both.
-    ``quality``  one library per target quality (Defects.sigma) → RMS (Fig. 15) and the
+    ``quality``  libraries per target quality (Defects.sigma) → RMS (Fig. 15) and the
                  spread of the parameters (Fig. 16) against sigma.
+
+Several libraries may share a label (fov, quality): e.g. one per ``--target-seed`` at each σ.
+Run r of a label then calibrates a subset of its libraries' r mod m-th (sorted by target seed,
+then directory), so the runs of a label go round its targets: the mean and spread over runs
+are over targets too, not one printed pattern's fixed error (column ``target_seed``). A
+calibration always uses one library (one printed target).
 
 A subset of n pairs is drawn from *all* pairs of the library (bad ones included, as the
 paper's Fig. 11), balanced over the motion kinds (n/K of each, the remainder at random);
@@ -39,7 +45,7 @@ TABLE6 = ((10, 1000), (25, 1000), (50, 1000), (75, 250), (100, 250), (250, 250))
 PARAMS = [f"{p}{i}" for i in (1, 2) for p in ("fx", "fy", "cx", "cy")] + \
     [f"{p}_{i}" for i in (1, 2) for p in ("k1", "k2", "p1", "p2", "k3")] + \
     ["Tx", "Ty", "Tz", "Theta", "Phi", "Psi"]
-COLUMNS = ["label", "sigma", "n", "run", "n_used", "rms", "rms1", "rms2"] + PARAMS + \
+COLUMNS = ["label", "sigma", "target_seed", "n", "run", "n_used", "rms", "rms1", "rms2"] + PARAMS + \
     [f"err_{p}" for p in PARAMS] + ["err_T_norm", "err_rotation_deg", "epipolar_max_px", "seconds"]
 KEY = ("label", "n", "run")
 
@@ -95,17 +101,21 @@ _STATE: dict = {}
 
 
 def _init(libraries: dict, detections: dict, model: str, min_points: int, bias_iterations: int) -> None:
+    """``libraries``/``detections`` keyed by (label, index in the label's group)."""
     _STATE.update(libraries={k: libmod.load_library(d) for k, d in libraries.items()},
                   detections=detections, model=model, min_points=min_points, bias_iterations=bias_iterations)
 
 
 def _calibrate_task(task) -> dict:
     label, n, run, seed = task
-    lib, dets = _STATE["libraries"][label], _STATE["detections"][label]
+    group = sorted(k for k in _STATE["libraries"] if k[0] == label)
+    key = group[run % len(group)]
+    lib, dets = _STATE["libraries"][key], _STATE["detections"][key]
     t0 = time.perf_counter()
     rng = np.random.default_rng(run_seed(seed, label, n, run))
     chosen = balanced_subset([p["kind"] for p in lib.pairs], n, rng)
-    row = {"label": label, "sigma": lib.target.defects.sigma if hasattr(lib.target, "defects") else 0.0,
+    defects = getattr(lib.target, "defects", None)
+    row = {"label": label, "sigma": defects.sigma if defects else 0.0, "target_seed": defects.seed if defects else 0,
            "n": n, "run": run}
     try:
         c = cal.calibrate_pairs(lib, dets, [lib.pairs[i]["pair"] for i in chosen], _STATE["model"],
@@ -132,16 +142,20 @@ def run_study(study: str, library_dirs, out_csv, sizes=None, runs=None, seed: in
     ``progress(done, total)`` is called after every calibration."""
     if study not in STUDIES:
         raise SceneError("study", f"{study!r} is not one of {STUDIES}", f"use one of {', '.join(STUDIES)}")
-    libs = {}
+    groups: dict[str, list] = {}
     for d in library_dirs:
         lib = libmod.load_library(d)
-        label = label_of(study, lib)
-        if label in libs:
-            raise SceneError("libraries", f"two libraries have the label {label!r} in the {study} study",
-                             "give one library per FOV setting (fov) or per target sigma (quality)")
-        libs[label] = lib
-    if study == "images" and len(libs) != 1:
-        raise SceneError("libraries", f"the images study takes one library, got {len(libs)}", "give one")
+        groups.setdefault(label_of(study, lib), []).append(lib)
+    if study == "images" and (len(groups) != 1 or len(next(iter(groups.values()))) != 1):
+        raise SceneError("libraries", f"the images study takes one library, got {len(list(library_dirs))}", "give one")
+    libs = {}
+    for label, group in groups.items():
+        group.sort(key=lambda lib: (getattr(getattr(lib.target, "defects", None), "seed", 0), str(lib.directory)))
+        seeds = [(getattr(getattr(lib.target, "defects", None), "seed", 0), lib.manifest["seed"]) for lib in group]
+        if len(set(seeds)) != len(seeds):
+            raise SceneError("libraries", f"libraries of label {label!r} in the {study} study repeat a target seed and "
+                             "library seed", "give each its own --target-seed (a printed target) or --seed (poses)")
+        libs.update({(label, i): lib for i, lib in enumerate(group)})
     smallest = min(len(lib.pairs) for lib in libs.values())
     if sizes is None:
         table = [(n, r) for n, r in TABLE6 if n <= smallest]
@@ -168,7 +182,7 @@ def run_study(study: str, library_dirs, out_csv, sizes=None, runs=None, seed: in
     io.write_text(sidecar, json.dumps(settings, indent=1))
     rows = read_rows(path)
     done = {tuple(str(r[k]) for k in KEY) for r in rows}
-    tasks = [(label, int(n), r, seed) for label in libs for n, nr in zip(sizes, runs) for r in range(nr)
+    tasks = [(label, int(n), r, seed) for label in groups for n, nr in zip(sizes, runs) for r in range(nr)
              if (label, str(n), str(r)) not in done]
     with io.atomic_path(path) as tmp:          # rewrite the complete rows, then append
         with open(tmp, "w", newline="") as f:
