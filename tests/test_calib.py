@@ -292,6 +292,8 @@ def test_stereo_calibration_at_ci_size(ci_library, ci_detections, tmp_path):
     assert np.allclose(y["T"], [rep["estimate"][k] for k in ("Tx", "Ty", "Tz")])
     rows = list(csv.DictReader(open(tmp_path / "cal" / "residuals.csv")))
     assert len(rows) == 2 * CI_PAIRS and all(float(r["reprojection_rms_px"]) < 0.02 for r in rows if r["used"] == "1")
+    assert all(r["skipped"] for r in rows if r["used"] == "0")                 # every view not used says why
+    assert len(rep["views_skipped"]) == sum(r["used"] == "0" for r in rows)
 
 
 @pytest.mark.gl
@@ -628,3 +630,33 @@ def test_quality_study_goes_round_the_target_seeds(ci_library, ci_detections, tm
     with pytest.raises(SceneError, match="repeat a target seed"):
         study.run_study("quality", [ci_library.directory, ci_library.directory], tmp_path / "r.csv", sizes=(6,),
                         runs=(1,))
+
+
+@pytest.mark.gl
+def test_grids_cut_by_the_border_are_detected_by_the_markers(ci_library, ci_detections):
+    cut = [(p, c, cam) for p in ci_library.pairs for c, cam in enumerate(ci_library.cameras)
+           if not p["cameras"][cam.name]["complete"]]
+    assert len(cut) >= 5
+    found = 0
+    for p, c, cam in cut:
+        d, why = detect.detect_dots(read_image(ci_library.image_path(p, cam)), ci_library.target, 8, 41, explain=True)
+        truth = libmod.image_truth(ci_library, p, cam)
+        if d is None:
+            assert why
+            continue
+        found += 1
+        assert why == "" and np.nanmax(np.linalg.norm(d.points - truth["centroid"], axis=1)) < 0.03
+        assert d.ok.sum() >= truth["visible"].sum() - 4            # the dots in view, labelled as the truth's
+    assert found >= 0.8 * len(cut)                                  # measured: all 11 of CI_SEED's cut views
+
+
+def test_a_dot_off_its_neighbours_homography_rejects_the_grid():
+    target = DotGrid()
+    cam = libmod.paper_rig(CI_SCALE)[0]
+    uv, _ = project(target.points() @ rotation_xyz(20, 30, 40).T + [0, 0, 370.0], cam)
+    assert detect.inconsistent(uv, target) is None
+    bad = uv.copy()
+    bad[40] += [1.8, 0.0]                                           # 0.1 of the spacing
+    assert detect.inconsistent(bad, target)[0] == 40
+    bad[40] = np.nan                                                # a dot not found is no disagreement
+    assert detect.inconsistent(bad, target) is None

@@ -258,16 +258,9 @@ def detect_library(lib: libmod.Library, min_points: int, processes: int = 1, pro
     supported(lib)
     method = method or default_method(lib.target)
     cache = cache_path(lib, min_points, method)
-    done, keys = {}, {}
-    if cache.is_file():
-        try:
-            with np.load(cache) as z:
-                done = {int(k[1:]): z[k] for k in z.files if k.startswith("p")}
-                keys = {int(k[1:]): [str(x) for x in z[k]] for k in z.files if k.startswith("s")}
-        except Exception:                       # an unreadable cache is rebuilt, not trusted
-            done, keys = {}, {}
+    done, keys, why = _read_cache(cache)
     sums = {p["pair"]: image_checksums(lib, p) for p in lib.pairs}
-    done = {k: v for k, v in done.items() if k in sums and keys.get(k) == sums[k]}
+    done = {k: v for k, v in done.items() if k in sums and keys.get(k) == sums[k] and k in why}
     target = libmod.target_to_dict(lib.target)
     jobs = [(p["pair"], [str(lib.image_path(p, c)) for c in lib.cameras], [c.bit_depth for c in lib.cameras],
              [c.size for c in lib.cameras], target, min_points, method) for p in lib.pairs if p["pair"] not in done]
@@ -278,17 +271,38 @@ def detect_library(lib: libmod.Library, min_points: int, processes: int = 1, pro
                 results = _collect(pool.imap_unordered(_detect_job, jobs, chunksize=4), len(jobs), progress)
         else:
             results = _collect(map(_detect_job, jobs), len(jobs), progress)
-        for index, r in results:
-            if isinstance(r, tuple):            # (file, problem, fix) from the worker
+        for index, r, reasons in results:
+            if reasons is None:                 # (file, problem, fix) from the worker
                 raise SceneError(*r)
-            done[index] = r
+            done[index], why[index] = r, reasons
         arrays = {f"p{k}": v for k, v in done.items()}
         arrays.update({f"s{k}": np.array(sums[k]) for k in done})
+        arrays.update({f"r{k}": np.array(why[k]) for k in done})
         with io.atomic_path(cache) as tmp:
             with open(tmp, "wb") as f:
                 np.savez(f, **arrays)
     return {k: tuple(None if np.all(np.isnan(v[c])) else v[c] for c in range(len(lib.cameras)))
             for k, v in done.items() if k in sums}
+
+
+def _read_cache(cache: Path) -> tuple[dict, dict, dict]:
+    """(points, image checksums, reasons) per pair from a detection cache; empty if unreadable."""
+    if not cache.is_file():
+        return {}, {}, {}
+    try:
+        with np.load(cache) as z:
+            return ({int(k[1:]): z[k] for k in z.files if k.startswith("p")},
+                    {int(k[1:]): [str(x) for x in z[k]] for k in z.files if k.startswith("s")},
+                    {int(k[1:]): [str(x) for x in z[k]] for k in z.files if k.startswith("r")})
+    except Exception:                           # an unreadable cache is rebuilt, not trusted
+        return {}, {}, {}
+
+
+def skipped_views(lib: libmod.Library, min_points: int, method: str | None = None) -> dict:
+    """Why each view of the detected library was not used: {(pair, camera name): reason} from
+    its detection cache (:func:`detect_library` first)."""
+    _, _, why = _read_cache(cache_path(lib, min_points, method))
+    return {(i, cam.name): r[c] for i, r in why.items() for c, cam in enumerate(lib.cameras) if r[c]}
 
 
 def _collect(results, total: int, progress) -> list:
@@ -316,20 +330,23 @@ def _read_view(path: str, bits: int, size) -> np.ndarray:
     return image
 
 
-def _detect_job(job) -> tuple[int, object]:
-    """One pair: (index, (cameras, N, 2) points, all NaN for a camera that found no grid), or
-    (index, (file, problem, fix)) for a bad image (SceneErrors do not cross process pools)."""
+def _detect_job(job) -> tuple:
+    """One pair: (index, (cameras, N, 2) points, all NaN for a camera that found nothing, the
+    reason per camera ("" where found)), or (index, (file, problem, fix), None) for a bad image
+    (SceneErrors do not cross process pools)."""
     index, paths, bits, sizes, target, min_points, method = job
     target = libmod.target_from_dict(target)
     try:
-        dets = [detect_target(_read_view(p, b, s), target, b, min_points, method) for p, b, s in zip(paths, bits, sizes)]
+        dets = [detect_target(_read_view(p, b, s), target, b, min_points, method, explain=True)
+                for p, b, s in zip(paths, bits, sizes)]
     except SceneError as exc:
         text = str(exc)
         key, _, rest = text.partition(": ")
         problem, _, fix = rest.partition(" — ")
-        return index, (key, problem, fix)
+        return index, (key, problem, fix), None
     n = len(target.points())
-    return index, np.stack([d.points if d is not None else np.full((n, 2), np.nan) for d in dets])
+    return (index, np.stack([d.points if d is not None else np.full((n, 2), np.nan) for d, _ in dets]),
+            [why for _, why in dets])
 
 
 def usable(detections: dict, pairs, min_points: int):
@@ -482,7 +499,16 @@ def run(library_dir, out_dir=None, model: str = "k1k2p1p2k3", min_points: int | 
               "truth": true_parameters(cam1, cam2), "errors": errors(c, cam1, cam2),
               "epipolar_max_px": float(np.nanmax(d)), "detection": detection_errors(lib, dets),
               "seconds": time.perf_counter() - t0}
-    residuals = _residuals_csv(lib, dets, c)
+    skipped = skipped_views(lib, min_points)
+    report["views_skipped"] = [{"pair": i, "camera": cam, "reason": r} for (i, cam), r in sorted(skipped.items())]
+    for i in sorted(dets):                      # pairs with both views but too few common points
+        d1, d2 = dets[i][:2]
+        if d1 is not None and d2 is not None and i not in c.pairs:
+            common = int((~np.isnan(d1[:, 0]) & ~np.isnan(d2[:, 0])).sum())
+            for cam in lib.cameras:
+                skipped[(i, cam.name)] = f"the pair's cameras share {common} points, {min_points} needed"
+    report["views_skipped"] = [{"pair": i, "camera": cam, "reason": r} for (i, cam), r in sorted(skipped.items())]
+    residuals = _residuals_csv(lib, dets, c, skipped)
     # every output under a temporary name first, then all renamed (report.json, the mark of a
     # finished calibration, last): an error or an interrupt leaves the directory as it was
     names = ("calibration.yaml", "epipolar.png", "residuals.csv", "report.json")
@@ -494,13 +520,14 @@ def run(library_dir, out_dir=None, model: str = "k1k2p1p2k3", min_points: int | 
     return report
 
 
-def _residuals_csv(lib: libmod.Library, dets: dict, c: StereoCalibration) -> str:
+def _residuals_csv(lib: libmod.Library, dets: dict, c: StereoCalibration, skipped: dict | None = None) -> str:
     """pair, kind, camera, dots found, reprojection RMS (px), mean detection error against the
-    true centroid and the projected centre (px)."""
+    true centroid and the projected centre (px), and why a view was skipped."""
+    skipped = skipped or {}
     buf = _io.StringIO()
     w = csv.writer(buf)
     w.writerow(["pair", "kind", "camera", "used", "dots", "reprojection_rms_px", "det_err_centroid_px",
-                "det_err_projected_px"])
+                "det_err_projected_px", "skipped"])
     rms = {i: c.per_view[k] for k, i in enumerate(c.pairs)}
     for pair in lib.pairs:
         i = pair["pair"]
@@ -511,5 +538,6 @@ def _residuals_csv(lib: libmod.Library, dets: dict, c: StereoCalibration) -> str
             err = {k: float(np.linalg.norm(pts[ok] - truth[k][ok], axis=1).mean()) if ok.any() and k in truth else ""
                    for k in ("centroid", "projected")}
             w.writerow([i, pair["kind"], cam.name, int(i in rms), int(ok.sum()),
-                        f"{rms[i][ci]:.6f}" if i in rms else "", err["centroid"], err["projected"]])
+                        f"{rms[i][ci]:.6f}" if i in rms else "", err["centroid"], err["projected"],
+                        skipped.get((i, cam.name), "")])
     return buf.getvalue()

@@ -176,6 +176,13 @@ def _run(a) -> int:
     rep = cal.run(a.library, a.output, a.model, a.min_points, a.bias_iterations, a.processes, _progress("detect"))
     print(f"{rep['pairs_used']}/{rep['pairs']} pairs used, RMS {rep['rms']:.4f} px, "
           f"max epipolar distance {rep['epipolar_max_px']:.4f} px")
+    if rep.get("views_skipped"):
+        counts: dict[str, int] = {}
+        for v in rep["views_skipped"]:
+            counts[v["reason"]] = counts.get(v["reason"], 0) + 1
+        print(f"{len(rep['views_skipped'])} views skipped (per view in residuals.csv):")
+        for reason, n in sorted(counts.items(), key=lambda x: -x[1]):
+            print(f"  {n} × {reason}")
     print("\n".join(error_lines(rep["errors"])))
     det = rep["detection"]
     if "centroid" in det:

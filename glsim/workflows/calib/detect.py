@@ -38,7 +38,7 @@ FIT_ROUNDS = 2         # model fits, each choosing the band pixels anew
 FIT_ITERATIONS = 12    # Levenberg–Marquardt steps per fit
 MIN_EDGE = 0.02        # px, the least blur σ of the fit (a sharp edge's profile is the pixel's)
 METHODS = ("fit", "centroid", "centroid-dot", "edge-ellipse", "blob")
-VERSION = 2            # of the detector's results (detection caches made by another version are not used)
+VERSION = 3            # of the detector's results (detection caches made by another version are not used)
 
 
 @dataclass(frozen=True, eq=False)
@@ -121,7 +121,7 @@ def centroid(image: np.ndarray, centre, e_col, e_row, white: bool, ring: float,
     ``ring``: inner edge of the background ring, in grid spacings (outside every dot).
     """
     A = np.stack([e_col, e_row], axis=1)
-    if not abs(np.linalg.det(A)) > 1e-6:
+    if not np.all(np.isfinite(A)) or not abs(np.linalg.det(A)) > 1e-6:
         return None
     corners = centre + (A @ np.array([[-1, -1, 1, 1], [-1, 1, -1, 1]]) * window).T
     u0, v0 = np.floor(corners.min(0)).astype(int)
@@ -143,16 +143,18 @@ def centroid(image: np.ndarray, centre, e_col, e_row, white: bool, ring: float,
     return (w @ p[inside]) / mass, float(mass)
 
 
-def refine_centroid(image: np.ndarray, points: np.ndarray, target: DotGrid, window: float = WINDOW):
+def refine_centroid(image: np.ndarray, points: np.ndarray, target: DotGrid, window: float = WINDOW, vectors=None):
     """Grey-level centroids of all dots in windows of ±``window`` grid spacings: ``(points,
     area)`` where area (N,) is each dot's mass over its local grid cell area (≈ (dot area /
     pitch²)·contrast); NaN where lost. (The estimator before the model fit; kept for the
     comparison in examples/calib_detection.py.)"""
-    e_col, e_row = grid_vectors(points, target.rows, target.cols)
+    e_col, e_row = vectors if vectors is not None else grid_vectors(points, target.rows, target.cols)
     ring = (float(np.max(target.diameters())) / 2 / target.pitch + window) / 2   # between dots and edge
     out = np.full_like(points, np.nan)
     area = np.full(len(points), np.nan)
     for k, c in enumerate(points):
+        if np.isnan(c[0]):
+            continue
         cell = abs(e_col[k, 0] * e_row[k, 1] - e_col[k, 1] * e_row[k, 0])
         for _ in range(ITERATIONS):
             r = centroid(image, c, e_col[k], e_row[k], target.white_dots, ring, window)
@@ -190,7 +192,7 @@ def _window_pixels(image, centre, e_col, e_row, window):
     """Pixel coordinates (n, 2), grey levels (n,) and parallelogram norm (n,) of the window of
     ±``window`` grid vectors around ``centre``, or None where it leaves the image."""
     A = np.stack([e_col, e_row], axis=1)
-    if not abs(np.linalg.det(A)) > 1e-6 or not np.all(np.isfinite(A)) or not np.all(np.isfinite(centre)):
+    if not np.all(np.isfinite(A)) or not np.all(np.isfinite(centre)) or not abs(np.linalg.det(A)) > 1e-6:
         return None
     corners = centre + (A @ np.array([[-1, -1, 1, 1], [-1, 1, -1, 1]]) * window).T
     u0, v0 = np.floor(corners.min(0)).astype(int)
@@ -436,13 +438,14 @@ def fit_ellipses(image: np.ndarray, start: Ellipses, white: bool, band=EDGE_BAND
     return e
 
 
-def refine_fit(image: np.ndarray, points: np.ndarray, target: DotGrid, band: float = EDGE_BAND):
+def refine_fit(image: np.ndarray, points: np.ndarray, target: DotGrid, band: float = EDGE_BAND, vectors=None):
     """Model-fitted centres of all dots (see :func:`fit_ellipses`): ``(points, area, ellipses)``
     with area (N,) each dot's ellipse area over its local grid cell area; NaN where lost.
     The band is ``band`` px, less where the gap to the next dots is narrower (0.45 × the gap
-    between this dot's edge and a full-size neighbour's)."""
-    e_col, e_row = grid_vectors(points, target.rows, target.cols)
-    start, cell = _start(image, points, target)
+    between this dot's edge and a full-size neighbour's). ``vectors``: the local grid vectors
+    (e_col, e_row) (N, 2) each, if not those of a complete grid (:func:`grid_vectors`)."""
+    e_col, e_row = vectors if vectors is not None else grid_vectors(points, target.rows, target.cols)
+    start, cell = _start(image, points, target, vectors)
     with np.errstate(invalid="ignore"):
         radius = np.sqrt(np.linalg.eigvalsh(np.linalg.inv(np.where(np.isfinite(start.M), start.M, np.eye(2))))[:, 1])
         spacing = np.minimum(np.linalg.norm(e_col, axis=1), np.linalg.norm(e_row, axis=1))
@@ -479,18 +482,18 @@ def mean_norm(cov: np.ndarray) -> np.ndarray:
     return (r * w[:, None] * w[None, :]).sum(axis=(-1, -2))
 
 
-def _start(image, points, target):
-    e_col, e_row = grid_vectors(points, target.rows, target.cols)
+def _start(image, points, target, vectors=None):
+    e_col, e_row = vectors if vectors is not None else grid_vectors(points, target.rows, target.cols)
     ring = (float(np.max(target.diameters())) / 2 / target.pitch + WINDOW) / 2
     cell = np.abs(e_col[:, 0] * e_row[:, 1] - e_col[:, 1] * e_row[:, 0])
     return initial_ellipses(image, points, e_col, e_row, target.white_dots, ring), cell
 
 
-def refine_dot_centroid(image: np.ndarray, points: np.ndarray, target: DotGrid, margin: float = 3.0):
+def refine_dot_centroid(image: np.ndarray, points: np.ndarray, target: DotGrid, margin: float = 3.0, vectors=None):
     """Grey-level centroids in windows sized from each dot: the pixels within ``margin`` px
     outside its (initial) ellipse, background the median of the next 3 px; 3 passes
     re-centring the window. ``(points, area)`` as :func:`refine_centroid`."""
-    start, cell = _start(image, points, target)
+    start, cell = _start(image, points, target, vectors)
     out = np.full_like(points, np.nan)
     area = np.full(len(points), np.nan)
     sign = 1.0 if target.white_dots else -1.0
@@ -517,13 +520,13 @@ def refine_dot_centroid(image: np.ndarray, points: np.ndarray, target: DotGrid, 
     return out, area
 
 
-def refine_edge_ellipse(image: np.ndarray, points: np.ndarray, target: DotGrid, reach: float = 3.0):
+def refine_edge_ellipse(image: np.ndarray, points: np.ndarray, target: DotGrid, reach: float = 3.0, vectors=None):
     """Ellipses fitted (cv2.fitEllipseDirect) to sub-pixel edge points: along one ray per px of
     each dot's (initial) outline, where the bilinearly interpolated grey crosses halfway
     between the background and the dot's level. ``(points, area)`` as :func:`refine_centroid`."""
     import cv2
     from scipy.ndimage import map_coordinates
-    start, cell = _start(image, points, target)
+    start, cell = _start(image, points, target, vectors)
     out = np.full_like(points, np.nan)
     area = np.full(len(points), np.nan)
     H, W = image.shape
@@ -559,18 +562,19 @@ def refine_edge_ellipse(image: np.ndarray, points: np.ndarray, target: DotGrid, 
     return out, area
 
 
-def refine(image: np.ndarray, points: np.ndarray, target: DotGrid, method: str = "fit"):
-    """Sub-pixel centres of all dots by ``method`` (one of METHODS): ``(points, area)``."""
+def refine(image: np.ndarray, points: np.ndarray, target: DotGrid, method: str = "fit", vectors=None):
+    """Sub-pixel centres of all dots by ``method`` (one of METHODS): ``(points, area)``; rows of
+    ``points`` that are NaN (dots not found) stay NaN. ``vectors``: see :func:`refine_fit`."""
     if method == "fit":
-        return refine_fit(image, points, target)[:2]
+        return refine_fit(image, points, target, vectors=vectors)[:2]
     if method == "centroid":
-        return refine_centroid(image, points, target)
+        return refine_centroid(image, points, target, vectors=vectors)
     if method == "centroid-dot":
-        return refine_dot_centroid(image, points, target)
+        return refine_dot_centroid(image, points, target, vectors=vectors)
     if method == "edge-ellipse":
-        return refine_edge_ellipse(image, points, target)
+        return refine_edge_ellipse(image, points, target, vectors=vectors)
     if method == "blob":
-        start, cell = _start(image, points, target)
+        start, cell = _start(image, points, target, vectors)
         return points.copy(), start.areas / cell
     raise SceneError("method", f"{method!r} is not one of {METHODS}", "choose a dot-centre estimator")
 
@@ -619,24 +623,152 @@ def orient(points: np.ndarray, area: np.ndarray, target: DotGrid) -> np.ndarray 
     return candidates[i][0]
 
 
+def find_partial_grid(image: np.ndarray, target: DotGrid):
+    """The dots in view when the grid is cut by the image border (or findCirclesGrid fails):
+    ``(blobs, e_col, e_row)`` in the target's order, (N, 2) each, NaN where a dot was not found,
+    or None. The markers anchor it: among the blobs of marker size, the three whose affine map
+    from the marker cells predicts the most blobs of the cells around them (right-handed: the
+    printed face) fix the labels; the grid then grows cell by cell, each predicted by an affine
+    fit to the found cells within two cells and matched to the nearest blob within 0.3 of the
+    local spacing. Needs the markers in view."""
+    import itertools
+    import cv2
+    from scipy.spatial import cKDTree
+    if not target.markers:
+        return None
+    detector, img8 = blob_detector(image, target.white_dots)
+    kps = detector.detect(img8)
+    if len(kps) < 6:
+        return None
+    P = np.array([k.pt for k in kps], np.float64)
+    S = np.array([k.size for k in kps], np.float64)
+    ratio = target.marker_diameter / target.dot_diameter
+    cut = np.median(S) * (1 + ratio) / 2
+    small = np.flatnonzero(S < cut if ratio < 1 else S > cut)
+    if not 3 <= len(small) <= 12:
+        return None
+    rows, cols = target.rows, target.cols
+    rc = np.stack(np.divmod(np.arange(rows * cols), cols), axis=1)            # (row, col) of every point
+    design = np.c_[rc[:, 1], rc[:, 0], np.ones(len(rc))]                      # col, row, 1
+    mk = np.array([r * cols + c for r, c in target.markers])
+    near = np.flatnonzero(np.abs(rc[:, None, :] - rc[mk][None]).max(axis=2).min(axis=1) <= 2)
+    tree = cKDTree(P)
+    best = None
+    for triple in itertools.permutations(small, 3):
+        try:
+            sol = np.linalg.solve(design[mk], P[list(triple)])                # (3, 2): e_col, e_row, origin
+        except np.linalg.LinAlgError:
+            continue
+        e_col, e_row = sol[0], sol[1]
+        spacing = min(np.linalg.norm(e_col), np.linalg.norm(e_row))
+        if e_col[0] * e_row[1] - e_col[1] * e_row[0] <= 0 or spacing < 4:
+            continue
+        d, _ = tree.query(design[near] @ sol)
+        score = int((d < 0.3 * spacing).sum())
+        if best is None or score > best[0]:
+            best = (score, sol)
+    if best is None or best[0] < max(6, len(near) // 3):
+        return None
+    blobs = np.full((rows * cols, 2), np.nan)
+    vec = np.full((rows * cols, 2, 2), np.nan)
+    used = set()
+
+    def local_affine(k):
+        found = np.flatnonzero(~np.isnan(blobs[:, 0]))
+        nb = found[np.abs(rc[found] - rc[k]).max(axis=1) <= 2]
+        if len(nb) < 3 or np.linalg.matrix_rank(design[nb]) < 3:
+            return None
+        return np.linalg.lstsq(design[nb], blobs[nb], rcond=None)[0]
+
+    def match(k, sol):
+        e = np.linalg.norm(sol[:2], axis=1).min()
+        d, j = tree.query(design[k] @ sol)
+        if d < 0.3 * e and j not in used:
+            blobs[k], vec[k] = P[j], sol[:2]
+            used.add(j)
+            return True
+        return False
+
+    for k in near:                                   # the cells around the markers, by the markers' map
+        match(k, best[1])
+    changed = True
+    while changed:                                   # grow: each cell from the found cells around it
+        changed = False
+        todo = [k for k in range(rows * cols) if np.isnan(blobs[k, 0])]
+        for k in sorted(todo, key=lambda k: np.abs(rc[k] - rc[mk]).max(axis=1).min()):
+            sol = local_affine(k)
+            if sol is not None and match(k, sol):
+                changed = True
+    for k in np.flatnonzero(~np.isnan(blobs[:, 0])):   # final local vectors from the grown grid
+        sol = local_affine(k)
+        if sol is not None:
+            vec[k] = sol[:2]
+    return blobs, vec[:, 0], vec[:, 1]
+
+
+def inconsistent(points: np.ndarray, target: DotGrid) -> tuple[int, float] | None:
+    """The dot farthest from where a homography fitted to its found neighbours (within two
+    cells, itself left out) puts it, if farther than max(1 px, 0.05 × the local spacing):
+    ``(index, distance px)``; None if every dot agrees. Lens distortion and perspective leave
+    ≤ 0.7 px at 1624×1234; a wrongly matched dot is a spacing off."""
+    import cv2
+    rows, cols = target.rows, target.cols
+    obj = target.points()[:, :2]
+    rc = np.stack(np.divmod(np.arange(rows * cols), cols), axis=1)
+    found = np.flatnonzero(~np.isnan(points[:, 0]))
+    worst = None
+    for k in found:
+        nb = found[(np.abs(rc[found] - rc[k]).max(axis=1) <= 2) & (found != k)]
+        if len(nb) < 6:
+            continue
+        H, _ = cv2.findHomography(obj[nb], points[nb], 0)
+        if H is None:
+            continue
+        pred = cv2.perspectiveTransform(obj[k].reshape(1, 1, 2), H).ravel()
+        d = float(np.linalg.norm(pred - points[k]))
+        spacing = np.median(np.linalg.norm(points[nb] - points[k], axis=1) /
+                            np.linalg.norm(obj[nb] - obj[k], axis=1)) * target.pitch
+        if d > max(1.0, 0.05 * spacing) and (worst is None or d > worst[1]):
+            worst = (int(k), d)
+    return worst
+
+
 def detect_dots(image: np.ndarray, target: DotGrid, bit_depth: int | None = None,
-                min_points: int | None = None, method: str = "fit") -> Detection | None:
-    """Detect ``target`` in ``image``; None if the grid is not found or not :func:`regular`,
-    its orientation is ambiguous, or fewer than ``min_points`` (default: all) dots could be
-    refined."""
+                min_points: int | None = None, method: str = "fit", explain: bool = False):
+    """Detect ``target`` in ``image``: a :class:`Detection`, or None if the grid is found
+    neither whole (findCirclesGrid, :func:`regular`) nor in part (:func:`find_partial_grid`, by
+    the markers), its orientation is ambiguous, a dot disagrees with its neighbours
+    (:func:`inconsistent`), or fewer than ``min_points`` (default: all) dots could be refined.
+    ``explain``: return ``(Detection | None, reason)``, the reason "" when found."""
+    def out(d, reason):
+        return (d, reason) if explain else d
     img = to_unit(image, bit_depth)
+    need = target.n_points if min_points is None else min_points
     blobs = find_grid(img, target)
-    if blobs is None or not regular(blobs, target.rows, target.cols):
-        return None
-    points, area = refine(img, blobs, target, method)
-    perm = orient(np.where(np.isnan(points), blobs, points), area, target)
-    if perm is None:
-        return None
-    points, blobs = points[perm], blobs[perm]
+    vectors = None
+    if blobs is not None and regular(blobs, target.rows, target.cols):
+        points, area = refine(img, blobs, target, method)
+        perm = orient(np.where(np.isnan(points), blobs, points), area, target)
+        if perm is None:
+            return out(None, "the markers do not tell the grid's orientation")
+        points, blobs = points[perm], blobs[perm]
+    else:
+        partial = find_partial_grid(img, target)
+        if partial is None:
+            return out(None, "no grid found (whole, or in part around the markers)")
+        blobs, e_col, e_row = partial
+        if (~np.isnan(blobs[:, 0])).sum() < need:
+            return out(None, f"only {(~np.isnan(blobs[:, 0])).sum()} dots found in view, {need} needed")
+        points, area = refine(img, blobs, target, method, vectors=(e_col, e_row))
+    bad = inconsistent(points, target)
+    if bad is not None:
+        r, c = divmod(bad[0], target.cols)
+        return out(None, f"dot (row {r}, col {c}) lies {bad[1]:.1f} px from where its neighbours put it "
+                         "(a homography fit): the grid is rejected")
     ok = ~np.isnan(points[:, 0])
-    if ok.sum() < (target.n_points if min_points is None else min_points):
-        return None
-    return Detection(points=points, blobs=blobs, ok=ok)
+    if ok.sum() < need:
+        return out(None, f"only {ok.sum()} dots measured, {need} needed")
+    return out(Detection(points=points, blobs=blobs, ok=ok), "")
 
 
 # --- chessboards and ChArUco boards ------------------------------------------------------------------
@@ -675,27 +807,28 @@ def orient_chessboard(image: np.ndarray, corners: np.ndarray, target: Chessboard
 
 
 def detect_chessboard(image: np.ndarray, target: Chessboard, bit_depth: int | None = None,
-                      min_points: int | None = None) -> Detection | None:
+                      min_points: int | None = None, explain: bool = False):
     """Inner corners of ``target`` by cv2.findChessboardCornersSB (exhaustive, sub-pixel
     accuracy), in the target's order (:func:`orient_chessboard`); None if not found or its
-    orientation is ambiguous. OpenCV needs every corner in view."""
+    orientation is ambiguous. OpenCV needs every corner in view. ``explain``: as detect_dots."""
     import cv2
     img = to_unit(image, bit_depth)
     R, C = target.rows - 1, target.cols - 1
     found, corners = cv2.findChessboardCornersSB(_gray8(img), (C, R),
                                                  flags=cv2.CALIB_CB_EXHAUSTIVE | cv2.CALIB_CB_ACCURACY)
     if not found:
-        return None
+        return (None, "findChessboardCornersSB found no board (it needs every corner in view)") if explain else None
     pts = corners.reshape(-1, 2).astype(np.float64)
     perm = orient_chessboard(img, pts, target)
     if perm is None:
-        return None
+        return (None, "the squares do not tell the board's orientation") if explain else None
     pts = pts[perm]
-    return Detection(points=pts, blobs=pts.copy(), ok=np.ones(len(pts), bool))
+    d = Detection(points=pts, blobs=pts.copy(), ok=np.ones(len(pts), bool))
+    return (d, "") if explain else d
 
 
 def detect_charuco(image: np.ndarray, target: Charuco, bit_depth: int | None = None,
-                   min_points: int | None = None) -> Detection | None:
+                   min_points: int | None = None, explain: bool = False):
     """ChArUco corners by cv2.aruco.CharucoDetector (markers identify the corners, so a part of
     the board is enough), in the target's order (OpenCV's corner ids); NaN for corners not
     found. None if fewer than ``min_points`` (default 4) are."""
@@ -703,11 +836,14 @@ def detect_charuco(image: np.ndarray, target: Charuco, bit_depth: int | None = N
     img = to_unit(image, bit_depth)
     corners, ids, _, _ = cv2.aruco.CharucoDetector(target.board()).detectBoard(_gray8(img))
     n = len(target.points())
-    if ids is None or len(ids) < max(min_points or 4, 4):
-        return None
+    need = max(min_points or 4, 4)
+    if ids is None or len(ids) < need:
+        why = f"CharucoDetector found {0 if ids is None else len(ids)} corners, {need} needed"
+        return (None, why) if explain else None
     pts = np.full((n, 2), np.nan)
     pts[ids.ravel()] = corners.reshape(-1, 2)
-    return Detection(points=pts, blobs=pts.copy(), ok=~np.isnan(pts[:, 0]))
+    d = Detection(points=pts, blobs=pts.copy(), ok=~np.isnan(pts[:, 0]))
+    return (d, "") if explain else d
 
 
 def default_method(target) -> str:
@@ -722,12 +858,12 @@ def default_method(target) -> str:
 
 
 def detect_target(image: np.ndarray, target, bit_depth: int | None = None, min_points: int | None = None,
-                  method: str | None = None) -> Detection | None:
+                  method: str | None = None, explain: bool = False):
     """Detect any target: :func:`detect_dots` (``method``: one of METHODS), :func:`detect_chessboard`
-    or :func:`detect_charuco`."""
+    or :func:`detect_charuco`. ``explain``: return ``(Detection | None, reason)``."""
     method = method or default_method(target)
     if isinstance(target, DotGrid):
-        return detect_dots(image, target, bit_depth, min_points, method)
+        return detect_dots(image, target, bit_depth, min_points, method, explain)
     if isinstance(target, Chessboard):
-        return detect_chessboard(image, target, bit_depth, min_points)
-    return detect_charuco(image, target, bit_depth, min_points)
+        return detect_chessboard(image, target, bit_depth, min_points, explain)
+    return detect_charuco(image, target, bit_depth, min_points, explain)
