@@ -25,7 +25,7 @@ from glsim.evaluation.report import machine_info
 from glsim.io import images as io
 from glsim.scene import Noise
 from glsim.workflows.calib import detect, library
-from glsim.workflows.calib.targets import DotGrid
+from glsim.workflows.calib.targets import Charuco, Chessboard, DotGrid
 
 RESULTS = Path(__file__).resolve().parent.parent / "bench" / "results"
 METHODS = ("fit", "centroid", "centroid-dot", "edge-ellipse", "blob")
@@ -35,17 +35,30 @@ NAMES = {"fit": "model fit (default)", "centroid": "grey-level centroid, ±0.45 
 SEED = 1
 
 
+TARGETS = ("dots", "chessboard", "charuco")
+
+
+def make_target(kind: str, px_per_mm: float):
+    """The benchmark targets, of about the same extent (80–100 mm, 72–81 points)."""
+    if kind == "dots":
+        return DotGrid(px_per_mm=px_per_mm)
+    if kind == "chessboard":                       # 8 × 9 inner corners; rows + cols odd: no half-turn symmetry
+        return Chessboard(rows=9, cols=10, square=10.0, px_per_mm=px_per_mm)
+    return Charuco(squares_x=10, squares_y=9, square=10.0, marker=7.0, px_per_mm=px_per_mm)
+
+
 def make_library(work: Path, scale: float, pairs: int, noise: float, px_per_mm: float | str = "auto", ctx=None,
-                 seed: int = SEED):
-    """The benchmark library for (scale, noise, reference resolution): rendered or resumed (with
-    at least ``pairs`` pairs; measurements take the first ones)."""
+                 seed: int = SEED, kind: str = "dots"):
+    """The benchmark library for (target kind, scale, noise, reference resolution): rendered or
+    resumed (with at least ``pairs`` pairs; measurements take the first ones)."""
     cams = library.paper_rig(scale)
     ppm = library.auto_px_per_mm(cams) if px_per_mm == "auto" else float(px_per_mm)
-    out = work / f"table8_x{scale:g}_seed{seed}_noise{noise:g}_ppm{ppm:g}"
+    prefix = "table8" if kind == "dots" else f"table8_{kind}"
+    out = work / f"{prefix}_x{scale:g}_seed{seed}_noise{noise:g}_ppm{ppm:g}"
     if (out / "library.json").is_file():                 # a library is extended, never shrunk
         pairs = max(pairs, json.loads((out / "library.json").read_text())["n_pairs"])
     t0 = time.perf_counter()
-    lib = library.write_library(cams, DotGrid(px_per_mm=ppm), pairs, out, seed=seed,
+    lib = library.write_library(cams, make_target(kind, ppm), pairs, out, seed=seed,
                                 noise=Noise(sigma=noise) if noise > 0 else None, ctx=ctx)
     print(f"{out.name}: {len(lib.pairs)} pairs ({time.perf_counter() - t0:.0f} s)", flush=True)
     return lib
@@ -160,7 +173,7 @@ def main():
                "command": "python examples/calib_detection.py " + " ".join(__import__("sys").argv[1:]),
                "image_size": list(cams[0].size), "pairs": a.pairs, "seed": SEED, "px_per_mm": ppm,
                "methods": a.methods, "runs": [], "image_px_per_ref_px": {}}
-    mm_per_px = library.auto_px_per_mm(cams, floor=0) / library.REFERENCE_PX_PER_IMAGE_PX   # ≈ image px per mm
+    px_per_mm_image = library.auto_px_per_mm(cams, floor=0) / library.REFERENCE_PX_PER_IMAGE_PX   # ≈ image px per mm
     settings = [(n, ppm) for n in a.noise]
     if a.compare_px_per_mm and a.compare_px_per_mm != ppm:
         settings += [(n, a.compare_px_per_mm) for n in (0.0, 2.0)]
@@ -168,7 +181,7 @@ def main():
         lib = make_library(work, a.scale, a.pairs, noise, px, ctx)
         t0 = time.perf_counter()
         results["runs"].append(measure(lib, a.pairs, noise, a.methods))
-        results["image_px_per_ref_px"][str(px)] = mm_per_px / px
+        results["image_px_per_ref_px"][str(px)] = px_per_mm_image / px
         print(f"  measured in {time.perf_counter() - t0:.0f} s", flush=True)
     ctx.release()
     text = markdown(results)
