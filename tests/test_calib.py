@@ -660,3 +660,16 @@ def test_a_dot_off_its_neighbours_homography_rejects_the_grid():
     assert detect.inconsistent(bad, target)[0] == 40
     bad[40] = np.nan                                                # a dot not found is no disagreement
     assert detect.inconsistent(bad, target) is None
+
+
+@pytest.mark.gl
+def test_cli_library_of_a_chessboard_then_run(tmp_path, capsys):
+    out = tmp_path / "cb"
+    assert calib_main(["library", "default", "--scale", str(CI_SCALE), "--target", "chessboard", "--pitch", "12",
+                       "--pairs", "3", "--fov", "centre", "--noise", "0", "-o", str(out)]) == 0
+    m = json.loads((out / "library.json").read_text())
+    assert m["target"]["type"] == "Chessboard" and m["target"]["rows"] == 7 and m["target"]["square"] == 12
+    assert calib_main(["run", str(out)]) == 0 and "projected corners" in capsys.readouterr().out
+    err = _run_error(["library", "default", "--scale", str(CI_SCALE), "--target", "charuco", "--sigma", "0.1",
+                      "--pairs", "1", "-o", str(tmp_path / "ch")], capsys)
+    assert "--sigma: applies to dot grids" in err

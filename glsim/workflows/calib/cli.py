@@ -2,9 +2,9 @@
 
     glsim calib library SCENE.toml|default --pairs N -o DIR [--max-pairs M] [--min-points N] [--scale S]
                         [--seed K] [--fov full|centre]
-                        [--sigma MM] [--pitch-error E] [--target-seed K] [--rows 9 --cols 9 --pitch 10
-                        --dot 5] [--px-per-mm auto] [--noise 2] [--blur] [--lighting] [--spp 16]
-                        [--backend gl|cpu]
+                        [--target dots|chessboard|charuco] [--rows 9 --cols 9 --pitch 10 --dot 5 --marker 7]
+                        [--sigma MM] [--pitch-error E] [--target-seed K] [--px-per-mm auto] [--noise 2]
+                        [--blur] [--lighting] [--spp 16] [--backend gl|cpu]
     glsim calib run DIR [-o OUT] [--model k1k2p1p2k3] [--min-points N] [--bias-iterations 1] [-j PROCS]
     glsim calib study {images,fov,quality} LIB [LIB …] -o OUT [--sizes 10 25 50] [--runs 100]
                       [--seed K] [--model …] [--bias-iterations 1] [-j PROCS]
@@ -12,6 +12,7 @@
 from __future__ import annotations
 
 import argparse
+import math
 import sys
 import time
 from pathlib import Path
@@ -22,7 +23,7 @@ from glsim.workflows.calib import calibrate as cal
 from glsim.workflows.calib import library as libmod
 from glsim.workflows.calib import study as studymod
 from glsim.workflows.calib.poses import FOVS, PoseSpec
-from glsim.workflows.calib.targets import Defects, DotGrid
+from glsim.workflows.calib.targets import Charuco, Chessboard, Defects, DotGrid
 
 
 def _progress(what: str):
@@ -39,7 +40,7 @@ def parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="glsim calib", description="Calibration-target libraries and studies")
     sub = p.add_subparsers(dest="command", required=True)
 
-    lib = sub.add_parser("library", help="render a library of stereo pairs of a dot-grid target")
+    lib = sub.add_parser("library", help="render a library of stereo pairs of a calibration target")
     lib.add_argument("scene", help="a scene TOML (its cameras and [render] options, with --spp), or "
                                    "'default' for the paper's Table 8 rig (exact mode)")
     lib.add_argument("--pairs", type=int, required=True,
@@ -56,10 +57,13 @@ def parser() -> argparse.ArgumentParser:
     lib.add_argument("--sigma", type=float, default=0.0, help="random dot-centre scatter of the target, mm")
     lib.add_argument("--pitch-error", type=float, default=0.0, help="relative pitch error of the target")
     lib.add_argument("--target-seed", type=int, default=0, help="seed of the target's defects")
-    lib.add_argument("--rows", type=int, default=9)
-    lib.add_argument("--cols", type=int, default=9)
-    lib.add_argument("--pitch", type=float, default=10.0, help="mm")
+    lib.add_argument("--target", choices=("dots", "chessboard", "charuco"), default="dots",
+                     help="dot grid (default), chessboard or OpenCV ChArUco board")
+    lib.add_argument("--rows", type=int, default=None, help="dot rows, or rows of squares (default 9 / 7 / 5)")
+    lib.add_argument("--cols", type=int, default=None, help="dot columns, or columns of squares (default 9 / 10 / 7)")
+    lib.add_argument("--pitch", type=float, default=10.0, help="dot pitch or square size, mm")
     lib.add_argument("--dot", type=float, default=5.0, help="dot diameter, mm")
+    lib.add_argument("--marker", type=float, default=None, help="ChArUco marker size, mm (default 0.7 × pitch)")
     lib.add_argument("--spp", type=int, default=16, help="samples per pixel (16 makes dot centroids exact to "
                                                           "the pixel-sampling limit; 4 gives 0.02 px errors)")
     lib.add_argument("--backend", choices=("gl", "cpu"), default=None)
@@ -96,6 +100,21 @@ def parser() -> argparse.ArgumentParser:
     return p
 
 
+def _target(a, ppm: float):
+    """The target `calib library` draws (``ppm``: reference px per mm)."""
+    if a.target == "dots":
+        return DotGrid(rows=a.rows or 9, cols=a.cols or 9, pitch=a.pitch, dot_diameter=a.dot, px_per_mm=ppm,
+                       defects=Defects(sigma=a.sigma, pitch_error=a.pitch_error, seed=a.target_seed))
+    for flag, value in (("--sigma", a.sigma), ("--pitch-error", a.pitch_error), ("--target-seed", a.target_seed)):
+        if value:
+            raise SceneError(flag, f"applies to dot grids, not to a {a.target}", f"leave {flag} out, or use --target dots")
+    if a.target == "chessboard":
+        return Chessboard(rows=a.rows or 7, cols=a.cols or 10, square=a.pitch, px_per_mm=ppm)
+    ppm = math.ceil(ppm * a.pitch - 1e-9) / a.pitch          # whole reference pixels per square
+    return Charuco(squares_x=a.cols or 7, squares_y=a.rows or 5, square=a.pitch,
+                   marker=a.marker or 0.7 * a.pitch, px_per_mm=ppm)
+
+
 def _library(a) -> int:
     if not a.noise >= 0:
         raise SceneError("--noise", f"must be ≥ 0 (percent of the dynamic range), got {a.noise:g}",
@@ -112,8 +131,7 @@ def _library(a) -> int:
             ppm = float(a.px_per_mm)
         except ValueError:
             raise SceneError("--px-per-mm", f"{a.px_per_mm!r} is not a number", "give px per mm, or auto") from None
-    target = DotGrid(rows=a.rows, cols=a.cols, pitch=a.pitch, dot_diameter=a.dot, px_per_mm=ppm,
-                     defects=Defects(sigma=a.sigma, pitch_error=a.pitch_error, seed=a.target_seed))
+    target = _target(a, ppm)
     noise = rig.noise or (Noise(sigma=a.noise) if a.noise > 0 else None)
     effects = tuple(e for e, on in (("blur", a.blur), ("lighting", a.lighting)) if on)
     lib, good = cal.write_usable_library(rig, target, a.pairs, a.output, a.max_pairs, a.min_points,
