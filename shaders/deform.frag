@@ -2,6 +2,16 @@
 // Compile-time choices: MODE_FAST | MODE_Q4 | MODE_EXACT, INTERP_*, SS (samples per pixel
 // per axis), FP64 (double arithmetic), TRUTH (also write the truth maps), LIGHTING (Phong,
 // shade.glsl), DEPTH_OUT (write camera-frame depth Z at DEPTH_LOCATION, for depth of field).
+//
+// Modes exact and q4 read candidate lists: pass 1 (candidates.frag) listed, per pixel, the
+// elements whose cover may hold one of its samples. Then, each over its own pixels:
+// - this file as a full-screen pass (lists.vert): pixels with one candidate, straight-line;
+// - RESOLVE (resolve.frag, full screen): pixels with 2..CANDIDATES candidates; each sample
+//   tests every candidate and keeps the nearest owner (ties: the lower element index, as the
+//   oracle), an owner mapping outside the reference giving way to one behind it;
+// - FALLBACK (exact.vert over the cover rectangles, depth test): pixels whose list overflowed,
+//   one element per fragment, as every pixel was drawn before the lists.
+// The exact test and the shared tie rule decide coverage in all three.
 #include "camera.glsl"
 #include "interp.glsl"
 #include "bilinear.glsl"
@@ -31,6 +41,8 @@ layout(std430, binding = 7) readonly buffer RefUV { real ref_uv[]; };
 #else
 layout(std430, binding = 8) readonly buffer RefXr { real ref_xr[]; };
 #endif
+#define CANDIDATE_TEXTURES
+#include "candidates.glsl"
 #endif
 flat in int v_elem;
 // samples that hit the specimen but map outside the reference image (reset before each pass)
@@ -67,6 +79,46 @@ float light_at(int e, real xi, real eta) {
 }
 #endif
 
+#if !defined(MODE_FAST)
+// Map this sample (pixel point px; ray xn in mode exact) into element e: false where e does
+// not own it (the tie rule); ref_ok false where it does but its reference point lies outside
+// the reference image (or the reference camera cannot project it).
+bool map_sample(int e, real2 px, real2 xn, out real xi, out real eta, out real2 ref, out real Z, out bool ref_ok) {
+    int b = e * 12;
+    ref = real2(0.0);
+    ref_ok = false;
+#if defined(MODE_Q4)
+    real2 p[4];
+    for (int i = 0; i < 4; ++i) p[i] = real2(elem_data[b + 2 * i], elem_data[b + 2 * i + 1]);
+    Z = 0.0;
+    if (!invert_newton(p, px, xi, eta) || !in_range(xi, eta)) return false;
+    if (near_edge(xi, eta)) {
+        real E[4];
+        real2 m[4];
+        edge_functions_2d(p, px, E, m);
+        if (!owned(xi, eta, E, m, orientation_2d(p, xi, eta))) return false;
+    }
+    ivec4 q = quads[e];
+    real2 r[4];
+    for (int i = 0; i < 4; ++i) r[i] = real2(ref_uv[2 * q[i]], ref_uv[2 * q[i] + 1]);
+    ref = bilinear2(r, xi, eta);
+    Z = dot(shape_functions(xi, eta), real4(elem_data[b + 8], elem_data[b + 9], elem_data[b + 10], elem_data[b + 11]));
+    ref_ok = true;
+#else
+    real3 P[4];
+    for (int i = 0; i < 4; ++i) P[i] = real3(elem_data[b + 3 * i], elem_data[b + 3 * i + 1], elem_data[b + 3 * i + 2]);
+    if (!intersect_ray_patch(P, xn, xi, eta, Z)) return false;
+    ivec4 q = quads[e];
+    real3 R[4];  // undeformed corners in the reference camera's frame (mm)
+    for (int i = 0; i < 4; ++i) R[i] = real3(ref_xr[3 * q[i]], ref_xr[3 * q[i] + 1], ref_xr[3 * q[i] + 2]);
+    ref_ok = project_camera_frame(bilinear3(R, xi, eta), u_ref_intr, u_ref_dist, u_ref_valid_r2, ref);
+#endif
+    ref_ok = ref_ok && !(ref.x < -0.5 || ref.y < -0.5 || ref.x > real(u_ref_size.x) - 0.5 ||
+                         ref.y > real(u_ref_size.y) - 0.5);
+    return true;
+}
+#endif
+
 void main() {
     real xi, eta;
     real2 ref;
@@ -75,52 +127,70 @@ void main() {
     xi = v_xe.x;
     eta = v_xe.y;
     float Z = v_depth;
-#else
-#if defined(MODE_Q4)
-    real2 px = real2(gl_FragCoord.xy) / real(SS) - 0.5;  // this sample's pixel coordinates
-    int b = v_elem * 12;
-    real2 p[4];
-    for (int i = 0; i < 4; ++i) p[i] = real2(elem_data[b + 2 * i], elem_data[b + 2 * i + 1]);
-    // the cover rectangle (exact.vert) is padded; the shared tie rule decides coverage
-    if (!invert_newton(p, px, xi, eta) || !in_range(xi, eta)) discard;
-    if (near_edge(xi, eta)) {
-        real E[4];
-        real2 m[4];
-        edge_functions_2d(p, px, E, m);
-        if (!owned(xi, eta, E, m, orientation_2d(p, xi, eta))) discard;
+    int elem = v_elem;
+    if (ref.x < -0.5 || ref.y < -0.5 || ref.x > real(u_ref_size.x) - 0.5 || ref.y > real(u_ref_size.y) - 0.5) {
+        atomicAdd(dropped_samples, 1u);  // counted for the warning (glsim.stages.view.warn_dropped)
+        discard;
     }
-    ivec4 q = quads[v_elem];
-    real2 r[4];
-    for (int i = 0; i < 4; ++i) r[i] = real2(ref_uv[2 * q[i]], ref_uv[2 * q[i] + 1]);
-    ref = bilinear2(r, xi, eta);
-    real4 N = shape_functions(xi, eta);
-    real Z = dot(N, real4(elem_data[b + 8], elem_data[b + 9], elem_data[b + 10], elem_data[b + 11]));
 #else
-    int b = v_elem * 12;
-    real3 P[4];
-    for (int i = 0; i < 4; ++i) P[i] = real3(elem_data[b + 3 * i], elem_data[b + 3 * i + 1], elem_data[b + 3 * i + 2]);
+    ivec2 pix = ivec2(gl_FragCoord.xy) / SS;
+    uint n = candidate_count(pix);
+#if defined(RESOLVE)
+    if (n < 2u || n > uint(CANDIDATES)) discard;
+#elif defined(FALLBACK)
+    if (n <= uint(CANDIDATES)) discard;
+#else
+    if (n != 1u) discard;
+#endif
+    vec2 sample_px = gl_FragCoord.xy / float(SS) - 0.5;  // this sample's pixel coordinates
+    real2 px = real2(gl_FragCoord.xy) / real(SS) - 0.5;
+    real2 xn = real2(0.0);
+#if defined(MODE_EXACT)
     vec4 ray = texelFetch(u_rays, ivec2(gl_FragCoord.xy), 0);
     if (ray.x >= 1e30) discard;  // rays.frag's NO_RAY
-    real2 xn = real2(ray.xy) + real2(ray.zw);
-    real Z;
-    if (!intersect_ray_patch(P, xn, xi, eta, Z)) discard;
-    ivec4 q = quads[v_elem];
-    real3 R[4];  // undeformed corners in the reference camera's frame (mm)
-    for (int i = 0; i < 4; ++i) R[i] = real3(ref_xr[3 * q[i]], ref_xr[3 * q[i] + 1], ref_xr[3 * q[i] + 2]);
-    if (!project_camera_frame(bilinear3(R, xi, eta), u_ref_intr, u_ref_dist, u_ref_valid_r2, ref)) {
-        atomicAdd(dropped_samples, 1u);
+    xn = real2(ray.xy) + real2(ray.zw);
+#endif
+    int elem = -1;
+    real Z = 0.0;
+#if defined(RESOLVE)
+    bool dropped = false;
+    for (int k = 0; k < int(n); ++k) {
+        int e = candidate(pix, k);
+        if (!in_tight(e, sample_px, 0.0)) continue;
+        real x, y, z;
+        real2 r;
+        bool ok;
+        if (!map_sample(e, px, xn, x, y, r, z, ok)) continue;
+        if (elem >= 0 && !(z < Z || (z == Z && e < elem))) continue;   // nearest, then lowest index
+        if (!ok) {
+            dropped = true;   // unless a farther owner maps inside the reference
+            continue;
+        }
+        elem = e;
+        xi = x; eta = y; ref = r; Z = z;
+    }
+    if (elem < 0) {
+        if (dropped) atomicAdd(dropped_samples, 1u);  // counted for the warning (warn_dropped)
+        discard;
+    }
+#else
+#if defined(FALLBACK)
+    elem = v_elem;
+#else
+    elem = candidate(pix, 0);
+#endif
+    bool ok;
+    if (!map_sample(elem, px, xn, xi, eta, ref, Z, ok)) discard;
+    if (!ok) {
+        atomicAdd(dropped_samples, 1u);  // counted for the warning (warn_dropped)
         discard;
     }
 #endif
     gl_FragDepth = float(Z) / u_far;
 #endif
-    if (ref.x < -0.5 || ref.y < -0.5 || ref.x > real(u_ref_size.x) - 0.5 || ref.y > real(u_ref_size.y) - 0.5) {
-        atomicAdd(dropped_samples, 1u);  // counted for the warning (glsim.stages.view.warn_dropped)
-        discard;
-    }
     float grey = sample_ref(ref);
 #ifdef LIGHTING
-    grey = combine(grey, light_at(v_elem, xi, eta));
+    grey = combine(grey, light_at(elem, xi, eta));
 #endif
     out_grey = grey;
 #ifdef DEPTH_OUT
@@ -129,6 +199,6 @@ void main() {
 #ifdef TRUTH
     vec2 ref32 = vec2(ref);
     out_map = vec4(ref32, float(xi), float(eta));
-    out_extra = vec4(float(v_elem + 1), vec2(ref - real2(ref32)), 0.0);
+    out_extra = vec4(float(elem + 1), vec2(ref - real2(ref32)), 0.0);
 #endif
 }

@@ -14,6 +14,7 @@ uniform real u_valid_r2;
 // exact: corners in the camera frame (12, mm); q4: distorted pixel corners (8) and depths Z (4)
 layout(std430, binding = 0) writeonly buffer Elements { real elem_data[]; };
 layout(std430, binding = 9) writeonly buffer Cover { vec2 cover[]; };  // 4 corners per element (px)
+layout(std430, binding = 12) writeonly buffer Tight { vec4 tight[]; };  // 2 per element (candidates.glsl)
 
 void main() {
     int e = int((gl_WorkGroupID.y * gl_NumWorkGroups.x + gl_WorkGroupID.x) * gl_WorkGroupSize.x
@@ -43,10 +44,16 @@ void main() {
     bool drawn = !behind;
 #endif
     vec2 rect[4];
+    vec4 t[2];
     if (drawn) {
-        if (projectable) projectable_cover(P, rect);
-        else drawn = unprojectable_cover(P, rect);
+        if (projectable) projectable_cover(P, rect, t);
+        else drawn = unprojectable_cover(P, rect, t);
     }
-    if (!drawn) rect = vec2[4](vec2(-16.0), vec2(-16.0), vec2(-16.0), vec2(-16.0));  // zero area, culled
+    if (!drawn) {
+        rect = vec2[4](vec2(-16.0), vec2(-16.0), vec2(-16.0), vec2(-16.0));  // zero area, culled
+        t = vec4[2](vec4(1.0, 0.0, 1.0, -1.0), vec4(1.0, -1.0, 0.0, 0.0));   // empty
+    }
     for (int i = 0; i < 4; ++i) cover[4 * e + i] = rect[i];
+    tight[2 * e] = t[0];
+    tight[2 * e + 1] = t[1];
 }

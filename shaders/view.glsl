@@ -78,10 +78,13 @@ void record_flags(int e, real3 P[4], bool projectable, bool behind) {
 #define COVER_BOUNDARY_INTERVALS 8
 #define FAR_AWAY 1e30
 
+#define TIGHT_PAD_PX 0.0009765625
+
 uniform real u_intr[5];
 uniform real u_dist[12];
 uniform real u_ray_r;        // glsim.stages.view.ray_radius; < 0: unbounded
 uniform vec2 u_size;
+uniform real u_cover_grow;   // the covers also hold squares of this half-width around their points
 
 real2 to_pixels(real2 xn) { return normalized_to_pixel(distort(xn, u_dist), u_intr); }
 
@@ -97,21 +100,28 @@ void extent_add(inout Extent x, real2 p) {
     x.umax = max(x.umax, max(abs(p.x), abs(p.y)));
 }
 
-void extent_rect(Extent x, real sag, out vec2 rect[4]) {
-    real pad = 2.0 * sag + COVER_PAD_PX + 1e-6 * (x.umax + real(u_size.x) + real(u_size.y));
+// The cover rectangle (padded for the rasterizer's snapping, COVER_PAD_PX, and grown by
+// u_cover_grow) and the tight one (padded for float32 rounding only, TIGHT_PAD_PX): corners
+// along the axes, and (a, lo_a, hi_a), (lo_b, hi_b) for candidates.glsl.
+void extent_rect(Extent x, real sag, out vec2 rect[4], out vec4 tight[2]) {
+    real round_off = 1e-6 * (x.umax + real(u_size.x) + real(u_size.y));
     real2 a = x.a, b = real2(-x.a.y, x.a.x);
+    real pad = 2.0 * sag + COVER_PAD_PX + round_off + u_cover_grow * (abs(a.x) + abs(a.y));
     real la = x.lo_a - pad, ha = x.hi_a + pad, lb = x.lo_b - pad, hb = x.hi_b + pad;
     rect[0] = vec2(la * a + lb * b);
     rect[1] = vec2(ha * a + lb * b);
     rect[2] = vec2(ha * a + hb * b);
     rect[3] = vec2(la * a + hb * b);
+    real t = 2.0 * sag + TIGHT_PAD_PX + round_off;
+    tight[0] = vec4(vec2(a), float(x.lo_a - t), float(x.hi_a + t));
+    tight[1] = vec4(float(x.lo_b - t), float(x.hi_b + t), 0.0, 0.0);
 }
 
 const ivec2 COVER_SEGMENTS[6] = ivec2[6](ivec2(0, 1), ivec2(1, 2), ivec2(2, 3), ivec2(3, 0), ivec2(0, 2), ivec2(1, 3));
 
 // Elements whose corners all project: corners and segment midpoints, or, where a midpoint
 // strays more than COVER_COARSE_SAG_PX from its chord, the segments sampled finely.
-void projectable_cover(real3 P[4], out vec2 rect[4]) {
+void projectable_cover(real3 P[4], out vec2 rect[4], out vec4 tight[2]) {
     real2 xn[4], uvc[4];
     for (int i = 0; i < 4; ++i) {
         xn[i] = P[i].xy / P[i].z;
@@ -144,17 +154,19 @@ void projectable_cover(real3 P[4], out vec2 rect[4]) {
             }
         }
     }
-    extent_rect(x, sag, rect);
+    extent_rect(x, sag, rect, tight);
 }
 
 // Elements that do not project: the footprint box of their rays (view.py footprint_box),
 // its boundary pulled radially onto the disc of u_ray_r, distorted. False: never seen.
-bool unprojectable_cover(real3 P[4], out vec2 rect[4]) {
+bool unprojectable_cover(real3 P[4], out vec2 rect[4], out vec4 tight[2]) {
     if (u_ray_r < 0.0) {  // nothing bounds the rays: the whole image
         rect[0] = vec2(-0.5, -0.5);
         rect[1] = vec2(u_size.x - 0.5, -0.5);
         rect[2] = vec2(u_size.x - 0.5, u_size.y - 0.5);
         rect[3] = vec2(-0.5, u_size.y - 0.5);
+        tight[0] = vec4(1.0, 0.0, -1.0, u_size.x);
+        tight[1] = vec4(-1.0, u_size.y, 0.0, 0.0);
         return true;
     }
     real2 lo = real2(FAR_AWAY), hi = real2(-FAR_AWAY);
@@ -198,7 +210,7 @@ bool unprojectable_cover(real3 P[4], out vec2 rect[4]) {
         }
     }
     sag = max(sag, length(mid - 0.5 * (prev + first)));
-    extent_rect(x, sag, rect);
+    extent_rect(x, sag, rect, tight);
     return true;
 }
 #endif

@@ -214,3 +214,43 @@ def test_covers_are_computed_in_bounded_memory():
     tracemalloc.stop()
     assert peak < 80e6, peak
     assert (box[:, 2] >= box[:, 0]).mean() > 0.9
+
+
+def stacked_plates(layers: int):
+    """``layers`` plates stacked 7 mm apart in depth, each a little larger than the one in
+    front: their pixels have up to ``layers`` candidates (the lists hold 8)."""
+    from test_render import custom_mesh_scene, grid_nodes
+
+    nodes, quads = [], []
+    for k in range(layers):
+        n, q = grid_nodes(4, 3, 40 - 2 * k, 30 - 2 * k, 300.0 + 7 * (layers - 1 - k))
+        quads.append(q + sum(len(x) for x in nodes))
+        nodes.append(n)
+    return custom_mesh_scene(np.vstack(nodes), np.vstack(quads))
+
+
+@pytest.mark.gl
+@pytest.mark.parametrize("layers", [6, 12])
+@pytest.mark.parametrize("mode", ["exact", "q4"])
+def test_candidate_lists_and_their_overflow_give_the_oracle(gl_ctx, mode, layers, monkeypatch):
+    """Pixels with several candidates (resolve.frag) and with more than the lists hold (the
+    fallback over the cover rectangles) show the nearest layer, as the oracle; elements differ
+    only on shared edges (pixel centres on an edge, both elements giving the same point)."""
+    import glsim.backends.gl.geometry as glgeo
+
+    flags = []
+    original = glgeo.GeometryBuffers.list_flags
+    monkeypatch.setattr(glgeo.GeometryBuffers, "list_flags", lambda self, W, H: flags.append(original(self, W, H))
+                        or flags[-1])
+    scene, mesh = stacked_plates(layers)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RenderWarning)
+        with Renderer(scene, "gl", ctx=gl_ctx, mesh=mesh) as g, Renderer(scene, "cpu", mesh=mesh) as c:
+            a = g.render(0, 0, truth=True, mode=mode)
+            b = c.render(0, 0, truth=True, mode=mode)
+    assert flags == [(True, layers > 8)]
+    assert np.array_equal(a.truth.mask, b.truth.mask) and a.truth.mask.sum() > 5000
+    differ = a.truth.element != b.truth.element
+    assert np.abs(a.truth.X_deformed[differ] - b.truth.X_deformed[differ]).max(initial=0) < 1e-9
+    assert differ.sum() < 0.01 * a.truth.mask.sum()
+    assert np.abs(a.image.astype(float) - b.image).max() * 255 < 0.01

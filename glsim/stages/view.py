@@ -25,6 +25,7 @@ GRAZING_COS = float(np.cos(np.radians(GRAZING_DEG)))
 ZERO_AREA_REL = 1e-12  # element area ≤ this × the median element's: "zero area"
 TINY_AREA_REL = 1e-6  # ≤ this × the median: "tiny" (still drawn, watertight)
 COVER_PAD_PX = 1.0 / 8.0  # cover rectangles reach this far beyond the element's image
+TIGHT_PAD_PX = 1.0 / 1024.0  # GL candidate lists: the tight rectangles' pad (float32 rounding only)
 COVER_SEGMENTS = ((0, 1), (1, 2), (2, 3), (3, 0), (0, 2), (1, 3))  # the corners' convex hull's edges
 COVER_FINE_INTERVALS = 8  # intervals per segment where one segment's sagitta is not negligible
 COVER_COARSE_SAG_PX = 1.0 / 64.0  # largest whole-segment sagitta (px) drawn from corners and midpoints

@@ -200,7 +200,6 @@ class GLBackend:
         cam, ref_cam = view.camera, view.ref_camera
         defines = program_defines(opts, truth, self.fp64, fx)
         fp64 = "FP64" in defines
-        vert = "deform.vert" if opts.mode == "fast" else "exact.vert"
         geo = self._buffers(view)
 
         def camera_uniforms(p):
@@ -208,47 +207,74 @@ class GLBackend:
             self._set(p, "u_dist", cam.distortion.coeffs, fp64)
             self._set(p, "u_valid_r2", [cam.distortion.valid_radius() ** 2], fp64)
 
-        if opts.mode != "fast":  # element records and cover rectangles of this view, on the GPU
-            geo.view_pass(view, opts.mode, fp64, camera_uniforms)
-        prog = self.programs.program(vert, "deform.frag", defines=defines)
-        geo.bind(view, fp64)
-        geo.set_uniforms(prog, view, fp64)
-        camera_uniforms(prog)
-        self._set(prog, "u_ref_intr", ref_cam.intrinsics, fp64)
-        self._set(prog, "u_ref_dist", ref_cam.distortion.coeffs, fp64)
-        self._set(prog, "u_ref_valid_r2", [ref_cam.distortion.valid_radius() ** 2], fp64)
-        for name, value in (("u_size", (float(W), float(H))), ("u_far", float(view.far)),
-                            ("u_ref_size", tuple(float(x) for x in ref_cam.size))):
-            if name in prog:
-                prog[name].value = value
         dropped = ctx.buffer(bytes(4))  # deform.frag counts samples mapping outside the reference
-        dropped.bind_to_storage_buffer(4)
         buffers = [dropped]
         if fx.lighting is not None:
-            for name, value in _light_uniforms(fx).items():
-                if name in prog:
-                    prog[name].write(np.ascontiguousarray(value).tobytes())
             buffers.append(ctx.buffer(shading_data(view, fx.normals).tobytes()))
-            buffers[-1].bind_to_storage_buffer(1)
-        if opts.interpolation == "procedural":
-            self._bind_dots(prog)
-        else:
-            self._reference_texture(opts.interpolation).use(0)
-            if "u_ref" in prog:
-                prog["u_ref"].value = 0
-        if "u_rays" in prog:
-            self._ray_map(cam, s, fp64).use(1)
-            prog["u_rays"].value = 1
 
+        def setup(prog):
+            """Bind and set everything deform.frag (and its vertex shader) reads."""
+            geo.bind(view, fp64)
+            geo.set_uniforms(prog, view, fp64)
+            camera_uniforms(prog)
+            self._set(prog, "u_ref_intr", ref_cam.intrinsics, fp64)
+            self._set(prog, "u_ref_dist", ref_cam.distortion.coeffs, fp64)
+            self._set(prog, "u_ref_valid_r2", [ref_cam.distortion.valid_radius() ** 2], fp64)
+            for name, value in (("u_size", (float(W), float(H))), ("u_far", float(view.far)),
+                                ("u_ref_size", tuple(float(x) for x in ref_cam.size))):
+                if name in prog:
+                    prog[name].value = value
+            dropped.bind_to_storage_buffer(4)
+            if fx.lighting is not None:
+                for name, value in _light_uniforms(fx).items():
+                    if name in prog:
+                        prog[name].write(np.ascontiguousarray(value).tobytes())
+                buffers[1].bind_to_storage_buffer(1)
+            if opts.interpolation == "procedural":
+                self._bind_dots(prog)
+            else:
+                self._reference_texture(opts.interpolation).use(0)
+                if "u_ref" in prog:
+                    prog["u_ref"].value = 0
+            if "u_rays" in prog:
+                self._ray_map(cam, s, fp64).use(1)
+                prog["u_rays"].value = 1
+
+        if opts.mode != "fast":
+            # element records, covers and tight rectangles of this view (view.comp), then pass 1:
+            # per pixel, the elements whose tight rectangle meets its samples (candidates.frag)
+            geo.view_pass(view, opts.mode, fp64, camera_uniforms, grow=0.5 - 0.5 / s)
+            geo.candidates_pass(W, H, s)
         fbo, color, _, grey_only = self._target(W * s, H * s, truth, "DEPTH_OUT" in defines)
         # the grey target starts at the background; truth and depth targets at zero
         fbo.clear(0.0, 0.0, 0.0, 0.0, depth=1.0)
         grey_only.clear(opts.background, 0.0, 0.0, 0.0)
         fbo.use()
         fbo.viewport = (0, 0, W * s, H * s)
-        ctx.enable(ctx.DEPTH_TEST)
         ctx.disable(ctx.CULL_FACE)
-        geo.draw(prog)
+        if opts.mode == "fast":  # the element triangles, projected in the vertex stage
+            prog = self.programs.program("deform.vert", "deform.frag", defines=defines)
+            setup(prog)   # (may make the ray map, which binds its own framebuffer)
+            fbo.use()
+            ctx.enable(ctx.DEPTH_TEST)
+            geo.draw(prog)
+        else:  # pass 2, full screen: pixels with one candidate, then those with several
+            multiple, overflowed = geo.list_flags(W, H)
+            for frag in ("deform.frag", "resolve.frag") if multiple else ("deform.frag",):
+                prog = self.programs.program("lists.vert", frag, defines=defines)
+                setup(prog)
+                fbo.use()
+                geo.bind_lists(W, H, prog)
+                vao = ctx.vertex_array(prog, [])
+                vao.render(ctx.TRIANGLES, vertices=3)
+                vao.release()
+            if overflowed:  # pixels with more candidates than the lists hold: the cover rectangles
+                prog = self.programs.program("exact.vert", "deform.frag", defines={**defines, "FALLBACK": None})
+                setup(prog)
+                fbo.use()
+                geo.bind_lists(W, H, prog)
+                ctx.enable(ctx.DEPTH_TEST)
+                geo.draw(prog)
         ctx.disable(ctx.DEPTH_TEST)
         check_error(ctx, f"deformation pass ({opts.mode})")
         ctx.memory_barrier()  # shader storage writes visible to the read-backs

@@ -23,6 +23,7 @@ from glsim.stages.view import GRAZING_COS, NEAR_MM, ray_radius
 
 _CORNERS = np.array([0, 1, 2, 0, 2, 3], np.uint32)  # two triangles per element, as the oracle's fast mode
 _GROUP = 64          # view.comp's local size
+CANDIDATES = 8       # candidates.glsl: elements listed per pixel before it overflows
 _MAX_GROUPS = 65535  # per dispatch dimension
 
 
@@ -125,8 +126,9 @@ class GeometryBuffers:
                 prog[name].value = v
 
     # ---- the per-view pass -----------------------------------------------------------------
-    def view_pass(self, view: ViewSpec, mode: str, fp64: bool, camera_uniforms) -> None:
-        """view.comp: element records (binding 0) and cover rectangles (binding 9) of this view."""
+    def view_pass(self, view: ViewSpec, mode: str, fp64: bool, camera_uniforms, grow: float = 0.0) -> None:
+        """view.comp: element records (binding 0), cover rectangles (binding 9, grown by
+        ``grow`` px for pass 1 at pixel resolution) and tight rectangles (binding 12)."""
         defines = {f"MODE_{mode.upper()}": None, **({"FP64": None} if fp64 else {})}
         prog = self.programs.compute("view.comp", defines)
         self.bind(view, fp64)
@@ -134,16 +136,70 @@ class GeometryBuffers:
         camera_uniforms(prog)
         if "u_size" in prog:
             prog["u_size"].value = tuple(float(x) for x in view.camera.size)
+        if "u_cover_grow" in prog:
+            prog["u_cover_grow"].write(np.asarray([grow], "f8" if fp64 else "f4").tobytes())
         size = 8 if fp64 else 4
         elem = self._buffer(("elem", fp64), lambda: self.ctx.buffer(reserve=max(1, self.M * 12 * size)))
         cover = self._buffer("cover", lambda: self.ctx.buffer(reserve=max(1, self.M * 4 * 8)))
+        tight = self._buffer("tight", lambda: self.ctx.buffer(reserve=max(1, self.M * 2 * 16)))
         elem.bind_to_storage_buffer(0)
         cover.bind_to_storage_buffer(9)
+        tight.bind_to_storage_buffer(12)
         groups = (self.M + _GROUP - 1) // _GROUP
         gx = min(groups, _MAX_GROUPS)
         prog.run(group_x=gx, group_y=(groups + gx - 1) // gx)
         self.ctx.memory_barrier()
         self.view_passes += 1
+
+    # ---- candidate lists (modes exact and q4) -----------------------------------------------
+    def _lists(self, W: int, H: int):
+        """Per-pixel candidate count (r32ui) and list (CANDIDATES layers), a framebuffer to clear
+        the counts and an attachment-less one for pass 1, and the list markers (candidates.frag)."""
+        key = ("lists", W, H)
+        if key not in self._bufs:
+            for k in [k for k in self._bufs if isinstance(k, tuple) and k[0] == "lists"]:
+                for obj in self._bufs.pop(k):
+                    obj.release()
+            ctx = self.ctx
+            count = ctx.texture((W, H), 1, dtype="u4")
+            lists = ctx.texture_array((W, H, CANDIDATES), 1, dtype="u4")
+            self._bufs[key] = (count, lists, ctx.framebuffer(color_attachments=[count]), ctx.empty_framebuffer((W, H)),
+                               ctx.buffer(bytes(8)))
+        return self._bufs[key]
+
+    def candidates_pass(self, W: int, H: int, s: int) -> None:
+        """Pass 1: list, per pixel, the elements whose tight rectangle meets its s×s samples
+        (candidates.frag over the cover rectangles written by :meth:`view_pass`)."""
+        count, lists, clear, empty, overflow = self._lists(W, H)
+        clear.clear(0.0, 0.0, 0.0, 0.0)
+        overflow.write(bytes(8))
+        overflow.bind_to_storage_buffer(13)
+        prog = self.programs.program("exact.vert", "candidates.frag")
+        prog["u_size"].value = (float(W), float(H))
+        prog["u_half"].value = 0.5 - 0.5 / s
+        self.bind_lists(W, H)
+        empty.use()
+        empty.viewport = (0, 0, W, H)
+        self.draw(prog)
+        self.ctx.memory_barrier()
+
+    def bind_lists(self, W: int, H: int, prog=None) -> None:
+        """The lists as images (pass 1) and, for ``prog`` (pass 2), as textures on units 2, 3."""
+        count, lists, *_ = self._lists(W, H)
+        count.bind_to_image(0, read=True, write=True)
+        lists.bind_to_image(1, read=True, write=True)
+        self._bufs["tight"].bind_to_storage_buffer(12)
+        if prog is not None:
+            for unit, (name, tex) in enumerate((("u_count_tex", count), ("u_list_tex", lists)), start=2):
+                if name in prog:
+                    tex.use(unit)
+                    prog[name].value = unit
+
+    def list_flags(self, W: int, H: int) -> tuple[bool, bool]:
+        """Whether some pixel has more than one candidate, and whether one has more than the
+        lists hold (then the fallback draws it)."""
+        multiple, overflowed = np.frombuffer(self._lists(W, H)[4].read(), np.uint32)
+        return bool(multiple), bool(overflowed)
 
     def draw(self, prog) -> None:
         """All elements' triangles (attribute-less vertices, the index buffer made once)."""
@@ -169,7 +225,8 @@ class GeometryBuffers:
 
     def release(self) -> None:
         for b in self._bufs.values():
-            b.release()
+            for obj in (b if isinstance(b, tuple) else (b,)):
+                obj.release()
         for entry in self._steps.values():
             for b in entry[1:3]:
                 b.release()

@@ -1,0 +1,9 @@
+// Pass 2 of the exact and q4 modes: one triangle covering the viewport (as fullscreen.vert);
+// deform.frag finds each sample's elements in the candidate lists (v_elem unused).
+flat out int v_elem;
+
+void main() {
+    vec2 p = vec2((gl_VertexID << 1) & 2, gl_VertexID & 2);
+    gl_Position = vec4(p * 2.0 - 1.0, 0.0, 1.0);
+    v_elem = -1;
+}
