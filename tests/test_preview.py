@@ -24,7 +24,6 @@ from glsim.scene.camera import project
 from glsim.workflows.preview import Preview
 from glsim.workflows.preview import overlays as ov
 from glsim.workflows.preview.core import display_grey
-from glsim.workflows.preview.sceneio import reference_key, same_reference
 from glsim.stages.reference import make_reference, specimen_mesh
 
 pytestmark = pytest.mark.gl
@@ -98,9 +97,10 @@ def test_each_control_changes_exactly_what_it_should(fresh):
     pv.set("dof", True)
     pv.set("lighting", True)
     pv.set("noise", True)
-    expect = {"stereo_angle": ({"pose", "speckle"}, 36.0), "distance": ({"pose", "speckle"}, 650.0),
-              "target_x": ({"pose", "speckle"}, 5.0), "target_y": ({"pose", "speckle"}, -4.0),
-              "target_z": ({"pose", "speckle"}, 10.0), "focal_length": ({"intrinsics", "optics", "speckle"}, 33.0),
+    # camera 1's pose and lens also turn the [speckle] into the image it already shows (pinned)
+    expect = {"stereo_angle": ({"pose"}, 36.0), "distance": ({"pose"}, 650.0),
+              "target_x": ({"pose"}, 5.0), "target_y": ({"pose"}, -4.0),
+              "target_z": ({"pose"}, 10.0), "focal_length": ({"intrinsics", "optics"}, 33.0),
               "f_number": ({"optics"}, 8.0), "focus_distance": ({"optics"}, 590.0), "ambient": ({"lighting"}, 0.05),
               "light_intensity": ({"lighting"}, 0.5), "light_x": ({"lighting"}, -120.0),
               "light_y": ({"lighting"}, -150.0), "light_z": ({"lighting"}, 50.0), "noise_sigma": ({"noise"}, 1.0),
@@ -108,7 +108,12 @@ def test_each_control_changes_exactly_what_it_should(fresh):
     for name, (what, value) in expect.items():
         before, uploads, ref = pv.scene, pv.reference_uploads, pv.renderer.reference
         assert pv.set(name, value), pv.messages
-        assert sections(before, pv.scene) == what, name
+        changed = sections(before, pv.scene)
+        if name.startswith("speckle_"):
+            assert changed == what, name
+        else:
+            assert changed - {"speckle"} == what, name
+            assert "speckle" not in changed or pv.scene.speckle.camera == pv.renderer.reference.camera
         if name.startswith("speckle_"):
             assert pv.reference_uploads == uploads + 1
         else:    # poses, optics, lights, noise: the uploaded speckle is kept
@@ -160,20 +165,12 @@ def test_pose_change_keeps_the_speckle_and_renders_like_the_saved_scene(fresh, t
     path = pv.save(tmp_path / "edited.toml")
     loaded = load_scene(path)
     assert loaded.speckle.camera is not None and loaded.lighting and loaded.optics and loaded.noise
-    # the same reference as the preview's, although camera 1 moved
-    assert same_reference(reference_key(loaded, pv.mesh.nodes), pv._key)
+    # the same reference as the preview's, although camera 1 moved: the speckle stays on the specimen
+    assert loaded.speckle.image.endswith("edited_speckle.tif") and (tmp_path / "edited_speckle.tif").is_file()
+    ref = make_reference(loaded, pv.mesh)
+    assert np.array_equal(ref.image, pv.renderer.reference.image) and ref.camera == pv.renderer.reference.camera
     for i in range(2):
         np.testing.assert_allclose(offscreen(loaded, i, 1).image, pv.camera_image(i), atol=1e-6, rtol=0)
-
-
-def test_reference_key_follows_make_reference(gl_ctx):
-    scene = small_scene()
-    mesh = specimen_mesh(scene)
-    key = reference_key(scene, mesh.nodes)
-    ref = make_reference(scene, mesh)
-    assert key[1] == ref.camera and ref.dots.shape == (ref.camera.height, ref.camera.width)
-    assert ref.dots.edge_px == pytest.approx(key[4])
-    assert np.median(ref.dots.radii) * 2 == pytest.approx(key[3], rel=0.05)
 
 
 def test_saved_mesh_scene_loads_back_from_another_folder(gl_ctx, tmp_path):
@@ -341,3 +338,194 @@ def test_overlay_pixels_in_the_frame(fresh):
     assert np.abs(tile[..., 0] - tile[..., 2])[m].mean() > 10     # coloured over the specimen
     assert np.array_equal(tile[~np.isfinite(covered)][:, 0], grey[~np.isfinite(covered)]) or True
     assert frame.shape[:2] == (SIZE[1], SIZE[0])
+
+
+# ---- command line -----------------------------------------------------------------------------
+def _glsim(*args, env=None, timeout=120):
+    return subprocess.run([sys.executable, "-m", "glsim.cli", *map(str, args)], capture_output=True, text=True,
+                          timeout=timeout, cwd=ROOT, env={**os.environ, **(env or {})})
+
+
+@pytest.fixture(scope="module")
+def small_toml(tmp_path_factory):
+    from glsim.workflows.preview.sceneio import save_scene
+    return save_scene(small_scene(), tmp_path_factory.mktemp("scene") / "bulge_small.toml")
+
+
+def test_screenshot_without_display_equals_the_core_frame(small_toml, tmp_path, gl_ctx):
+    out = tmp_path / "shot.png"
+    r = _glsim("preview", small_toml, "--screenshot", out, "--size", *SIZE, "--step", 1, "--overlay", "edges",
+               "--no-timings", env={"DISPLAY": "", "WAYLAND_DISPLAY": ""})
+    assert r.returncode == 0, r.stderr
+    import imageio.v3 as iio
+    shot = iio.imread(out)
+    with Preview(small_toml, size=SIZE, ctx=gl_ctx) as pv:
+        pv.show_timings = False
+        pv.set("step", 1)
+        pv.set("overlay:edges", True)
+        assert np.array_equal(shot, pv.refine())
+
+
+def test_no_display_and_bad_input_are_named(tmp_path):
+    r = _glsim("preview", ROOT / "examples/bulge.toml", env={"DISPLAY": "", "WAYLAND_DISPLAY": ""})
+    assert r.returncode == 2 and "no display" in r.stderr and "--screenshot" in r.stderr and "Widget" in r.stderr
+    assert "Traceback" not in r.stderr
+    bad = tmp_path / "bad.toml"
+    bad.write_text((ROOT / "examples/plate_inp/scene.toml").read_text().replace("fx = 1800.0", "fx = -3.0"))
+    for scene in (bad, tmp_path / "missing.toml"):
+        p, q = _glsim("preview", scene, "--screenshot", tmp_path / "x.png"), _glsim("render", scene, "-o", tmp_path)
+        assert p.returncode == q.returncode == 2 and "Traceback" not in p.stderr
+        assert p.stderr == q.stderr and p.stderr.startswith("glsim: error: ")
+    assert "cameras[0].fx" in _glsim("preview", bad).stderr
+
+
+# ---- the notebook widget, through its message interface ------------------------------------------
+def test_widget_through_its_messages(gl_ctx, tmp_path):
+    pytest.importorskip("jupyter_rfb")
+    import io
+    import imageio.v3 as iio
+    from glsim.workflows.preview import Widget
+
+    w = Widget(small_scene(), size=SIZE, ctx=gl_ctx)
+    try:
+        sent = []
+        w.send = lambda msg, buffers=None: sent.append((msg, buffers))
+        w.quality = 100               # lossless PNG frames
+        w._has_visible_views = True
+        w.core.show_timings = False
+
+        def message(**event):
+            w._rfb_handle_msg(w, {"timestamp": 0, **event}, [])
+
+        def draw():
+            w._frame_feedback = {"index": w._rfb_frame_index, "timestamp": time.time(), "localtime": time.time()}
+            w._rfb_maybe_draw()
+            msg, buffers = sent[-1]
+            assert msg["type"] == "framebufferdata" and msg["mimetype"] == "image/png"
+            return iio.imread(io.BytesIO(buffers[0]))
+
+        message(type="resize", width=SIZE[0], height=SIZE[1], ratio=1.0)
+        first = draw()
+        assert first.shape == (SIZE[1], SIZE[0], 3)
+        message(type="key_down", key="ArrowRight", modifiers=[])
+        assert w.core.p.step == 1 and w._widgets["step"].value == 1        # the ipywidget follows
+        x, y = _row(w.core, "lighting")
+        message(type="pointer_down", x=x, y=y, button=1, buttons=[1], modifiers=[])
+        message(type="pointer_up", x=x, y=y, button=1, buttons=[], modifiers=[])
+        assert w.core.p.lighting and w._widgets["lighting"].value
+        w._widgets["dof"].value = True                                     # an ipywidget drives the core
+        assert w.core.scene.optics is not None
+        w._widgets["noise_sigma"].value = 3.0
+        assert w.core.quality == "fast"
+        w.core._settle_until = 0.0
+        snap = draw()
+        with Preview(small_scene(), size=SIZE, ctx=gl_ctx) as pv:         # the same settings, offscreen
+            pv.show_timings = False
+            for name, value in (("step", 1), ("lighting", True), ("dof", True), ("noise_sigma", 3.0)):
+                pv.set(name, value)
+            assert np.array_equal(snap, pv.refine())
+        message(type="wheel", x=100, y=SIZE[1] - 50, dx=0, dy=100, modifiers=[])   # zoom the rig view
+        assert w.core.orbit.distance > w.core._orbit0.distance
+    finally:
+        w.close()
+
+
+def _row(pv, name):
+    """The frame coordinates of a panel row (from the core's hit regions)."""
+    pv.frame()
+    for (x, y, w, h), what in pv._hits:
+        if what == ("control", name):
+            return x + 30, y + h // 2
+    raise KeyError(name)
+
+
+# ---- the desktop window under a virtual X server ------------------------------------------------
+def _xwd(path):
+    """An xwd dump (32-bit pixels) as H×W×3 RGB."""
+    import struct
+    b = Path(path).read_bytes()
+    h = struct.unpack(">25I", b[:100])
+    W, H, bpl, order = h[4], h[5], h[12], h[7]
+    px = np.frombuffer(b[h[0] + h[19] * 12:][:bpl * H], "<u4" if order == 0 else ">u4").reshape(H, -1)[:, :W]
+    return np.stack([((px & m) >> ((m & -m).bit_length() - 1)).astype(np.uint8) for m in h[14:17]], axis=-1)
+
+
+@pytest.fixture(scope="module")
+def xserver():
+    tools = [t for t in ("Xvfb", "xdotool", "xwd") if shutil.which(t) is None]
+    if tools:
+        pytest.skip(f"{', '.join(tools)} not installed (make test installs xvfb, xdotool and x11-apps as root)")
+    display = f":{90 + os.getpid() % 400}"
+    proc = subprocess.Popen(["Xvfb", display, "-screen", "0", "1280x1024x24", "-nolisten", "tcp"],
+                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    for _ in range(100):
+        if subprocess.run(["xdotool", "getdisplaygeometry"], env={**os.environ, "DISPLAY": display},
+                          capture_output=True).returncode == 0:
+            break
+        time.sleep(0.05)
+    yield display
+    proc.terminate()
+    proc.wait(10)
+
+
+def test_window_under_xvfb(xserver, small_toml, tmp_path, gl_ctx):
+    env = {**os.environ, "DISPLAY": xserver}
+    app = subprocess.Popen([sys.executable, "-m", "glsim.cli", "preview", str(small_toml), "--size", *map(str, SIZE),
+                            "--log-frames", "--no-timings"], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                           text=True, env=env, cwd=tmp_path)
+    import queue
+    import threading
+    out, lines = queue.Queue(), []
+    threading.Thread(target=lambda: [out.put(line) for line in app.stdout], daemon=True).start()
+
+    def wait_for(text, timeout=60):
+        t0 = time.monotonic()
+        while time.monotonic() - t0 < timeout:
+            try:
+                line = out.get(timeout=0.5)
+            except queue.Empty:
+                continue
+            lines.append(line)
+            if text in line and "quality=full" in line:
+                return line
+        raise AssertionError(f"no frame with {text!r} within {timeout} s: {lines}")
+
+    def window_pixels():
+        wid = subprocess.run(["xdotool", "search", "--name", "glsim preview"], env=env, capture_output=True,
+                             text=True).stdout.split()[0]
+        dump = tmp_path / "w.xwd"
+        subprocess.run(["xwd", "-id", wid, "-silent", "-out", str(dump)], env=env, check=True)
+        return wid, _xwd(dump)
+
+    def xdo(*args):
+        subprocess.run(["xdotool", *args], env=env, check=True)
+
+    try:
+        wait_for("step=0")
+        wid, shown = window_pixels()
+        with Preview(small_toml, size=SIZE, ctx=gl_ctx) as pv:
+            pv.show_timings = False
+            assert np.array_equal(shown, pv.refine())
+            xdo("key", "--window", wid, "Right")                           # a real key press: next load step
+            wait_for("step=1")
+            pv.set("step", 1)
+            assert np.array_equal(window_pixels()[1], pv.refine())
+            x, y = _row(pv, "lighting")                                    # a real click on the panel
+            xdo("mousemove", "--window", wid, str(x), str(y), "click", "1")
+            wait_for("lighting=True")
+            pv.set("lighting", True)
+            assert np.array_equal(window_pixels()[1], pv.refine())
+            xdo("key", "--window", wid, "e")                               # a key toggles the edges overlay
+            wait_for("overlays=edges")
+            xdo("key", "--window", wid, "Right")
+            wait_for("step=2")
+            pv.set("overlay:edges", True)
+            pv.set("step", 2)
+            assert np.array_equal(window_pixels()[1], pv.refine())
+        # q quits (the window is gone before xdotool sends the key release, so its status is not checked)
+        subprocess.run(["xdotool", "key", "--window", wid, "q"], env=env, capture_output=True)
+        assert app.wait(30) == 0
+    finally:
+        if app.poll() is None:
+            app.kill()
+            app.wait()

@@ -21,7 +21,7 @@ from glsim.scene.camera import Camera
 from glsim.stages.reference import specimen_mesh
 from glsim.workflows.preview import draw, overlays as ov
 from glsim.workflows.preview.controls import COMPONENTS, OVERLAYS, Control, Model, moved_light
-from glsim.workflows.preview.sceneio import pin_speckle, reference_key, same_reference, save_scene
+from glsim.workflows.preview.sceneio import pinned_speckle, reference_inputs, save_scene
 
 TRUTH_OVERLAYS = ("displacement", "overlap", "coc")
 ROW = 19            # panel row height, px
@@ -99,7 +99,8 @@ class Preview:
         self.ctx = ctx if ctx is not None else create_context()
         self.renderer: Renderer | None = None
         self.reference_uploads = 0          # how often a reference (speckle) was made and uploaded
-        self._key = None
+        self._built = None                  # reference_inputs of the scene the reference was made from
+        self._tmp = None                    # the preview's own folder (pinned reference images)
         self.messages: list[str] = []
         self.scene = self._compose()
         self._install(self.scene)
@@ -125,6 +126,8 @@ class Preview:
         self._hits: list[tuple] = []
         self._ratio = 1.0
         self.quit_requested = False
+        self._panel_offset = 0
+        self.show_timings = True           # render times in the frame (off: reproducible frames)
 
     # ---- scene -------------------------------------------------------------------------------
     def _mean_view(self) -> np.ndarray:
@@ -132,31 +135,38 @@ class Preview:
         return z / np.linalg.norm(z)
 
     def _compose(self) -> Scene:
-        """The edited scene from the loaded one and :attr:`p`, its speckle held on the specimen
-        when camera 1 moved."""
-        p = self.p
-        base0 = self.model.base.cameras[0]
-        scene = self.model.scene(p, self.lights)
-        if scene.cameras[0] != base0:
-            ref = dataclasses.replace(scene, cameras=(base0,) + scene.cameras[1:])
-            shape = self.renderer.reference.image.shape if self.renderer is not None else None
-            scene = pin_speckle(scene, reference_key(ref, self.mesh.nodes, shape), self.mesh.nodes)
+        """The edited scene from the loaded one and :attr:`p`. While the speckle settings are
+        those the current reference was made with, the reference is kept: if camera 1 moved
+        or zoomed, the scene's [speckle] becomes that very image and camera
+        (:func:`~glsim.workflows.preview.sceneio.pinned_speckle`)."""
+        scene = self.model.scene(self.p, self.lights)
+        built = self._built
+        if built is not None and reference_inputs(scene) != built:
+            speckle, specimen, cam0, base = built
+            if (scene.speckle, scene.specimen, scene.base_dir) == (speckle, specimen, base):
+                pin = pinned_speckle(self.renderer.reference, self._private(), f"reference_{self.reference_uploads}.tif")
+                scene = dataclasses.replace(scene, speckle=pin)
         return scene
 
+    def _private(self) -> str:
+        if self._tmp is None:
+            import tempfile
+            self._tmp = tempfile.mkdtemp(prefix="glsim-preview-")
+        return self._tmp
+
     def _install(self, scene: Scene) -> None:
-        """Point the renderer at ``scene``; make a new reference only if the scene asks for
+        """Point the renderer at ``scene``; make a new reference only when the scene asks for
         another one (new speckle size or seed), on the same GL context."""
-        shape = self.renderer.reference.image.shape if self.renderer is not None else None
-        key = reference_key(scene, self.mesh.nodes, shape) if (shape is not None or not scene.speckle.image) else None
-        if self.renderer is None or not same_reference(key, self._key):
-            new = Renderer(scene, "gl", ctx=self.ctx, mesh=self.mesh)
-            if self.renderer is not None:
-                self.renderer.close()
-            self.renderer = new
-            self.reference_uploads += 1
-            self._key = reference_key(scene, self.mesh.nodes, new.reference.image.shape)
-        else:
+        pinned = self._tmp is not None and scene.speckle.image and Path(scene.speckle.image).parent == Path(self._tmp)
+        if self.renderer is not None and (pinned or reference_inputs(scene) == self._built):
             self.renderer.scene = scene
+            return
+        new = Renderer(scene, "gl", ctx=self.ctx, mesh=self.mesh)
+        if self.renderer is not None:
+            self.renderer.close()
+        self.renderer = new
+        self.reference_uploads += 1
+        self._built = reference_inputs(scene)
 
     def close(self) -> None:
         if self.renderer is not None:
@@ -165,6 +175,10 @@ class Preview:
         if self._own_ctx and self.ctx is not None:
             self.ctx.release()
         self.ctx = None
+        if self._tmp is not None:
+            import shutil
+            shutil.rmtree(self._tmp, ignore_errors=True)
+            self._tmp = None
 
     def __enter__(self) -> "Preview":
         return self
@@ -496,7 +510,9 @@ class Preview:
         colour = draw.CAMERA_COLOURS[i % len(draw.CAMERA_COLOURS)]
         if i == self.p.camera:
             cv2.rectangle(frame, (x - 2, y - 2), (x + w + 1, y + h + 1), colour, 2)
-        label = f"{cam.name}  {cam.width}x{cam.height}  {res.options.mode}  {res.seconds * 1e3:.0f} ms"
+        label = f"{cam.name}  {cam.width}x{cam.height}  {res.options.mode}"
+        if self.show_timings:
+            label += f"  {res.seconds * 1e3:.0f} ms"
         if res.camera.size != cam.size:
             label += f"  (preview {res.camera.width}x{res.camera.height})"
         draw.text(frame, label, x + 2, y - 5, colour, 0.4)
@@ -530,7 +546,8 @@ class Preview:
         q = self._frame_quality or self.quality
         t = self.timings.get(f"render_{q}", 0.0)
         line(f"step {p.step}/{self.model.n_steps - 1}   mode {self.scene.render.mode}   "
-             f"{'playing' if p.playing else ''}  {'preview (fast)' if q == 'fast' else 'full quality'} {t * 1e3:.0f} ms")
+             f"{'playing' if p.playing else ''}  {'preview (fast)' if q == 'fast' else 'full quality'}" +
+             (f" {t * 1e3:.0f} ms" if self.show_timings else ""))
         fx = [n for n, on in (("lighting", self.scene.lighting), ("DOF", self.scene.optics), ("noise", self.scene.noise)) if on]
         line("effects: " + (", ".join(fx) or "none"), draw.GREY)
         if self.show_help:
@@ -590,9 +607,15 @@ class Preview:
         frame[y:y + h, x:x + w] = (36, 36, 42)
         draw.text(frame, "controls (drag a value, click -/+)", x + 8, y + 14, draw.GREY, 0.38)
         ry = y + 22
-        for c in self.controls.values():
-            if ry + ROW > y + h:
-                break
+        rows = list(self.controls.values())
+        fit = max(1, (h - 22) // ROW)
+        self._panel_offset = min(max(self._panel_offset, 0), max(0, len(rows) - fit))
+        if len(rows) > fit:
+            draw.text(frame, f"wheel: more ({self._panel_offset + 1}-{min(len(rows), self._panel_offset + fit)} "
+                      f"of {len(rows)})", x + w - 120, y + h - 4, draw.GREY, 0.34)
+            fit -= 1
+        self._hits.append(((x, y, w, h), ("panel", None)))
+        for c in rows[self._panel_offset:self._panel_offset + fit]:
             self._hits.append(((x, ry, w, ROW), ("control", c.name)))
             if c.kind == "toggle":
                 on = self.get(c.name)
@@ -668,10 +691,16 @@ class Preview:
         x, y, w, h = self._layout()["tiles"][i]
         return self._frame[y:y + h, x:x + w]
 
+    def state_summary(self) -> dict:
+        """The live state in a few words (the window's frame log, tests)."""
+        p = self.p
+        return {"camera": p.camera, "mode": self.scene.render.mode, "lighting": p.lighting, "dof": p.dof,
+                "noise": p.noise, "overlays": ",".join(k for k, on in p.overlays.items() if on) or "-"}
+
     # ---- saving ------------------------------------------------------------------------------
     def save(self, path: str | Path) -> Path:
         """The edited scene as TOML (``load_scene`` reads it back and renders the same images)."""
-        return save_scene(self.scene, path)
+        return save_scene(self.scene, path, self._tmp)
 
     def screenshot(self, path: str | Path) -> Path:
         """The full-quality frame as PNG."""
@@ -823,8 +852,9 @@ class Preview:
             self._dirty = True
         elif what[0] == "tile":
             self.add("distance", 1 if dy > 0 else -1)
-        elif what[0] == "control" and self.controls[what[1]].kind in ("slider", "int"):
-            self.add(what[1], -1 if dy > 0 else 1)
+        elif what[0] in ("control", "panel"):   # scroll the panel
+            self._panel_offset += 3 if dy > 0 else -3
+            self._dirty = True
 
 
 def draw_once(scene: Scene | str | Path, size=(1280, 800), step: int | None = None, overlays=()) -> np.ndarray:

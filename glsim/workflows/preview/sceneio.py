@@ -1,11 +1,9 @@
-"""The preview's scene bookkeeping: which reference image a scene asks for (so that edits that
+"""The preview's scene bookkeeping: what the reference image is made from (so that edits that
 leave it unchanged keep the uploaded speckle), holding the speckle still on the specimen while
 camera 1 moves, and writing the edited scene as TOML that :func:`glsim.scene.load_scene` reads
 back."""
 from __future__ import annotations
 
-import dataclasses
-import math
 import os
 from pathlib import Path
 
@@ -13,70 +11,29 @@ import numpy as np
 
 from glsim.errors import SceneError
 from glsim.io import images as io
-from glsim.scene import Scene
+from glsim.scene import Scene, Speckle
 from glsim.scene.load import _from_resolved
-from glsim.stages.reference import _auto_camera, camera_scale
 
 
-def reference_key(scene: Scene, nodes: np.ndarray, image_shape: tuple[int, int] | None = None) -> tuple:
-    """Everything :func:`glsim.stages.reference.make_reference` makes the reference from, with
-    the same arithmetic: two scenes with equal keys get the same reference image and camera.
-    ``image_shape`` (H, W): the loaded reference image's, for a scene with ``speckle.image``."""
-    sp, cam1 = scene.speckle, scene.cameras[0]
-    if sp.image:
-        cam = sp.camera or _auto_camera(nodes, cam1.center, sp.mm_per_px, (image_shape or (0, 0))[::-1])
-        return ("image", str(scene.resolve(sp.image)), cam)
-    c = camera_scale(cam1, nodes)
-    m = sp.mm_per_px or c / sp.oversample
-    cam = sp.camera or _auto_camera(nodes, cam1.center, m, None)
-    dot = sp.dot_diameter_px * c / m
-    edge = min(sp.edge_px * c / m, dot)
-    return ("dots", cam, m, dot, edge, sp.density, sp.seed)
+def reference_inputs(scene: Scene) -> tuple:
+    """What the reference image is made from (glsim.stages.reference.make_reference): the
+    [speckle] and [specimen] tables, camera 1 (the generator sizes its dots in camera-1 pixels
+    and faces the specimen's camera side) and the folder relative paths start in. Two scenes
+    with equal inputs get the same reference."""
+    return scene.speckle, scene.specimen, scene.cameras[0], scene.base_dir
 
 
-def same_reference(a: tuple | None, b: tuple | None) -> bool:
-    """Whether two :func:`reference_key` results give the same reference. Dot and edge sizes
-    may differ in the last bits (1e-12 relative): :func:`pin_speckle` cannot always hit the
-    value exactly, and such a difference moves no dot edge by more than 1e-12 px."""
-    if a is None or b is None or len(a) != len(b) or a[0] != b[0]:
-        return False
-    if a[0] == "image":
-        return a == b
-    return (a[1:3] == b[1:3] and a[5:] == b[5:]
-            and all(math.isclose(x, y, rel_tol=1e-12, abs_tol=0.0) for x, y in zip(a[3:5], b[3:5])))
+def pinned_speckle(reference, folder: str | Path, name: str) -> Speckle:
+    """A [speckle] table that gives back exactly ``reference`` (its float32 image, written as a
+    float TIFF in ``folder``, and its camera): the speckle painted on the specimen stays as it is
+    when camera 1 moves or zooms, as on a real specimen."""
+    import tifffile
 
-
-def _solve(target: float, c: float, m: float) -> float:
-    """x with x·c/m == target in floating point (as make_reference evaluates it), or the
-    nearest try."""
-    x = target * m / c
-    for _ in range(256):
-        v = x * c / m
-        if v == target:
-            return x
-        x = float(np.nextafter(x, math.inf if v < target else -math.inf))
-    return target * m / c
-
-
-def pin_speckle(scene: Scene, key: tuple, nodes: np.ndarray) -> Scene:
-    """``scene`` with its [speckle] rewritten so that its reference equals the one of ``key``
-    although camera 1 moved or zoomed: the speckle stays painted on the specimen (the same
-    reference camera, scale and dots); its ``dot_diameter_px`` (camera-1 px) follows the new
-    camera. Raises SceneError if the dots would become smaller than the generator allows."""
-    sp = scene.speckle
-    if key[0] == "image":
-        return scene if sp.camera is not None else dataclasses.replace(
-            scene, speckle=dataclasses.replace(sp, camera=key[2]))
-    _, cam, m, dot, edge, _, _ = key
-    c = camera_scale(scene.cameras[0], nodes)
-    d = _solve(dot, c, m)
-    e = d if edge == dot else _solve(edge, c, m)
-    try:
-        pinned = dataclasses.replace(sp, camera=cam, mm_per_px=m, dot_diameter_px=d, edge_px=min(e, d))
-    except SceneError as exc:
-        raise SceneError(exc.key, f"with camera 1 there the speckle dots would measure {d:.3g} px ({exc})",
-                         "move camera 1 closer, lengthen its focal length, or enlarge the speckle first") from None
-    return dataclasses.replace(scene, speckle=pinned)
+    path = Path(folder) / name
+    if not path.is_file():
+        with io.atomic_path(path) as tmp:
+            tifffile.imwrite(tmp, np.ascontiguousarray(reference.image, np.float32), photometric="minisblack")
+    return Speckle(image=str(path), camera=reference.camera)
 
 
 FILE_KEYS = (("speckle", "image"), ("noise", "variance_file"))
@@ -111,10 +68,21 @@ def scene_toml(scene: Scene, directory: str | Path) -> str:
     return head + tomli_w.dumps(data)
 
 
-def save_scene(scene: Scene, path: str | Path) -> Path:
-    """Write ``scene`` as TOML to ``path`` atomically; returns the path."""
+def save_scene(scene: Scene, path: str | Path, private: str | Path | None = None) -> Path:
+    """Write ``scene`` as TOML to ``path`` atomically; returns the path. A reference image kept
+    in the folder ``private`` (the preview's own, removed when it closes) is copied beside the
+    TOML as ``<name>_speckle.tif`` first."""
+    import dataclasses
+    import shutil
+
     path = Path(path)
     if path.suffix.lower() != ".toml":
         raise SceneError(str(path), "a scene is saved as TOML", "give a file name ending in .toml")
     path.parent.mkdir(parents=True, exist_ok=True)
+    image = scene.speckle.image
+    if image and private is not None and Path(image).parent == Path(private):
+        dest = path.with_name(path.stem + "_speckle.tif")
+        with io.atomic_path(dest) as tmp:
+            shutil.copyfile(image, tmp)
+        scene = dataclasses.replace(scene, speckle=dataclasses.replace(scene.speckle, image=str(dest.resolve())))
     return io.write_text(path, scene_toml(scene, path.parent))
