@@ -4,13 +4,14 @@ VENV   := .venv
 BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.glsim-installed
 EGL_PKGS := libegl1 libegl-mesa0 libgl1-mesa-dri libgbm1
+X11_PKGS := xvfb xdotool x11-apps
 
-.PHONY: demo test test-gl bench venv egl clean readme-check
+.PHONY: demo test test-gl bench venv egl x11 clean readme-check
 
 demo: venv
 	$(BIN)/glsim demo
 
-test: venv readme-check
+test: venv x11 readme-check
 	$(BIN)/python -m pytest -q -ra
 
 # every measured figure in README.md and docs/ equals what its bench/results file gives
@@ -41,6 +42,18 @@ egl:
 	else \
 	  echo "EGL: no EGL implementation found; install: sudo apt-get install $(EGL_PKGS)"; \
 	  echo "     (backend='cpu' works without it; GL tests will fail)"; \
+	fi
+
+# The preview window's test runs under a virtual X server it starts itself (Xvfb), sends real
+# key and mouse events (xdotool) and reads the window back (xwd); without them it is skipped.
+x11:
+	@if command -v Xvfb >/dev/null && command -v xdotool >/dev/null && command -v xwd >/dev/null; then \
+	  echo "Xvfb: found"; \
+	elif [ "$$(id -u)" = 0 ] && command -v apt-get >/dev/null; then \
+	  echo "Xvfb: missing, installing $(X11_PKGS)"; \
+	  apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq $(X11_PKGS); \
+	else \
+	  echo "Xvfb: not found; install: sudo apt-get install $(X11_PKGS) (the preview window test is skipped)"; \
 	fi
 
 clean:
