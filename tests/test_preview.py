@@ -529,3 +529,17 @@ def test_window_under_xvfb(xserver, small_toml, tmp_path, gl_ctx):
         if app.poll() is None:
             app.kill()
             app.wait()
+
+
+# ---- glsim bench preview ------------------------------------------------------------------------------
+def test_reduced_bench_never_writes_the_committed_results(tmp_path):
+    results = ROOT / "bench/results/preview.json"
+    before = results.read_bytes() if results.is_file() else None
+    r = _glsim("bench", "preview", "--size", 160, 122, "--reps", 3, "--frame", 640, 400, "--out", tmp_path)
+    assert r.returncode == 0, r.stderr
+    report = json.loads((tmp_path / "preview.json").read_text())
+    assert report["rows"][0]["drag_camera"]["n"] == 3 and report["machine"]["gl"]["renderer"]
+    assert "| bulge pair" in (tmp_path / "preview.md").read_text()
+    r = _glsim("bench", "preview", "--size", 160, 122, "--reps", 3, "--out", "bench/results")
+    assert r.returncode == 2 and "overwrite the committed" in r.stderr
+    assert (results.read_bytes() if results.is_file() else None) == before

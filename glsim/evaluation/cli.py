@@ -177,6 +177,14 @@ def bench_main(argv: list[str]) -> int:
     lib.add_argument("--images", type=int, default=100, help="images per run (default 100; the full run needs ≥ 100)")
     lib.add_argument("--max-workers", type=int, default=None, help="largest worker count (default: one per core)")
     lib.set_defaults(reps=1)
+    from glsim.evaluation import preview_bench as pb
+    pre = sub.add_parser("preview", help="frame times of the interactive preview (dragging, refinement)")
+    pre.add_argument("--size", nargs=2, type=int, metavar=("W", "H"), help="camera size (default 1624 1234)")
+    pre.add_argument("--reps", type=int, default=30, help="dragged frames per case (default 30)")
+    pre.add_argument("--frame", nargs=2, type=int, default=pb.FRAME, metavar=("W", "H"), help="preview frame size")
+    pre.add_argument("--drag-width", type=int, default=pb.DRAG_WIDTH, help="camera width rendered while dragging")
+    pre.add_argument("--out", default=None, help=f"directory of preview.json / preview.md (default {RESULTS} for a "
+                     f"full run, {SCRATCH} otherwise)")
     for p, name in ((acc, "accuracy"), (eff, "effects"), (lib, "library")):
         p.add_argument("--out", default=None, help=f"directory of {name}.json / {name}.md (default {RESULTS} for a "
                        f"full-size run, {SCRATCH} otherwise)")
@@ -195,6 +203,17 @@ def bench_main(argv: list[str]) -> int:
             full = size == library_bench.FULL_SIZE and args.images >= library_bench.FULL_IMAGES
             out = results_dir(args.out, full, "library")
             print(library_bench.write(library_bench.bench(size, args.images, args.max_workers), out))
+            return 0
+        if args.command == "preview":
+            size = tuple(args.size) if args.size else pb.FULL_SIZE
+            full = (size == pb.FULL_SIZE and args.reps >= 30 and tuple(args.frame) == pb.FRAME
+                    and args.drag_width == pb.DRAG_WIDTH)
+            out = results_dir(args.out, full, "preview")
+            report = pb.preview(size, args.reps, tuple(args.frame), args.drag_width)
+            out.mkdir(parents=True, exist_ok=True)
+            io.write_text(out / "preview.json", json.dumps(report, indent=2) + "\n")
+            io.write_text(out / "preview.md", text := pb.markdown(report))
+            print(text)
             return 0
         if args.command == "effects":
             print(effects.write(effects.effects(size, args.reps), out))
