@@ -33,7 +33,7 @@ def only(scene, effect):
 
 
 # (effect, mode): max pixels with |Δgrey| > 0.5 of 8 bit (element edges, silhouettes), mean bound
-GL_EFFECT_TOL = {"lighting": (2, 1e-3), "noise": (2, 1e-3), "optics": (400, 0.02)}
+GL_EFFECT_TOL = {"lighting": (2, 1e-3), "noise": (2, 1e-3), "optics": (0, 1e-3)}
 
 
 @pytest.mark.gl
@@ -46,8 +46,8 @@ def test_gl_matches_oracle_per_effect(effects_scene, gl_ctx, effect, mode):
         a, b = g.render(1, 1, mode=mode), c.render(1, 1, mode=mode)
     d = np.abs(a.image.astype(np.float64) - b.image) * 255
     outliers, mean = GL_EFFECT_TOL[effect]
-    # optics: GL blurs separably, the oracle gathers exactly in 2-D; they differ where σ varies
-    # within the kernel (silhouettes: σ jumps to 0 on the background) — see test_blur.py
+    # optics (issue 16; the separable pair it replaced had up to 400 such pixels): measured max
+    # 0.017 grey levels (fast mode's coverage), 5.6e-4 (q4, exact); mean ≤ 2.7e-4
     assert (d > 0.5).sum() <= outliers and d.mean() < mean, (d.max(), (d > 0.5).sum(), d.mean())
     assert abs(a.saturated - b.saturated) < 1e-3
 
@@ -155,3 +155,67 @@ def test_noise_on_a_flat_field_matches_the_model(backend, request):
         again = r.render(0, 0).image
         other_step = r.render(0, 0).image  # same camera and step: same stream
         assert np.array_equal(again, other_step)
+
+
+# ---------------------------------------------------------------------------- depth of field, hard scenes
+
+DOF_GOAL = 2e-3   # of full scale: half a grey level of 8 bit (issue 16)
+
+
+@pytest.fixture(scope="module")
+def dof_oracle():
+    """The oracle's render (with truth) of each hard depth-of-field scene and kernel, made once."""
+    from glsim.evaluation.effects import dof_scenes, with_dof
+
+    cache = {}
+
+    def get(name, kernel):
+        if (name, kernel) not in cache:
+            scene, mesh = dof_scenes(160)[name]
+            with Renderer(with_dof(scene, kernel, "auto"), "cpu", mesh=mesh) as r:
+                cache[name, kernel] = (r.render(0, 0, truth=True), mesh, scene)
+        return cache[name, kernel]
+    return get
+
+
+@pytest.mark.gl
+@pytest.mark.parametrize("name", ["outline", "hole", "steps", "threshold"])
+@pytest.mark.parametrize("kernel, scheme", [("gaussian", "auto"), ("gaussian", "expansion"), ("gaussian", "gather"),
+                                            ("gaussian", "hybrid"), ("disk", "auto")])
+def test_gl_depth_of_field_matches_the_exact_gather(dof_oracle, gl_ctx, name, kernel, scheme):
+    """GL against the oracle's exact 2-D gather at every covered pixel, ≤ 2e-3 of full scale, on
+    a tilted plate whose outline is blurred, a plate with a hole, two plates at different depths
+    and a plate that the in-focus threshold crosses (160×120 px). Measured on llvmpipe (max over
+    the four scenes): expansion 1.0e-5 (its remainder bound is 1e-4 of the local grey range),
+    gather and hybrid 5.4e-7, disk 6.0e-7."""
+    from glsim.evaluation.effects import with_dof
+
+    oracle, mesh, scene = dof_oracle(name, kernel)
+    m = oracle.truth.mask
+    sigma = blur_sigma(np.where(m, oracle.truth.X_deformed[..., 2], 0.0), scene.optics)
+    # the place each scene is about: blurred pixels next to the background (outline, hole), two
+    # face-on plates, each with its own σ (steps), sharp and blurred pixels of one plate (threshold)
+    assert {"outline": (sigma[m] > 1).all(), "hole": (sigma[m] > 3).all(),
+            "steps": np.unique(np.round(sigma[m], 9)).size == 2 and (sigma[m] > 1.5).all(),
+            "threshold": (sigma[m] == 0).any() and (sigma[m] > 0.7).any()}[name]
+    with Renderer(with_dof(scene, kernel, scheme), "gl", ctx=gl_ctx, mesh=mesh) as r:
+        gl = r.render(0, 0)
+    d = np.abs(gl.image.astype(np.float64) - oracle.image)
+    assert d[m].max() <= DOF_GOAL and d.max() <= DOF_GOAL, (d.max(), (d > DOF_GOAL).sum())
+    assert d.max() <= (2e-5 if scheme in ("auto", "expansion") and kernel == "gaussian" else 2e-6)
+    assert any(s.startswith("blur") for s in gl.stages)
+
+
+@pytest.mark.gl
+@pytest.mark.parametrize("name", ["outline", "hole", "steps", "threshold"])
+def test_the_separable_pair_misses_the_goal_where_sigma_varies(dof_oracle, gl_ctx, name):
+    """Why the scenes are hard: the separable pair (each 1-D pass with the σ of the pixel it
+    writes; kept as optics.scheme = "separable") errs by 0.049 (threshold) … 0.17 (hole, steps)
+    of full scale there (measured), next to the outline, the hole, the depth step and the
+    in-focus contour."""
+    from glsim.evaluation.effects import with_dof
+
+    oracle, mesh, scene = dof_oracle(name, "gaussian")
+    with Renderer(with_dof(scene, "gaussian", "separable"), "gl", ctx=gl_ctx, mesh=mesh) as r:
+        gl = r.render(0, 0)
+    assert np.abs(gl.image.astype(np.float64) - oracle.image)[oracle.truth.mask].max() > 10 * DOF_GOAL

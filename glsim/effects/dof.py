@@ -27,7 +27,16 @@ Choices made here (the paper leaves them open):
   clamp(r + 0.5 − |d|, 0, 1), window |dx|, |dy| ≤ ceil(r).
 - **Gather**, not scatter: the output pixel's own σ (from its own depth) sets its kernel. This
   is what a one-texture-lookup-per-tap fragment shader can do; it blurs the in-focus side of a
-  depth discontinuity less than a physical scatter would.
+  depth discontinuity less than a physical scatter would. Pixels without a surface (the
+  background) are gathered at the background grey like any other pixel, and are never blurred
+  themselves (σ = 0).
+- **GL schemes** for the Gaussian (``optics.scheme``; the oracle is always ``blur_exact``):
+  ``gather`` (the 2-D gather itself), ``hybrid`` (the separable pair where σ is constant over
+  the pixel's column window, the 2-D gather elsewhere: ``blur_hybrid``), ``expansion`` (the
+  default: rows blurred with their own σ and expanded to third order in 1/σ², moved to the
+  output pixel's σ and window, a row gathered directly where the remainder bound exceeds
+  ``EXPANSION_TOL``: ``blur_expansion``) and ``separable`` (the fast pair, inexact where σ
+  varies: ``blur_separable``). The disk is always gathered in 2-D.
 - Eq. 19 takes the similar triangles with apex at the sensor (V_D in the denominator); a thin
   lens has its apex at the image point V_P, which gives CoC = f²|P − D| / (N P (D − f)) (1 %
   smaller at P = 500 mm, D = 600 mm). We follow the paper.
@@ -39,7 +48,10 @@ from collections.abc import Mapping
 import numpy as np
 
 KERNELS = ("gaussian", "disk")
+SCHEMES = ("expansion", "gather", "hybrid", "separable")   # GL's Gaussian; optics.scheme "auto" → expansion
 TRUNCATE = 3.0  # the Gaussian is cut at R = ceil(TRUNCATE·σ)
+EXP_CHORD = (np.e ** 2 - 1) / 2  # exp(x) ≤ 1 + EXP_CHORD·x on [0, 2]
+EXPANSION_TOL = 1e-4  # expansion: bound on its error (fraction of the local grey range) before a row is gathered
 
 
 def _param(optics, name, default=None):
@@ -135,12 +147,29 @@ def kernel_radius(size, kernel="gaussian"):
 
 
 def shader_uniforms(optics) -> dict:
-    """The float uniforms of ``shaders/dof.glsl``."""
+    """The float uniforms of ``shaders/dof.glsl`` (and ``blur.frag``'s expansion tolerance)."""
     return {"u_focal_length": float(_param(optics, "focal_length")),
             "u_f_number": float(_param(optics, "f_number")),
             "u_focus_distance": float(_param(optics, "focus_distance")),
             "u_pixel_pitch": float(_param(optics, "pixel_pitch")),
-            "u_coc_px": float(_param(optics, "coc_px", 1.0))}
+            "u_coc_px": float(_param(optics, "coc_px", 1.0)),
+            "u_expansion_tol": EXPANSION_TOL}
+
+
+def blur_scheme(optics) -> str:
+    """The GL blur scheme of ``optics``: "disk" for the disk kernel (a 2-D gather), else its
+    ``scheme`` with "auto" read as "expansion"."""
+    kernel = _param(optics, "kernel", "gaussian")
+    scheme = _param(optics, "scheme", "auto")
+    if kernel == "disk":
+        if scheme not in ("auto", "gather"):
+            raise ValueError(f"optics.scheme {scheme!r} applies to the Gaussian kernel only")
+        return "disk"
+    if scheme == "auto":
+        return "expansion"
+    if scheme not in SCHEMES:
+        raise ValueError(f"optics.scheme must be one of {('auto',) + SCHEMES}, got {scheme!r}")
+    return scheme
 
 
 # ---------------------------------------------------------------------------- kernels
@@ -244,3 +273,114 @@ def blur_disk(image, radius_map):
     the border; r_p = 0 copies the pixel exactly. Not separable. Returns float64."""
     img, r = _check(image, radius_map, "radius")
     return _gather(img, r, kernel_radius(r, "disk"), _disk)
+
+
+def varying_columns(sigma_map):
+    """Pixels (σ > 0) whose column window |dy| ≤ ceil(3σ) (clipped at the border) holds a σ
+    other than their own: where ``hybrid`` gathers in 2-D (a min/max filter of σ along the
+    column). The separable pair is exact at every other pixel."""
+    s = np.asarray(sigma_map, dtype=np.float64)
+    H = s.shape[0]
+    R = kernel_radius(s)
+    out = np.zeros(s.shape, bool)
+    y = np.arange(H)[:, None]
+    for dy in range(-int(R.max(initial=0)), int(R.max(initial=0)) + 1):
+        q = np.clip(y + dy, 0, H - 1)[:, 0]
+        out |= (np.abs(dy) <= R) & (y + dy >= 0) & (y + dy < H) & (s[q] != s)
+    return out & (s > 0)
+
+
+def blur_hybrid(image, sigma_map):
+    """numpy mirror of the ``hybrid`` scheme: the separable pair where σ is constant over the
+    column window (there it equals ``blur_exact``: the window is a product and every row it
+    reads was blurred with the output pixel's σ), the 2-D gather at ``varying_columns``.
+    Equal to ``blur_exact`` up to rounding. Returns float64."""
+    img, s = _check(image, sigma_map, "sigma")
+    return np.where(varying_columns(s), blur_exact(img, s), blur_separable(img, s))
+
+
+def row_moments(image, sigma_map):
+    """The ``expansion`` scheme's first pass (``blur.frag`` BLUR_ROWS), float64: per pixel q
+    with σ_q > 0 and c_q = −1/(2σ_q²), over its row window |k| ≤ R_q = ceil(3σ_q) clipped at
+    the border, the moments M_n = Σ_k e^{c_q k²} k^{2n} (I(q + k) − I(q)), n = 0…3, and the
+    remainder factor F·Σ_k e^{c_q k²} k⁸ with F = max_k |I(q + k) − I(q)|.
+    Returns (M (4, H, W), bound (H, W)); zeros where σ_q = 0."""
+    img, s = _check(image, sigma_map, "sigma")
+    W = img.shape[1]
+    R = kernel_radius(s)
+    c = -0.5 / np.where(s > 0, s, 1.0) ** 2
+    M = np.zeros((4,) + img.shape)
+    N4 = np.zeros(img.shape)
+    F = np.zeros(img.shape)
+    x = np.arange(W)
+    Rm = int(R.max(initial=0))
+    for k in range(-Rm, Rm + 1):
+        ok = (abs(k) <= R) & ((x + k >= 0) & (x + k < W))[None, :] & (s > 0)
+        f = np.where(ok, img[:, np.clip(x + k, 0, W - 1)] - img, 0.0)
+        w = np.where(ok, np.exp(c * k * k), 0.0)
+        kk = float(k * k)
+        for n in range(4):
+            M[n] += w * kk ** n * f
+        N4 += w * kk ** 4
+        F = np.maximum(F, np.abs(f))
+    return M, F * N4
+
+
+def blur_expansion(image, sigma_map, tol: float = EXPANSION_TOL, stats: dict | None = None):
+    """numpy mirror of the ``expansion`` scheme (``blur.frag`` BLUR_ROWS, BLUR_COLUMNS), float64.
+
+    The 2-D gather of pixel p is Σ_dy v(dy) r(p.y + dy) / (Σ v · B_p) with v the column
+    weights of σ_p, r(q) = Σ_k e^{c_p k²} I(q + k) the row sum with p's weight c_p = −1/(2σ_p²)
+    and window R_p, and B_p = Σ_k e^{c_p k²} (both clipped at the border). Each row sum is
+    taken from that row pixel's own ``row_moments`` (weight c_q, window R_q) by the Taylor
+    expansion e^{(c_p − c_q) k²} ≈ Σ_{n≤3} ((c_p − c_q) k²)ⁿ / n!, plus (minus) the taps between
+    R_q and R_p with their exact weights. Lagrange's remainder bounds the row's error by
+    |c_p − c_q|⁴ e^{g} F Σ e^{c_q k²} k⁸ / 24, g = max(c_p − c_q, 0) R_q², with e^g taken as
+    its chord 1 + g (e² − 1)/2 on [0, 2]; where that bound times v(dy) / Σ v exceeds ``tol`` ·
+    B_p / (2 R_p + 1), where g > 2, and in rows without σ (background, in focus), the row is
+    summed directly. The result is then within ``tol`` of ``blur_exact``
+    (as a fraction of the rows' grey range F). ``stats`` (a dict) receives the fraction of
+    rows summed directly. Returns float64."""
+    img, s = _check(image, sigma_map, "sigma")
+    H, W = img.shape
+    R = kernel_radius(s)
+    Rm = int(R.max(initial=0))
+    if Rm == 0:
+        return img.copy()
+    M, FN = row_moments(img, s)
+    c = -0.5 / np.where(s > 0, s, 1.0) ** 2
+    x, y = np.arange(W)[None, :], np.arange(H)[:, None]
+    Bp = np.zeros(img.shape)
+    Bv = np.zeros(img.shape)
+    for k in range(-Rm, Rm + 1):
+        w = np.exp(c * k * k) * (abs(k) <= R)
+        Bp += np.where((x + k >= 0) & (x + k < W), w, 0.0)
+        Bv += np.where((y + k >= 0) & (y + k < H), w, 0.0)
+    budget = tol * Bp * Bv / (2 * R + 1)
+    acc = np.zeros(img.shape)
+    direct_rows = 0
+    for dy in range(-Rm, Rm + 1):
+        qy = np.clip(y[:, 0] + dy, 0, H - 1)
+        row_in = (abs(dy) <= R) & (y + dy >= 0) & (y + dy < H) & (s > 0)
+        v = np.where(row_in, np.exp(c * dy * dy), 0.0)
+        sq, Rq, Iq = s[qy], R[qy], img[qy]
+        dc = c - np.where(sq > 0, c[qy], 0.0)
+        with np.errstate(over="ignore", invalid="ignore"):
+            grow = np.maximum(dc, 0) * Rq * Rq
+            bound = dc ** 4 * FN[qy] * (1 + EXP_CHORD * grow) / 24    # e^grow ≤ its chord on [0, 2]
+            use = (sq > 0) & (grow <= 2.0) & (v * bound <= budget)
+        A = M[0][qy] + dc * (M[1][qy] + dc * (M[2][qy] / 2 + dc * M[3][qy] / 6))
+        direct = np.zeros(img.shape)
+        for k in range(-Rm, Rm + 1):
+            inside = (x + k >= 0) & (x + k < W)
+            fk = np.where(inside, Iq[:, np.clip(x[0] + k, 0, W - 1)] - Iq, 0.0)
+            wk = np.exp(c * k * k)
+            A += wk * fk * (((abs(k) > Rq) & (abs(k) <= R)).astype(float) - ((abs(k) > R) & (abs(k) <= Rq)))
+            direct += np.where(abs(k) <= R, wk * fk, 0.0)
+        A = np.where(use, A, direct)
+        direct_rows += int((row_in & ~use).sum())
+        acc += v * (Iq * Bp + A)
+    if stats is not None:
+        stats["direct_rows"] = direct_rows / max(1, int(np.where(s > 0, 2 * R + 1, 0).sum()))
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return np.where(s > 0, acc / (Bv * Bp), img)

@@ -1,10 +1,18 @@
-"""`glsim bench effects`: what each optical effect costs per image.
+"""`glsim bench effects`: what each optical effect costs per image, and how closely each GL
+depth-of-field scheme follows the oracle's exact 2-D gather.
 
 The bulge stereo pair (both cameras, step 1) at 1624×1234 by default, rendered with no effect,
 each effect alone (lighting, depth of field, noise: ``demo_effects``) and all together, with the
 GL and the CPU backend. Per row: median seconds per image (``Result.seconds``: geometry +
 passes + read-back) over timed renders after one warm-up, the increment over the effect-free
 row and its share of the all-effects row.
+
+Depth of field (``dof`` rows): every GL scheme (``optics.scheme``: separable, hybrid, gather,
+expansion; the disk kernel's 2-D gather) on the bulge pair (depth of field only) and on the
+four scenes of :func:`dof_scenes` — a tilted plate whose outline lies in the blurred region, a
+plate with a hole, two plates at different depths, a plate that the in-focus threshold crosses —
+against the CPU oracle at every covered pixel: mean and max |GL − oracle| (fraction of full
+scale), the pixels beyond 2e-3 (half a grey level of 8 bit) and the GL time per image.
 """
 from __future__ import annotations
 
@@ -15,12 +23,115 @@ import statistics
 import sys
 from pathlib import Path
 
+import numpy as np
+
 from glsim.io import images as io
 from glsim.render import Renderer
-from glsim.scene import bulge_scene, demo_effects
+from glsim.scene import Optics, Plate, Render, Scene, Specimen, bulge_scene, demo_effects
+from glsim.scene import mesh as meshmod
+from glsim.scene.camera import Camera
 
 VARIANTS = ("none", "lighting", "optics", "noise", "all")
 CPU_REPS = 2
+SCHEMES = ("separable", "hybrid", "gather", "expansion")   # GL's Gaussian; the disk is always gathered
+DOF_GOAL = 2e-3             # of full scale: half a grey level of 8 bit
+DOF_WIDTH = 640             # the dof_scenes' width in the full-size run (at most the bench width)
+
+
+# ---- depth-of-field scenes -----------------------------------------------------------------
+def _rotation(axis: str, deg: float) -> np.ndarray:
+    c, s = np.cos(np.radians(deg)), np.sin(np.radians(deg))
+    return {"x": np.array([[1, 0, 0], [0, c, -s], [0, s, c]]), "y": np.array([[c, 0, s], [0, 1, 0], [-s, 0, c]])}[axis]
+
+
+def _plate(w, h, nx, ny, R=np.eye(3), t=(0.0, 0.0, 300.0), hole=None):
+    """Nodes (placed) and quads of a w × h mm plate, less the elements inside a centred hole (w, h)."""
+    m = meshmod.plate(w, h, nx, ny)
+    quads = np.asarray(m.quads)
+    if hole is not None:
+        c = np.asarray(m.nodes)[quads].mean(axis=1)
+        quads = quads[~((np.abs(c[:, 0]) < hole[0] / 2) & (np.abs(c[:, 1]) < hole[1] / 2))]
+    return np.asarray(m.nodes) @ R.T + np.asarray(t, float), quads
+
+
+def _mesh(*parts) -> meshmod.Mesh:
+    nodes, quads, offset = [], [], 0
+    for n, q in parts:
+        nodes.append(n)
+        quads.append(q + offset)
+        offset += len(n)
+    nodes, quads = np.concatenate(nodes), np.concatenate(quads)
+    return meshmod.Mesh(nodes, quads, np.arange(1, len(nodes) + 1), np.arange(1, len(quads) + 1))
+
+
+def dof_scenes(width: int = 160) -> dict[str, tuple[Scene, meshmod.Mesh]]:
+    """The hard depth-of-field scenes, one camera (width × 3/4 width px, the plates ~300 mm away,
+    a 50 mm lens whose pixel pitch matches the camera), Gaussian kernel; each a scene and the
+    mesh to render it with (``Renderer(scene, mesh=mesh)``):
+
+    - ``outline``: a 40 × 30 mm plate turned 40° about y, focused 340 mm away at f/4: blurred
+      everywhere (σ 1.4–2.9 px), its outline against the background;
+    - ``hole``: a plate with a 16 × 12 mm hole, turned 15° about x, focused at 260 mm, f/2.8
+      (σ 3.6–4.3 px): the background seen through the hole;
+    - ``steps``: two plates at 280 and 330 mm, the nearer hiding part of the farther, focused at
+      300 mm, f/2.8 (σ 1.9 and 2.3 px): a depth step between parts;
+    - ``threshold``: a plate turned 50° about y focused at its centre, f/2.8, ``coc_px`` 1.5:
+      the CoC crosses ``coc_px`` on two lines across it (σ jumps from 0 to 0.75 px).
+    """
+    W, H = width, width * 3 // 4
+    fx = 4.5 * W
+    cam = Camera(name="cam0", size=(W, H), fx=fx, fy=fx, cx=(W - 1) / 2, cy=(H - 1) / 2)
+
+    def optics(D, N, coc=1.0):
+        return Optics(focal_length=50.0, f_number=N, focus_distance=D, pixel_pitch=50.0 / fx, coc_px=coc)
+
+    cases = {"outline": (_mesh(_plate(40, 30, 8, 6, _rotation("y", 40))), optics(340.0, 4.0)),
+             "hole": (_mesh(_plate(40, 30, 10, 10, _rotation("x", 15), hole=(16, 12))), optics(260.0, 2.8)),
+             "steps": (_mesh(_plate(24, 20, 6, 5, t=(-8.0, 0.0, 280.0)), _plate(30, 24, 6, 6, t=(6.0, 3.0, 330.0))),
+                       optics(300.0, 2.8)),
+             "threshold": (_mesh(_plate(40, 30, 8, 6, _rotation("y", 50))), optics(300.0, 2.8, 1.5))}
+    return {name: (Scene(cameras=(cam,), specimen=Specimen(plate=Plate()), render=Render(interpolation="linear"),
+                         optics=opt), mesh) for name, (mesh, opt) in cases.items()}
+
+
+def dof_variants() -> list[tuple[str, str]]:
+    """(kernel, scheme) of every GL depth-of-field row."""
+    return [("gaussian", s) for s in SCHEMES] + [("disk", "gather")]
+
+
+def with_dof(scene: Scene, kernel: str, scheme: str) -> Scene:
+    return dataclasses.replace(scene, optics=dataclasses.replace(scene.optics, kernel=kernel, scheme=scheme))
+
+
+def dof_rows(base: Scene, reps: int, width: int, ctx) -> list[dict]:
+    """The ``dof`` records: every (kernel, scheme) on the bulge pair (``base``: demo_effects,
+    depth of field only) and on :func:`dof_scenes` at ``width``."""
+    cases = [("bulge", base, None, range(len(base.cameras)), 1)]
+    cases += [(name, scene, mesh, (0,), 0) for name, (scene, mesh) in dof_scenes(width).items()]
+    rows = []
+    for name, scene, mesh, cams, step in cases:
+        for kernel in ("gaussian", "disk"):
+            with Renderer(with_dof(scene, kernel, "gather"), "cpu", mesh=mesh) as r:
+                oracle = {c: r.render(c, step, truth=True) for c in cams}
+            for k, scheme in (v for v in dof_variants() if v[0] == kernel):
+                with Renderer(with_dof(scene, k, scheme), "gl", ctx=ctx, mesh=mesh) as r:
+                    for c in cams:
+                        r.render(c, step)  # warm-up: programs, textures, ray maps
+                    runs = [r.render(c, step) for _ in range(reps) for c in cams]
+                last = dict(zip(cams, runs[-len(cams):]))  # the last render of each camera (reps ≥ 1)
+                d = np.concatenate([np.abs(last[c].image.astype(np.float64) - oracle[c].image)[oracle[c].truth.mask]
+                                    for c in cams])
+                rec = {"scene": name, "kernel": k, "scheme": scheme, "reps": reps,
+                       "seconds": statistics.median(res.seconds for res in runs),
+                       "seconds_all": [res.seconds for res in runs],
+                       "cpu_seconds": statistics.median(o.seconds for o in oracle.values()),
+                       "stages": list(runs[-1].stages), "size": list(scene.cameras[0].size),
+                       "mean_error": float(d.mean()), "max_error": float(d.max()),
+                       "over_goal": int((d > DOF_GOAL).sum()), "pixels": int(d.size)}
+                rows.append(rec)
+                print(f"  dof {name} {k} {scheme}: max {rec['max_error']:.2g}, {rec['seconds']:.3g} s",
+                      file=sys.stderr, flush=True)
+    return rows
 
 
 def variant(scene, name: str):
@@ -57,6 +168,7 @@ def effects(size: tuple[int, int], reps: int) -> dict:
                        **time_variant(variant(base, name), backend, n, ctx if backend == "gl" else None)}
                 rows.append(rec)
                 print(f"  {backend} {name}: {rec['seconds']:.3g} s", file=sys.stderr, flush=True)
+        dof = dof_rows(variant(base, "optics"), reps, min(DOF_WIDTH, size[0]), ctx)
     finally:
         ctx.release()
     for r in rows:
@@ -66,7 +178,7 @@ def effects(size: tuple[int, int], reps: int) -> dict:
         r["share_of_all"] = r["added_seconds"] / every
     return {"machine": machine, "date": datetime.datetime.now().astimezone().isoformat(timespec="seconds"),
             "size": list(size), "scene": f"demo_effects(bulge_scene(size={tuple(size)}, steps=1)), both cameras, step 1",
-            "records": rows}
+            "records": rows, "dof_goal": DOF_GOAL, "dof": dof}
 
 
 def markdown(report: dict) -> str:
@@ -86,7 +198,32 @@ def markdown(report: dict) -> str:
         lines.append(f"| {r['backend']} | {r['effects']} | {r['reps']} | {r['seconds']:.3g} | "
                      f"{min(r['seconds_all']):.3g}–{max(r['seconds_all']):.3g} | "
                      f"{r['added_seconds']:+.3g} | {r['share_of_all']:.0%} | {', '.join(r['stages'])} |")
+    if report.get("dof"):
+        lines += ["", "## Depth of field: GL schemes against the oracle's exact 2-D gather", "",
+                  f"Every covered pixel; error as a fraction of full scale (goal ≤ {report['dof_goal']:g}, half a grey "
+                  "level of 8 bit); time: median `Result.seconds` per image of the GL render with depth of field only "
+                  "(bulge: both cameras of the benchmark's scene; the other scenes: `glsim.evaluation.effects."
+                  "dof_scenes`), ratio to the separable pair on the same scene; oracle: the CPU render's time.", "",
+                  dof_table(report["dof"])]
     return "\n".join(lines) + "\n"
+
+
+def dof_table(rows: list[dict]) -> str:
+    """The depth-of-field rows as a markdown table (also docs/effects.md's generated region)."""
+    sep = {r["scene"]: r["seconds"] for r in rows if r["scheme"] == "separable"}
+    lines = ["| scene | size | kernel | scheme | mean error | max error | pixels > goal | GL time (s) | "
+             "vs separable | oracle (s) | passes |",
+             "|---|---|---|---|---|---|---|---|---|---|---|"]
+    for r in rows:
+        lines.append(f"| {r['scene']} | {r['size'][0]}×{r['size'][1]} | {r['kernel']} | {r['scheme']} | "
+                     f"{_g(r['mean_error'])} | {_g(r['max_error'])} | {r['over_goal']} of {r['pixels']} | "
+                     f"{r['seconds']:.3g} | {r['seconds'] / sep[r['scene']]:.2g}× | {r['cpu_seconds']:.3g} | "
+                     f"{', '.join(s for s in r['stages'] if s.startswith('blur'))} |")
+    return "\n".join(lines)
+
+
+def _g(x: float) -> str:
+    return "0" if x == 0 else f"{x:.2g}" if 1e-3 <= x < 1e4 else f"{x:.1e}".replace("e-0", "e-")
 
 
 def write(report: dict, out: Path) -> str:

@@ -17,7 +17,7 @@ import numpy as np
 
 from glsim.stages import interp
 from glsim.effects import noise
-from glsim.effects.dof import kernel_radius, shader_uniforms
+from glsim.effects.dof import blur_scheme, kernel_radius, shader_uniforms
 from glsim.effects import Effects
 from glsim.scene.camera import pixel_to_normalized, undistort
 from glsim.stages import truth
@@ -173,14 +173,7 @@ class GLBackend:
             temps += [grey] + ([depth] if depth is not None else [])
             stages.append("downsample")
         if fx.blur:
-            kernel = fx.optics.kernel
-            passes = ("BLUR_DISK",) if kernel == "disk" else ("BLUR_HORIZONTAL", "BLUR_VERTICAL")
-            for name in passes:
-                defines = {name: None, "MAX_RADIUS": int(kernel_radius(fx.sigma_max, kernel))}
-                grey = self.fullscreen_pass("blur.frag", defines, {"u_src": grey, "u_depth": depth},
-                                            shader_uniforms(fx.optics), (W, H))
-                temps.append(grey)
-                stages.append(name.lower())
+            grey = self.blur_passes(grey, depth, fx.optics, fx.sigma_max, (W, H), temps, stages)
         if fx.noise is not None:
             grey = self.noise_pass(grey, fx.noise, fx.bit_depth, fx.noise_seed, fx.variance)
             temps.append(grey)
@@ -370,10 +363,12 @@ class GLBackend:
             self._rays[key] = out
         return self._rays[key]
 
-    def fullscreen_pass(self, frag: str, defines: dict, inputs: dict, uniforms: dict, size: tuple[int, int]):
+    def fullscreen_pass(self, frag: str, defines: dict, inputs: dict, uniforms: dict, size: tuple[int, int],
+                        components: tuple[int, ...] = (1,)):
         """Run a full-screen fragment pass into a new R32F texture of ``size`` (W, H); the
         caller releases it. ``inputs`` maps sampler names to textures or float arrays (H, W)
-        (arrays are uploaded for the pass and released after it)."""
+        (arrays are uploaded for the pass and released after it). ``components``: one float
+        texture per fragment output with that many components (then a tuple is returned)."""
         ctx = self.ctx
         W, H = size
         prog = self.programs.program("fullscreen.vert", frag, defines=defines)
@@ -390,8 +385,8 @@ class GLBackend:
         for name, value in uniforms.items():
             if name in prog:
                 prog[name].value = value
-        out = ctx.texture((W, H), 1, dtype="f4")
-        fbo = ctx.framebuffer(color_attachments=[out])
+        outs = [ctx.texture((W, H), n, dtype="f4") for n in components]
+        fbo = ctx.framebuffer(color_attachments=outs)
         fbo.use()
         fbo.viewport = (0, 0, W, H)
         vao = ctx.vertex_array(prog, [])
@@ -400,7 +395,34 @@ class GLBackend:
         self._unbind()
         for obj in (vao, fbo, *uploaded):
             obj.release()
-        return out
+        return outs[0] if len(outs) == 1 else tuple(outs)
+
+    def blur_passes(self, grey, depth, optics, sigma_max: float, size: tuple[int, int], temps: list, stages: list):
+        """The depth-of-field passes of ``optics.scheme`` (glsim.effects.dof.blur_scheme) on the
+        grey texture (or (H, W) array) with its depth; new textures go to ``temps``, pass names
+        to ``stages``. Returns the blurred grey texture."""
+        scheme = blur_scheme(optics)
+        kernel = "disk" if scheme == "disk" else "gaussian"
+        uniforms = shader_uniforms(optics)
+        radius = int(kernel_radius(sigma_max, kernel))
+
+        def run(name, inputs, components=(1,)):
+            # FP64: sigma and window in double from double uniforms, bit for bit numpy's
+            defines = {name: None, "MAX_RADIUS": radius, **({"FP64": None} if self.fp64 else {})}
+            out = self.fullscreen_pass("blur.frag", defines, {**inputs, "u_depth": depth}, uniforms, size, components)
+            temps.extend(out if isinstance(out, tuple) else (out,))
+            stages.append(name.lower())
+            return out
+
+        if scheme in ("disk", "gather"):
+            return run("BLUR_DISK" if scheme == "disk" else "BLUR_GATHER", {"u_src": grey})
+        if scheme == "expansion":
+            moments, rows = run("BLUR_ROWS", {"u_src": grey}, (4, 4))
+            return run("BLUR_COLUMNS", {"u_image": grey, "u_moments": moments, "u_rows": rows})
+        h = run("BLUR_HORIZONTAL", {"u_src": grey})
+        if scheme == "hybrid":
+            return run("BLUR_HYBRID", {"u_src": h, "u_image": grey})
+        return run("BLUR_VERTICAL", {"u_src": h})
 
     @staticmethod
     def read(tex) -> np.ndarray:
