@@ -217,21 +217,21 @@ def _reference_scene(d, size_px):
     return write_scene(d, extra="[speckle]\nimage = 'ref.tif'\nmm_per_px = 0.1\n")
 
 
-def test_a_reference_image_smaller_than_the_specimen_is_reported(tmp_path, capsys):
-    """The user's case: a 40 × 30 mm image on a 100 × 50 mm plate was silently cropped."""
+def test_a_reference_image_smaller_than_the_specimen_is_refused(tmp_path, capsys):
+    """The user's case: a 40 × 30 mm image on a 100 × 50 mm plate was silently cropped; then
+    warned about; now refused before anything is written, naming the uncovered extent (issue 16)."""
     scene_file = _reference_scene(tmp_path / "in", (400, 300))
     run = subprocess.run([sys.executable, "-m", "glsim.cli", "render", str(scene_file), "-o", str(tmp_path / "out"),
                           "--steps", "0", "-q"], capture_output=True, text=True)
-    assert run.returncode == 0
-    err = run.stderr
-    line = next(x for x in err.splitlines() if "warning" in x)
-    assert line.startswith("glsim: warning: speckle.image: the reference image covers only 24 % of the "
-                           "specimen's area (the image is 400×300 px = 40×30 mm at 0.1 mm/px, centred on the "
-                           "specimen, whose reference view spans 100×50 mm)")
-    assert "give an image of at least 1001×501 px at 0.1 mm/px, or set speckle.mm_per_px ≥ 0.2503" in line
-    assert "warnings.warn" not in err and ".py:" not in err     # no source line or location
-    # the API warns too; an image that covers the plate does not
-    with pytest.warns(RenderWarning, match="covers only 24 %"):
+    assert run.returncode != 0 and not (tmp_path / "out").exists()
+    line = next(x for x in run.stderr.splitlines() if "error" in x)
+    assert line.startswith("glsim: error: speckle.image: the 400×300 px image (40×30 mm at 0.1 mm/px) would leave "
+                           "part of the specimen without pattern, 76 % of its area: the image covers X -20…20, "
+                           "Y -15…15 mm of it, the specimen spans X -50…50, Y -25…25 mm (in its own frame; ")
+    assert "give an image of at least 1001×501 px at 0.1 mm/px, set speckle.mm_per_px ≥ 0.2503" in line
+    assert "Traceback" not in run.stderr and ".py:" not in run.stderr     # no source line or location
+    # the API refuses too; an image that covers the plate renders without a warning
+    with pytest.raises(SceneError, match="76 % of its area"):
         write_sequence(load_scene(scene_file), tmp_path / "api", steps=[0])
     big = _reference_scene(tmp_path / "big", (1010, 510))
     with warnings.catch_warnings():

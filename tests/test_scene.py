@@ -155,6 +155,16 @@ REJECTED = [
     ("speckle-density", CAM + "[speckle]\ndensity = 1.5\n", "speckle.density", "covered area"),
     ("image-no-scale", CAM + "[speckle]\nimage = 'ref.png'\n", "speckle.mm_per_px",
      "give the image scale in mm per pixel, or a speckle.camera table"),
+    ("speckle-centre-generated", CAM + "[speckle]\ncentre = [1.0, 2.0]\n", "speckle.centre",
+     "remove centre, or give an image"),
+    ("speckle-centre-4", CAM + "[speckle]\nimage = 'ref.png'\nmm_per_px = 0.1\ncentre = [1.0, 2.0, 3.0, 4.0]\n",
+     "speckle.centre", "[X, Y] or [X, Y, Z]"),
+    ("speckle-u-along-normal", CAM + "[speckle]\nu_axis = [0.0, 0.0, 2.0]\n", "speckle.u_axis",
+     "in-plane direction of the image's u axis"),
+    ("speckle-normal-zero", CAM + "[speckle]\nnormal = [0.0, 0.0, 0.0]\n", "speckle.normal",
+     "give a direction in the specimen's frame"),
+    ("speckle-camera-and-axis", CAM + "[speckle]\nu_axis = [0.0, 1.0, 0.0]\n[speckle.camera]\nsize = [10, 10]\n"
+     "fx = 1.0\nfy = 1.0\ncx = 0.0\ncy = 0.0\n", "speckle.u_axis", "remove it, or remove speckle.camera"),
 ]
 
 
@@ -259,7 +269,7 @@ def test_minimal_scene_defaults_and_json(tmp_path):
     assert data == scene.to_dict()
     assert data["render"] == dataclasses.asdict(Render())
     assert data["output"] == dataclasses.asdict(Output())
-    assert data["speckle"] == {**dataclasses.asdict(Speckle()), "camera": None}
+    assert data["speckle"] == {**json.loads(json.dumps(dataclasses.asdict(Speckle()))), "camera": None}
     assert data["specimen"]["bulge"] == dataclasses.asdict(Bulge())
     assert data["specimen"]["R"] == np.eye(3).tolist() and data["specimen"]["t"] == [0, 0, 0]
     camera = data["cameras"][0]

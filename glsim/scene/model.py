@@ -28,6 +28,7 @@ FORMATS = ("tiff", "png")
 
 
 GENERATOR_KEYS = ("dot_diameter_px", "density", "oversample", "edge_px", "seed")
+_SPECKLE_PLACEMENT = {"centre": (), "u_axis": (1.0, 0.0, 0.0), "normal": ()}
 
 
 @dataclass(frozen=True)
@@ -39,10 +40,19 @@ class Speckle:
     pinhole looking square onto the undeformed specimen at ``mm_per_px`` mm per reference
     pixel; for the generator ``mm_per_px`` defaults to camera 0's scale at the specimen
     divided by ``oversample``.
+
+    Placement without ``camera`` (in the specimen's own frame, mm, before ``specimen.pose``;
+    it does not depend on the meshing): the image faces ``normal`` (default: ±Z, the side
+    camera 0 is on), its u axis runs along ``u_axis`` (default +X) and v along u_axis ×
+    normal (−Y seen from +Z), and its centre pixel sits at ``centre`` ([X, Y] or [X, Y, Z];
+    default, and always for the generator: the centre of the undeformed bounding box).
     """
     image: str = ""
     camera: Camera | None = None
     mm_per_px: float = 0.0
+    centre: tuple[float, ...] = ()
+    u_axis: tuple[float, float, float] = (1.0, 0.0, 0.0)
+    normal: tuple[float, ...] = ()
     dot_diameter_px: float = 5.0   # in camera-0 pixels on the specimen
     density: float = 0.5
     oversample: float = 2.0        # reference pixels per camera-0 pixel
@@ -59,6 +69,25 @@ class Speckle:
                                      f"generate the pattern")
         _check(self.mm_per_px >= 0, "speckle.mm_per_px", f"must be ≥ 0, got {self.mm_per_px}",
                "give the reference image scale in mm per pixel (0 = automatic)")
+        placed = {k: getattr(self, k) for k in ("centre", "u_axis", "normal")
+                  if getattr(self, k) != _SPECKLE_PLACEMENT[k]}
+        _check(self.camera is None or not placed, f"speckle.{next(iter(placed), 'centre')}",
+               "places the image, which speckle.camera already fixes",
+               "remove it, or remove speckle.camera")
+        _check(len(self.centre) in (0, 2, 3), "speckle.centre", f"must have 2 or 3 entries, got {list(self.centre)}",
+               "give the image centre in specimen mm, [X, Y] or [X, Y, Z]")
+        _check(not self.centre or bool(self.image), "speckle.centre", "places a speckle.image; the generated "
+               "pattern is always centred on the specimen", "remove centre, or give an image")
+        _check(len(self.normal) in (0, 3), "speckle.normal", f"must have 3 entries, got {list(self.normal)}",
+               "the direction the image faces, in the specimen's frame, e.g. [0, 0, 1]")
+        for k in ("u_axis", "normal"):
+            _check(not getattr(self, k) or float(np.linalg.norm(getattr(self, k))) > 0, f"speckle.{k}",
+                   "must not be zero", "give a direction in the specimen's frame")
+        n = np.asarray(self.normal or (0.0, 0.0, 1.0), float)
+        u = np.asarray(self.u_axis, float)
+        _check(float(np.linalg.norm(np.cross(u, n))) > 1e-6 * float(np.linalg.norm(u) * np.linalg.norm(n)),
+               "speckle.u_axis", f"{list(self.u_axis)} is parallel to the image normal {n.tolist()}",
+               "give the in-plane direction of the image's u axis")
         _check(not self.image or self.camera is not None or self.mm_per_px > 0, "speckle.mm_per_px",
                f"is needed with the reference image file {self.image!r}",
                "give the image scale in mm per pixel, or a speckle.camera table")
@@ -238,6 +267,7 @@ class Output:
 LIGHT_COMBINE = ("additive", "multiplicative")
 NORMALS = ("smooth", "flat")
 KERNELS = ("gaussian", "disk")
+BLUR_SCHEMES = ("auto", "expansion", "gather", "hybrid", "separable")
 NOISE_MODELS = ("gaussian", "heteroscedastic", "poisson_gaussian")
 
 
@@ -301,6 +331,9 @@ class Optics:
 
     ``focus_distance`` is measured along the optical axis (a point's distance is its
     camera-frame depth); ``coc_px`` is the acceptable circle of confusion in pixels.
+    ``scheme`` is how the GL backend evaluates the Gaussian gather (the CPU oracle always
+    gathers exactly in 2-D): ``expansion`` (``auto``'s choice), ``gather``, ``hybrid`` or
+    ``separable``; the disk kernel is always gathered in 2-D (``auto`` or ``gather``).
     """
     focal_length: float
     f_number: float
@@ -308,6 +341,7 @@ class Optics:
     pixel_pitch: float
     coc_px: float = 1.0
     kernel: str = "gaussian"
+    scheme: str = "auto"
 
     def __post_init__(self):
         for name in ("focal_length", "f_number", "pixel_pitch", "coc_px"):
@@ -317,6 +351,10 @@ class Optics:
                f"must exceed the focal length ({self.focal_length} mm), got {self.focus_distance}",
                "the focused distance in mm")
         _one_of(self, "optics", "kernel", KERNELS)
+        _one_of(self, "optics", "scheme", BLUR_SCHEMES)
+        _check(self.kernel == "gaussian" or self.scheme in ("auto", "gather"), "optics.scheme",
+               f"{self.scheme!r} applies to the Gaussian kernel only (the disk is not separable)",
+               "use scheme = 'auto' or 'gather' with kernel = 'disk'")
 
 
 @dataclass(frozen=True)

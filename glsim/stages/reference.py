@@ -3,15 +3,14 @@ image with the virtual reference camera that took it (paper §2.1, Fig. 1)."""
 from __future__ import annotations
 
 import math
-import warnings
 from dataclasses import dataclass
 
 import numpy as np
 
 from glsim.scene import mesh as meshmod
 from glsim.scene import speckle
-from glsim.scene.camera import Camera, look_at, project_camera_frame, to_camera
-from glsim.errors import RenderWarning, SceneError
+from glsim.scene.camera import Camera, project_camera_frame, to_camera
+from glsim.errors import SceneError
 from glsim.io.fe import load_mesh, load_series
 from glsim.io.series import is_time_series
 from glsim.scene import Scene
@@ -57,45 +56,136 @@ def specimen_mesh(scene: Scene) -> meshmod.Mesh:
     return meshmod.place_mesh(m, "mm", np.asarray(sp.R, float), np.asarray(sp.t, float))
 
 
-def _auto_camera(nodes: np.ndarray, toward: np.ndarray, mm_per_px: float,
-                 size: tuple[int, int] | None) -> Camera:
-    """A pinhole camera looking square onto the node cloud from the side of ``toward``.
+def specimen_frame(scene: Scene) -> tuple[np.ndarray, np.ndarray]:
+    """The specimen's pose (R, t): world = R · specimen + t, mm."""
+    return np.asarray(scene.specimen.R, float), np.asarray(scene.specimen.t, float)
 
-    Its distance is ten times the specimen's extent, so the projection of a flat specimen
-    is a similarity at ``mm_per_px``. With ``size`` None the image is sized to the specimen
-    plus a margin; otherwise the specimen's centroid maps to the image centre.
-    """
-    c = nodes.mean(axis=0)
-    _, _, vt = np.linalg.svd(nodes - c, full_matrices=False)
-    normal = vt[2] if np.dot(vt[2], toward - c) > 0 else -vt[2]
-    extent = float(np.linalg.norm(nodes - c, axis=1).max()) or 1.0
-    dist = 10.0 * extent
-    eye = c + dist * normal
-    up = -vt[1] if abs(np.dot(vt[1], normal)) < 0.99 else -vt[0]
-    R, t = look_at(eye, c, up)
+
+@dataclass(frozen=True, eq=False)
+class Placement:
+    """Where the reference image sits on the undeformed specimen, in the specimen's own frame
+    (mm, before ``specimen.pose``): the image faces the unit normal ``n`` (the reference camera
+    looks along −n), its u axis runs along ``u`` and v along ``v`` = u × n (seen from +n the
+    image is not mirrored), and its centre pixel sees the point ``C`` (for the generator, whose
+    image is sized to the specimen: the point its optical axis meets)."""
+    C: np.ndarray
+    n: np.ndarray
+    u: np.ndarray
+    v: np.ndarray
+    half_diagonal: float  # of the specimen's bounding box along u, v, n
+
+
+def surface_normal(points: np.ndarray, weights: np.ndarray) -> np.ndarray:
+    """Unit normal of the weighted points' best-fit plane (the direction of least second
+    moment), snapped to the nearest coordinate axis when within 1e-12 of it, sign not fixed."""
+    c = weights @ points / weights.sum()
+    d = points - c
+    _, vecs = np.linalg.eigh(np.einsum("n,ni,nj->ij", weights, d, d))
+    n = vecs[:, 0]
+    i = int(np.argmax(np.abs(n)))
+    if abs(n[i]) > 1 - 1e-12:
+        n = np.eye(3)[i] * np.sign(n[i])
+    return n / np.linalg.norm(n)
+
+
+def placement_of(local: np.ndarray, samples: np.ndarray, weights: np.ndarray, toward: np.ndarray, centre=(),
+                 u_axis=(1.0, 0.0, 0.0), normal=()) -> Placement:
+    """The :class:`Placement` for a specimen with undeformed nodes ``local`` and surface
+    quadrature points ``samples`` with ``weights`` (areas), in its own frame; ``toward``:
+    camera 0's centre in that frame.
+
+    n: ``normal``, or the normal of the surface's best-fit plane (area-weighted, so that it
+    does not depend on the meshing; ±Z for a specimen in its X–Y plane) turned towards camera
+    0. u: ``u_axis`` (default +X; +Y where +X lies within 26° of n) made orthogonal to n.
+    C: ``centre`` ([X, Y] keeps the default Z) or the centre of the nodes' bounding box along
+    u, v, n (the centre of the undeformed bounding box for a specimen in its X–Y plane). All of
+    it depends on the specimen's shape and outline only."""
+    if len(normal):
+        n = np.asarray(normal, float) / np.linalg.norm(normal)
+    else:
+        n = surface_normal(samples, weights)
+        mid = (local.min(axis=0) + local.max(axis=0)) / 2
+        if np.dot(toward - mid, n) < 0:
+            n = -n
+    u = np.asarray(u_axis, float)
+    if not len(normal) and tuple(u_axis) == (1.0, 0.0, 0.0) and abs(n[0]) > 0.9:
+        u = np.array([0.0, 1.0, 0.0])
+    u = u - np.dot(u, n) * n
+    u /= np.linalg.norm(u)
+    v = np.cross(u, n)
+    axes = np.stack([u, v, n])
+    a = local @ axes.T                                          # coordinates along u, v, n
+    lo, hi = a.min(axis=0), a.max(axis=0)
+    C = axes.T @ ((lo + hi) / 2)
+    C[:len(centre)] = centre
+    return Placement(C=C, n=n, u=u, v=v, half_diagonal=float(np.linalg.norm(hi - lo)) / 2 or 1.0)
+
+
+def placement(scene: Scene, mesh: meshmod.Mesh) -> Placement:
+    """The reference image's placement for ``scene`` and its placed ``mesh`` (``speckle``'s
+    ``centre``, ``u_axis`` and ``normal``, see :func:`placement_of`)."""
+    R, t = specimen_frame(scene)
+    pts, area = _element_samples(mesh)
+    sp = scene.speckle
+    return placement_of((mesh.nodes - t) @ R, (pts.reshape(-1, 3) - t) @ R, np.repeat(area, pts.shape[1]),
+                        (scene.cameras[0].center - t) @ R, sp.centre, sp.u_axis, sp.normal)
+
+
+def placement_camera(pl: Placement, nodes: np.ndarray, R: np.ndarray, t: np.ndarray, mm_per_px: float,
+                     size: tuple[int, int] | None) -> Camera:
+    """A pinhole camera looking square onto the specimen along −n from the side it faces, image
+    x along u and y along v (``pl`` in the specimen's frame, which ``R``, ``t`` place in the
+    world; ``nodes``: the placed mesh's, world).
+
+    Its distance is ten times the half-diagonal of the specimen's bounding box, so the
+    projection of a flat specimen is a similarity at ``mm_per_px``. With ``size`` (W, H) the
+    image's centre pixel ((W − 1)/2, (H − 1)/2) sees C; with ``size`` None the image is sized to
+    the specimen's projection plus a margin of MARGIN_PX."""
+    dist = 10.0 * pl.half_diagonal
+    eye = R @ (pl.C + dist * pl.n) + t
+    Rc = np.stack([R @ pl.u, R @ pl.v, -(R @ pl.n)])       # rows: camera x, y, z in the world
+    tc = -Rc @ eye
     f = dist / mm_per_px
     probe = Camera(name="reference", size=(1, 1), fx=f, fy=f, cx=0.0, cy=0.0,
-                   R=tuple(map(tuple, R)), t=tuple(t))
-    uv, _ = project_camera_frame(to_camera(nodes, probe), probe)
+                   R=tuple(map(tuple, Rc)), t=tuple(tc))
     if size is None:
+        uv, _ = project_camera_frame(to_camera(nodes, probe), probe)
         lo, hi = uv.min(axis=0), uv.max(axis=0)
         W, H = (int(math.ceil(x)) + 2 * MARGIN_PX + 1 for x in hi - lo)
         cx, cy = MARGIN_PX - lo[0], MARGIN_PX - lo[1]
     else:
         W, H = size
         cx, cy = (W - 1) / 2, (H - 1) / 2
-    return Camera(name="reference", size=(W, H), fx=f, fy=f, cx=float(cx), cy=float(cy),
-                  R=probe.R, t=probe.t)
+    return Camera(name="reference", size=(W, H), fx=f, fy=f, cx=float(cx), cy=float(cy), R=probe.R, t=probe.t)
+
+
+def reference_camera(scene: Scene, mesh: meshmod.Mesh, mm_per_px: float, size: tuple[int, int] | None) -> Camera:
+    """The automatic reference camera of ``scene`` for its placed ``mesh`` (:func:`placement`,
+    :func:`placement_camera`)."""
+    R, t = specimen_frame(scene)
+    return placement_camera(placement(scene, mesh), mesh.nodes, R, t, mm_per_px, size)
+
+
+def _auto_camera(nodes: np.ndarray, toward: np.ndarray, mm_per_px: float,
+                 size: tuple[int, int] | None) -> Camera:
+    """The default placement's camera for a point cloud taken as the specimen in its own frame
+    (world = specimen coordinates; the nodes, equally weighted, stand in for the surface).
+    Scenes use :func:`reference_camera`, which weights the surface by area."""
+    nodes = np.asarray(nodes, float)
+    pl = placement_of(nodes, nodes, np.ones(len(nodes)), np.asarray(toward, float))
+    return placement_camera(pl, nodes, np.eye(3), np.zeros(3), mm_per_px, size)
 
 
 def camera_scale(cam: Camera, points: np.ndarray) -> float:
-    """Mean mm per pixel of ``cam`` at the centroid of ``points`` (world, mm)."""
-    z = to_camera(points.mean(axis=0), cam)[2]
+    """Mean mm per pixel of ``cam`` at the centre of the bounding box of ``points`` (world,
+    mm; a point that does not depend on how the specimen is meshed)."""
+    z = to_camera((points.min(axis=0) + points.max(axis=0)) / 2, cam)[2]
     return float(z / math.sqrt(cam.fx * cam.fy))
 
 
 def make_reference(scene: Scene, mesh: meshmod.Mesh) -> Reference:
-    """The reference image and camera: loaded or generated, as the scene's [speckle] says."""
+    """The reference image and camera: loaded or generated, as the scene's [speckle] says.
+    Raises SceneError when the reference image leaves part of the specimen without pattern."""
     sp = scene.speckle
     cam1 = scene.cameras[0]
     if sp.image:
@@ -105,24 +195,26 @@ def make_reference(scene: Scene, mesh: meshmod.Mesh) -> Reference:
             if (cam.width, cam.height) != image.shape[::-1]:
                 raise SceneError("speckle.camera.size", f"{cam.size} differs from the image's "
                                  f"{image.shape[::-1]}", "give the reference image's size")
+            require_coverage(mesh, cam, "speckle.camera")
         else:  # the scene requires mm_per_px > 0 when there is no camera
-            cam = _auto_camera(mesh.nodes, cam1.center, sp.mm_per_px, image.shape[::-1])
-        check_coverage(mesh, cam, sp.mm_per_px if sp.camera is None else 0.0)
+            pl = placement(scene, mesh)
+            R, t = specimen_frame(scene)
+            cam = placement_camera(pl, mesh.nodes, R, t, sp.mm_per_px, image.shape[::-1])
+            require_coverage(mesh, cam, "speckle.image", sp.mm_per_px, (R, t), (pl.C, pl.n))
         return Reference(image, cam)
     cam_mm_per_px = camera_scale(cam1, mesh.nodes)
     mm_per_px = sp.mm_per_px or cam_mm_per_px / sp.oversample
-    cam = sp.camera or _auto_camera(mesh.nodes, cam1.center, mm_per_px, None)
+    cam = sp.camera or reference_camera(scene, mesh, mm_per_px, None)
     if sp.camera is not None:
-        check_coverage(mesh, cam)
+        require_coverage(mesh, cam, "speckle.camera")
     dot = sp.dot_diameter_px * cam_mm_per_px / mm_per_px
     dots = speckle.draw_dots((cam.height, cam.width), dot, sp.density, seed=sp.seed,
                              edge_px=min(sp.edge_px * cam_mm_per_px / mm_per_px, dot))
     return Reference(speckle.rasterize(dots), cam, dots)
 
 
-def coverage(mesh: meshmod.Mesh, cam: Camera, n: int = 4) -> float:
-    """The fraction of the undeformed specimen's area that ``cam`` (the reference camera) sees
-    inside its image, from n×n points per element weighted by element area."""
+def _element_samples(mesh: meshmod.Mesh, n: int = 4):
+    """n×n points per undeformed element (world, mm) and the elements' areas."""
     q = mesh.nodes[mesh.quads]                                        # (M, 4, 3)
     g = (np.arange(n) + 0.5) / n * 2 - 1
     xi, eta = (a.ravel() for a in np.meshgrid(g, g))
@@ -130,40 +222,74 @@ def coverage(mesh: meshmod.Mesh, cam: Camera, n: int = 4) -> float:
     pts = np.einsum("sk,mkd->msd", w, q)                              # (M, n², 3)
     area = 0.5 * (np.linalg.norm(np.cross(q[:, 1] - q[:, 0], q[:, 2] - q[:, 0]), axis=1)
                   + np.linalg.norm(np.cross(q[:, 2] - q[:, 0], q[:, 3] - q[:, 0]), axis=1))
+    return pts, area
+
+
+def _inside(uv: np.ndarray, ok: np.ndarray, cam: Camera, tol: float = 0.0) -> np.ndarray:
+    """Reference points inside the image as the renderers count them: u in [−0.5, W − 0.5],
+    v in [−0.5, H − 0.5] (``tol`` px more on each side)."""
+    W, H = cam.size
+    return (ok & (uv[..., 0] >= -0.5 - tol) & (uv[..., 0] <= W - 0.5 + tol)
+            & (uv[..., 1] >= -0.5 - tol) & (uv[..., 1] <= H - 0.5 + tol))
+
+
+def coverage(mesh: meshmod.Mesh, cam: Camera, n: int = 4) -> float:
+    """The fraction of the undeformed specimen's area that ``cam`` (the reference camera) sees
+    inside its image, from n×n points per element weighted by element area."""
+    pts, area = _element_samples(mesh, n)
     uv, ok = project_camera_frame(to_camera(pts, cam), cam)
-    W, H = cam.size
-    inside = ok & (uv[..., 0] >= -0.5) & (uv[..., 0] <= W - 0.5) & (uv[..., 1] >= -0.5) & (uv[..., 1] <= H - 0.5)
     total = float(area.sum()) * n * n
-    return float((inside * area[:, None]).sum() / total) if total > 0 else 1.0
+    return float((_inside(uv, ok, cam) * area[:, None]).sum() / total) if total > 0 else 1.0
 
 
-def check_coverage(mesh: meshmod.Mesh, cam: Camera, mm_per_px: float = 0.0, tolerance: float = 1e-3) -> float:
-    """Warn (RenderWarning, with the numbers) when the reference image does not cover the
-    specimen: the specimen outside it renders as background and is masked in the truth.
-    ``mm_per_px``: the image scale, for the message, when the reference camera is automatic
-    (the image is then centred on the specimen). Returns the covered fraction."""
-    frac = coverage(mesh, cam)
-    if frac >= 1.0 - tolerance:
-        return frac
-    uv, ok = project_camera_frame(to_camera(mesh.nodes, cam), cam)
+def require_coverage(mesh: meshmod.Mesh, cam: Camera, key: str, mm_per_px: float = 0.0, frame=None,
+                     plane=None, tol_px: float = 1e-6) -> None:
+    """Raise SceneError when the reference image leaves part of the undeformed specimen (its
+    nodes and 4×4 points per element) without pattern, naming the covered share of the area,
+    the extent of the specimen and of the part the image covers, in the specimen's frame
+    (``frame`` = (R, t); the world's if None) and in image px, and the fix. ``plane`` = (C, n)
+    in the specimen's frame: the plane the image is laid on (the automatic camera's); the
+    image's footprint is its border projected onto it. ``mm_per_px`` > 0: the automatic camera
+    of ``speckle.image`` (the fix then says which image size or scale covers the specimen).
+    The renderers count samples outside the reference image with the same bounds
+    (u in [−0.5, W − 0.5], v in [−0.5, H − 0.5]): after this check they find none."""
+    pts, _ = _element_samples(mesh)
+    pts = np.concatenate([mesh.nodes, pts.reshape(-1, 3)])
+    uv, ok = project_camera_frame(to_camera(pts, cam), cam)
+    if _inside(uv, ok, cam, tol_px).all():
+        return
     W, H = cam.size
+    R, t = frame if frame is not None else (np.eye(3), np.zeros(3))
+    local = (mesh.nodes - t) @ R
+
+    def spans(a, b):
+        return ", ".join(f"{'XYZ'[i]} {a[i]:.4g}…{b[i]:.4g}" for i in range(3) if b[i] - a[i] > 1e-9 * (1 + abs(b[i])))
+
+    where = f"the specimen spans {spans(local.min(axis=0), local.max(axis=0))} mm"
+    if plane is not None:  # the image's border on the plane it is laid on
+        C, n = (np.asarray(x, float) for x in plane)
+        corners = np.array([[-0.5, -0.5], [W - 0.5, -0.5], [W - 0.5, H - 0.5], [-0.5, H - 0.5]])
+        rays = np.column_stack([(corners[:, 0] - cam.cx) / cam.fx, (corners[:, 1] - cam.cy) / cam.fy,
+                                np.ones(4)]) @ np.asarray(cam.R)          # world directions
+        eye = -np.asarray(cam.R).T @ np.asarray(cam.t)
+        nw, Cw = R @ n, R @ C + t
+        foot = (eye + rays * (np.dot(Cw - eye, nw) / (rays @ nw))[:, None] - t) @ R
+        where = f"the image covers {spans(foot.min(axis=0), foot.max(axis=0))} mm of it, {where}"
     lo, hi = uv[ok].min(axis=0), uv[ok].max(axis=0)
-    where = f"the specimen's reference view spans u {lo[0]:.0f}…{hi[0]:.0f}, v {lo[1]:.0f}…{hi[1]:.0f} px"
-    key = "speckle.image"
+    where += (f" (in its own frame; in the {W}×{H} px image it spans u {lo[0]:.1f}…{hi[0]:.1f}, "
+              f"v {lo[1]:.1f}…{hi[1]:.1f} px, of u, v −0.5…{W - 0.5:g}, {H - 0.5:g})")
+    if not ok.all():
+        where += f"; {int((~ok).sum())} of its points lie behind the reference camera"
     if mm_per_px > 0:
-        need = [math.ceil(2 * max(abs(lo[i] - c), abs(hi[i] - c))) + 1
-                for i, c in ((0, cam.cx), (1, cam.cy))]
+        c = np.array([cam.cx, cam.cy])
+        need = [math.ceil(2 * max(abs(lo[i] - c[i]), abs(hi[i] - c[i]))) + 1 for i in (0, 1)]
         scale = mm_per_px * max(need[0] / W, need[1] / H)
-        where = (f"the image is {W}×{H} px = {W * mm_per_px:.4g}×{H * mm_per_px:.4g} mm at {mm_per_px:g} mm/px, "
-                 f"centred on the specimen, whose reference view spans {(hi[0] - lo[0]) * mm_per_px:.4g}"
-                 f"×{(hi[1] - lo[1]) * mm_per_px:.4g} mm")
-        fix = (f"give an image of at least {need[0]}×{need[1]} px at {mm_per_px:g} mm/px, or set "
-               f"speckle.mm_per_px ≥ {scale:.4g} to stretch this one over the specimen")
+        fix = (f"give an image of at least {need[0]}×{need[1]} px at {mm_per_px:g} mm/px, set "
+               f"speckle.mm_per_px ≥ {scale:.4g} to stretch this one over the specimen, or move it with "
+               f"speckle.centre")
+        what = f"the {W}×{H} px image ({W * mm_per_px:.4g}×{H * mm_per_px:.4g} mm at {mm_per_px:g} mm/px)"
     else:
-        key = "speckle.camera"
-        where += f" of the {W}×{H} px reference image"
         fix = "give a larger image, or a speckle.camera that sees the whole specimen"
-    warnings.warn(f"{key}: the reference image covers only {100 * frac:.3g} % of the specimen's "
-                  f"area ({where}); the rest renders as background and is masked (NaN, element −1) in "
-                  f"the truth — {fix}", RenderWarning, stacklevel=2)
-    return frac
+        what = "the reference image"
+    raise SceneError(key, f"{what} would leave part of the specimen without pattern, {100 * (1 - coverage(mesh, cam)):.3g} % "
+                     f"of its area: {where}", fix)
