@@ -120,7 +120,7 @@ class Renderer:
         tr = self._truth(view, deformed, raster) if truth else None
         return Result(image=image, camera=view.camera, step=step, backend=self.backend_name,
                       options=opts, seconds=seconds, truth=tr, stages=tuple(stages),
-                      saturated=float(np.mean((image < 0) | (image > 1))))
+                      saturated=_saturated(image))
 
     def _truth(self, view: View | ViewSpec, deformed: np.ndarray, raster: dict) -> Truth:
         W, H = view.camera.size
@@ -136,6 +136,13 @@ class Renderer:
         Xu[mask] = to_camera(bilinear(self.mesh.nodes[q], xi[mask], eta[mask]), cam1)
         Xd[mask] = to_camera(bilinear(deformed[q], xi[mask], eta[mask]), cam1)
         return Truth(mask=mask, element=elem, xi=xi, eta=eta, ref_uv=ref, X_undeformed=Xu, X_deformed=Xd)
+
+
+def _saturated(image: np.ndarray) -> float:
+    """Fraction of pixels below 0 or above full scale (the extremes first: most images have none)."""
+    if image.size == 0 or (image.min() >= 0 and image.max() <= 1):
+        return 0.0
+    return float(np.mean((image < 0) | (image > 1)))
 
 
 def render(scene: Scene, camera: int | str = 0, step: int = 0, backend: str | None = None,

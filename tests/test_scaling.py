@@ -254,3 +254,28 @@ def test_candidate_lists_and_their_overflow_give_the_oracle(gl_ctx, mode, layers
     assert np.abs(a.truth.X_deformed[differ] - b.truth.X_deformed[differ]).max(initial=0) < 1e-9
     assert differ.sum() < 0.01 * a.truth.mask.sum()
     assert np.abs(a.image.astype(float) - b.image).max() * 255 < 0.01
+
+
+@pytest.mark.gl
+def test_bench_scaling_reduced_run_writes_elsewhere(tmp_path, capsys):
+    """A reduced `glsim bench scaling` runs end to end (each point in its own process) and
+    writes where it is told; aimed at bench/results it is refused before anything runs."""
+    import json
+
+    from glsim.evaluation import cli
+
+    assert cli.bench_main(["scaling", "--elements", "50", "--out", str(cli.RESULTS)]) == 2
+    assert "--out bench/results" in capsys.readouterr().err
+    assert cli.results_dir(None, full=False, command="scaling") == cli.SCRATCH
+    rc = cli.bench_main(["scaling", "--elements", "20", "300", "--sizes", "96x72", "--size-elements", "40",
+                         "--reps", "1", "--no-oracle", "--out", str(tmp_path)])
+    assert rc == 0
+    report = json.loads((tmp_path / "scaling.json").read_text())
+    assert [r["elements"] for r in report["elements"]] == [20, 300] and report["sizes"][0]["size"] == [96, 72]
+    for r in report["elements"] + report["sizes"]:
+        for mode in ("fast", "q4", "exact"):
+            row = r["renderers"][mode]
+            assert row["median_s"] > 0 and row["host_ms"] >= 0 and row["coverage"] > 0.3
+        assert r["peak_rss_mb"] > 0
+    assert [g["met"] for g in report["goals"]][:3] == [None, None, None]   # 128k and 2k not measured
+    assert (tmp_path / "scaling.md").read_text().startswith("# glsim scaling benchmark")

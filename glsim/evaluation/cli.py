@@ -1,4 +1,4 @@
-"""The evaluation command lines: ``glsim bench {accuracy,effects}``, ``glsim verify {run,
+"""The evaluation command lines: ``glsim bench {accuracy,effects,library,scaling}``, ``glsim verify {run,
 compare,sweep,sweep-compare,frontier,backends}`` and ``glsim docs [--check]``.
 
 Committed results live in ``bench/results``; only a full-size run writes there by default. A
@@ -185,7 +185,19 @@ def bench_main(argv: list[str]) -> int:
     pre.add_argument("--drag-width", type=int, default=pb.DRAG_WIDTH, help="camera width rendered while dragging")
     pre.add_argument("--out", default=None, help=f"directory of preview.json / preview.md (default {RESULTS} for a "
                      f"full run, {SCRATCH} otherwise)")
-    for p, name in ((acc, "accuracy"), (eff, "effects"), (lib, "library")):
+    from glsim.evaluation import scaling
+    sca = sub.add_parser("scaling", help="time against element count and image size, GL modes and riley-raster")
+    sca.add_argument("--elements", type=int, nargs="+", metavar="N",
+                     help=f"element counts at 1624×1234 (default {' '.join(map(str, scaling.FULL_ELEMENTS))})")
+    sca.add_argument("--sizes", nargs="+", metavar="WxH",
+                     help="image sizes of the size sweep (default " + " ".join(f"{w}x{h}" for w, h in scaling.FULL_SIZES)
+                     + "; none: --sizes 0)")
+    sca.add_argument("--size-elements", type=int, default=scaling.SIZE_ELEMENTS,
+                     help=f"element count of the size sweep (default {scaling.SIZE_ELEMENTS})")
+    sca.add_argument("--reps", type=int, default=scaling.REPS, help=f"interleaved repetitions (default {scaling.REPS})")
+    sca.add_argument("--no-oracle", action="store_true", help="leave out the CPU oracle's rows")
+    sca.set_defaults(size=None)
+    for p, name in ((acc, "accuracy"), (eff, "effects"), (lib, "library"), (sca, "scaling")):
         p.add_argument("--out", default=None, help=f"directory of {name}.json / {name}.md (default {RESULTS} for a "
                        f"full-size run, {SCRATCH} otherwise)")
     args = parser.parse_args(argv)
@@ -217,6 +229,21 @@ def bench_main(argv: list[str]) -> int:
             return 0
         if args.command == "effects":
             print(effects.write(effects.effects(size, args.reps), out))
+            return 0
+        if args.command == "scaling":
+            try:
+                sizes = [] if args.sizes == ["0"] else [tuple(int(v) for v in s.lower().split("x")) for s in
+                                                        (args.sizes or [f"{w}x{h}" for w, h in scaling.FULL_SIZES])]
+            except ValueError:
+                parser.error("--sizes takes WxH, e.g. 1624x1234")
+            if any(len(s) != 2 or min(s) < 2 for s in sizes) or min(args.elements or [1]) < 1:
+                parser.error("--sizes takes WxH of at least 2x2 and --elements counts ≥ 1")
+            elements = tuple(args.elements or scaling.FULL_ELEMENTS)
+            full = (elements == scaling.FULL_ELEMENTS and tuple(sizes) == scaling.FULL_SIZES and not args.no_oracle
+                    and args.size_elements == scaling.SIZE_ELEMENTS and args.reps >= scaling.REPS)
+            out = results_dir(args.out, full, "scaling")
+            report = scaling.scaling(elements, sizes, args.size_elements, args.reps, not args.no_oracle)
+            print(scaling.write(report, out))
             return 0
         report = accuracy.accuracy(size, args.reps, quick)
     except GlsimError as exc:

@@ -148,7 +148,7 @@ class GLBackend:
     # ---- rendering -------------------------------------------------------------------------
     @staticmethod
     def _set(prog, name: str, values, fp64: bool) -> None:
-        if name in prog:
+        if prog.get(name, None) is not None:
             prog[name].write(np.asarray(values, dtype="f8" if fp64 else "f4").tobytes())
 
     def _buffers(self, view: ViewSpec) -> GeometryBuffers:
@@ -215,21 +215,21 @@ class GLBackend:
             self._set(prog, "u_ref_valid_r2", [ref_cam.distortion.valid_radius() ** 2], fp64)
             for name, value in (("u_size", (float(W), float(H))), ("u_far", float(view.far)),
                                 ("u_ref_size", tuple(float(x) for x in ref_cam.size))):
-                if name in prog:
+                if prog.get(name, None) is not None:
                     prog[name].value = value
             dropped.bind_to_storage_buffer(4)
             if fx.lighting is not None:
                 for name, value in _light_uniforms(fx).items():
-                    if name in prog:
+                    if prog.get(name, None) is not None:
                         prog[name].write(np.ascontiguousarray(value).tobytes())
                 buffers[1].bind_to_storage_buffer(1)
             if opts.interpolation == "procedural":
                 self._bind_dots(prog)
             else:
                 self._reference_texture(opts.interpolation).use(0)
-                if "u_ref" in prog:
+                if prog.get("u_ref", None) is not None:
                     prog["u_ref"].value = 0
-            if "u_rays" in prog:
+            if prog.get("u_rays", None) is not None:
                 self._ray_map(cam, s, fp64).use(1)
                 prog["u_rays"].value = 1
 

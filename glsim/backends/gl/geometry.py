@@ -119,10 +119,10 @@ class GeometryBuffers:
         r = ray_radius(view.camera)
         values["u_ray_r"] = [r if np.isfinite(r) else -1.0]
         for name, v in values.items():
-            if name in prog:
+            if prog.get(name, None) is not None:
                 prog[name].write(np.asarray(v, dtype=dt).tobytes())
         for name, v in (("u_excluded", int(has)), ("u_flag_words", _bitset_words(self.M)), ("u_count", self.M)):
-            if name in prog:
+            if prog.get(name, None) is not None:
                 prog[name].value = v
 
     # ---- the per-view pass -----------------------------------------------------------------
@@ -134,9 +134,9 @@ class GeometryBuffers:
         self.bind(view, fp64)
         self.set_uniforms(prog, view, fp64)
         camera_uniforms(prog)
-        if "u_size" in prog:
+        if prog.get("u_size", None) is not None:
             prog["u_size"].value = tuple(float(x) for x in view.camera.size)
-        if "u_cover_grow" in prog:
+        if prog.get("u_cover_grow", None) is not None:
             prog["u_cover_grow"].write(np.asarray([grow], "f8" if fp64 else "f4").tobytes())
         size = 8 if fp64 else 4
         elem = self._buffer(("elem", fp64), lambda: self.ctx.buffer(reserve=max(1, self.M * 12 * size)))
@@ -191,7 +191,7 @@ class GeometryBuffers:
         self._bufs["tight"].bind_to_storage_buffer(12)
         if prog is not None:
             for unit, (name, tex) in enumerate((("u_count_tex", count), ("u_list_tex", lists)), start=2):
-                if name in prog:
+                if prog.get(name, None) is not None:
                     tex.use(unit)
                     prog[name].value = unit
 

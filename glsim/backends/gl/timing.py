@@ -1,0 +1,62 @@
+"""How much of a render's wall time the host spends outside the GL driver.
+
+``with driver_time() as t: ...`` counts the seconds spent inside moderngl calls (and so in the
+driver: submissions, dispatches, waits for read-backs) while the block runs; the rest of the
+block's wall time is the host's own work, Python and numpy: the "CPU side" of a render that the
+scaling benchmark reports (``glsim bench scaling``). On llvmpipe the driver also executes the
+shaders; on a GPU most of that time is the wait for the read-back.
+"""
+from __future__ import annotations
+
+import contextlib
+import functools
+import time
+
+
+class DriverTime:
+    seconds = 0.0
+    calls = 0
+
+
+def _classes():
+    import moderngl
+
+    return [getattr(moderngl, n) for n in ("Context", "Buffer", "Texture", "TextureArray", "Framebuffer",
+                                              "VertexArray", "Program", "ComputeShader", "Renderbuffer")
+            if hasattr(moderngl, n)]
+
+
+@contextlib.contextmanager
+def driver_time():
+    """Patch moderngl's public methods for the block's duration to add their time to the
+    yielded counter (calls nested in others count once)."""
+    t = DriverTime()
+    depth = [0]
+    saved = []
+
+    def wrap(fn):
+        @functools.wraps(fn)
+        def inner(*args, **kwargs):
+            if depth[0]:
+                return fn(*args, **kwargs)
+            depth[0] += 1
+            t0 = time.perf_counter()
+            try:
+                return fn(*args, **kwargs)
+            finally:
+                t.seconds += time.perf_counter() - t0
+                t.calls += 1
+                depth[0] -= 1
+        return inner
+
+    for cls in _classes():
+        for name, value in list(vars(cls).items()):
+            if name.startswith("_") or not callable(value) or isinstance(value, (staticmethod, classmethod, type)):
+                continue
+            saved.append((cls, name, value))
+            setattr(cls, name, wrap(value))
+    try:
+        yield t
+    finally:
+        for cls, name, value in saved:
+            setattr(cls, name, value)
