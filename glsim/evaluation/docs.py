@@ -22,7 +22,7 @@ from pathlib import Path
 from glsim.errors import GlsimError
 from glsim.io import images as io
 
-FILES = ("README.md", "docs/calib.md", "docs/verify.md", "docs/library.md")
+FILES = ("README.md", "docs/calib.md", "docs/verify.md", "docs/library.md", "docs/preview.md")
 REGION = re.compile(r"(<!-- generated: (?P<name>[\w-]+) from (?P<sources>[^>]+?) -->\n)(?P<body>.*?)(<!-- end generated -->)",
                     re.S)
 
@@ -246,7 +246,32 @@ def library(lib: dict) -> str:
     return summary(lib)
 
 
-GENERATORS = {"accuracy-table": accuracy_table, "accuracy-facts": accuracy_facts, "peer": peer,
+def preview(pre: dict) -> str:
+    """docs/preview.md: the preview's frame times (glsim bench preview)."""
+    rows = pre["rows"]
+    ms = lambda s: f"{s * 1e3:.0f} ms"
+    parts = []
+    for r in rows:
+        d, f = r["drag_camera"], r["refine"]
+        w, h = r["drag_render_size"]
+        parts.append(f"{r['case']}: dragging (fast, {w}×{h}) {ms(d['median_s'])} median / {ms(d['p95_s'])} p95 "
+                     f"({d['fps_median']:.1f} frames/s), refinement {ms(f['median_s'])} / {ms(f['p95_s'])} "
+                     f"(the pair's render {ms(r['refine_render_only']['median_s'])})")
+    params = rows[0].get("parameters", {})
+    lo = min(params.items(), key=lambda kv: kv[1]["median_s"])
+    hi = max(params.items(), key=lambda kv: kv[1]["median_s"])
+    g = pre["goals"]
+    load = (pre["load_average_before"][0] + pre["load_average_after"][0]) / 2
+    return (f"Bulge pair at {pre['size'][0]}×{pre['size'][1]} in a {pre['frame'][0]}×{pre['frame'][1]} frame on "
+            f"{machine_line(pre['machine'])} ({pre['date']}; load average about {load:.1f} on its "
+            f"{pre['machine']['cores']} cores while it ran):\n\n" + "\n".join(f"- {p}" for p in parts) +
+            f"\n\nDragging one parameter takes {ms(lo[1]['median_s'])} ({lo[0]}) to {ms(hi[1]['median_s'])} "
+            f"({hi[0]}, which makes a new reference) per frame (median). Goals of issue 11: ≥ {g['drag_fps']:g} frames/s "
+            f"dragging at 800×600 — {'met' if g['drag_met'] else 'not met'}; the 1624×1234 refinement within "
+            f"{g['refine_s']:g} s — {'met' if g['refine_met'] else 'not met'}.")
+
+
+GENERATORS = {"preview": preview, "accuracy-table": accuracy_table, "accuracy-facts": accuracy_facts, "peer": peer,
               "effects": effects, "verify-table": verify_table,
               "verify-runs-table": verify_runs_table, "sweep-table": sweep_table, "sweep": sweep, "calibration": calibration,
               "calibration-detection": calibration_detection, "library": library}

@@ -62,11 +62,12 @@ def preview(size=FULL_SIZE, reps: int = 30, frame=FRAME, drag_width: int = DRAG_
     scene = bulge_scene(size=tuple(size), steps=3)
     out = {"date": date.today().isoformat(), "size": list(size), "frame": list(frame), "drag_width": drag_width,
            "reps": reps, "load_average_before": list(os.getloadavg()), "rows": []}
-    for label, sc, overlays in (("bulge pair", scene, ()),
+    for label, sc, overlays, dw in (("bulge pair", scene, (), drag_width),
+                                    ("bulge pair, dragged at the size shown", scene, (), None),
                                 ("bulge pair, overlays displacement+overlap+edges", scene,
-                                 ("displacement", "overlap", "edges")),
-                                ("bulge pair, lighting+DOF+noise", demo_effects(scene), ())):
-        with Preview(sc, size=frame, drag_width=drag_width) as pv:
+                                 ("displacement", "overlap", "edges"), drag_width),
+                                ("bulge pair, lighting+DOF+noise", demo_effects(scene), (), drag_width)):
+        with Preview(sc, size=frame, drag_width=dw) as pv:
             if not out.get("machine"):
                 out["machine"] = machine_info(info(pv.ctx))
             for name in overlays:
@@ -81,7 +82,7 @@ def preview(size=FULL_SIZE, reps: int = 30, frame=FRAME, drag_width: int = DRAG_
             frames, renders = _refine(pv, max(3, reps // 6))
             row["refine"] = _stats(frames)
             row["refine_render_only"] = _stats(renders)
-            if not overlays and sc is scene:
+            if not overlays and sc is scene and dw == drag_width:
                 row["parameters"] = {name: _stats(_drag(pv, name, max(5, reps // 3))) for name in PARAMETERS}
             out["rows"].append(row)
     out["load_average_after"] = list(os.getloadavg())

@@ -7,6 +7,8 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import shutil
+import tempfile
 import time
 import warnings
 from pathlib import Path
@@ -150,7 +152,6 @@ class Preview:
 
     def _private(self) -> str:
         if self._tmp is None:
-            import tempfile
             self._tmp = tempfile.mkdtemp(prefix="glsim-preview-")
         return self._tmp
 
@@ -176,7 +177,6 @@ class Preview:
             self.ctx.release()
         self.ctx = None
         if self._tmp is not None:
-            import shutil
             shutil.rmtree(self._tmp, ignore_errors=True)
             self._tmp = None
 

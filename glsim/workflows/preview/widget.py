@@ -51,8 +51,9 @@ class Widget(RemoteFrameBuffer):
 
     def close(self, *args, **kwargs):
         super().close(*args, **kwargs)
-        if self.core.renderer is not None:
-            self.core.close()
+        core = getattr(self, "core", None)
+        if core is not None and core.renderer is not None:
+            core.close()
 
     def _ipython_display_(self, **kwargs):
         from IPython.display import display
