@@ -455,14 +455,16 @@ def xserver():
     tools = [t for t in ("Xvfb", "xdotool", "xwd") if shutil.which(t) is None]
     if tools:
         pytest.skip(f"{', '.join(tools)} not installed (make test installs xvfb, xdotool and x11-apps as root)")
-    display = f":{90 + os.getpid() % 400}"
-    proc = subprocess.Popen(["Xvfb", display, "-screen", "0", "1280x1024x24", "-nolisten", "tcp"],
-                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-    for _ in range(100):
-        if subprocess.run(["xdotool", "getdisplaygeometry"], env={**os.environ, "DISPLAY": display},
-                          capture_output=True).returncode == 0:
-            break
-        time.sleep(0.05)
+    read, write = os.pipe()       # Xvfb picks a free display number and writes it here
+    proc = subprocess.Popen(["Xvfb", "-displayfd", str(write), "-screen", "0", "1280x1024x24", "-nolisten", "tcp"],
+                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, pass_fds=(write,))
+    os.close(write)
+    with os.fdopen(read) as f:
+        number = f.readline().strip()
+    if not number:
+        proc.kill()
+        pytest.skip("Xvfb did not start")
+    display = f":{number}"
     yield display
     proc.terminate()
     proc.wait(10)

@@ -211,6 +211,8 @@ class Preview:
         c = self.controls[name]
         if c.kind == "choice":
             if isinstance(value, (int, np.integer)) and not isinstance(value, bool) and name == "camera":
+                if not 0 <= value < len(c.options):
+                    raise ValueError(f"camera: {value} is not one of 0…{len(c.options) - 1}")
                 value = int(value)
             elif value not in c.options:
                 raise ValueError(f"{name}: {value!r} is not one of {c.options}")
