@@ -12,7 +12,10 @@
 // Mirror padding of the coefficient image, px per side; keep in sync with glsim.stages.interp.PAD.
 #define REF_PAD 4
 
-// Padded coefficient image (R32F, glsim.stages.interp.prepare): texel (i, j) = padded column i, row j.
+// Padded coefficient image (glsim.stages.interp.prepare) as 2×2 blocks (RGBA32F,
+// glsim.backends.gl.backend.pack_pairs): texel (i, j) holds the coefficients at padded columns
+// i, i + 1 of row j (r, g) and of row j + 1 (b, a), the last column and row repeated, so one
+// fetch reads four taps (the same values and sums as four single fetches).
 uniform sampler2D u_ref;
 
 // ref_weights(t, w): per-axis weights at fractional offset t in [0, 1); tap k multiplies
@@ -75,15 +78,21 @@ float sample_ref(real2 uv) {
     // Clamp before the int conversion (undefined out of range); a first tap at
     // -REF_TAPS or beyond reads only edge texels anyway.
     ivec2 base = ivec2(clamp(f + real(REF_PAD + REF_FIRST), real2(-REF_TAPS), real2(size)));
+    // (REF_TAPS is even; the first tap of a sampled point lies inside the padded image, so the
+    // block's clamped neighbours equal the clamped taps)
     float acc = 0.0;
-    for (int j = 0; j < REF_TAPS; ++j) {
+    for (int j = 0; j < REF_TAPS; j += 2) {
         int row = clamp(base.y + j, 0, size.y - 1);
-        float s = 0.0;
-        for (int i = 0; i < REF_TAPS; ++i) {
-            int col = clamp(base.x + i, 0, size.x - 1);
-            s += wx[i] * texelFetch(u_ref, ivec2(col, row), 0).r;
+        float s0 = 0.0, s1 = 0.0;
+        for (int i = 0; i < REF_TAPS; i += 2) {
+            vec4 q = texelFetch(u_ref, ivec2(clamp(base.x + i, 0, size.x - 1), row), 0);
+            s0 += wx[i] * q.r;
+            s0 += wx[i + 1] * q.g;
+            s1 += wx[i] * q.b;
+            s1 += wx[i + 1] * q.a;
         }
-        acc += wy[j] * s;
+        acc += wy[j] * s0;
+        acc += wy[j + 1] * s1;
     }
     return acc;
 }

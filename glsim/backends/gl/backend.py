@@ -57,6 +57,13 @@ def shading_data(view: ViewSpec, normals: np.ndarray) -> np.ndarray:
                                 dtype=np.float32)
 
 
+def pack_pairs(c: np.ndarray) -> np.ndarray:
+    """(H, W) → (H, W, 4): texel (i, j) holds c at columns i, i + 1 of rows j and j + 1 (the last
+    column and row repeated), so interp.glsl reads four taps per fetch."""
+    right = np.concatenate([c[:, 1:], c[:, -1:]], axis=1)
+    return np.stack([c, right, np.concatenate([c[1:], c[-1:]]), np.concatenate([right[1:], right[-1:]])], axis=-1)
+
+
 def _light_uniforms(fx) -> dict:
     """Uniform name → float32 array for shade.glsl (lights padded to MAX_LIGHTS ≥ 1)."""
     L, lit = fx.lights, fx.lighting
@@ -96,8 +103,8 @@ class GLBackend:
     # ---- resources -------------------------------------------------------------------------
     def _reference_texture(self, method: str):
         if method not in self._textures:
-            coeffs = interp.prepare(self._image, method, np.float32)
-            tex = self.ctx.texture(coeffs.shape[::-1], 1, np.ascontiguousarray(coeffs).tobytes(), dtype="f4")
+            coeffs = pack_pairs(interp.prepare(self._image, method, np.float32))
+            tex = self.ctx.texture(coeffs.shape[1::-1], 4, np.ascontiguousarray(coeffs).tobytes(), dtype="f4")
             tex.filter = (self.ctx.NEAREST, self.ctx.NEAREST)
             self._textures[method] = tex
         return self._textures[method]
@@ -404,7 +411,8 @@ class GLBackend:
         scheme = blur_scheme(optics)
         kernel = "disk" if scheme == "disk" else "gaussian"
         uniforms = shader_uniforms(optics)
-        radius = int(kernel_radius(sigma_max, kernel))
+        # + 1: a pixel's float32 depth may lie an ulp beyond the corners' float64 range
+        radius = int(kernel_radius(sigma_max, kernel)) + 1
 
         def run(name, inputs, components=(1,)):
             # FP64: sigma and window in double from double uniforms, bit for bit numpy's
