@@ -434,9 +434,11 @@ class GLBackend:
 
     @staticmethod
     def read(tex) -> np.ndarray:
-        """An R32F texture as a float32 (H, W) array."""
+        """An R32F texture as a float32 (H, W) array (read straight into it: no second copy)."""
         W, H = tex.size
-        return np.frombuffer(tex.read(), np.float32).reshape(H, W).copy()
+        out = np.empty((H, W), np.float32)
+        tex.read_into(out)
+        return out
 
     def _downsample(self, samples, depth, W: int, H: int, s: int):
         """Box filter over s×s samples: grey, and the mean depth of covered samples if given."""
