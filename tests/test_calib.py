@@ -229,9 +229,10 @@ def test_detection_against_the_true_centroid(ci_library, ci_detections):
             complete = p["cameras"][cam.name]["complete"]
             assert ci_detections[p["pair"]][c] is not None or not complete
     e = cal.detection_errors(lib, ci_detections)
-    # measured (406×308, 8-bit, spp 16): 0.0028 px mean / 0.019 max against the centroid,
-    # 0.009 px mean against the projected centre (the perspective bias)
-    assert e["centroid"]["n"] > 0.7 * 2 * CI_PAIRS * 81
+    # measured (406×308, 8-bit, spp 16, model fit, cut views included): 0.0018 px mean / 0.0099
+    # max against the centroid (grey-level centroid: 0.0027 / 0.017), 0.009 px mean against the
+    # projected centre (the perspective bias)
+    assert e["centroid"]["n"] > 0.9 * 2 * CI_PAIRS * 81
     assert e["centroid"]["mean"] < 0.005 and e["centroid"]["max"] < 0.03
     assert np.all(np.abs(e["centroid"]["bias"]) < 5e-4)
     assert e["projected"]["mean"] > 2 * e["centroid"]["mean"]
@@ -271,8 +272,8 @@ def test_detection_orientation_under_any_roll(gl_ctx):
 @pytest.mark.gl
 def test_stereo_calibration_at_ci_size(ci_library, ci_detections, tmp_path):
     """With the perspective-bias correction (the default) the issue's full-size targets hold
-    at 406×308. Measured (CI_SEED, 15 of 20 pairs usable): fx −0.0014 %, |cx, cy| ≤ 0.014 px,
-    k1 −0.12 % / +0.03 %, |ΔT| 0.003 mm, rotation 0.0015°, RMS 0.0030 px."""
+    at 406×308. Measured (CI_SEED, all 20 pairs used, 11 views cut by the border): fx ≤ 0.0031 %,
+    |cx, cy| ≤ 0.0095 px, k1 −0.009 % / +0.10 %, |ΔT| 0.0085 mm, rotation 0.00076°, RMS 0.0021 px."""
     rep = cal.run(ci_library.directory, tmp_path / "cal")
     e, t = rep["errors"], rep["truth"]
     for cam in (1, 2):
@@ -283,7 +284,7 @@ def test_stereo_calibration_at_ci_size(ci_library, ci_detections, tmp_path):
         assert abs(e[f"k1_{cam}"] / t[f"k1_{cam}"]) < 0.02
     assert e["T_norm"] < 0.05 and e["rotation_deg"] < 0.01
     complete = sum(all(c["complete"] for c in q["cameras"].values()) for q in ci_library.pairs)
-    assert rep["rms"] < 0.02 and rep["pairs_used"] >= complete
+    assert rep["rms"] < 0.02 and rep["pairs_used"] >= complete and rep["pairs_used"] == CI_PAIRS
     assert rep["epipolar_max_px"] < 0.05
     for name in ("calibration.yaml", "report.json", "residuals.csv", "epipolar.png"):
         assert (tmp_path / "cal" / name).is_file()
@@ -300,11 +301,11 @@ def test_stereo_calibration_at_ci_size(ci_library, ci_detections, tmp_path):
 def test_perspective_bias_floor_without_correction(ci_library, ci_detections):
     """Plain OpenCV on dot centroids: the centroid of a dot's image is not the image of its
     centre, which OpenCV absorbs mostly into cx and the stereo rotation. Measured here:
-    rotation 0.0092°, cx −0.069 px, |ΔT| 0.007 mm (bounds: twice that). The true centroids
+    rotation 0.0072°, cx −0.066 px, |ΔT| 0.011 mm (bounds: about twice that). The true centroids
     themselves, corrected once, give an exact calibration: the ground truth is consistent."""
     plain = cal.errors(cal.calibrate_pairs(ci_library, ci_detections, range(CI_PAIRS), "k1k2p1p2k3", 41), *ci_library.cameras)
     assert plain["rotation_deg"] < 0.02 and abs(plain["cx1"]) < 0.15 and abs(plain["cx2"]) < 0.15
-    assert plain["T_norm"] < 0.015
+    assert plain["T_norm"] < 0.025
     truth = {p["pair"]: tuple(None if ci_detections[p["pair"]][c] is None else
                               np.where(np.isnan(ci_detections[p["pair"]][c]), np.nan,
                                        libmod.image_truth(ci_library, p, cam)["centroid"])

@@ -213,30 +213,126 @@ def sweep_table(sw: dict) -> str:
 
 # ---- calib_accuracy.json ---------------------------------------------------------------------
 def calibration(cal: dict) -> str:
-    f = cal["runs"]["full"]
+    runs = cal["runs"]
+    f = runs["full"]
     plain, fixed = f["bias_iterations_0"], f["bias_iterations_1"]
 
     def worst(r, keys):
         return max(abs(r[k]) for k in keys)
     rel, pp, k1 = ("fx1_rel", "fy1_rel", "fx2_rel", "fy2_rel"), ("cx1_px", "cy1_px", "cx2_px", "cy2_px"), ("k1_1_rel", "k1_2_rel")
     W, H = f["image_size"]
-    return (f"On a perfect target at {W}×{H} detection errs by {_s(f['detection']['centroid']['mean'])} px mean "
-            f"({_s(f['detection']['centroid']['max'])} max) against the true centroid, while the centroid sits "
-            f"{_s(f['detection']['projected']['mean'])} px (mean; {_s(f['detection']['projected']['max'])} max) from the "
-            f"projected centre (perspective bias). `glsim calib run` corrects that bias with one extra pass by default: "
-            f"with {f['pairs']} pairs, fx/fy within {_s(100 * worst(fixed, rel))} %, cx/cy within {_s(worst(fixed, pp))} px, "
-            f"k1 within {_s(100 * worst(fixed, k1))} %, stereo translation {_s(fixed['T_norm_mm'])} mm, rotation "
-            f"{_s(fixed['rotation_deg'])}°, RMS {_s(fixed['rms_px'])} px (plain OpenCV: cx/cy within "
-            f"{_s(worst(plain, pp))} px, rotation {_s(plain['rotation_deg'])}°).")
+    text = (f"On a perfect target at {W}×{H} detection errs by {_s(f['detection']['centroid']['mean'])} px mean "
+            f"({_s(f['detection']['centroid']['max'])} max) against the true centroid without noise")
+    noisy = runs.get("full_noise2")
+    if noisy:
+        text += (f" and by {_s(noisy['detection']['centroid']['mean'])} px mean "
+                 f"({_s(noisy['detection']['centroid']['max'])} max) with {noisy['noise_percent']:g} % noise")
+    text += (f", while the centroid sits {_s(f['detection']['projected']['mean'])} px (mean; "
+             f"{_s(f['detection']['projected']['max'])} max) from the projected centre (perspective bias). "
+             f"`glsim calib run` corrects that bias with one extra pass by default: with {f['pairs']} pairs and no noise, "
+             f"fx/fy within {_s(100 * worst(fixed, rel))} %, cx/cy within {_s(worst(fixed, pp))} px, "
+             f"k1 within {_s(100 * worst(fixed, k1))} %, stereo translation {_s(fixed['T_norm_mm'])} mm, rotation "
+             f"{_s(fixed['rotation_deg'])}°, RMS {_s(fixed['rms_px'])} px (plain OpenCV: cx/cy within "
+             f"{_s(worst(plain, pp))} px, rotation {_s(plain['rotation_deg'])}°).")
+    if noisy:
+        c = noisy["bias_iterations_1"]
+        text += (f" With {noisy['noise_percent']:g} % noise (`glsim calib library`'s default) and {noisy['pairs']} pairs: "
+                 f"cx/cy within {_s(worst(c, pp))} px, k1 within {_s(100 * worst(c, k1))} %, stereo translation "
+                 f"{_s(c['T_norm_mm'])} mm, rotation {_s(c['rotation_deg'])}°, RMS {_s(c['rms_px'])} px")
+        more = [r for k, r in runs.items() if k.startswith("full_noise2_")]
+        if more:
+            m = more[0]["bias_iterations_1"]
+            text += (f"; with {more[0]['pairs']} pairs: cx/cy within {_s(worst(m, pp))} px, translation "
+                     f"{_s(m['T_norm_mm'])} mm, rotation {_s(m['rotation_deg'])}°")
+        text += "."
+    return text
 
 
 def calibration_detection(cal: dict) -> str:
-    lines = ["| image size | vs true centroid: mean / RMS / max (px) | vs projected centre: mean / max (px) |",
-             "|---|---|---|"]
+    lines = ["| image size | noise | pairs | vs true centroid: mean / RMS / max (px) | vs projected centre: mean / max (px) |",
+             "|---|---|---|---|---|"]
+    seen = set()
     for run in cal["runs"].values():
+        key = (tuple(run["image_size"]), run.get("noise_percent", 0), run["seed"])
+        if key in seen:              # the same library measured again with more pairs
+            continue
+        seen.add(key)
         c, p = run["detection"]["centroid"], run["detection"]["projected"]
-        lines.append(f"| {run['image_size'][0]} × {run['image_size'][1]} | {_s(c['mean'])} / {_s(c['rms'])} / "
-                     f"{_s(c['max'])} | {_s(p['mean'])} / {_s(p['max'])} |")
+        lines.append(f"| {run['image_size'][0]} × {run['image_size'][1]} | {run.get('noise_percent', 0):g} % | "
+                     f"{run['pairs']} | {_s(c['mean'])} / {_s(c['rms'])} / {_s(c['max'])} | {_s(p['mean'])} / {_s(p['max'])} |")
+    return "\n".join(lines)
+
+
+def calibration_accuracy(cal: dict) -> str:
+    """The calibration errors of every run of examples/calib_accuracy.py (bias-corrected, and
+    plain OpenCV in brackets)."""
+    rel, pp, k1 = ("fx1_rel", "fy1_rel", "fx2_rel", "fy2_rel"), ("cx1_px", "cy1_px", "cx2_px", "cy2_px"), ("k1_1_rel", "k1_2_rel")
+
+    def worst(r, keys):
+        return max(abs(r[k]) for k in keys)
+    runs = list(cal["runs"].values())
+    head = ["| | " + " | ".join(f"{r['image_size'][0]} × {r['image_size'][1]}, {r.get('noise_percent', 0):g} % noise, "
+                                f"{r['pairs']} pairs ({r['bias_iterations_1']['pairs_used']} used)" for r in runs) + " |",
+            "|---|" + "---|" * len(runs)]
+    rows = [("fx, fy (both cameras)", lambda r: f"{_s(100 * worst(r, rel))} %"),
+            ("cx, cy (both cameras)", lambda r: f"{_s(worst(r, pp))} px"),
+            ("k1 (worse camera)", lambda r: f"{_s(100 * worst(r, k1))} %"),
+            ("\\|ΔT\\|", lambda r: f"{_s(r['T_norm_mm'])} mm"),
+            ("rotation", lambda r: f"{_s(r['rotation_deg'])}°"),
+            ("RMS", lambda r: f"{_s(r['rms_px'])} px")]
+    lines = head + [f"| {name} | " + " | ".join(f"{f(r['bias_iterations_1'])} ({f(r['bias_iterations_0'])})" for r in runs)
+                    + " |" for name, f in rows]
+    spread = [(r, r["spread_at_this_detection_noise"]) for r in runs if r.get("spread_at_this_detection_noise")]
+    if spread:
+        lines += ["", "The spread a calibration of these views has at the measured detection noise (true centroids + "
+                  "Gaussian noise of the measured scatter, bias-corrected; median / 90th percentile):", "",
+                  "| | max \\|cx, cy\\| (px) | \\|ΔT\\| (mm) | rotation (°) | draws meeting cx, cy ≤ 0.05 px, \\|ΔT\\| ≤ "
+                  "0.005 mm and rotation ≤ 0.001° |", "|---|---|---|---|---|"]
+        for r, s_ in spread:
+            lines.append(f"| {r.get('noise_percent', 0):g} %, {r['pairs']} pairs (σ = {_s(s_['sigma_per_axis_px'])} px "
+                         f"per axis) | {_s(s_['cxcy_max_px']['median'])} / {_s(s_['cxcy_max_px']['p90'])} | "
+                         f"{_s(s_['T_norm_mm']['median'])} / {_s(s_['T_norm_mm']['p90'])} | "
+                         f"{_s(s_['rotation_deg']['median'])} / {_s(s_['rotation_deg']['p90'])} | "
+                         f"{100 * s_['fraction_within_goals']:.0f} % of {s_['draws']} |")
+    return "\n".join(lines)
+
+
+def calibration_targets(cal: dict) -> str:
+    """Target types at 0 and 2 % noise (examples/calib_accuracy.py)."""
+    lines = ["| target | noise | views found | pairs used | detection vs projected point: mean / max (px) | "
+             "cx, cy max (px) | k1 max | \\|ΔT\\| (mm) | rotation (°) | RMS (px) |",
+             "|---|---|---|---|---|---|---|---|---|---|"]
+    for r in cal.get("targets", []):
+        d = r["detection"]["projected"]
+        c = r["detection"].get("centroid")
+        det = f"{_s(d['mean'])} / {_s(d['max'])}" + (f" (true centroid: {_s(c['mean'])} / {_s(c['max'])})" if c else "")
+        lines.append(f"| {r['target']} ({r['points']} points) | {r['noise_percent']:g} % | {r['views_found']}/{r['views']} | "
+                     f"{r['pairs_used']} | {det} | {_s(r['cxcy_max_px'])} | "
+                     f"{_s(100 * r['k1_max_rel'])} % | {_s(r['T_norm_mm'])} | {_s(r['rotation_deg'])} | {_s(r['rms_px'])} |")
+    return "\n".join(lines)
+
+
+def calibration_estimators(det: dict) -> str:
+    """Dot-centre estimators against the true centroid at each noise level (examples/calib_detection.py)."""
+    names = {"fit": "model fit (default)", "centroid": "grey-level centroid, ±0.45 pitch (before)",
+             "centroid-dot": "grey-level centroid, dot + 3 px", "edge-ellipse": "ellipse through sub-pixel edge points",
+             "blob": "OpenCV blob centres"}
+    main = [r for r in det["runs"] if r["px_per_mm"] == det["px_per_mm"]]
+    lines = ["| estimator | " + " | ".join(f"{r['noise_percent']:g} % noise: mean / max (px)" for r in main) + " |",
+             "|---|" + "---|" * len(main)]
+    for m in det["methods"]:
+        lines.append(f"| {names.get(m, m)} | " + " | ".join(
+            f"{_s(r['methods'][m]['mean'])} / {_s(r['methods'][m]['max'])}" for r in main) + " |")
+    lines.append("| Cramér–Rao bound (mean) | " + " | ".join(
+        _s(r["bound"]["mean"]) if r["noise_percent"] > 0 else "–" for r in main) + " |")
+    other = [r for r in det["runs"] if r["px_per_mm"] != det["px_per_mm"]]
+    if other:
+        lines += ["", f"The same at {other[0]['px_per_mm']:g} px/mm (reference pixels of "
+                  f"{_s(det['image_px_per_ref_px'][str(other[0]['px_per_mm'])])} image px): model fit "
+                  + ", ".join(f"{_s(r['methods']['fit']['mean'])} / {_s(r['methods']['fit']['max'])} px at "
+                              f"{r['noise_percent']:g} %" for r in other)
+                  + "; grey-level centroid " + ", ".join(f"{_s(r['methods']['centroid']['mean'])} / "
+                                                         f"{_s(r['methods']['centroid']['max'])} px" for r in other) + "."]
     return "\n".join(lines)
 
 
@@ -274,7 +370,8 @@ def preview(pre: dict) -> str:
 GENERATORS = {"preview": preview, "accuracy-table": accuracy_table, "accuracy-facts": accuracy_facts, "peer": peer,
               "effects": effects, "verify-table": verify_table,
               "verify-runs-table": verify_runs_table, "sweep-table": sweep_table, "sweep": sweep, "calibration": calibration,
-              "calibration-detection": calibration_detection, "library": library}
+              "calibration-detection": calibration_detection, "calibration-accuracy": calibration_accuracy,
+              "calibration-targets": calibration_targets, "calibration-estimators": calibration_estimators, "library": library}
 
 
 # ---- regions ---------------------------------------------------------------------------------

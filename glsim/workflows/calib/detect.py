@@ -1,6 +1,9 @@
-"""Dot-grid detection: cv2.findCirclesGrid with a SimpleBlobDetector tuned to the image's grey
-levels finds and orders the grid; every dot's centre is then measured by a model fit to the
-grey levels near its edge; markers and handedness give the grid's orientation.
+"""Target detection. Dot grids: cv2.findCirclesGrid with a SimpleBlobDetector tuned to the
+image's grey levels finds and orders the grid (or, where the image border cuts it, the markers
+anchor the dots in view: :func:`find_partial_grid`); every dot's centre is then measured by a
+model fit to the grey levels near its edge; markers and handedness give the grid's
+orientation; a grid with a dot off its neighbours' homography is rejected (:func:`inconsistent`).
+Chessboards and ChArUco boards: OpenCV's detectors, corners put in the target's order.
 
 The model fit (``method="fit"``, the default, :func:`fit_ellipses`): within ``EDGE_BAND`` px
 of its edge (the band sized from the dot, not from the grid pitch), a dot's grey levels are
@@ -9,10 +12,10 @@ F the exact fraction of the pixel square inside a straight edge at that distance
 orientation, blurred by a Gaussian of fitted σ (:func:`edge_profile`). Levenberg–Marquardt
 fits all dots of an image at once (8 parameters each). The perspective image of a circle is
 an ellipse, whose centre is its area centroid; lens distortion bends it slightly, which moves
-the fitted centre from the area centroid by 2e-5 px at most for the Table 8 rig. Pixels
-away from the edge carry no information on the centre, so leaving them out removes the
-noise they add to a grey-level centroid: at 2 % noise the fit reaches the Cramér–Rao bound of
-the image (docs/calib.md, bench/results/calib_detection.md).
+the fitted centre from the area centroid by < 1e-4 px for the Table 8 rig. Pixels away from
+the edge carry no information on the centre, so leaving them out removes the noise they add to
+a grey-level centroid: at every noise level the fit reaches the Cramér–Rao bound of the image
+(:func:`centre_bound`; docs/calib.md, bench/results/calib_detection.md).
 
 Other estimators, kept for the comparison (``METHODS``): ``centroid`` Σ(I − b)·p / Σ(I − b)
 over ±0.45 local grid spacings (b: the window's outer ring; iterated, re-centred);
@@ -45,8 +48,9 @@ VERSION = 3            # of the detector's results (detection caches made by ano
 class Detection:
     """Dots found in one image, in the target's point order (row-major).
 
-    ``points`` (N, 2) px: refined centres, NaN where a dot's window left the image;
-    ``blobs`` (N, 2) px: findCirclesGrid's blob centres, same order; ``ok`` (N,) bool.
+    ``points`` (N, 2) px: refined centres, NaN where a dot was not found or could not be
+    measured (its window left the image); ``blobs`` (N, 2) px: the blob centres (corners for
+    boards), same order; ``ok`` (N,) bool.
     """
     points: np.ndarray
     blobs: np.ndarray
