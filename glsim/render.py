@@ -114,7 +114,7 @@ class Renderer:
             view = self.view(camera, step, deformed)
             depths = view.Xd[..., 2]
         fx = prepare_effects(self.scene, deformed, self.mesh.quads, cam, self.scene.cameras.index(cam), step,
-                             depths)
+                             depths, normals=self.backend_name != "gl")
         image, raster, stages = self.backend.render_view(view, opts, truth, fx)
         seconds = time.perf_counter() - t0
         tr = self._truth(view, deformed, raster) if truth else None

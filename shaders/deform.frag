@@ -15,10 +15,15 @@
 #include "camera.glsl"
 #include "interp.glsl"
 #include "bilinear.glsl"
+#if !defined(MODE_FAST) || defined(LIGHTING)
+// the mesh (connectivity, the step's nodes) and the camera transform
+#include "view.glsl"
+#endif
 #ifdef LIGHTING
 #include "shade.glsl"
-// per element: corners in the camera frame (12) and corner normals (12), float32
-layout(std430, binding = 1) readonly buffer Shading { float shade_data[]; };
+// per element: the step's unit corner normals in the world frame (12), float32, uploaded once
+// per step (glsim.stages.geometry.StepGeometry.corner_normals); rotated here by u_rot
+layout(std430, binding = 1) readonly buffer Normals { float corner_normals[]; };
 #endif
 
 uniform vec2 u_ref_size;  // reference image W, H (px)
@@ -32,10 +37,8 @@ in float v_depth;
 // Per-view element records written by view.comp, float64 or float32 as `real`: exact: corners
 // in the camera frame (12); q4: distorted pixel corners (8) and depths Z (4).
 layout(std430, binding = 0) readonly buffer Elements { real elem_data[]; };
-// the mesh, uploaded once per renderer (glsim.backends.gl.backend): connectivity and, per
-// node, reference-image coordinates (q4) or the undeformed position in the reference camera's
-// frame (exact)
-layout(std430, binding = 5) readonly buffer Quads { ivec4 quads[]; };
+// the mesh, uploaded once per renderer (glsim.backends.gl.geometry): per node, reference-image
+// coordinates (q4) or the undeformed position in the reference camera's frame (exact)
 #if defined(MODE_Q4)
 layout(std430, binding = 7) readonly buffer RefUV { real ref_uv[]; };
 #else
@@ -65,15 +68,20 @@ layout(location = DEPTH_LOCATION) out float out_depth;  // camera-frame Z (mm)
 #endif
 
 #ifdef LIGHTING
-// Phong intensity at (xi, eta) of element e: surface point and interpolated unit normal.
+// Phong intensity at (xi, eta) of element e: surface point and interpolated unit normal, in
+// the camera frame.
 float light_at(int e, real xi, real eta) {
     vec4 w = vec4(shape_functions(xi, eta));
+    ivec4 q = quads[e];
     vec3 X = vec3(0.0), N = vec3(0.0);
     for (int i = 0; i < 4; ++i) {
-        int b = e * 24 + 3 * i;
-        X += w[i] * vec3(shade_data[b], shade_data[b + 1], shade_data[b + 2]);
-        N += w[i] * vec3(shade_data[b + 12], shade_data[b + 13], shade_data[b + 14]);
+        int b = e * 12 + 3 * i;
+        X += w[i] * vec3(node_camera(q[i]));
+        N += w[i] * vec3(corner_normals[b], corner_normals[b + 1], corner_normals[b + 2]);
     }
+    // u_rot is row-major; mat3() fills columns, so this is R
+    N = transpose(mat3(float(u_rot[0]), float(u_rot[1]), float(u_rot[2]), float(u_rot[3]), float(u_rot[4]),
+                       float(u_rot[5]), float(u_rot[6]), float(u_rot[7]), float(u_rot[8]))) * N;
     float n = length(N);
     return phong(X, n > 0.0 ? N / n : vec3(0.0));
 }

@@ -67,6 +67,32 @@ def test_gl_path_builds_no_numpy_view_and_uploads_once(gl_ctx, monkeypatch):
 
 
 @pytest.mark.gl
+@pytest.mark.parametrize("flat", [False, True])
+def test_lighting_normals_once_per_step_not_per_view(gl_ctx, monkeypatch, flat):
+    """With lighting, GL takes the corner normals once per load step (world frame, rotated on the
+    GPU): no per-view numpy normals, and the lit image still equals the oracle's."""
+    import dataclasses
+
+    import glsim.effects
+    from glsim.scene import demo_effects
+
+    lit = demo_effects(bulge_scene(size=(203, 154), steps=1))
+    scene = dataclasses.replace(lit, optics=None, noise=None,
+                                lighting=dataclasses.replace(lit.lighting, normals="flat" if flat else "smooth"))
+    per_view = Counter(glsim.effects.corner_normals)
+    monkeypatch.setattr(glsim.effects, "corner_normals", per_view)
+    with Renderer(scene, "gl", ctx=gl_ctx) as g:
+        images = [g.render(cam, 1).image for cam in (0, 1)]
+        assert per_view.calls == 0 and g.geometry.step_builds == 1
+        assert g.backend.geometry.uploads["step"] == 2          # nodes and normals, once
+    with Renderer(scene, "cpu") as c:
+        ref = [c.render(cam, 1).image for cam in (0, 1)]
+    for a, b in zip(images, ref):
+        d = np.abs(a.astype(float) - b) * 255
+        assert (d > 0.5).sum() <= 8 and np.median(d) < 1e-3
+
+
+@pytest.mark.gl
 @pytest.mark.parametrize("mode", MODES)
 def test_cpu_memory_per_image_does_not_grow_with_the_mesh(gl_ctx, mode):
     """What the CPU allocates to render one more image of an uploaded step: the same for 144

@@ -63,9 +63,10 @@ def max_blur(optics: Optics, depths: np.ndarray) -> float:
 
 
 def prepare(scene: Scene, nodes_def: np.ndarray, quads: np.ndarray, cam: Camera, camera_index: int,
-            step: int, depths: np.ndarray) -> Effects:
+            step: int, depths: np.ndarray, normals: bool = True) -> Effects:
     """The :class:`Effects` of ``scene`` for one camera and step (``depths``: element corner
-    depths Z in mm, for the blur radius)."""
+    depths Z in mm, for the blur radius). ``normals`` False leaves out the per-element corner
+    normals (the GL path takes them once per load step and rotates them on the GPU)."""
     out: dict = {"bit_depth": cam.bit_depth}
     lit = scene.lighting
     if lit is not None:
@@ -74,7 +75,7 @@ def prepare(scene: Scene, nodes_def: np.ndarray, quads: np.ndarray, cam: Camera,
         out.update(lighting=lit,
                    lights=shade.lights_to_camera([_light_dict(li) for li in lit.lights], cam.rotation,
                                                  cam.translation),
-                   normals=corner_normals(nodes_def, quads, cam, lit.normals == "flat"))
+                   normals=corner_normals(nodes_def, quads, cam, lit.normals == "flat") if normals else None)
     if scene.optics is not None:
         out.update(optics=scene.optics, sigma_max=max_blur(scene.optics, depths))
     nz = scene.noise

@@ -47,16 +47,6 @@ def program_defines(opts, truth: bool, fp64: bool, fx=None) -> dict:
     return d
 
 
-def shading_data(view: ViewSpec, normals: np.ndarray) -> np.ndarray:
-    """Per-element lighting payload (float32): corners in the camera frame (12), normals (12).
-    O(M) on the CPU per view: lighting is the one effect whose per-element data are not yet
-    computed on the GPU."""
-    Xd = view.corners()
-    M = len(Xd)
-    return np.ascontiguousarray(np.concatenate([Xd.reshape(M, 12), normals.reshape(M, 12)], 1),
-                                dtype=np.float32)
-
-
 def pack_pairs(c: np.ndarray) -> np.ndarray:
     """(H, W) → (H, W, 4): texel (i, j) holds c at columns i, i + 1 of rows j and j + 1 (the last
     column and row repeated), so interp.glsl reads four taps per fetch."""
@@ -209,8 +199,8 @@ class GLBackend:
 
         dropped = ctx.buffer(bytes(4))  # deform.frag counts samples mapping outside the reference
         buffers = [dropped]
-        if fx.lighting is not None:
-            buffers.append(ctx.buffer(shading_data(view, fx.normals).tobytes()))
+        # the step's world-frame corner normals (uploaded once per step; rotated in deform.frag)
+        normals = geo.normals(view, fx.lighting.normals == "flat") if fx.lighting is not None else None
 
         def setup(prog):
             """Bind and set everything deform.frag (and its vertex shader) reads."""
@@ -229,7 +219,7 @@ class GLBackend:
                 for name, value in _light_uniforms(fx).items():
                     if prog.get(name, None) is not None:
                         prog[name].write(np.ascontiguousarray(value).tobytes())
-                buffers[1].bind_to_storage_buffer(1)
+                normals.bind_to_storage_buffer(1)
             if opts.interpolation == "procedural":
                 self._bind_dots(prog)
             else:

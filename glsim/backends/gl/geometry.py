@@ -103,6 +103,18 @@ class GeometryBuffers:
                 b.release()
         return nodes, bits, has
 
+    def normals(self, view: ViewSpec, flat: bool):
+        """The step's world-frame corner normals (float32, 12 per element), uploaded once per
+        step (binding 1 when lit)."""
+        key = ("normals", view.step_geo.index, flat)
+        entry = self._bufs.get(key)
+        if entry is None or entry[0] is not view.step_geo:
+            for k in [k for k in self._bufs if isinstance(k, tuple) and k[0] == "normals"]:
+                self._bufs.pop(k)[1].release()
+            entry = self._bufs[key] = (view.step_geo, self.ctx.buffer(view.step_geo.corner_normals(flat).tobytes()))
+            self.uploads["step"] += 1
+        return entry[1]
+
     def bind(self, view: ViewSpec, fp64: bool) -> None:
         """Upload what this view needs (at most once per renderer / step) and bind it."""
         quads, ref_uv, ref_xr, flags = self._mesh_buffers(fp64)
@@ -226,7 +238,8 @@ class GeometryBuffers:
     def release(self) -> None:
         for b in self._bufs.values():
             for obj in (b if isinstance(b, tuple) else (b,)):
-                obj.release()
+                if hasattr(obj, "release"):
+                    obj.release()
         for entry in self._steps.values():
             for b in entry[1:3]:
                 b.release()
