@@ -462,7 +462,7 @@ def test_broken_library_json_is_named(ci_library, tmp_path, capsys):
     m.write_text(text[:100])
     err = _run_error(["library", "default", "--scale", str(CI_SCALE), "--pairs", "3", "--seed", str(CI_SEED),
                       "--noise", "0", "-o", str(lib)], capsys)
-    assert "library.json" in err and "not valid JSON" in err
+    assert "library.json" in err and "not valid JSON" in err and "delete it and rerun" in err
 
 
 @pytest.mark.gl

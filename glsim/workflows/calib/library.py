@@ -346,7 +346,9 @@ def write_library(rig, target, n_pairs: int, out_dir, seed: int = 0, backend: st
     settings = settings_hash(manifest)
     existing = out / "library.json"
     if existing.is_file():
-        old = _read_json(existing, "library.json of a calibration library")
+        old = _read_json(existing, "library.json of a calibration library",
+                         "restore it, or delete it and rerun `glsim calib library` with the settings the library was "
+                         "made with (its pairs are checked against them)")
         diff = settings_differences(old, manifest)
         if diff:
             raise SceneError(str(existing), "was made with other settings: " + "; ".join(diff),
