@@ -413,6 +413,11 @@ def test_widget_through_its_messages(gl_ctx, tmp_path):
         message(type="pointer_down", x=x, y=y, button=1, buttons=[1], modifiers=[])
         message(type="pointer_up", x=x, y=y, button=1, buttons=[], modifiers=[])
         assert w.core.p.lighting and w._widgets["lighting"].value
+        before = w.core.scene
+        for wd in w._widgets.values():     # the browser snaps each slider to its step grid: no change
+            if isinstance(wd.value, float) and hasattr(wd, "step"):
+                wd.value = wd.min + round((wd.value - wd.min) / wd.step) * wd.step
+        assert w.core.scene == before
         w._widgets["dof"].value = True                                     # an ipywidget drives the core
         assert w.core.scene.optics is not None
         w._widgets["noise_sigma"].value = 3.0
@@ -545,3 +550,147 @@ def test_reduced_bench_never_writes_the_committed_results(tmp_path):
     r = _glsim("bench", "preview", "--size", 160, 122, "--reps", 3, "--out", "bench/results")
     assert r.returncode == 2 and "overwrite the committed" in r.stderr
     assert (results.read_bytes() if results.is_file() else None) == before
+
+
+THREADS = """
+import threading, numpy as np
+from glsim.scene import bulge_scene
+from glsim.workflows.preview import Preview
+pv = Preview(bulge_scene(size=(160, 122), steps=1), size=(640, 400))   # its own EGL context
+out = {}
+t = threading.Thread(target=lambda: out.update(a=pv.refine().copy()))
+t.start(); t.join()
+pv.set("step", 1)                     # back in the thread that made it
+t = threading.Thread(target=lambda: out.update(b=pv.refine().copy())); t.start(); t.join()
+c = pv.refine()
+assert np.array_equal(out["b"], c) and not np.array_equal(out["a"], c)
+pv.close()
+print("ok")
+"""
+
+
+def test_own_context_draws_from_any_thread():
+    """Jupyter calls get_frame from another thread than the cell that made the widget."""
+    r = subprocess.run([sys.executable, "-c", THREADS], capture_output=True, text=True, timeout=120, cwd=ROOT)
+    assert r.returncode == 0 and r.stdout.strip() == "ok", r.stderr
+
+
+# ---- a real browser: JupyterLab on localhost, headless Chromium ----------------------------------
+BROWSER_NB = """from glsim.scene import bulge_scene
+from glsim.workflows.preview import Widget
+w = Widget(bulge_scene(size=(320, 244), steps=2), size=(853, 480))
+w.core.show_timings = False
+w.quality = 100
+w.core.set("step", 1)
+w.core.set("overlay:edges", True)
+w"""
+
+
+def _chromium():
+    return shutil.which("chromium") or shutil.which("chromium-browser")
+
+
+def test_widget_in_jupyterlab_with_headless_chromium(tmp_path, gl_ctx):
+    """The notebook runs in JupyterLab; Chromium shows the widget; the frame image in the page
+    equals the offscreen frame of the same settings (lossless PNG frames)."""
+    import socket
+    import urllib.request
+    lab_bin = Path(sys.executable).with_name("jupyter-lab")
+    if _chromium() is None or not lab_bin.exists():
+        pytest.skip("needs Debian's chromium and jupyterlab (make test installs both)")
+    websocket = pytest.importorskip("websocket")
+
+    def free_port():
+        with socket.socket() as s:
+            s.bind(("127.0.0.1", 0))
+            return s.getsockname()[1]
+
+    nb = {"cells": [{"cell_type": "code", "id": "c0", "metadata": {}, "execution_count": None, "outputs": [],
+                     "source": BROWSER_NB.splitlines(True)}],
+          "metadata": {"kernelspec": {"display_name": "Python 3", "language": "python", "name": "python3"}},
+          "nbformat": 4, "nbformat_minor": 5}
+    (tmp_path / "widget.ipynb").write_text(json.dumps(nb))
+    port, dport, token = free_port(), free_port(), "glsim-preview-test"
+    env = {**os.environ, "PATH": f"{lab_bin.parent}:{os.environ['PATH']}", "JUPYTER_CONFIG_DIR": str(tmp_path / "cfg"),
+           "JUPYTER_DATA_DIR": str(tmp_path / "data"), "JUPYTER_RUNTIME_DIR": str(tmp_path / "run")}
+    procs = [subprocess.Popen([str(lab_bin), "--no-browser", f"--port={port}", "--ip=127.0.0.1",
+                               f"--IdentityProvider.token={token}", "--LabApp.expose_app_in_browser=True",
+                               f"--ServerApp.root_dir={tmp_path}", "--allow-root"],
+                              stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, env=env, cwd=tmp_path)]
+    try:
+        deadline = time.monotonic() + 90
+        while True:
+            try:
+                urllib.request.urlopen(f"http://127.0.0.1:{port}/api/status?token={token}", timeout=1)
+                break
+            except OSError:
+                assert time.monotonic() < deadline, "JupyterLab did not start"
+                time.sleep(0.3)
+        procs.append(subprocess.Popen([_chromium(), "--headless=new", "--no-sandbox", "--disable-gpu",
+                                       f"--remote-debugging-port={dport}", "--window-size=1600,1200",
+                                       f"--user-data-dir={tmp_path / 'chrome'}", "about:blank"],
+                                      stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL))
+        while True:
+            try:
+                tabs = json.load(urllib.request.urlopen(f"http://127.0.0.1:{dport}/json", timeout=1))
+                break
+            except OSError:
+                assert time.monotonic() < deadline, "Chromium did not start"
+                time.sleep(0.3)
+        ws = websocket.create_connection([t for t in tabs if t["type"] == "page"][0]["webSocketDebuggerUrl"],
+                                         timeout=60)
+        ids = iter(range(1, 10**6))
+
+        def js(expr):
+            i = next(ids)
+            ws.send(json.dumps({"id": i, "method": "Runtime.evaluate",
+                                "params": {"expression": expr, "awaitPromise": True, "returnByValue": True}}))
+            while True:
+                m = json.loads(ws.recv())
+                if m.get("id") == i:
+                    return m["result"].get("result", {}).get("value")
+
+        js(f"location.href = 'http://127.0.0.1:{port}/lab/tree/widget.ipynb?token={token}'")
+        kernel = ("(() => { const a = window.jupyterapp; const w = a && Array.from(a.shell.widgets('main'))"
+                  ".find(x => x.sessionContext); "
+                  "const k = w && w.sessionContext && w.sessionContext.session && w.sessionContext.session.kernel; "
+                  "return !!(k && k.status === 'idle' && document.querySelector('.jp-Notebook')); })()")
+        while js(kernel) is not True:
+            assert time.monotonic() < deadline + 60, "the notebook's kernel did not start"
+            time.sleep(0.5)
+        js("(() => { const a = window.jupyterapp; const w = Array.from(a.shell.widgets('main')).find(x => x.sessionContext); "
+           "a.shell.activateById(w.id); return a.commands.execute('notebook:run-all-cells'); })()")
+        image = ("(() => { const i = document.querySelector('.jp-OutputArea img'); if (!i || !i.complete || "
+                 "!i.naturalWidth) return null; const c = document.createElement('canvas'); c.width = i.naturalWidth; "
+                 "c.height = i.naturalHeight; c.getContext('2d').drawImage(i, 0, 0); return [i.src, c.toDataURL('image/png')]; })()")
+        import base64
+        import io
+        import imageio.v3 as iio
+        expected, last, shown = {}, None, None
+        end = time.monotonic() + 120
+        while time.monotonic() < end:
+            got = js(image)
+            if got and got[0] == last:          # the same frame for a while: the refined one
+                shown = iio.imread(io.BytesIO(base64.b64decode(got[1].split(",", 1)[1])))[..., :3]
+                size = (shown.shape[1], shown.shape[0])
+                if size not in expected:          # the view may resize the frame to its own size
+                    with Preview(small_scene(), size=size, ctx=gl_ctx) as pv:
+                        pv.show_timings = False
+                        pv.set("step", 1)
+                        pv.set("overlay:edges", True)
+                        expected[size] = pv.refine()
+                if np.array_equal(shown, expected[size]):
+                    break
+            last = got[0] if got else None
+            time.sleep(1.5)
+        assert shown is not None, "no widget frame appeared in the page"
+        iio.imwrite(tmp_path / "browser.png", shown)
+        assert np.array_equal(shown, expected[(shown.shape[1], shown.shape[0])])
+        ws.close()
+    finally:
+        for p in reversed(procs):
+            p.terminate()
+            try:
+                p.wait(20)
+            except subprocess.TimeoutExpired:
+                p.kill()

@@ -42,6 +42,20 @@ KEYS = {            # key → (action, argument)
 }
 
 
+def _gl(method):
+    """Run ``method`` with the preview's GL context bound to the calling thread."""
+    import functools
+
+    @functools.wraps(method)
+    def wrapper(self, *args, **kwargs):
+        egl = getattr(self, "_egl", None)
+        if egl is None:
+            return method(self, *args, **kwargs)
+        with egl.current():
+            return method(self, *args, **kwargs)
+    return wrapper
+
+
 def scaled_camera(cam: Camera, scale: float) -> Camera:
     """``cam`` at ``scale`` times its size (pixel centres kept: c' = (c + ½)·s − ½)."""
     W, H = cam.size
@@ -99,6 +113,9 @@ class Preview:
         self.controls: dict[str, Control] = {c.name: c for c in self.model.controls()}
         self._own_ctx = ctx is None
         self.ctx = ctx if ctx is not None else create_context()
+        from glsim.backends.gl.threads import EGLBinding
+        # our own EGL context is bound only while we draw: Jupyter draws from another thread
+        self._egl = EGLBinding() if self._own_ctx else None
         self.renderer: Renderer | None = None
         self.reference_uploads = 0          # how often a reference (speckle) was made and uploaded
         self._built = None                  # reference_inputs of the scene the reference was made from
@@ -128,6 +145,8 @@ class Preview:
         self._hits: list[tuple] = []
         self._ratio = 1.0
         self.quit_requested = False
+        if self._egl is not None:
+            self._egl.release()
         self._panel_offset = 0
         self.show_timings = True           # render times in the frame (off: reproducible frames)
 
@@ -169,6 +188,7 @@ class Preview:
         self.reference_uploads += 1
         self._built = reference_inputs(scene)
 
+    @_gl
     def close(self) -> None:
         if self.renderer is not None:
             self.renderer.close()
@@ -193,6 +213,7 @@ class Preview:
             return self.p.overlays[name[8:]]
         return getattr(self.p, name)
 
+    @_gl
     def set(self, name: str, value, dragging: bool = False) -> bool:
         """Set control ``name``; ``dragging``: more values follow at once (render fast until the
         drag ends). Returns False (and keeps the old value, with the reason in
@@ -371,6 +392,7 @@ class Preview:
         finally:
             r.scene = self.scene
 
+    @_gl
     def results(self, quality: str | None = None):
         """The cameras' :class:`~glsim.render.Result` at ``quality`` ("full": the scene's size and
         mode; "fast": fast mode at the drag size), rendered if out of date."""
@@ -386,6 +408,7 @@ class Preview:
         self._results = (self._version, quality, res)
         return res
 
+    @_gl
     def truths(self, quality: str | None = None):
         """Ground truth of each camera at its size on screen (the overlays' resolution)."""
         quality = quality or self.quality
@@ -649,6 +672,7 @@ class Preview:
                 draw.text(frame, "+", x + w - 18, ry + 14, draw.WHITE, 0.5)
             ry += ROW
 
+    @_gl
     def frame(self, quality: str | None = None) -> np.ndarray:
         """The preview as an H×W×3 uint8 RGB frame (rendering what is out of date)."""
         quality = quality or self.quality
@@ -704,6 +728,7 @@ class Preview:
         """The edited scene as TOML (``load_scene`` reads it back and renders the same images)."""
         return save_scene(self.scene, path, self._tmp)
 
+    @_gl
     def screenshot(self, path: str | Path) -> Path:
         """The full-quality frame as PNG."""
         import imageio.v3 as iio

@@ -4,6 +4,7 @@ controls. Needs the ``notebook`` extra (jupyter-rfb, ipywidgets)."""
 from __future__ import annotations
 
 import asyncio
+import math
 import time
 
 import ipywidgets as ipw
@@ -79,7 +80,9 @@ class Widget(RemoteFrameBuffer):
                 w = ipw.IntSlider(value=int(value), min=int(c.lo), max=int(c.hi), step=1, description=desc,
                                   style=style, layout=layout)
             else:
-                w = ipw.FloatSlider(value=float(value), min=c.lo, max=c.hi, step=c.step / 4, description=desc,
+                st, v = c.step / 4, float(value)   # the grid through the value: the slider keeps it as it is
+                lo, hi = v - math.floor((v - c.lo) / st) * st, v + math.floor((c.hi - v) / st) * st
+                w = ipw.FloatSlider(value=v, min=lo, max=hi, step=st, description=desc,
                                     readout_format=".4g", style=style, layout=layout)
             w.observe(lambda change, n=name: self._from_widget(n, change["new"]), names="value")
             self._widgets[name] = w
@@ -116,6 +119,8 @@ class Widget(RemoteFrameBuffer):
             return
         core = self.core
         c = core.controls.get(name)
+        if c is not None and c.kind == "slider" and abs(value - core.get(name)) <= 1e-6 * c.step:
+            return   # the slider snapping its value to its step grid, not the user
         if c is not None and c.kind == "slider":   # a slider drag: fast frames until it settles
             core.set(name, value, dragging=True)
             core.dragging = False
