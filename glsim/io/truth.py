@@ -8,13 +8,13 @@ displacements of the rendered load steps). ``load(path)`` reads a truth file;
 :meth:`CompactTruth.maps` returns the same maps as ``Renderer.render(..., truth=True).truth``
 (bit for bit for ``element``, ``xi``, ``eta``, ``X_undeformed``, ``X_deformed``), and
 :meth:`CompactTruth.at` gives the 3-D reference and deformed positions and the displacement at
-any camera-1 pixel coordinates in the reference state (what a DIC result is compared with).
+any camera-0 pixel coordinates in the reference state (what a DIC result is compared with).
 
 File layout (version 1), little endian::
 
     b"GLTRUTH1"  uint64 header length  header (UTF-8 JSON)  blobs…
 
-The header names the image's camera, camera 1 (the frame of the positions), the reference
+The header names the image's camera, camera 0 (the frame of the positions), the reference
 camera, the render mode, the load step, the geometry file (relative path and SHA-256) and the
 blobs (offset and length after the header). Blob ``element``: the (H, W) int32 element map
 (−1 = background), zstd. Blob ``local``: (ξ, η) of the covered pixels in raster order. For
@@ -256,7 +256,7 @@ class Maps:
 
 @dataclass(frozen=True, eq=False)
 class PointTruth:
-    """Ground truth at given camera-1 pixel coordinates of the reference state (camera 1's
+    """Ground truth at given camera-0 pixel coordinates of the reference state (camera 0's
     frame, mm): ``valid`` where the pixel's ray meets the specimen; NaN elsewhere."""
     points: np.ndarray
     valid: np.ndarray
@@ -367,7 +367,7 @@ class CompactTruth:
         return self._geometry
 
     def maps(self) -> Maps:
-        """The full maps, as the renderer's ``Truth`` (X in camera 1's frame, mm)."""
+        """The full maps, as the renderer's ``Truth`` (X in camera 0's frame, mm)."""
         g, mask = self.geometry, self.mask
         W, H = self.size
         e = self.element[mask]
@@ -390,10 +390,10 @@ class CompactTruth:
                     X_undeformed=Xu, X_deformed=Xd)
 
     def at(self, points, step: int | None = None) -> PointTruth:
-        """Ground truth at ``points`` (N, 2) — pixel coordinates (u, v) of camera 1 in the
+        """Ground truth at ``points`` (N, 2) — pixel coordinates (u, v) of camera 0 in the
         reference (undeformed) state, as a DIC reports its subset centres: the material point
-        there (camera 1's ray intersected exactly with the undeformed mesh, the nearest hit),
-        its position undeformed and at ``step`` (default: this image's step), camera 1's frame,
+        there (camera 0's ray intersected exactly with the undeformed mesh, the nearest hit),
+        its position undeformed and at ``step`` (default: this image's step), camera 0's frame,
         mm. Points whose ray misses the specimen are ``valid`` False and NaN."""
         return points_truth(self.geometry, self.camera1, points, self.step if step is None else step)
 
@@ -403,7 +403,7 @@ def points_truth(g: Geometry, cam1: Camera, points, step: int) -> PointTruth:
     pts = np.asarray(points, np.float64).reshape(-1, 2)
     n = len(pts)
     xn, ray_ok = undistort(pixel_to_normalized(pts, cam1.intrinsics), cam1.distortion.coeffs)
-    P = to_camera(g.nodes, cam1)[g.quads]                            # (M, 4, 3) camera-1 frame
+    P = to_camera(g.nodes, cam1)[g.quads]                            # (M, 4, 3) camera-0 frame
     front = (P[..., 2] > 0).all(axis=1)
     with np.errstate(divide="ignore", invalid="ignore"):
         proj = P[..., :2] / np.where(front[:, None], P[..., 2], 1.0)[..., None]

@@ -5,7 +5,7 @@ extrinsics and every target pose), and the comparison with the true rig.
 Outputs of :func:`run` (in ``out_dir``): ``calibration.yaml`` (OpenCV FileStorage, same keys
 as the library's rig.yaml), ``report.json`` (RMS, estimates, errors against the truth,
 detection errors), ``residuals.csv`` (one line per pair and camera) and ``epipolar.png`` (the
-epipolar-distance map over camera 2's field of view, like the paper's Fig. 14).
+epipolar-distance map over camera 1's field of view, like the paper's Fig. 14).
 """
 from __future__ import annotations
 
@@ -41,11 +41,11 @@ BIAS_OUTLINE_POINTS = 128    # polygon vertices per dot in the perspective-bias 
 
 @dataclass(frozen=True, eq=False)
 class StereoCalibration:
-    """A stereo calibration in OpenCV's terms: K (3×3 px), D (k1 k2 p1 p2 k3), camera 2
-    relative to camera 1 X_cam2 = R·X_cam1 + T (mm), E, F; ``rms`` is stereoCalibrate's
+    """A stereo calibration in OpenCV's terms: K (3×3 px), D (k1 k2 p1 p2 k3), camera 1
+    relative to camera 0 X_cam1 = R·X_cam0 + T (mm), E, F; ``rms`` is stereoCalibrate's
     RMS reprojection error over both cameras (px), ``rms1``/``rms2`` calibrateCamera's;
     ``per_view`` (n, 2) RMS per pair and camera; ``rvecs``/``tvecs`` (n, 3) each pair's
-    target pose in camera 1 (Rodrigues, mm); ``pairs`` the library pairs used."""
+    target pose in camera 0 (Rodrigues, mm); ``pairs`` the library pairs used."""
     K1: np.ndarray
     D1: np.ndarray
     K2: np.ndarray
@@ -77,7 +77,7 @@ def model_flags(model: str) -> int:
 def calibrate(object_points: list[np.ndarray], points1: list[np.ndarray], points2: list[np.ndarray],
               image_size: tuple[int, int], model: str = "k1k2p1p2k3", pairs=None) -> StereoCalibration:
     """Calibrate from matched views: ``object_points[i]`` (n_i, 3) mm and their images in
-    camera 1 and 2 (n_i, 2) px. Each camera first alone, then both together."""
+    camera 0 and 1 (n_i, 2) px. Each camera first alone, then both together."""
     import cv2
     if len(object_points) < 3:
         raise SceneError("pairs", f"only {len(object_points)} usable pairs", "a calibration needs at least 3")
@@ -145,7 +145,7 @@ def undistort_px(uv: np.ndarray, K: np.ndarray, D: np.ndarray) -> np.ndarray:
 
 
 def epipolar_distance(c: StereoCalibration, uv1: np.ndarray, uv2: np.ndarray) -> np.ndarray:
-    """Distance (px, in camera 2's undistorted image) of each ``uv2`` from the epipolar line
+    """Distance (px, in camera 1's undistorted image) of each ``uv2`` from the epipolar line
     of ``uv1`` under calibration ``c`` (both distorted pixel positions)."""
     p1 = np.c_[undistort_px(uv1, c.K1, c.D1), np.ones(len(uv1))]
     p2 = np.c_[undistort_px(uv2, c.K2, c.D2), np.ones(len(uv2))]
@@ -155,16 +155,16 @@ def epipolar_distance(c: StereoCalibration, uv1: np.ndarray, uv2: np.ndarray) ->
 
 def epipolar_map(c: StereoCalibration, cam1: Camera, cam2: Camera, step: int = 8):
     """The epipolar distance of the truly corresponding points of the rig's working plane
-    (through the convergence point, facing the rig) over camera 1's image, every ``step`` px:
-    ``(u, v, d)`` with d (px) NaN where camera 2 does not see the point."""
+    (through the convergence point, facing the rig) over camera 0's image, every ``step`` px:
+    ``(u, v, d)`` with d (px) NaN where camera 1 does not see the point."""
     W, H = cam1.size
     u, v = np.meshgrid(np.arange(0, W, step, dtype=float), np.arange(0, H, step, dtype=float))
     uv1 = np.stack([u.ravel(), v.ravel()], axis=1)
-    d, ok = pixel_rays(uv1, cam1)                            # camera 1 frame
+    d, ok = pixel_rays(uv1, cam1)                            # camera 0 frame
     B, o = rig_frame((cam1, cam2))
     n = B[:, 2]
     X1 = d * ((o @ n) / (d @ n))[:, None]
-    Xw = (X1 - cam1.translation) @ cam1.rotation             # camera 1 → world
+    Xw = (X1 - cam1.translation) @ cam1.rotation             # camera 0 → world
     uv2, ok2 = project(Xw, cam2)
     seen = ok & ok2 & (uv2[:, 0] >= 0) & (uv2[:, 0] <= cam2.width - 1) & (uv2[:, 1] >= 0) & \
         (uv2[:, 1] <= cam2.height - 1)
@@ -193,7 +193,7 @@ def write_epipolar_png(path, u, v, d, title: str = "") -> Path:
     im = ax.imshow(d, extent=(u.min() - step / 2, u.max() + step / 2, v.max() + step / 2, v.min() - step / 2),
                    cmap="viridis")
     fig.colorbar(im, ax=ax, label="epipolar distance [px]")
-    ax.set_xlabel("u [px] (camera 1)")
+    ax.set_xlabel("u [px] (camera 0)")
     ax.set_ylabel("v [px]")
     ax.set_title(title or f"max {np.nanmax(d):.3g} px")
     path = Path(path)
@@ -246,7 +246,7 @@ def image_checksums(lib: libmod.Library, pair: dict) -> list[str]:
 
 def detect_library(lib: libmod.Library, min_points: int, processes: int = 1, progress=None,
                    method: str | None = None) -> dict:
-    """Detections of every pair: {pair index: (points of camera 1, of camera 2, …)}, each (N, 2)
+    """Detections of every pair: {pair index: (points of camera 0, of camera 1, …)}, each (N, 2)
     px with NaN rows where a dot was lost, or None where a camera's grid was not found.
 
     ``method``: the dot estimator (detect.METHODS; default the model fit); chessboards and

@@ -46,7 +46,7 @@ EFFECTS = ("blur", "lighting")  # scene effects a library may take (write_librar
 MANIFEST_KEYS = ("format", "seed", "n_pairs", "target", "cameras", "poses", "render", "noise")
 PAIR_KEYS = ("pair", "kind", "R", "t", "cameras")
 
-# Table 8 of the reference paper: camera 1 and 2 intrinsics, stereo extrinsics (mm, degrees).
+# Table 8 of the reference paper: camera 0 and 1 intrinsics, stereo extrinsics (mm, degrees).
 PAPER_CAMERAS = ({"fx": 2900.0, "k1": -0.46, "k2": -0.166}, {"fx": 3115.0, "k1": -0.35, "k2": -0.01})
 PAPER_PRINCIPAL_POINT = (812.0, 617.0)
 PAPER_SIZE = (1624, 1234)
@@ -61,7 +61,7 @@ def paper_rig(scale: float = 1.0, bit_depth: int = 8) -> tuple[Camera, Camera]:
     Scaling keeps the optics: focal lengths scale by ``scale`` and the principal point keeps
     its place on the sensor (c' = (c + ½)·scale − ½ in pixel-centre coordinates); distortion
     coefficients (on normalized coordinates) are unchanged. The axes converge ≈ 372 mm in
-    front of camera 1.
+    front of camera 0.
     """
     if not scale > 0:
         raise SceneError("scale", f"must be > 0, got {scale}", "give the image-size factor, e.g. 0.25")
@@ -99,7 +99,7 @@ def auto_px_per_mm(cameras, spec: posemod.PoseSpec = posemod.PoseSpec(), floor: 
 # --- ground truth ---------------------------------------------------------------------------
 
 def to_world(R, t, cam1: Camera) -> tuple[np.ndarray, np.ndarray]:
-    """A target pose given in camera 1's frame as a target → world pose."""
+    """A target pose given in camera 0's frame as a target → world pose."""
     R1, t1 = cam1.rotation, cam1.translation
     return R1.T @ np.asarray(R, float), R1.T @ (np.asarray(t, float) - t1)
 

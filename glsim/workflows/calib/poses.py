@@ -1,10 +1,10 @@
 """Target poses for a calibration library: roll, twist, plunge, translation across the field of
 view and random mixes, placed balanced over the full common field of view or at its centre.
 
-A pose maps the target frame to camera 1's frame: X_cam1 = R·X_target + t (mm). Poses are
-built in the *rig frame*: origin at the point where the optical axes pass closest (camera 1's
+A pose maps the target frame to camera 0's frame: X_cam0 = R·X_target + t (mm). Poses are
+built in the *rig frame*: origin at the point where the optical axes pass closest (camera 0's
 axis at the working distance for one camera), z along the bisector of the optical axes, x as
-close to camera 1's x as possible. A target at zero motion faces the rig squarely there.
+close to camera 0's x as possible. A target at zero motion faces the rig squarely there.
 """
 from __future__ import annotations
 
@@ -60,7 +60,7 @@ class PoseSpec:
 
 @dataclass(frozen=True)
 class Pose:
-    """One target pose: target → camera 1, X_cam1 = R·X + t (mm), and how it was drawn."""
+    """One target pose: target → camera 0, X_cam0 = R·X + t (mm), and how it was drawn."""
     R: tuple
     t: tuple
     kind: str
@@ -73,9 +73,9 @@ class Pose:
 
 
 def rig_frame(cameras: tuple[Camera, ...], distance: float | None = None) -> tuple[np.ndarray, np.ndarray]:
-    """(B, o): the rig frame in camera 1's frame, X_cam1 = B·X_rig + o (see the module text).
+    """(B, o): the rig frame in camera 0's frame, X_cam0 = B·X_rig + o (see the module text).
 
-    With one camera, or ``distance`` given, o is on camera 1's axis at ``distance`` (mm)."""
+    With one camera, or ``distance`` given, o is on camera 0's axis at ``distance`` (mm)."""
     cam1 = cameras[0]
     axes = [(c.rotation @ cam1.rotation.T).T @ [0.0, 0.0, 1.0] for c in cameras]
     centres = [to_camera(c.center, cam1) for c in cameras]
@@ -118,9 +118,9 @@ def common_fov(cameras: tuple[Camera, ...], B: np.ndarray, o: np.ndarray) -> np.
     return np.array(out)
 
 
-def _world(X_cam1: np.ndarray, cam1: Camera) -> np.ndarray:
-    """Camera 1 frame → world."""
-    return cam1.rotation.T @ (np.asarray(X_cam1, float) - cam1.translation)
+def _world(X_cam0: np.ndarray, cam1: Camera) -> np.ndarray:
+    """Camera 0 frame → world."""
+    return cam1.rotation.T @ (np.asarray(X_cam0, float) - cam1.translation)
 
 
 def _tilt(angle: float, direction: float) -> np.ndarray:
@@ -146,7 +146,7 @@ def make_poses(cameras: tuple[Camera, ...], half_size: float, n: int, spec: Pose
         raise SceneError("pairs", f"must be ≥ 1, got {n}", "ask for at least one pose")
     B, o = rig_frame(cameras, distance)
     fov = common_fov(cameras, B, o)
-    dist = float(np.linalg.norm(o))                      # camera 1 sits at the origin of its frame
+    dist = float(np.linalg.norm(o))                      # camera 0 sits at the origin of its frame
     rng = np.random.default_rng(seed)
     K = len(spec.kinds)
     L = math.lcm(K, CELLS ** 2)
