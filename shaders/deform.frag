@@ -22,7 +22,7 @@
 #ifdef LIGHTING
 #include "shade.glsl"
 // per element: the step's unit corner normals in the world frame (12), float32, uploaded once
-// per step (glsim.stages.geometry.StepGeometry.corner_normals); rotated here by u_rot
+// per step (glsim.backends.gl.geometry.GeometryBuffers.normals); rotated here by u_rot
 layout(std430, binding = 1) readonly buffer Normals { float corner_normals[]; };
 #endif
 

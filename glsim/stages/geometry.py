@@ -88,22 +88,6 @@ class StepGeometry:
         self.centre = used.mean(axis=0)
         self.radius = float(np.sqrt(((used - self.centre) ** 2).sum(axis=1).max()))
         self._shape = None
-        self._normals: dict = {}
-
-    def corner_normals(self, flat: bool) -> np.ndarray:
-        """(M, 4, 3) unit corner normals in the world frame (the lighting's; per element for
-        ``flat``, else per node, area-weighted), computed once per step; the GPU rotates them
-        into each camera's frame."""
-        if flat not in self._normals:
-            from glsim.effects import lighting as shade
-
-            quads = self.mesh_geo.quads
-            if flat:
-                n = np.repeat(shade.element_normals(self.deformed, quads)[:, None], 4, axis=1)
-            else:
-                n = shade.vertex_normals(self.deformed, quads)[quads]
-            self._normals[flat] = np.ascontiguousarray(n, np.float32)
-        return self._normals[flat]
 
     def shape(self) -> dict[str, np.ndarray]:
         """Zero-area, tiny and folded elements (:func:`glsim.stages.view.shape_problems`), from

@@ -104,14 +104,22 @@ class GeometryBuffers:
         return nodes, bits, has
 
     def normals(self, view: ViewSpec, flat: bool):
-        """The step's world-frame corner normals (float32, 12 per element), uploaded once per
-        step (binding 1 when lit)."""
+        """The step's unit corner normals in the world frame (the lighting's: per element for
+        ``flat``, else per node, area-weighted; float32, 12 per element), computed and uploaded
+        once per step (binding 1 when lit); deform.frag rotates them into the camera's frame."""
         key = ("normals", view.step_geo.index, flat)
         entry = self._bufs.get(key)
         if entry is None or entry[0] is not view.step_geo:
+            from glsim.effects import lighting as shade
+
             for k in [k for k in self._bufs if isinstance(k, tuple) and k[0] == "normals"]:
                 self._bufs.pop(k)[1].release()
-            entry = self._bufs[key] = (view.step_geo, self.ctx.buffer(view.step_geo.corner_normals(flat).tobytes()))
+            nodes, quads = view.step_geo.deformed, self.geo.quads
+            if flat:
+                n = np.repeat(shade.element_normals(nodes, quads)[:, None], 4, axis=1)
+            else:
+                n = shade.vertex_normals(nodes, quads)[quads]
+            entry = self._bufs[key] = (view.step_geo, self.ctx.buffer(np.ascontiguousarray(n, np.float32).tobytes()))
             self.uploads["step"] += 1
         return entry[1]
 
