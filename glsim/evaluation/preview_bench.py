@@ -55,7 +55,6 @@ def _refine(pv, n: int) -> tuple[list[float], list[float]]:
 
 def preview(size=FULL_SIZE, reps: int = 30, frame=FRAME, drag_width: int = DRAG_WIDTH) -> dict:
     """The measurements as a dict (see the module docstring)."""
-    from glsim.backends.gl.context import info
     from glsim.evaluation.report import machine_info
     from glsim.workflows.preview import Preview
 
@@ -69,7 +68,7 @@ def preview(size=FULL_SIZE, reps: int = 30, frame=FRAME, drag_width: int = DRAG_
                                 ("bulge pair, lighting+DOF+noise", demo_effects(scene), (), drag_width)):
         with Preview(sc, size=frame, drag_width=dw) as pv:
             if not out.get("machine"):
-                out["machine"] = machine_info(info(pv.ctx))
+                out["machine"] = machine_info(pv.gl_info())
             for name in overlays:
                 pv.set(f"overlay:{name}", True)
             pv.set("step", 2)

@@ -717,6 +717,12 @@ class Preview:
         x, y, w, h = self._layout()["tiles"][i]
         return self._frame[y:y + h, x:x + w]
 
+    @_gl
+    def gl_info(self) -> dict:
+        """`glsim info`'s fields for the preview's GL context."""
+        from glsim.backends.gl.context import info
+        return info(self.ctx)
+
     def state_summary(self) -> dict:
         """The live state in a few words (the window's frame log, tests)."""
         p = self.p
