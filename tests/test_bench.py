@@ -55,6 +55,14 @@ def test_bench_effects_quick(tmp_path):
     assert rows["gl", "none"]["stages"] == ["deform"] and "noise" in rows["gl", "noise"]["stages"]
     assert rows["cpu", "lighting"]["stages"] == ["raster", "interpolate", "light"]
     assert (tmp_path / "effects.md").read_text().startswith("# glsim effects benchmark")
+    # depth of field: every scheme on the bulge and the hard scenes, against the oracle
+    dof = {(r["scene"], r["kernel"], r["scheme"]): r for r in report["dof"]}
+    assert set(dof) == {(s, k, v) for s in ("bulge", "outline", "hole", "steps", "threshold")
+                        for k, v in (("gaussian", "separable"), ("gaussian", "hybrid"), ("gaussian", "gather"),
+                                     ("gaussian", "expansion"), ("disk", "gather"))}
+    assert all(r["max_error"] <= report["dof_goal"] for k, r in dof.items() if k[2] != "separable")
+    assert dof["hole", "gaussian", "separable"]["max_error"] > report["dof_goal"]
+    assert "## Depth of field" in (tmp_path / "effects.md").read_text()
 
 
 def test_reduced_runs_never_overwrite_the_committed_results(tmp_path, capsys, monkeypatch):

@@ -103,34 +103,59 @@ def with_dof(scene: Scene, kernel: str, scheme: str) -> Scene:
     return dataclasses.replace(scene, optics=dataclasses.replace(scene.optics, kernel=kernel, scheme=scheme))
 
 
+def _blur_sizes(scene: Scene, camera: int, truth) -> np.ndarray:
+    """σ (or disk radius, px) at the covered pixels of ``camera``, from the truth's deformed
+    points (camera 0's frame) moved into that camera's frame."""
+    from glsim.effects.dof import blur_sigma
+    from glsim.scene.camera import to_camera
+
+    cam0, cam = scene.cameras[0], scene.cameras[camera]
+    X0 = truth.X_deformed[truth.mask]
+    world = (X0 - np.asarray(cam0.t, float)) @ np.asarray(cam0.R, float)
+    return blur_sigma(to_camera(world, cam)[:, 2], scene.optics)
+
+
 def dof_rows(base: Scene, reps: int, width: int, ctx) -> list[dict]:
     """The ``dof`` records: every (kernel, scheme) on the bulge pair (``base``: demo_effects,
-    depth of field only) and on :func:`dof_scenes` at ``width``."""
-    cases = [("bulge", base, None, range(len(base.cameras)), 1)]
+    depth of field only) and on :func:`dof_scenes` at ``width``. Per scene the variants' timed
+    renders are interleaved (rep by rep), so that a machine whose load changes during the run
+    shifts them alike and their time ratios hold."""
+    cases = [("bulge", base, None, tuple(range(len(base.cameras))), 1)]
     cases += [(name, scene, mesh, (0,), 0) for name, (scene, mesh) in dof_scenes(width).items()]
     rows = []
     for name, scene, mesh, cams, step in cases:
+        oracle = {}
         for kernel in ("gaussian", "disk"):
             with Renderer(with_dof(scene, kernel, "gather"), "cpu", mesh=mesh) as r:
-                oracle = {c: r.render(c, step, truth=True) for c in cams}
-            for k, scheme in (v for v in dof_variants() if v[0] == kernel):
-                with Renderer(with_dof(scene, k, scheme), "gl", ctx=ctx, mesh=mesh) as r:
-                    for c in cams:
-                        r.render(c, step)  # warm-up: programs, textures, ray maps
-                    runs = [r.render(c, step) for _ in range(reps) for c in cams]
-                last = dict(zip(cams, runs[-len(cams):]))  # the last render of each camera (reps ≥ 1)
-                d = np.concatenate([np.abs(last[c].image.astype(np.float64) - oracle[c].image)[oracle[c].truth.mask]
-                                    for c in cams])
-                rec = {"scene": name, "kernel": k, "scheme": scheme, "reps": reps,
-                       "seconds": statistics.median(res.seconds for res in runs),
-                       "seconds_all": [res.seconds for res in runs],
-                       "cpu_seconds": statistics.median(o.seconds for o in oracle.values()),
-                       "stages": list(runs[-1].stages), "size": list(scene.cameras[0].size),
-                       "mean_error": float(d.mean()), "max_error": float(d.max()),
-                       "over_goal": int((d > DOF_GOAL).sum()), "pixels": int(d.size)}
-                rows.append(rec)
-                print(f"  dof {name} {k} {scheme}: max {rec['max_error']:.2g}, {rec['seconds']:.3g} s",
-                      file=sys.stderr, flush=True)
+                oracle.update({(kernel, c): r.render(c, step, truth=True) for c in cams})
+        renderers = {v: Renderer(with_dof(scene, *v), "gl", ctx=ctx, mesh=mesh) for v in dof_variants()}
+        try:
+            for r in renderers.values():
+                for c in cams:
+                    r.render(c, step)  # warm-up: programs, textures, ray maps
+            runs = {v: [] for v in renderers}
+            for _ in range(reps):
+                for v, r in renderers.items():
+                    runs[v] += [(c, r.render(c, step)) for c in cams]
+        finally:
+            for r in renderers.values():
+                r.close()
+        for (kernel, scheme), done in runs.items():
+            last = dict(done[-len(cams):])  # the last render of each camera
+            d = np.concatenate([np.abs(last[c].image.astype(np.float64) - oracle[kernel, c].image)[
+                oracle[kernel, c].truth.mask] for c in cams])
+            sigma = np.concatenate([_blur_sizes(scene, c, oracle[kernel, c].truth) for c in cams])
+            rec = {"scene": name, "kernel": kernel, "scheme": scheme, "reps": reps,
+                   "blur_px": [float(sigma.min()), float(sigma.max())],
+                   "seconds": statistics.median(res.seconds for _, res in done),
+                   "seconds_all": [res.seconds for _, res in done],
+                   "cpu_seconds": statistics.median(oracle[kernel, c].seconds for c in cams),
+                   "stages": list(done[-1][1].stages), "size": list(scene.cameras[0].size),
+                   "mean_error": float(d.mean()), "max_error": float(d.max()),
+                   "over_goal": int((d > DOF_GOAL).sum()), "pixels": int(d.size)}
+            rows.append(rec)
+            print(f"  dof {name} {kernel} {scheme}: max {rec['max_error']:.2g}, {rec['seconds']:.3g} s",
+                  file=sys.stderr, flush=True)
     return rows
 
 
@@ -211,11 +236,12 @@ def markdown(report: dict) -> str:
 def dof_table(rows: list[dict]) -> str:
     """The depth-of-field rows as a markdown table (also docs/effects.md's generated region)."""
     sep = {r["scene"]: r["seconds"] for r in rows if r["scheme"] == "separable"}
-    lines = ["| scene | size | kernel | scheme | mean error | max error | pixels > goal | GL time (s) | "
+    lines = ["| scene | size | blur (px) | kernel | scheme | mean error | max error | pixels > goal | GL time (s) | "
              "vs separable | oracle (s) | passes |",
-             "|---|---|---|---|---|---|---|---|---|---|---|"]
+             "|---|---|---|---|---|---|---|---|---|---|---|---|"]
     for r in rows:
-        lines.append(f"| {r['scene']} | {r['size'][0]}×{r['size'][1]} | {r['kernel']} | {r['scheme']} | "
+        lines.append(f"| {r['scene']} | {r['size'][0]}×{r['size'][1]} | {r['blur_px'][0]:.2g}–{r['blur_px'][1]:.2g} | "
+                     f"{r['kernel']} | {r['scheme']} | "
                      f"{_g(r['mean_error'])} | {_g(r['max_error'])} | {r['over_goal']} of {r['pixels']} | "
                      f"{r['seconds']:.3g} | {r['seconds'] / sep[r['scene']]:.2g}× | {r['cpu_seconds']:.3g} | "
                      f"{', '.join(s for s in r['stages'] if s.startswith('blur'))} |")
