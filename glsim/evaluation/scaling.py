@@ -262,12 +262,13 @@ def goals(report: dict) -> list[dict]:
     out.append({"goal": f"exact at {GOAL_ELEMENTS:,} elements within 2× its time at 2,000",
                 "measured": None if not (a and b) else f"{a:.3g} s vs {b:.3g} s ({a / b:.2f}×)",
                 "met": None if not (a and b) else a <= 2 * b})
-    host = [(r["elements"], m, r["renderers"][m]["host_ms"]) for r in report["elements"] + report["sizes"]
+    # the element-count sweep (one image size); the size sweep shows what grows with the pixels
+    host = [(r["elements"], m, r["renderers"][m]["host_ms"]) for r in report["elements"]
             if "renderers" in r for m in MODES if "host_ms" in r["renderers"].get(m, {})]
     worst = max(host, key=lambda h: h[2]) if host else None
     out.append({"goal": f"host (CPU-side) time per render below {GOAL_HOST_MS:g} ms at any element count",
-                "measured": None if not worst else f"median at most {worst[2]:.2f} ms ({worst[1]}, {worst[0]:,} elements)",
-                "met": None if not worst else worst[2] < GOAL_HOST_MS})
+                "measured": None if not worst else f"median at most {worst[2]:.2f} ms ({worst[1]}, {worst[0]:,} elements, "
+                f"{FULL_SIZE[0]}×{FULL_SIZE[1]})", "met": None if not worst else worst[2] < GOAL_HOST_MS})
     return out
 
 
@@ -324,6 +325,17 @@ def markdown(report: dict) -> str:
             lines.append(f"| {r['elements']:,} | {r['seconds']:.3g} | {r['peak_rss_mb']:.0f} |" if "seconds" in r
                          else f"| {r.get('args', ['?', '?'])[1]} | failed: {r['error'].splitlines()[0]} | |")
     return "\n".join(lines) + "\n"
+
+
+def rewrite(path) -> str:
+    """Goals and markdown again from a scaling.json (after a change to the report only)."""
+    import json
+    from pathlib import Path
+
+    path = Path(path)
+    report = json.loads(path.read_text())
+    report["goals"] = goals(report)
+    return write(report, path.parent)
 
 
 def write(report: dict, out) -> str:

@@ -84,7 +84,8 @@ class StepGeometry:
         self.index = step
         self.deformed = deformed
         self.local = deformed - mesh_geo.origin
-        used = self.local[mesh_geo.used_nodes]
+        used = self.local if len(mesh_geo.used_nodes) == len(deformed) else self.local[mesh_geo.used_nodes]
+        self.used_local = used
         self.centre = used.mean(axis=0)
         self.radius = float(np.sqrt(((used - self.centre) ** 2).sum(axis=1).max()))
         self._shape = None
@@ -142,8 +143,7 @@ class ViewSpec:
     def corner_depths(self) -> np.ndarray:
         """Camera-frame Z (mm) of every node the elements use: the same extremes as every
         corner's (O(N), for the depth-of-field radius only)."""
-        used = self.step_geo.local[self.mesh_geo.used_nodes]
-        return used @ self.rotation[2] + self.translation[2]
+        return self.step_geo.used_local @ self.rotation[2] + self.translation[2]
 
     def view(self) -> View:
         """The full numpy :class:`View` (O(M); the oracle's input), without warnings."""
