@@ -302,9 +302,13 @@ def test_kill_and_resume_gives_the_bytes_of_an_uninterrupted_run(reference_libra
             mf.read_manifest(lib)
         for f in lib.rglob("*.tif"):                       # no truncated image under a final name
             assert io.read_image(f).shape == (48, 64)
+    before = {f for f in lib.rglob("*") if f.is_file()}
     p = subprocess.Popen(GLSIM + ["library", str(spec), "-o", str(lib), "--workers", "1", "-q"],
                          stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    time.sleep(0.8)
+    deadline = time.monotonic() + 60                      # Ctrl-C once it is writing (not while Python starts)
+    while p.poll() is None and time.monotonic() < deadline and \
+            not any(f.is_file() and f not in before for f in lib.rglob("*")):
+        time.sleep(0.02)
     p.send_signal(signal.SIGINT)                          # Ctrl-C: a clear message, nothing partial
     _, err = p.communicate()
     assert p.returncode in (0, 130), err
