@@ -305,3 +305,18 @@ def test_bench_scaling_reduced_run_writes_elsewhere(tmp_path, capsys):
         assert r["peak_rss_mb"] > 0
     assert [g["met"] for g in report["goals"]][:3] == [None, None, None]   # 128k and 2k not measured
     assert (tmp_path / "scaling.md").read_text().startswith("# glsim scaling benchmark")
+
+
+@pytest.mark.gl
+def test_load_steps_evicted_and_coming_back(gl_ctx):
+    """Going round more load steps than are kept, twice: each step's buffers are made again
+    when it comes back, and every image equals a fresh renderer's."""
+    scene = plate_scene(12, steps=4)
+    with Renderer(scene, "gl", ctx=gl_ctx) as r:
+        first = [r.render(0, k, mode="exact").image for k in range(4)]
+        again = [r.render(0, k, mode=m).image for k in range(4) for m in ("exact", "fast")][::2]
+        assert r.geometry.step_builds == 8
+    for a, b in zip(first, again):
+        assert np.array_equal(a, b)
+    with Renderer(scene, "gl", ctx=gl_ctx) as fresh:
+        assert np.array_equal(fresh.render(0, 3, mode="exact").image, again[3])

@@ -89,7 +89,7 @@ class GeometryBuffers:
             self._steps.move_to_end(key)
             return self._steps[key][1:]
         if key in self._steps:
-            for b in self._steps.pop(key)[1:]:
+            for b in self._steps.pop(key)[1:3]:
                 b.release()
         sg = view.step_geo
         nodes = self.ctx.buffer(np.ascontiguousarray(sg.local, np.float64 if fp64 else np.float32).tobytes())
