@@ -68,13 +68,6 @@ def renderer_for(scene, backend: str | None = None) -> Renderer:
     r = getattr(_LOCAL, "renderer", None)
     if r is not None and _LOCAL.key == key:
         r.scene = scene            # same mesh, reference, textures and programs; new options
-        # Work-around: the GL backend's per-step buffer cache fails when a load step whose
-        # geometry was evicted comes back ('bool' object has no attribute 'release' in
-        # glsim/backends/gl/geometry.py _step_buffers), which a renderer going round the steps
-        # of variant after variant does. A fresh mesh geometry per variant avoids it (the mesh
-        # is uploaded again); remove this once that cache is fixed.
-        if getattr(r, "_geometry", None) is not None:
-            r._geometry = None
         return r
     if r is not None:
         r.close()                  # the old variant's textures, programs, targets (not the context)
