@@ -8,7 +8,6 @@ Both backends take the same scene and return the same :class:`Result`.
 """
 from __future__ import annotations
 
-import dataclasses
 import time
 from dataclasses import dataclass
 
@@ -18,31 +17,11 @@ from glsim.scene.bilinear import bilinear
 from glsim.scene.camera import Camera, to_camera
 from glsim.effects import prepare as prepare_effects
 from glsim.stages.geometry import MeshGeometry, ViewSpec
+from glsim.io.truth import Truth
 from glsim.stages.view import View, make_view
 from glsim.backends import make_backend
 from glsim.stages.reference import make_reference, specimen_mesh
 from glsim.scene import Render, Scene
-
-
-@dataclass(frozen=True, eq=False)
-class Truth:
-    """Per-pixel ground truth at pixel centres. Float maps are NaN where ``mask`` is False.
-
-    ``element``: element index (−1 = background); ``xi``, ``eta``: local coordinates in
-    [−1, 1] (FE corner order); ``ref_uv``: reference-image coordinates (px) the pixel was
-    given; ``X_undeformed``/``X_deformed``: the material point in camera 0's frame (mm),
-    evaluated in float64 from (element, ξ, η).
-    """
-    mask: np.ndarray
-    element: np.ndarray
-    xi: np.ndarray
-    eta: np.ndarray
-    ref_uv: np.ndarray
-    X_undeformed: np.ndarray
-    X_deformed: np.ndarray
-
-    def as_dict(self) -> dict[str, np.ndarray]:
-        return {f.name: getattr(self, f.name) for f in dataclasses.fields(self)}
 
 
 @dataclass(frozen=True, eq=False)

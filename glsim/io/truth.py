@@ -237,11 +237,17 @@ def image_header(camera: Camera, camera1: Camera, reference_camera: Camera, mode
             "geometry": geometry, "geometry_sha256": geometry_sha256}
 
 
-# ---- reading ----------------------------------------------------------------------------------------
+# ---- the truth maps (what Renderer.render(..., truth=True) returns, and maps() decodes) ------------
 
 @dataclass(frozen=True, eq=False)
-class Maps:
-    """Full per-pixel truth maps, as :class:`glsim.render.Truth` (NaN where not ``mask``)."""
+class Truth:
+    """Per-pixel ground truth at pixel centres. Float maps are NaN where ``mask`` is False.
+
+    ``element``: element index (−1 = background); ``xi``, ``eta``: local coordinates in
+    [−1, 1] (FE corner order); ``ref_uv``: reference-image coordinates (px) the pixel was
+    given; ``X_undeformed``/``X_deformed``: the material point in camera 0's frame (mm),
+    evaluated in float64 from (element, ξ, η).
+    """
     mask: np.ndarray
     element: np.ndarray
     xi: np.ndarray
@@ -253,6 +259,8 @@ class Maps:
     def as_dict(self) -> dict[str, np.ndarray]:
         return {f.name: getattr(self, f.name) for f in dataclasses.fields(self)}
 
+
+# ---- reading ----------------------------------------------------------------------------------------
 
 @dataclass(frozen=True, eq=False)
 class PointTruth:
@@ -366,7 +374,7 @@ class CompactTruth:
             self._geometry = read_geometry(path)
         return self._geometry
 
-    def maps(self) -> Maps:
+    def maps(self) -> Truth:
         """The full maps, as the renderer's ``Truth`` (X in camera 0's frame, mm)."""
         g, mask = self.geometry, self.mask
         W, H = self.size
@@ -386,7 +394,7 @@ class CompactTruth:
             ref[mask] = bilinear(corners, xi, eta)
         else:                      # the reference camera's projection of the material point
             ref[mask] = project_camera_frame(bilinear(Xr, xi, eta), rc)[0]
-        return Maps(mask=mask, element=self.element, xi=self.xi, eta=self.eta, ref_uv=ref,
+        return Truth(mask=mask, element=self.element, xi=self.xi, eta=self.eta, ref_uv=ref,
                     X_undeformed=Xu, X_deformed=Xd)
 
     def at(self, points, step: int | None = None) -> PointTruth:

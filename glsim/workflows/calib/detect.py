@@ -124,27 +124,16 @@ def centroid(image: np.ndarray, centre, e_col, e_row, white: bool, ring: float,
 
     ``ring``: inner edge of the background ring, in grid spacings (outside every dot).
     """
-    A = np.stack([e_col, e_row], axis=1)
-    if not np.all(np.isfinite(A)) or not abs(np.linalg.det(A)) > 1e-6:
+    win = _window_pixels(image, centre, e_col, e_row, window)
+    if win is None:
         return None
-    corners = centre + (A @ np.array([[-1, -1, 1, 1], [-1, 1, -1, 1]]) * window).T
-    u0, v0 = np.floor(corners.min(0)).astype(int)
-    u1, v1 = np.ceil(corners.max(0)).astype(int)
-    H, W = image.shape
-    if u0 < 0 or v0 < 0 or u1 >= W or v1 >= H:
-        return None
-    uu, vv = np.meshgrid(np.arange(u0, u1 + 1), np.arange(v0, v1 + 1))
-    p = np.stack([uu.ravel(), vv.ravel()], axis=1).astype(np.float64)
-    ab = np.linalg.solve(A, (p - centre).T).T
-    m = np.abs(ab).max(axis=1)
-    I = image[v0:v1 + 1, u0:u1 + 1].ravel()
-    inside = m <= window
-    bg = np.median(I[inside & (m >= ring)])
-    w = (I - bg if white else bg - I)[inside]
+    p, I, m = win
+    bg = np.median(I[m >= ring])
+    w = I - bg if white else bg - I
     mass = w.sum()
     if not mass > 0:
         return None
-    return (w @ p[inside]) / mass, float(mass)
+    return (w @ p) / mass, float(mass)
 
 
 def refine_centroid(image: np.ndarray, points: np.ndarray, target: DotGrid, window: float = WINDOW, vectors=None):
@@ -636,7 +625,6 @@ def find_partial_grid(image: np.ndarray, target: DotGrid):
     fit to the found cells within two cells and matched to the nearest blob within 0.3 of the
     local spacing. Needs the markers in view."""
     import itertools
-    import cv2
     from scipy.spatial import cKDTree
     if not target.markers:
         return None
@@ -749,7 +737,6 @@ def detect_dots(image: np.ndarray, target: DotGrid, bit_depth: int | None = None
     img = to_unit(image, bit_depth)
     need = target.n_points if min_points is None else min_points
     blobs = find_grid(img, target)
-    vectors = None
     if blobs is not None and regular(blobs, target.rows, target.cols):
         points, area = refine(img, blobs, target, method)
         perm = orient(np.where(np.isnan(points), blobs, points), area, target)

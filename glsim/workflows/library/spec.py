@@ -268,7 +268,7 @@ class _Key:
             if not (isinstance(n, int) and not isinstance(n, bool) and n >= 1):
                 _fail(f"{key}.n" if n is not None else key,
                       f"a {name} draw needs n (how many values) in {mode} mode" + (f", got {n!r}" if n is not None else ""),
-                      f"add n = 5 to the table, or use mode = \"random\"")
+                      "add n = 5 to the table, or use mode = \"random\"")
             self.values = self.sample(_seed_for(seed, path), n)
 
     def sample(self, rng: np.random.Generator, n: int) -> list:

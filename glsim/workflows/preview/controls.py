@@ -10,7 +10,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from glsim.errors import SceneError
-from glsim.scene import MODES, Light, Lighting, Noise, Optics, Scene, demo_effects
+from glsim.scene import MODES, Light, Scene, demo_effects
 from glsim.scene.camera import Camera, rodrigues
 from glsim.scene.model import _tuple
 

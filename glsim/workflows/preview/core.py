@@ -22,7 +22,7 @@ from glsim.scene import Scene, load_scene
 from glsim.scene.camera import Camera
 from glsim.stages.reference import specimen_mesh
 from glsim.workflows.preview import draw, overlays as ov
-from glsim.workflows.preview.controls import COMPONENTS, OVERLAYS, Control, Model, moved_light
+from glsim.workflows.preview.controls import OVERLAYS, Control, Model, moved_light
 from glsim.workflows.preview.sceneio import pinned_speckle, reference_inputs, save_scene
 
 TRUTH_OVERLAYS = ("displacement", "overlap", "coc")
@@ -438,7 +438,7 @@ class Preview:
         the image's (clipped pixels, speckle), as plain arrays and numbers."""
         quality = quality or self.quality
         on = self.p.overlays
-        scene, cam1 = self.scene, self.scene.cameras[0]
+        scene = self.scene
         out: dict = {}
         res = self.results(quality)
         img = res[i].image

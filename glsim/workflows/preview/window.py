@@ -10,8 +10,6 @@ rendercanvas draws through wgpu), which the frame-in-a-texture design does not n
 from __future__ import annotations
 
 import os
-import sys
-import time
 
 from glsim.errors import GlsimError
 
