@@ -219,13 +219,13 @@ def glsim_plate(size: tuple[int, int], reps: int) -> list[dict]:
     return rows
 
 
-def riley_plate(size: tuple[int, int], reps: int) -> dict:
-    """riley-raster on the same plate: quad4, 2048² speckle texture, Catmull–Rom cubic, 4 spp."""
+def riley_setup(size: tuple[int, int], nx: int, ny: int, sub_sample: int, k1: float = 0.0):
+    """riley-raster's (mesh, camera, config) for the peer plate of :func:`plate_geometry`, meshed
+    nx × ny quad4: 2048² speckle texture (5 camera-px dots), Catmull–Rom cubic, ``sub_sample``²
+    samples per pixel, radial k1 (OpenCV's) when non-zero."""
     import riley
-    from importlib.metadata import version
 
     g = plate_geometry(size)
-    nx, ny = PLATE_ELEMENTS
     x, y = np.meshgrid(np.linspace(-g["width"] / 2, g["width"] / 2, nx + 1),
                        np.linspace(-g["height"] / 2, g["height"] / 2, ny + 1))
     coords = np.stack([x.ravel(), y.ravel(), np.zeros(x.size)], 1)
@@ -238,11 +238,21 @@ def riley_plate(size: tuple[int, int], reps: int) -> dict:
     convention = riley.ConnectConvention(riley.EElemType.QUAD4, riley.EConnectAxis.ROW, 0, riley.ENodeOrder.RILEY)
     mesh = riley.create_mesh(convention, riley.MeshType.quad4, coords, connect, shader)
     pixel = 3.45e-3  # mm; only fx = focal / pixel matters
+    distortion = dict(distort_model=1, distort_k1=k1) if k1 else {}
     camera = riley.Camera(pixels_num=tuple(size), pixels_size=(pixel, pixel), pos_world=(0.0, 0.0, g["distance"]),
                           rot_world=(0.0, 0.0, 0.0), roi_cent_world=(0.0, 0.0, 0.0),
-                          focal_length=g["fx"] * pixel, sub_sample=2)
+                          focal_length=g["fx"] * pixel, sub_sample=sub_sample, **distortion)
     config = riley.RasterConfig(save_strategy=riley.SaveStrategy.memory, report=riley.ReportMode.off,
                                 save_scaling=riley.ScaleStrategy.none)
+    return mesh, camera, config
+
+
+def riley_plate(size: tuple[int, int], reps: int) -> dict:
+    """riley-raster on the same plate: quad4, 2048² speckle texture, Catmull–Rom cubic, 4 spp."""
+    import riley
+    from importlib.metadata import version
+
+    mesh, camera, config = riley_setup(size, *PLATE_ELEMENTS, sub_sample=2)
 
     def call() -> Timing:
         t0 = time.perf_counter()

@@ -27,7 +27,7 @@ import traceback
 
 import numpy as np
 
-from glsim.evaluation.accuracy import PLATE_FILL, PLATE_TEXTURE_PX
+from glsim.evaluation.accuracy import PLATE_FILL, PLATE_TEXTURE_PX, plate_geometry, riley_setup
 from glsim.scene import Plate, Render, Scene, Specimen, Speckle, stereo_rig
 from glsim.scene.camera import Distortion
 
@@ -38,7 +38,6 @@ SIZE_ELEMENTS = 128_000     # the element count of the image-size sweep
 REPS = 5
 MODES = ("fast", "q4", "exact")
 K1 = -0.1
-DISTANCE = 600.0
 GOAL_ELEMENTS = 128_000     # issue 19's goals: at this count …
 GOAL_HOST_MS = 5.0          # … and the host time per render at any count
 
@@ -49,20 +48,13 @@ def plate_layout(n: int) -> tuple[int, int]:
     return max(1, round(n / ny)), ny
 
 
-def plate_geometry(size: tuple[int, int]) -> dict:
-    """The plate (mm) covering PLATE_FILL of the image (5:4) at DISTANCE mm, camera 0's fx."""
-    fx = stereo_rig(size=size, fx=6818.0 * size[0] / 1624)[0].fx
-    h_px = math.sqrt(PLATE_FILL * size[0] * size[1] * 4 / 5)
-    return {"width": h_px * 5 / 4 * DISTANCE / fx, "height": h_px * DISTANCE / fx, "fx": fx}
-
-
 def plate_scene(size: tuple[int, int], n: int) -> Scene:
     """Camera 0 of the bulge rig with k1 = K1, the plate meshed with about n quad4 elements."""
     g = plate_geometry(size)
     nx, ny = plate_layout(n)
     cam = stereo_rig(size=size, fx=g["fx"], distortion=Distortion(k1=K1))[0]
     return Scene(cameras=(cam,), specimen=Specimen(plate=Plate(width=g["width"], height=g["height"], nx=nx, ny=ny),
-                                                   t=(0.0, 0.0, DISTANCE)),
+                                                   t=(0.0, 0.0, g["distance"])),
                  speckle=Speckle(mm_per_px=g["width"] / PLATE_TEXTURE_PX), render=Render(interpolation="cubic"))
 
 
@@ -73,28 +65,7 @@ def riley_render(size: tuple[int, int], n: int):
         import riley
     except ImportError:
         return None, "not installed"
-    from glsim.scene import speckle
-
-    g = plate_geometry(size)
-    nx, ny = plate_layout(n)
-    x, y = np.meshgrid(np.linspace(-g["width"] / 2, g["width"] / 2, nx + 1),
-                       np.linspace(-g["height"] / 2, g["height"] / 2, ny + 1))
-    coords = np.stack([x.ravel(), y.ravel(), np.zeros(x.size)], 1)
-    n0 = (np.arange(ny)[:, None] * (nx + 1) + np.arange(nx)[None]).ravel()
-    connect = np.stack([n0, n0 + 1, n0 + nx + 2, n0 + nx + 1], 1).astype(np.int64)
-    uvs = np.stack([x.ravel() / g["width"] + 0.5, y.ravel() / g["height"] + 0.5], 1)
-    w_px = g["width"] * g["fx"] / DISTANCE
-    texture = np.rint(speckle.generate((PLATE_TEXTURE_PX,) * 2, 5.0 * PLATE_TEXTURE_PX / w_px, seed=0) * 255
-                      ).astype(np.uint8)
-    shader = riley.TextureShader(uvs=uvs, texture=texture[None], sample=riley.TextureSample.cubic_catmull_rom)
-    convention = riley.ConnectConvention(riley.EElemType.QUAD4, riley.EConnectAxis.ROW, 0, riley.ENodeOrder.RILEY)
-    mesh = riley.create_mesh(convention, riley.MeshType.quad4, coords, connect, shader)
-    pixel = 3.45e-3  # mm; only fx = focal / pixel matters
-    camera = riley.Camera(pixels_num=tuple(size), pixels_size=(pixel, pixel), pos_world=(0.0, 0.0, DISTANCE),
-                          rot_world=(0.0, 0.0, 0.0), roi_cent_world=(0.0, 0.0, 0.0), focal_length=g["fx"] * pixel,
-                          sub_sample=1, distort_model=1, distort_k1=K1)
-    config = riley.RasterConfig(save_strategy=riley.SaveStrategy.memory, report=riley.ReportMode.off,
-                                save_scaling=riley.ScaleStrategy.none)
+    mesh, camera, config = riley_setup(size, *plate_layout(n), sub_sample=1, k1=K1)
     from importlib.metadata import version
     return (lambda: np.squeeze(riley.raster(mesh, camera, config))), f"riley-raster {version('riley-raster')}"
 
