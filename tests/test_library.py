@@ -353,6 +353,33 @@ def test_a_killed_pool_worker_is_replaced_and_the_library_completes(reference_li
     assert _files(lib) == _files(ref)
 
 
+def test_a_worker_killed_while_tasks_are_handed_out_is_replaced(reference_library, tmp_path, monkeypatch):
+    """The pool breaks inside submit (a worker died before all tasks were queued): the runner starts a
+    fresh pool for what is left instead of letting BrokenProcessPool escape."""
+    from concurrent.futures import ProcessPoolExecutor
+    spec, ref = reference_library
+    submit, calls = ProcessPoolExecutor.submit, []
+
+    def submit_then_kill_first_worker(self, fn, *args, **kwargs):
+        future = submit(self, fn, *args, **kwargs)
+        calls.append(1)
+        if len(calls) == 1:
+            while not self._processes:
+                time.sleep(0.01)
+            proc = next(iter(self._processes.values()))
+            os.kill(proc.pid, signal.SIGKILL)
+            proc.join(30)
+            deadline = time.time() + 30
+            while not self._broken and time.time() < deadline:
+                time.sleep(0.01)
+        return future
+
+    monkeypatch.setattr(ProcessPoolExecutor, "submit", submit_then_kill_first_worker)
+    s = run(load_plan(spec), tmp_path / "lib", workers=2)
+    assert s.pool_restarts == 1 and s.written == 16 and not s.failed
+    assert _files(tmp_path / "lib") == _files(ref)
+
+
 def test_examples_expand(tmp_path):
     root = Path(__file__).resolve().parents[1] / "examples"
     noise = load_plan(root / "library_noise.toml")

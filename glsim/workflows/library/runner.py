@@ -300,9 +300,13 @@ def _run_pool(tasks, workers: int, on_done, summary: Summary):
     pending = list(tasks)
     while pending:
         ex = ProcessPoolExecutor(max_workers=workers, mp_context=mp.get_context("spawn"), initializer=pool_init)
-        futures = {ex.submit(worker_result, t): t for t in pending}
-        broken = False
+        futures, broken = {}, False
         try:
+            try:
+                for t in pending:
+                    futures[ex.submit(worker_result, t)] = t
+            except BrokenProcessPool:  # a worker died while the tasks were being handed out
+                broken = True
             while futures:
                 done, _ = wait(list(futures), return_when=FIRST_COMPLETED)
                 for f in done:
