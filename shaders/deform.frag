@@ -1,6 +1,7 @@
 // Grey value of each sample: map it to the reference image and interpolate (paper §2.1).
 // Compile-time choices: MODE_FAST | MODE_Q4 | MODE_EXACT, INTERP_*, SS (samples per pixel
-// per axis), FP64 (double arithmetic), TRUTH (also write the truth maps), LIGHTING (Phong,
+// per axis), FP64 (double arithmetic), TRUTH (also write the truth maps; TRUTH_LO with FP64:
+// the low halves of (xi, eta) too), LIGHTING (Phong,
 // shade.glsl), DEPTH_OUT (write camera-frame depth Z at DEPTH_LOCATION, for depth of field).
 //
 // Modes exact and q4 read candidate lists: pass 1 (candidates.frag) listed, per pixel, the
@@ -62,6 +63,9 @@ layout(location = 0) out float out_grey;
 #ifdef TRUTH
 layout(location = 1) out vec4 out_map;     // ref u, ref v, xi, eta (float32)
 layout(location = 2) out vec4 out_extra;   // element + 1, ref u and v rounding residuals
+#ifdef TRUTH_LO
+layout(location = 3) out vec2 out_lo;      // xi, eta rounding residuals (FP64: float64 truth as hi + lo)
+#endif
 #endif
 #ifdef DEPTH_OUT
 layout(location = DEPTH_LOCATION) out float out_depth;  // camera-frame Z (mm)
@@ -208,5 +212,8 @@ void main() {
     vec2 ref32 = vec2(ref);
     out_map = vec4(ref32, float(xi), float(eta));
     out_extra = vec4(float(elem + 1), vec2(ref - real2(ref32)), 0.0);
+#ifdef TRUTH_LO
+    out_lo = vec2(xi - real(float(xi)), eta - real(float(eta)));
+#endif
 #endif
 }

@@ -1,7 +1,8 @@
 """Stage "raster → truth": the local coordinates (ξ, η) that the truth maps are evaluated at,
 in float64, and the same for both backends.
 
-- ``exact`` and ``q4``: the (ξ, η) that coloured the sample. GL reads them back as float32;
+- ``exact`` and ``q4``: the (ξ, η) that coloured the sample. GL builds with float64 shaders
+  write them as float32 hi + lo pairs (float64 already); others read them back as float32:
   :func:`polish_exact` / :func:`polish_q4` take two float64 Newton steps from there (the
   quadratic convergence takes a 1e-7 start to rounding level), so GL's truth is float64 too.
 - ``fast``: the pixel is coloured by the reference point ``ref_uv`` interpolated linearly over

@@ -36,6 +36,8 @@ def program_defines(opts, truth: bool, fp64: bool, fx=None) -> dict:
         d["FP64"] = None
     if truth:
         d["TRUTH"] = None
+        if "FP64" in d:  # (xi, eta) are float64 in the shader: write their low float32 halves too
+            d["TRUTH_LO"] = None
     if fx is not None and fx.lighting is not None:
         d["LIGHTING"] = None
         d["MAX_LIGHTS"] = max(1, len(fx.lighting.lights))
@@ -43,7 +45,7 @@ def program_defines(opts, truth: bool, fp64: bool, fx=None) -> dict:
             d["LIGHT_MULTIPLICATIVE"] = None
     if fx is not None and fx.blur:
         d["DEPTH_OUT"] = None
-        d["DEPTH_LOCATION"] = 3 if truth else 1
+        d["DEPTH_LOCATION"] = 1 + 2 * truth + ("TRUTH_LO" in d)
     return d
 
 
@@ -99,14 +101,17 @@ class GLBackend:
             self._textures[method] = tex
         return self._textures[method]
 
-    def _target(self, width: int, height: int, truth: bool, depth_out: bool):
-        """Cached deformation-pass framebuffer: grey, truth maps (if asked), depth Z (if asked)."""
-        key = (width, height, truth, depth_out)
+    def _target(self, width: int, height: int, truth: bool, lo: bool, depth_out: bool):
+        """Cached deformation-pass framebuffer: grey, truth maps (if asked) and the low halves
+        of (ξ, η) (if ``lo``), depth Z (if asked)."""
+        key = (width, height, truth, lo, depth_out)
         if key not in self._targets:
             ctx = self.ctx
             color = [ctx.texture((width, height), 1, dtype="f4")]
             if truth:
                 color += [ctx.texture((width, height), 4, dtype="f4"), ctx.texture((width, height), 4, dtype="f4")]
+            if lo:
+                color.append(ctx.texture((width, height), 2, dtype="f4"))
             if depth_out:
                 color.append(ctx.texture((width, height), 1, dtype="f4"))
             depth = ctx.depth_renderbuffer((width, height))
@@ -235,7 +240,8 @@ class GLBackend:
             # per pixel, the elements whose tight rectangle meets its samples (candidates.frag)
             geo.view_pass(view, opts.mode, fp64, camera_uniforms, grow=0.5 - 0.5 / s)
             geo.candidates_pass(W, H, s)
-        fbo, color, _, grey_only = self._target(W * s, H * s, truth, "DEPTH_OUT" in defines)
+        fbo, color, _, grey_only = self._target(W * s, H * s, truth, "TRUTH_LO" in defines,
+                                                  "DEPTH_OUT" in defines)
         # the grey target starts at the background; truth and depth targets at zero
         fbo.clear(0.0, 0.0, 0.0, 0.0, depth=1.0)
         grey_only.clear(opts.background, 0.0, 0.0, 0.0)
@@ -280,6 +286,10 @@ class GLBackend:
         x = np.frombuffer(color[2].read(), np.float32).reshape(H * W, 4).astype(np.float64)
         elem = np.rint(x[:, 0]).astype(np.int64) - 1
         raster = {"element": elem, "xi": m[:, 2], "eta": m[:, 3], "ref_uv": m[:, :2] + x[:, 1:3]}
+        if "TRUTH_LO" in defines:  # float64 in the shader: hi + lo is (ξ, η) to 2^-48
+            lo = np.frombuffer(color[3].read(), np.float32).reshape(H * W, 2)
+            raster["xi"], raster["eta"] = m[:, 2] + lo[:, 0], m[:, 3] + lo[:, 1]
+            return color, raster
         return color, self._float64_truth(view, opts.mode, raster, fp64)
 
     def _float64_truth(self, view: ViewSpec, mode: str, raster: dict, fp64: bool) -> dict:
