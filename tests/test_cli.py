@@ -72,6 +72,7 @@ def test_info_names_the_renderer(capsys):
     assert main(["info"]) == 0
     out = capsys.readouterr().out
     assert "renderer" in out and "fp64" in out and "max_texture_size" in out
+    assert "egl_devices" in out and "0: " in out      # every EGL device listed with its index
 
 
 def test_interrupted_write_leaves_no_file(tmp_path, monkeypatch):

@@ -120,3 +120,52 @@ def test_missing_egl_gives_one_clear_error(monkeypatch):
     # the CPU backend does not need EGL
     res = Renderer(bulge_scene(size=(101, 77), steps=1), "cpu").render(0, 1)
     assert np.isfinite(res.image).all() and res.image.max() > 0
+
+
+# ---- EGL devices and multi-GPU placement ---------------------------------------------------------
+
+def _dev(i, ext, cuda=None):
+    return glctx.EglDevice(i, ext, cuda)
+
+
+def test_gpu_devices_follow_cuda_order_where_the_driver_gives_it():
+    """NVIDIA lists EGL devices in its own order: workers go to the GPUs in CUDA order, and a
+    GPU without a CUDA ordinal (not visible to CUDA) is left out; Mesa's software device never
+    counts; without CUDA ordinals every GPU in EGL order."""
+    sw = "EGL_MESA_device_software EGL_EXT_device_drm_render_node"
+    nv = "EGL_NV_device_cuda EGL_EXT_device_drm"
+    assert glctx.gpu_devices([_dev(0, nv, 2), _dev(1, nv, 0), _dev(2, nv, None), _dev(3, sw)]) == [1, 0]
+    assert glctx.gpu_devices([_dev(0, "EGL_EXT_device_drm"), _dev(1, sw), _dev(2, "EGL_EXT_device_drm")]) == [0, 2]
+    assert glctx.gpu_devices([_dev(0, sw)]) == [] and glctx.gpu_devices([]) == []
+
+
+def test_pool_workers_take_gpus_in_turn(monkeypatch):
+    """pool_init numbers the workers through the shared counter: worker k → GPU k mod n."""
+    import multiprocessing as mp
+    import signal
+
+    from glsim.workflows.library import worker
+    monkeypatch.setattr(signal, "signal", lambda *args: None)   # keep this process's Ctrl-C
+    counter = mp.get_context("spawn").Value("i", 0)
+    got = []
+    for _ in range(5):
+        monkeypatch.setattr(worker, "_DEVICE", None)
+        worker.pool_init(counter, (3, 1))
+        got.append(worker._DEVICE)
+    assert got == [3, 1, 3, 1, 3]
+    monkeypatch.setattr(worker, "_DEVICE", None)
+    worker.pool_init(counter, ())
+    assert worker._DEVICE is None                  # no GPU: EGL's default device (llvmpipe)
+
+
+def test_this_machines_devices_are_listed():
+    """egl_devices() lists what `glsim info` prints; the context opens on an explicit index."""
+    devices = glctx.egl_devices()
+    if not devices:
+        pytest.skip("EGL cannot list its devices here")
+    assert [d.index for d in devices] == list(range(len(devices)))
+    ctx = glctx.create_context(devices[0].index)
+    try:
+        assert ctx.info["GL_RENDERER"]
+    finally:
+        ctx.release()

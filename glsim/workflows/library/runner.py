@@ -265,8 +265,8 @@ class _Progress:
 
 def default_workers() -> int:
     """One per GPU where EGL lists GPUs (they would share one GPU otherwise), else one per core."""
-    from glsim.workflows.library.worker import gpu_count
-    return gpu_count() or os.cpu_count() or 1
+    from glsim.workflows.library.worker import gpus
+    return len(gpus()) or os.cpu_count() or 1
 
 
 def _run_inprocess(tasks, on_done):
@@ -295,11 +295,13 @@ def _run_pool(tasks, workers: int, on_done, summary: Summary):
     from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
     from concurrent.futures.process import BrokenProcessPool
 
-    from glsim.workflows.library.worker import pool_init
+    from glsim.workflows.library.worker import gpus, pool_init
 
+    ctx = mp.get_context("spawn")
+    init = (ctx.Value("i", 0), tuple(gpus()))   # worker k on GPU k (mod the GPU count), if any
     pending = list(tasks)
     while pending:
-        ex = ProcessPoolExecutor(max_workers=workers, mp_context=mp.get_context("spawn"), initializer=pool_init)
+        ex = ProcessPoolExecutor(max_workers=workers, mp_context=ctx, initializer=pool_init, initargs=init)
         futures, broken = {}, False
         try:
             try:

@@ -77,7 +77,7 @@ def renderer_for(scene, backend: str | None = None) -> Renderer:
         ctx = getattr(_LOCAL, "ctx", None)
         if ctx is None:
             from glsim.backends.gl.context import create_context
-            ctx = _LOCAL.ctx = create_context()
+            ctx = _LOCAL.ctx = create_context(_DEVICE)
     _LOCAL.renderer = CompactRenderer(scene, backend, ctx=ctx)
     _LOCAL.key = key
     return _LOCAL.renderer
@@ -220,19 +220,24 @@ def make_task(variant, jobs, out: Path, geometry: str, geometry_sha256: str, tru
 
 # ---- process pools ---------------------------------------------------------------------------------
 
-def pool_init() -> None:
-    """Local pool workers leave Ctrl-C to the parent (which stops them)."""
+_DEVICE: int | None = None   # this pool worker's EGL device (pool_init), None: glcontext's choice
+
+
+def pool_init(counter=None, gpus=()) -> None:
+    """Local pool workers leave Ctrl-C to the parent (which stops them); each takes the next
+    number from the shared ``counter`` and, on a multi-GPU machine, GPU ``gpus[number % len]``
+    (EGL device indices, :func:`glsim.backends.gl.context.gpu_devices`)."""
     import signal
+    global _DEVICE
     signal.signal(signal.SIGINT, signal.SIG_IGN)
+    if counter is not None and gpus:
+        with counter.get_lock():
+            k = counter.value
+            counter.value += 1
+        _DEVICE = gpus[k % len(gpus)]
 
 
-def gpu_count() -> int:
-    """EGL devices that are GPUs (not Mesa's software device); 0 when unknown."""
-    try:
-        from glsim.backends.gl.context import _egl_device
-        devices = [d for d in _egl_device().split("; ") if d]
-    except Exception:
-        return 0
-    if devices in (["unknown"], ["none"]):
-        return 0
-    return sum("EGL_MESA_device_software" not in d for d in devices)
+def gpus() -> list[int]:
+    """EGL indices of the GPUs (not Mesa's software device); empty when none or unknown."""
+    from glsim.backends.gl.context import egl_devices, gpu_devices
+    return gpu_devices(egl_devices())
