@@ -1,0 +1,343 @@
+"""Hard cases (issue 17), geometry: GL and the CPU oracle against closed forms computed here,
+independently of glsim's own geometry code.
+
+- Grazing views of a flat plate up to 89°, and a set-up translated to (5e4, −3e4, 2e5) mm:
+  every pixel's truth is the intersection of its ray with the plate's plane.
+- Barrel distortion whose valid radius lies inside the image: the radius is undistorted by
+  solving the cubic r (1 + k1 r²) = r_d with numpy's ``roots``; nothing beyond it is drawn.
+- A plate whose step crosses the camera plane: the rays meet one plane, in front of or behind
+  the camera.
+- A twisted (non-planar) bilinear patch that many rays pierce twice: the ray/patch quadratic
+  is solved here and the nearer root must be the one rendered.
+- GL against the oracle on the same scenes, in every mode (mean, max and outliers).
+
+Each test states what it compares and its tolerance. The closed forms are exact up to float64
+rounding, so the truth tolerance is 1e-9 mm wherever the mode is exact. GL's fast mode
+interpolates ``ref_uv`` in float32, so its truth is held to 1e-3 mm (measured ≤ 1.4e-4 mm at
+89°). A mask is compared exactly with the closed form on pixel centres farther than 1e-6 px
+(or 1e-6 of an element) from the outline. GL's fast mode uses 1/128 px, the rasterizer's
+snapping, as in test_hard_coverage.
+"""
+import warnings
+
+import numpy as np
+import pytest
+
+from glsim.errors import RenderWarning
+from glsim.render import Renderer
+from glsim.scene.camera import Camera, Distortion
+
+from test_hard_coverage import BACKENDS, ctx_for, custom, grid_mesh, outline_distance, plane_truth, rotation  # noqa: F401
+
+MODES = ["exact", "q4", "fast"]
+X_TOL = 1e-9          # mm: truth of an exact mode against a float64 closed form
+X_TOL_GL_FAST = 1e-3  # mm: GL fast mode, float32 ref_uv (measured ≤ 1.4e-4 mm)
+
+
+def x_tol(backend, mode):
+    return X_TOL_GL_FAST if (backend == "gl" and mode == "fast") else X_TOL
+
+
+def band_px(backend, mode):
+    """Distance from the outline (px) within which a pixel centre's coverage is not asserted."""
+    return 1 / 128 if (backend == "gl" and mode == "fast") else 1e-6
+
+
+def rays(cam):
+    """Normalized pinhole rays (xn, yn) of every pixel centre, (H, W) each (no distortion)."""
+    W, H = cam.size
+    u, v = np.meshgrid(np.arange(W, dtype=float), np.arange(H, dtype=float))
+    return (u - cam.cx) / cam.fx, (v - cam.cy) / cam.fy
+
+
+def render(scene, mesh, backend, ctx, mode, step=1):
+    """One render with truth; RenderWarnings (named elements, dropped pixels) are ignored here."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RenderWarning)
+        with Renderer(scene, backend, ctx=ctx, mesh=mesh) as r:
+            return r.render(0, step, truth=True, mode=mode)
+
+
+def finite_where_covered(res):
+    """No NaN or inf in the image nor in any truth map on the covered pixels."""
+    t = res.truth
+    maps = (t.X_deformed, t.X_undeformed, t.ref_uv, t.xi[..., None], t.eta[..., None])
+    return bool(np.isfinite(res.image).all() and all(np.isfinite(m[t.mask]).all() for m in maps))
+
+
+def max_err(a, b, where):
+    return float(np.abs(a[where] - b[where]).max())
+
+
+# --------------------------------------------------------------------------------------------
+# Flat plates: grazing views and a set-up far from the origin
+
+PLATE_CAM = Camera(name="c", size=(96, 72), fx=800.0, fy=800.0, cx=47.3, cy=35.6)
+SHIFT = np.array([0.0137, -0.021, 0.01])  # mm, rigid translation of step 1 (camera frame)
+
+
+def posed_plate(R, t, w, h, nx, ny, cam=PLATE_CAM, offset=np.zeros(3)):
+    """A w × h mm plate of nx × ny elements in the plane z = 0 of the pose (R, t) in the
+    camera frame, moved rigidly by SHIFT at step 1. ``offset``: the whole set-up (camera and
+    plate) translated by this in the world. Returns the scene, its mesh and the closed form
+    (X_undeformed, X_deformed, signed distance to the projected outline in px)."""
+    Rc = np.asarray(cam.R)
+    cam = Camera(name=cam.name, size=cam.size, fx=cam.fx, fy=cam.fy, cx=cam.cx, cy=cam.cy,
+                 R=Rc, t=np.asarray(cam.t) - Rc @ offset)
+    nodes, quads = grid_mesh(np.linspace(-w / 2, w / 2, nx + 1), np.linspace(-h / 2, h / 2, ny + 1))
+    to_world = lambda Xc: (Xc - cam.t) @ Rc  # noqa: E731  (X_cam = R X_world + t)
+    Xc = nodes @ R.T + t
+    scene, mesh = custom(to_world(Xc), quads, cam, steps=(to_world(Xc + SHIFT),))
+    W, H = cam.size
+    Xu, Xd = plane_truth(cam, R, t, SHIFT, H, W)
+    corners = np.array([[-w / 2, -h / 2, 0], [w / 2, -h / 2, 0], [w / 2, h / 2, 0], [-w / 2, h / 2, 0]])
+    return scene, mesh, (Xu, Xd, outline_distance(corners @ R.T + t + SHIFT, cam))
+
+
+def grazing_plate(angle):
+    """A 200 × 30 mm plate at 300 mm turned by ``angle`` about the camera's y axis."""
+    return posed_plate(rotation(0, angle, 0), np.array([0.0, 0.0, 300.0]), 200.0, 30.0, 20, 3)
+
+
+FAR = np.array([5e4, -3e4, 2e5])  # mm
+
+
+def far_plate(offset=FAR):
+    """A tilted 60 × 40 mm plate 300 mm in front of a turned camera, the whole set-up moved
+    to ``offset`` in the world (nodes stored at about 2e5 mm: ulp 2.9e-11 mm)."""
+    cam = Camera(name="c", size=(96, 72), fx=800.0, fy=800.0, cx=47.3, cy=35.6, R=rotation(10, -20, 5))
+    return posed_plate(rotation(25, 35, 20), np.array([0.2, -0.1, 300.0]), 60.0, 40.0, 8, 6,
+                       cam=cam, offset=np.asarray(offset, float))
+
+
+def check_plate(res, closed, backend, mode):
+    """Mask against the projected outline (band_px), X_deformed / X_undeformed against the
+    ray/plane closed form (x_tol; q4 maps in the image plane, so its X is not checked)."""
+    Xu, Xd, d = closed
+    t = res.truth
+    band = band_px(backend, mode)
+    assert finite_where_covered(res)
+    assert (d > band).sum() > 300
+    assert t.mask[d > band].all(), int((~t.mask[d > band]).sum())
+    assert not t.mask[d < -band].any(), int(t.mask[d < -band].sum())
+    if mode != "q4":
+        tol = x_tol(backend, mode)
+        assert max_err(t.X_deformed, Xd, t.mask) <= tol, max_err(t.X_deformed, Xd, t.mask)
+        assert max_err(t.X_undeformed, Xu, t.mask) <= tol, max_err(t.X_undeformed, Xu, t.mask)
+
+
+@pytest.mark.parametrize("angle", [0, 60, 80, 85, 88, 89])
+@pytest.mark.parametrize("mode", MODES)
+@pytest.mark.parametrize("backend", BACKENDS)
+def test_grazing_plate_truth_is_the_ray_plane_intersection(backend, mode, angle, ctx_for):
+    """Grazing views to 89°: mask equals the projected outline, and X (exact, fast) is within
+    1e-9 mm of the ray/plane intersection (GL fast: 1e-3 mm). The intersection's condition
+    grows as 1/cos(angle) (57 at 89°); measured ≤ 2.3e-13 mm, so float64 holds throughout."""
+    scene, mesh, closed = grazing_plate(angle)
+    check_plate(render(scene, mesh, backend, ctx_for(backend), mode), closed, backend, mode)
+
+
+@pytest.mark.parametrize("mode", MODES)
+@pytest.mark.parametrize("backend", BACKENDS)
+def test_far_from_origin_loses_no_precision(backend, mode, ctx_for):
+    """Camera and plate translated by (5e4, −3e4, 2e5) mm: mask and truth as for the same
+    set-up at the origin, against the closed form in the camera frame. X within 1e-9 mm
+    (35 ulp of the world coordinates; measured 8e-11 mm, the rounding of the stored nodes)."""
+    scene, mesh, closed = far_plate()
+    check_plate(render(scene, mesh, backend, ctx_for(backend), mode), closed, backend, mode)
+
+
+# --------------------------------------------------------------------------------------------
+# Barrel distortion whose valid radius lies inside the image
+
+K1 = -0.35  # r (1 + k1 r²) stops increasing at r = 1/sqrt(−3 k1) = 0.976; r_d there 0.651
+BARREL_CAM = Camera(name="c", size=(160, 120), fx=60.0, fy=60.0, cx=79.5, cy=59.5,
+                    distortion=Distortion(k1=K1))
+BARREL_Z = 100.0
+
+
+def undistorted_radius(rd, k1):
+    """The smallest root r ≥ 0 of r (1 + k1 r²) = r_d below the fold r = 1/sqrt(−3 k1): the
+    eigenvalues of each pixel's companion matrix (what numpy's ``roots`` does); NaN where none."""
+    r_fold = 1 / np.sqrt(-3 * k1)
+    comp = np.zeros(rd.shape + (3, 3))
+    comp[..., 0, 1] = -1 / k1           # monic: r³ + 0 r² + r / k1 − r_d / k1
+    comp[..., 0, 2] = rd / k1
+    comp[..., 1, 0] = comp[..., 2, 1] = 1.0
+    r = np.linalg.eigvals(comp)
+    ok = (np.abs(r.imag) < 1e-12) & (r.real >= 0) & (r.real <= r_fold)
+    return np.where(ok.any(-1), np.where(ok, r.real, np.inf).min(-1), np.nan)
+
+
+def barrel_scene():
+    """A 600 × 450 mm fronto-parallel plate at 100 mm filling the barrel camera's whole view,
+    shifted in its plane at step 1. Closed form: (distorted radius of each pixel, the fold's
+    distorted radius, X_deformed from the undistorted radius)."""
+    nodes, quads = grid_mesh(np.linspace(-300, 300, 13), np.linspace(-225, 225, 10))
+    nodes[:, 2] = BARREL_Z
+    shift = np.array([0.37, -0.21, 0.0])
+    scene, mesh = custom(nodes, quads, BARREL_CAM, steps=(nodes + shift,))
+    xd, yd = rays(BARREL_CAM)
+    rd = np.hypot(xd, yd)
+    r_fold = 1 / np.sqrt(-3 * K1)
+    rd_fold = r_fold * (1 + K1 * r_fold ** 2)
+    scale = undistorted_radius(rd, K1) / np.where(rd > 0, rd, 1.0)
+    Xd = np.stack([xd * scale * BARREL_Z, yd * scale * BARREL_Z, np.full_like(xd, BARREL_Z)], -1)
+    return scene, mesh, (rd, rd_fold, Xd, shift)
+
+
+@pytest.mark.parametrize("mode", MODES)
+@pytest.mark.parametrize("backend", BACKENDS)
+def test_barrel_distortion_draws_nothing_beyond_the_valid_radius(backend, mode, ctx_for):
+    """k1 = −0.35 folds at a distorted radius of 39 px, inside the 160 × 120 image: no pixel
+    beyond it is covered and its grey level is the background, in every mode. Exact mode:
+    every pixel within 0.98 of that radius is covered and X within 1e-9 mm of the closed form
+    (measured 4e-12 mm; the undistortion's condition grows without bound at the fold, hence
+    the 0.98). fast and q4 drop the elements the model cannot project (warned)."""
+    scene, mesh, (rd, rd_fold, Xd, shift) = barrel_scene()
+    assert rd.max() > 2 * rd_fold
+    res = render(scene, mesh, backend, ctx_for(backend), mode)
+    t = res.truth
+    assert finite_where_covered(res)
+    assert not t.mask[rd > rd_fold].any(), int(t.mask[rd > rd_fold].sum())
+    assert (res.image[rd > rd_fold] == res.options.background).all()
+    if mode == "exact":
+        inner = rd < 0.98 * rd_fold
+        assert t.mask[inner].all(), int((~t.mask[inner]).sum())
+        assert max_err(t.X_deformed, Xd, inner) <= X_TOL, max_err(t.X_deformed, Xd, inner)
+        assert max_err(t.X_undeformed, Xd - shift, inner) <= X_TOL
+
+
+# --------------------------------------------------------------------------------------------
+# Elements crossing the camera plane
+
+CROSS_CAM = Camera(name="c", size=(96, 72), fx=100.0, fy=100.0, cx=47.3, cy=35.6)
+
+
+def crossing_scene():
+    """An 80 × 16 mm plate of 8 × 4 elements at 300 mm, mapped affinely at step 1 onto the
+    plane z = 30 + 3y (x' = x, y' = 3y − 2, z' = 30 + 3y'): rows of elements in front of the
+    camera, one row (material y in [−4, 0]) crossing its plane (z from −12 to 24 mm), one
+    behind it. Closed form per pixel: the ray's parameter on the plane (t > 0: in front), the
+    material point (x, y) it meets, and its distance to the plate's outline (mm)."""
+    nodes, quads = grid_mesh(np.linspace(-40, 40, 9), np.linspace(-8, 8, 5))
+    moved = nodes.copy()
+    moved[:, 1] = 3 * nodes[:, 1] - 2
+    moved[:, 2] = 30 + 3 * moved[:, 1]
+    nodes[:, 2] = 300.0
+    scene, mesh = custom(nodes, quads, CROSS_CAM, steps=(moved,))
+    xn, yn = rays(CROSS_CAM)
+    with np.errstate(divide="ignore"):
+        t = 30 / (1 - 3 * yn)
+    Xd = np.stack([xn * t, yn * t, t], -1)
+    mx, my = Xd[..., 0], (Xd[..., 1] + 2) / 3
+    margin = np.where(t > 0, np.minimum(40 - np.abs(mx), 8 - np.abs(my)), -np.inf)
+    Xu = np.stack([mx, my, np.full_like(mx, 300.0)], -1)
+    return scene, mesh, (t, my, margin, Xu, Xd)
+
+
+@pytest.mark.parametrize("mode", MODES)
+@pytest.mark.parametrize("backend", BACKENDS)
+def test_elements_crossing_the_camera_plane(backend, mode, ctx_for):
+    """No NaN or inf; nothing drawn from behind the camera (every covered X_deformed has
+    z > 0; the 288 pixels whose ray meets the plane behind the camera stay empty); the mask
+    equals the closed form 1e-6 mm (≪ 1 px) away from the outline: exact mode also shows the
+    crossing row's part in front of the camera, fast and q4 drop that row (warned). X within
+    1e-9 mm of the closed form (exact, fast; GL fast 1e-3 mm)."""
+    scene, mesh, (t_ray, my, margin, Xu, Xd) = crossing_scene()
+    res = render(scene, mesh, backend, ctx_for(backend), mode)
+    t = res.truth
+    assert finite_where_covered(res)
+    assert (t_ray < 0).sum() == 288 and not t.mask[t_ray < 0].any()
+    assert (t.X_deformed[t.mask][:, 2] > 0).all()
+    want = margin > 0
+    if mode != "exact":
+        want &= ~((my > -4) & (my < 0))  # the crossing row, dropped
+    sure = np.abs(margin) > 1e-6
+    if mode != "exact":
+        sure &= (np.abs(my + 4) > 1e-6) & (np.abs(my) > 1e-6)
+    assert want[sure & (my > -4) & (my < 0)].any() == (mode == "exact")
+    assert np.array_equal(t.mask[sure], want[sure]), int((t.mask[sure] != want[sure]).sum())
+    if mode != "q4":
+        tol = x_tol(backend, mode)
+        assert max_err(t.X_deformed, Xd, t.mask) <= tol, max_err(t.X_deformed, Xd, t.mask)
+        assert max_err(t.X_undeformed, Xu, t.mask) <= tol, max_err(t.X_undeformed, Xu, t.mask)
+
+
+# --------------------------------------------------------------------------------------------
+# Twisted patches pierced twice
+
+TWIST_CAM = Camera(name="c", size=(96, 72), fx=400.0, fy=400.0, cx=47.3, cy=35.6)
+FLAT = np.array([[-10, -10, 0], [10, -10, 0], [10, 10, 0], [-10, 10, 0]], float)  # FE order
+
+
+def twisted_patch():
+    """A 20 × 20 mm square with corners 1 and 3 lifted by 13 mm (z = 6.5 (1 − ξη): a saddle),
+    seen nearly along its valley so that about 1,000 rays pierce it twice."""
+    twist = FLAT + [[0, 0, 0], [0, 0, 13.0], [0, 0, 0], [0, 0, 13.0]]
+    return twist @ rotation(-85, 36, -70).T + [0, 0, 64.0]
+
+
+def ray_patch_roots(P, xn, yn):
+    """Both roots of ray t·(xn, yn, 1) = Σ Nᵢ(ξ, η) Pᵢ for a bilinear patch P (4 × 3, FE corner
+    order), solved independently of glsim: the two components of the patch point orthogonal to
+    the ray, (1, 0, −xn)·X = 0 and (0, 1, −yn)·X = 0, are bilinear in (ξ, η); eliminating ξ
+    leaves a quadratic in η. Returns [(t, ξ, η, X), …] for the two roots (NaN if complex)."""
+    a = P.sum(0) / 4
+    b = (-P[0] + P[1] + P[2] - P[3]) / 4
+    c = (-P[0] - P[1] + P[2] + P[3]) / 4
+    e = (P[0] - P[1] + P[2] - P[3]) / 4
+    proj = lambda v: (v[0] - xn * v[2], v[1] - yn * v[2])  # noqa: E731
+    (A1, A2), (B1, B2), (C1, C2), (D1, D2) = proj(a), proj(b), proj(c), proj(e)
+    qa = C2 * D1 - D2 * C1
+    qb = A2 * D1 + C2 * B1 - B2 * C1 - D2 * A1
+    qc = A2 * B1 - B2 * A1
+    disc = qb * qb - 4 * qa * qc
+    q = -0.5 * (qb + np.copysign(np.sqrt(np.where(disc >= 0, disc, np.nan)), qb))
+    d = np.stack([xn, yn, np.ones_like(xn)], -1)
+    out = []
+    with np.errstate(divide="ignore", invalid="ignore"):
+        for eta in (q / qa, qc / q):
+            d1, d2 = B1 + D1 * eta, B2 + D2 * eta
+            xi = np.where(np.abs(d1) >= np.abs(d2), -(A1 + C1 * eta) / d1, -(A2 + C2 * eta) / d2)
+            X = a + b * xi[..., None] + c * eta[..., None] + e * (xi * eta)[..., None]
+            out.append(((X * d).sum(-1) / (d * d).sum(-1), xi, eta, X))
+    return out
+
+
+def nearer_root(P, cam):
+    """Per pixel: hit (some root in the patch, in front), pierced twice, the nearer root's
+    (ξ, η, X), its distance to the patch border in (ξ, η), and the gap to the farther root (mm)."""
+    roots = ray_patch_roots(P, *rays(cam))
+    ok = [(np.abs(xi) <= 1) & (np.abs(eta) <= 1) & (t > 0) for t, xi, eta, _ in roots]
+    first = ok[0] & (~ok[1] | (roots[0][0] <= roots[1][0]))
+    pick = lambda k: np.where(first if roots[0][k].ndim == 2 else first[..., None], roots[0][k], roots[1][k])  # noqa: E731
+    xi, eta, X = pick(1), pick(2), pick(3)
+    gap = np.abs(roots[0][0] - roots[1][0]) * np.linalg.norm(np.stack([*rays(cam), np.ones(cam.size[::-1])], -1), axis=-1)
+    return ok[0] | ok[1], ok[0] & ok[1], xi, eta, X, 1 - np.maximum(np.abs(xi), np.abs(eta)), gap
+
+
+@pytest.mark.parametrize("n", [1, 4])
+@pytest.mark.parametrize("backend", BACKENDS)
+def test_twisted_patch_pierced_twice_shows_the_nearer_root(backend, n, ctx_for):
+    """The saddle as one element (n = 1) or as n × n elements on the same surface (a bilinear
+    function is its own bilinear interpolant on any sub-grid), exact mode. Mask equals the
+    closed form 1e-6 (in ξ, η) away from the border; X_deformed within 1e-9 mm of the nearer
+    root (measured 3.6e-13 mm; the farther root is ≥ 0.2 mm behind on every twice-pierced
+    pixel, so a wrong pick cannot pass); for n = 1 also (ξ, η) within 1e-9."""
+    P = twisted_patch()
+    s = np.linspace(-1, 1, n + 1)
+    g, quads = grid_mesh(s, s)
+    N = 0.25 * np.stack([(1 - g[:, 0]) * (1 - g[:, 1]), (1 + g[:, 0]) * (1 - g[:, 1]),
+                         (1 + g[:, 0]) * (1 + g[:, 1]), (1 - g[:, 0]) * (1 + g[:, 1])], -1)
+    scene, mesh = custom(N @ (FLAT + [0, 0, 300.0]), quads, TWIST_CAM, steps=(N @ P,))
+    hit, twice, xi, eta, X, margin, gap = nearer_root(P, TWIST_CAM)
+    assert twice.sum() > 1000 and gap[twice].min() > 0.19
+    t = render(scene, mesh, backend, ctx_for(backend), "exact").truth
+    sure = margin > 1e-6
+    assert np.array_equal(t.mask[sure | ~hit], hit[sure | ~hit])
+    assert max_err(t.X_deformed, X, t.mask) <= X_TOL, max_err(t.X_deformed, X, t.mask)
+    Xu = np.stack([10 * xi, 10 * eta, np.full_like(xi, 300.0)], -1)  # the flat square at 300 mm
+    assert max_err(t.X_undeformed, Xu, t.mask) <= X_TOL, max_err(t.X_undeformed, Xu, t.mask)
+    if n == 1:
+        assert max_err(t.xi, xi, t.mask) <= X_TOL and max_err(t.eta, eta, t.mask) <= X_TOL
