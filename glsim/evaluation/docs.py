@@ -675,6 +675,78 @@ def calibration_study(images: list[dict], fov: list[dict], quality: list[dict]) 
     ])
 
 
+# ---- scaling.json: docs/scaling.md -------------------------------------------------------------
+def _sc_pts(sc: dict, key: str = "elements") -> list[dict]:
+    return [r for r in sc[key] if "renderers" in r]
+
+
+def _host(r: dict) -> list[float]:
+    return [v["host_ms"] for v in r["renderers"].values() if v.get("host_ms") is not None]
+
+
+def scaling_host(sc: dict) -> str:
+    """docs/scaling.md: the host time per render over the element sweep."""
+    pts = _sc_pts(sc)
+    host = [h for r in pts for h in _host(r)]
+    W, H = pts[0]["size"]
+    return (f"Measured (`bench/results/scaling.json`, {W}×{H}, every mode): {_s(min(host))}–{_s(max(host))} ms of "
+            f"Python per render (median), from {pts[0]['elements']:,} to {pts[-1]['elements']:,} elements.")
+
+
+def scaling_oracle(sc: dict) -> str:
+    """docs/scaling.md: the oracle at the largest element count."""
+    o = max((r for r in sc["oracle"] if "seconds" in r), key=lambda r: r["elements"])
+    small = min((r for r in sc["oracle"] if "seconds" in r), key=lambda r: r["elements"])
+    return (f"At {o['elements']:,} elements it renders the {o['size'][0]}×{o['size'][1]} plate in {_s(o['seconds'])} s "
+            f"({_ratio(o['seconds'], small['seconds'])} its time at {small['elements']:,}) with a peak of "
+            f"{o['peak_rss_mb']:.0f} MB ({machine_line(sc['machine'])}, {sc['date']}).")
+
+
+def scaling_table(sc: dict) -> str:
+    """docs/scaling.md: the element sweep, ratios to riley first."""
+    pts = _sc_pts(sc)
+    W, H = pts[0]["size"]
+    t = lambda r, m: r["renderers"][m]["median_s"]
+    lines = [f"Measured on {machine_line(sc['machine'])}, {sc['date']}, at {W}×{H}, median of {sc['reps']} renders "
+             "([bench/results/scaling.md](../bench/results/scaling.md)); absolute times vary by machine:", "",
+             "| elements | fast / riley | q4 / riley | exact / riley | riley (s) | glsim fast (s) | glsim q4 (s) | "
+             "glsim exact (s) | host ms (fast / q4 / exact) |", "|---|---|---|---|---|---|---|---|---|"]
+    for r in pts:
+        rl = t(r, "riley")
+        lines.append(f"| {r['elements']:,} | " + " | ".join(_ratio(t(r, m), rl) for m in ("fast", "q4", "exact"))
+                     + f" | {_s(rl)} | " + " | ".join(_s(t(r, m)) for m in ("fast", "q4", "exact")) + " | "
+                     + " / ".join(_s(r["renderers"][m]["host_ms"]) for m in ("fast", "q4", "exact")) + " |")
+    return "\n".join(lines)
+
+
+def scaling_goals(sc: dict) -> str:
+    """docs/scaling.md: issue 19's goals as the run judged them, and what grows with the pixel count."""
+    pts = {r["elements"]: r for r in _sc_pts(sc)}
+    t = lambda r, m: r["renderers"][m]["median_s"]
+    big = [r for n, r in pts.items() if t(r, "exact") < t(r, "riley")]
+    lines = ["How the issue's goals fared on this machine (`goals` in scaling.json):", ""]
+    for g in sc["goals"]:
+        lines.append(f"- **{g['goal']}: {'met' if g['met'] else 'not met' if g['met'] is False else 'not measured'}.** "
+                     f"{g['measured']}.")
+    if big:
+        lines.append(f"- exact takes less time than riley from {min(r['elements'] for r in big):,} elements on ("
+                     + ", ".join(_ratio(t(r, 'exact'), t(r, 'riley')) for r in sorted(big, key=lambda r: r['elements']))
+                     + "). Below that, the exact mode pays for its per-sample arithmetic: the float64 ray/patch "
+                     "intersection, the reference projection and the cubic taps (issue 12).")
+    sizes = _sc_pts(sc, "sizes")
+    mpx = lambda r: r["size"][0] * r["size"][1] / 1e6
+    lines += ["", "The host time grows with the pixel count instead: "
+              + ", ".join(f"{_s(max(_host(r)))} ms at {mpx(r):.1f} Mpx" for r in sizes)
+              + " (the largest over the modes). Nearly all of it is the saturation statistic (`Result.saturated`), "
+              "two or three passes of numpy over the image.", "",
+              f"Against image size, at {sizes[0]['elements']:,} elements: fast takes "
+              f"{_ratio(min(t(r, 'fast') / t(r, 'riley') for r in sizes), 1)}–"
+              f"{_ratio(max(t(r, 'fast') / t(r, 'riley') for r in sizes), 1)} riley's time from {mpx(sizes[0]):.1f} to "
+              f"{mpx(sizes[-1]):.1f} Mpx, and exact {_ratio(t(sizes[0], 'exact'), t(sizes[0], 'riley'))} at "
+              f"{mpx(sizes[0]):.1f} Mpx and {_ratio(t(sizes[-1], 'exact'), t(sizes[-1], 'riley'))} at {mpx(sizes[-1]):.1f} Mpx."]
+    return "\n".join(lines)
+
+
 # ---- library.json ------------------------------------------------------------------------------
 def library(lib: dict) -> str:
     from glsim.evaluation.library_bench import summary
@@ -716,7 +788,8 @@ GENERATORS = {"preview": preview, "accuracy-table": accuracy_table, "accuracy-fa
               "calibration-timing": calibration_timing, "calibration-study": calibration_study,
               "verify-scale": verify_scale, "verify-choices": verify_choices, "verify-facts": verify_facts,
               "verify-timing": verify_timing, "sweep-facts": sweep_facts, "sweep-frontier": sweep_frontier,
-              "sweep-timing": sweep_timing}
+              "sweep-timing": sweep_timing, "scaling-host": scaling_host, "scaling-oracle": scaling_oracle,
+              "scaling-table": scaling_table, "scaling-goals": scaling_goals}
 
 
 # ---- regions ---------------------------------------------------------------------------------
