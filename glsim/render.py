@@ -5,6 +5,12 @@
         res.image, res.truth.ref_uv
 
 Both backends take the same scene and return the same :class:`Result`.
+
+Quadratic meshes (``Mesh.patches``, :mod:`glsim.scene.quadratic`): mode ``fast`` draws the
+mesh cut into QUADRATIC_FAST_PIECES × QUADRATIC_FAST_PIECES bilinear pieces per element with
+either backend (``Renderer.pieces``); ``exact`` and ``q4`` draw the curved patches with the
+CPU oracle (:func:`glsim.backends.cpu.rasterize_quadratic`) and are refused by name on GL.
+Truth always reports the element's own (ξ, η) (for T6 those of the collapsed patch).
 """
 from __future__ import annotations
 
@@ -13,15 +19,20 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from glsim.errors import SceneError
+from glsim.scene import quadratic as qd
 from glsim.scene.bilinear import bilinear
 from glsim.scene.camera import Camera, to_camera
 from glsim.effects import prepare as prepare_effects
 from glsim.stages.geometry import MeshGeometry, ViewSpec
 from glsim.io.truth import Truth
+from glsim.stages.quadview import fast_local_coords as quadratic_fast_coords, make_quad_view
 from glsim.stages.view import View, make_view
 from glsim.backends import make_backend
 from glsim.stages.reference import make_reference, specimen_mesh
 from glsim.scene import Render, Scene
+
+QUADRATIC_FAST_PIECES = 4   # fast mode: n × n linear pieces per quadratic element (docs/quadratic.md)
 
 
 @dataclass(frozen=True, eq=False)
@@ -46,7 +57,8 @@ class Renderer:
         (e.g. a calibration target made in code); ``ctx`` shares a GL context."""
         self.scene = scene
         self.mesh = mesh if mesh is not None else specimen_mesh(scene)
-        self.reference = reference if reference is not None else make_reference(scene, self.mesh)
+        self._pieces = None
+        self.reference = reference if reference is not None else make_reference(scene, self.drawn_mesh)
         self.backend_name = backend or scene.render.backend
         self.backend = make_backend(self.backend_name, self.reference, ctx)
         self._geometry: MeshGeometry | None = None
@@ -60,19 +72,33 @@ class Renderer:
     def close(self) -> None:
         self.backend.close()
 
+    @property
+    def pieces(self) -> qd.Pieces | None:
+        """For a quadratic mesh, its linear pieces (what the fast mode draws); None otherwise."""
+        if self.mesh.is_quadratic and self._pieces is None:
+            self._pieces = qd.linearize(self.mesh, QUADRATIC_FAST_PIECES)
+        return self._pieces
+
+    @property
+    def drawn_mesh(self):
+        """The linear mesh the linear paths draw: the mesh, or a quadratic mesh's pieces."""
+        return self.pieces.mesh if self.mesh.is_quadratic else self.mesh
+
     def view(self, camera: int | str, step: int, deformed: np.ndarray | None = None) -> View:
         """The per-element geometry of ``camera`` at ``step`` (``deformed``: its nodes, if known)
-        as a full numpy :class:`View` (O(elements); what the CPU oracle renders), with warnings."""
+        as a full numpy :class:`View` (O(elements); what the CPU oracle renders), with warnings.
+        For a quadratic mesh: of its linear pieces (``deformed`` then the pieces' nodes)."""
         cam = self.scene.camera(camera)
-        nodes = self.mesh.deformed(step) if deformed is None else deformed
-        return make_view(cam, self.reference.camera, self.mesh.nodes, nodes, self.mesh.quads,
-                         self.mesh.element_labels)
+        mesh = self.drawn_mesh
+        nodes = mesh.deformed(step) if deformed is None else deformed
+        return make_view(cam, self.reference.camera, mesh.nodes, nodes, mesh.quads, mesh.element_labels)
 
     @property
     def geometry(self) -> MeshGeometry:
-        """The mesh as the GL path holds it: per renderer, per load step (cached), per view O(1)."""
+        """The mesh as the GL path holds it: per renderer, per load step (cached), per view O(1)
+        (of the linear pieces for a quadratic mesh)."""
         if self._geometry is None:
-            self._geometry = MeshGeometry(self.mesh, self.reference.camera)
+            self._geometry = MeshGeometry(self.drawn_mesh, self.reference.camera)
         return self._geometry
 
     def render(self, camera: int | str = 0, step: int = 0, truth: bool = False, **options) -> Result:
@@ -84,25 +110,75 @@ class Renderer:
         opts = self.scene.replace(render=options).render if options else self.scene.render
         t0 = time.perf_counter()
         cam = self.scene.camera(camera)
+        if self.mesh.is_quadratic and opts.mode != "fast":
+            return self._render_quadratic(cam, step, truth, opts, t0)
         if self.backend_name == "gl":
             view = self.geometry.view(cam, step)
             deformed = view.step_geo.deformed
             depths = view.corner_depths() if self.scene.optics is not None else np.empty(0)
         else:
-            deformed = self.mesh.deformed(step)
+            deformed = self.drawn_mesh.deformed(step)
             view = self.view(camera, step, deformed)
             depths = view.Xd[..., 2]
-        fx = prepare_effects(self.scene, deformed, self.mesh.quads, cam, self.scene.cameras.index(cam), step,
+        fx = prepare_effects(self.scene, deformed, self.drawn_mesh.quads, cam, self.scene.cameras.index(cam), step,
                              depths, normals=self.backend_name != "gl")
         image, raster, stages = self.backend.render_view(view, opts, truth, fx)
         seconds = time.perf_counter() - t0
-        tr = self._truth(view, deformed, raster) if truth else None
+        if truth and self.mesh.is_quadratic:
+            tr = self._quadratic_truth(self._fast_to_patches(raster), step, cam)
+        else:
+            tr = self._truth(view.camera.size, deformed, raster) if truth else None
         return Result(image=image, camera=view.camera, step=step, backend=self.backend_name,
                       options=opts, seconds=seconds, truth=tr, stages=tuple(stages),
                       saturated=_saturated(image))
 
-    def _truth(self, view: View | ViewSpec, deformed: np.ndarray, raster: dict) -> Truth:
-        W, H = view.camera.size
+    def _render_quadratic(self, cam: Camera, step: int, truth: bool, opts: Render, t0: float) -> Result:
+        """exact / q4 of a quadratic mesh: the CPU oracle on the curved patches."""
+        if self.backend_name != "cpu":
+            raise SceneError("render.mode", f"{opts.mode!r} with quadratic elements is drawn by the cpu backend only "
+                             "(the GL shaders intersect bilinear Q4 patches)",
+                             "use mode = \"fast\" (linear pieces, see docs/quadratic.md) or backend = \"cpu\"")
+        if self.scene.lighting is not None:
+            raise SceneError("lighting", f"lighting with quadratic elements in mode {opts.mode!r} is not supported",
+                             "use mode = \"fast\" or remove [lighting]")
+        view = make_quad_view(cam, self.reference.camera, self.mesh.nodes, self.mesh.deformed(step), self.mesh.patches,
+                              self.mesh.element_labels)
+        pieces = self.pieces
+        fx = prepare_effects(self.scene, pieces.mesh.deformed(step), pieces.mesh.quads, cam,
+                             self.scene.cameras.index(cam), step, view.Pd[..., 2], normals=False)
+        image, raster, stages = self.backend.render_quadratic_view(view, opts, truth, fx)
+        seconds = time.perf_counter() - t0
+        tr = self._quadratic_truth(raster, step, cam) if truth else None
+        return Result(image=image, camera=cam, step=step, backend=self.backend_name, options=opts, seconds=seconds,
+                      truth=tr, stages=tuple(stages), saturated=_saturated(image))
+
+    def _fast_to_patches(self, raster: dict) -> dict:
+        """A fast-mode raster of the pieces → the patches: element and (ξ, η) of the parent,
+        then (as for linear elements) the material point the reference camera sees at the
+        sample's reference point, by Newton on the curved undeformed patch."""
+        r = dict(raster)
+        hit = np.flatnonzero(r["element"] >= 0)
+        piece = r["element"][hit]
+        e, xi, eta = self.pieces.to_parent(piece, r["xi"][hit], r["eta"][hit])
+        ref_cam = self.reference.camera
+        Pr = qd.patch_points(self.mesh.patches[e], to_camera(self.mesh.nodes, ref_cam)) if hit.size else \
+            np.zeros((0, 9, 3))
+        xi, eta = quadratic_fast_coords(ref_cam, Pr, r["ref_uv"][hit], xi, eta)
+        r["element"] = r["element"].copy()
+        r["xi"], r["eta"] = r["xi"].copy(), r["eta"].copy()
+        r["element"][hit], r["xi"][hit], r["eta"][hit] = e, xi, eta
+        return r
+
+    def _quadratic_truth(self, raster: dict, step: int, cam: Camera) -> Truth:
+        """Truth maps of a quadratic mesh from a raster of its patches (element, ξ, η, ref_uv):
+        positions by the patches' own shape functions."""
+        return self._truth(cam.size, self.mesh.deformed(step), raster, evaluate=self._patch_positions)
+
+    def _patch_positions(self, nodes: np.ndarray, elements: np.ndarray, xi, eta) -> np.ndarray:
+        return qd.evaluate(qd.patch_points(self.mesh.patches[elements], nodes), xi, eta)
+
+    def _truth(self, size, deformed: np.ndarray, raster: dict, evaluate=None) -> Truth:
+        W, H = size
         elem = raster["element"].reshape(H, W)
         mask = elem >= 0
         xi = np.where(mask, raster["xi"].reshape(H, W), np.nan)
@@ -111,9 +187,9 @@ class Renderer:
         cam1 = self.scene.cameras[0]
         Xu = np.full((H, W, 3), np.nan)
         Xd = np.full((H, W, 3), np.nan)
-        q = self.mesh.quads[elem[mask]]
-        Xu[mask] = to_camera(bilinear(self.mesh.nodes[q], xi[mask], eta[mask]), cam1)
-        Xd[mask] = to_camera(bilinear(deformed[q], xi[mask], eta[mask]), cam1)
+        evaluate = evaluate or (lambda nodes, e, x, y: bilinear(nodes[self.mesh.quads[e]], x, y))
+        Xu[mask] = to_camera(evaluate(self.mesh.nodes, elem[mask], xi[mask], eta[mask]), cam1)
+        Xd[mask] = to_camera(evaluate(deformed, elem[mask], xi[mask], eta[mask]), cam1)
         return Truth(mask=mask, element=elem, xi=xi, eta=eta, ref_uv=ref, X_undeformed=Xu, X_deformed=Xd)
 
 

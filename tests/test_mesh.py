@@ -240,11 +240,11 @@ def _csv_case(tmp_path, text):
     return inp, csv
 
 
-def test_rejects_quadratic_elements(tmp_path):
-    pts = RNG.normal(size=(8, 3))
-    path = tmp_path / "q8.vtu"
-    meshio.write(path, meshio.Mesh(pts, [("quad8", np.arange(8)[None])]))
-    with pytest.raises(SceneError, match="q8.vtu.*'quad8' is not supported.*linear quad/triangle") as err:
+def test_rejects_unsupported_elements(tmp_path):
+    pts = RNG.normal(size=(6, 3))
+    path = tmp_path / "w6.vtu"
+    meshio.write(path, meshio.Mesh(pts, [("wedge", np.arange(6)[None])]))
+    with pytest.raises(SceneError, match="w6.vtu.*'wedge' is not supported.*quad/triangle shells") as err:
         load_mesh(path)
     assert err.value.key == str(path)
 

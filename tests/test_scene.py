@@ -187,11 +187,11 @@ def test_missing_files_are_named(tmp_path):
 
 
 def test_unsupported_element_type(tmp_path):
-    points = np.array([[0, 0, 0], [2, 0, 0], [2, 2, 0], [0, 2, 0], [1, 0, 0], [2, 1, 0], [1, 2, 0], [0, 1, 0]], float)
-    meshio.write(tmp_path / "quad8.inp", meshio.Mesh(points, [("quad8", np.arange(8)[None])]))
-    scene = load(tmp_path, CAM + "[specimen.mesh]\npath = 'quad8.inp'\n[specimen.pose]\nt = [0, 0, 300]\n")
-    with pytest.raises(SceneError, match=re.escape(str(tmp_path / "quad8.inp")) + ".*'quad8' is not supported"
-                       " — use linear quad/triangle shells"):
+    points = np.array([[0, 0, 0], [2, 0, 0], [0, 2, 0], [0, 0, 2], [2, 0, 2], [0, 2, 2]], float)
+    meshio.write(tmp_path / "wedge.inp", meshio.Mesh(points, [("wedge", np.arange(6)[None])]))
+    scene = load(tmp_path, CAM + "[specimen.mesh]\npath = 'wedge.inp'\n[specimen.pose]\nt = [0, 0, 300]\n")
+    with pytest.raises(SceneError, match=re.escape(str(tmp_path / "wedge.inp")) + ".*'wedge' is not supported"
+                       " — use quad/triangle shells"):
         specimen_mesh(scene)
 
 

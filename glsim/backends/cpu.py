@@ -10,6 +10,7 @@ from __future__ import annotations
 import numpy as np
 
 from glsim.scene import bilinear as bl
+from glsim.scene import quadratic as qd
 from glsim.stages import interp
 from glsim.scene.camera import pixel_grid, pixel_to_normalized, project_camera_frame, undistort
 from glsim.stages.truth import fast_local_coords
@@ -143,6 +144,58 @@ def rasterize(view: View, mode: str, s: int = 1) -> dict:
     return best
 
 
+def rasterize_quadratic(view, mode: str, s: int = 1) -> dict:
+    """:func:`rasterize` for quadratic elements (a :class:`~glsim.stages.quadview.QuadView`),
+    modes ``exact`` (the sample's ray against the curved patch,
+    :func:`glsim.scene.quadratic.intersect_ray`) and ``q4`` (the paper's inverse mapping
+    with the element's own 9-node shape functions in the image, :func:`glsim.scene.quadratic.invert`
+    from the 2×2 sub-quad start; reference point = the same shape functions over the nodes'
+    reference-image projections). ``xi``, ``eta`` are the patch's (ξ, η). A sample on an edge
+    shared by two patches (|ξ| or |η| within 1e-9 of 1 in both) goes to the nearer, then to the
+    lower element index: no gaps, no double cover."""
+    W, H = view.camera.size
+    grid = pixel_grid(view.camera, s * s).reshape(-1, 2)
+    n = len(grid)
+    best = {"element": np.full(n, -1, np.int64), "depth": np.full(n, np.inf),
+            "xi": np.zeros(n), "eta": np.zeros(n), "ref_uv": np.zeros((n, 2))}
+    if mode == "exact":
+        rays, ray_ok = undistort(pixel_to_normalized(grid, view.camera.intrinsics), view.camera.distortion.coeffs)
+    elif mode != "q4":
+        raise ValueError(f"rasterize_quadratic draws modes exact and q4, not {mode!r}")
+    b = view.bbox
+    box = np.stack([b[:, 0] * s, b[:, 1] * s, b[:, 2] * s + s - 1, b[:, 3] * s + s - 1], 1)
+    box[(b[:, 2] < b[:, 0]) | (b[:, 3] < b[:, 1])] = (0, 0, -1, -1)
+    rw, rh = view.ref_camera.size
+    dropped = np.zeros(n, bool)
+    for e, idx in _candidates(box, W * s):
+        if mode == "q4":
+            Z = view.Pd[e, :, 2:]
+            xi, eta, ok = qd.invert(view.uv[e], grid[idx], lambda i, x, y: qd.evaluate(Z[i], x, y)[:, 0])
+            depth = qd.evaluate(Z, xi, eta)[:, 0]
+            ref = qd.evaluate(view.ref_uv[e], xi, eta)
+        else:
+            xi, eta, depth, ok = qd.intersect_ray(view.Pd[e], rays[idx])
+            ok &= ray_ok[idx]
+            ref, ref_ok = project_camera_frame(qd.evaluate(view.Pr[e], xi, eta), view.ref_camera)
+            ref = np.where(ref_ok[:, None], ref, np.nan)
+        inside_ref = (ref[:, 0] >= -0.5) & (ref[:, 0] <= rw - 0.5) & (ref[:, 1] >= -0.5) & (ref[:, 1] <= rh - 0.5)
+        dropped[idx[ok & ~inside_ref]] = True
+        ok &= inside_ref
+        k = np.flatnonzero(ok)
+        order = k[np.lexsort((e[k], depth[k], idx[k]))]
+        first = order[np.unique(idx[order], return_index=True)[1]]
+        win = first[(depth[first] < best["depth"][idx[first]])
+                    | ((depth[first] == best["depth"][idx[first]]) & (e[first] < best["element"][idx[first]]))]
+        t = idx[win]
+        best["element"][t] = e[win]
+        best["depth"][t] = depth[win]
+        best["xi"][t] = xi[win]
+        best["eta"][t] = eta[win]
+        best["ref_uv"][t] = ref[win]
+    best["dropped"] = dropped & (best["element"] < 0)
+    return best
+
+
 def _shade(view: View, r: dict, hit: np.ndarray, grey: np.ndarray, fx) -> np.ndarray:
     """Phong lighting per sample (surface point and interpolated normal), combined with grey."""
     from glsim.effects import lighting as shade
@@ -179,17 +232,19 @@ def pixel_depth(z: np.ndarray, H: int, W: int, s: int) -> np.ndarray:
     return np.divide(acc, n, out=np.zeros((H, W), np.float32), where=n > 0).astype(np.float64)
 
 
-def render_view(view: View, sample, opts, truth: bool, fx=None):
+def render_view(view: View, sample, opts, truth: bool, fx=None, raster=None):
     """Image (H, W) float32, the pixel-centre raster of :func:`rasterize` if ``truth``, and
     the list of stages run. ``sample(uv)`` gives the reference grey at reference-image
-    coordinates; ``opts`` is the scene's Render; ``fx`` the Effects."""
+    coordinates; ``opts`` is the scene's Render; ``fx`` the Effects; ``raster`` replaces
+    :func:`rasterize` (:func:`rasterize_quadratic` for a QuadView)."""
+    raster = raster or rasterize
     from glsim.effects import Effects
 
     fx = fx or Effects()
     W, H = view.camera.size
     s = opts.supersampling
     stages = ["raster", "interpolate"]
-    r = rasterize(view, opts.mode, s)
+    r = raster(view, opts.mode, s)
     warn_dropped(view.camera, int(r["dropped"].sum()), s)
     hit = r["element"] >= 0
     grey = np.full(len(hit), float(opts.background))
@@ -217,7 +272,7 @@ def render_view(view: View, sample, opts, truth: bool, fx=None):
         stages.append("noise")
     if not truth:
         return image, None, stages
-    r = r if s == 1 else rasterize(view, opts.mode, 1)
+    r = r if s == 1 else raster(view, opts.mode, 1)
     if opts.mode == "fast":  # truth at the material point that coloured the pixel
         t = np.flatnonzero(r["element"] >= 0)
         r["xi"][t], r["eta"][t] = fast_local_coords(view, r["element"][t], r["ref_uv"][t], r["xi"][t], r["eta"][t])
@@ -249,6 +304,10 @@ class CPUBackend:
 
     def render_view(self, view: View, opts, truth: bool = False, effects=None):
         return render_view(view, self.sampler(opts.interpolation), opts, truth, effects)
+
+    def render_quadratic_view(self, view, opts, truth: bool = False, effects=None):
+        """:meth:`render_view` for a :class:`~glsim.stages.quadview.QuadView` (exact, q4)."""
+        return render_view(view, self.sampler(opts.interpolation), opts, truth, effects, rasterize_quadratic)
 
     def close(self) -> None:
         self._samplers.clear()

@@ -8,10 +8,14 @@ dimensions ``num_nodes``, ``num_dim``, ``num_el_blk``, ``num_el_in_blk{i}``,
 ``name_nod_var`` and ``vals_nod_var{j}`` (time_step, num_nodes) or ``vals_nod_var``
 (time_step, num_nod_var, num_nodes).
 
-Linear element types as solvers spell them: QUAD/QUAD4/SHELL/SHELL4, TRI/TRI3/TRISHELL3,
-HEX/HEX8, TETRA/TETRA4/TET4 (the node orders are VTK's, so meshio's face tables apply);
-quadratic ones (QUAD8/9, TRI6/7, HEX20/27, TETRA10/14 …) are rejected by name; bars, beams
-and spheres are ignored. Labels are the file's own node and element numbers.
+Element types as solvers spell them: QUAD/QUAD4/SHELL/SHELL4, TRI/TRI3/TRISHELL3,
+HEX/HEX8, TETRA/TETRA4/TET4 and the quadratic QUAD8, QUAD9 (SHELL8/9), TRI6, TETRA10 (node
+orders as VTK's, so meshio's face tables apply) and HEX20, whose Exodus (PATRAN) order puts
+the four vertical mid-edge nodes before the top face's (nodes 13–16, 1-based) where VTK puts
+them last: it is permuted on reading. Other node counts (TRI7, HEX27, TETRA14, WEDGE15 …)
+are refused by name (their Exodus node order is not confirmed here; VTU, Gmsh or Abaqus
+files of them are read through meshio); bars, beams and spheres are ignored. Labels are the
+file's own node and element numbers.
 """
 from __future__ import annotations
 
@@ -31,6 +35,13 @@ _LINEAR = {"QUAD": ("quad", 4), "SHELL": ("quad", 4), "QUADRILATERAL": ("quad", 
            "TRI": ("triangle", 3), "TRIANGLE": ("triangle", 3), "TRISHELL": ("triangle", 3),
            "HEX": ("hexahedron", 8), "HEXAHEDRON": ("hexahedron", 8),
            "TET": ("tetra", 4), "TETRA": ("tetra", 4), "TETRAHEDRON": ("tetra", 4)}
+# quadratic (family, node count) → meshio type, and Exodus → VTK node permutation where they differ
+_QUADRATIC = {("QUAD", 8): "quad8", ("SHELL", 8): "quad8", ("QUADRILATERAL", 8): "quad8",
+              ("QUAD", 9): "quad9", ("SHELL", 9): "quad9", ("QUADRILATERAL", 9): "quad9",
+              ("TRI", 6): "triangle6", ("TRIANGLE", 6): "triangle6", ("TRISHELL", 6): "triangle6",
+              ("HEX", 20): "hexahedron20", ("HEXAHEDRON", 20): "hexahedron20",
+              ("TET", 10): "tetra10", ("TETRA", 10): "tetra10", ("TETRAHEDRON", 10): "tetra10"}
+EXODUS_TO_VTK = {"hexahedron20": np.r_[0:12, 16:20, 12:16]}
 _IGNORED = ("BAR", "BEAM", "TRUSS", "EDGE", "SPHERE", "CIRCLE", "POINT", "NULL", "SUPERELEMENT")
 
 
@@ -68,6 +79,14 @@ def element_type(elem_type: str, nodes_per_element: int, where: str, block: str)
     family = m.group(1) if m else spelled
     if family in _IGNORED:
         return None
+    named = int(m.group(2)) if m and m.group(2) else None
+    if named is not None and named != nodes_per_element and named > 4 and family not in _IGNORED:
+        raise SceneError(where, f"{block} has {elem_type} elements with {nodes_per_element} nodes each",
+                         f"a {elem_type} element needs {named} nodes (a missing node?)")
+    if (family, nodes_per_element) in _QUADRATIC:
+        return _QUADRATIC[family, nodes_per_element]
+    if family in ("WEDGE", "PYRAMID"):
+        raise SceneError(where, f"{block} has {elem_type} elements ({nodes_per_element} nodes each): " + QUADRATIC_FIX)
     if family in _LINEAR:
         kind, count = _LINEAR[family]
         if nodes_per_element == count:
@@ -156,6 +175,8 @@ def _series(ds, path: Path) -> Series:
         if conn.min() < 1 or conn.max() > n_nodes:
             raise SceneError(where, f"{label} refers to nodes {conn.min()}..{conn.max()}, outside 1..{n_nodes}",
                              "connectivity is 1-based node positions")
+        if kind in EXODUS_TO_VTK:
+            conn = conn[:, EXODUS_TO_VTK[kind]]
         cells.append((kind, conn - 1))
         cell_labels.append(elem_labels[offsets[i]:offsets[i + 1]])
         block_names.append(label)

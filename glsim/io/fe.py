@@ -52,7 +52,7 @@ def load_series(path, unit: str = "mm", R=None, t=None, displacement: str | Sequ
                          "give one vector field, or 2–3 component fields")
     with open_series(path) as s:
         picked = _select(s, times, steps)
-        quads, labels = _series_surface(s)
+        quads, labels, patches = _series_surface(s)
         n = len(s.points)
         if picked:
             fields = _check_displacement(s, names or _default_displacement(s))
@@ -67,7 +67,7 @@ def load_series(path, unit: str = "mm", R=None, t=None, displacement: str | Sequ
         else:
             displacements, step_times = [], []
         try:
-            mesh = Mesh(s.points, quads, s.node_labels, labels, tuple(displacements), tuple(step_times))
+            mesh = Mesh(s.points, quads, s.node_labels, labels, tuple(displacements), tuple(step_times), patches)
         except SceneError as exc:
             raise SceneError(str(s.path), str(exc)) from exc
     return place_mesh(mesh, unit, R, t)

@@ -1,6 +1,9 @@
 """FE mesh files → :class:`~glsim.scene.mesh.Mesh`, read with meshio (Abaqus ``.inp``, VTK/VTU,
 Gmsh, …): Q4 quads, T3 triangles (collapsed quads), the outer faces of hex8/tet4 solids, and
-per-step displacements from point data, one file per step, or ``label;ux;uy;uz`` CSV files."""
+per-step displacements from point data, one file per step, or ``label;ux;uy;uz`` CSV files.
+Quadratic elements (quad8, quad9, triangle6 shells; the outer faces of hexahedron20,
+hexahedron27, tetra10, wedge15 solids) become 9-node patches (``Mesh.patches``,
+:mod:`glsim.scene.quadratic`); a file mixing linear and quadratic elements is refused."""
 from __future__ import annotations
 
 import json
@@ -11,9 +14,11 @@ import meshio
 import numpy as np
 
 from glsim.errors import SceneError
+from glsim.scene import quadratic as qd
 from glsim.scene.mesh import Mesh, check_finite, place_mesh, quad_normals, with_displacements
 
-SOLID_FIX = "use linear quad/triangle shells or hexahedron/tetra solids (outer faces are rendered)"
+SOLID_FIX = ("use quad/triangle shells (linear or quad8/quad9/triangle6) or hexahedron/tetra solids (linear, or "
+             "hexahedron20/27, tetra10, wedge15); their outer faces are rendered")
 
 # Faces of meshio's (VTK/Abaqus-ordered) solids, counter-clockwise seen from outside.
 _SOLID_FACES = {
@@ -21,7 +26,48 @@ _SOLID_FACES = {
                             [1, 2, 6, 5], [2, 3, 7, 6], [3, 0, 4, 7]]),
     "tetra": np.array([[0, 2, 1], [0, 1, 3], [1, 2, 3], [0, 3, 2]]),
 }
-_IGNORED_CELLS = ("line", "vertex")
+_IGNORED_CELLS = ("line", "vertex", "line3")
+
+# Quadratic cells (meshio's node order, which is VTK's) → rows of 9-node patches. A row lists
+# the cell's local node per patch node; Q8 / T6 mark a derived centre (glsim.scene.quadratic).
+Q8, T6 = qd.CENTRE_Q8, qd.CENTRE_T6
+_QUADRATIC_SHELLS = {"quad8": [[0, 1, 2, 3, 4, 5, 6, 7, Q8]], "quad9": [list(range(9))],
+                     "triangle6": [[0, 1, 2, 2, 3, 4, 2, 5, T6]]}
+
+
+def _face_rows(faces, edges, centres=None):
+    """Patch rows of a solid's faces: corner cycles (CCW from outside) → corners, the mid-edge
+    nodes from ``edges`` {(i, j): node}, and the face centre (``centres``) or a derived one."""
+    mid = {frozenset(k): v for k, v in edges.items()}
+    rows = []
+    for f, face in enumerate(faces):
+        if len(face) == 3:
+            a, b, c = face
+            rows.append([a, b, c, c, mid[frozenset((a, b))], mid[frozenset((b, c))], c, mid[frozenset((c, a))], T6])
+        else:
+            ring = [mid[frozenset((face[k], face[(k + 1) % 4]))] for k in range(4)]
+            rows.append(list(face) + ring + [centres[f] if centres is not None else Q8])
+    return rows
+
+
+_HEX_FACES = [[0, 3, 2, 1], [4, 5, 6, 7], [0, 1, 5, 4], [1, 2, 6, 5], [2, 3, 7, 6], [3, 0, 4, 7]]
+_HEX_EDGES = {(0, 1): 8, (1, 2): 9, (2, 3): 10, (3, 0): 11, (4, 5): 12, (5, 6): 13, (6, 7): 14, (7, 4): 15,
+              (0, 4): 16, (1, 5): 17, (2, 6): 18, (3, 7): 19}
+# VTK_TRIQUADRATIC_HEXAHEDRON's face centres: 20 x-min, 21 x-max, 22 y-min, 23 y-max, 24 z-min,
+# 25 z-max (the order meshio's Gmsh reader converts to), listed here per _HEX_FACES entry
+_HEX27_CENTRES = [24, 25, 22, 21, 23, 20]
+_TET_FACES = [[0, 2, 1], [0, 1, 3], [1, 2, 3], [0, 3, 2]]
+_TET_EDGES = {(0, 1): 4, (1, 2): 5, (0, 2): 6, (0, 3): 7, (1, 3): 8, (2, 3): 9}
+_WEDGE_FACES = [[0, 2, 1], [3, 4, 5], [0, 1, 4, 3], [1, 2, 5, 4], [2, 0, 3, 5]]
+_WEDGE_EDGES = {(0, 1): 6, (1, 2): 7, (2, 0): 8, (3, 4): 9, (4, 5): 10, (5, 3): 11, (0, 3): 12, (1, 4): 13,
+                (2, 5): 14}
+_QUADRATIC_SOLIDS = {"hexahedron20": _face_rows(_HEX_FACES, _HEX_EDGES),
+                     "hexahedron27": _face_rows(_HEX_FACES, _HEX_EDGES, _HEX27_CENTRES),
+                     "tetra10": _face_rows(_TET_FACES, _TET_EDGES),
+                     "wedge15": _face_rows(_WEDGE_FACES, _WEDGE_EDGES)}
+_NODES_PER_CELL = {"quad8": 8, "quad9": 9, "triangle6": 6, "hexahedron20": 20, "hexahedron27": 27, "tetra10": 10,
+                   "wedge15": 15}
+QUADRATIC_CELLS = tuple(_NODES_PER_CELL)
 
 def _require_file(path) -> Path:
     path = Path(path)
@@ -35,6 +81,10 @@ def _read_meshio(path):
     try:
         return meshio.read(path)
     except Exception as exc:  # meshio's readers raise many types; wrap their words once
+        if isinstance(exc, KeyError) and "wedge15" in str(exc):
+            raise SceneError(str(path), "meshio cannot read its wedge15 cells (meshio 5.3's table of cell "
+                             "dimensions lacks them)", "export the solid as hexahedron20 or tetra10, or "
+                             "upgrade meshio") from exc
         raise SceneError(str(path), f"meshio could not read it ({type(exc).__name__}: {exc})",
                          "give an Abaqus .inp, VTK .vtk/.vtu or Gmsh .msh file") from exc
 
@@ -110,11 +160,52 @@ def _outward(nodes: np.ndarray, quads: np.ndarray, parent_centroids: np.ndarray)
     return np.where(inward[:, None], quads[:, [1, 0, 3, 2]], quads)
 
 
+def _patch_rows(cells: np.ndarray, rows) -> np.ndarray:
+    """Patch rows (C·F, 9) of ``cells`` (C, k) for the templates ``rows`` (F, 9) (codes kept)."""
+    T = np.asarray(rows)
+    out = cells[:, np.maximum(T, 0)]
+    return np.where(T < 0, T, out).reshape(-1, 9)
+
+
+def _outward_patches(nodes: np.ndarray, patches: np.ndarray, parent_centroids: np.ndarray) -> np.ndarray:
+    """The quadratic twin of :func:`_outward`: mirror (ξ → −ξ) the patches facing their solid."""
+    quads = patches[:, :4]
+    inward = np.einsum("ij,ij->i", quad_normals(nodes, quads), nodes[quads].mean(axis=1) - parent_centroids) < 0
+    return np.where(inward[:, None], patches[:, qd.REVERSED], patches)
+
+
+def _quadratic_block(path: Path, kind: str, cells: np.ndarray, nodes: np.ndarray, name: str):
+    """Patches (F, 9) of one quadratic cell block and the cell of each."""
+    if cells.ndim != 2 or cells.shape[1] != _NODES_PER_CELL[kind]:
+        raise SceneError(str(path), f"{name}: {kind} elements with {cells.shape[-1]} nodes each, not "
+                         f"{_NODES_PER_CELL[kind]} (a missing node?)", f"give every {kind} element all its nodes")
+    if kind in _QUADRATIC_SHELLS:
+        return _patch_rows(cells, _QUADRATIC_SHELLS[kind]), np.arange(len(cells))
+    rows = _patch_rows(cells, _QUADRATIC_SOLIDS[kind])
+    nf = len(_QUADRATIC_SOLIDS[kind])
+    parent = np.repeat(np.arange(len(cells)), nf)
+    # a face is on the boundary when no other cell has the same corners
+    _, inverse, counts = np.unique(np.sort(rows[:, :4], axis=1), axis=0, return_inverse=True, return_counts=True)
+    once = counts[inverse.ravel()] == 1
+    rows, parent = rows[once], parent[once]
+    corners = {"hexahedron20": 8, "hexahedron27": 8, "tetra10": 4, "wedge15": 6}[kind]
+    return _outward_patches(nodes, rows, nodes[cells[parent, :corners]].mean(axis=1)), parent
+
+
 def _surface(path: Path, raw, nodes: np.ndarray, element_labels: list[np.ndarray]):
-    """Surface quads (M,4) and their element labels from meshio's cell blocks."""
-    quads, labels = [], []
-    for block, block_labels in zip(raw.cells, element_labels):
+    """Surface quads (M,4), their element labels and, for quadratic elements, the 9-node
+    patches (M,9) (else None) from meshio's cell blocks."""
+    quads, labels, patches = [], [], []
+    linear, quadratic = [], []
+    for k, (block, block_labels) in enumerate(zip(raw.cells, element_labels)):
         cells = np.asarray(block.data, dtype=np.int64)
+        if block.type in QUADRATIC_CELLS:
+            rows, parent = _quadratic_block(path, block.type, cells, nodes, f"cell block {k + 1}")
+            patches.append(rows)
+            quads.append(rows[:, :4])
+            labels.append(block_labels[parent])
+            quadratic.append(block.type)
+            continue
         if block.type == "quad":
             quads.append(cells)
             labels.append(block_labels)
@@ -128,9 +219,16 @@ def _surface(path: Path, raw, nodes: np.ndarray, element_labels: list[np.ndarray
             labels.append(block_labels[parent])
         elif block.type not in _IGNORED_CELLS:
             raise SceneError(str(path), f"element type '{block.type}' is not supported", SOLID_FIX)
+        else:
+            continue
+        linear.append(block.type)
+    if linear and quadratic:
+        raise SceneError(str(path), f"mixes linear ({', '.join(sorted(set(linear)))}) and quadratic "
+                         f"({', '.join(sorted(set(quadratic)))}) elements",
+                         "export the whole specimen surface at one element order")
     if not quads or sum(map(len, quads)) == 0:
         raise SceneError(str(path), "has no quad, triangle, hexahedron or tetra elements", SOLID_FIX)
-    return np.concatenate(quads), np.concatenate(labels)
+    return np.concatenate(quads), np.concatenate(labels), (np.concatenate(patches) if quadratic else None)
 
 
 def _vector_field(array, n: int, key: str, name: str, step: int, node_labels: np.ndarray) -> np.ndarray:
@@ -251,7 +349,7 @@ def read_mesh_file(path, unit: str = "mm", R=None, t=None, point_data_steps: Seq
     path = Path(path)
     nodes = _xyz(raw.points)
     node_labels, element_labels = _labels(path, raw)
-    quads, labels = _surface(path, raw, nodes, element_labels)
+    quads, labels, patches = _surface(path, raw, nodes, element_labels)
     if point_data_steps is not None:
         steps = _point_data_steps(path, raw, point_data_steps, node_labels)
     elif displacement_files is not None:
@@ -259,7 +357,7 @@ def read_mesh_file(path, unit: str = "mm", R=None, t=None, point_data_steps: Seq
     else:
         steps = [_csv_step(p, node_labels, k) for k, p in enumerate(csv_files or (), 1)]
     try:
-        mesh = with_displacements(Mesh(nodes, quads, node_labels, labels), steps)
+        mesh = with_displacements(Mesh(nodes, quads, node_labels, labels, patches=patches), steps)
     except SceneError as exc:
         raise SceneError(str(path), str(exc)) from exc
     return place_mesh(mesh, unit, R, t)

@@ -24,15 +24,15 @@ import meshio
 import numpy as np
 
 from glsim.errors import SceneError
-from glsim.io.meshfiles import SOLID_FIX, _surface, _xyz
+from glsim.io.meshfiles import QUADRATIC_CELLS, SOLID_FIX, _surface, _xyz
 from glsim.scene.model import TIME_SERIES_SUFFIXES
 
 __all__ = ["Series", "is_time_series"]
 
 LINEAR_CELLS = ("quad", "triangle", "hexahedron", "tetra")
-IGNORED_CELLS = ("line", "vertex")
-QUADRATIC_FIX = ("quadratic elements are not yet supported: export the result on a linear mesh "
-                 "(QUAD4, TRI3, HEX8, TETRA4) or interpolate it onto one")
+IGNORED_CELLS = ("line", "vertex", "line3")
+QUADRATIC_FIX = ("these quadratic elements are not supported: use QUAD8/QUAD9, TRI6, HEX20, TETRA10 (or, through "
+                 "meshio's VTU/Gmsh/Abaqus readers, hexahedron27 and wedge15), or a linear mesh")
 # Usual spellings of displacement components / vectors, tried in order when none is named.
 COMPONENT_PREFIXES = ("disp_", "displacement_", "displ", "disp", "u_", "u")
 VECTOR_NAMES = ("displacement", "displacements", "disp", "u")
@@ -43,7 +43,7 @@ class Series:
     """One opened time-series file.
 
     points (N,3) in file units; dim: the file's spatial dimension (2 or 3); cells: meshio
-    cell blocks (type, 0-based connectivity), quadratic ones included (rejected later);
+    cell blocks (type, 0-based connectivity, meshio/VTK node order), quadratic ones included;
     cell_labels: the file's element numbers per block; node_labels (N,); times (T,) the
     stored times; fields: nodal field name → components (1 = scalar, 2 or 3 = vector);
     read(name, k): that field at stored step k, (N,) or (N, c).
@@ -343,14 +343,14 @@ def _select(s: Series, times: Sequence[float], steps: Sequence[int]) -> list[int
 
 
 def _series_surface(s: Series):
-    """Surface quads and element labels; same-type solid blocks are merged first so faces
-    shared between blocks are inner faces."""
+    """Surface quads, element labels and quadratic patches (or None); same-type solid blocks
+    are merged first so faces shared between blocks are inner faces."""
     merged: dict[str, list] = {}
     for i, ((kind, conn), labels) in enumerate(zip(s.cells, s.cell_labels)):
         name = s.block_names[i] if s.block_names else f"cell block {i + 1}"
         if kind in IGNORED_CELLS or len(conn) == 0:
             continue
-        if kind not in LINEAR_CELLS:
+        if kind not in LINEAR_CELLS and kind not in QUADRATIC_CELLS:
             quadratic = any(kind.startswith(base) for base in LINEAR_CELLS) or kind == "line3"
             raise SceneError(str(s.path), f"{name} has {kind} elements" + (
                 f" ({conn.shape[1]} nodes each): {QUADRATIC_FIX}" if quadratic else ", which are not supported"),

@@ -46,6 +46,9 @@ class Mesh:
     empty gives the single zero step. Arrays are stored as read-only copies.
     step_times: the solver's time of each load step where the source stores one (an
     Exodus II / .pvd / XDMF time series), None for a step without one; empty otherwise.
+    patches: None for a linear mesh; for a quadratic one (M, 9) int64, each element as a
+    9-node biquadratic patch (:mod:`glsim.scene.quadratic`: corners, mid-sides, centre or a
+    derived-centre code); its first four columns are ``quads``.
     """
 
     nodes: np.ndarray
@@ -54,6 +57,7 @@ class Mesh:
     element_labels: np.ndarray
     displacements: tuple[np.ndarray, ...] = ()
     step_times: tuple[float | None, ...] = ()
+    patches: np.ndarray | None = None
 
     def __post_init__(self):
         nodes = np.asarray(self.nodes)
@@ -92,12 +96,19 @@ class Mesh:
             raise SceneError("mesh.step_times", f"{len(times)} times for {len(steps)} load steps",
                              "give one time (or None) per load step, or none at all")
         set_ = object.__setattr__
+        if self.patches is not None:
+            set_(self, "patches", _frozen(_check_patches(self.patches, quads, n), np.int64))
         set_(self, "step_times", times)
         set_(self, "nodes", _frozen(nodes, np.float64))
         set_(self, "quads", _frozen(quads, np.int64))
         set_(self, "node_labels", _frozen(self.node_labels, np.int64))
         set_(self, "element_labels", _frozen(self.element_labels, np.int64))
         set_(self, "displacements", tuple(_frozen(u, np.float64) for u in steps))
+
+    @property
+    def is_quadratic(self) -> bool:
+        """Whether the elements are quadratic patches (``patches`` set)."""
+        return self.patches is not None
 
     @property
     def n_steps(self) -> int:
@@ -117,6 +128,24 @@ class Mesh:
         if not 0 <= step < self.n_steps:
             raise SceneError("step", f"{step} is outside 0..{self.n_steps - 1}", "pick an existing load step")
         return self.nodes + self.displacements[step]
+
+
+def _check_patches(patches, quads: np.ndarray, n: int) -> np.ndarray:
+    p = np.asarray(patches)
+    if p.ndim != 2 or p.shape != (len(quads), 9) or not np.issubdtype(p.dtype, np.integer):
+        raise SceneError("mesh.patches", f"shape {p.shape} ({p.dtype}) is not ({len(quads)}, 9) integers",
+                         "give one row of 9 node indices (corners, mid-sides, centre) per element")
+    bad = (p[:, :8] < 0) | (p[:, :8] >= n)
+    centre = p[:, 8]
+    bad_centre = ~(((centre >= 0) & (centre < n)) | (centre == -1) | (centre == -2))   # glsim.scene.quadratic's derived centres
+    if bad.any() or bad_centre.any():
+        row = int(np.flatnonzero(bad.any(axis=1) | bad_centre)[0])
+        raise SceneError("mesh.patches", f"element {row} refers to node indices {p[row].tolist()}, outside 0..{n - 1} "
+                         "(a quadratic element with a missing node?)", "give every corner and mid-side node")
+    if not np.array_equal(p[:, :4], quads):
+        raise SceneError("mesh.patches", "the first four columns differ from quads",
+                         "give the corners in both, in the same order")
+    return p
 
 
 def check_finite(u: np.ndarray, node_labels: np.ndarray, key: str, what: str) -> None:

@@ -1,0 +1,97 @@
+"""Stage "mesh → camera" for quadratic elements: per-patch data of one camera view of one load
+step, in float64, for the CPU oracle's ``exact`` and ``q4`` modes (the ``fast`` mode draws the
+linear pieces of :func:`glsim.scene.quadratic.linearize` through the ordinary
+:class:`~glsim.stages.view.View`).
+
+Every element is a 9-node biquadratic patch (:mod:`glsim.scene.quadratic`). Its pixel box
+comes from the patch evaluated on a QUAD_BOX_GRID × QUAD_BOX_GRID grid of (ξ, η), projected and
+padded by QUAD_BOX_PAD_PX (which bounds the quadratic sag between grid points for elements
+up to about a hundred pixels across; larger ones get a proportionally larger pad).
+"""
+from __future__ import annotations
+
+import warnings
+from dataclasses import dataclass
+
+import numpy as np
+
+from glsim.errors import RenderWarning
+from glsim.scene import quadratic as qd
+from glsim.scene.camera import Camera, project_camera_frame, to_camera
+from glsim.stages.view import _labels, check_reference
+
+QUAD_BOX_GRID = 9
+QUAD_BOX_PAD_PX = 2.0
+
+
+@dataclass(frozen=True, eq=False)
+class QuadView:
+    """One camera's view of one step of a quadratic mesh, per element (M) and patch node (9).
+
+    ``Pd``: deformed patch control points in the camera frame (mm); ``Pr``: undeformed ones in
+    the reference camera's frame; ``uv``: distorted pixel projections of ``Pd``; ``ref_uv``:
+    reference-image projections of ``Pr``; ``bbox``: inclusive pixel boxes [u0, v0, u1, v1],
+    empty (u1 < u0) for an element that cannot be drawn (not all of it projects)."""
+    camera: Camera
+    ref_camera: Camera
+    Pd: np.ndarray
+    Pr: np.ndarray
+    uv: np.ndarray
+    ref_uv: np.ndarray
+    bbox: np.ndarray
+
+
+def make_quad_view(cam: Camera, ref_cam: Camera, nodes_ref: np.ndarray, nodes_def: np.ndarray, patches: np.ndarray,
+                   labels: np.ndarray | None = None, warn: bool = True) -> QuadView:
+    """The :class:`QuadView` of the deformed nodes (world, mm) seen by ``cam``; warns (naming
+    elements) about folded patches and patches that do not wholly project (not drawn)."""
+    Pd = qd.patch_points(patches, to_camera(nodes_def, cam))
+    Pr = qd.patch_points(patches, to_camera(nodes_ref, ref_cam))
+    uv, _ = project_camera_frame(Pd, cam)
+    ref_uv, ref_ok = project_camera_frame(Pr, ref_cam)
+    check_reference(ref_ok, labels)
+    t = np.linspace(-1, 1, QUAD_BOX_GRID)
+    xi, eta = (a.ravel() for a in np.meshgrid(t, t))
+    N = qd.shape_functions(xi, eta)
+    W, H = cam.size
+    M = len(Pd)
+    bbox = np.tile(np.array([0, 0, -1, -1], np.int64), (M, 1))
+    drawable = np.zeros(M, bool)
+    for s in range(0, M, 1 << 14):
+        G = np.einsum("gi,mid->mgd", N, Pd[s:s + (1 << 14)])
+        g_uv, g_ok = project_camera_frame(G, cam)
+        ok = g_ok.all(axis=1)
+        lo, hi = g_uv.min(axis=1), g_uv.max(axis=1)
+        pad = QUAD_BOX_PAD_PX * np.maximum(1.0, (hi - lo).max(axis=1) / 100.0)[:, None]
+        box = np.concatenate([np.clip(np.ceil(lo - pad - 0.5), 0, [W, H]),
+                              np.clip(np.floor(hi + pad + 0.5), -1, [W - 1, H - 1])], axis=1)
+        box = np.nan_to_num(box, nan=-1).astype(np.int64)
+        box[~ok] = (0, 0, -1, -1)
+        bbox[s:s + len(box)] = box
+        drawable[s:s + len(box)] = ok
+    if warn:
+        folded = np.flatnonzero(qd.folded(Pd))
+        if folded.size:
+            warnings.warn(f"camera {cam.name}: elements {_labels(folded, labels)} are folded (the surface normal "
+                          "reverses inside the element: a mid-side node too far from its edge's middle?); their "
+                          "pixels stay finite (the nearest root is drawn); check the mesh", RenderWarning,
+                          stacklevel=3)
+        bad = np.flatnonzero(~drawable)
+        if bad.size:
+            warnings.warn(f"camera {cam.name}: quadratic elements {_labels(bad, labels)} cross the camera plane or "
+                          "leave the distortion model's valid radius and are not drawn", RenderWarning, stacklevel=3)
+    return QuadView(camera=cam, ref_camera=ref_cam, Pd=Pd, Pr=Pr, uv=uv, ref_uv=ref_uv, bbox=bbox)
+
+
+def fast_local_coords(qview_ref_cam: Camera, Pr: np.ndarray, ref_uv: np.ndarray, xi0, eta0):
+    """(ξ, η) on the undeformed patches Pr (K, 9, 3) (reference camera frame) of the material
+    points the reference camera sees at ``ref_uv`` (K, 2): Newton on the reference ray from
+    (ξ0, η0) (the fast mode's piece coordinates mapped to the patch); the start is kept where
+    the ray cannot be formed or Newton does not converge (:func:`glsim.scene.quadratic.newton`)."""
+    from glsim.scene.camera import pixel_to_normalized, undistort
+
+    xn, ok = undistort(pixel_to_normalized(ref_uv, qview_ref_cam.intrinsics), qview_ref_cam.distortion.coeffs)
+    p2 = Pr[..., :2] - xn[:, None, :] * Pr[..., 2:3]
+    xi, eta, conv = qd.newton(p2, np.zeros((len(xn), 2)), xi0, eta0, qd.patch_size(Pr))
+    good = ok & conv
+    return np.where(good, xi, xi0), np.where(good, eta, eta0)

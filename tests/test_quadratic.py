@@ -1,0 +1,461 @@
+"""Quadratic elements (issue 14 §1): Q8, Q9, T6 surfaces and the outer faces of hex20, hex27,
+tet10 and wedge15 solids, against closed forms.
+
+The specimen is the paraboloid z = ZC + A·x² + C·y² (or the parabolic cylinder, C = 0) over
+a W0 × H0 mm rectangle, meshed on a lattice affine in (x, y): a quadratic element through
+lattice nodes represents it exactly (Q8/Q9: x, y affine in (ξ, η) and z quadratic; T6: total
+degree 2), so the ray of every pixel meets the mesh where it meets the analytic surface, in
+closed form (:func:`closed_form`). Load step 1 translates by SHIFT and adds
+uz = B·x² + D·x·y (also quadratic, so exact too).
+
+Tolerances (numbers measured when written are in docs/quadratic.md):
+- oracle exact: X within 1e-9 mm of the closed form; coverage = the analytic footprint;
+- oracle q4 and fast: X within 5e-3 mm (their mapping error, measured ≈ 1e-3 mm);
+- GL fast vs oracle fast: element ids agree on ≥ 99.5 % of common pixels, X within 1e-4 mm
+  where they agree (GL's fast reference point is float32), grey levels mean |Δ| ≤ 1e-4, at most 0.5 % of pixels beyond 1e-3.
+"""
+import warnings
+
+import meshio
+import numpy as np
+import pytest
+
+from glsim.errors import RenderWarning, SceneError
+from glsim.io.fe import load_mesh, load_series
+from glsim.render import Renderer
+from glsim.scene import Plate, Scene, Specimen
+from glsim.scene import quadratic as qd
+from glsim.scene.camera import Camera
+from glsim.scene.mesh import Mesh
+
+CAM = Camera(name="c", size=(96, 80), fx=1000.0, fy=1000.0, cx=47.3, cy=39.6)
+ZC, W0, H0 = 400.0, 30.0, 24.0
+A, C = 0.01, 0.006
+B, D = 0.004, -0.002
+SHIFT = np.array([0.21, -0.13, 0.37])
+BACKENDS = ["cpu", pytest.param("gl", marks=pytest.mark.gl)]
+
+
+@pytest.fixture
+def ctx_for(request):
+    def make(backend):
+        return request.getfixturevalue("gl_ctx") if backend == "gl" else None
+    return make
+
+
+# --- meshes on a lattice ------------------------------------------------------------------------
+
+def lattice(nx, ny, nz=0, a=A, c=C, thickness=4.0, dy=None):
+    """Nodes of the (2nx+1) × (2ny+1) × (2nz+1) lattice over the rectangle, z = ZC + a x² + c y²
+    (+ the depth k·thickness/(2nz)), and index(i, j, k). ``dy`` (rows, cols) → mm moves the
+    lattice's y before z is computed (off-centre mid-side nodes)."""
+    xs, ys = np.linspace(-W0 / 2, W0 / 2, 2 * nx + 1), np.linspace(-H0 / 2, H0 / 2, 2 * ny + 1)
+    ks = np.arange(2 * nz + 1)
+    K, J, I = np.meshgrid(ks, np.arange(2 * ny + 1), np.arange(2 * nx + 1), indexing="ij")
+    x, y = xs[I], ys[J]
+    if dy is not None:
+        y = y + dy(J, I)
+    z = ZC + a * x ** 2 + c * y ** 2 + (K * thickness / max(2 * nz, 1))
+    nodes = np.stack([x.ravel(), y.ravel(), z.ravel()], 1)
+    index = np.arange(x.size).reshape(x.shape)
+    return nodes, lambda i, j, k=0: index[k, j, i]
+
+
+def q8_cells(nx, ny, at, nine=False):
+    cells = []
+    for j in range(ny):
+        for i in range(nx):
+            r, c = 2 * j, 2 * i
+            row = [at(c, r), at(c + 2, r), at(c + 2, r + 2), at(c, r + 2),
+                   at(c + 1, r), at(c + 2, r + 1), at(c + 1, r + 2), at(c, r + 1)]
+            cells.append(row + [at(c + 1, r + 1)] if nine else row)
+    return np.array(cells)
+
+
+def t6_cells(nx, ny, at):
+    cells = []
+    for j in range(ny):
+        for i in range(nx):
+            r, c = 2 * j, 2 * i
+            cells.append([at(c, r), at(c + 2, r), at(c + 2, r + 2), at(c + 1, r), at(c + 2, r + 1), at(c + 1, r + 1)])
+            cells.append([at(c, r), at(c + 2, r + 2), at(c, r + 2), at(c + 1, r + 1), at(c + 1, r + 2), at(c, r + 1)])
+    return np.array(cells)
+
+
+def solid_cells(kind, nx, ny, at):
+    """Cells of one layer of solids (VTK node order) on the lattice, front face at k = 0."""
+    def mid(p, q):
+        return tuple((np.array(p) + np.array(q)) // 2)
+
+    out = []
+    for j in range(ny):
+        for i in range(nx):
+            o = np.array([2 * i, 2 * j, 0])
+            cube = [o + 2 * np.array(v) for v in ((0, 0, 0), (1, 0, 0), (1, 1, 0), (0, 1, 0),
+                                                   (0, 0, 1), (1, 0, 1), (1, 1, 1), (0, 1, 1))]
+            if kind in ("hexahedron20", "hexahedron27"):
+                corners = cube
+                edges = [(0, 1), (1, 2), (2, 3), (3, 0), (4, 5), (5, 6), (6, 7), (7, 4), (0, 4), (1, 5), (2, 6), (3, 7)]
+                pts = corners + [mid(corners[a], corners[b]) for a, b in edges]
+                if kind == "hexahedron27":
+                    faces = [(0, 3, 7, 4), (1, 2, 6, 5), (0, 1, 5, 4), (3, 2, 6, 7), (0, 1, 2, 3), (4, 5, 6, 7)]
+                    pts += [tuple(sum(np.array(corners[f]) for f in face) // 4) for face in faces]
+                    pts += [tuple(sum(np.array(c) for c in corners) // 8)]
+                out.append([at(*p) for p in pts])
+            elif kind == "wedge15":
+                for tri in ((0, 1, 2), (0, 2, 3)):
+                    corners = [cube[t] for t in tri] + [cube[t + 4] for t in tri]
+                    edges = [(0, 1), (1, 2), (2, 0), (3, 4), (4, 5), (5, 3), (0, 3), (1, 4), (2, 5)]
+                    out.append([at(*p) for p in corners + [mid(corners[a], corners[b]) for a, b in edges]])
+            else:   # tetra10: the 6 Kuhn tetrahedra around the cube's diagonal 0–6
+                for path in ((1, 2), (3, 2), (1, 5), (4, 5), (3, 7), (4, 7)):
+                    corners = [cube[0], cube[path[0]], cube[path[1]], cube[6]]
+                    edges = [(0, 1), (1, 2), (2, 0), (0, 3), (1, 3), (2, 3)]
+                    out.append([at(*p) for p in corners + [mid(corners[a], corners[b]) for a, b in edges]])
+    return np.array(out)
+
+
+def step1(nodes, d=D):
+    """Load step 1: the displacement (N, 3) — SHIFT plus uz = B x² + d x y."""
+    u = np.broadcast_to(SHIFT, nodes.shape).copy()
+    u[:, 2] += B * nodes[:, 0] ** 2 + d * nodes[:, 0] * nodes[:, 1]
+    return u
+
+
+def surface_mesh(kind, nx=4, ny=3, c=C, dy=None, deform=True, d=D):
+    nodes, at = lattice(nx, ny, c=c, dy=dy)
+    if kind == "quad8":
+        cells, centre = q8_cells(nx, ny, at), qd.CENTRE_Q8
+        patches = np.concatenate([cells, np.full((len(cells), 1), centre)], 1)
+    elif kind == "quad9":
+        patches = q8_cells(nx, ny, at, nine=True)
+    else:
+        t = t6_cells(nx, ny, at)
+        patches = np.stack([t[:, 0], t[:, 1], t[:, 2], t[:, 2], t[:, 3], t[:, 4], t[:, 2], t[:, 5],
+                            np.full(len(t), qd.CENTRE_T6)], 1)
+    steps = (np.zeros_like(nodes), step1(nodes, d)) if deform else ()
+    return Mesh(nodes, patches[:, :4], np.arange(1, len(nodes) + 1), np.arange(1, len(patches) + 1), steps,
+                patches=patches)
+
+
+def scene():
+    return Scene(cameras=(CAM,), specimen=Specimen(plate=Plate(width=1, height=1, nx=1, ny=1)))
+
+
+# --- closed forms --------------------------------------------------------------------------------
+
+def rays():
+    W, H = CAM.size
+    q = np.stack(np.meshgrid(np.arange(W, dtype=float), np.arange(H, dtype=float)), -1)
+    return (q[..., 0] - CAM.cx) / CAM.fx, (q[..., 1] - CAM.cy) / CAM.fy
+
+
+def closed_form(a=A, c=C, deformed=True, d=D):
+    """Per pixel: the undeformed material point (x, y) and X_undeformed, X_deformed where the
+    pixel's ray meets the (deformed) surface X = (x, y, ZC + a x² + c y²) + u(x, y)."""
+    u, v = rays()
+    t = SHIFT if deformed else np.zeros(3)
+    b_, d_ = (B, d) if deformed else (0.0, 0.0)
+    a2, c2 = a + b_, c
+    # s = Z0 + a2 (us − tx)² + c2 (vs − ty)² + d (us − tx)(vs − ty), Z0 = ZC + tz
+    qa = a2 * u * u + c2 * v * v + d_ * u * v
+    qb = -2 * a2 * u * t[0] - 2 * c2 * v * t[1] - d_ * (u * t[1] + v * t[0]) - 1
+    qc = ZC + t[2] + a2 * t[0] ** 2 + c2 * t[1] ** 2 + d_ * t[0] * t[1]
+    s = 2 * qc / (-qb + np.sqrt(qb * qb - 4 * qa * qc))
+    Xd = np.stack([u * s, v * s, s], -1)
+    x, y = Xd[..., 0] - t[0], Xd[..., 1] - t[1]
+    Xu = np.stack([x, y, ZC + a * x ** 2 + c * y ** 2], -1)
+    return x, y, Xu, Xd
+
+
+def footprint(x, y, margin=1e-6):
+    """Pixels whose material point is inside the rectangle, and those within ``margin`` mm of
+    its outline (left out of coverage comparisons)."""
+    inside = (np.abs(x) < W0 / 2) & (np.abs(y) < H0 / 2)
+    near = (np.abs(np.abs(x) - W0 / 2) <= margin) | (np.abs(np.abs(y) - H0 / 2) <= margin)
+    return inside, near
+
+
+def check_against_closed_form(truth, tol, a=A, c=C, deformed=True, min_pixels=3000, d=D):
+    x, y, Xu, Xd = closed_form(a, c, deformed, d)
+    inside, near = footprint(x, y)
+    m = truth.mask
+    assert m.sum() >= min_pixels
+    assert (m == inside)[~near].all(), "coverage differs from the analytic footprint"
+    err_d = np.abs(truth.X_deformed[m] - Xd[m]).max()
+    err_u = np.abs(truth.X_undeformed[m] - Xu[m]).max()
+    assert err_d <= tol and err_u <= tol, (err_d, err_u)
+    return err_d, err_u
+
+
+# --- the oracle against closed forms ----------------------------------------------------------
+
+@pytest.mark.parametrize("kind", ["quad8", "quad9", "triangle6"])
+def test_oracle_exact_truth_is_the_closed_form(kind):
+    """Ray against the curved patch (Newton from the 2×2 sub-quads): X within 1e-9 mm, both
+    states, on Q8, Q9 and T6 meshes of the paraboloid; no NaN anywhere."""
+    with Renderer(scene(), "cpu", mesh=surface_mesh(kind)) as r:
+        for step in (0, 1):
+            res = r.render(0, step, truth=True, mode="exact")
+            check_against_closed_form(res.truth, 1e-9, deformed=step == 1)
+            assert np.isfinite(res.image).all()
+            m = res.truth.mask
+            assert np.isfinite(res.truth.xi[m]).all() and (np.abs(res.truth.xi[m]) <= 1 + 1e-9).all()
+
+
+def test_oracle_truth_reports_the_elements_own_coordinates():
+    """Q8 on the lattice: x is affine in ξ per element, so ξ = 2(x − x_left)/Δx − 1 exactly;
+    T6: the collapsed patch's (ξ, η), λa = (1−ξ)(1−η)/4, λb = (1+ξ)(1−η)/4, λc = (1+η)/2."""
+    nx, ny = 4, 3
+    dx, dyy = W0 / nx, H0 / ny
+    x, y, _, _ = closed_form(deformed=False)
+    with Renderer(scene(), "cpu", mesh=surface_mesh("quad8", nx, ny)) as r:
+        t = r.render(0, 0, truth=True, mode="exact").truth
+    m = t.mask
+    col, row = (t.element[m] - 0) % nx, (t.element[m] - 0) // nx
+    assert np.abs(t.xi[m] - (2 * (x[m] + W0 / 2 - col * dx) / dx - 1)).max() <= 1e-9
+    assert np.abs(t.eta[m] - (2 * (y[m] + H0 / 2 - row * dyy) / dyy - 1)).max() <= 1e-9
+    with Renderer(scene(), "cpu", mesh=surface_mesh("triangle6", nx, ny)) as r:
+        t = r.render(0, 0, truth=True, mode="exact").truth
+    m = t.mask
+    xi, eta, e = t.xi[m], t.eta[m], t.element[m]
+    la, lb, lc = (1 - xi) * (1 - eta) / 4, (1 + xi) * (1 - eta) / 4, (1 + eta) / 2
+    cell = e // 2
+    x0, y0 = -W0 / 2 + (cell % nx) * dx, -H0 / 2 + (cell // nx) * dyy
+    first = e % 2 == 0          # corners (x0, y0), (x0+dx, y0), (x0+dx, y0+dy) / (x0, y0), (x0+dx, y0+dy), (x0, y0+dy)
+    xb = np.where(first, x0 + dx * (lb + lc), x0 + dx * lb)
+    yb = np.where(first, y0 + dyy * lc, y0 + dyy * (lb + lc))
+    assert np.abs(xb - x[m]).max() <= 1e-9 and np.abs(yb - y[m]).max() <= 1e-9
+
+
+@pytest.mark.parametrize("kind", ["quad8", "triangle6"])
+def test_off_centre_mid_side_nodes(kind):
+    """Mid-side nodes of the edges along y moved 0.3 of the half-edge along the edge (on the
+    parabolic cylinder z = ZC + A x², which the moved mesh still represents exactly; step 1
+    without the x·y term, which y quadratic in the T6's λ would make cubic): exact truth within
+    1e-9 mm of the closed form, and no element named folded."""
+    half = H0 / 3 / 2
+    dy = lambda J, I: np.where((J % 2 == 1) & (I % 2 == 0), 0.3 * half, 0.0)   # noqa: E731
+    mesh = surface_mesh(kind, c=0.0, dy=dy, d=0.0)
+    with Renderer(scene(), "cpu", mesh=mesh) as r, warnings.catch_warnings():
+        warnings.simplefilter("error", RenderWarning)
+        for step in (0, 1):
+            check_against_closed_form(r.render(0, step, truth=True, mode="exact").truth, 1e-9, c=0.0,
+                                      deformed=step == 1, d=0.0)
+
+
+def test_folded_element_is_named_and_stays_finite():
+    """One mid-side node moved 0.8 of the half-edge (past the quarter point): the element
+    folds; the render names it in a RenderWarning and has no NaN; pixels elsewhere keep their
+    closed-form truth."""
+    half = H0 / 3 / 2
+    nx, ny = 4, 3
+    dy = lambda J, I: np.where((J == 1) & (I == 2), 0.8 * half, 0.0)   # noqa: E731  (elements 1 and 2 share it)
+    mesh = surface_mesh("quad8", nx, ny, c=0.0, dy=dy)
+    with Renderer(scene(), "cpu", mesh=mesh) as r:
+        with pytest.warns(RenderWarning, match=r"elements 1, 2 are folded"):
+            res = r.render(0, 0, truth=True, mode="exact")
+        for mode in ("q4", "fast"):
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore", RenderWarning)
+                assert np.isfinite(r.render(0, 0, truth=True, mode=mode).image).all()
+    assert np.isfinite(res.image).all()
+    t = res.truth
+    assert np.isfinite(t.X_deformed[t.mask]).all()
+    _, _, _, Xd = closed_form(c=0.0, deformed=False)
+    far = t.mask & ~np.isin(t.element, [0, 1])
+    assert np.abs(t.X_deformed[far] - Xd[far]).max() <= 1e-9
+
+
+def test_q4_and_fast_modes_error_is_bounded():
+    """q4 (the paper's inverse mapping with the Q9 shape functions in the image) and fast
+    (4 × 4 linear pieces per element): X within 5e-3 mm of the closed form; same coverage
+    away from the outline."""
+    with Renderer(scene(), "cpu", mesh=surface_mesh("quad8")) as r:
+        for mode in ("q4", "fast"):
+            t = r.render(0, 1, truth=True, mode=mode).truth
+            x, y, Xu, Xd = closed_form()
+            inside, _ = footprint(x, y, 0.5)
+            m = t.mask
+            assert (m == inside)[np.abs(np.abs(x) - W0 / 2) > 0.5].sum() > 3000
+            assert np.abs(t.X_deformed[m] - Xd[m]).max() <= 5e-3, mode
+
+
+def test_q8_against_fine_q4_converges():
+    """The same paraboloid meshed in Q4 with k × k elements per Q8 element (exact mode, the
+    established bilinear path): the largest X difference on common pixels falls like 1/k²."""
+    nx, ny = 3, 2
+    with Renderer(scene(), "cpu", mesh=surface_mesh("quad8", nx, ny, deform=False)) as r:
+        ref = r.render(0, 0, truth=True, mode="exact").truth
+    errs = []
+    for k in (1, 2, 4, 8):
+        xs, ys = np.linspace(-W0 / 2, W0 / 2, nx * k + 1), np.linspace(-H0 / 2, H0 / 2, ny * k + 1)
+        X, Y = np.meshgrid(xs, ys)
+        nodes = np.stack([X.ravel(), Y.ravel(), ZC + A * X.ravel() ** 2 + C * Y.ravel() ** 2], 1)
+        idx = np.arange(X.size).reshape(X.shape)
+        quads = np.stack([idx[:-1, :-1], idx[:-1, 1:], idx[1:, 1:], idx[1:, :-1]], -1).reshape(-1, 4)
+        q4 = Mesh(nodes, quads, np.arange(1, len(nodes) + 1), np.arange(1, len(quads) + 1))
+        with Renderer(scene(), "cpu", mesh=q4) as r:
+            t = r.render(0, 0, truth=True, mode="exact").truth
+        both = t.mask & ref.mask
+        errs.append(np.abs(t.X_deformed[both] - ref.X_deformed[both]).max())
+    errs = np.array(errs)
+    assert (np.diff(errs) < 0).all(), errs
+    assert errs[-1] <= errs[0] / 30, errs   # 1/k² would be 1/64
+
+
+# --- GL ----------------------------------------------------------------------------------------
+
+@pytest.mark.gl
+def test_gl_fast_matches_the_oracle_fast(gl_ctx):
+    """GL fast mode draws the same linear pieces as the oracle's fast mode."""
+    mesh = surface_mesh("quad8")
+    with Renderer(scene(), "gl", ctx=gl_ctx, mesh=mesh) as g, Renderer(scene(), "cpu", mesh=mesh) as c:
+        a = g.render(0, 1, truth=True, mode="fast")
+        b = c.render(0, 1, truth=True, mode="fast")
+    both = a.truth.mask & b.truth.mask
+    same = both & (a.truth.element == b.truth.element)
+    assert both.sum() > 3000 and same.sum() >= 0.995 * both.sum()
+    # GL's fast truth starts from its float32 reference point: X within 1e-4 mm (measured 8e-6)
+    assert np.abs(a.truth.X_deformed[same] - b.truth.X_deformed[same]).max() <= 1e-4
+    d = np.abs(a.image.astype(float) - b.image.astype(float))
+    assert d.mean() <= 1e-4 and (d > 1e-3).mean() <= 0.005, (d.mean(), (d > 1e-3).mean())
+    check = closed_form()[3]
+    assert np.abs(a.truth.X_deformed[a.truth.mask] - check[a.truth.mask]).max() <= 5e-3
+
+
+@pytest.mark.gl
+@pytest.mark.parametrize("mode", ["exact", "q4"])
+def test_gl_exact_and_q4_refused_by_name(gl_ctx, mode):
+    with Renderer(scene(), "gl", ctx=gl_ctx, mesh=surface_mesh("quad8")) as g:
+        with pytest.raises(SceneError, match=rf"render\.mode: '{mode}' with quadratic elements is drawn by the cpu "
+                                             r"backend only .* use mode = \"fast\""):
+            g.render(0, 1, mode=mode)
+
+
+# --- files -------------------------------------------------------------------------------------
+
+def _write_and_read(path, nodes, cells, kind, fmt=None):
+    u = step1(nodes)
+    meshio.write(path, meshio.Mesh(nodes, [(kind, cells)], point_data={"u": u}), file_format=fmt)
+    return load_mesh(path, point_data_steps=["u"])
+
+
+@pytest.mark.parametrize("kind,suffix,fmt", [("quad8", ".vtu", None), ("quad9", ".inp", None),
+                                              ("triangle6", ".msh", "gmsh22"), ("quad8", ".inp", None)])
+def test_shell_files_through_meshio(tmp_path, kind, suffix, fmt):
+    """quad8 / quad9 / triangle6 written by meshio (VTU, Abaqus, Gmsh) and read back: exact
+    truth of step 1 (point-data displacement) within 1e-9 mm of the closed form."""
+    nodes, at = lattice(4, 3)
+    cells = t6_cells(4, 3, at) if kind == "triangle6" else q8_cells(4, 3, at, nine=kind == "quad9")
+    if suffix == ".inp":            # Abaqus .inp holds no point data: the step comes as a CSV
+        meshio.write(tmp_path / f"m{suffix}", meshio.Mesh(nodes, [(kind, cells)]))
+        csv = tmp_path / "u.csv"
+        csv.write_text("".join(f"{k + 1};{a};{b};{c}\n" for k, (a, b, c) in enumerate(step1(nodes))))
+        mesh = load_mesh(tmp_path / f"m{suffix}", csv_files=[csv])
+    else:
+        mesh = _write_and_read(tmp_path / f"m{suffix}", nodes, cells, kind, fmt)
+    assert mesh.is_quadratic and mesh.n_elements == len(cells) and mesh.n_steps == 2
+    with Renderer(scene(), "cpu", mesh=mesh) as r:
+        check_against_closed_form(r.render(0, 1, truth=True, mode="exact").truth, 1e-9)
+
+
+@pytest.mark.parametrize("kind,suffix,fmt", [("hexahedron20", ".vtu", None), ("hexahedron20", ".inp", None),
+                                              ("hexahedron27", ".vtu", None), ("hexahedron27", ".msh", "gmsh22"),
+                                              ("tetra10", ".vtu", None), ("tetra10", ".msh", "gmsh22"),
+                                              ("tetra10", ".inp", None), ("wedge15", None, None)])
+def test_solid_outer_faces_through_meshio(tmp_path, kind, suffix, fmt):
+    """One layer of quadratic solids whose front face is the paraboloid: the outer faces are
+    extracted (front face curved as the closed form: exact truth within 1e-9 mm), oriented
+    outward (normals of the front face towards the camera), none folded."""
+    nx, ny = 3, 2
+    nodes, at = lattice(nx, ny, nz=1)
+    cells = solid_cells(kind, nx, ny, at)
+    if suffix is None:   # meshio 5.3.5 cannot hold wedge15 cells (KeyError); the face table, in memory
+        from types import SimpleNamespace
+        from glsim.io.meshfiles import _surface
+        quads, labels, patches = _surface(tmp_path, SimpleNamespace(cells=[SimpleNamespace(type=kind, data=cells)]),
+                                          nodes, [np.arange(1, len(cells) + 1)])
+        mesh = Mesh(nodes, quads, np.arange(1, len(nodes) + 1), labels, patches=patches)
+    else:
+        path = tmp_path / f"s{suffix}"
+        meshio.write(path, meshio.Mesh(nodes, [(kind, cells)]), file_format=fmt)
+        mesh = load_mesh(path)
+    assert mesh.is_quadratic
+    P = qd.patch_points(mesh.patches, mesh.nodes)
+    assert not qd.folded(P).any()
+    centre = qd.evaluate(P, 0.0, 0.0)
+    front = np.abs(centre[:, 2] - (ZC + A * centre[:, 0] ** 2 + C * centre[:, 1] ** 2)) < 1e-9
+    normal = np.cross(*(np.einsum("mi,mid->md", d, P) for d in qd.shape_derivatives(np.zeros(len(P)),
+                                                                                     np.zeros(len(P)))))
+    assert front.sum() == (nx * ny * (2 if kind in ("tetra10", "wedge15") else 1))
+    assert (normal[front, 2] < 0).all()          # outward = towards the camera at the origin (−z)
+    with Renderer(scene(), "cpu", mesh=mesh) as r, warnings.catch_warnings():
+        warnings.simplefilter("ignore", RenderWarning)   # side walls are seen edge-on (grazing)
+        check_against_closed_form(r.render(0, 0, truth=True, mode="exact").truth, 1e-9, deformed=False)
+
+
+def test_exodus_quadratic_blocks(tmp_path):
+    """Exodus II: QUAD8 written by meshio's Exodus writer (VTK order) and HEX20 in Exodus's own
+    order (vertical mid-edge nodes 13–16 before the top face's 17–20, 1-based) read back."""
+    netCDF4 = pytest.importorskip("netCDF4")
+    nodes, at = lattice(4, 3)
+    cells = q8_cells(4, 3, at)
+    u = step1(nodes)
+    meshio.write(tmp_path / "q8.e", meshio.Mesh(nodes, [("quad8", cells)],
+                                                point_data={f"disp_{a}": u[:, k] for k, a in enumerate("xyz")}))
+    mesh = load_series(tmp_path / "q8.e")
+    assert mesh.n_steps == 2     # the stored (displaced) time after an undeformed step 0
+    with Renderer(scene(), "cpu", mesh=mesh) as r:
+        check_against_closed_form(r.render(0, 1, truth=True, mode="exact").truth, 1e-9)
+    # HEX20 in Exodus node order
+    nodes, at = lattice(3, 2, nz=1)
+    vtk = solid_cells("hexahedron20", 3, 2, at)
+    exo = vtk[:, np.r_[0:12, 16:20, 12:16]]
+    path = tmp_path / "h20.e"
+    with netCDF4.Dataset(path, "w") as ds:
+        ds.createDimension("num_nodes", len(nodes))
+        ds.createDimension("num_dim", 3)
+        ds.createDimension("num_el_blk", 1)
+        ds.createDimension("num_el_in_blk1", len(exo))
+        ds.createDimension("num_nod_per_el1", 20)
+        for k, axis in enumerate("xyz"):
+            ds.createVariable(f"coord{axis}", "f8", ("num_nodes",))[:] = nodes[:, k]
+        conn = ds.createVariable("connect1", "i4", ("num_el_in_blk1", "num_nod_per_el1"))
+        conn.elem_type = "HEX20"
+        conn[:] = exo + 1
+    mesh = load_series(path)
+    assert mesh.is_quadratic and not qd.folded(qd.patch_points(mesh.patches, mesh.nodes)).any()
+    with Renderer(scene(), "cpu", mesh=mesh) as r, warnings.catch_warnings():
+        warnings.simplefilter("ignore", RenderWarning)
+        check_against_closed_form(r.render(0, 0, truth=True, mode="exact").truth, 1e-9, deformed=False)
+
+
+# --- bad input ---------------------------------------------------------------------------------
+
+def test_mixed_orders_are_refused(tmp_path):
+    nodes, at = lattice(4, 3)
+    q8 = q8_cells(4, 3, at)
+    path = tmp_path / "mixed.vtu"
+    meshio.write(path, meshio.Mesh(nodes, [("quad8", q8[:5]), ("quad", q8[5:, :4])]))
+    with pytest.raises(SceneError, match=r"mixed\.vtu: mixes linear \(quad\) and quadratic \(quad8\) elements — "
+                                         r"export the whole specimen surface at one element order"):
+        load_mesh(path)
+
+
+def test_missing_nodes_are_refused():
+    mesh = surface_mesh("quad8", deform=False)
+    bad = mesh.patches.copy()
+    bad[3, 5] = mesh.n_nodes + 7
+    with pytest.raises(SceneError, match=r"mesh\.patches: element 3 refers to node indices .* \(a quadratic "
+                                         r"element with a missing node\?\) — give every corner and mid-side node"):
+        Mesh(mesh.nodes, mesh.quads, mesh.node_labels, mesh.element_labels, patches=bad)
+    with pytest.raises(SceneError, match=r"mesh\.patches: shape \(12, 8\)"):
+        Mesh(mesh.nodes, mesh.quads, mesh.node_labels, mesh.element_labels, patches=bad[:, :8])
+
+
+def test_lighting_with_curved_exact_is_refused():
+    sc = scene().replace(lighting={"lights": [{"position": [0, 0, 0]}]})
+    with Renderer(sc, "cpu", mesh=surface_mesh("quad8")) as r:
+        with pytest.raises(SceneError, match=r"lighting: lighting with quadratic elements in mode 'exact'"):
+            r.render(0, 1, mode="exact")
