@@ -778,6 +778,17 @@ def preview(pre: dict) -> str:
             f"{g['refine_s']:g} s — {'met' if g['refine_met'] else 'not met'}.")
 
 
+def preview_overhead(pre: dict) -> str:
+    """docs/preview.md: the preview's own share of a frame (refinement less the pair's render alone)."""
+    rows = [r for r in pre["rows"] if "overlays" not in r["case"]]
+    own = [1e3 * (r["refine"]["median_s"] - r["refine_render_only"]["median_s"]) for r in rows]
+    load = [pre["load_average_before"][0], pre["load_average_after"][0]]
+    return (f"The machine these ran on was shared with other work (load average {load[0]:.1f} before and "
+            f"{load[1]:.1f} after, on its {pre['machine']['cores']} cores), so the absolute times are inflated; on it "
+            f"the preview's own drawing with overlays off (tiles, rig view, info, panel: the refinement frame's median "
+            f"less the pair's render alone) takes {min(own):.0f}–{max(own):.0f} ms of a frame, the rest is the renderer.")
+
+
 GENERATORS = {"preview": preview, "accuracy-table": accuracy_table, "accuracy-facts": accuracy_facts, "peer": peer,
               "effects": effects, "effects-dof": effects_dof, "effects-dof-facts": effects_dof_facts, "verify-table": verify_table,
               "verify-runs-table": verify_runs_table, "sweep-table": sweep_table, "sweep": sweep, "calibration": calibration,
@@ -789,7 +800,8 @@ GENERATORS = {"preview": preview, "accuracy-table": accuracy_table, "accuracy-fa
               "verify-scale": verify_scale, "verify-choices": verify_choices, "verify-facts": verify_facts,
               "verify-timing": verify_timing, "sweep-facts": sweep_facts, "sweep-frontier": sweep_frontier,
               "sweep-timing": sweep_timing, "scaling-host": scaling_host, "scaling-oracle": scaling_oracle,
-              "scaling-table": scaling_table, "scaling-goals": scaling_goals}
+              "scaling-table": scaling_table, "scaling-goals": scaling_goals,
+              "preview-overhead": preview_overhead}
 
 
 # ---- regions ---------------------------------------------------------------------------------
