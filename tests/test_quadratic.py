@@ -459,3 +459,26 @@ def test_lighting_with_curved_exact_is_refused():
     with Renderer(sc, "cpu", mesh=surface_mesh("quad8")) as r:
         with pytest.raises(SceneError, match=r"lighting: lighting with quadratic elements in mode 'exact'"):
             r.render(0, 1, mode="exact")
+
+
+def test_paraview_mesh_series_keeps_the_quadratic_cells(tmp_path):
+    """write_mesh_series writes quad8 / quad9 / triangle6 cells (ParaView draws them curved)."""
+    from glsim.io.vtkfiles import write_mesh_series
+
+    for kind in ("quad8", "quad9", "triangle6"):
+        mesh = surface_mesh(kind)
+        (tmp_path / kind).mkdir()
+        paths = write_mesh_series(tmp_path / kind, mesh, CAM)
+        back = meshio.read(paths[0])
+        assert [b.type for b in back.cells] == [kind]
+        assert len(back.cells[0].data) == mesh.n_elements
+
+
+def test_point_truth_refuses_quadratic_meshes(tmp_path, monkeypatch):
+    from glsim.errors import GlsimError
+    from glsim.evaluation import compare
+
+    monkeypatch.setattr(compare, "load_scene", lambda path: scene())
+    monkeypatch.setattr(compare, "specimen_mesh", lambda sc: surface_mesh("quad8"))
+    with pytest.raises(GlsimError, match="quadratic elements, and the point truth evaluates bilinear"):
+        compare.truth_at(tmp_path, np.zeros((1, 2)), 0)

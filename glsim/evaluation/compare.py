@@ -80,6 +80,9 @@ def truth_at(truth_dir: str | Path, uv: np.ndarray, step: int):
     mesh = specimen_mesh(scene)
     if not 0 <= step < mesh.n_steps:
         raise GlsimError(f"--step {step}: {scene_json} has load steps 0…{mesh.n_steps - 1}")
+    if mesh.is_quadratic:
+        raise GlsimError(f"{scene_json}: the specimen has quadratic elements, and the point truth evaluates bilinear "
+                         "Q4 elements — compare against the rendered truth maps (render --truth) instead")
     g = Geometry(mesh.nodes, mesh.quads, tuple(range(mesh.n_steps)), np.stack(mesh.displacements),
                  mesh.element_labels)
     return points_truth(g, scene.cameras[0], uv, step), scene.cameras[0]

@@ -59,8 +59,13 @@ def write_mesh_series(directory: str | Path, mesh: Mesh, cam: Camera, name: str 
     directory = Path(directory)
     X0 = to_camera(mesh.nodes, cam)
     tri = mesh.quads[:, 2] == mesh.quads[:, 3]                 # triangles stored as collapsed quads
-    cells = [(kind, block) for kind, block in (("quad", mesh.quads[~tri]), ("triangle", mesh.quads[tri, :3]))
-             if len(block)]
+    if mesh.is_quadratic:   # the source element types: quad8 (derived centre), quad9, triangle6
+        p = mesh.patches
+        q8, t6 = p[:, 8] == -1, p[:, 8] == -2                   # glsim.scene.quadratic's centre codes
+        blocks = (("quad8", p[q8, :8]), ("quad9", p[~q8 & ~t6]), ("triangle6", p[t6][:, [0, 1, 2, 4, 5, 7]]))
+    else:
+        blocks = (("quad", mesh.quads[~tri]), ("triangle", mesh.quads[tri, :3]))
+    cells = [(kind, block) for kind, block in blocks if len(block)]
     steps = range(mesh.n_steps)
     vtus = [directory / f"{name}_{k:04d}.vtu" for k in steps]
     pvd = directory / f"{name}.pvd"
