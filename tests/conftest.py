@@ -1,4 +1,9 @@
-"""Shared fixtures: one EGL context for every GL test, its error flag checked around each."""
+"""Shared fixtures: one EGL context for every GL test, its error flag checked around each; a
+virtual X server (Xvfb) for the window tests."""
+import os
+import shutil
+import subprocess
+
 import pytest
 
 from glsim.backends.gl.context import create_context
@@ -21,3 +26,24 @@ def _gl_error_check(request):
     assert ctx.error == "GL_NO_ERROR"
     yield
     assert ctx.error == "GL_NO_ERROR"
+
+
+@pytest.fixture(scope="session")
+def xserver():
+    """A display number of a private Xvfb, started once and stopped at the end."""
+    tools = [t for t in ("Xvfb", "xdotool", "xwd") if shutil.which(t) is None]
+    if tools:
+        pytest.skip(f"{', '.join(tools)} not installed (make test installs xvfb, xdotool and x11-apps as root)")
+    read, write = os.pipe()       # Xvfb picks a free display number and writes it here
+    proc = subprocess.Popen(["Xvfb", "-displayfd", str(write), "-screen", "0", "1280x1024x24", "-nolisten", "tcp"],
+                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, pass_fds=(write,))
+    os.close(write)
+    with os.fdopen(read) as f:
+        number = f.readline().strip()
+    if not number:
+        proc.kill()
+        pytest.skip("Xvfb did not start")
+    display = f":{number}"
+    yield display
+    proc.terminate()
+    proc.wait(10)

@@ -17,14 +17,13 @@ import numpy as np
 import pytest
 
 from glsim.effects import dof
-from glsim.errors import SceneError
 from glsim.render import Renderer
-from glsim.scene import bulge_scene, demo_effects, load_scene
+from glsim.scene import bulge_scene, load_scene
 from glsim.scene.camera import project
 from glsim.workflows.preview import Preview
 from glsim.workflows.preview import overlays as ov
 from glsim.workflows.preview.core import display_grey
-from glsim.stages.reference import make_reference, specimen_mesh
+from glsim.stages.reference import make_reference
 
 pytestmark = pytest.mark.gl
 ROOT = Path(__file__).resolve().parents[1]
@@ -455,24 +454,6 @@ def _xwd(path):
     return np.stack([((px & m) >> ((m & -m).bit_length() - 1)).astype(np.uint8) for m in h[14:17]], axis=-1)
 
 
-@pytest.fixture(scope="module")
-def xserver():
-    tools = [t for t in ("Xvfb", "xdotool", "xwd") if shutil.which(t) is None]
-    if tools:
-        pytest.skip(f"{', '.join(tools)} not installed (make test installs xvfb, xdotool and x11-apps as root)")
-    read, write = os.pipe()       # Xvfb picks a free display number and writes it here
-    proc = subprocess.Popen(["Xvfb", "-displayfd", str(write), "-screen", "0", "1280x1024x24", "-nolisten", "tcp"],
-                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, pass_fds=(write,))
-    os.close(write)
-    with os.fdopen(read) as f:
-        number = f.readline().strip()
-    if not number:
-        proc.kill()
-        pytest.skip("Xvfb did not start")
-    display = f":{number}"
-    yield display
-    proc.terminate()
-    proc.wait(10)
 
 
 def test_window_under_xvfb(xserver, small_toml, tmp_path, gl_ctx):

@@ -342,6 +342,17 @@ class Preview:
         return self._dirty or (self._frame_quality == "fast" and self.quality == "full")
 
     @property
+    def busy(self) -> bool:
+        """Draw again at once (a changed frame, or a fast frame while interacting)."""
+        return self.needs_redraw and self.quality == "fast" or self._dirty
+
+    def log_state(self) -> str:
+        """One line per drawn frame (the window's --log-frames, tests)."""
+        return (f"frame step={self.p.step} quality={self._frame_quality} version={self._version} "
+                f"size={self._frame.shape[1]}x{self._frame.shape[0]} " +
+                " ".join(f"{k}={v}" for k, v in self.state_summary().items()))
+
+    @property
     def settle_seconds(self) -> float:
         return max(0.0, self._settle_until - time.monotonic())
 

@@ -28,9 +28,10 @@ SPECIAL = {"RIGHT": "ArrowRight", "LEFT": "ArrowLeft", "UP": "ArrowUp", "DOWN": 
 
 
 def run(scene, size=(1280, 800), log_frames: bool = False, show_timings: bool = True, initial=None,
-        **kwargs) -> int:
+        make=None, **kwargs) -> int:
     """Open the window on ``scene`` (a Scene or a scene file) and run until it is closed (q,
-    Escape or the close button)."""
+    Escape or the close button). ``make(ctx)``: another view to show instead of the scene
+    preview (the calibration-library pager), with the same frame and event interface."""
     import glfw
 
     from glsim.backends.gl.present import Presenter, window_context
@@ -54,24 +55,21 @@ def run(scene, size=(1280, 800), log_frames: bool = False, show_timings: bool = 
         glfw.swap_interval(0)
         ctx = window_context()
         presenter = Presenter(ctx)
-        pv = Preview(scene, size=size, ctx=ctx, **kwargs)
+        pv = make(ctx) if make is not None else Preview(scene, size=size, ctx=ctx, **kwargs)
         pv.show_timings = show_timings
         if initial is not None:
             initial(pv)
         _connect(win, pv, glfw)
         shown = None
         while not glfw.window_should_close(win) and not pv.quit_requested:
-            busy = pv.needs_redraw and pv.quality == "fast" or pv._dirty
-            glfw.wait_events_timeout(0.0 if busy else (pv.settle_seconds or 0.05))
+            glfw.wait_events_timeout(0.0 if pv.busy else (pv.settle_seconds or 0.05))
             pv.tick()
             if pv.needs_redraw:
                 frame = pv.frame()
                 fb = glfw.get_framebuffer_size(win)
                 presenter.show(frame, fb)
                 glfw.swap_buffers(win)
-                state = (f"frame step={pv.p.step} quality={pv._frame_quality} version={pv._version} "
-                         f"size={frame.shape[1]}x{frame.shape[0]} " +
-                         " ".join(f"{k}={v}" for k, v in pv.state_summary().items()))
+                state = pv.log_state()
                 if log_frames and state != shown:
                     print(state, flush=True)
                     shown = state
