@@ -747,6 +747,35 @@ def scaling_goals(sc: dict) -> str:
     return "\n".join(lines)
 
 
+# ---- examples/fe_bulge/*.csv: the committed FE solution against linear theory ----------------
+FE_PLATE = {"R": 50.0, "t": 3.0, "E": 210000.0, "nu": 0.3, "p": 11.9}     # paper Table 2 (mm, MPa)
+
+
+def _fe_centre(pressure: float, steps: tuple[list[dict], ...]) -> str:
+    pl = FE_PLATE
+    D = pl["E"] * pl["t"] ** 3 / (12 * (1 - pl["nu"] ** 2))
+    lines = ["| step | p (MPa) | w(0) linear theory (mm) | w(0) FE (mm) | FE / theory − 1 |", "|---|---|---|---|---|"]
+    n = len(steps)
+    for k, rows in enumerate(steps, 1):
+        p = pressure * k / n
+        theory = p * pl["R"] ** 4 / (64 * D)
+        fe = -float(next(r for r in rows if r["label"].strip() == "1")["uz"])     # node 1: the centre
+        lines.append(f"| {k} | {p:.4f} | {theory:.5f} | {fe:.5f} | {100 * (fe / theory - 1):+.3f} % |")
+    return "\n".join(lines)
+
+
+def fe_bulge_centre(*steps: list[dict]) -> str:
+    """docs/fe_bulge.md, load case 1: the committed centre deflection at Table 2's pressure in its steps."""
+    return _fe_centre(FE_PLATE["p"], steps)
+
+
+def fe_bulge_centre_5mm(*steps: list[dict]) -> str:
+    """docs/fe_bulge.md, load case 2: the pressure at which linear theory reaches 5 mm, in its steps."""
+    pl = FE_PLATE
+    D = pl["E"] * pl["t"] ** 3 / (12 * (1 - pl["nu"] ** 2))
+    return _fe_centre(64 * D * 5.0 / pl["R"] ** 4, steps)
+
+
 # ---- library.json ------------------------------------------------------------------------------
 def library(lib: dict) -> str:
     from glsim.evaluation.library_bench import summary
@@ -801,7 +830,8 @@ GENERATORS = {"preview": preview, "accuracy-table": accuracy_table, "accuracy-fa
               "verify-timing": verify_timing, "sweep-facts": sweep_facts, "sweep-frontier": sweep_frontier,
               "sweep-timing": sweep_timing, "scaling-host": scaling_host, "scaling-oracle": scaling_oracle,
               "scaling-table": scaling_table, "scaling-goals": scaling_goals,
-              "preview-overhead": preview_overhead}
+              "preview-overhead": preview_overhead, "fe-bulge-centre": fe_bulge_centre,
+              "fe-bulge-centre-5mm": fe_bulge_centre_5mm}
 
 
 # ---- regions ---------------------------------------------------------------------------------
@@ -814,9 +844,11 @@ def render_region(name: str, sources: list[str], root: Path) -> str:
         path = root / s
         if not path.is_file():
             raise GlsimError(f"generated region {name!r}: results file {s} not found — run the benchmark that writes it")
-        if s.endswith(".csv"):                   # a table of rows, e.g. a calibration study's
+        if s.endswith(".csv"):                   # a table of rows: a calibration study's, an FE step's (label;ux;uy;uz)
             with open(path, newline="") as f:
-                data.append(list(csv.DictReader(f)))
+                first = f.readline()
+                f.seek(0)
+                data.append(list(csv.DictReader(f, delimiter=";" if ";" in first and "," not in first else ",")))
         else:
             data.append(json.loads(path.read_text()))
     return GENERATORS[name](*data).rstrip("\n") + "\n"
