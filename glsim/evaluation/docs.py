@@ -369,6 +369,15 @@ def sweep(sw: dict, backends: dict) -> str:
             f"of {_s(min(noise))}–{_s(max(noise))} px.")
 
 
+def sweep_subsets(sw: dict) -> str:
+    """docs/verify.md: how many of the sweep's subsets are valid at every shift."""
+    parts = []
+    for run in sw["runs"]:
+        rs = [r for r in sw["results"] if r["run"] == run["name"]]
+        parts.append(f"{min(r['n_valid'] for r in rs)} of {max(r['n_subsets'] for r in rs)} ({run['name']})")
+    return "Subsets valid at every shift, in every sequence (`sweep.json`): " + ", ".join(parts) + "."
+
+
 def sweep_table(sw: dict) -> str:
     """Per sequence: render time, DIC bias and std per subset size, generator share and alone (px)."""
     runs = [r["name"] for r in sw["runs"]]
@@ -831,7 +840,7 @@ GENERATORS = {"preview": preview, "accuracy-table": accuracy_table, "accuracy-fa
               "sweep-timing": sweep_timing, "scaling-host": scaling_host, "scaling-oracle": scaling_oracle,
               "scaling-table": scaling_table, "scaling-goals": scaling_goals,
               "preview-overhead": preview_overhead, "fe-bulge-centre": fe_bulge_centre,
-              "fe-bulge-centre-5mm": fe_bulge_centre_5mm}
+              "fe-bulge-centre-5mm": fe_bulge_centre_5mm, "sweep-subsets": sweep_subsets}
 
 
 # ---- regions ---------------------------------------------------------------------------------
