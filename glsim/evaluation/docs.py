@@ -236,7 +236,8 @@ def verify_choices(ver: dict) -> str:
             f"to {_s(_vrow(a8, 'undeformed', 'Y')['std_px'])} px (table3 vs table3-8bit); with the quadratic shape function "
             f"the reference-state Z std is {_s(_vrow(q, 'undeformed', 'Z')['std_px'])} px and the deformed-state Z std "
             f"{_s(_vrow(q, 'deformed', 'Z')['std_px'])} px; {left} of its {q['n_subsets']} subsets "
-            f"({100 * left / q['n_subsets']:.0f} %) did not converge and are left out.")
+            f"({100 * left / q['n_subsets']:.0f} %) are left out (not valid in both states: not converged, or ZNCC below "
+            "the threshold).")
 
 
 def verify_facts(ver: dict) -> str:
