@@ -24,7 +24,8 @@ from glsim.errors import GlsimError
 from glsim.io import images as io
 
 FILES = ("README.md", "docs/calib.md", "docs/verify.md", "docs/library.md", "docs/preview.md", "docs/effects.md",
-         "docs/scaling.md", "docs/scene.md", "docs/fe_bulge.md", "docs/hard_cases.md", "docs/rig_files.md")
+         "docs/scaling.md", "docs/scene.md", "docs/fe_bulge.md", "docs/hard_cases.md", "docs/rig_files.md",
+         "docs/quadratic.md")
 REGION = re.compile(r"(<!-- generated: (?P<name>[\w-]+) from (?P<sources>[^>]+?) -->\n)(?P<body>.*?)(<!-- end generated -->)",
                     re.S)
 
