@@ -8,26 +8,29 @@ Both backends take the same scene and return the same :class:`Result`.
 
 Quadratic meshes (``Mesh.patches``, :mod:`glsim.scene.quadratic`): mode ``fast`` draws the
 mesh cut into QUADRATIC_FAST_PIECES × QUADRATIC_FAST_PIECES bilinear pieces per element with
-either backend (``Renderer.pieces``); ``exact`` and ``q4`` draw the curved patches with the
-CPU oracle (:func:`glsim.backends.cpu.rasterize_quadratic`) and are refused by name on GL.
+either backend (``Renderer.pieces``); ``exact`` and ``q4`` map every sample on the curved
+patch: the CPU oracle with :func:`glsim.backends.cpu.rasterize_quadratic`, GL over the same
+pieces' covers and candidate lists with Newton on the patch's 9 nodes (shaders/quadratic.glsl).
 Truth always reports the element's own (ξ, η) (for T6 those of the collapsed patch).
 """
 from __future__ import annotations
 
 import time
+import warnings
 from dataclasses import dataclass
 
 import numpy as np
 
-from glsim.errors import SceneError
+from glsim.errors import RenderWarning, SceneError
 from glsim.scene import quadratic as qd
 from glsim.scene.bilinear import bilinear
-from glsim.scene.camera import Camera, to_camera
+from glsim.scene.camera import Camera, pixel_to_normalized, project_camera_frame, to_camera, undistort
 from glsim.effects import prepare as prepare_effects
 from glsim.stages.geometry import MeshGeometry, ViewSpec
 from glsim.io.truth import Truth
-from glsim.stages.quadview import fast_local_coords as quadratic_fast_coords, make_quad_view
-from glsim.stages.view import View, make_view
+from glsim.stages.quadview import PatchData, chord_error_bound, fast_local_coords as quadratic_fast_coords, \
+    make_quad_view
+from glsim.stages.view import NEAR_MM, View, _labels, make_view
 from glsim.backends import make_backend
 from glsim.stages.reference import make_reference, specimen_mesh
 from glsim.scene import Render, Scene
@@ -110,21 +113,30 @@ class Renderer:
         opts = self.scene.replace(render=options).render if options else self.scene.render
         t0 = time.perf_counter()
         cam = self.scene.camera(camera)
-        if self.mesh.is_quadratic and opts.mode != "fast":
+        curved = self.mesh.is_quadratic and opts.mode != "fast"
+        if curved and self.backend_name != "gl":
             return self._render_quadratic(cam, step, truth, opts, t0)
+        patches = None
         if self.backend_name == "gl":
             view = self.geometry.view(cam, step)
             deformed = view.step_geo.deformed
             depths = view.corner_depths() if self.scene.optics is not None else np.empty(0)
+            if curved:
+                patches = self._patch_data(view, step, opts)
         else:
             deformed = self.drawn_mesh.deformed(step)
             view = self.view(camera, step, deformed)
             depths = view.Xd[..., 2]
         fx = prepare_effects(self.scene, deformed, self.drawn_mesh.quads, cam, self.scene.cameras.index(cam), step,
                              depths, normals=self.backend_name != "gl")
-        image, raster, stages = self.backend.render_view(view, opts, truth, fx)
+        if patches is not None:
+            image, raster, stages = self.backend.render_view(view, opts, truth, fx, patches=patches)
+        else:
+            image, raster, stages = self.backend.render_view(view, opts, truth, fx)
         seconds = time.perf_counter() - t0
-        if truth and self.mesh.is_quadratic:
+        if truth and patches is not None:
+            tr = self._quadratic_truth(self._pieces_to_patches(raster, cam, step, opts.mode), step, cam)
+        elif truth and self.mesh.is_quadratic:
             tr = self._quadratic_truth(self._fast_to_patches(raster), step, cam)
         else:
             tr = self._truth(view.camera.size, deformed, raster) if truth else None
@@ -132,12 +144,59 @@ class Renderer:
                       options=opts, seconds=seconds, truth=tr, stages=tuple(stages),
                       saturated=_saturated(image))
 
+    def _patch_data(self, view: ViewSpec, step: int, opts: Render) -> PatchData:
+        """The GL backend's quadratic payload for ``view`` (its elements are the pieces): the
+        step's patch points (cached per step), the reference data (once), the chord bound."""
+        if self.scene.lighting is not None:
+            raise SceneError("lighting", f"lighting with quadratic elements in mode {opts.mode!r} is not supported",
+                             "use mode = \"fast\" or remove [lighting]")
+        cache = self.__dict__.setdefault("_patch_cache", {})
+        if "ref" not in cache:
+            ref_cam = self.reference.camera
+            xr = qd.patch_points(self.mesh.patches, to_camera(self.mesh.nodes, ref_cam))
+            uv, _ = project_camera_frame(xr, ref_cam)
+            cache["ref"] = (xr, uv)
+        if cache.get("step", (None,))[0] != step:
+            P = qd.patch_points(self.mesh.patches, self.mesh.deformed(step))
+            folded = np.flatnonzero(qd.folded(P))
+            cache["step"] = (step, P - self.geometry.origin, chord_error_bound(P, self.pieces.n), folded)
+        _, local, chord_mm, folded = cache["step"]
+        if folded.size:
+            warnings.warn(f"camera {view.camera.name}: elements {_labels(folded, self.mesh.element_labels)} are "
+                          "folded (the surface normal reverses inside the element: a mid-side node too far from its "
+                          "edge's middle?); their pixels stay finite (the nearest root is drawn); check the mesh",
+                          RenderWarning, stacklevel=4)
+        z_near = max(float(view.corner_depths().min()), NEAR_MM)
+        f = float(max(view.camera.intrinsics[0], view.camera.intrinsics[1]))
+        xr, uv = cache["ref"]
+        return PatchData(pieces=self.pieces.n, local=local, ref_xr=xr, ref_uv=uv,
+                         extra_sag_px=1.5 * chord_mm * f / z_near, token=(id(self), step))
+
+    def _pieces_to_patches(self, raster: dict, cam: Camera, step: int, mode: str) -> dict:
+        """A GL exact / q4 raster of the pieces → the patches: the piece's patch as element; the
+        patch's (ξ, η) GL found, polished in float64 by :func:`glsim.scene.quadratic.newton`
+        (on the pixel's ray, or in the image for q4; kept where that does not converge)."""
+        r = dict(raster)
+        hit = np.flatnonzero(r["element"] >= 0)
+        e = self.pieces.parent[r["element"][hit]]
+        W, _ = cam.size
+        q = np.column_stack([hit % W, hit // W]).astype(np.float64)
+        P = qd.patch_points(self.mesh.patches[e], to_camera(self.mesh.deformed(step), cam)) if hit.size else \
+            np.zeros((0, 9, 3))
+        if mode == "exact":
+            xn, _ = undistort(pixel_to_normalized(q, cam.intrinsics), cam.distortion.coeffs)
+            p2, target = P[..., :2] - xn[:, None, :] * P[..., 2:3], np.zeros_like(q)
+        else:
+            p2, target = project_camera_frame(P, cam)[0], q
+        xi0, eta0 = r["xi"][hit], r["eta"][hit]
+        xi, eta, ok = qd.newton(p2, target, xi0, eta0, qd.patch_size(p2))
+        r["element"], r["xi"], r["eta"] = r["element"].copy(), r["xi"].copy(), r["eta"].copy()
+        r["element"][hit] = e
+        r["xi"][hit], r["eta"][hit] = np.where(ok, xi, xi0), np.where(ok, eta, eta0)
+        return r
+
     def _render_quadratic(self, cam: Camera, step: int, truth: bool, opts: Render, t0: float) -> Result:
         """exact / q4 of a quadratic mesh: the CPU oracle on the curved patches."""
-        if self.backend_name != "cpu":
-            raise SceneError("render.mode", f"{opts.mode!r} with quadratic elements is drawn by the cpu backend only "
-                             "(the GL shaders intersect bilinear Q4 patches)",
-                             "use mode = \"fast\" (linear pieces, see docs/quadratic.md) or backend = \"cpu\"")
         if self.scene.lighting is not None:
             raise SceneError("lighting", f"lighting with quadratic elements in mode {opts.mode!r} is not supported",
                              "use mode = \"fast\" or remove [lighting]")

@@ -47,6 +47,15 @@ layout(std430, binding = 8) readonly buffer RefXr { real ref_xr[]; };
 #endif
 #define CANDIDATE_TEXTURES
 #include "candidates.glsl"
+#ifdef QUADRATIC
+// quadratic elements: the records above are their linear pieces; map on the curved patch
+#if defined(MODE_Q4)
+uniform real u_intr[5];
+uniform real u_dist[12];
+uniform real u_valid_r2;
+#endif
+#include "quadratic.glsl"
+#endif
 #endif
 flat in int v_elem;
 // samples that hit the specimen but map outside the reference image (reset before each pass)
@@ -99,7 +108,40 @@ bool map_sample(int e, real2 px, real2 xn, out real xi, out real eta, out real2 
     int b = e * 12;
     ref = real2(0.0);
     ref_ok = false;
+#if defined(QUADRATIC)
+    // the pid of piece e: Newton on its 9 nodes from the piece's roots (quadratic.glsl)
+    int pid, ci, cj;
+    piece_cell(e, pid, ci, cj);
+    real z[9];
+    real2 pc[4], pp[9];
+    real3 Q[9];
+    for (int i = 0; i < 9; ++i) { Q[i] = patch_camera(pid, i); z[i] = Q[i].z; }
+    real N[9];
 #if defined(MODE_Q4)
+    for (int i = 0; i < 4; ++i) pc[i] = real2(elem_data[b + 2 * i], elem_data[b + 2 * i + 1]);
+    for (int i = 0; i < 9; ++i) {
+        if (!project_camera_frame(Q[i], u_intr, u_dist, u_valid_r2, pp[i])) return false;
+    }
+    if (!q9_invert_piece(e, pc, pp, z, px, xi, eta, Z)) return false;
+    q9_shape(xi, eta, N);
+    for (int i = 0; i < 9; ++i) ref += N[i] * real2(patch_ref[18 * pid + 2 * i], patch_ref[18 * pid + 2 * i + 1]);
+    ref_ok = true;
+#else
+    for (int i = 0; i < 4; ++i) {
+        real3 P = real3(elem_data[b + 3 * i], elem_data[b + 3 * i + 1], elem_data[b + 3 * i + 2]);
+        pc[i] = P.xy - xn * P.z;
+    }
+    for (int i = 0; i < 9; ++i) pp[i] = Q[i].xy - xn * Q[i].z;
+    if (!q9_invert_piece(e, pc, pp, z, real2(0.0), xi, eta, Z)) return false;
+    q9_shape(xi, eta, N);
+    real3 X = real3(0.0);
+    for (int i = 0; i < 9; ++i) {
+        int r = 27 * pid + 3 * i;
+        X += N[i] * real3(patch_ref[r], patch_ref[r + 1], patch_ref[r + 2]);
+    }
+    ref_ok = project_camera_frame(X, u_ref_intr, u_ref_dist, u_ref_valid_r2, ref);
+#endif
+#elif defined(MODE_Q4)
     real2 p[4];
     for (int i = 0; i < 4; ++i) p[i] = real2(elem_data[b + 2 * i], elem_data[b + 2 * i + 1]);
     Z = 0.0;

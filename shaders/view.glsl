@@ -85,6 +85,7 @@ uniform real u_dist[12];
 uniform real u_ray_r;        // glsim.stages.view.ray_radius; < 0: unbounded
 uniform vec2 u_size;
 uniform real u_cover_grow;   // the covers also hold squares of this half-width around their points
+uniform real u_extra_sag;    // px added to every sagitta: quadratic elements' pieces (their chord error); else 0
 
 real2 to_pixels(real2 xn) { return normalized_to_pixel(distort(xn, u_dist), u_intr); }
 
@@ -104,6 +105,7 @@ void extent_add(inout Extent x, real2 p) {
 // u_cover_grow) and the tight one (padded for float32 rounding only, TIGHT_PAD_PX): corners
 // along the axes, and (a, lo_a, hi_a), (lo_b, hi_b) for candidates.glsl.
 void extent_rect(Extent x, real sag, out vec2 rect[4], out vec4 tight[2]) {
+    sag += u_extra_sag;
     real round_off = 1e-6 * (x.umax + real(u_size.x) + real(u_size.y));
     real2 a = x.a, b = real2(-x.a.y, x.a.x);
     real pad = 2.0 * sag + COVER_PAD_PX + round_off + u_cover_grow * (abs(a.x) + abs(a.y));

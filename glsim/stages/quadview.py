@@ -95,3 +95,36 @@ def fast_local_coords(qview_ref_cam: Camera, Pr: np.ndarray, ref_uv: np.ndarray,
     xi, eta, conv = qd.newton(p2, np.zeros((len(xn), 2)), xi0, eta0, qd.patch_size(Pr))
     good = ok & conv
     return np.where(good, xi, xi0), np.where(good, eta, eta0)
+
+
+@dataclass(frozen=True, eq=False)
+class PatchData:
+    """What the GL backend needs to draw quadratic elements in modes exact and q4 (the view's
+    elements are then the patches' linear pieces, ``pieces`` × ``pieces`` per patch, in patch
+    order): the patches' control points at this step relative to the mesh's local origin
+    (``local`` (M, 9, 3)), in the reference camera's frame (``ref_xr``) and as reference-image
+    px (``ref_uv``), and ``extra_sag_px``, a bound of the pieces' chord error in px that the
+    covers and candidate rectangles are grown by. ``token`` identifies ``local`` (caching)."""
+    pieces: int
+    local: np.ndarray
+    ref_xr: np.ndarray
+    ref_uv: np.ndarray
+    extra_sag_px: float
+    token: tuple
+
+
+def chord_error_bound(P: np.ndarray, pieces: int) -> float:
+    """An upper bound (length units of P) of the distance between patches P (M, 9, 3) and their
+    bilinear pieces (``pieces`` per side): the bilinear interpolant on a cell of side h = 2/n in
+    (ξ, η) is within h²/8 (max|X_ξξ| + max|X_ηη|) of the patch, and X_ξξ (linear in the row
+    weights L_b(η)) is at most 1.25 × its largest row value (the Lebesgue constant of quadratic
+    interpolation), likewise X_ηη."""
+    if not len(P):
+        return 0.0
+    grid = np.empty((len(P), 3, 3, 3))                       # [m, row (η), col (ξ), d]
+    for k in range(9):
+        grid[:, int(qd.NODE_ETA[k]) + 1, int(qd.NODE_XI[k]) + 1] = P[:, k]
+    d_xi = np.linalg.norm(grid[:, :, 0] - 2 * grid[:, :, 1] + grid[:, :, 2], axis=-1).max(axis=1)
+    d_eta = np.linalg.norm(grid[:, 0] - 2 * grid[:, 1] + grid[:, 2], axis=-1).max(axis=1)
+    h = 2.0 / pieces
+    return float((h * h / 8 * 1.25 * (d_xi + d_eta)).max())

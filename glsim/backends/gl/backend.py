@@ -137,6 +137,8 @@ class GLBackend:
         for tex in (*self._textures.values(), *self._rays.values(), *(self._dot_buffers or ())[:2]):
             tex.release()
         self._dot_buffers = None
+        for buf in self.__dict__.pop("_patch_cache", {}).values():
+            buf.release()
         self._targets.clear()
         self._textures.clear()
         self._rays.clear()
@@ -161,9 +163,19 @@ class GLBackend:
             self.geometry = GeometryBuffers(self.ctx, self.programs, view.mesh_geo)
         return self.geometry
 
-    def render_view(self, view: ViewSpec, opts, truth: bool = False, effects=None):
+    def render_view(self, view: ViewSpec, opts, truth: bool = False, effects=None, patches=None):
         """Image (H, W) float32, the pixel-centre raster if ``truth`` (as the CPU backend), and
-        the list of passes run."""
+        the list of passes run. ``patches`` (a :class:`~glsim.stages.quadview.PatchData`, modes
+        exact and q4): the view's elements are quadratic patches' linear pieces, and each
+        sample is mapped on its curved patch (shaders/quadratic.glsl); the raster's element is
+        then the piece and (ξ, η) the patch's, not polished here."""
+        self._patches = patches if opts.mode != "fast" else None
+        try:
+            return self._render_view(view, opts, truth, effects)
+        finally:
+            self._patches = None
+
+    def _render_view(self, view: ViewSpec, opts, truth: bool, effects):
         fx = effects or Effects()
         s = opts.supersampling
         W, H = view.camera.size
@@ -194,13 +206,19 @@ class GLBackend:
         W, H = view.camera.size
         cam, ref_cam = view.camera, view.ref_camera
         defines = program_defines(opts, truth, self.fp64, fx)
+        patches = getattr(self, "_patches", None)
+        if patches is not None:
+            defines.update(QUADRATIC=None, PIECES=int(patches.pieces))
         fp64 = "FP64" in defines
         geo = self._buffers(view)
+        patch_buffers = self._patch_buffers(patches, opts.mode, fp64) if patches is not None else ()
 
         def camera_uniforms(p):
             self._set(p, "u_intr", cam.intrinsics, fp64)
             self._set(p, "u_dist", cam.distortion.coeffs, fp64)
             self._set(p, "u_valid_r2", [cam.distortion.valid_radius() ** 2], fp64)
+            if patches is not None:
+                self._set(p, "u_extra_sag", [patches.extra_sag_px], fp64)
 
         dropped = ctx.buffer(bytes(4))  # deform.frag counts samples mapping outside the reference
         buffers = [dropped]
@@ -220,6 +238,8 @@ class GLBackend:
                 if prog.get(name, None) is not None:
                     prog[name].value = value
             dropped.bind_to_storage_buffer(4)
+            for binding, buf in zip((14, 15), patch_buffers):
+                buf.bind_to_storage_buffer(binding)
             if fx.lighting is not None:
                 for name, value in _light_uniforms(fx).items():
                     if prog.get(name, None) is not None:
@@ -290,7 +310,26 @@ class GLBackend:
             lo = np.frombuffer(color[3].read(), np.float32).reshape(H * W, 2)
             raster["xi"], raster["eta"] = m[:, 2] + lo[:, 0], m[:, 3] + lo[:, 1]
             return color, raster
+        if patches is not None:   # the patches' (ξ, η): polished by the caller (glsim.render)
+            return color, raster
         return color, self._float64_truth(view, opts.mode, raster, fp64)
+
+    def _patch_buffers(self, patches, mode: str, fp64: bool):
+        """Bindings 14 (the patches' local control points at this step) and 15 (their reference
+        data: frame points for exact, image points for q4), made once per step / renderer."""
+        cache = self.__dict__.setdefault("_patch_cache", {})
+        dt = np.float64 if fp64 else np.float32
+        out = []
+        for name, key, array in (("local", patches.token, patches.local),
+                                 ("ref", (patches.token[0], mode), patches.ref_uv if mode == "q4" else patches.ref_xr)):
+            k = (name, key, fp64)
+            if k not in cache:
+                old = [c for c in cache if c[0] == name]
+                for c in old[:-1]:          # keep the last one of each kind besides the new one
+                    cache.pop(c).release()
+                cache[k] = self.ctx.buffer(np.ascontiguousarray(array, dt).tobytes())
+            out.append(cache[k])
+        return out
 
     def _float64_truth(self, view: ViewSpec, mode: str, raster: dict, fp64: bool) -> dict:
         """Replace the float32 (ξ, η) read back by float64 ones (glsim.stages.truth): two Newton

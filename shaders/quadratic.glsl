@@ -1,0 +1,114 @@
+// Quadratic elements as 9-node biquadratic patches: the GLSL twin of glsim/scene/quadratic.py
+// (node order: corners, mid-sides of edges 0-1, 1-2, 2-3, 3-0, centre; N_i = L_a(xi) L_b(eta)).
+// Compile-time: QUADRATIC, PIECES (the linear pieces per element side that the element
+// records, covers and candidate lists are made of: piece e belongs to pid e / PIECES^2 and
+// spans the pid's cell (e % PIECES, (e / PIECES) % PIECES) of its PIECES x PIECES grid).
+// Needs view.glsl (u_rot, u_trans), camera.glsl and bilinear.glsl (invert_closed).
+#ifdef FP64
+#define Q_TOL 1e-13          // stop once max(|dxi|, |deta|) <= Q_TOL ...
+#define Q_RESIDUAL 1e-9      // ... or after Q_MAX_ITER accept a residual <= this x the pid size
+#else
+#define Q_TOL 1e-6
+#define Q_RESIDUAL 1e-5
+#endif
+#define Q_MAX_ITER 30
+#define Q_INSIDE 1e-9        // |xi|, |eta| <= 1 + Q_INSIDE (and a piece's share likewise)
+#define Q_START_RANGE 1.25   // a piece root farther out than this (piece coordinates) is no start
+
+// per pid: its 9 control points in the mesh's local frame at this load step (binding 14) and,
+// uploaded once, in the reference camera's frame (exact, 27) or as reference-image px (q4, 18)
+layout(std430, binding = 14) readonly buffer PatchNodes { real patch_nodes[]; };
+layout(std430, binding = 15) readonly buffer PatchRef { real patch_ref[]; };
+
+const int Q_IA[9] = int[9](0, 2, 2, 0, 1, 2, 1, 0, 1);
+const int Q_IB[9] = int[9](0, 0, 2, 2, 0, 1, 2, 1, 1);
+
+real3 lagrange3(real t) { return real3(0.5 * t * (t - 1.0), 1.0 - t * t, 0.5 * t * (t + 1.0)); }
+real3 dlagrange3(real t) { return real3(t - 0.5, -2.0 * t, t + 0.5); }
+
+void q9_shape(real xi, real eta, out real N[9]) {
+    real3 a = lagrange3(xi), b = lagrange3(eta);
+    for (int i = 0; i < 9; ++i) N[i] = a[Q_IA[i]] * b[Q_IB[i]];
+}
+
+real3 patch_camera(int p, int k) {
+    int b = 27 * p + 3 * k;
+    real3 x = real3(patch_nodes[b], patch_nodes[b + 1], patch_nodes[b + 2]);
+    return real3(u_rot[0] * x.x + u_rot[1] * x.y + u_rot[2] * x.z + u_trans[0],
+                 u_rot[3] * x.x + u_rot[4] * x.y + u_rot[5] * x.z + u_trans[1],
+                 u_rot[6] * x.x + u_rot[7] * x.y + u_rot[8] * x.z + u_trans[2]);
+}
+
+// Newton on sum N_i(xi, eta) p_i = q from (xi, eta); the stopping rule of
+// glsim.scene.quadratic.newton (relative to the centre node; steps clipped to +-1).
+bool q9_newton(real2 p[9], real2 q, real scale, inout real xi, inout real eta) {
+    real2 o = p[8];
+    for (int i = 0; i < 9; ++i) p[i] -= o;
+    q -= o;
+    for (int it = 0; it < Q_MAX_ITER; ++it) {
+        real3 a = lagrange3(xi), b = lagrange3(eta), da = dlagrange3(xi), db = dlagrange3(eta);
+        real2 f = -q, ja = real2(0.0), jb = real2(0.0);
+        for (int i = 0; i < 9; ++i) {
+            f += a[Q_IA[i]] * b[Q_IB[i]] * p[i];
+            ja += da[Q_IA[i]] * b[Q_IB[i]] * p[i];
+            jb += a[Q_IA[i]] * db[Q_IB[i]] * p[i];
+        }
+        real det = ja.x * jb.y - ja.y * jb.x;
+        if (det == 0.0 || isnan(det) || isinf(det)) return false;
+        real dx = clamp(-(jb.y * f.x - jb.x * f.y) / det, -1.0, 1.0);
+        real dy = clamp(-(ja.x * f.y - ja.y * f.x) / det, -1.0, 1.0);
+        xi += dx;
+        eta += dy;
+        if (max(abs(dx), abs(dy)) <= Q_TOL) return !(isnan(xi) || isnan(eta));
+    }
+    real N[9];
+    q9_shape(xi, eta, N);
+    real2 f = -q;
+    for (int i = 0; i < 9; ++i) f += N[i] * p[i];
+    return length(f) <= Q_RESIDUAL * scale && !(isnan(xi) || isnan(eta));
+}
+
+// Patch e / PIECES^2's coordinates of piece e's local (xs, ys), and back.
+void piece_cell(int e, out int pid, out int ci, out int cj) {
+    pid = e / (PIECES * PIECES);
+    int k = e - pid * PIECES * PIECES;
+    ci = k % PIECES;
+    cj = k / PIECES;
+}
+
+bool in_piece(int ci, int cj, real xi, real eta) {
+    real h = 2.0 / real(PIECES);
+    real lo_x = -1.0 + h * real(ci), lo_y = -1.0 + h * real(cj);
+    return abs(xi) <= 1.0 + Q_INSIDE && abs(eta) <= 1.0 + Q_INSIDE &&
+           xi >= lo_x - Q_INSIDE && xi <= lo_x + h + Q_INSIDE && eta >= lo_y - Q_INSIDE && eta <= lo_y + h + Q_INSIDE;
+}
+
+// The pid points of piece e's share that map to q under the 2-D maps (piece corners pc, pid
+// points pp): Newton from both closed-form roots of the piece's bilinear map; the root of least
+// depth (pid depths z) inside the piece's share. false where none.
+bool q9_invert_piece(int e, real2 pc[4], real2 pp[9], real z[9], real2 q, out real xi, out real eta, out real Z) {
+    int pid, ci, cj;
+    piece_cell(e, pid, ci, cj);
+    real xs[2], ys[2];
+    bool ok[2];
+    invert_closed(pc, q, xs, ys, ok);
+    real2 lo = pp[0], hi = pp[0];
+    for (int i = 1; i < 9; ++i) { lo = min(lo, pp[i]); hi = max(hi, pp[i]); }
+    real scale = max(hi.x - lo.x, hi.y - lo.y);
+    bool found = false;
+    xi = 0.0; eta = 0.0; Z = 0.0;
+    for (int k = 0; k < 2; ++k) {
+        if (!ok[k] || abs(xs[k]) > Q_START_RANGE || abs(ys[k]) > Q_START_RANGE) continue;
+        real x = -1.0 + (2.0 * real(ci) + 1.0 + xs[k]) / real(PIECES);
+        real y = -1.0 + (2.0 * real(cj) + 1.0 + ys[k]) / real(PIECES);
+        if (!q9_newton(pp, q, scale, x, y) || !in_piece(ci, cj, x, y)) continue;
+        real N[9];
+        q9_shape(x, y, N);
+        real zz = 0.0;
+        for (int i = 0; i < 9; ++i) zz += N[i] * z[i];
+        if (!(zz > 0.0) || (found && zz >= Z)) continue;
+        found = true;
+        xi = x; eta = y; Z = zz;
+    }
+    return found;
+}
