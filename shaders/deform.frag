@@ -109,30 +109,25 @@ bool map_sample(int e, real2 px, real2 xn, out real xi, out real eta, out real2 
     ref = real2(0.0);
     ref_ok = false;
 #if defined(QUADRATIC)
-    // the pid of piece e: Newton on its 9 nodes from the piece's roots (quadratic.glsl)
+    // the patch of piece e: Newton on its 9 nodes (quadratic.glsl)
     int pid, ci, cj;
     piece_cell(e, pid, ci, cj);
     real z[9];
-    real2 pc[4], pp[9];
+    real2 pp[9];
     real3 Q[9];
     for (int i = 0; i < 9; ++i) { Q[i] = patch_camera(pid, i); z[i] = Q[i].z; }
     real N[9];
 #if defined(MODE_Q4)
-    for (int i = 0; i < 4; ++i) pc[i] = real2(elem_data[b + 2 * i], elem_data[b + 2 * i + 1]);
     for (int i = 0; i < 9; ++i) {
         if (!project_camera_frame(Q[i], u_intr, u_dist, u_valid_r2, pp[i])) return false;
     }
-    if (!q9_invert_piece(e, pc, pp, z, px, xi, eta, Z)) return false;
+    if (!q9_invert_piece(e, pp, z, px, xi, eta, Z)) return false;
     q9_shape(xi, eta, N);
     for (int i = 0; i < 9; ++i) ref += N[i] * real2(patch_ref[18 * pid + 2 * i], patch_ref[18 * pid + 2 * i + 1]);
     ref_ok = true;
 #else
-    for (int i = 0; i < 4; ++i) {
-        real3 P = real3(elem_data[b + 3 * i], elem_data[b + 3 * i + 1], elem_data[b + 3 * i + 2]);
-        pc[i] = P.xy - xn * P.z;
-    }
     for (int i = 0; i < 9; ++i) pp[i] = Q[i].xy - xn * Q[i].z;
-    if (!q9_invert_piece(e, pc, pp, z, real2(0.0), xi, eta, Z)) return false;
+    if (!q9_invert_piece(e, pp, z, real2(0.0), xi, eta, Z)) return false;
     q9_shape(xi, eta, N);
     real3 X = real3(0.0);
     for (int i = 0; i < 9; ++i) {

@@ -1,12 +1,12 @@
 // Quadratic elements as 9-node biquadratic patches: the GLSL twin of glsim/scene/quadratic.py
 // (node order: corners, mid-sides of edges 0-1, 1-2, 2-3, 3-0, centre; N_i = L_a(xi) L_b(eta)).
 // Compile-time: QUADRATIC, PIECES (the linear pieces per element side that the element
-// records, covers and candidate lists are made of: piece e belongs to pid e / PIECES^2 and
-// spans the pid's cell (e % PIECES, (e / PIECES) % PIECES) of its PIECES x PIECES grid).
+// records, covers and candidate lists are made of: piece e belongs to patch e / PIECES^2 and
+// spans the patch's cell (e % PIECES, (e / PIECES) % PIECES) of its PIECES x PIECES grid).
 // Needs view.glsl (u_rot, u_trans), camera.glsl and bilinear.glsl (invert_closed).
 #ifdef FP64
 #define Q_TOL 1e-13          // stop once max(|dxi|, |deta|) <= Q_TOL ...
-#define Q_RESIDUAL 1e-9      // ... or after Q_MAX_ITER accept a residual <= this x the pid size
+#define Q_RESIDUAL 1e-9      // ... or after Q_MAX_ITER accept a residual <= this x the patch size
 #else
 #define Q_TOL 1e-6
 #define Q_RESIDUAL 1e-5
@@ -15,7 +15,7 @@
 #define Q_INSIDE 1e-9        // |xi|, |eta| <= 1 + Q_INSIDE (and a piece's share likewise)
 #define Q_START_RANGE 1.25   // a piece root farther out than this (piece coordinates) is no start
 
-// per pid: its 9 control points in the mesh's local frame at this load step (binding 14) and,
+// per patch: its 9 control points in the mesh's local frame at this load step (binding 14) and,
 // uploaded once, in the reference camera's frame (exact, 27) or as reference-image px (q4, 18)
 layout(std430, binding = 14) readonly buffer PatchNodes { real patch_nodes[]; };
 layout(std430, binding = 15) readonly buffer PatchRef { real patch_ref[]; };
@@ -83,32 +83,45 @@ bool in_piece(int ci, int cj, real xi, real eta) {
            xi >= lo_x - Q_INSIDE && xi <= lo_x + h + Q_INSIDE && eta >= lo_y - Q_INSIDE && eta <= lo_y + h + Q_INSIDE;
 }
 
-// The pid points of piece e's share that map to q under the 2-D maps (piece corners pc, pid
-// points pp): Newton from both closed-form roots of the piece's bilinear map; the root of least
-// depth (pid depths z) inside the piece's share. false where none.
-bool q9_invert_piece(int e, real2 pc[4], real2 pp[9], real z[9], real2 q, out real xi, out real eta, out real Z) {
+// The 2x2 bilinear sub-quads through the 9 nodes (glsim.scene.quadratic.sub_quads(P, 2)):
+// sub-quad s = 2 j + i spans xi in [-1 + i, i], eta in [-1 + j, j].
+const int Q_SUB[16] = int[16](0, 4, 8, 7,  4, 1, 5, 8,  7, 8, 6, 3,  8, 5, 2, 6);
+
+// The patch point of piece e's share that maps to q under the patch's 2-D map (points pp) and
+// is nearest (patch depths z): Newton from the starts of glsim.scene.quadratic.starts — both
+// closed-form roots of each 2x2 sub-quad within Q_START_RANGE of it, or its centre where neither
+// is — so GL and the oracle search the same roots; a root counts for the piece whose share
+// (within Q_INSIDE) holds it. false where none.
+bool q9_invert_piece(int e, real2 pp[9], real z[9], real2 q, out real xi, out real eta, out real Z) {
     int pid, ci, cj;
     piece_cell(e, pid, ci, cj);
-    real xs[2], ys[2];
-    bool ok[2];
-    invert_closed(pc, q, xs, ys, ok);
     real2 lo = pp[0], hi = pp[0];
     for (int i = 1; i < 9; ++i) { lo = min(lo, pp[i]); hi = max(hi, pp[i]); }
     real scale = max(hi.x - lo.x, hi.y - lo.y);
     bool found = false;
     xi = 0.0; eta = 0.0; Z = 0.0;
-    for (int k = 0; k < 2; ++k) {
-        if (!ok[k] || abs(xs[k]) > Q_START_RANGE || abs(ys[k]) > Q_START_RANGE) continue;
-        real x = -1.0 + (2.0 * real(ci) + 1.0 + xs[k]) / real(PIECES);
-        real y = -1.0 + (2.0 * real(cj) + 1.0 + ys[k]) / real(PIECES);
-        if (!q9_newton(pp, q, scale, x, y) || !in_piece(ci, cj, x, y)) continue;
-        real N[9];
-        q9_shape(x, y, N);
-        real zz = 0.0;
-        for (int i = 0; i < 9; ++i) zz += N[i] * z[i];
-        if (!(zz > 0.0) || (found && zz >= Z)) continue;
-        found = true;
-        xi = x; eta = y; Z = zz;
+    for (int s = 0; s < 4; ++s) {
+        real2 sub[4];
+        for (int i = 0; i < 4; ++i) sub[i] = pp[Q_SUB[4 * s + i]];
+        real xs[2], ys[2];
+        bool ok[2], usable[3];
+        invert_closed(sub, q, xs, ys, ok);
+        for (int k = 0; k < 2; ++k) usable[k] = ok[k] && abs(xs[k]) <= Q_START_RANGE && abs(ys[k]) <= Q_START_RANGE;
+        usable[2] = !usable[0] && !usable[1];
+        for (int k = 0; k < 3; ++k) {
+            if (!usable[k]) continue;
+            real sx = k < 2 ? xs[k] : 0.0, sy = k < 2 ? ys[k] : 0.0;
+            real x = -1.0 + (2.0 * real(s % 2) + 1.0 + sx) * 0.5;
+            real y = -1.0 + (2.0 * real(s / 2) + 1.0 + sy) * 0.5;
+            if (!q9_newton(pp, q, scale, x, y) || !in_piece(ci, cj, x, y)) continue;
+            real N[9];
+            q9_shape(x, y, N);
+            real zz = 0.0;
+            for (int i = 0; i < 9; ++i) zz += N[i] * z[i];
+            if (!(zz > 0.0) || (found && zz >= Z)) continue;
+            found = true;
+            xi = x; eta = y; Z = zz;
+        }
     }
     return found;
 }

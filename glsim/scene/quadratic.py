@@ -148,10 +148,11 @@ def patch_size(P: np.ndarray) -> np.ndarray:
 
 
 def starts(p2_sub: np.ndarray, q: np.ndarray, n: int = 2):
-    """Newton starts from the n × n sub-quads: for each sub-quad and each of the two roots
-    of its inverse bilinear map (:func:`glsim.scene.bilinear.invert_closed`) the parent's
-    (ξ, η) and whether that root is usable (real, within START_RANGE of the sub-quad).
-    p2_sub (K, n·n, 4, 2), q (K, 2) → xi, eta, ok of shape (n·n·2, K)."""
+    """Newton starts from the n × n sub-quads: for each sub-quad the two roots of its inverse
+    bilinear map (:func:`glsim.scene.bilinear.invert_closed`) where they are usable (real,
+    within START_RANGE of the sub-quad), and its centre where neither is (a ray grazing a
+    convex patch can meet it while missing the chord sub-quads: the roots are complex), as the
+    parent's (ξ, η). p2_sub (K, n·n, 4, 2), q (K, 2) → xi, eta, ok of shape (n·n·3, K)."""
     from glsim.scene.bilinear import invert_closed
 
     K = len(q)
@@ -159,6 +160,8 @@ def starts(p2_sub: np.ndarray, q: np.ndarray, n: int = 2):
     for k in range(n * n):
         x, e, ok = invert_closed(p2_sub[:, k], q)
         ok = ok & (np.abs(x) <= START_RANGE) & (np.abs(e) <= START_RANGE)
+        x, e, ok = np.concatenate([x, np.zeros((1, K))]), np.concatenate([e, np.zeros((1, K))]), \
+            np.concatenate([ok, ~ok.any(axis=0, keepdims=True)])
         px, pe = to_parent(k % n, k // n, n, x, e)
         xs.append(px)
         es.append(pe)
