@@ -29,7 +29,7 @@ from glsim.effects import prepare as prepare_effects
 from glsim.stages.geometry import MeshGeometry, ViewSpec
 from glsim.io.truth import Truth
 from glsim.stages.quadview import PatchData, chord_error_bound, fast_local_coords as quadratic_fast_coords, \
-    make_quad_view
+    make_quad_view, q4_image_bound
 from glsim.stages.view import NEAR_MM, View, _labels, make_view
 from glsim.backends import make_backend
 from glsim.stages.reference import make_reference, specimen_mesh
@@ -168,9 +168,13 @@ class Renderer:
                           RenderWarning, stacklevel=4)
         z_near = max(float(view.corner_depths().min()), NEAR_MM)
         f = float(max(view.camera.intrinsics[0], view.camera.intrinsics[1]))
+        sag_px = chord_mm * f / z_near
+        if opts.mode == "q4":   # the q4 image map strays from the projected pieces: O(elements) per view
+            P_cam = to_camera(local + self.geometry.origin, view.camera)
+            sag_px = max(sag_px, q4_image_bound(P_cam, view.camera, self.pieces.n))
         xr, uv = cache["ref"]
         return PatchData(pieces=self.pieces.n, local=local, ref_xr=xr, ref_uv=uv,
-                         extra_sag_px=1.5 * chord_mm * f / z_near, token=(id(self), step))
+                         extra_sag_px=1.5 * sag_px, token=(id(self), step))
 
     def _pieces_to_patches(self, raster: dict, cam: Camera, step: int, mode: str) -> dict:
         """A GL exact / q4 raster of the pieces → the patches: the piece's patch as element; the
@@ -200,9 +204,10 @@ class Renderer:
         if self.scene.lighting is not None:
             raise SceneError("lighting", f"lighting with quadratic elements in mode {opts.mode!r} is not supported",
                              "use mode = \"fast\" or remove [lighting]")
-        view = make_quad_view(cam, self.reference.camera, self.mesh.nodes, self.mesh.deformed(step), self.mesh.patches,
-                              self.mesh.element_labels)
         pieces = self.pieces
+        view = make_quad_view(cam, self.reference.camera, self.mesh.nodes, self.mesh.deformed(step), self.mesh.patches,
+                              self.mesh.element_labels, pieces=pieces, pieces_def=pieces.mesh.deformed(step),
+                              mode=opts.mode)
         fx = prepare_effects(self.scene, pieces.mesh.deformed(step), pieces.mesh.quads, cam,
                              self.scene.cameras.index(cam), step, view.Pd[..., 2], normals=False)
         image, raster, stages = self.backend.render_quadratic_view(view, opts, truth, fx)

@@ -414,6 +414,65 @@ def test_gl_matches_the_oracle_on_a_strongly_curved_tilted_distorted_cylinder(gl
             assert np.abs(a.image.astype(float) - b.image).max() <= 1e-6
 
 
+CROSS_CAM = Camera(name="c", size=(96, 72), fx=100.0, fy=100.0, cx=47.3, cy=35.6)
+
+
+def px_distance(f):
+    """Distance (px) of each pixel centre to the zero line of a smooth per-pixel function f, to
+    first order (as tests/hard/test_hard_geometry.py)."""
+    gy, gx = np.gradient(f)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return np.abs(f) / np.hypot(gx, gy)
+
+
+@pytest.mark.parametrize("mode", ["exact", "q4"])
+@pytest.mark.parametrize("backend", BACKENDS)
+def test_quadratic_elements_crossing_the_camera_plane(backend, mode, ctx_for):
+    """The hard case of tests/hard/test_hard_geometry.py with 8 × 4 Q9 elements: an 80 × 16 mm
+    plate at 300 mm mapped at step 1 onto the plane z = 30 + 3y (x' = x, y' = 3y − 2), one row
+    of elements (material y in [−4, 0]) crossing the camera plane. No NaN; nothing drawn from
+    behind the camera; away (1 px) from the outline the mask is the closed form's — exact also
+    shows the crossing row's part in front of the camera (from its pieces' covers, as GL), q4
+    drops that row (warned); exact X within 1e-9 mm of the ray/plane intersection."""
+    nx, ny = 8, 4
+    xs, ys = np.linspace(-40, 40, 2 * nx + 1), np.linspace(-8, 8, 2 * ny + 1)
+    X, Y = np.meshgrid(xs, ys)
+    nodes = np.stack([X.ravel(), Y.ravel(), np.full(X.size, 300.0)], 1)
+    at = np.arange(X.size).reshape(X.shape).T
+    p = q8_cells(nx, ny, lambda i, j: at[i, j], nine=True)
+    moved = nodes.copy()
+    moved[:, 1] = 3 * nodes[:, 1] - 2
+    moved[:, 2] = 30 + 3 * moved[:, 1]
+    mesh = Mesh(nodes, p[:, :4], np.arange(1, len(nodes) + 1), np.arange(1, len(p) + 1),
+                (np.zeros_like(nodes), moved - nodes), patches=p)
+    sc = Scene(cameras=(CROSS_CAM,), specimen=Specimen(plate=Plate(width=1, height=1, nx=1, ny=1)))
+    W, H = CROSS_CAM.size
+    q = np.stack(np.meshgrid(np.arange(W, dtype=float), np.arange(H, dtype=float)), -1)
+    xn, yn = (q[..., 0] - CROSS_CAM.cx) / CROSS_CAM.fx, (q[..., 1] - CROSS_CAM.cy) / CROSS_CAM.fy
+    with np.errstate(divide="ignore"):
+        t_ray = 30 / (1 - 3 * yn)
+    Xd = np.stack([xn * t_ray, yn * t_ray, t_ray], -1)
+    mx, my = Xd[..., 0], (Xd[..., 1] + 2) / 3
+    with Renderer(sc, backend, ctx=ctx_for(backend), mesh=mesh) as r, warnings.catch_warnings(record=True) as w:
+        warnings.simplefilter("always", RenderWarning)
+        res = r.render(0, 1, truth=True, mode=mode)
+    t = res.truth
+    assert np.isfinite(res.image).all() and np.isfinite(t.X_deformed[t.mask]).all()
+    assert (t_ray < 0).sum() > 200 and not t.mask[t_ray < 0].any()
+    assert (t.X_deformed[t.mask][:, 2] > 0).all()
+    want = (t_ray > 0) & (np.abs(mx) < 40) & (np.abs(my) < 8)
+    lines = [mx - 40, mx + 40, my - 8, my + 8]
+    if mode == "q4":
+        want &= ~((my > -4) & (my < 0))
+        lines += [my + 4, my]
+        assert any("cross the camera plane" in str(x.message) for x in w)
+    sure = ((t_ray > 0) & np.all([px_distance(f) > 1.0 for f in lines], axis=0)) | (t_ray < 0)
+    assert want[sure & (my > -4) & (my < 0)].any() == (mode == "exact")
+    assert np.array_equal(t.mask[sure], want[sure]), int((t.mask[sure] != want[sure]).sum())
+    if mode == "exact":
+        assert np.abs(t.X_deformed[t.mask] - Xd[t.mask]).max() <= 1e-9
+
+
 # --- files -------------------------------------------------------------------------------------
 
 def _write_and_read(path, nodes, cells, kind, fmt=None):

@@ -18,7 +18,7 @@ import numpy as np
 from glsim.errors import RenderWarning
 from glsim.scene import quadratic as qd
 from glsim.scene.camera import Camera, project_camera_frame, to_camera
-from glsim.stages.view import _labels, check_reference
+from glsim.stages.view import NEAR_MM, _labels, check_reference, make_view
 
 QUAD_BOX_GRID = 9
 QUAD_BOX_PAD_PX = 2.0
@@ -42,33 +42,61 @@ class QuadView:
 
 
 def make_quad_view(cam: Camera, ref_cam: Camera, nodes_ref: np.ndarray, nodes_def: np.ndarray, patches: np.ndarray,
-                   labels: np.ndarray | None = None, warn: bool = True) -> QuadView:
+                   labels: np.ndarray | None = None, warn: bool = True, pieces=None, pieces_def=None,
+                   mode: str = "exact") -> QuadView:
     """The :class:`QuadView` of the deformed nodes (world, mm) seen by ``cam``; warns (naming
-    elements) about folded patches and patches that do not wholly project (not drawn)."""
+    elements) about folded patches and patches that do not wholly project.
+
+    Pixel boxes: with ``pieces`` (the mesh's :class:`~glsim.scene.quadratic.Pieces`) and
+    ``pieces_def`` (their nodes at this step), the union
+    of the pieces' exact-mode covers (:func:`glsim.stages.view.cover_rectangles`, which also
+    bound pieces crossing the camera plane) grown by twice the pieces' chord error in px
+    (:func:`chord_error_bound`), as the GL path draws them; without, the patch on a
+    QUAD_BOX_GRID² grid, projected and padded. ``mode`` q4 draws only patches whose 9 nodes
+    all project (as GL); exact also the others (rays need no projection)."""
     Pd = qd.patch_points(patches, to_camera(nodes_def, cam))
     Pr = qd.patch_points(patches, to_camera(nodes_ref, ref_cam))
-    uv, _ = project_camera_frame(Pd, cam)
+    uv, node_ok = project_camera_frame(Pd, cam)
+    projectable = node_ok.all(axis=1)
     ref_uv, ref_ok = project_camera_frame(Pr, ref_cam)
     check_reference(ref_ok, labels)
-    t = np.linspace(-1, 1, QUAD_BOX_GRID)
-    xi, eta = (a.ravel() for a in np.meshgrid(t, t))
-    N = qd.shape_functions(xi, eta)
     W, H = cam.size
     M = len(Pd)
-    bbox = np.tile(np.array([0, 0, -1, -1], np.int64), (M, 1))
-    drawable = np.zeros(M, bool)
-    for s in range(0, M, 1 << 14):
-        G = np.einsum("gi,mid->mgd", N, Pd[s:s + (1 << 14)])
-        g_uv, g_ok = project_camera_frame(G, cam)
-        ok = g_ok.all(axis=1)
-        lo, hi = g_uv.min(axis=1), g_uv.max(axis=1)
-        pad = QUAD_BOX_PAD_PX * np.maximum(1.0, (hi - lo).max(axis=1) / 100.0)[:, None]
-        box = np.concatenate([np.clip(np.ceil(lo - pad - 0.5), 0, [W, H]),
-                              np.clip(np.floor(hi + pad + 0.5), -1, [W - 1, H - 1])], axis=1)
-        box = np.nan_to_num(box, nan=-1).astype(np.int64)
-        box[~ok] = (0, 0, -1, -1)
-        bbox[s:s + len(box)] = box
-        drawable[s:s + len(box)] = ok
+    if pieces is not None:
+        pv = make_view(cam, ref_cam, pieces.mesh.nodes, pieces_def, pieces.mesh.quads, warn=False)
+        box = pv.bbox.reshape(M, -1, 4)
+        empty = (box[..., 2] < box[..., 0]) | (box[..., 3] < box[..., 1])
+        z_near = max(float(Pd[..., 2].min()), NEAR_MM)
+        chord_px = chord_error_bound(Pd, pieces.n) * float(cam.intrinsics[:2].max()) / z_near
+        if mode == "q4":
+            chord_px = max(chord_px, q4_image_bound(Pd, cam, pieces.n))
+        pad = int(np.ceil(2 * 1.5 * chord_px)) + 1
+        big = np.iinfo(np.int64).max // 4
+        lo = np.where(empty[..., None], big, box[..., :2]).min(axis=1) - pad
+        hi = np.where(empty[..., None], -big, box[..., 2:]).max(axis=1) + pad
+        bbox = np.concatenate([np.clip(lo, 0, [W, H]), np.clip(hi, -1, [W - 1, H - 1])], axis=1)
+        bbox[empty.all(axis=1)] = (0, 0, -1, -1)
+        drawable = ~empty.all(axis=1)
+    else:
+        t = np.linspace(-1, 1, QUAD_BOX_GRID)
+        xi, eta = (a.ravel() for a in np.meshgrid(t, t))
+        N = qd.shape_functions(xi, eta)
+        bbox = np.tile(np.array([0, 0, -1, -1], np.int64), (M, 1))
+        drawable = np.zeros(M, bool)
+        for s in range(0, M, 1 << 14):
+            G = np.einsum("gi,mid->mgd", N, Pd[s:s + (1 << 14)])
+            g_uv, g_ok = project_camera_frame(G, cam)
+            ok = g_ok.all(axis=1)
+            lo, hi = g_uv.min(axis=1), g_uv.max(axis=1)
+            pad = QUAD_BOX_PAD_PX * np.maximum(1.0, (hi - lo).max(axis=1) / 100.0)[:, None]
+            box = np.concatenate([np.clip(np.ceil(lo - pad - 0.5), 0, [W, H]),
+                                  np.clip(np.floor(hi + pad + 0.5), -1, [W - 1, H - 1])], axis=1)
+            box = np.nan_to_num(box, nan=-1).astype(np.int64)
+            box[~ok] = (0, 0, -1, -1)
+            bbox[s:s + len(box)] = box
+            drawable[s:s + len(box)] = ok
+    if mode == "q4":
+        bbox[~projectable] = (0, 0, -1, -1)
     if warn:
         folded = np.flatnonzero(qd.folded(Pd))
         if folded.size:
@@ -76,10 +104,12 @@ def make_quad_view(cam: Camera, ref_cam: Camera, nodes_ref: np.ndarray, nodes_de
                           "reverses inside the element: a mid-side node too far from its edge's middle?); their "
                           "pixels stay finite (the nearest root is drawn); check the mesh", RenderWarning,
                           stacklevel=3)
-        bad = np.flatnonzero(~drawable)
+        bad = np.flatnonzero(~projectable & (Pd[..., 2] > NEAR_MM).any(axis=1))
         if bad.size:
             warnings.warn(f"camera {cam.name}: quadratic elements {_labels(bad, labels)} cross the camera plane or "
-                          "leave the distortion model's valid radius and are not drawn", RenderWarning, stacklevel=3)
+                          "leave the distortion model's valid radius; the q4 mode drops them (and fast mode the "
+                          "pieces that do not project), the exact mode intersects them per pixel", RenderWarning,
+                          stacklevel=3)
     return QuadView(camera=cam, ref_camera=ref_cam, Pd=Pd, Pr=Pr, uv=uv, ref_uv=ref_uv, bbox=bbox)
 
 
@@ -128,3 +158,23 @@ def chord_error_bound(P: np.ndarray, pieces: int) -> float:
     d_eta = np.linalg.norm(grid[:, 0] - 2 * grid[:, 1] + grid[:, 2], axis=-1).max(axis=1)
     h = 2.0 / pieces
     return float((h * h / 8 * 1.25 * (d_xi + d_eta)).max())
+
+
+def q4_image_bound(Pd: np.ndarray, cam: Camera, pieces: int) -> float:
+    """An upper bound (px) of how far the q4 mode's image map (the 9-node shape functions over
+    the nodes' projections) strays from the projected pieces' bilinear outlines: its own chord
+    error (:func:`chord_error_bound` of the projected nodes) plus its largest distance from the
+    true projection at the pieces' corners (the perspective error), over the patches whose 9
+    nodes project. Pd (M, 9, 3) in the camera frame."""
+    uv, ok = project_camera_frame(Pd, cam)
+    good = ok.all(axis=1)
+    if not good.any():
+        return 0.0
+    uv, Pd = uv[good], Pd[good]
+    t = np.linspace(-1, 1, pieces + 1)
+    xi, eta = (a.ravel() for a in np.meshgrid(t, t))
+    N = qd.shape_functions(xi, eta)
+    image = np.einsum("gi,mid->mgd", N, uv)
+    true, true_ok = project_camera_frame(np.einsum("gi,mid->mgd", N, Pd), cam)
+    dev = np.where(true_ok, np.linalg.norm(image - true, axis=-1), 0.0).max()
+    return float(dev) + chord_error_bound(np.pad(uv, ((0, 0), (0, 0), (0, 1))), pieces)
