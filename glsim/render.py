@@ -147,9 +147,6 @@ class Renderer:
     def _patch_data(self, view: ViewSpec, step: int, opts: Render) -> PatchData:
         """The GL backend's quadratic payload for ``view`` (its elements are the pieces): the
         step's patch points (cached per step), the reference data (once), the chord bound."""
-        if self.scene.lighting is not None:
-            raise SceneError("lighting", f"lighting with quadratic elements in mode {opts.mode!r} is not supported",
-                             "use mode = \"fast\" or remove [lighting]")
         cache = self.__dict__.setdefault("_patch_cache", {})
         if "ref" not in cache:
             ref_cam = self.reference.camera
@@ -200,16 +197,14 @@ class Renderer:
         return r
 
     def _render_quadratic(self, cam: Camera, step: int, truth: bool, opts: Render, t0: float) -> Result:
-        """exact / q4 of a quadratic mesh: the CPU oracle on the curved patches."""
-        if self.scene.lighting is not None:
-            raise SceneError("lighting", f"lighting with quadratic elements in mode {opts.mode!r} is not supported",
-                             "use mode = \"fast\" or remove [lighting]")
+        """exact / q4 of a quadratic mesh: the CPU oracle on the curved patches (lit with the
+        point on the patch and the normals of its linear pieces, as GL)."""
         pieces = self.pieces
         view = make_quad_view(cam, self.reference.camera, self.mesh.nodes, self.mesh.deformed(step), self.mesh.patches,
                               self.mesh.element_labels, pieces=pieces, pieces_def=pieces.mesh.deformed(step),
                               mode=opts.mode)
         fx = prepare_effects(self.scene, pieces.mesh.deformed(step), pieces.mesh.quads, cam,
-                             self.scene.cameras.index(cam), step, view.Pd[..., 2], normals=False)
+                             self.scene.cameras.index(cam), step, view.Pd[..., 2])
         image, raster, stages = self.backend.render_quadratic_view(view, opts, truth, fx)
         seconds = time.perf_counter() - t0
         tr = self._quadratic_truth(raster, step, cam) if truth else None

@@ -31,7 +31,8 @@ class QuadView:
     ``Pd``: deformed patch control points in the camera frame (mm); ``Pr``: undeformed ones in
     the reference camera's frame; ``uv``: distorted pixel projections of ``Pd``; ``ref_uv``:
     reference-image projections of ``Pr``; ``bbox``: inclusive pixel boxes [u0, v0, u1, v1],
-    empty (u1 < u0) for an element that cannot be drawn (not all of it projects)."""
+    empty (u1 < u0) for an element that cannot be drawn; ``pieces``: the linear pieces per
+    side whose corner normals the lighting interpolates (0: none given)."""
     camera: Camera
     ref_camera: Camera
     Pd: np.ndarray
@@ -39,6 +40,7 @@ class QuadView:
     uv: np.ndarray
     ref_uv: np.ndarray
     bbox: np.ndarray
+    pieces: int = 0
 
 
 def make_quad_view(cam: Camera, ref_cam: Camera, nodes_ref: np.ndarray, nodes_def: np.ndarray, patches: np.ndarray,
@@ -110,7 +112,8 @@ def make_quad_view(cam: Camera, ref_cam: Camera, nodes_ref: np.ndarray, nodes_de
                           "leave the distortion model's valid radius; the q4 mode drops them (and fast mode the "
                           "pieces that do not project), the exact mode intersects them per pixel", RenderWarning,
                           stacklevel=3)
-    return QuadView(camera=cam, ref_camera=ref_cam, Pd=Pd, Pr=Pr, uv=uv, ref_uv=ref_uv, bbox=bbox)
+    return QuadView(camera=cam, ref_camera=ref_cam, Pd=Pd, Pr=Pr, uv=uv, ref_uv=ref_uv, bbox=bbox,
+                    pieces=pieces.n if pieces is not None else 0)
 
 
 def fast_local_coords(qview_ref_cam: Camera, Pr: np.ndarray, ref_uv: np.ndarray, xi0, eta0):
