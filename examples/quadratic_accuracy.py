@@ -20,7 +20,6 @@ import warnings
 
 import numpy as np
 
-from glsim import render as rendermod
 from glsim.errors import RenderWarning
 from glsim.render import Renderer
 from glsim.scene import Plate, Scene, Specimen
@@ -112,10 +111,8 @@ def main() -> None:
     backends = ["cpu"] + (["gl"] if args.gl else [])
     for backend in backends:
         for pieces in map(int, args.pieces.split(",")):
-            rendermod.QUADRATIC_FAST_PIECES = pieces
-            with Renderer(scene, backend, mesh=m) as r:
+            with Renderer(scene, backend, mesh=m, pieces=pieces) as r:
                 rows.append((backend, f"fast ({pieces}×{pieces} pieces)", measure(r, "fast", Xu, Xd, inner)))
-        rendermod.QUADRATIC_FAST_PIECES = 4
         with Renderer(scene, backend, mesh=m) as r:
             for mode in ("q4", "exact"):
                 rows.append((backend, mode, measure(r, mode, Xu, Xd, inner, reps=1 if backend == "cpu" else 3)))

@@ -55,12 +55,18 @@ class Result:
 class Renderer:
     """Renders one scene with one backend; holds the mesh, reference and backend resources."""
 
-    def __init__(self, scene: Scene, backend: str | None = None, ctx=None, mesh=None, reference=None):
+    def __init__(self, scene: Scene, backend: str | None = None, ctx=None, mesh=None, reference=None,
+                 pieces: int | None = None):
         """``mesh`` / ``reference`` replace the scene's specimen mesh and reference image
-        (e.g. a calibration target made in code); ``ctx`` shares a GL context."""
+        (e.g. a calibration target made in code); ``ctx`` shares a GL context; ``pieces``: for a
+        quadratic mesh, the linear pieces per element side (default QUADRATIC_FAST_PIECES):
+        the fast mode's accuracy (its error falls as 1/pieces², docs/quadratic.md)."""
         self.scene = scene
         self.mesh = mesh if mesh is not None else specimen_mesh(scene)
         self._pieces = None
+        self._n_pieces = QUADRATIC_FAST_PIECES if pieces is None else int(pieces)
+        if self._n_pieces < 1:
+            raise SceneError("pieces", f"{pieces!r} is not a positive integer", "give 1 or more (default 4)")
         self.reference = reference if reference is not None else make_reference(scene, self.drawn_mesh)
         self.backend_name = backend or scene.render.backend
         self.backend = make_backend(self.backend_name, self.reference, ctx)
@@ -79,7 +85,7 @@ class Renderer:
     def pieces(self) -> qd.Pieces | None:
         """For a quadratic mesh, its linear pieces (what the fast mode draws); None otherwise."""
         if self.mesh.is_quadratic and self._pieces is None:
-            self._pieces = qd.linearize(self.mesh, QUADRATIC_FAST_PIECES)
+            self._pieces = qd.linearize(self.mesh, self._n_pieces)
         return self._pieces
 
     @property

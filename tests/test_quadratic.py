@@ -558,6 +558,24 @@ def test_solid_outer_faces_through_meshio(tmp_path, kind, suffix, fmt):
         check_against_closed_form(r.render(0, 0, truth=True, mode="exact").truth, 1e-9, deformed=False)
 
 
+def test_abaqus_c3d20r_keyword(tmp_path):
+    """An Abaqus file with *ELEMENT, TYPE=C3D20R (reduced integration, the usual specimen
+    element) is read as hexahedron20: its outer faces become Q8 patches."""
+    nodes, at = lattice(3, 2, nz=1)
+    path = tmp_path / "c3d20r.inp"
+    meshio.write(path, meshio.Mesh(nodes, [("hexahedron20", solid_cells("hexahedron20", 3, 2, at))]))
+    import re
+
+    text, count = re.subn(r"TYPE=C3D20\w*", "TYPE=C3D20R", path.read_text())
+    assert count == 1
+    path.write_text(text)
+    mesh = load_mesh(path)
+    assert mesh.is_quadratic and (mesh.patches[:, 8] == qd.CENTRE_Q8).all()
+    with Renderer(scene(), "cpu", mesh=mesh) as r, warnings.catch_warnings():
+        warnings.simplefilter("ignore", RenderWarning)
+        check_against_closed_form(r.render(0, 0, truth=True, mode="exact").truth, 1e-9, deformed=False)
+
+
 def test_exodus_quadratic_blocks(tmp_path):
     """Exodus II: QUAD8 written by meshio's Exodus writer (VTK order) and HEX20 in Exodus's own
     order (vertical mid-edge nodes 13–16 before the top face's 17–20, 1-based) read back."""
@@ -571,6 +589,15 @@ def test_exodus_quadratic_blocks(tmp_path):
     assert mesh.n_steps == 2     # the stored (displaced) time after an undeformed step 0
     with Renderer(scene(), "cpu", mesh=mesh) as r:
         check_against_closed_form(r.render(0, 1, truth=True, mode="exact").truth, 1e-9)
+    # TETRA10 (Exodus order = VTK's) through meshio's Exodus writer
+    nodes, at = lattice(3, 2, nz=1)
+    meshio.write(tmp_path / "t10.e", meshio.Mesh(nodes, [("tetra10", solid_cells("tetra10", 3, 2, at))],
+                                                 point_data={f"disp_{a}": 0 * nodes[:, 0] for a in "xyz"}))
+    mesh = load_series(tmp_path / "t10.e")
+    assert mesh.is_quadratic and not qd.folded(qd.patch_points(mesh.patches, mesh.nodes)).any()
+    with Renderer(scene(), "cpu", mesh=mesh) as r, warnings.catch_warnings():
+        warnings.simplefilter("ignore", RenderWarning)
+        check_against_closed_form(r.render(0, 0, truth=True, mode="exact").truth, 1e-9, deformed=False)
     # HEX20 in Exodus node order
     nodes, at = lattice(3, 2, nz=1)
     vtk = solid_cells("hexahedron20", 3, 2, at)
