@@ -232,10 +232,10 @@ def folded(P: np.ndarray, n: int = 7) -> np.ndarray:
 
 class Pieces:
     """A quadratic mesh cut into n × n bilinear Q4 pieces per patch (what the ``fast`` mode
-    draws): ``mesh`` (a linear :class:`~glsim.scene.mesh.Mesh` with every load step; the
-    pieces' nodes are the patches evaluated on the n+1 grid, shared between neighbouring
-    patches along common edges and corners so the pieces stay watertight), ``parent`` (K,)
-    the patch of each piece, ``i``, ``j`` (K,) its place in the patch's grid."""
+    draws): ``mesh`` (a :class:`PiecesMesh`, the linear mesh of the pieces; their nodes are the
+    patches evaluated on the n+1 grid, shared between neighbouring patches along common edges
+    and corners so the pieces stay watertight), ``parent`` (K,) the patch of each piece, ``i``,
+    ``j`` (K,) its place in the patch's grid."""
 
     def __init__(self, mesh, parent, i, j, n):
         self.mesh, self.parent, self.i, self.j, self.n = mesh, parent, i, j, n
@@ -246,10 +246,43 @@ class Pieces:
         return self.parent[piece], xi, eta
 
 
-def linearize(mesh, n: int):
-    """The :class:`Pieces` of a quadratic ``mesh`` (``mesh.patches`` set), n × n per patch."""
-    from glsim.scene.mesh import Mesh
+class PiecesMesh:
+    """The pieces as the linear mesh the drawing code takes (``nodes``, ``quads``,
+    ``node_labels``, ``element_labels``, ``deformed(step)``, as :class:`~glsim.scene.mesh.Mesh`):
+    the deformed nodes are evaluated from the source mesh's displacements when a step is drawn
+    (the last STEPS_CACHED kept), so the pieces do not hold every load step."""
+    STEPS_CACHED = 2
+    patches = None
+    is_quadratic = False
 
+    def __init__(self, source, weights, src_patch, nodes, quads, element_labels):
+        self.source, self._w, self._src = source, weights, src_patch
+        self.nodes, self.quads = nodes, quads
+        self.node_labels = np.arange(1, len(nodes) + 1)
+        self.element_labels = element_labels
+        self._steps: dict = {}
+
+    n_nodes = property(lambda self: len(self.nodes))
+    n_elements = property(lambda self: len(self.quads))
+    n_steps = property(lambda self: self.source.n_steps)
+    step_times = property(lambda self: self.source.step_times)
+
+    def at_grid(self, values: np.ndarray) -> np.ndarray:
+        """Per-node values of the source mesh (N, D) → at the pieces' nodes (K, D)."""
+        return np.einsum("ki,kid->kd", self._w, patch_points(self.source.patches, values)[self._src])
+
+    def deformed(self, step: int) -> np.ndarray:
+        """The pieces' nodes (K, 3) mm at load step ``step``."""
+        if step not in self._steps:
+            base = self.source.deformed(step)          # validates step
+            self._steps[step] = self.nodes + self.at_grid(base - self.source.nodes)
+            while len(self._steps) > self.STEPS_CACHED:
+                self._steps.pop(next(iter(self._steps)))
+        return self._steps[step]
+
+
+def linearize(mesh, n: int) -> Pieces:
+    """The :class:`Pieces` of a quadratic ``mesh`` (``mesh.patches`` set), n × n per patch."""
     pt = np.asarray(mesh.patches)
     M = len(pt)
     t = np.linspace(-1, 1, n + 1)
@@ -278,16 +311,11 @@ def linearize(mesh, n: int):
     _, first, inverse = np.unique(keys.reshape(-1, 5), axis=0, return_index=True, return_inverse=True)
     inverse = inverse.reshape(M, len(W))
     src_patch, src_point = np.divmod(first, len(W))
-
-    def at_grid(values):
-        return np.einsum("ki,kid->kd", W[src_point], patch_points(pt, values)[src_patch])
-
-    nodes = at_grid(mesh.nodes)
-    steps = tuple(at_grid(u) for u in mesh.displacements[1:])
+    weights = W[src_point]
+    nodes = np.einsum("ki,kid->kd", weights, patch_points(pt, mesh.nodes)[src_patch])
     g = (np.arange(n)[:, None] * (n + 1) + np.arange(n)[None, :]).ravel()     # lower-left grid point of piece j·n + i
     quads = np.stack([inverse[:, g], inverse[:, g + 1], inverse[:, g + n + 2], inverse[:, g + n + 1]], -1).reshape(-1, 4)
     piece = np.arange(n * n)
     parent = np.repeat(np.arange(M), n * n)
-    out = Mesh(nodes, quads, np.arange(1, len(nodes) + 1), mesh.element_labels[parent],
-               (np.zeros_like(nodes),) + steps, mesh.step_times)
+    out = PiecesMesh(mesh, weights, src_patch, nodes, quads, np.asarray(mesh.element_labels)[parent])
     return Pieces(out, parent, np.tile(piece % n, M), np.tile(piece // n, M), n)
