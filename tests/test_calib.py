@@ -8,6 +8,7 @@ room to spare; docs/calib.md lists the measurements.
 import csv
 import json
 import math
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -190,6 +191,23 @@ def test_rig_yaml_round_trip(tmp_path):
 def ci_library(tmp_path_factory, gl_ctx):
     out = tmp_path_factory.mktemp("calib") / "lib"
     return libmod.write_library(libmod.paper_rig(CI_SCALE), DotGrid(), CI_PAIRS, out, seed=CI_SEED, ctx=gl_ctx)
+
+
+def _pair_files(d, n):
+    return {p.name: p.read_bytes() for p in sorted((Path(d) / "pairs").iterdir()) if int(p.name[:4]) < n}
+
+
+@pytest.mark.gl
+def test_library_on_the_engine_pool_gives_the_same_files(ci_library, tmp_path):
+    """Two worker processes (the image library's engine) write the same pair images and ground
+    truth, byte for byte, as the library rendered in this process (its first pairs: a library's
+    poses do not depend on how many pairs it has); a noise hook cannot go to other processes."""
+    lib = libmod.write_library(libmod.paper_rig(CI_SCALE), DotGrid(), 3, tmp_path / "pool", seed=CI_SEED, workers=2)
+    assert len(lib.pairs) == 3
+    assert _pair_files(lib.directory, 3) == _pair_files(ci_library.directory, 3)
+    with pytest.raises(SceneError, match="noise: is a hook .* cannot be sent to worker processes"):
+        libmod.write_library(libmod.paper_rig(CI_SCALE), DotGrid(), 1, tmp_path / "hook", workers=2,
+                             noise=lambda image, cam, seed: image)
 
 
 @pytest.mark.gl

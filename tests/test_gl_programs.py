@@ -140,21 +140,21 @@ def test_gpu_devices_follow_cuda_order_where_the_driver_gives_it():
 
 
 def test_pool_workers_take_gpus_in_turn(monkeypatch):
-    """pool_init numbers the workers through the shared counter: worker k → GPU k mod n."""
+    """pool_init places the k-th worker process the parent made on GPU k mod n."""
     import multiprocessing as mp
     import signal
 
     from glsim.workflows.library import worker
     monkeypatch.setattr(signal, "signal", lambda *args: None)   # keep this process's Ctrl-C
-    counter = mp.get_context("spawn").Value("i", 0)
     got = []
-    for _ in range(5):
+    for k in range(1, 6):
+        monkeypatch.setattr(mp.current_process(), "_identity", (k,))
         monkeypatch.setattr(worker, "_DEVICE", None)
-        worker.pool_init(counter, (3, 1))
+        worker.pool_init((3, 1))
         got.append(worker._DEVICE)
     assert got == [3, 1, 3, 1, 3]
     monkeypatch.setattr(worker, "_DEVICE", None)
-    worker.pool_init(counter, ())
+    worker.pool_init(())
     assert worker._DEVICE is None                  # no GPU: EGL's default device (llvmpipe)
 
 

@@ -465,6 +465,15 @@ def test_dask_cluster_with_a_worker_killed_gives_the_same_library(reference_libr
         assert "16 images written" in out and "dask" in out
         assert _files(lib) == _files(ref)
         assert _manifest_rows(lib) == _manifest_rows(ref)
+        # `glsim calib library` runs on the same engine: the same pairs as rendered in one process
+        calib = ["calib", "library", "default", "--scale", "0.25", "--pairs", "2", "--max-pairs", "2", "--noise", "2"]
+        for name, extra in (("calib-dask", ["--scheduler", address]), ("calib-local", [])):
+            r = subprocess.run(GLSIM + calib + ["-o", str(tmp_path / name)] + extra, capture_output=True, text=True,
+                               timeout=300)
+            assert r.returncode == 0, r.stderr
+        pairs = {name: {p.name: p.read_bytes() for p in (tmp_path / name / "pairs").iterdir()}
+                 for name in ("calib-dask", "calib-local")}
+        assert len(pairs["calib-dask"]) == 6 and pairs["calib-dask"] == pairs["calib-local"]
     finally:
         for q in procs[::-1]:
             if q.poll() is None:

@@ -4,7 +4,7 @@
                         [--seed K] [--fov full|centre]
                         [--target dots|chessboard|charuco] [--rows 9 --cols 9 --pitch 10 --dot 5 --marker 7]
                         [--sigma MM] [--pitch-error E] [--target-seed K] [--px-per-mm auto] [--noise 2]
-                        [--blur] [--lighting] [--spp 16] [--backend gl|cpu]
+                        [--blur] [--lighting] [--spp 16] [--backend gl|cpu] [--workers N] [--scheduler ADDR]
     glsim calib run DIR [-o OUT] [--model k1k2p1p2k3] [--min-points N] [--bias-iterations 1] [-j PROCS]
     glsim calib study {images,fov,quality} LIB [LIB …] -o OUT [--sizes 10 25 50] [--runs 100]
                       [--seed K] [--model …] [--bias-iterations 1] [-j PROCS]
@@ -76,6 +76,10 @@ def parser() -> argparse.ArgumentParser:
                           "do not show in the dots' edges")
     lib.add_argument("--blur", action="store_true", help="apply the scene's [optics] depth of field to every image")
     lib.add_argument("--lighting", action="store_true", help="apply the scene's [lighting] to every image")
+    lib.add_argument("--workers", type=int, default=1, help="worker processes rendering pairs (the image library's "
+                     "engine: `glsim library --workers`); the same files whatever the number")
+    lib.add_argument("--scheduler", default=None, metavar="tcp://HOST:PORT",
+                     help="render the pairs on this Dask cluster instead (as `glsim library --scheduler`)")
 
     run = sub.add_parser("run", help="detect, calibrate and report a library")
     run.add_argument("library", help="library directory")
@@ -116,6 +120,8 @@ def _target(a, ppm: float):
 
 
 def _library(a) -> int:
+    if a.workers < 1:
+        raise SceneError("--workers", f"must be ≥ 1, got {a.workers}", "give the number of worker processes")
     if not a.noise >= 0:
         raise SceneError("--noise", f"must be ≥ 0 (percent of the dynamic range), got {a.noise:g}",
                          "give 0 for noise-free images, or e.g. 2 (Table 8)")
@@ -136,7 +142,8 @@ def _library(a) -> int:
     effects = tuple(e for e, on in (("blur", a.blur), ("lighting", a.lighting)) if on)
     lib, good = cal.write_usable_library(rig, target, a.pairs, a.output, a.max_pairs, a.min_points,
                                          progress=_progress("pairs"), seed=a.seed, backend=a.backend,
-                                         spec=spec, noise=noise, effects=effects)
+                                         spec=spec, noise=noise, effects=effects, workers=a.workers,
+                                         scheduler=a.scheduler)
     complete = sum(all(c["complete"] for c in p["cameras"].values()) for p in lib.pairs)
     print(f"{len(lib.pairs)} pairs drawn in {a.output}: {len(good)} usable by `glsim calib run` "
           f"({a.pairs} asked for; {complete} wholly in view in every camera)")

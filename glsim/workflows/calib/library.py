@@ -316,7 +316,8 @@ def _sha256(path) -> str:
 
 def write_library(rig, target, n_pairs: int, out_dir, seed: int = 0, backend: str | None = None,
                   spec: posemod.PoseSpec = posemod.PoseSpec(), noise=None, ctx=None,
-                  progress: Callable[[int, int], None] | None = None, effects=()) -> Library:
+                  progress: Callable[[int, int], None] | None = None, effects=(), workers: int = 1,
+                  scheduler: str | None = None) -> Library:
     """Render ``n_pairs`` poses of ``target`` seen by every camera of ``rig`` into ``out_dir``.
 
     ``rig``: a Scene (its cameras and [render] options are used) or cameras such as
@@ -329,6 +330,12 @@ def write_library(rig, target, n_pairs: int, out_dir, seed: int = 0, backend: st
     already written (their JSON exists, made with the same settings) are kept, so an
     interrupted run resumes and a larger ``n_pairs`` extends the library; other settings raise
     SceneError naming each that differs. Same seed, same library.
+
+    ``workers`` > 1 or ``scheduler`` (a Dask ``tcp://HOST:PORT``) render the pairs on the image
+    library's engine (:func:`glsim.workflows.library.runner.execute`: a local process pool whose
+    dead workers are replaced, or a Dask cluster), a few pairs per task, each worker keeping
+    one renderer: the same bytes as in this process. ``noise`` must then be a Noise (a hook
+    cannot be sent to other processes), and ``ctx`` is not used.
     """
     if not isinstance(n_pairs, (int, np.integer)) or n_pairs < 1:
         raise SceneError("pairs", f"must be an integer ≥ 1, got {n_pairs!r}", "give the number of stereo pairs")
@@ -373,33 +380,105 @@ def write_library(rig, target, n_pairs: int, out_dir, seed: int = 0, backend: st
     world = [to_world(p.R, p.t, cams[0]) for p in all_poses]
     todo = [i for i in range(n_pairs) if pair_name(i) not in done]
     scene = Scene(cameras=cams, render=opts, optics=fx["blur"], lighting=fx["lighting"])
-    add = _noise_function(noise)
-    seconds = []
-    with Renderer(scene, backend, ctx=ctx, mesh=plate_mesh(target, world), reference=reference(target)) as r:
-        for n_done, i in enumerate(todo, 1):
-            t0 = time.perf_counter()
-            p, (Rw, tw) = all_poses[i], world[i]
-            record = {"pair": i, "kind": p.kind, "cell": p.cell, "R": p.R, "t": p.t, "rvec": p.rvec.tolist(),
-                      "points_world": (target.true_points() @ Rw.T + tw).tolist(), "cameras": {},
-                      "settings_sha256": settings}
-            for k, cam in enumerate(cams):
-                image = r.render(cam.name, step=i + 1).image
-                if add is not None:
-                    image = add(image, cam, _noise_seed(seed, i, k))
-                name = f"{pair_name(i)}_{cam.name}.tif"
-                path = io.write_image(out / "pairs" / name, image, cam.bit_depth)
-                truth = dot_truth(target, Rw, tw, cam) if isinstance(target, DotGrid) else \
-                    _corner_truth(target, Rw, tw, cam)
-                record["cameras"][cam.name] = {"image": name, "sha256": _sha256(path),
-                                               **{key: v.tolist() for key, v in truth.items()},
-                                               "complete": bool(truth["visible"].all())}
-            io.write_text(out / "pairs" / f"{pair_name(i)}.json", json.dumps(record))
-            seconds.append(time.perf_counter() - t0)
-            if progress:
-                progress(n_done, len(todo))
+    if workers > 1 or scheduler:
+        seconds = _render_on_engine(scene, target, manifest, settings, todo, out, backend, workers, scheduler,
+                                    progress)
+    else:
+        add = _noise_function(noise)
+        seconds = []
+        with Renderer(scene, backend, ctx=ctx, mesh=plate_mesh(target, world), reference=reference(target)) as r:
+            for n_done, i in enumerate(todo, 1):
+                seconds.append(render_pair(r, target, all_poses[i], world[i], i, settings, seed, add, out))
+                if progress:
+                    progress(n_done, len(todo))
     if seconds:   # the median of this run's pairs
         io.write_text(existing, json.dumps({**manifest, "seconds_per_pair": float(np.median(seconds))}, indent=1))
     return load_library(out)
+
+
+def render_pair(r: Renderer, target, pose, world_pose, i: int, settings: str, seed: int, add, out: Path) -> float:
+    """Render pair ``i`` (load step i + 1 of the renderer's plate mesh) into ``out/pairs``: every
+    camera's image, then the pair's ground-truth JSON, written last (a pair is done when its
+    JSON exists). Returns the seconds it took."""
+    t0 = time.perf_counter()
+    Rw, tw = world_pose
+    record = {"pair": i, "kind": pose.kind, "cell": pose.cell, "R": pose.R, "t": pose.t, "rvec": pose.rvec.tolist(),
+              "points_world": (target.true_points() @ Rw.T + tw).tolist(), "cameras": {},
+              "settings_sha256": settings}
+    for k, cam in enumerate(r.scene.cameras):
+        image = r.render(cam.name, step=i + 1).image
+        if add is not None:
+            image = add(image, cam, _noise_seed(seed, i, k))
+        name = f"{pair_name(i)}_{cam.name}.tif"
+        path = io.write_image(out / "pairs" / name, image, cam.bit_depth)
+        truth = dot_truth(target, Rw, tw, cam) if isinstance(target, DotGrid) else _corner_truth(target, Rw, tw, cam)
+        record["cameras"][cam.name] = {"image": name, "sha256": _sha256(path),
+                                       **{key: v.tolist() for key, v in truth.items()},
+                                       "complete": bool(truth["visible"].all())}
+    io.write_text(out / "pairs" / f"{pair_name(i)}.json", json.dumps(record))
+    return time.perf_counter() - t0
+
+
+PAIRS_PER_TASK = 2
+
+
+def _render_on_engine(scene: Scene, target, manifest: dict, settings: str, todo: list[int], out: Path,
+                      backend: str | None, workers: int, scheduler: str | None, progress) -> list[float]:
+    """The pairs ``todo`` as tasks of :func:`render_pairs` on the library engine; their seconds."""
+    from glsim.workflows.library import runner
+
+    if manifest["noise"] is not None and "hook" in manifest["noise"]:
+        raise SceneError("noise", f"is a hook ({manifest['noise']['hook']}), which cannot be sent to worker processes",
+                         "pass a glsim.scene.Noise, or render with workers=1 and no scheduler")
+    tasks = [{"out": str(out), "scene": scene.to_json(), "manifest": manifest, "settings": settings,
+              "backend": backend or scene.render.backend, "pairs": todo[k:k + PAIRS_PER_TASK]}
+             for k in range(0, len(todo), PAIRS_PER_TASK)]
+    summary = runner.Summary(out=str(out), total=len(todo), workers=max(1, min(workers, len(tasks))),
+                             engine="dask" if scheduler else "local")
+    seconds, failed = [], []
+
+    def on_done(task, result):
+        status, payload = result
+        if status == "error":
+            failed.append((task["pairs"], payload))
+            return
+        seconds.extend(payload)
+        if progress:
+            progress(len(seconds), len(todo))
+
+    runner.execute(tasks, render_pairs, on_done, summary, scheduler, key="calib-" + settings)
+    if failed:
+        raise SceneError(str(out), "pairs " + "; ".join(f"{p}: {m}" for p, m in failed) + " were not rendered",
+                         "run the same command again to render what is missing (pairs written are kept)")
+    return seconds
+
+
+def _pose_spec(d: dict) -> posemod.PoseSpec:
+    """The PoseSpec library.json records (its lists back to tuples)."""
+    return posemod.PoseSpec(**{k: tuple(v) if isinstance(v, list) else v for k, v in d.items()})
+
+
+def render_pairs(task: dict) -> list[float]:
+    """Worker side of :func:`_render_on_engine`: render ``task["pairs"]`` of the library in
+    ``task["out"]`` with this worker thread's renderer for the library's settings (made once:
+    the target's reference image and the plate mesh over every pose); the seconds per pair."""
+    from glsim.scene.load import _from_resolved
+    from glsim.scene import scene_from_dict
+    from glsim.workflows.library import worker
+
+    m, settings = task["manifest"], task["settings"]
+    scene = scene_from_dict(*_from_resolved(json.loads(task["scene"])))
+    target = target_from_dict(m["target"])
+    poses = posemod.make_poses(scene.cameras, _half_size(target), m["n_pairs"], _pose_spec(m["poses"]),
+                               m["seed"])
+    world = [to_world(p.R, p.t, scene.cameras[0]) for p in poses]
+    backend = task["backend"]
+    r = worker.thread_renderer(f"calib:{settings}:{m['n_pairs']}:{backend}", lambda: Renderer(
+        scene, backend, ctx=worker.thread_context() if backend == "gl" else None,
+        mesh=plate_mesh(target, world), reference=reference(target)))
+    add = _noise_function(None if m["noise"] is None else Noise(**m["noise"]))
+    return [render_pair(r, target, poses[i], world[i], i, settings, m["seed"], add, Path(task["out"]))
+            for i in task["pairs"]]
 
 
 def _noise_seed(seed: int, pair: int, camera: int) -> int:

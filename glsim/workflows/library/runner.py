@@ -274,19 +274,20 @@ def default_workers() -> int:
     return len(gpus()) or os.cpu_count() or 1
 
 
-def _run_inprocess(tasks, on_done):
+def _run_inprocess(tasks, on_done, fn=render_task):
     from glsim.workflows.library import worker
     try:
         for t in tasks:
-            on_done(t, worker_result(t))
+            on_done(t, worker_result(t, fn))
     finally:
         worker.release()
 
 
-def worker_result(task):
-    """Run a task and return ("ok", records) or ("error", message); WriteError propagates."""
+def worker_result(task, fn=render_task):
+    """Run ``fn(task)`` (default: a library task, :func:`.worker.render_task`) and return
+    ("ok", records) or ("error", message); WriteError propagates."""
     try:
-        return "ok", render_task(task)
+        return "ok", fn(task)
     except WriteError:
         raise
     except GlsimError as exc:
@@ -295,7 +296,16 @@ def worker_result(task):
         return "error", f"{type(exc).__name__}: {exc}"
 
 
-def _run_pool(tasks, workers: int, on_done, summary: Summary):
+def _kill_workers(ex) -> None:
+    """Kill the pool's worker processes. A broken pool needs it: CPython 3.11 terminates the
+    workers it knows when one dies, but a worker spawned meanwhile (by a submit racing the
+    breakage) is never told to stop, and the pool's thread then joins it forever — the
+    command hung at exit."""
+    for p in list((getattr(ex, "_processes", None) or {}).values()):
+        p.kill()
+
+
+def _run_pool(tasks, workers: int, on_done, summary: Summary, fn=render_task):
     import multiprocessing as mp
     from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
     from concurrent.futures.process import BrokenProcessPool
@@ -303,7 +313,7 @@ def _run_pool(tasks, workers: int, on_done, summary: Summary):
     from glsim.workflows.library.worker import gpus, pool_init
 
     ctx = mp.get_context("spawn")
-    init = (ctx.Value("i", 0), tuple(gpus()))   # worker k on GPU k (mod the GPU count), if any
+    init = (tuple(gpus()),)    # worker k on GPU k (mod the GPU count), if any
     pending = list(tasks)
     while pending:
         ex = ProcessPoolExecutor(max_workers=workers, mp_context=ctx, initializer=pool_init, initargs=init)
@@ -311,7 +321,7 @@ def _run_pool(tasks, workers: int, on_done, summary: Summary):
         try:
             try:
                 for t in pending:
-                    futures[ex.submit(worker_result, t)] = t
+                    futures[ex.submit(worker_result, t, fn)] = t
             except BrokenProcessPool:  # a worker died while the tasks were being handed out
                 broken = True
             while futures:
@@ -328,10 +338,11 @@ def _run_pool(tasks, workers: int, on_done, summary: Summary):
                 if broken:
                     break
         except BaseException:
-            for p in list(getattr(ex, "_processes", {}).values()):
-                p.terminate()
+            _kill_workers(ex)
             ex.shutdown(wait=False, cancel_futures=True)
             raise
+        if broken:
+            _kill_workers(ex)
         ex.shutdown(wait=not broken, cancel_futures=True)
         if broken:
             summary.pool_restarts += 1
@@ -341,7 +352,7 @@ def _run_pool(tasks, workers: int, on_done, summary: Summary):
                                    "with fewer --workers if memory is short")
 
 
-def _run_dask(tasks, scheduler: str, on_done, summary: Summary, fingerprint: str):
+def _run_dask(tasks, scheduler: str, on_done, summary: Summary, fingerprint: str, fn=render_task):
     try:
         from distributed import Client, as_completed
     except ImportError:
@@ -363,7 +374,7 @@ def _run_dask(tasks, scheduler: str, on_done, summary: Summary, fingerprint: str
         summary.workers = len(client.scheduler_info().get("workers", {}))
         futures = {}
         for i, t in enumerate(tasks):
-            f = client.submit(worker_result, t, key=f"glsim-library-{fingerprint[:12]}-{i:06d}", pure=False)
+            f = client.submit(worker_result, t, fn, key=f"glsim-library-{fingerprint[:12]}-{i:06d}", pure=False)
             futures[f] = t
         for f in as_completed(list(futures)):
             try:
@@ -375,6 +386,22 @@ def _run_dask(tasks, scheduler: str, on_done, summary: Summary, fingerprint: str
             on_done(futures[f], result)
     finally:
         client.close()
+
+
+def execute(tasks: list[dict], fn, on_done, summary: Summary, scheduler: str | None = None,
+            key: str = "tasks") -> None:
+    """Run ``fn(task)`` for every task — in this process (``summary.workers`` 1), a local process
+    pool of ``summary.workers`` (a dead worker's tasks rerun in a fresh pool), or on the Dask
+    scheduler at ``scheduler`` — calling ``on_done(task, ("ok", records) | ("error", message))``
+    in this process as each finishes. ``fn`` must be importable by name (workers unpickle it)."""
+    if not tasks:
+        return
+    if scheduler:
+        _run_dask(tasks, scheduler, on_done, summary, key, fn)
+    elif summary.workers == 1:
+        _run_inprocess(tasks, on_done, fn)
+    else:
+        _run_pool(tasks, summary.workers, on_done, summary, fn)
 
 
 def run(plan: Plan, out: str | Path, workers: int | None = None, scheduler: str | None = None,
@@ -417,14 +444,7 @@ def run(plan: Plan, out: str | Path, workers: int | None = None, scheduler: str 
             last_flush[0] = time.perf_counter()
 
     try:
-        if not tasks:
-            pass
-        elif scheduler:
-            _run_dask(tasks, scheduler, on_done, summary, fingerprint)
-        elif summary.workers == 1:
-            _run_inprocess(tasks, on_done)
-        else:
-            _run_pool(tasks, summary.workers, on_done, summary)
+        execute(tasks, render_task, on_done, summary, scheduler, fingerprint)
     finally:
         _progress.end()
         try:

@@ -17,6 +17,7 @@ that died and its task rerun elsewhere) writes the same bytes again.
 from __future__ import annotations
 
 import io as _io
+import os
 import queue
 import threading
 import time
@@ -44,8 +45,8 @@ class CompactRenderer(Renderer):
     :meth:`Renderer._truth` would build are what the compact truth file determines, so the
     library does not compute them."""
 
-    def _truth(self, view, deformed, raster) -> CompactRaster:
-        W, H = view.camera.size
+    def _truth(self, size, deformed, raster, evaluate=None) -> CompactRaster:
+        W, H = size
         return CompactRaster(raster["element"].reshape(H, W), raster["xi"].reshape(H, W),
                              raster["eta"].reshape(H, W))
 
@@ -64,23 +65,33 @@ def renderer_for(scene, backend: str | None = None) -> Renderer:
     from glsim.workflows.library.spec import reference_key
 
     backend = backend or scene.render.backend
-    key = reference_key(scene, backend)
+    r = thread_renderer(reference_key(scene, backend),
+                        lambda: CompactRenderer(scene, backend, ctx=thread_context() if backend == "gl" else None))
+    r.scene = scene                # same mesh, reference, textures and programs; new options
+    return r
+
+
+def thread_renderer(key: str, make) -> Renderer:
+    """This thread's renderer if it was made for ``key``; else the old one is closed (its
+    textures, programs, targets — not the context) and ``make()`` gives the new one."""
     r = getattr(_LOCAL, "renderer", None)
     if r is not None and _LOCAL.key == key:
-        r.scene = scene            # same mesh, reference, textures and programs; new options
         return r
     if r is not None:
-        r.close()                  # the old variant's textures, programs, targets (not the context)
+        r.close()
         _LOCAL.renderer = None
-    ctx = None
-    if backend == "gl":
-        ctx = getattr(_LOCAL, "ctx", None)
-        if ctx is None:
-            from glsim.backends.gl.context import create_context
-            ctx = _LOCAL.ctx = create_context(_DEVICE)
-    _LOCAL.renderer = CompactRenderer(scene, backend, ctx=ctx)
-    _LOCAL.key = key
+    _LOCAL.renderer, _LOCAL.key = make(), key
     return _LOCAL.renderer
+
+
+def thread_context():
+    """This thread's GL context (made on first use, on this pool worker's GPU if any): a GL
+    context is current on one thread, so each worker thread has its own."""
+    ctx = getattr(_LOCAL, "ctx", None)
+    if ctx is None:
+        from glsim.backends.gl.context import create_context
+        ctx = _LOCAL.ctx = create_context(_DEVICE)
+    return ctx
 
 
 def release() -> None:
@@ -223,17 +234,17 @@ def make_task(variant, jobs, out: Path, geometry: str, geometry_sha256: str, tru
 _DEVICE: int | None = None   # this pool worker's EGL device (pool_init), None: glcontext's choice
 
 
-def pool_init(counter=None, gpus=()) -> None:
-    """Local pool workers leave Ctrl-C to the parent (which stops them); each takes the next
-    number from the shared ``counter`` and, on a multi-GPU machine, GPU ``gpus[number % len]``
-    (EGL device indices, :func:`glsim.backends.gl.context.gpu_devices`)."""
+def pool_init(gpus=()) -> None:
+    """Local pool workers leave Ctrl-C to the parent (which stops them); on a multi-GPU
+    machine the k-th worker process the parent started renders on ``gpus[k % len(gpus)]`` (EGL
+    device indices, :func:`glsim.backends.gl.context.gpu_devices`). k is the number the parent
+    gave the process when it made it: no lock a killed worker could leave held."""
+    import multiprocessing as mp
     import signal
     global _DEVICE
     signal.signal(signal.SIGINT, signal.SIG_IGN)
-    if counter is not None and gpus:
-        with counter.get_lock():
-            k = counter.value
-            counter.value += 1
+    if gpus:
+        k = (getattr(mp.current_process(), "_identity", ()) or (os.getpid(),))[0] - 1
         _DEVICE = gpus[k % len(gpus)]
 
 
