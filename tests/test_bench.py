@@ -83,3 +83,22 @@ def test_reduced_runs_never_overwrite_the_committed_results(tmp_path, capsys, mo
         {"backend": "gl", "mode": "fast", "precision": "fp64", "arithmetic": "fp32", "map_max_px": 0.1,
          "interpolation": "linear", "spp": 1, "seconds": 0.01}]}
     assert [accuracy._met(t) for t in accuracy.targets(report)] == ["yes", "not measured at 1624×1234"]
+
+
+def test_bench_quadratic_reduced(tmp_path, capsys):
+    """`glsim bench quadratic` at a reduced size: every mode of both backends against the closed
+    form (exact to rounding, fast's chord error falling with the piece count), written beside
+    the run's machine; aimed at bench/results it is refused."""
+    assert cli.bench_main(["quadratic", "--size", "96", "80", "--out", str(cli.RESULTS)]) == 2
+    assert "would overwrite the committed" in capsys.readouterr().err
+    assert cli.bench_main(["quadratic", "--size", "96", "80", "--out", str(tmp_path)]) == 0
+    report = json.loads((tmp_path / "quadratic.json").read_text())
+    assert report["machine"]["gl"]["renderer"] and [m["kind"] for m in report["meshes"]] == ["quad8", "triangle6"]
+    for m in report["meshes"]:
+        rows = {(r["backend"], r["mode"], r["pieces"]): r for r in m["rows"]}
+        for backend in ("cpu", "gl"):
+            assert rows[backend, "exact", None]["map_max"] < 1e-9
+        fast = [r["map_mean"] for k, r in sorted(rows.items(), key=lambda kv: kv[0][2] or 0)
+                if k[:2] == ("gl", "fast")]
+        assert fast == sorted(fast, reverse=True)
+    assert "## quad8" in (tmp_path / "quadratic.md").read_text()

@@ -197,7 +197,13 @@ def bench_main(argv: list[str]) -> int:
     sca.add_argument("--reps", type=int, default=scaling.REPS, help=f"interleaved repetitions (default {scaling.REPS})")
     sca.add_argument("--no-oracle", action="store_true", help="leave out the CPU oracle's rows")
     sca.set_defaults(size=None)
-    for p, name in ((acc, "accuracy"), (eff, "effects"), (lib, "library"), (sca, "scaling")):
+    from glsim.evaluation import quadratic
+    qua = sub.add_parser("quadratic", help="quadratic elements (Q8, T6): mapping error and time per backend and "
+                         "mode against a closed form")
+    qua.add_argument("--size", nargs=2, type=int, metavar=("W", "H"),
+                     help=f"image size (default {quadratic.FULL_SIZE[0]} {quadratic.FULL_SIZE[1]})")
+    qua.set_defaults(reps=1)
+    for p, name in ((acc, "accuracy"), (eff, "effects"), (lib, "library"), (sca, "scaling"), (qua, "quadratic")):
         p.add_argument("--out", default=None, help=f"directory of {name}.json / {name}.md (default {RESULTS} for a "
                        f"full-size run, {SCRATCH} otherwise)")
     args = parser.parse_args(argv)
@@ -226,6 +232,11 @@ def bench_main(argv: list[str]) -> int:
             io.write_text(out / "preview.json", json.dumps(report, indent=2) + "\n")
             io.write_text(out / "preview.md", text := pb.markdown(report))
             print(text)
+            return 0
+        if args.command == "quadratic":
+            size = tuple(args.size) if args.size else quadratic.FULL_SIZE
+            out = results_dir(args.out, size == quadratic.FULL_SIZE, "quadratic")
+            print(quadratic.write(quadratic.quadratic(size), out))
             return 0
         if args.command == "effects":
             print(effects.write(effects.effects(size, args.reps), out))

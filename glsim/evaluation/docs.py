@@ -21,6 +21,7 @@ import re
 from pathlib import Path
 
 from glsim.errors import GlsimError
+from glsim.evaluation.report import machine_line
 from glsim.io import images as io
 
 FILES = ("README.md", "docs/calib.md", "docs/verify.md", "docs/library.md", "docs/preview.md", "docs/effects.md",
@@ -47,10 +48,6 @@ def _ratio(a: float, b: float) -> str:
     return f"{a / b:.2g}×" if a / b < 10 else f"{a / b:.0f}×"
 
 
-def machine_line(m: dict) -> str:
-    gl = m.get("gl", {})
-    return (f"{m.get('cpu', '?')}, {m.get('cores', '?')} cores, {gl.get('renderer', 'no GL')}"
-            if isinstance(m, dict) else str(m))
 
 
 # ---- accuracy.json ---------------------------------------------------------------------------
@@ -829,6 +826,39 @@ def preview_overhead(pre: dict) -> str:
             f"less the pair's render alone) takes {min(own):.0f}–{max(own):.0f} ms of a frame, the rest is the renderer.")
 
 
+# ---- quadratic.json ----------------------------------------------------------------------------
+def quadratic_tables(q: dict) -> str:
+    """Both meshes' tables (glsim bench quadratic), with the run's conditions."""
+    from glsim.evaluation.quadratic import markdown
+    body = markdown(q).split("\n", 2)[2]          # without the page title
+    return body
+
+
+def quadratic_rows(q: dict) -> str:
+    """The Q8 rows of the accuracy table: GL and oracle per mode, mapping error and time."""
+    from glsim.evaluation.quadratic import mode_label
+    m = next(x for x in q["meshes"] if x["kind"] == "quad8")
+    exact = next(r["time"] for r in m["rows"] if r["backend"] == "gl" and r["mode"] == "exact")
+    lines = [f"Q8 elements (`glsim bench quadratic`: a paraboloid of {m['elements']} Q8 elements of about "
+             f"{m['element_px']:.0f} px, against its closed form, {q['size'][0]}×{q['size'][1]} px, 1 spp; "
+             f"{machine_line(q['machine'])}, {q['date']}):", "",
+             "| backend | mode | mapping error mean / max (ref px) | time / GL exact | time (s) |", "|---|---|---|---|---|"]
+    lines += [f"| {r['backend']} | {mode_label(r)} | {_s(r['map_mean'])} / {_s(r['map_max'])} | {_s(r['time'] / exact)} | "
+              f"{_s(r['time'])} |" for r in m["rows"]]
+    return "\n".join(lines)
+
+
+def quadratic_fast(q: dict) -> str:
+    """The fast mode's error against its piece count (the 1/n² law)."""
+    m = next(x for x in q["meshes"] if x["kind"] == "quad8")
+    fast = sorted((r for r in m["rows"] if r["backend"] == "gl" and r["mode"] == "fast"), key=lambda r: r["pieces"])
+    steps = " → ".join(_s(r["map_mean"]) for r in fast)
+    ns = ", ".join(str(r["pieces"]) for r in fast)
+    ratios = ", ".join(_s(a["map_mean"] / b["map_mean"]) for a, b in zip(fast, fast[1:]))
+    return (f"The fast mode's error is the chord error of the pieces: on Q8 it goes {steps} px mean for n = {ns} "
+            f"pieces per side (each halving of the piece size divides it by {ratios}; 1/n² gives 4).")
+
+
 GENERATORS = {"preview": preview, "accuracy-table": accuracy_table, "accuracy-facts": accuracy_facts, "peer": peer,
               "effects": effects, "effects-dof": effects_dof, "effects-dof-facts": effects_dof_facts, "verify-table": verify_table,
               "verify-runs-table": verify_runs_table, "sweep-table": sweep_table, "sweep": sweep, "calibration": calibration,
@@ -842,7 +872,8 @@ GENERATORS = {"preview": preview, "accuracy-table": accuracy_table, "accuracy-fa
               "sweep-timing": sweep_timing, "scaling-host": scaling_host, "scaling-oracle": scaling_oracle,
               "scaling-table": scaling_table, "scaling-goals": scaling_goals,
               "preview-overhead": preview_overhead, "fe-bulge-centre": fe_bulge_centre,
-              "fe-bulge-centre-5mm": fe_bulge_centre_5mm, "sweep-subsets": sweep_subsets}
+              "fe-bulge-centre-5mm": fe_bulge_centre_5mm, "sweep-subsets": sweep_subsets,
+              "quadratic-tables": quadratic_tables, "quadratic-rows": quadratic_rows, "quadratic-fast": quadratic_fast}
 
 
 # ---- regions ---------------------------------------------------------------------------------

@@ -28,6 +28,13 @@ def machine_info(gl_info: dict) -> dict:
             "gl": {k: gl_info[k] for k in ("vendor", "renderer", "version")}}
 
 
+def machine_line(m: dict) -> str:
+    """The machine a results file names, in a few words: CPU, cores, GL renderer."""
+    gl = m.get("gl", {})
+    return (f"{m.get('cpu', '?')}, {m.get('cores', '?')} cores, {gl.get('renderer', 'no GL')}"
+            if isinstance(m, dict) else str(m))
+
+
 def gl_info(renderer: Renderer) -> dict:
     if renderer.backend_name != "gl":
         return {"vendor": "-", "renderer": "CPU oracle (numpy float64)", "version": "-"}

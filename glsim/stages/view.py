@@ -350,6 +350,10 @@ def warn_dropped(cam: Camera, count: int, s: int) -> None:
 
 
 def _labels(idx: np.ndarray, labels: np.ndarray | None, most: int = 8) -> str:
-    names = (labels[idx[:most + 1]] if labels is not None else idx[:most + 1]).tolist()
-    more = f" and {len(idx) - most} more" if len(idx) > most else ""
+    """The first ``most`` FE labels of elements ``idx``, each once (the faces of one solid
+    element, and the pieces of one quadratic element, share its label)."""
+    names = np.asarray(labels)[idx] if labels is not None else np.asarray(idx)
+    _, first = np.unique(names, return_index=True)
+    names = names[np.sort(first)].tolist()
+    more = f" and {len(names) - most} more" if len(names) > most else ""
     return ", ".join(map(str, names[:most])) + more

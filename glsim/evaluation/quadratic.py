@@ -1,20 +1,18 @@
-"""Quadratic elements: mapping error and time per backend × mode against the closed form.
+"""``glsim bench quadratic``: quadratic elements' mapping error and time per backend × mode
+against a closed form.
 
 The specimen is the paraboloid z = ZC + A x² + C y² (30 × 24 mm at 400 mm) meshed with Q8
-(or T6) elements on a lattice affine in (x, y), which represents it exactly, moved by a
+and with T6 elements on a lattice affine in (x, y), which represents it exactly, moved by a
 translation plus uz = B x² + D x y (also exact). Every pixel's ray meets it in closed form, so
 the reference-image point each pixel should show is known: the mapping error is
 |truth.ref_uv − closed form| in reference-image px, the position error |X_deformed − closed
-form| in mm, at pixel centres (1 spp), over the pixels both cover away (2 px) from the outline.
-
-    .venv/bin/python examples/quadratic_accuracy.py [--gl] [--size 480x400] [--pieces 2,4,8]
-
-Prints a markdown table (docs/quadratic.md quotes it).
+form| in mm, at pixel centres (1 spp), over the pixels both cover 2 px or more inside the
+outline. Times: median of renders without truth (GL: 3, CPU oracle: 1 for q4/exact), ratios to
+GL exact of the same mesh first. Writes quadratic.{json,md} (bench/results for the full run at
+480×400, build/bench otherwise).
 """
 from __future__ import annotations
 
-import argparse
-import platform
 import time
 import warnings
 
@@ -87,43 +85,74 @@ def measure(r: Renderer, mode: str, Xu, Xd, inner, reps: int = 3) -> dict:
     m = t.mask & inner
     dm = np.linalg.norm(t.ref_uv[m] - ref_exact[m], axis=-1)
     dx = np.linalg.norm(t.X_deformed[m] - Xd[m], axis=-1)
-    return {"map_mean": dm.mean(), "map_max": dm.max(), "X_max": dx.max(), "pixels": int(m.sum()),
+    return {"map_mean": float(dm.mean()), "map_max": float(dm.max()), "X_max": float(dx.max()), "pixels": int(m.sum()),
             "time": float(np.median(times))}
 
 
-def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--gl", action="store_true", help="also the GL backend")
-    ap.add_argument("--size", default="480x400")
-    ap.add_argument("--kind", default="quad8", choices=("quad8", "triangle6"))
-    ap.add_argument("--elements", default="4x3")
-    ap.add_argument("--pieces", default="2,4,8")
-    args = ap.parse_args()
-    W, H = map(int, args.size.split("x"))
-    nx, ny = map(int, args.elements.split("x"))
+FULL_SIZE = (480, 400)
+MESHES = (("quad8", (4, 3), (2, 4, 8)), ("triangle6", (4, 3), (4,)))
+
+
+def quadratic(size=FULL_SIZE) -> dict:
+    """Every backend × mode row for the Q8 and the T6 mesh of the paraboloid at ``size``."""
+    from glsim.evaluation.report import gl_info, machine_info
+
+    W, H = size
     f = 0.9 * min(W * ZC / W0, H * ZC / H0)
     cam = Camera(name="c", size=(W, H), fx=f, fy=f, cx=(W - 1) / 2 + 0.3, cy=(H - 1) / 2 - 0.4)
     scene = Scene(cameras=(cam,), specimen=Specimen(plate=Plate(width=1, height=1, nx=1, ny=1)))
-    m = mesh(args.kind, nx, ny)
     Xu, Xd, inner = closed_form(cam)
-    rows = []
-    warnings.simplefilter("ignore", RenderWarning)
-    backends = ["cpu"] + (["gl"] if args.gl else [])
-    for backend in backends:
-        for pieces in map(int, args.pieces.split(",")):
-            with Renderer(scene, backend, mesh=m, pieces=pieces) as r:
-                rows.append((backend, f"fast ({pieces}×{pieces} pieces)", measure(r, "fast", Xu, Xd, inner)))
-        with Renderer(scene, backend, mesh=m) as r:
-            for mode in ("q4", "exact"):
-                rows.append((backend, mode, measure(r, mode, Xu, Xd, inner, reps=1 if backend == "cpu" else 3)))
-    print(f"{args.kind}, {nx}×{ny} elements ({W0 / nx:g} × {H0 / ny:g} mm, about {f * W0 / nx / ZC:.0f} px), "
-          f"{W}×{H} px, {platform.processor() or platform.machine()}")
-    print("| backend | mode | mapping error mean / max (ref px) | X error max (mm) | pixels | time (s) |")
-    print("|---|---|---|---|---|---|")
-    for backend, mode, v in rows:
-        print(f"| {backend} | {mode} | {v['map_mean']:.2e} / {v['map_max']:.2e} | {v['X_max']:.2e} | {v['pixels']} "
-              f"| {v['time']:.3f} |")
+    report = {"size": [W, H], "date": time.strftime("%Y-%m-%d"), "meshes": []}
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RenderWarning)
+        for kind, (nx, ny), pieces in MESHES:
+            m, rows = mesh(kind, nx, ny), []
+            for backend in ("cpu", "gl"):
+                for n in pieces:
+                    with Renderer(scene, backend, mesh=m, pieces=n) as r:
+                        rows.append({"backend": backend, "mode": "fast", "pieces": n,
+                                     **measure(r, "fast", Xu, Xd, inner)})
+                with Renderer(scene, backend, mesh=m) as r:
+                    if backend == "gl":
+                        report.setdefault("machine", machine_info(gl_info(r)))
+                    for mode in ("q4", "exact"):
+                        rows.append({"backend": backend, "mode": mode, "pieces": None,
+                                     **measure(r, mode, Xu, Xd, inner, reps=1 if backend == "cpu" else 3)})
+            report["meshes"].append({"kind": kind, "elements": len(m.patches), "grid": [nx, ny],
+                                     "element_px": f * W0 / nx / ZC, "rows": rows})
+    return report
 
 
-if __name__ == "__main__":
-    main()
+def mode_label(row: dict) -> str:
+    return f"fast ({row['pieces']}×{row['pieces']} pieces)" if row["mode"] == "fast" else \
+        row["mode"] + (" (fp64)" if row["backend"] == "gl" else "")
+
+
+def markdown(report: dict) -> str:
+    from glsim.evaluation.report import machine_line
+
+    W, H = report["size"]
+    out = [f"# Quadratic elements: mapping error and time against the closed form\n",
+           f"{W}×{H} px, {report['date']}; {machine_line(report['machine'])}. Times without truth, "
+           "medians; ratios to GL exact of the same mesh."]
+    for m in report["meshes"]:
+        exact = next(r["time"] for r in m["rows"] if r["backend"] == "gl" and r["mode"] == "exact")
+        out += [f"\n## {m['kind']}: {m['elements']} elements on {m['grid'][0]} × {m['grid'][1]} cells of about "
+                f"{m['element_px']:.0f} px\n",
+                "| backend | mode | mapping error mean / max (ref px) | X error max (mm) | time / GL exact | time (s) |",
+                "|---|---|---|---|---|---|"]
+        out += [f"| {r['backend']} | {mode_label(r)} | {r['map_mean']:.2e} / {r['map_max']:.2e} | {r['X_max']:.2e} | "
+                f"{r['time'] / exact:.2g} | {r['time']:.3g} |" for r in m["rows"]]
+    return "\n".join(out) + "\n"
+
+
+def write(report: dict, out) -> str:
+    import json
+    from pathlib import Path
+
+    from glsim.io import images as io
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    io.write_text(out / "quadratic.json", json.dumps(report, indent=2) + "\n")
+    io.write_text(out / "quadratic.md", text := markdown(report))
+    return text
