@@ -302,13 +302,15 @@ class GLBackend:
             b.release()
         if not truth:
             return color, None
-        m = np.frombuffer(color[1].read(), np.float32).reshape(H * W, 4).astype(np.float64)
-        x = np.frombuffer(color[2].read(), np.float32).reshape(H * W, 4).astype(np.float64)
+        m = np.frombuffer(color[1].read(), np.float32).reshape(H * W, 4)     # float32 columns, each widened once
+        x = np.frombuffer(color[2].read(), np.float32).reshape(H * W, 4)
         elem = np.rint(x[:, 0]).astype(np.int64) - 1
-        raster = {"element": elem, "xi": m[:, 2], "eta": m[:, 3], "ref_uv": m[:, :2] + x[:, 1:3]}
+        raster = {"element": elem, "xi": m[:, 2].astype(np.float64), "eta": m[:, 3].astype(np.float64),
+                  "ref_uv": m[:, :2].astype(np.float64) + x[:, 1:3]}
         if "TRUTH_LO" in defines:  # float64 in the shader: hi + lo is (ξ, η) to 2^-48
             lo = np.frombuffer(color[3].read(), np.float32).reshape(H * W, 2)
-            raster["xi"], raster["eta"] = m[:, 2] + lo[:, 0], m[:, 3] + lo[:, 1]
+            raster["xi"] += lo[:, 0]
+            raster["eta"] += lo[:, 1]
             return color, raster
         if patches is not None:   # the patches' (ξ, η): polished by the caller (glsim.render)
             return color, raster
