@@ -26,8 +26,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from calib_detection import TARGETS, make_library  # noqa: E402
 
 from glsim.backends.gl.context import create_context, info  # noqa: E402
-from glsim.evaluation.docs import machine_line  # noqa: E402
-from glsim.evaluation.report import machine_info  # noqa: E402
+
+from glsim.evaluation.report import machine_info, machine_line  # noqa: E402
 from glsim.io import images as io  # noqa: E402
 from glsim.workflows.calib import calibrate as cal  # noqa: E402
 from glsim.workflows.calib import library  # noqa: E402

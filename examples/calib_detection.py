@@ -20,7 +20,7 @@ from pathlib import Path
 import numpy as np
 
 from glsim.backends.gl.context import create_context, info
-from glsim.evaluation.docs import machine_line
+from glsim.evaluation.report import machine_line
 from glsim.evaluation.report import machine_info
 from glsim.io import images as io
 from glsim.scene import Noise

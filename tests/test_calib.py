@@ -574,6 +574,29 @@ def test_library_settings_are_recorded_and_checked(ci_library, tmp_path, capsys)
 
 
 @pytest.mark.gl
+@pytest.mark.gl
+def test_charuco_corners_refined_beyond_opencv(tmp_path, gl_ctx):
+    """detect_charuco refines CharucoDetector's corners (smoothed image, cornerSubPix inside the
+    marker-free cross): against the projected corners of 3 rendered pairs, measured 0.016 px
+    mean / 0.044 max against OpenCV's own 0.060 / 0.117."""
+    import cv2
+    target = Charuco(squares_x=5, squares_y=4, square=20.0, marker=8.0, px_per_mm=8)
+    lib = libmod.write_library(libmod.paper_rig(CI_SCALE), target, 3, tmp_path, seed=4,
+                               spec=posemod.PoseSpec(fov="centre"), ctx=gl_ctx)
+    raw, refined = [], []
+    for pair in lib.pairs:
+        for cam in lib.cameras:
+            img = detect.to_unit(read_image(lib.image_path(pair, cam)), cam.bit_depth)
+            truth = libmod.image_truth(lib, pair, cam)["projected"]
+            corners, ids, _, _ = cv2.aruco.CharucoDetector(target.board()).detectBoard(detect._gray8(img))
+            raw.append(np.linalg.norm(corners.reshape(-1, 2) - truth[ids.ravel()], axis=1))
+            d = detect.detect_charuco(img, target)
+            refined.append(np.linalg.norm(d.points[d.ok] - truth[d.ok], axis=1))
+    raw, refined = np.concatenate(raw), np.concatenate(refined)
+    assert len(refined) == len(raw) > 50
+    assert refined.mean() < 0.03 and refined.max() < 0.08 and refined.mean() < 0.5 * raw.mean()
+
+
 def test_calib_run_on_chessboard_and_charuco_libraries(tmp_path, gl_ctx, capsys):
     """OpenCV's detectors, their corners in the truth's order (findChessboardCornersSB numbers
     this board from the other end), the same report; no perspective-bias pass for corners."""

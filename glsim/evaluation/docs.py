@@ -595,13 +595,14 @@ def calibration_spread_facts(cal: dict) -> str:
 
 
 def calibration_corner_facts(cal: dict) -> str:
-    """docs/calib.md: OpenCV's corners against the dots' model fit, without noise."""
+    """docs/calib.md: the boards' corners against the dots' model fit, without noise."""
     t = [r for r in cal.get("targets", []) if r["noise_percent"] == 0]
     corners = [r for r in t if r["target"] != "dots"]
     dots = next(r for r in t if r["target"] == "dots")["detection"]["centroid"]["mean"]
     means = [r["detection"]["projected"]["mean"] for r in corners]
     cb = next(r for r in corners if r["target"] == "chessboard")["detection"]["projected"]["bias"]
-    return (f"OpenCV's corner detectors leave {_s(min(means))}–{_s(max(means))} px (mean) without noise (the "
+    return (f"The boards' corners (findChessboardCornersSB; CharucoDetector refined on the smoothed image) leave "
+            f"{_s(min(means))}–{_s(max(means))} px (mean) without noise (the "
             f"chessboard's findChessboardCornersSB also a mean offset of {cb[0]:+.2g} / {cb[1]:+.2g} px in x / y), "
             f"{_ratio(min(means), dots)}–{_ratio(max(means), dots)} the dots' {_s(dots)} px against their true "
             "centroids, and the calibrations follow.")

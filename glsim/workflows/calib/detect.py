@@ -41,7 +41,7 @@ FIT_ROUNDS = 2         # model fits, each choosing the band pixels anew
 FIT_ITERATIONS = 12    # Levenberg–Marquardt steps per fit
 MIN_EDGE = 0.02        # px, the least blur σ of the fit (a sharp edge's profile is the pixel's)
 METHODS = ("fit", "centroid", "centroid-dot", "edge-ellipse", "blob")
-VERSION = 3            # of the detector's results (detection caches made by another version are not used)
+VERSION = 4            # of the detector's results (detection caches made by another version are not used)
 
 
 @dataclass(frozen=True, eq=False)
@@ -832,9 +832,41 @@ def detect_charuco(image: np.ndarray, target: Charuco, bit_depth: int | None = N
         why = f"CharucoDetector found {0 if ids is None else len(ids)} corners, {need} needed"
         return (None, why) if explain else None
     pts = np.full((n, 2), np.nan)
-    pts[ids.ravel()] = corners.reshape(-1, 2)
+    pts[ids.ravel()] = refine_charuco_corners(img, corners.reshape(-1, 2).astype(np.float64), target)
     d = Detection(points=pts, blobs=pts.copy(), ok=~np.isnan(pts[:, 0]))
     return (d, "") if explain else d
+
+
+CHARUCO_MIN_GAP_PX = 8.0     # below this marker-to-corner gap OpenCV's corners are kept
+
+
+def refine_charuco_corners(image: np.ndarray, corners: np.ndarray, target: Charuco) -> np.ndarray:
+    """CharucoDetector's corners (N, 2) px refined by cv2.cornerSubPix on the image smoothed
+    with a Gaussian, in a window that stays inside the marker-free cross round each corner.
+
+    The window's half-width is half the gap between a corner and the nearest marker (from the
+    median spacing of the corners and the board's marker/square ratio) and σ half of that:
+    smoothing makes the saddle's grey levels differentiable, which the aliased edges of a
+    rendered (or printed and imaged) board are not. Where the gap is under
+    CHARUCO_MIN_GAP_PX, or a corner moves by more than a quarter of the window, OpenCV's
+    corner is kept. Measured on noise-free 1624×1234 boards (63 px squares): 0.016 px mean,
+    0.045 max against the projected corners, OpenCV's 0.067 / 0.22 (docs/calib.md)."""
+    import cv2
+    if len(corners) < 2:
+        return corners
+    d = np.linalg.norm(corners[:, None] - corners[None], axis=-1)
+    np.fill_diagonal(d, np.inf)
+    gap = float(np.median(d.min(axis=1))) * (target.square - target.marker) / (2 * target.square)
+    if gap < CHARUCO_MIN_GAP_PX:
+        return corners
+    w = int(round(0.5 * gap))
+    smooth = cv2.GaussianBlur(np.asarray(image, np.float32), (0, 0), 0.5 * w)
+    p = corners.astype(np.float32).reshape(-1, 1, 2).copy()
+    cv2.cornerSubPix(smooth, p, (w, w), (-1, -1), (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_MAX_ITER, 200, 1e-5))
+    p = p.reshape(-1, 2).astype(np.float64)
+    moved = np.linalg.norm(p - corners, axis=1) > 0.25 * w
+    p[moved] = corners[moved]
+    return p
 
 
 def default_method(target) -> str:
