@@ -166,6 +166,6 @@ def test_this_machines_devices_are_listed():
     assert [d.index for d in devices] == list(range(len(devices)))
     ctx = glctx.create_context(devices[0].index)
     try:
-        assert ctx.info["GL_RENDERER"]
+        assert ctx.info["GL_RENDERER"] and ctx.error == "GL_NO_ERROR"
     finally:
         ctx.release()
