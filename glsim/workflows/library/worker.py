@@ -234,18 +234,18 @@ def make_task(variant, jobs, out: Path, geometry: str, geometry_sha256: str, tru
 _DEVICE: int | None = None   # this pool worker's EGL device (pool_init), None: glcontext's choice
 
 
-def pool_init(gpus=()) -> None:
+def pool_init(devices=()) -> None:
     """Local pool workers leave Ctrl-C to the parent (which stops them); on a multi-GPU
-    machine the k-th worker process the parent started renders on ``gpus[k % len(gpus)]`` (EGL
+    machine the k-th worker process the parent started renders on ``devices[k % len(devices)]`` (EGL
     device indices, :func:`glsim.backends.gl.context.gpu_devices`). k is the number the parent
     gave the process when it made it: no lock a killed worker could leave held."""
     import multiprocessing as mp
     import signal
     global _DEVICE
     signal.signal(signal.SIGINT, signal.SIG_IGN)
-    if gpus:
+    if devices:
         k = (getattr(mp.current_process(), "_identity", ()) or (os.getpid(),))[0] - 1
-        _DEVICE = gpus[k % len(gpus)]
+        _DEVICE = devices[k % len(devices)]
 
 
 def gpus() -> list[int]:
