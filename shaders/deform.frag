@@ -45,6 +45,12 @@ layout(std430, binding = 7) readonly buffer RefUV { real ref_uv[]; };
 #else
 layout(std430, binding = 8) readonly buffer RefXr { real ref_xr[]; };
 #endif
+#ifdef REF_LOCAL
+// float32 exact with a pinhole reference camera (glsim.backends.gl.geometry.ref_local_buffer):
+// per element its reference-frame corners relative to their centre C (12), C (3), 0, and the
+// reference pixel of C as hi (2) + lo (2), made in float64
+layout(std430, binding = 14) readonly buffer RefLocal { float ref_local[]; };
+#endif
 #define CANDIDATE_TEXTURES
 #include "candidates.glsl"
 #ifdef QUADRATIC
@@ -119,6 +125,8 @@ float light_at(int e, real xi, real eta) {
 #endif
 
 #if !defined(MODE_FAST)
+real2 ref_lo = real2(0.0);   // REF_LOCAL: what float32 dropped from the last mapped ref (truth)
+
 // Map this sample (pixel point px; ray xn in mode exact) into element e: false where e does
 // not own it (the tie rule); ref_ok false where it does but its reference point lies outside
 // the reference image (or the reference camera cannot project it).
@@ -175,10 +183,29 @@ bool map_sample(int e, real2 px, real2 xn, out real xi, out real eta, out real2 
     real3 P[4];
     for (int i = 0; i < 4; ++i) P[i] = real3(elem_data[b + 3 * i], elem_data[b + 3 * i + 1], elem_data[b + 3 * i + 2]);
     if (!intersect_ray_patch(P, xn, xi, eta, Z)) return false;
+#ifdef REF_LOCAL
+    // X = C + D(xi, eta): xn(X) - xn(C) = (D.xy C.z - C.xy D.z) / (C.z (C.z + D.z)), small and
+    // exact to float32's relative precision, added to C's pixel kept as hi + lo
+    int r = e * 20;
+    real3 D[4];
+    for (int i = 0; i < 4; ++i) D[i] = real3(ref_local[r + 3 * i], ref_local[r + 3 * i + 1], ref_local[r + 3 * i + 2]);
+    real3 d = bilinear3(D, xi, eta);
+    real3 C = real3(ref_local[r + 12], ref_local[r + 13], ref_local[r + 14]);
+    real zd = C.z + d.z;
+    real2 dxn = (d.xy * C.z - C.xy * d.z) / (C.z * zd);
+    real2 duv = real2(u_ref_intr[0] * dxn.x + u_ref_intr[2] * dxn.y, u_ref_intr[1] * dxn.y);
+    real2 hi = real2(ref_local[r + 16], ref_local[r + 17]);
+    ref_lo = real2(ref_local[r + 18], ref_local[r + 19]) + duv;
+    ref = hi + ref_lo;
+    ref_lo -= ref - hi;   // what the float32 sum dropped (Fast2Sum: |hi| >= |lo| here)
+    real2 xn_ref = C.xy / C.z + dxn;
+    ref_ok = zd > 0.0 && dot(xn_ref, xn_ref) < u_ref_valid_r2;
+#else
     ivec4 q = quads[e];
     real3 R[4];  // undeformed corners in the reference camera's frame (mm)
     for (int i = 0; i < 4; ++i) R[i] = real3(ref_xr[3 * q[i]], ref_xr[3 * q[i] + 1], ref_xr[3 * q[i] + 2]);
     ref_ok = project_camera_frame(bilinear3(R, xi, eta), u_ref_intr, u_ref_dist, u_ref_valid_r2, ref);
+#endif
 #endif
     ref_ok = ref_ok && !(ref.x < -0.5 || ref.y < -0.5 || ref.x > real(u_ref_size.x) - 0.5 ||
                          ref.y > real(u_ref_size.y) - 0.5);
@@ -221,6 +248,7 @@ void main() {
     real Z = 0.0;
 #if defined(RESOLVE)
     bool dropped = false;
+    real2 chosen_lo = real2(0.0);
     for (int k = 0; k < int(n); ++k) {
         int e = candidate(pix, k);
         if (!in_tight(e, sample_px, 0.0)) continue;
@@ -235,7 +263,9 @@ void main() {
         }
         elem = e;
         xi = x; eta = y; ref = r; Z = z;
+        chosen_lo = ref_lo;
     }
+    ref_lo = chosen_lo;
     if (elem < 0) {
         if (dropped) atomicAdd(dropped_samples, 1u);  // counted for the warning (warn_dropped)
         discard;
@@ -266,7 +296,11 @@ void main() {
 #ifdef TRUTH
     vec2 ref32 = vec2(ref);
     out_map = vec4(ref32, float(xi), float(eta));
+#if defined(REF_LOCAL)
+    out_extra = vec4(float(elem + 1), vec2(ref_lo), 0.0);
+#else
     out_extra = vec4(float(elem + 1), vec2(ref - real2(ref32)), 0.0);
+#endif
 #ifdef TRUTH_LO
     out_lo = vec2(xi - real(float(xi)), eta - real(float(eta)));
 #endif

@@ -135,13 +135,15 @@ def test_gl_matches_oracle_on_bulge(bulge_pair, mode, spp, camera):
 
 @pytest.mark.gl
 def test_gl_fp32_exact_is_bounded(bulge_pair):
-    """float32 arithmetic in the exact mode: measured ~1e-3 px; bound it at 5e-3 px."""
+    """float32 arithmetic in the exact mode, the reference projection relative to each element's
+    centre (REF_LOCAL): measured 5.9e-5 px max here on llvmpipe (1.1e-4 with the direct
+    projection); bound 1.5e-4 px, room for other drivers' float32 rounding."""
     g, c = bulge_pair
     a = g.render(0, 1, truth=True, mode="exact", precision="fp32")
     b = c.render(0, 1, truth=True, mode="exact")
     both = a.truth.mask & b.truth.mask
     d = np.linalg.norm(a.truth.ref_uv[both] - b.truth.ref_uv[both], axis=-1)
-    assert d.max() < 5e-3 and (a.truth.mask ^ b.truth.mask).sum() <= 20
+    assert d.max() < 1.5e-4 and (a.truth.mask ^ b.truth.mask).sum() <= 20
 
 
 @pytest.mark.gl

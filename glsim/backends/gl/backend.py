@@ -152,8 +152,12 @@ class GLBackend:
     # ---- rendering -------------------------------------------------------------------------
     @staticmethod
     def _set(prog, name: str, values, fp64: bool) -> None:
-        if prog.get(name, None) is not None:
-            prog[name].write(np.asarray(values, dtype="f8" if fp64 else "f4").tobytes())
+        """Set a real uniform array; the driver may keep only its leading elements that the
+        program reads (array_length), and those are written."""
+        u = prog.get(name, None)
+        if u is not None:
+            a = np.asarray(values, dtype="f8" if fp64 else "f4").ravel()
+            u.write(a[:max(1, getattr(u, "array_length", a.size))].tobytes())
 
     def _buffers(self, view: ViewSpec) -> GeometryBuffers:
         """The mesh's GL buffers (made when a renderer's mesh is first drawn on this backend)."""
@@ -210,6 +214,12 @@ class GLBackend:
         if patches is not None:
             defines.update(QUADRATIC=None, PIECES=int(patches.pieces))
         fp64 = "FP64" in defines
+        # float32 exact: the reference projection relative to each element's centre (a
+        # pinhole reference camera; a distorted one keeps the direct projection)
+        ref_local = (opts.mode == "exact" and not fp64 and patches is None
+                     and not np.any(ref_cam.distortion.coeffs))
+        if ref_local:
+            defines["REF_LOCAL"] = None
         geo = self._buffers(view)
         patch_buffers = self._patch_buffers(patches, opts.mode, fp64) if patches is not None else ()
 
@@ -228,6 +238,8 @@ class GLBackend:
         def setup(prog):
             """Bind and set everything deform.frag (and its vertex shader) reads."""
             geo.bind(view, fp64)
+            if ref_local:
+                geo.ref_local_buffer(ref_cam.intrinsics).bind_to_storage_buffer(14)
             geo.set_uniforms(prog, view, fp64)
             camera_uniforms(prog)
             self._set(prog, "u_ref_intr", ref_cam.intrinsics, fp64)

@@ -76,6 +76,27 @@ class GeometryBuffers:
         flags = self._buffer("flags", lambda: ctx.buffer(bytes(16 + 8 * words)))
         return quads, self._bufs["ref_uv", fp64], self._bufs["ref_xr", fp64], flags
 
+    def ref_local_buffer(self, intrinsics: np.ndarray):
+        """Per element, 20 float32 (binding 14, deform.frag REF_LOCAL): its undeformed corners in
+        the reference camera's frame relative to their centre X̄ (4 × 3, mm), X̄ (3), 0, and the
+        reference pixel of X̄ as float32 hi (2) + lo (2) — all from float64, so that a float32
+        shader projects X̄ + Δ as ū + J Δ-exact differences, not 600 mm positions (made once)."""
+        key = ("ref_local", tuple(np.asarray(intrinsics, float)))
+        if key not in self._bufs:
+            Xr, _ = self.geo.reference()
+            R = np.asarray(Xr, np.float64).reshape(-1, 3)[np.asarray(self.geo.quads)]     # (M, 4, 3)
+            c = R.mean(axis=1)
+            fx, fy, skew, cx, cy = np.asarray(intrinsics, np.float64)
+            with np.errstate(divide="ignore", invalid="ignore"):
+                x, y = c[:, 0] / c[:, 2], c[:, 1] / c[:, 2]
+            uv = np.stack([fx * x + skew * y + cx, fy * y + cy], 1)
+            uv = np.where(np.isfinite(uv), uv, 0.0)
+            hi = uv.astype(np.float32)
+            rec = np.concatenate([(R - c[:, None]).reshape(-1, 12), c, np.zeros((len(c), 1)), hi,
+                                  uv - hi.astype(np.float64)], 1).astype(np.float32)
+            self._bufs[key] = self.ctx.buffer(np.ascontiguousarray(rec).tobytes())
+        return self._bufs[key]
+
     def index_buffer(self):
         """Six indices per element into the 4 M attribute-less vertices (made once)."""
         def make():
