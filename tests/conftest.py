@@ -16,6 +16,14 @@ def gl_ctx():
     ctx.release()
 
 
+@pytest.fixture
+def ctx_for(request):
+    """``ctx_for(backend)``: the shared EGL context for "gl" (made on first use), None for "cpu"."""
+    def make(backend):
+        return request.getfixturevalue("gl_ctx") if backend == "gl" else None
+    return make
+
+
 @pytest.fixture(autouse=True)
 def _gl_error_check(request):
     """GL tests start and end with GL_NO_ERROR (moderngl's own tests do the same)."""

@@ -657,6 +657,9 @@ def test_library_with_blur_and_lighting(ci_library, tmp_path, gl_ctx, capsys):
     err = _run_error(["library", "default", "--scale", str(CI_SCALE), "--pairs", "1", "--blur", "-o",
                       str(tmp_path / "cli")], capsys)
     assert "[optics]" in err and not (tmp_path / "cli").exists()
+    err = _run_error(["library", "default", "--scale", str(CI_SCALE), "--pairs", "1", "--workers", "0", "-o",
+                      str(tmp_path / "w0")], capsys)
+    assert "--workers" in err and "≥ 1" in err and not (tmp_path / "w0").exists()
 
 
 @pytest.mark.gl

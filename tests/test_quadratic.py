@@ -38,13 +38,6 @@ SHIFT = np.array([0.21, -0.13, 0.37])
 BACKENDS = ["cpu", pytest.param("gl", marks=pytest.mark.gl)]
 
 
-@pytest.fixture
-def ctx_for(request):
-    def make(backend):
-        return request.getfixturevalue("gl_ctx") if backend == "gl" else None
-    return make
-
-
 # --- meshes on a lattice ------------------------------------------------------------------------
 
 def lattice(nx, ny, nz=0, a=A, c=C, thickness=4.0, dy=None):
@@ -221,7 +214,7 @@ def test_oracle_truth_reports_the_elements_own_coordinates():
         t = r.render(0, 0, truth=True, mode="exact").truth
     m = t.mask
     xi, eta, e = t.xi[m], t.eta[m], t.element[m]
-    la, lb, lc = (1 - xi) * (1 - eta) / 4, (1 + xi) * (1 - eta) / 4, (1 + eta) / 2
+    lb, lc = (1 + xi) * (1 - eta) / 4, (1 + eta) / 2          # barycentrics of corners b, c
     cell = e // 2
     x0, y0 = -W0 / 2 + (cell % nx) * dx, -H0 / 2 + (cell // nx) * dyy
     first = e % 2 == 0          # corners (x0, y0), (x0+dx, y0), (x0+dx, y0+dy) / (x0, y0), (x0+dx, y0+dy), (x0, y0+dy)

@@ -47,15 +47,8 @@ def opencv_ref_uv(renderer: Renderer, z: float, shift) -> np.ndarray:
     return out.reshape(H, W, 2)
 
 
-def backend_renderer(scene, backend, gl_ctx_factory):
-    return Renderer(scene, backend, ctx=gl_ctx_factory() if backend == "gl" else None)
-
-
-@pytest.fixture
-def ctx_for(request):
-    def make():
-        return request.getfixturevalue("gl_ctx")
-    return make
+def backend_renderer(scene, backend, ctx_for):
+    return Renderer(scene, backend, ctx=ctx_for(backend))
 
 
 # --------------------------------------------------------------------------------------------
@@ -219,7 +212,7 @@ def test_degenerate_and_folded_elements(backend, mode, ctx_for):
                        [[quads[1, 0], quads[1, 1], quads[1, 3], quads[1, 2]]]])  # bow-tie
     scene, mesh = custom_mesh_scene(nodes, quads)
     with pytest.warns(RenderWarning) as rec:
-        res = render_custom(scene, mesh, backend, ctx_for() if backend == "gl" else None, mode=mode)
+        res = render_custom(scene, mesh, backend, ctx_for(backend), mode=mode)
     text = " ".join(str(w.message) for w in rec)
     assert "107" in text and "108" in text and "zero area" in text
     assert "109" in text and "folded" in text
@@ -240,7 +233,7 @@ def crossing_scene():
 @pytest.mark.parametrize("backend", BACKENDS)
 def test_elements_behind_and_crossing_camera_plane(backend, ctx_for):
     scene, mesh = crossing_scene()
-    ctx = ctx_for() if backend == "gl" else None
+    ctx = ctx_for(backend)
     for mode in MODES:
         with pytest.warns(RenderWarning, match="cross the camera plane"):
             res = render_custom(scene, mesh, backend, ctx, step=1, mode=mode)

@@ -102,31 +102,24 @@ def _exact(view: View, e, xn, ray_ok):
     return ok & ray_ok, depth, xi, eta, np.where(ref_ok[:, None], ref_uv, np.nan)
 
 
-def rasterize(view: View, mode: str, s: int = 1) -> dict:
-    """Nearest element per sample on the s×s-per-pixel grid.
-
-    Returns flat arrays over the (H·s)·(W·s) samples: ``element`` (−1 where none), ``xi``,
-    ``eta``, ``ref_uv`` (reference-image px), ``depth`` (camera Z, mm) and ``dropped``
-    (samples that hit an element whose reference point lies outside the reference image).
-    """
-    W, H = view.camera.size
-    grid = pixel_grid(view.camera, s * s).reshape(-1, 2)
+def _nearest(camera, ref_camera, box: np.ndarray, s: int, rays: bool, map_chunk) -> dict:
+    """The nearest element per sample on the s×s-per-pixel grid, over the candidates of the
+    elements' sample boxes ``box`` (chunks come in ascending element order, so exact depth
+    ties go to the lower element index). ``map_chunk(e, idx, q, xn, xn_ok)`` maps the samples
+    ``idx`` (grid points ``q``; their undistorted rays ``xn`` when ``rays``) into the elements
+    ``e``: ``(ok, depth, xi, eta, ref_uv)``."""
+    W, H = camera.size
+    grid = pixel_grid(camera, s * s).reshape(-1, 2)
     n = len(grid)
     best = {"element": np.full(n, -1, np.int64), "depth": np.full(n, np.inf),
             "xi": np.zeros(n), "eta": np.zeros(n), "ref_uv": np.zeros((n, 2))}
-    if mode == "exact":
-        # normalized undistorted coordinates as the GL ray map stores them (no normalisation)
-        rays, ray_ok = undistort(pixel_to_normalized(grid, view.camera.intrinsics), view.camera.distortion.coeffs)
-    rw, rh = view.ref_camera.size
+    if rays:  # normalized undistorted coordinates as the GL ray map stores them (no normalisation)
+        xn, xn_ok = undistort(pixel_to_normalized(grid, camera.intrinsics), camera.distortion.coeffs)
+    rw, rh = ref_camera.size
     dropped = np.zeros(n, bool)  # hit the specimen, but the reference point is outside the image
-    for e, idx in _candidates(_boxes(view, mode, s), W * s):
-        q = grid[idx]
-        if mode == "fast":
-            ok, depth, xi, eta, ref = _fast(view, e, q)
-        elif mode == "q4":
-            ok, depth, xi, eta, ref = _q4(view, e, q)
-        else:
-            ok, depth, xi, eta, ref = _exact(view, e, rays[idx], ray_ok[idx])
+    for e, idx in _candidates(box, W * s):
+        ok, depth, xi, eta, ref = map_chunk(e, idx, grid[idx], xn[idx] if rays else None,
+                                            xn_ok[idx] if rays else None)
         inside_ref = (ref[:, 0] >= -0.5) & (ref[:, 0] <= rw - 0.5) & (ref[:, 1] >= -0.5) & (ref[:, 1] <= rh - 0.5)
         dropped[idx[ok & ~inside_ref]] = True
         ok &= inside_ref
@@ -144,6 +137,23 @@ def rasterize(view: View, mode: str, s: int = 1) -> dict:
     return best
 
 
+def rasterize(view: View, mode: str, s: int = 1) -> dict:
+    """Nearest element per sample on the s×s-per-pixel grid.
+
+    Returns flat arrays over the (H·s)·(W·s) samples: ``element`` (−1 where none), ``xi``,
+    ``eta``, ``ref_uv`` (reference-image px), ``depth`` (camera Z, mm) and ``dropped``
+    (samples that hit an element whose reference point lies outside the reference image).
+    """
+    def map_chunk(e, idx, q, xn, xn_ok):
+        if mode == "fast":
+            return _fast(view, e, q)
+        if mode == "q4":
+            return _q4(view, e, q)
+        return _exact(view, e, xn, xn_ok)
+
+    return _nearest(view.camera, view.ref_camera, _boxes(view, mode, s), s, mode == "exact", map_chunk)
+
+
 def rasterize_quadratic(view, mode: str, s: int = 1) -> dict:
     """:func:`rasterize` for quadratic elements (a :class:`~glsim.stages.quadview.QuadView`),
     modes ``exact`` (the sample's ray against the curved patch,
@@ -153,47 +163,22 @@ def rasterize_quadratic(view, mode: str, s: int = 1) -> dict:
     reference-image projections). ``xi``, ``eta`` are the patch's (ξ, η). A sample on an edge
     shared by two patches (|ξ| or |η| within 1e-9 of 1 in both) goes to the nearer, then to the
     lower element index: no gaps, no double cover."""
-    W, H = view.camera.size
-    grid = pixel_grid(view.camera, s * s).reshape(-1, 2)
-    n = len(grid)
-    best = {"element": np.full(n, -1, np.int64), "depth": np.full(n, np.inf),
-            "xi": np.zeros(n), "eta": np.zeros(n), "ref_uv": np.zeros((n, 2))}
-    if mode == "exact":
-        rays, ray_ok = undistort(pixel_to_normalized(grid, view.camera.intrinsics), view.camera.distortion.coeffs)
-    elif mode != "q4":
+    if mode not in ("exact", "q4"):
         raise ValueError(f"rasterize_quadratic draws modes exact and q4, not {mode!r}")
     b = view.bbox
     box = np.stack([b[:, 0] * s, b[:, 1] * s, b[:, 2] * s + s - 1, b[:, 3] * s + s - 1], 1)
     box[(b[:, 2] < b[:, 0]) | (b[:, 3] < b[:, 1])] = (0, 0, -1, -1)
-    rw, rh = view.ref_camera.size
-    dropped = np.zeros(n, bool)
-    for e, idx in _candidates(box, W * s):
+
+    def map_chunk(e, idx, q, xn, xn_ok):
         if mode == "q4":
             Z = view.Pd[e, :, 2:]
-            xi, eta, ok = qd.invert(view.uv[e], grid[idx], lambda i, x, y: qd.evaluate(Z[i], x, y)[:, 0])
-            depth = qd.evaluate(Z, xi, eta)[:, 0]
-            ref = qd.evaluate(view.ref_uv[e], xi, eta)
-        else:
-            xi, eta, depth, ok = qd.intersect_ray(view.Pd[e], rays[idx])
-            ok &= ray_ok[idx]
-            ref, ref_ok = project_camera_frame(qd.evaluate(view.Pr[e], xi, eta), view.ref_camera)
-            ref = np.where(ref_ok[:, None], ref, np.nan)
-        inside_ref = (ref[:, 0] >= -0.5) & (ref[:, 0] <= rw - 0.5) & (ref[:, 1] >= -0.5) & (ref[:, 1] <= rh - 0.5)
-        dropped[idx[ok & ~inside_ref]] = True
-        ok &= inside_ref
-        k = np.flatnonzero(ok)
-        order = k[np.lexsort((e[k], depth[k], idx[k]))]
-        first = order[np.unique(idx[order], return_index=True)[1]]
-        win = first[(depth[first] < best["depth"][idx[first]])
-                    | ((depth[first] == best["depth"][idx[first]]) & (e[first] < best["element"][idx[first]]))]
-        t = idx[win]
-        best["element"][t] = e[win]
-        best["depth"][t] = depth[win]
-        best["xi"][t] = xi[win]
-        best["eta"][t] = eta[win]
-        best["ref_uv"][t] = ref[win]
-    best["dropped"] = dropped & (best["element"] < 0)
-    return best
+            xi, eta, ok = qd.invert(view.uv[e], q, lambda i, x, y: qd.evaluate(Z[i], x, y)[:, 0])
+            return ok, qd.evaluate(Z, xi, eta)[:, 0], xi, eta, qd.evaluate(view.ref_uv[e], xi, eta)
+        xi, eta, depth, ok = qd.intersect_ray(view.Pd[e], xn)
+        ref, ref_ok = project_camera_frame(qd.evaluate(view.Pr[e], xi, eta), view.ref_camera)
+        return ok & xn_ok, depth, xi, eta, np.where(ref_ok[:, None], ref, np.nan)
+
+    return _nearest(view.camera, view.ref_camera, box, s, mode == "exact", map_chunk)
 
 
 def piece_of(e, xi, eta, n: int):

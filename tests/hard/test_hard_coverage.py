@@ -25,13 +25,6 @@ from glsim.scene.mesh import Mesh
 BACKENDS = ["cpu", pytest.param("gl", marks=pytest.mark.gl)]
 
 
-@pytest.fixture
-def ctx_for(request):
-    def make(backend):
-        return request.getfixturevalue("gl_ctx") if backend == "gl" else None
-    return make
-
-
 def rotation(ax_deg, ay_deg, az_deg):
     ax, ay, az = np.radians([ax_deg, ay_deg, az_deg])
     Rx = np.array([[1, 0, 0], [0, np.cos(ax), -np.sin(ax)], [0, np.sin(ax), np.cos(ax)]])

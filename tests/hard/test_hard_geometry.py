@@ -27,7 +27,7 @@ from glsim.errors import RenderWarning
 from glsim.render import Renderer
 from glsim.scene.camera import Camera, Distortion
 
-from test_hard_coverage import BACKENDS, ctx_for, custom, grid_mesh, outline_distance, plane_truth, rotation  # noqa: F401
+from test_hard_coverage import BACKENDS, custom, grid_mesh, outline_distance, plane_truth, rotation  # noqa: F401
 
 MODES = ["exact", "q4", "fast"]
 X_TOL = 1e-9          # mm: truth of an exact mode against a float64 closed form

@@ -17,7 +17,7 @@ import pytest
 from hypothesis import HealthCheck, Phase, given, settings
 from hypothesis import strategies as st
 
-from test_hard_coverage import BACKENDS, ctx_for, custom, outline_distance, perturbed_grid, rotation  # noqa: F401
+from test_hard_coverage import BACKENDS, custom, outline_distance, perturbed_grid, rotation  # noqa: F401
 from test_hard_geometry import band_px, finite_where_covered, max_err, render, rays, x_tol
 from glsim.scene.camera import Camera
 

@@ -386,7 +386,7 @@ def write_library(rig, target, n_pairs: int, out_dir, seed: int = 0, backend: st
     else:
         add = _noise_function(noise)
         seconds = []
-        with Renderer(scene, backend, ctx=ctx, mesh=plate_mesh(target, world), reference=reference(target)) as r:
+        with _pair_renderer(scene, backend, ctx, target, world) as r:
             for n_done, i in enumerate(todo, 1):
                 seconds.append(render_pair(r, target, all_poses[i], world[i], i, settings, seed, add, out))
                 if progress:
@@ -394,6 +394,12 @@ def write_library(rig, target, n_pairs: int, out_dir, seed: int = 0, backend: st
     if seconds:   # the median of this run's pairs
         io.write_text(existing, json.dumps({**manifest, "seconds_per_pair": float(np.median(seconds))}, indent=1))
     return load_library(out)
+
+
+def _pair_renderer(scene: Scene, backend: str | None, ctx, target, world) -> Renderer:
+    """The renderer of a library: the target's reference image on a plate mesh whose load
+    step i + 1 is pose i (``world``: (R, t) per pose)."""
+    return Renderer(scene, backend, ctx=ctx, mesh=plate_mesh(target, world), reference=reference(target))
 
 
 def render_pair(r: Renderer, target, pose, world_pose, i: int, settings: str, seed: int, add, out: Path) -> float:
@@ -473,9 +479,8 @@ def render_pairs(task: dict) -> list[float]:
                                m["seed"])
     world = [to_world(p.R, p.t, scene.cameras[0]) for p in poses]
     backend = task["backend"]
-    r = worker.thread_renderer(f"calib:{settings}:{m['n_pairs']}:{backend}", lambda: Renderer(
-        scene, backend, ctx=worker.thread_context() if backend == "gl" else None,
-        mesh=plate_mesh(target, world), reference=reference(target)))
+    r = worker.thread_renderer(f"calib:{settings}:{m['n_pairs']}:{backend}", lambda: _pair_renderer(
+        scene, backend, worker.thread_context() if backend == "gl" else None, target, world))
     add = _noise_function(None if m["noise"] is None else Noise(**m["noise"]))
     return [render_pair(r, target, poses[i], world[i], i, settings, m["seed"], add, Path(task["out"]))
             for i in task["pairs"]]

@@ -233,14 +233,4 @@ class LibraryPager:
 
     def screenshot(self, path: str | Path) -> Path:
         """The page as PNG (temporary name, then rename)."""
-        import imageio.v3 as iio
-        from glsim.io.images import atomic_path
-
-        path = Path(path)
-        if path.suffix.lower() != ".png":
-            raise SceneError(str(path), "a screenshot is saved as PNG", "give a file name ending in .png")
-        frame = self.frame()
-        path.parent.mkdir(parents=True, exist_ok=True)
-        with atomic_path(path) as tmp:
-            iio.imwrite(tmp, frame, extension=".png")
-        return path
+        return draw.save_png(path, self.frame)

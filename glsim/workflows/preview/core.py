@@ -16,7 +16,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from glsim.errors import GlsimError, SceneError
+from glsim.errors import GlsimError
 from glsim.render import Renderer
 from glsim.scene import Scene, load_scene
 from glsim.scene.camera import Camera
@@ -748,17 +748,7 @@ class Preview:
     @_gl
     def screenshot(self, path: str | Path) -> Path:
         """The full-quality frame as PNG."""
-        import imageio.v3 as iio
-        from glsim.io.images import atomic_path
-
-        path = Path(path)
-        if path.suffix.lower() != ".png":
-            raise SceneError(str(path), "a screenshot is saved as PNG", "give a file name ending in .png")
-        frame = self.refine()
-        path.parent.mkdir(parents=True, exist_ok=True)
-        with atomic_path(path) as tmp:
-            iio.imwrite(tmp, frame, extension=".png")
-        return path
+        return draw.save_png(path, self.refine)
 
     # ---- events (jupyter_rfb's event dicts; the window translates its own into these) ---------
     def resize(self, width: int, height: int) -> None:

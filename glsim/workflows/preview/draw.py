@@ -8,6 +8,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
+from glsim.errors import SceneError
 from glsim.scene.camera import Camera, look_at
 
 FONT = cv2.FONT_HERSHEY_SIMPLEX
@@ -181,3 +182,21 @@ def colour_bar(img: np.ndarray, x: int, y: int, w: int, h: int, lo: float, hi: f
             text(img, s2, px - text_width(s2, 0.36) // 2, y + h + 30, GREY, 0.36)
     if second is not None:
         text(img, second[1], x + w + 6, y + h + 30, GREY, 0.36)
+
+
+def save_png(path, make_frame):
+    """Write the RGB frame ``make_frame()`` gives to ``path`` as PNG (temporary name, then
+    rename); a path not ending in .png is refused before any frame is made."""
+    from pathlib import Path
+
+    import imageio.v3 as iio
+    from glsim.io.images import atomic_path
+
+    path = Path(path)
+    if path.suffix.lower() != ".png":
+        raise SceneError(str(path), "a screenshot is saved as PNG", "give a file name ending in .png")
+    frame = make_frame()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with atomic_path(path) as tmp:
+        iio.imwrite(tmp, frame, extension=".png")
+    return path
