@@ -187,12 +187,13 @@ bool intersect_ray_patch(real3 P[4], real2 xn, out real xi, out real eta, out re
     for (int k = 0; k < 2; ++k) {
         real z = dot(shape_functions(xs[k], es[k]), real4(P[0].z, P[1].z, P[2].z, P[3].z));
         if (!(ok[k] && z > 0.0 && (!found || z < Z) && in_range(xs[k], es[k]))) continue;
-        if (near_edge(xs[k], es[k])) {  // the tie rule
+        for (bool once = near_edge(xs[k], es[k]); once; once = false) {  // the tie rule
             real E[4];
             real2 m[4];
             edge_functions_ray(P, xn, E, m);
-            if (!owned(xs[k], es[k], E, m, orientation_ray(P, xs[k], es[k]))) continue;
+            if (!owned(xs[k], es[k], E, m, orientation_ray(P, xs[k], es[k]))) ok[k] = false;
         }
+        if (!ok[k]) continue;
         found = true;
         xi = xs[k];
         eta = es[k];

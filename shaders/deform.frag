@@ -10,9 +10,15 @@
 // - RESOLVE (resolve.frag, full screen): pixels with 2..CANDIDATES candidates; each sample
 //   tests every candidate and keeps the nearest owner (ties: the lower element index, as the
 //   oracle), an owner mapping outside the reference giving way to one behind it;
+// classify.frag sorted the samples into depth layers by their pixel's count, and the two
+// full-screen passes run with EARLY_TESTS on their own layer only.
 // - FALLBACK (exact.vert over the cover rectangles, depth test): pixels whose list overflowed,
 //   one element per fragment, as every pixel was drawn before the lists.
 // The exact test and the shared tie rule decide coverage in all three.
+#ifdef EARLY_TESTS
+// the full-screen passes: the depth test (classify.frag's layers) runs before the shader
+layout(early_fragment_tests) in;
+#endif
 #include "camera.glsl"
 #include "interp.glsl"
 #include "bilinear.glsl"

@@ -67,12 +67,13 @@ def test_programs_carry_only_the_scene_effects(effects_scene, gl_ctx):
             compiled = r.backend.programs.compiled
         deform = [d for files, d in compiled if "deform.frag" in files]
         assert len(deform) == 1
-        extra = set(deform[0]) - {"MODE_EXACT", "INTERP_BSPLINE3", "SS", "FP64"}
+        extra = set(deform[0]) - {"MODE_EXACT", "INTERP_BSPLINE3", "SS", "FP64", "EARLY_TESTS"}
         assert extra == expect, effect
-        # rays: exact mode's ray map; view.comp, candidates.frag, resolve.frag: its per-view element
-        # pass (covers on the GPU), the candidate lists and the pixels with several candidates
+        # rays: exact mode's ray map; view.comp, candidates.frag, classify.frag, resolve.frag: its
+        # per-view element pass (covers on the GPU), the candidate lists, their layers and the
+        # pixels with several candidates
         passes = {files[-1] for files, _ in compiled} - {"deform.frag", "rays.frag", "view.comp", "candidates.frag",
-                                                         "resolve.frag"}
+                                                         "classify.frag", "resolve.frag"}
         assert passes == {"lighting": set(), "optics": {"blur.frag"}, "noise": {"noise.frag"}, None: set()}[effect]
         assert ("noise" in res.stages) == (effect == "noise")
 

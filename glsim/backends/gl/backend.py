@@ -24,7 +24,7 @@ from glsim.stages import truth
 from glsim.stages.geometry import ViewSpec
 from glsim.stages.view import warn_dropped, warn_problems
 from glsim.backends.gl.context import check_error, create_context
-from glsim.backends.gl.geometry import GeometryBuffers
+from glsim.backends.gl.geometry import LAYERS, GeometryBuffers
 from glsim.backends.gl.programs import ProgramCache
 
 
@@ -115,10 +115,11 @@ class GLBackend:
             if depth_out:
                 color.append(ctx.texture((width, height), 1, dtype="f4"))
             depth = ctx.depth_renderbuffer((width, height))
-            # the grey target alone, to clear it to the background grey (the others clear to 0)
+            # the grey target alone, to clear it to the background grey (the others clear to 0);
+            # the depth buffer alone, for classify.frag's layers
             grey_only = ctx.framebuffer(color_attachments=color[:1])
             self._targets[key] = (ctx.framebuffer(color_attachments=color, depth_attachment=depth), color, depth,
-                                  grey_only)
+                                  grey_only, ctx.framebuffer(depth_attachment=depth))
         return self._targets[key]
 
     def _unbind(self) -> None:
@@ -128,9 +129,10 @@ class GLBackend:
 
     def close(self) -> None:
         self._unbind()
-        for fbo, color, depth, grey_only in self._targets.values():
+        for fbo, color, depth, grey_only, depth_only in self._targets.values():
             fbo.release()
             grey_only.release()
+            depth_only.release()
             for t in color:
                 t.release()
             depth.release()
@@ -272,7 +274,7 @@ class GLBackend:
             # per pixel, the elements whose tight rectangle meets its samples (candidates.frag)
             geo.view_pass(view, opts.mode, fp64, camera_uniforms, grow=0.5 - 0.5 / s)
             geo.candidates_pass(W, H, s)
-        fbo, color, _, grey_only = self._target(W * s, H * s, truth, "TRUTH_LO" in defines,
+        fbo, color, _, grey_only, depth_only = self._target(W * s, H * s, truth, "TRUTH_LO" in defines,
                                                   "DEPTH_OUT" in defines)
         # the grey target starts at the background; truth and depth targets at zero
         fbo.clear(0.0, 0.0, 0.0, 0.0, depth=1.0)
@@ -286,16 +288,23 @@ class GLBackend:
             fbo.use()
             ctx.enable(ctx.DEPTH_TEST)
             geo.draw(prog)
-        else:  # pass 2, full screen: pixels with one candidate, then those with several
+        else:  # pass 2, full screen, each program on its layer: one candidate, then several
             multiple, overflowed = geo.list_flags(W, H)
+            ctx.enable(ctx.DEPTH_TEST)
+            geo.classify_pass(depth_only, W, H, s)
+            ctx.depth_func = "=="
+            fbo.depth_mask = False
             for frag in ("deform.frag", "resolve.frag") if multiple else ("deform.frag",):
-                prog = self.programs.program("lists.vert", frag, defines=defines)
+                prog = self.programs.program("lists.vert", frag, defines={**defines, "EARLY_TESTS": None})
                 setup(prog)
                 fbo.use()
                 geo.bind_lists(W, H, prog)
+                prog["u_layer"].value = LAYERS[frag]
                 vao = ctx.vertex_array(prog, [])
                 vao.render(ctx.TRIANGLES, vertices=3)
                 vao.release()
+            ctx.depth_func = "<"
+            fbo.depth_mask = True
             if overflowed:  # pixels with more candidates than the lists hold: the cover rectangles
                 prog = self.programs.program("exact.vert", "deform.frag", defines={**defines, "FALLBACK": None})
                 setup(prog)

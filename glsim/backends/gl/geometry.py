@@ -24,6 +24,8 @@ from glsim.stages.view import GRAZING_COS, NEAR_MM, ray_radius
 _CORNERS = np.array([0, 1, 2, 0, 2, 3], np.uint32)  # two triangles per element, as the oracle's fast mode
 _GROUP = 64          # view.comp's local size
 CANDIDATES = 8       # candidates.glsl: elements listed per pixel before it overflows
+# classify.frag's window depths: the full-screen pass 2 program run on each (lists.vert)
+LAYERS = {"deform.frag": 0.25, "resolve.frag": 0.5}
 _MAX_GROUPS = 65535  # per dispatch dimension
 
 
@@ -223,6 +225,19 @@ class GeometryBuffers:
         empty.viewport = (0, 0, W, H)
         self.draw(prog)
         self.ctx.memory_barrier()
+
+    def classify_pass(self, depth_only, W: int, H: int, s: int) -> None:
+        """Pass 1b: each sample's depth set to the layer of its pixel's candidate count
+        (classify.frag into ``depth_only``, the deformation target's depth buffer at s×s samples
+        per pixel, cleared to 1; depth test on)."""
+        prog = self.programs.program("lists.vert", "classify.frag", defines={
+            "SS": s, "LAYER_SINGLE": LAYERS["deform.frag"], "LAYER_MULTIPLE": LAYERS["resolve.frag"]})
+        prog["u_layer"].value = 0.0
+        self.bind_lists(W, H)
+        depth_only.use()
+        vao = self.ctx.vertex_array(prog, [])
+        vao.render(self.ctx.TRIANGLES, vertices=3)
+        vao.release()
 
     def bind_lists(self, W: int, H: int, prog=None) -> None:
         """The lists as images (pass 1) and, for ``prog`` (pass 2), as textures on units 2, 3."""
