@@ -1,4 +1,4 @@
-"""The evaluation command lines: ``glsim bench {accuracy,effects,library,scaling}``, ``glsim verify {run,
+"""The evaluation command lines: ``glsim bench {accuracy,effects,library,preview,scaling,quadratic,peer}``, ``glsim verify {run,
 compare,sweep,sweep-compare,frontier,backends}`` and ``glsim docs [--check]``.
 
 Committed results live in ``bench/results``; only a full-size run writes there by default. A
@@ -203,10 +203,22 @@ def bench_main(argv: list[str]) -> int:
     qua.add_argument("--size", nargs=2, type=int, metavar=("W", "H"),
                      help=f"image size (default {quadratic.FULL_SIZE[0]} {quadratic.FULL_SIZE[1]})")
     qua.set_defaults(reps=1)
-    for p, name in ((acc, "accuracy"), (eff, "effects"), (lib, "library"), (sca, "scaling"), (qua, "quadratic")):
+    from glsim.evaluation import peer
+    pee = sub.add_parser("peer", help="riley-raster against glsim GL on one plate (k1 0 and -0.1, cubic, 4 spp): "
+                         "interleaved times, mapping and grey error against the CPU oracle")
+    pee.add_argument("--size", nargs=2, type=int, metavar=("W", "H"),
+                     help=f"image size (default {peer.FULL_SIZE[0]} {peer.FULL_SIZE[1]}; with --quick "
+                     f"{peer.QUICK_SIZE[0]} {peer.QUICK_SIZE[1]})")
+    pee.add_argument("--reps", type=int, default=None,
+                     help=f"interleaved repetitions after one warm-up (default {peer.REPS}; with --quick 3)")
+    pee.add_argument("--quick", action="store_true", help="half size, 3 repetitions (writes to build/bench)")
+    for p, name in ((acc, "accuracy"), (eff, "effects"), (lib, "library"), (sca, "scaling"), (qua, "quadratic"),
+                    (pee, "peer")):
         p.add_argument("--out", default=None, help=f"directory of {name}.json / {name}.md (default {RESULTS} for a "
                        f"full-size run, {SCRATCH} otherwise)")
     args = parser.parse_args(argv)
+    if args.command == "peer" and args.reps is None:
+        args.reps = 3 if args.quick else peer.REPS
     if args.reps < 1 or (args.size and min(args.size) < 2):
         parser.error("--reps must be ≥ 1 and --size at least 2 2")
     quick = getattr(args, "quick", False)
@@ -237,6 +249,11 @@ def bench_main(argv: list[str]) -> int:
             size = tuple(args.size) if args.size else quadratic.FULL_SIZE
             out = results_dir(args.out, size == quadratic.FULL_SIZE, "quadratic")
             print(quadratic.write(quadratic.quadratic(size), out))
+            return 0
+        if args.command == "peer":
+            size = tuple(args.size) if args.size else peer.QUICK_SIZE if quick else peer.FULL_SIZE
+            out = results_dir(args.out, size == peer.FULL_SIZE and args.reps >= peer.REPS, "peer")
+            print(peer.write(peer.peer(size, args.reps, log=lambda m: print(m, file=sys.stderr, flush=True)), out))
             return 0
         if args.command == "effects":
             print(effects.write(effects.effects(size, args.reps), out))

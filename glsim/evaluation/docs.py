@@ -122,6 +122,28 @@ def peer(acc: dict) -> str:
             f"{_s(q4['seconds'])} s, {_s(ex['seconds'])} s).")
 
 
+
+# ---- peer.json -------------------------------------------------------------------------------
+def peer_rows(p: dict) -> str:
+    """README: glsim GL against riley-raster (glsim bench peer): time ratios, times, mapping error, goals."""
+    W, H = p["size"]
+    ok = [r for r in p["rows"] if r["status"] == "ok"]
+    missing = [r for r in p["rows"] if r["status"] != "ok"]
+    lines = [f"`glsim bench peer` ({machine_line(p['machine'])}, {p['date'][:10]}): the same plate, "
+             f"{p['elements'][0]}×{p['elements'][1]} quad4, {W}×{H}, Catmull–Rom cubic, {p['spp']} spp, without and "
+             f"with k1 = −0.1; median of {p['reps']} interleaved repetitions; mapping error: each renderer's "
+             "material point per pixel centre against the float64 oracle's, in camera px (riley from its ξ/η "
+             "maps, its element taken from the oracle's)."
+             + ("" if not missing else f" riley-raster: {missing[0]['status']} in this run."), "",
+             "| renderer | k1 | glsim / riley time | riley / glsim time | time (s) | mapping RMS / max (camera px) "
+             "| grey RMS vs oracle |", "|---|---|---|---|---|---|---|"]
+    lines += [f"| {r['renderer']} | {r['k1']:g} | {_s(r['glsim_over_riley'])} | {_s(r['riley_over_glsim'])} | "
+              f"{_s(r['seconds'])} | {_s(r['map_rms_px'])} / {_s(r['map_max_px'])} | {_s(r['grey_rms'])} |" for r in ok]
+    lines += ["", "Issue 12's goals in that run:", "", "| goal | measured | met |", "|---|---|---|"]
+    lines += [f"| {g['goal']} | {g['measured']} | {'not measured' if g['met'] is None else 'yes' if g['met'] else 'no'} |"
+              for g in p["goals"]]
+    return "\n".join(lines)
+
 # ---- effects.json ----------------------------------------------------------------------------
 def effects(eff: dict) -> str:
     rows = {(r["backend"], r["effects"]): r["seconds"] for r in eff["records"]}
@@ -879,7 +901,8 @@ GENERATORS = {"preview": preview, "accuracy-table": accuracy_table, "accuracy-fa
               "scaling-table": scaling_table, "scaling-goals": scaling_goals,
               "preview-overhead": preview_overhead, "fe-bulge-centre": fe_bulge_centre,
               "fe-bulge-centre-5mm": fe_bulge_centre_5mm, "sweep-subsets": sweep_subsets,
-              "quadratic-tables": quadratic_tables, "quadratic-rows": quadratic_rows, "quadratic-fast": quadratic_fast}
+              "quadratic-tables": quadratic_tables, "quadratic-rows": quadratic_rows, "quadratic-fast": quadratic_fast,
+              "peer-rows": peer_rows}
 
 
 # ---- regions ---------------------------------------------------------------------------------

@@ -147,12 +147,6 @@ def markdown(report: dict) -> str:
 
 
 def write(report: dict, out) -> str:
-    import json
-    from pathlib import Path
-
-    from glsim.io import images as io
-    out = Path(out)
-    out.mkdir(parents=True, exist_ok=True)
-    io.write_text(out / "quadratic.json", json.dumps(report, indent=2) + "\n")
-    io.write_text(out / "quadratic.md", text := markdown(report))
-    return text
+    """quadratic.json and quadratic.md into ``out``; returns the markdown."""
+    from glsim.evaluation.report import write_results
+    return write_results(report, markdown(report), out, "quadratic")

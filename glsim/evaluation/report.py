@@ -52,3 +52,14 @@ def save_figure(fig, path: str | Path, dpi: int) -> Path:
         fig.savefig(tmp, dpi=dpi, format="png")
     plt.close(fig)
     return path
+
+
+def write_results(report: dict, text: str, out: str | Path, name: str) -> str:
+    """``name``.json (the report) and ``name``.md (``text``) written atomically into ``out``; returns ``text``."""
+    import json
+
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    io.write_text(out / f"{name}.json", json.dumps(report, indent=2) + "\n")
+    io.write_text(out / f"{name}.md", text)
+    return text

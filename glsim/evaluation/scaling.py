@@ -310,17 +310,9 @@ def rewrite(path) -> str:
 
 
 def write(report: dict, out) -> str:
-    import json
-    from pathlib import Path
-
-    from glsim.io import images as io
-
-    out = Path(out)
-    out.mkdir(parents=True, exist_ok=True)
-    text = markdown(report)
-    io.write_text(out / "scaling.json", json.dumps(report, indent=2) + "\n")
-    io.write_text(out / "scaling.md", text)
-    return text
+    """scaling.json and scaling.md into ``out``; returns the markdown."""
+    from glsim.evaluation.report import write_results
+    return write_results(report, markdown(report), out, "scaling")
 
 
 if __name__ == "__main__":  # pragma: no cover - a single point, for profiling
