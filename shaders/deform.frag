@@ -52,6 +52,10 @@ layout(std430, binding = 7) readonly buffer RefUV { real ref_uv[]; };
 #else
 layout(std430, binding = 8) readonly buffer RefXr { real ref_xr[]; };
 #endif
+#ifdef CAMERA_LOCAL
+// float32 exact on a driver with float64: view.comp's RECORD_LOCAL records (32 per element)
+layout(std430, binding = 16) readonly buffer Local { float elem_local[]; };
+#endif
 #ifdef REF_LOCAL
 // float32 exact with a pinhole reference camera (glsim.backends.gl.geometry.ref_local_buffer):
 // per element its reference-frame corners relative to their centre C (12), C (3), 0, and the
@@ -137,11 +141,52 @@ real2 ref_lo = real2(0.0);   // REF_LOCAL: what float32 dropped from the last ma
 bool inside_reference(real2 ref) {
     return !(ref.x < -0.5 || ref.y < -0.5 || ref.x > real(u_ref_size.x) - 0.5 || ref.y > real(u_ref_size.y) - 0.5);
 }
+#if defined(MODE_EXACT)
+real2 ray_lo = real2(0.0);   // float32 builds: the ray's low half, apart (CAMERA_LOCAL)
+
+// The ray (xn, 1) of a ray-map texel (hi, lo): summed in FP64 builds; float32 builds return the
+// high half and keep the low one in ray_lo.
+real2 ray_of(vec4 texel) {
+#ifdef FP64
+    ray_lo = real2(0.0);
+    return real2(texel.xy) + real2(texel.zw);
+#else
+    ray_lo = texel.zw;
+    return texel.xy;
+#endif
+}
+#endif
+
 #if defined(MODE_EXACT) && !defined(QUADRATIC)
 // Element e's corners in the camera frame (mm), from view.comp's records.
 void element_camera(int e, out real3 P[4]) {
+#ifdef CAMERA_LOCAL
+    int l = 32 * e;
+    for (int i = 0; i < 4; ++i) P[i] = real3(elem_local[l + 3 * i], elem_local[l + 3 * i + 1], elem_local[l + 3 * i + 2]);
+#else
     int b = e * 12;
     for (int i = 0; i < 4; ++i) P[i] = real3(elem_data[b + 3 * i], elem_data[b + 3 * i + 1], elem_data[b + 3 * i + 2]);
+#endif
+}
+
+// The 2-D problem of the ray (xn + lo, 1) at element e's corners: p = P.xy - xn P.z (mm). With
+// CAMERA_LOCAL, (D.xy - xn D.z) - C.z (xn - C.xy / C.z) with D = P - C, so that float32 never
+// subtracts the ~100 mm terms of nearly equal size that P.xy - xn P.z does.
+void projected_corners(int e, real3 P[4], real2 xn, real2 lo, out real2 p[4]) {
+#ifdef CAMERA_LOCAL
+    int l = 32 * e;
+    float cz = elem_local[l + 24];
+    if (cz > 0.0) {
+        // the high halves' difference is exact (they are close), the low ones' small
+        vec2 d = (xn - vec2(elem_local[l + 26], elem_local[l + 27])) + (lo - vec2(elem_local[l + 28], elem_local[l + 29]));
+        for (int i = 0; i < 4; ++i) {
+            vec3 D = vec3(elem_local[l + 12 + 3 * i], elem_local[l + 13 + 3 * i], elem_local[l + 14 + 3 * i]);
+            p[i] = (D.xy - xn * D.z) - cz * d;
+        }
+        return;
+    }
+#endif
+    for (int i = 0; i < 4; ++i) p[i] = P[i].xy - xn * P[i].z;
 }
 
 // The reference-image point of (xi, eta) on element e (the undeformed point seen by the
@@ -230,7 +275,9 @@ bool map_sample(int e, real2 px, real2 xn, out real xi, out real eta, out real2 
 #else
     real3 P[4];
     element_camera(e, P);
-    if (!intersect_ray_patch(P, xn, xi, eta, Z)) return false;
+    real2 p[4];
+    projected_corners(e, P, xn, ray_lo, p);
+    if (!intersect_ray_patch_p(P, p, xn, xi, eta, Z)) return false;
     ref_ok = exact_reference(e, xi, eta, ref);
 #endif
     ref_ok = ref_ok && inside_reference(ref);
@@ -269,7 +316,7 @@ void main() {
 #if defined(MODE_EXACT)
     vec4 ray = texelFetch(u_rays, ivec2(gl_FragCoord.xy), 0);
     if (ray.x >= 1e30) discard;  // rays.frag's NO_RAY
-    xn = real2(ray.xy) + real2(ray.zw);
+    xn = ray_of(ray);
 #endif
     int elem = -1;
     real Z = 0.0;

@@ -57,9 +57,9 @@ void main() {
     element_camera(e, P);
     real4 Pz = real4(P[0].z, P[1].z, P[2].z, P[3].z);
     vec4 rc = texelFetch(u_centre_rays, pix, 0);
-    real2 xc = real2(rc.xy) + real2(rc.zw);
+    real2 xc = ray_of(rc);
     real2 p[4];
-    for (int k = 0; k < 4; ++k) p[k] = P[k].xy - xc * P[k].z;
+    projected_corners(e, P, xc, ray_lo, p);
     real xs[2], es[2];
     bool ok[2];
     invert_closed(p, real2(0.0), xs, es, ok);
@@ -74,8 +74,8 @@ void main() {
     for (int j = 0; j < SS; ++j)
         for (int i = 0; i < SS; ++i) {
             vec4 ray = texelFetch(u_rays, pix * SS + ivec2(i, j), 0);
-            real2 xn = real2(ray.xy) + real2(ray.zw);
-            for (int k = 0; k < 4; ++k) p[k] = P[k].xy - xn * P[k].z;
+            real2 xn = ray_of(ray);
+            projected_corners(e, P, xn, ray_lo, p);
             real xi = xs[r], eta = es[r];
             bool converged = false;
             for (int it = 0; it < SUBSAMPLE_STEPS && !converged; ++it) {

@@ -142,15 +142,16 @@ def test_newton_subsamples_match_the_oracle_on_bulge(bulge_pair, spp):
 
 @pytest.mark.gl
 def test_gl_fp32_exact_is_bounded(bulge_pair):
-    """float32 arithmetic in the exact mode, the reference projection relative to each element's
-    centre (REF_LOCAL): measured 5.9e-5 px max here on llvmpipe (1.1e-4 with the direct
-    projection); bound 1.5e-4 px, room for other drivers' float32 rounding."""
+    """float32 arithmetic in the exact mode, the camera-side problem and the reference projection
+    relative to each element's centre (CAMERA_LOCAL, REF_LOCAL): measured 3.6e-5 px max here on
+    llvmpipe (5.9e-5 with only REF_LOCAL, 1.1e-4 with neither); bound 1e-4 px, room for other
+    drivers' float32 rounding (issue 12's goal: 2e-4)."""
     g, c = bulge_pair
     a = g.render(0, 1, truth=True, mode="exact", precision="fp32")
     b = c.render(0, 1, truth=True, mode="exact")
     both = a.truth.mask & b.truth.mask
     d = np.linalg.norm(a.truth.ref_uv[both] - b.truth.ref_uv[both], axis=-1)
-    assert d.max() < 1.5e-4 and (a.truth.mask ^ b.truth.mask).sum() <= 20
+    assert d.max() < (1e-4 if g.backend.fp64 else 1.5e-4) and (a.truth.mask ^ b.truth.mask).sum() <= 20
 
 
 @pytest.mark.gl

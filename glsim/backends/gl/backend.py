@@ -230,15 +230,20 @@ class GLBackend:
                      and not np.any(ref_cam.distortion.coeffs))
         if ref_local:
             defines["REF_LOCAL"] = None
+        # float32 exact on a driver with float64: the per-element and per-camera work (records,
+        # ray map) in float64, the per-sample work in float32 relative to each element's centre
+        camera_local = ref_local and self.fp64
+        if camera_local:
+            defines["CAMERA_LOCAL"] = None
         geo = self._buffers(view)
         patch_buffers = self._patch_buffers(patches, opts.mode, fp64) if patches is not None else ()
 
-        def camera_uniforms(p):
-            self._set(p, "u_intr", cam.intrinsics, fp64)
-            self._set(p, "u_dist", cam.distortion.coeffs, fp64)
-            self._set(p, "u_valid_r2", [cam.distortion.valid_radius() ** 2], fp64)
+        def camera_uniforms(p, double: bool = fp64):
+            self._set(p, "u_intr", cam.intrinsics, double)
+            self._set(p, "u_dist", cam.distortion.coeffs, double)
+            self._set(p, "u_valid_r2", [cam.distortion.valid_radius() ** 2], double)
             if patches is not None:
-                self._set(p, "u_extra_sag", [patches.extra_sag_px], fp64)
+                self._set(p, "u_extra_sag", [patches.extra_sag_px], double)
 
         dropped = ctx.buffer(bytes(4))  # deform.frag counts samples mapping outside the reference
         buffers = [dropped]
@@ -274,13 +279,16 @@ class GLBackend:
                 if prog.get("u_ref", None) is not None:
                     prog["u_ref"].value = 0
             if prog.get("u_rays", None) is not None:
-                self._ray_map(cam, s, fp64).use(1)
+                self._ray_map(cam, s, fp64 or camera_local).use(1)
                 prog["u_rays"].value = 1
 
         if opts.mode != "fast":
             # element records, covers and tight rectangles of this view (view.comp), then pass 1:
             # per pixel, the elements whose tight rectangle meets its samples (candidates.frag)
-            geo.view_pass(view, opts.mode, fp64, camera_uniforms, grow=0.5 - 0.5 / s)
+            if camera_local:
+                geo.view_pass(view, opts.mode, True, lambda p: camera_uniforms(p, True), 0.5 - 0.5 / s, local=True)
+            else:
+                geo.view_pass(view, opts.mode, fp64, camera_uniforms, grow=0.5 - 0.5 / s)
             geo.candidates_pass(W, H, s)
         pixel_loop = newton_subsamples(opts, s, patches is not None)
 
@@ -309,7 +317,8 @@ class GLBackend:
             geo.classify_pass(pixel[4], W, H, 1)
             ctx.depth_func, pixel[0].depth_mask = "==", False
             fullscreen("subsamples.frag", pixel[0], LAYERS["deform.frag"], {"EARLY_TESTS": None},
-                       {"u_centre_rays": self._ray_map(cam, 1, fp64)}, {"u_background": float(opts.background)})
+                       {"u_centre_rays": self._ray_map(cam, 1, fp64 or camera_local)},
+                       {"u_background": float(opts.background)})
             ctx.depth_func, pixel[0].depth_mask = "<", True
             ctx.memory_barrier()   # its LIST_DONE marks seen by the passes below
         fbo, color, _, grey_only, depth_only = self._target(W * s, H * s, truth, "TRUTH_LO" in defines,
