@@ -174,9 +174,17 @@ void invert_closed(real2 p[4], real2 q, out real xi[2], out real eta[2], out boo
 // origin along (x, y, 1)) with the bilinear patch P (camera frame, mm): X - x Z = 0 and
 // Y - y Z = 0 are two planes through the ray; at the corners they give a 2-D inverse bilinear
 // problem with target (0, 0). A root counts where the tie rule (owned) gives it to this element.
+bool intersect_ray_patch_p(real3 P[4], real2 p[4], real2 xn, out real xi, out real eta, out real Z);
+
 bool intersect_ray_patch(real3 P[4], real2 xn, out real xi, out real eta, out real Z) {
     real2 p[4];
     for (int i = 0; i < 4; ++i) p[i] = P[i].xy - xn * P[i].z;
+    return intersect_ray_patch_p(P, p, xn, xi, eta, Z);
+}
+
+// The same with the corners' 2-D problem p = P.xy - xn P.z given (deform.frag's CAMERA_LOCAL
+// makes it relative to the element's centre in float32).
+bool intersect_ray_patch_p(real3 P[4], real2 p[4], real2 xn, out real xi, out real eta, out real Z) {
     real xs[2], es[2];
     bool ok[2];
     invert_closed(p, real2(0.0), xs, es, ok);

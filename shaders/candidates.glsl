@@ -3,6 +3,8 @@
 // Written by candidates.frag (pass 1), read by deform.frag (pass 2); the backend clears the
 // counts before each view.
 #define CANDIDATES 8
+// a count set by subsamples.frag: the pixel is done (every later pass skips it)
+#define LIST_DONE 0xFFFFFFFFu
 layout(r32ui, binding = 0) uniform coherent uimage2D u_cand_count;
 layout(r32ui, binding = 1) uniform coherent uimage2DArray u_cand_list;
 // per element, from view.comp: its tight rectangle, padded only for float32 rounding

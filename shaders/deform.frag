@@ -10,11 +10,12 @@
 // - RESOLVE (resolve.frag, full screen): pixels with 2..CANDIDATES candidates; each sample
 //   tests every candidate and keeps the nearest owner (ties: the lower element index, as the
 //   oracle), an owner mapping outside the reference giving way to one behind it;
-// classify.frag sorted the samples into depth layers by their pixel's count, and the two
-// full-screen passes run with EARLY_TESTS on their own layer only.
 // - FALLBACK (exact.vert over the cover rectangles, depth test): pixels whose list overflowed,
 //   one element per fragment, as every pixel was drawn before the lists.
-// The exact test and the shared tie rule decide coverage in all three.
+// classify.frag sorted the samples into depth layers by their pixel's count, and the two
+// full-screen passes run with EARLY_TESTS on their own layer only. The exact test and the
+// shared tie rule decide coverage in all three. With PIXEL_LOOP (subsamples.frag) this file
+// supplies the functions and that file the main.
 #ifdef EARLY_TESTS
 // the full-screen passes: the depth test (classify.frag's layers) runs before the shader
 layout(early_fragment_tests) in;
@@ -50,6 +51,10 @@ layout(std430, binding = 0) readonly buffer Elements { real elem_data[]; };
 layout(std430, binding = 7) readonly buffer RefUV { real ref_uv[]; };
 #else
 layout(std430, binding = 8) readonly buffer RefXr { real ref_xr[]; };
+#endif
+#ifdef CAMERA_LOCAL
+// float32 exact on a driver with float64: view.comp's RECORD_LOCAL records (32 per element)
+layout(std430, binding = 16) readonly buffer Local { float elem_local[]; };
 #endif
 #ifdef REF_LOCAL
 // float32 exact with a pinhole reference camera (glsim.backends.gl.geometry.ref_local_buffer):
@@ -133,6 +138,88 @@ float light_at(int e, real xi, real eta) {
 #if !defined(MODE_FAST)
 real2 ref_lo = real2(0.0);   // REF_LOCAL: what float32 dropped from the last mapped ref (truth)
 
+bool inside_reference(real2 ref) {
+    return !(ref.x < -0.5 || ref.y < -0.5 || ref.x > real(u_ref_size.x) - 0.5 || ref.y > real(u_ref_size.y) - 0.5);
+}
+#if defined(MODE_EXACT)
+real2 ray_lo = real2(0.0);   // float32 builds: the ray's low half, apart (CAMERA_LOCAL)
+
+// The ray (xn, 1) of a ray-map texel (hi, lo): summed in FP64 builds; float32 builds return the
+// high half and keep the low one in ray_lo.
+real2 ray_of(vec4 texel) {
+#ifdef FP64
+    ray_lo = real2(0.0);
+    return real2(texel.xy) + real2(texel.zw);
+#else
+    ray_lo = texel.zw;
+    return texel.xy;
+#endif
+}
+#endif
+
+#if defined(MODE_EXACT) && !defined(QUADRATIC)
+// Element e's corners in the camera frame (mm), from view.comp's records.
+void element_camera(int e, out real3 P[4]) {
+#ifdef CAMERA_LOCAL
+    int l = 32 * e;
+    for (int i = 0; i < 4; ++i) P[i] = real3(elem_local[l + 3 * i], elem_local[l + 3 * i + 1], elem_local[l + 3 * i + 2]);
+#else
+    int b = e * 12;
+    for (int i = 0; i < 4; ++i) P[i] = real3(elem_data[b + 3 * i], elem_data[b + 3 * i + 1], elem_data[b + 3 * i + 2]);
+#endif
+}
+
+// The 2-D problem of the ray (xn + lo, 1) at element e's corners: p = P.xy - xn P.z (mm). With
+// CAMERA_LOCAL, (D.xy - xn D.z) - C.z (xn - C.xy / C.z) with D = P - C, so that float32 never
+// subtracts the ~100 mm terms of nearly equal size that P.xy - xn P.z does.
+void projected_corners(int e, real3 P[4], real2 xn, real2 lo, out real2 p[4]) {
+#ifdef CAMERA_LOCAL
+    int l = 32 * e;
+    float cz = elem_local[l + 24];
+    if (cz > 0.0) {
+        // the high halves' difference is exact (they are close), the low ones' small
+        vec2 d = (xn - vec2(elem_local[l + 26], elem_local[l + 27])) + (lo - vec2(elem_local[l + 28], elem_local[l + 29]));
+        for (int i = 0; i < 4; ++i) {
+            vec3 D = vec3(elem_local[l + 12 + 3 * i], elem_local[l + 13 + 3 * i], elem_local[l + 14 + 3 * i]);
+            p[i] = (D.xy - xn * D.z) - cz * d;
+        }
+        return;
+    }
+#endif
+    for (int i = 0; i < 4; ++i) p[i] = P[i].xy - xn * P[i].z;
+}
+
+// The reference-image point of (xi, eta) on element e (the undeformed point seen by the
+// reference camera); false where that camera cannot project it.
+bool exact_reference(int e, real xi, real eta, out real2 ref) {
+    bool ref_ok;
+#ifdef REF_LOCAL
+    // X = C + D(xi, eta): xn(X) - xn(C) = (D.xy C.z - C.xy D.z) / (C.z (C.z + D.z)), small and
+    // exact to float32's relative precision, added to C's pixel kept as hi + lo
+    int r = e * 20;
+    real3 D[4];
+    for (int i = 0; i < 4; ++i) D[i] = real3(ref_local[r + 3 * i], ref_local[r + 3 * i + 1], ref_local[r + 3 * i + 2]);
+    real3 d = bilinear3(D, xi, eta);
+    real3 C = real3(ref_local[r + 12], ref_local[r + 13], ref_local[r + 14]);
+    real zd = C.z + d.z;
+    real2 dxn = (d.xy * C.z - C.xy * d.z) / (C.z * zd);
+    real2 duv = real2(u_ref_intr[0] * dxn.x + u_ref_intr[2] * dxn.y, u_ref_intr[1] * dxn.y);
+    real2 hi = real2(ref_local[r + 16], ref_local[r + 17]);
+    ref_lo = real2(ref_local[r + 18], ref_local[r + 19]) + duv;
+    ref = hi + ref_lo;
+    ref_lo -= ref - hi;   // what the float32 sum dropped (Fast2Sum: |hi| >= |lo| here)
+    real2 xn_ref = C.xy / C.z + dxn;
+    ref_ok = zd > 0.0 && dot(xn_ref, xn_ref) < u_ref_valid_r2;
+#else
+    ivec4 q = quads[e];
+    real3 R[4];  // undeformed corners in the reference camera's frame (mm)
+    for (int i = 0; i < 4; ++i) R[i] = real3(ref_xr[3 * q[i]], ref_xr[3 * q[i] + 1], ref_xr[3 * q[i] + 2]);
+    ref_ok = project_camera_frame(bilinear3(R, xi, eta), u_ref_intr, u_ref_dist, u_ref_valid_r2, ref);
+#endif
+    return ref_ok;
+}
+#endif
+
 // Map this sample (pixel point px; ray xn in mode exact) into element e: false where e does
 // not own it (the tie rule); ref_ok false where it does but its reference point lies outside
 // the reference image (or the reference camera cannot project it).
@@ -187,38 +274,19 @@ bool map_sample(int e, real2 px, real2 xn, out real xi, out real eta, out real2 
     ref_ok = true;
 #else
     real3 P[4];
-    for (int i = 0; i < 4; ++i) P[i] = real3(elem_data[b + 3 * i], elem_data[b + 3 * i + 1], elem_data[b + 3 * i + 2]);
-    if (!intersect_ray_patch(P, xn, xi, eta, Z)) return false;
-#ifdef REF_LOCAL
-    // X = C + D(xi, eta): xn(X) - xn(C) = (D.xy C.z - C.xy D.z) / (C.z (C.z + D.z)), small and
-    // exact to float32's relative precision, added to C's pixel kept as hi + lo
-    int r = e * 20;
-    real3 D[4];
-    for (int i = 0; i < 4; ++i) D[i] = real3(ref_local[r + 3 * i], ref_local[r + 3 * i + 1], ref_local[r + 3 * i + 2]);
-    real3 d = bilinear3(D, xi, eta);
-    real3 C = real3(ref_local[r + 12], ref_local[r + 13], ref_local[r + 14]);
-    real zd = C.z + d.z;
-    real2 dxn = (d.xy * C.z - C.xy * d.z) / (C.z * zd);
-    real2 duv = real2(u_ref_intr[0] * dxn.x + u_ref_intr[2] * dxn.y, u_ref_intr[1] * dxn.y);
-    real2 hi = real2(ref_local[r + 16], ref_local[r + 17]);
-    ref_lo = real2(ref_local[r + 18], ref_local[r + 19]) + duv;
-    ref = hi + ref_lo;
-    ref_lo -= ref - hi;   // what the float32 sum dropped (Fast2Sum: |hi| >= |lo| here)
-    real2 xn_ref = C.xy / C.z + dxn;
-    ref_ok = zd > 0.0 && dot(xn_ref, xn_ref) < u_ref_valid_r2;
-#else
-    ivec4 q = quads[e];
-    real3 R[4];  // undeformed corners in the reference camera's frame (mm)
-    for (int i = 0; i < 4; ++i) R[i] = real3(ref_xr[3 * q[i]], ref_xr[3 * q[i] + 1], ref_xr[3 * q[i] + 2]);
-    ref_ok = project_camera_frame(bilinear3(R, xi, eta), u_ref_intr, u_ref_dist, u_ref_valid_r2, ref);
+    element_camera(e, P);
+    real2 p[4];
+    projected_corners(e, P, xn, ray_lo, p);
+    if (!intersect_ray_patch_p(P, p, xn, xi, eta, Z)) return false;
+    ref_ok = exact_reference(e, xi, eta, ref);
 #endif
-#endif
-    ref_ok = ref_ok && !(ref.x < -0.5 || ref.y < -0.5 || ref.x > real(u_ref_size.x) - 0.5 ||
-                         ref.y > real(u_ref_size.y) - 0.5);
+    ref_ok = ref_ok && inside_reference(ref);
     return true;
 }
 #endif
 
+
+#ifndef PIXEL_LOOP
 void main() {
     real xi, eta;
     real2 ref;
@@ -238,7 +306,7 @@ void main() {
 #if defined(RESOLVE)
     if (n < 2u || n > uint(CANDIDATES)) discard;
 #elif defined(FALLBACK)
-    if (n <= uint(CANDIDATES)) discard;
+    if (n <= uint(CANDIDATES) || n == LIST_DONE) discard;
 #else
     if (n != 1u) discard;
 #endif
@@ -248,7 +316,7 @@ void main() {
 #if defined(MODE_EXACT)
     vec4 ray = texelFetch(u_rays, ivec2(gl_FragCoord.xy), 0);
     if (ray.x >= 1e30) discard;  // rays.frag's NO_RAY
-    xn = real2(ray.xy) + real2(ray.zw);
+    xn = ray_of(ray);
 #endif
     int elem = -1;
     real Z = 0.0;
@@ -312,3 +380,4 @@ void main() {
 #endif
 #endif
 }
+#endif

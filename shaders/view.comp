@@ -1,7 +1,7 @@
 // Per-view element pass (modes exact and q4): from the mesh uploaded once and the step's nodes,
 // each element's record for deform.frag, its conservative cover rectangle for exact.vert
 // (glsim.stages.view.cover_rectangles) and its problems for the warnings. Compile-time:
-// MODE_Q4 or MODE_EXACT, FP64.
+// MODE_Q4 or MODE_EXACT, FP64, RECORD_LOCAL (with both: float32 records for CAMERA_LOCAL).
 #define COVER
 #include "camera.glsl"
 #include "view.glsl"
@@ -15,6 +15,12 @@ uniform real u_valid_r2;
 layout(std430, binding = 0) writeonly buffer Elements { real elem_data[]; };
 layout(std430, binding = 9) writeonly buffer Cover { vec2 cover[]; };  // 4 corners per element (px)
 layout(std430, binding = 12) writeonly buffer Tight { vec4 tight[]; };  // 2 per element (candidates.glsl)
+#ifdef RECORD_LOCAL
+// float32 exact on a driver with float64 (deform.frag CAMERA_LOCAL), 32 float32 per element:
+// the corners (12, rounded), the corners relative to their centre C (12), C.z, 0, and
+// C.xy / C.z as hi (2) + lo (2), 0, 0 — made here in float64
+layout(std430, binding = 16) writeonly buffer Local { float elem_local[]; };
+#endif
 
 void main() {
     int e = int((gl_WorkGroupID.y * gl_NumWorkGroups.x + gl_WorkGroupID.x) * gl_WorkGroupSize.x
@@ -42,6 +48,22 @@ void main() {
         elem_data[b + 3 * i + 2] = P[i].z;
     }
     bool drawn = !behind;
+#ifdef RECORD_LOCAL
+    real3 C = 0.25 * (P[0] + P[1] + P[2] + P[3]);
+    real2 xc = C.z > 0.0 ? C.xy / C.z : real2(0.0);
+    vec2 hi = vec2(xc);
+    int l = 32 * e;
+    for (int i = 0; i < 4; ++i)
+        for (int k = 0; k < 3; ++k) {
+            elem_local[l + 3 * i + k] = float(P[i][k]);
+            elem_local[l + 12 + 3 * i + k] = float(P[i][k] - C[k]);
+        }
+    vec4 tail[2] = vec4[2](vec4(float(C.z > 0.0 ? C.z : 0.0), 0.0, hi), vec4(vec2(xc - real2(hi)), 0.0, 0.0));
+    for (int k = 0; k < 4; ++k) {
+        elem_local[l + 24 + k] = tail[0][k];
+        elem_local[l + 28 + k] = tail[1][k];
+    }
+#endif
 #endif
     vec2 rect[4];
     vec4 t[2];

@@ -73,6 +73,22 @@ def test_info_names_the_renderer(capsys):
     out = capsys.readouterr().out
     assert "renderer" in out and "fp64" in out and "max_texture_size" in out
     assert "egl_devices" in out and "0: " in out      # every EGL device listed with its index
+    # the arithmetic the exact mode gets, and the measured float64 / float32 rate behind it
+    line = next(x for x in out.splitlines() if x.startswith("exact_precision"))
+    rate = next(x for x in out.splitlines() if x.startswith("fp64_rate"))
+    assert line.split()[1] in ("fp64", "fp64;") and 0.0 < float(rate.split()[1]) < 4.0
+
+
+def test_info_says_why_a_driver_without_float64_gets_float32():
+    from types import SimpleNamespace
+
+    from glsim.backends.gl.context import info
+
+    ctx = SimpleNamespace(extensions=set(), info={"GL_VENDOR": "v", "GL_RENDERER": "r", "GL_VERSION": "4.5",
+                                                  "GL_MAX_TEXTURE_SIZE": 16384, "GL_SHADING_LANGUAGE_VERSION": "4.50"})
+    out = info(ctx)
+    assert out["fp64"] is False and "fp64_rate" not in out
+    assert out["exact_precision"].startswith("fp32") and "GL_ARB_gpu_shader_fp64" in out["exact_precision"]
 
 
 def test_interrupted_write_leaves_no_file(tmp_path, monkeypatch):

@@ -52,6 +52,21 @@ def test_gl_matches_oracle_per_effect(effects_scene, gl_ctx, effect, mode):
     assert abs(a.saturated - b.saturated) < 1e-3
 
 
+@pytest.mark.gl
+@pytest.mark.parametrize("effect", ["lighting", "optics"])
+def test_newton_subsamples_with_effects_match_the_oracle(effects_scene, effect, gl_ctx):
+    """Lighting per sub-sample and depth of field from the sub-samples' mean depth, with
+    render.subsamples = "newton" at 4 spp, against the oracle: GL_EFFECT_TOL as above."""
+    g, c = pair(only(effects_scene, effect), gl_ctx)
+    with g, c:
+        a = g.render(1, 1, mode="exact", samples_per_pixel=4, subsamples="newton")
+        b = c.render(1, 1, mode="exact", samples_per_pixel=4)
+    assert "subsamples" in a.stages
+    d = np.abs(a.image.astype(np.float64) - b.image) * 255
+    outliers, mean = GL_EFFECT_TOL[effect]
+    assert (d > 0.5).sum() <= outliers and d.mean() < mean, (d.max(), (d > 0.5).sum(), d.mean())
+
+
 def test_effect_free_scene_runs_no_effect_stage():
     with Renderer(bulge_scene(size=(203, 154), steps=1), "cpu") as r:
         assert r.render(0, 1).stages == ("raster", "interpolate")

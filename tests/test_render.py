@@ -127,16 +127,31 @@ def test_gl_matches_oracle_on_bulge(bulge_pair, mode, spp, camera):
 
 
 @pytest.mark.gl
+@pytest.mark.parametrize("spp", [4, 16])
+def test_newton_subsamples_match_the_oracle_on_bulge(bulge_pair, spp):
+    """render.subsamples = "newton" (exact mode; sub-samples of single-candidate pixels placed
+    by Newton from the pixel centre) against the oracle, which maps every sub-sample on its
+    ray: no pixel beyond 0.5 grey levels, median below 1e-3, as the exact mode's own bound."""
+    g, c = bulge_pair
+    a = g.render(0, 1, mode="exact", samples_per_pixel=spp, subsamples="newton")
+    b = c.render(0, 1, mode="exact", samples_per_pixel=spp, subsamples="newton")
+    assert "subsamples" in a.stages and "subsamples" not in b.stages
+    dg = np.abs(a.image.astype(np.float64) - b.image) * 255
+    assert (dg > 0.5).sum() == 0 and np.median(dg) < 1e-3, (dg.max(), np.median(dg))
+
+
+@pytest.mark.gl
 def test_gl_fp32_exact_is_bounded(bulge_pair):
-    """float32 arithmetic in the exact mode, the reference projection relative to each element's
-    centre (REF_LOCAL): measured 5.9e-5 px max here on llvmpipe (1.1e-4 with the direct
-    projection); bound 1.5e-4 px, room for other drivers' float32 rounding."""
+    """float32 arithmetic in the exact mode, the camera-side problem and the reference projection
+    relative to each element's centre (CAMERA_LOCAL, REF_LOCAL): measured 3.6e-5 px max here on
+    llvmpipe (5.9e-5 with only REF_LOCAL, 1.1e-4 with neither); bound 1e-4 px, room for other
+    drivers' float32 rounding (issue 12's goal: 2e-4)."""
     g, c = bulge_pair
     a = g.render(0, 1, truth=True, mode="exact", precision="fp32")
     b = c.render(0, 1, truth=True, mode="exact")
     both = a.truth.mask & b.truth.mask
     d = np.linalg.norm(a.truth.ref_uv[both] - b.truth.ref_uv[both], axis=-1)
-    assert d.max() < 1.5e-4 and (a.truth.mask ^ b.truth.mask).sum() <= 20
+    assert d.max() < (1e-4 if g.backend.fp64 else 1.5e-4) and (a.truth.mask ^ b.truth.mask).sum() <= 20
 
 
 @pytest.mark.gl

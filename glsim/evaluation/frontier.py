@@ -42,6 +42,7 @@ def accuracy_lookup(accuracy: dict, backend: str, mode: str, interpolation: str,
     """The accuracy.json record of a configuration (GL: fp64 precision unless ``arithmetic``)."""
     for rec in accuracy["records"]:
         if (rec["backend"], rec["mode"], rec["interpolation"], rec["spp"]) == (backend, mode, interpolation, spp) \
+                and rec.get("subsamples", "mapped") == "mapped" \
                 and (rec.get("precision", "fp64") == "fp64" if arithmetic is None else rec.get("arithmetic") == arithmetic):
             return rec
     return None

@@ -24,6 +24,7 @@ MODES = ("fast", "q4", "exact")
 INTERPOLATIONS = ("linear", "cubic", "bspline3", "bspline5", "procedural")
 BACKENDS = ("gl", "cpu")
 PRECISIONS = ("fp32", "fp64")
+SUBSAMPLES = ("mapped", "newton")
 FORMATS = ("tiff", "png")
 
 
@@ -225,10 +226,14 @@ class Render:
     samples_per_pixel: int = 1
     background: float = 0.0       # grey level in [0, 1] of full scale
     precision: str = "fp64"       # GL arithmetic of the exact mode's intersection
+    # exact mode, samples_per_pixel > 1, GL: every sub-sample mapped on its own ray ("mapped"),
+    # or placed by Newton steps from its pixel centre's mapping ("newton", shaders/subsamples.frag;
+    # the CPU oracle maps every sample)
+    subsamples: str = "mapped"
 
     def __post_init__(self):
-        for key, allowed in (("backend", BACKENDS), ("mode", MODES),
-                             ("interpolation", INTERPOLATIONS), ("precision", PRECISIONS)):
+        for key, allowed in (("backend", BACKENDS), ("mode", MODES), ("interpolation", INTERPOLATIONS),
+                             ("precision", PRECISIONS), ("subsamples", SUBSAMPLES)):
             value = getattr(self, key)
             _check(value in allowed, f"render.{key}", f"{value!r} is not one of {allowed}",
                    f"use one of {', '.join(allowed)}")

@@ -428,3 +428,49 @@ def test_gl_agrees_with_the_oracle_on_hard_scenes(case, mode, gl_ctx):
     for k in ("xor", "element", "mean", "max", "X"):
         assert s[k] <= tol[k], (k, report)
     assert (s["d"] > tol["outlier"]).sum() <= tol["outliers"], report
+
+
+def image(scene, mesh, backend, ctx, **options):
+    """One image (no truth); RenderWarnings ignored as in :func:`render`."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RenderWarning)
+        with Renderer(scene, backend, ctx=ctx, mesh=mesh) as r:
+            return r.render(0, 1, **options)
+
+
+@pytest.mark.gl
+@pytest.mark.parametrize("subsamples", ["mapped", "newton"])
+@pytest.mark.parametrize("case", sorted(HARD_SCENES))
+def test_gl_subsamples_agree_with_the_oracle_on_hard_scenes(case, subsamples, gl_ctx):
+    """Exact mode at 4 samples per pixel, each sub-sample mapped on its ray or placed by Newton
+    from the pixel centre (render.subsamples), against the oracle, which maps every sample:
+    grey |Δ| × 255 ≤ 0.5 on all but 2 pixels (a silhouette sub-sample decided differently moves
+    a pixel by up to 255/4) and mean ≤ 1e-3 grey levels."""
+    scene, mesh = HARD_SCENES[case]()
+    options = dict(mode="exact", samples_per_pixel=4)
+    a = image(scene, mesh, "gl", gl_ctx, subsamples=subsamples, **options)
+    b = image(scene, mesh, "cpu", None, **options)
+    assert ("subsamples" in a.stages) == (subsamples == "newton")
+    d = np.abs(a.image.astype(np.float64) - b.image) * 255
+    assert (d > 0.5).sum() <= 2 and d.mean() <= 1e-3, (int((d > 0.5).sum()), d.mean(), d.max())
+
+
+@pytest.mark.gl
+@pytest.mark.parametrize("case", sorted(HARD_SCENES))
+def test_gl_float32_exact_on_hard_scenes(case, gl_ctx):
+    """precision = "fp32" in exact mode against the float64 oracle: same coverage and elements,
+    |Δref_uv| ≤ 1e-4 px (issue 12's goal: 2e-4 px; measured ≤ 3.2e-5 px on llvmpipe, grazing
+    at 60° and the barrel worst). Float32 keeps this by working relative to each element's
+    centre with the per-element records and the rays made in float64 (CAMERA_LOCAL), which
+    needs a driver with float64."""
+    scene, mesh = HARD_SCENES[case]()
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RenderWarning)
+        with Renderer(scene, "gl", ctx=gl_ctx, mesh=mesh) as g:
+            if not g.backend.fp64:
+                pytest.skip("float32 relative to the element centre needs GL_ARB_gpu_shader_fp64 for its records")
+            a = g.render(0, 1, truth=True, mode="exact", precision="fp32").truth
+    s = agreement(a, render(scene, mesh, "cpu", None, "exact").truth)
+    report = {k: v for k, v in s.items() if k != "d"}
+    assert s["covered"] > 500 and s["xor"] <= 2 and s["element"] <= 2, report
+    assert s["max"] <= 1e-4, report

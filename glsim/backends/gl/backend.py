@@ -49,6 +49,12 @@ def program_defines(opts, truth: bool, fp64: bool, fx=None) -> dict:
     return d
 
 
+def newton_subsamples(opts, s: int, quadratic: bool) -> bool:
+    """Whether the sub-samples of single-candidate pixels are placed by Newton steps from their
+    pixel centre (shaders/subsamples.frag, which then replaces the box filter)."""
+    return opts.subsamples == "newton" and opts.mode == "exact" and s > 1 and not quadratic
+
+
 def pack_pairs(c: np.ndarray) -> np.ndarray:
     """(H, W) → (H, W, 4): texel (i, j) holds c at columns i, i + 1 of rows j and j + 1 (the last
     column and row repeated), so interp.glsl reads four taps per fetch."""
@@ -188,7 +194,9 @@ class GLBackend:
         color, raster = self._deform(view, opts, s, truth and s == 1, fx)
         stages = ["deform"]
         grey, depth, temps = color[0], (color[-1] if fx.blur else None), []
-        if s > 1:
+        if newton_subsamples(opts, s, self._patches is not None):
+            stages.append("subsamples")
+        elif s > 1:
             grey, depth = self._downsample(grey, depth, W, H, s)
             temps += [grey] + ([depth] if depth is not None else [])
             stages.append("downsample")
@@ -222,15 +230,20 @@ class GLBackend:
                      and not np.any(ref_cam.distortion.coeffs))
         if ref_local:
             defines["REF_LOCAL"] = None
+        # float32 exact on a driver with float64: the per-element and per-camera work (records,
+        # ray map) in float64, the per-sample work in float32 relative to each element's centre
+        camera_local = ref_local and self.fp64
+        if camera_local:
+            defines["CAMERA_LOCAL"] = None
         geo = self._buffers(view)
         patch_buffers = self._patch_buffers(patches, opts.mode, fp64) if patches is not None else ()
 
-        def camera_uniforms(p):
-            self._set(p, "u_intr", cam.intrinsics, fp64)
-            self._set(p, "u_dist", cam.distortion.coeffs, fp64)
-            self._set(p, "u_valid_r2", [cam.distortion.valid_radius() ** 2], fp64)
+        def camera_uniforms(p, double: bool = fp64):
+            self._set(p, "u_intr", cam.intrinsics, double)
+            self._set(p, "u_dist", cam.distortion.coeffs, double)
+            self._set(p, "u_valid_r2", [cam.distortion.valid_radius() ** 2], double)
             if patches is not None:
-                self._set(p, "u_extra_sag", [patches.extra_sag_px], fp64)
+                self._set(p, "u_extra_sag", [patches.extra_sag_px], double)
 
         dropped = ctx.buffer(bytes(4))  # deform.frag counts samples mapping outside the reference
         buffers = [dropped]
@@ -266,16 +279,50 @@ class GLBackend:
                 if prog.get("u_ref", None) is not None:
                     prog["u_ref"].value = 0
             if prog.get("u_rays", None) is not None:
-                self._ray_map(cam, s, fp64).use(1)
+                self._ray_map(cam, s, fp64 or camera_local).use(1)
                 prog["u_rays"].value = 1
 
         if opts.mode != "fast":
             # element records, covers and tight rectangles of this view (view.comp), then pass 1:
             # per pixel, the elements whose tight rectangle meets its samples (candidates.frag)
-            geo.view_pass(view, opts.mode, fp64, camera_uniforms, grow=0.5 - 0.5 / s)
+            if camera_local:
+                geo.view_pass(view, opts.mode, True, lambda p: camera_uniforms(p, True), 0.5 - 0.5 / s, local=True)
+            else:
+                geo.view_pass(view, opts.mode, fp64, camera_uniforms, grow=0.5 - 0.5 / s)
             geo.candidates_pass(W, H, s)
+        pixel_loop = newton_subsamples(opts, s, patches is not None)
+
+        def fullscreen(frag: str, target, layer: float, extra: dict, textures=None, uniforms=None):
+            """One full-screen program of pass 2 (lists.vert at window depth ``layer``) into ``target``."""
+            prog = self.programs.program("lists.vert", frag, defines={**defines, **extra})
+            setup(prog)   # (may make the ray map, which binds its own framebuffer)
+            geo.bind_lists(W, H, prog)
+            for unit, (name, tex) in enumerate((textures or {}).items(), start=4):
+                tex.use(unit)
+                prog[name].value = unit
+            for name, value in {**(uniforms or {}), "u_layer": layer}.items():
+                prog[name].value = value
+            target.use()
+            vao = ctx.vertex_array(prog, [])
+            vao.render(ctx.TRIANGLES, vertices=3)
+            vao.release()
+
+        if opts.mode != "fast":
+            multiple, overflowed = geo.list_flags(W, H)
+        if pixel_loop:  # pass 2a: pixels done from their centre by Newton (subsamples.frag)
+            pixel = self._target(W, H, False, False, "DEPTH_OUT" in defines)
+            pixel[0].clear(0.0, 0.0, 0.0, 0.0, depth=1.0)
+            pixel[3].clear(opts.background, 0.0, 0.0, 0.0)
+            ctx.enable(ctx.DEPTH_TEST)
+            geo.classify_pass(pixel[4], W, H, 1)
+            ctx.depth_func, pixel[0].depth_mask = "==", False
+            fullscreen("subsamples.frag", pixel[0], LAYERS["deform.frag"], {"EARLY_TESTS": None},
+                       {"u_centre_rays": self._ray_map(cam, 1, fp64 or camera_local)},
+                       {"u_background": float(opts.background)})
+            ctx.depth_func, pixel[0].depth_mask = "<", True
+            ctx.memory_barrier()   # its LIST_DONE marks seen by the passes below
         fbo, color, _, grey_only, depth_only = self._target(W * s, H * s, truth, "TRUTH_LO" in defines,
-                                                  "DEPTH_OUT" in defines)
+                                                              "DEPTH_OUT" in defines)
         # the grey target starts at the background; truth and depth targets at zero
         fbo.clear(0.0, 0.0, 0.0, 0.0, depth=1.0)
         grey_only.clear(opts.background, 0.0, 0.0, 0.0)
@@ -289,22 +336,12 @@ class GLBackend:
             ctx.enable(ctx.DEPTH_TEST)
             geo.draw(prog)
         else:  # pass 2, full screen, each program on its layer: one candidate, then several
-            multiple, overflowed = geo.list_flags(W, H)
             ctx.enable(ctx.DEPTH_TEST)
             geo.classify_pass(depth_only, W, H, s)
-            ctx.depth_func = "=="
-            fbo.depth_mask = False
+            ctx.depth_func, fbo.depth_mask = "==", False
             for frag in ("deform.frag", "resolve.frag") if multiple else ("deform.frag",):
-                prog = self.programs.program("lists.vert", frag, defines={**defines, "EARLY_TESTS": None})
-                setup(prog)
-                fbo.use()
-                geo.bind_lists(W, H, prog)
-                prog["u_layer"].value = LAYERS[frag]
-                vao = ctx.vertex_array(prog, [])
-                vao.render(ctx.TRIANGLES, vertices=3)
-                vao.release()
-            ctx.depth_func = "<"
-            fbo.depth_mask = True
+                fullscreen(frag, fbo, LAYERS[frag], {"EARLY_TESTS": None})
+            ctx.depth_func, fbo.depth_mask = "<", True
             if overflowed:  # pixels with more candidates than the lists hold: the cover rectangles
                 prog = self.programs.program("exact.vert", "deform.frag", defines={**defines, "FALLBACK": None})
                 setup(prog)
@@ -313,6 +350,10 @@ class GLBackend:
                 ctx.enable(ctx.DEPTH_TEST)
                 geo.draw(prog)
         ctx.disable(ctx.DEPTH_TEST)
+        if pixel_loop:  # the pixels not done in pass 2a: the box filter of the samples (MERGE)
+            textures = {"u_samples": color[0], **({"u_sample_depth": color[-1]} if "DEPTH_OUT" in defines else {})}
+            fullscreen("subsamples.frag", pixel[0], 0.0, {"MERGE": None}, textures)
+            color = pixel[1]
         check_error(ctx, f"deformation pass ({opts.mode})")
         ctx.memory_barrier()  # shader storage writes visible to the read-backs
         problems = geo.problems(view)  # read (and cleared) after every pass

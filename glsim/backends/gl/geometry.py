@@ -169,10 +169,14 @@ class GeometryBuffers:
                 prog[name].value = v
 
     # ---- the per-view pass -----------------------------------------------------------------
-    def view_pass(self, view: ViewSpec, mode: str, fp64: bool, camera_uniforms, grow: float = 0.0) -> None:
+    def view_pass(self, view: ViewSpec, mode: str, fp64: bool, camera_uniforms, grow: float = 0.0,
+                  local: bool = False) -> None:
         """view.comp: element records (binding 0), cover rectangles (binding 9, grown by
-        ``grow`` px for pass 1 at pixel resolution) and tight rectangles (binding 12)."""
-        defines = {f"MODE_{mode.upper()}": None, **({"FP64": None} if fp64 else {})}
+        ``grow`` px for pass 1 at pixel resolution) and tight rectangles (binding 12); with
+        ``local`` (exact, float64) also the float32 records of deform.frag's CAMERA_LOCAL
+        (binding 16)."""
+        defines = {f"MODE_{mode.upper()}": None, **({"FP64": None} if fp64 else {}),
+                   **({"RECORD_LOCAL": None} if local else {})}
         prog = self.programs.compute("view.comp", defines)
         self.bind(view, fp64)
         self.set_uniforms(prog, view, fp64)
@@ -186,6 +190,8 @@ class GeometryBuffers:
         cover = self._buffer("cover", lambda: self.ctx.buffer(reserve=max(1, self.M * 4 * 8)))
         tight = self._buffer("tight", lambda: self.ctx.buffer(reserve=max(1, self.M * 2 * 16)))
         elem.bind_to_storage_buffer(0)
+        if local:
+            self._buffer("local", lambda: self.ctx.buffer(reserve=max(1, self.M * 32 * 4))).bind_to_storage_buffer(16)
         cover.bind_to_storage_buffer(9)
         tight.bind_to_storage_buffer(12)
         groups = (self.M + _GROUP - 1) // _GROUP

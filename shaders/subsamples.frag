@@ -1,0 +1,112 @@
+// render.subsamples = "newton" (mode exact, SS > 1), at pixel resolution W×H.
+//
+// Pass 2a (lists.vert on classify.frag's single-candidate layer, early depth test, before the
+// per-sample passes): the pixel's centre is mapped exactly (the ray map at 1 spp; both roots
+// in closed form, the nearest in range kept) and each sub-sample is placed by Gauss-Newton
+// steps from it on the sub-sample's own ray until a step is at most SUBSAMPLE_TOL. A pixel is
+// done here only when every sub-sample is decided without the tie rule: centre and
+// sub-samples strictly inside the element (beyond NEAR_TOL of its edges), the patch's other
+// root beyond OTHER_ROOT_RANGE, rays present, Newton converged within SUBSAMPLE_STEPS. Done
+// pixels write the box-filtered grey (and mean depth) and mark their count LIST_DONE; the
+// others are left to the per-sample passes, which skip done pixels.
+// MERGE (full screen, after them): pixels not done take the box filter of the per-sample
+// passes' samples (downsample.frag's), done pixels keep pass 2a's values.
+#define PIXEL_LOOP
+#include "deform.frag"
+
+#ifdef FP64
+#define SUBSAMPLE_TOL 1e-7
+#else
+#define SUBSAMPLE_TOL 1e-4
+#endif
+#define SUBSAMPLE_STEPS 3
+#define OTHER_ROOT_RANGE 3.0
+
+#ifdef MERGE
+uniform sampler2D u_samples;       // the per-sample passes' grey, SS×SS texels per pixel
+#ifdef DEPTH_OUT
+uniform sampler2D u_sample_depth;  // their depth Z (0: no surface)
+#endif
+
+void main() {
+    ivec2 pix = ivec2(gl_FragCoord.xy);
+    if (imageLoad(u_cand_count, pix).x == LIST_DONE) discard;
+    float acc = 0.0, zacc = 0.0, zn = 0.0;
+    for (int j = 0; j < SS; ++j)
+        for (int i = 0; i < SS; ++i) {
+            acc += texelFetch(u_samples, pix * SS + ivec2(i, j), 0).r;
+#ifdef DEPTH_OUT
+            float z = texelFetch(u_sample_depth, pix * SS + ivec2(i, j), 0).r;
+            zacc += z;
+            zn += z > 0.0 ? 1.0 : 0.0;
+#endif
+        }
+    out_grey = acc / float(SS * SS);
+#ifdef DEPTH_OUT
+    out_depth = zn > 0.0 ? zacc / zn : 0.0;
+#endif
+}
+#else
+uniform sampler2D u_centre_rays;   // rays.frag at 1 spp
+uniform float u_background;
+
+void main() {
+    ivec2 pix = ivec2(gl_FragCoord.xy);
+    int e = int(imageLoad(u_cand_list, ivec3(pix, 0)).x);
+    real3 P[4];
+    element_camera(e, P);
+    real4 Pz = real4(P[0].z, P[1].z, P[2].z, P[3].z);
+    vec4 rc = texelFetch(u_centre_rays, pix, 0);
+    real2 xc = ray_of(rc);
+    real2 p[4];
+    projected_corners(e, P, xc, ray_lo, p);
+    real xs[2], es[2];
+    bool ok[2];
+    invert_closed(p, real2(0.0), xs, es, ok);
+    real z0 = dot(shape_functions(xs[0], es[0]), Pz), z1 = dot(shape_functions(xs[1], es[1]), Pz);
+    bool in0 = ok[0] && z0 > 0.0 && in_range(xs[0], es[0]);
+    bool in1 = ok[1] && z1 > 0.0 && in_range(xs[1], es[1]);
+    int r = in0 && (!in1 || z0 <= z1) ? 0 : 1;
+    bool other_far = !ok[1 - r] || max(abs(xs[1 - r]), abs(es[1 - r])) > OTHER_ROOT_RANGE;
+    bool done = rc.x < 1e30 && (r == 0 ? in0 : in1) && other_far && !near_edge(xs[r], es[r]);
+    float acc = 0.0, zacc = 0.0, zn = 0.0;
+    uint dropped = 0u;
+    for (int j = 0; j < SS; ++j)
+        for (int i = 0; i < SS; ++i) {
+            vec4 ray = texelFetch(u_rays, pix * SS + ivec2(i, j), 0);
+            real2 xn = ray_of(ray);
+            projected_corners(e, P, xn, ray_lo, p);
+            real xi = xs[r], eta = es[r];
+            bool converged = false;
+            for (int it = 0; it < SUBSAMPLE_STEPS && !converged; ++it) {
+                real dx, dy, det;
+                newton_step(p, xi, eta, real2(0.0), dx, dy, det);
+                xi += dx;
+                eta += dy;
+                converged = det != 0.0 && max(abs(dx), abs(dy)) <= SUBSAMPLE_TOL;
+            }
+            real Z = dot(shape_functions(xi, eta), Pz);
+            done = done && ray.x < 1e30 && converged && Z > 0.0 && in_range(xi, eta) && !near_edge(xi, eta);
+            real2 ref;
+            float grey = u_background;
+            if (exact_reference(e, xi, eta, ref) && inside_reference(ref)) {
+                grey = sample_ref(ref);
+#ifdef LIGHTING
+                grey = combine(grey, light_at(e, xi, eta));
+#endif
+                zacc += float(Z);
+                zn += 1.0;
+            } else {
+                dropped += 1u;
+            }
+            acc += grey;
+        }
+    if (!done) discard;
+    if (dropped > 0u) atomicAdd(dropped_samples, dropped);  // counted for warn_dropped
+    imageStore(u_cand_count, pix, uvec4(LIST_DONE));
+    out_grey = acc / float(SS * SS);
+#ifdef DEPTH_OUT
+    out_depth = zn > 0.0 ? zacc / zn : 0.0;
+#endif
+}
+#endif
