@@ -22,7 +22,7 @@ def test_reduced_peer_bench(tmp_path, capsys):
     assert text in capsys.readouterr().out and text.startswith("# glsim peer benchmark")
     rows = {(r["renderer"].split()[0] if r["renderer"].startswith("riley") else r["renderer"], r["k1"]): r
             for r in report["rows"]}
-    modes = ("fast fp32", "q4 fp64", "exact fp64", "exact fp32")
+    modes = ("fast fp32", "q4 fp64", "exact fp64", "exact fp32", "exact fp64 newton", "exact fp32 newton")
     assert {k for k in rows if k[0] != "riley-raster"} == {(f"glsim GL {m}", k1) for m in modes for k1 in peer.K1S}
     assert {rows["riley-raster", k1]["status"] for k1 in peer.K1S} == {"ok" if RILEY else "not installed"}
     W, H = map(int, SIZE)
@@ -34,6 +34,8 @@ def test_reduced_peer_bench(tmp_path, capsys):
         exact = rows["glsim GL exact fp64", k1]
         # float64 ray/patch intersection against the float64 oracle: ~1e-12 px measured
         assert exact["map_max_px"] < 1e-6 and exact["grey_max"] < 0.01
+        # sub-samples placed by Newton from the pixel centre: the oracle's image as closely
+        assert rows["glsim GL exact fp64 newton", k1]["grey_max"] < 0.01
         assert rows["glsim GL fast fp32", k1]["map_max_px"] < 0.01  # float32 and straight pieces
     # without distortion a face-on plate projects affinely: q4's inverse mapping is exact there
     assert rows["glsim GL q4 fp64", 0.0]["map_max_px"] < 1e-6
@@ -43,4 +45,4 @@ def test_reduced_peer_bench(tmp_path, capsys):
         assert rows["riley-raster", 0.0]["grey_max"] < 0.01    # its image against its texture at the oracle's points
     assert len(report["goals"]) == 3 and all((g["met"] is None) != RILEY for g in report["goals"])
     readme = docs.peer_rows(report)                               # the README region from the same file
-    assert readme.count("| glsim GL ") == 4 * len(peer.K1S) and f"{W}×{H}" in readme
+    assert readme.count("| glsim GL ") == len(modes) * len(peer.K1S) and f"{W}×{H}" in readme

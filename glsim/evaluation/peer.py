@@ -5,7 +5,9 @@ face-on 600 mm in front of camera 0, 70 % of the image), once without distortion
 with radial k1 = −0.1 (OpenCV's model in both renderers). Every renderer samples its
 speckle with Keys / Catmull–Rom cubic at 4 spp (2×2 sub-samples): riley-raster (PyPI
 ``riley-raster``, default thread count, its own 2048² texture) and glsim GL in modes fast,
-q4, exact fp64 and exact fp32.
+q4, exact fp64 and exact fp32, the exact ones also with sub-samples placed by Newton from the
+pixel centre (``subsamples = "newton"``; its map columns are the pixel centres', so its grey
+columns show the sub-samples).
 
 Time: wall seconds (perf_counter) of one ``riley.raster`` / ``Renderer.render`` call; one
 warm-up each, then ``reps`` repetitions that each render once with every renderer and
@@ -57,7 +59,8 @@ REPS = 7
 K1S = (0.0, -0.1)
 SPP = 4
 COMBOS = (Combo("gl", "fast", "cubic", SPP), Combo("gl", "q4", "cubic", SPP), Combo("gl", "exact", "cubic", SPP),
-          Combo("gl", "exact", "cubic", SPP, "fp32"))
+          Combo("gl", "exact", "cubic", SPP, "fp32"), Combo("gl", "exact", "cubic", SPP, "fp64", "newton"),
+          Combo("gl", "exact", "cubic", SPP, "fp32", "newton"))
 EDGE = 2                # texels of edge replication around riley's texture: it clamps its taps there
 GOAL_EXACT_RATIO, GOAL_EXACT_STRETCH, GOAL_FAST_RATIO = 1.0, 0.5, 0.5   # glsim / riley time, issue 12
 
@@ -71,8 +74,10 @@ def scene(size: tuple[int, int]):
 
 
 def label(renderer: Renderer, combo: Combo) -> str:
-    """The row's name: mode and the arithmetic actually used (fast is always fp32)."""
-    return f"glsim GL {combo.mode} {effective_precision(renderer, combo)}"
+    """The row's name: mode, the arithmetic actually used (fast is always fp32), and "newton" for
+    sub-samples placed by Newton from the pixel centre (render.subsamples)."""
+    newton = " newton" if combo.subsamples == "newton" else ""
+    return f"glsim GL {combo.mode} {effective_precision(renderer, combo)}{newton}"
 
 
 # ---- riley ---------------------------------------------------------------------------------------
@@ -302,7 +307,9 @@ HEADER = ("| renderer | k1 | time median (s) | min–max (s) | glsim / riley | r
 LEGEND = """\
 Plate: {nx}×{ny} quad4, face-on, 600 mm from the camera, {W}×{H} px, Catmull–Rom cubic, {spp} spp
 (2×2 sub-samples). riley: `riley.raster` into memory, default thread count, its own {tex}² uint8
-texture. glsim: `Renderer.render` (auto-sized reference image; fast is always fp32).
+texture. glsim: `Renderer.render` (auto-sized reference image; fast is always fp32; "newton":
+`subsamples = "newton"`, sub-samples placed by Newton from the pixel centre, whose map columns
+are the pixel centres' and whose grey columns show the sub-samples).
 
 - **time**: wall seconds (perf_counter) per call; one warm-up each, then {reps} repetition(s), each
   rendering once with every row in turn (interleaved); median and fastest–slowest.
