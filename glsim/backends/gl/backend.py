@@ -5,9 +5,12 @@ The mesh is uploaded once per renderer and the deformed nodes once per load step
 dispatch (modes exact and q4: element records, cover rectangles) and one draw call.
 
 Passes, each only when the scene asks for it: the exact mode's per-camera ray map (cached);
-the deformation pass at s×s samples per pixel (reference sampling, lighting, truth maps, depth)
-with a depth test; for s > 1 the box filter down to W×H; the depth-of-field blur (separable
-Gaussian or disk); the noise pass; then one read-back.
+the deformation pass at s×s samples per pixel (reference sampling, lighting, truth maps, depth):
+in fast mode the element triangles with a depth test; in exact and q4 the candidate lists
+(candidates.frag), their depth layers (classify.frag) and full-screen programs that each run
+only on their layer; for s > 1 the box filter down to W×H (or, with ``subsamples = "newton"``,
+subsamples.frag at W×H before and after the per-sample passes); the depth-of-field blur
+(separable Gaussian or disk); the noise pass; then one read-back.
 """
 from __future__ import annotations
 
@@ -309,17 +312,18 @@ class GLBackend:
 
         if opts.mode != "fast":
             multiple, overflowed = geo.list_flags(W, H)
-        if pixel_loop:  # pass 2a: pixels done from their centre by Newton (subsamples.frag)
-            pixel = self._target(W, H, False, False, "DEPTH_OUT" in defines)
-            pixel[0].clear(0.0, 0.0, 0.0, 0.0, depth=1.0)
-            pixel[3].clear(opts.background, 0.0, 0.0, 0.0)
+        if pixel_loop:  # pass 2a at W×H: pixels done from their centre by Newton (subsamples.frag)
+            pixel_fbo, pixel_color, _, pixel_grey, pixel_depth = self._target(W, H, False, False,
+                                                                               "DEPTH_OUT" in defines)
+            pixel_fbo.clear(0.0, 0.0, 0.0, 0.0, depth=1.0)
+            pixel_grey.clear(opts.background, 0.0, 0.0, 0.0)
             ctx.enable(ctx.DEPTH_TEST)
-            geo.classify_pass(pixel[4], W, H, 1)
-            ctx.depth_func, pixel[0].depth_mask = "==", False
-            fullscreen("subsamples.frag", pixel[0], LAYERS["deform.frag"], {"EARLY_TESTS": None},
+            geo.classify_pass(pixel_depth, W, H, 1)
+            ctx.depth_func, pixel_fbo.depth_mask = "==", False
+            fullscreen("subsamples.frag", pixel_fbo, LAYERS["deform.frag"], {"EARLY_TESTS": None},
                        {"u_centre_rays": self._ray_map(cam, 1, fp64 or camera_local)},
                        {"u_background": float(opts.background)})
-            ctx.depth_func, pixel[0].depth_mask = "<", True
+            ctx.depth_func, pixel_fbo.depth_mask = "<", True
             ctx.memory_barrier()   # its LIST_DONE marks seen by the passes below
         fbo, color, _, grey_only, depth_only = self._target(W * s, H * s, truth, "TRUTH_LO" in defines,
                                                               "DEPTH_OUT" in defines)
@@ -352,8 +356,8 @@ class GLBackend:
         ctx.disable(ctx.DEPTH_TEST)
         if pixel_loop:  # the pixels not done in pass 2a: the box filter of the samples (MERGE)
             textures = {"u_samples": color[0], **({"u_sample_depth": color[-1]} if "DEPTH_OUT" in defines else {})}
-            fullscreen("subsamples.frag", pixel[0], 0.0, {"MERGE": None}, textures)
-            color = pixel[1]
+            fullscreen("subsamples.frag", pixel_fbo, 0.0, {"MERGE": None}, textures)
+            color = pixel_color
         check_error(ctx, f"deformation pass ({opts.mode})")
         ctx.memory_barrier()  # shader storage writes visible to the read-backs
         problems = geo.problems(view)  # read (and cleared) after every pass
