@@ -68,7 +68,7 @@ def cmd_info(args) -> int:
     from glsim.backends.gl.context import gl_context, info
 
     with gl_context() as ctx:
-        for key, value in info(ctx).items():
+        for key, value in info(ctx, probe=True).items():
             print(f"{key:17s} {value}")
     return 0
 

@@ -60,10 +60,10 @@ def check_error(ctx, where: str) -> None:
         raise RuntimeError(f"OpenGL error {err} after {where}")
 
 
-def info(ctx, probe: bool = True) -> dict:
+def info(ctx, probe: bool = False) -> dict:
     """What `glsim info` prints: vendor, renderer, version, limits, float64 support and the
-    arithmetic the exact and q4 modes get by default, with why (``probe``: measure the float64
-    rate, :func:`float64_rate`)."""
+    arithmetic the exact and q4 modes get by default, with why (``probe``: also measure the
+    float64 rate, :func:`float64_rate`, about 0.3 s on llvmpipe; `glsim info` does)."""
     fp64 = "GL_ARB_gpu_shader_fp64" in ctx.extensions
     out = {
         "vendor": ctx.info["GL_VENDOR"],
