@@ -135,6 +135,7 @@ REJECTED = [
     ("interpolation", CAM + "[render]\ninterpolation = 'nearest'\n", "render.interpolation", "bspline3"),
     ("backend", CAM + "[render]\nbackend = 'vulkan'\n", "render.backend", "use one of gl, cpu"),
     ("precision", CAM + "[render]\nprecision = 'fp16'\n", "render.precision", "use one of fp32, fp64"),
+    ("subsamples", CAM + "[render]\nsubsamples = 'jacobian'\n", "render.subsamples", "use one of mapped, newton"),
     ("spp-3", CAM + "[render]\nsamples_per_pixel = 3\n", "render.samples_per_pixel", "use 1, 4, 9, 16"),
     ("background", CAM + "[render]\nbackground = 1.5\n", "render.background", "fraction of full scale"),
     ("format", CAM + "[output]\nformat = 'jpg'\n", "output.format", "use 'tiff'"),
