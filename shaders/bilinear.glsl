@@ -173,17 +173,9 @@ void invert_closed(real2 p[4], real2 q, out real xi[2], out real eta[2], out boo
 // Nearest intersection of the camera ray through normalized image point xn (the ray from the
 // origin along (x, y, 1)) with the bilinear patch P (camera frame, mm): X - x Z = 0 and
 // Y - y Z = 0 are two planes through the ray; at the corners they give a 2-D inverse bilinear
-// problem with target (0, 0). A root counts where the tie rule (owned) gives it to this element.
-bool intersect_ray_patch_p(real3 P[4], real2 p[4], real2 xn, out real xi, out real eta, out real Z);
-
-bool intersect_ray_patch(real3 P[4], real2 xn, out real xi, out real eta, out real Z) {
-    real2 p[4];
-    for (int i = 0; i < 4; ++i) p[i] = P[i].xy - xn * P[i].z;
-    return intersect_ray_patch_p(P, p, xn, xi, eta, Z);
-}
-
-// The same with the corners' 2-D problem p = P.xy - xn P.z given (deform.frag's CAMERA_LOCAL
-// makes it relative to the element's centre in float32).
+// problem with target (0, 0), p = P.xy - xn P.z, given here (deform.frag's CAMERA_LOCAL makes
+// it relative to the element's centre in float32). A root counts where the tie rule (owned)
+// gives it to this element.
 bool intersect_ray_patch_p(real3 P[4], real2 p[4], real2 xn, out real xi, out real eta, out real Z) {
     real xs[2], es[2];
     bool ok[2];
@@ -208,4 +200,11 @@ bool intersect_ray_patch_p(real3 P[4], real2 p[4], real2 xn, out real xi, out re
         Z = z;
     }
     return found;
+}
+
+// The same with p made from P here.
+bool intersect_ray_patch(real3 P[4], real2 xn, out real xi, out real eta, out real Z) {
+    real2 p[4];
+    for (int i = 0; i < 4; ++i) p[i] = P[i].xy - xn * P[i].z;
+    return intersect_ray_patch_p(P, p, xn, xi, eta, Z);
 }

@@ -8,9 +8,8 @@
 // sub-samples strictly inside the element (beyond NEAR_TOL of its edges), the patch's other
 // root beyond OTHER_ROOT_RANGE, rays present, Newton converged within SUBSAMPLE_STEPS. Done
 // pixels write the box-filtered grey (and mean depth) and mark their count LIST_DONE; the
-// others are left to the per-sample passes, which skip done pixels.
-// MERGE (full screen, after them): pixels not done take the box filter of the per-sample
-// passes' samples (downsample.frag's), done pixels keep pass 2a's values.
+// others are left to the per-sample passes, which skip done pixels, and then to the box filter
+// (downsample.frag with SKIP_DONE), which leaves done pixels as this pass wrote them.
 #define PIXEL_LOOP
 #include "deform.frag"
 
@@ -22,31 +21,6 @@
 #define SUBSAMPLE_STEPS 3
 #define OTHER_ROOT_RANGE 3.0
 
-#ifdef MERGE
-uniform sampler2D u_samples;       // the per-sample passes' grey, SS×SS texels per pixel
-#ifdef DEPTH_OUT
-uniform sampler2D u_sample_depth;  // their depth Z (0: no surface)
-#endif
-
-void main() {
-    ivec2 pix = ivec2(gl_FragCoord.xy);
-    if (imageLoad(u_cand_count, pix).x == LIST_DONE) discard;
-    float acc = 0.0, zacc = 0.0, zn = 0.0;
-    for (int j = 0; j < SS; ++j)
-        for (int i = 0; i < SS; ++i) {
-            acc += texelFetch(u_samples, pix * SS + ivec2(i, j), 0).r;
-#ifdef DEPTH_OUT
-            float z = texelFetch(u_sample_depth, pix * SS + ivec2(i, j), 0).r;
-            zacc += z;
-            zn += z > 0.0 ? 1.0 : 0.0;
-#endif
-        }
-    out_grey = acc / float(SS * SS);
-#ifdef DEPTH_OUT
-    out_depth = zn > 0.0 ? zacc / zn : 0.0;
-#endif
-}
-#else
 uniform sampler2D u_centre_rays;   // rays.frag at 1 spp
 uniform float u_background;
 
@@ -109,4 +83,3 @@ void main() {
     out_depth = zn > 0.0 ? zacc / zn : 0.0;
 #endif
 }
-#endif

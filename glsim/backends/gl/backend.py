@@ -8,8 +8,8 @@ Passes, each only when the scene asks for it: the exact mode's per-camera ray ma
 the deformation pass at s×s samples per pixel (reference sampling, lighting, truth maps, depth):
 in fast mode the element triangles with a depth test; in exact and q4 the candidate lists
 (candidates.frag), their depth layers (classify.frag) and full-screen programs that each run
-only on their layer; for s > 1 the box filter down to W×H (or, with ``subsamples = "newton"``,
-subsamples.frag at W×H before and after the per-sample passes); the depth-of-field blur
+only on their layer (with ``subsamples = "newton"``, subsamples.frag at W×H first finishes the
+pixels it can); for s > 1 the box filter down to W×H (of the pixels not finished); the depth-of-field blur
 (separable Gaussian or disk); the noise pass; then one read-back.
 """
 from __future__ import annotations
@@ -293,6 +293,7 @@ class GLBackend:
             else:
                 geo.view_pass(view, opts.mode, fp64, camera_uniforms, grow=0.5 - 0.5 / s)
             geo.candidates_pass(W, H, s)
+            multiple, overflowed = geo.list_flags(W, H)
         pixel_loop = newton_subsamples(opts, s, patches is not None)
 
         def fullscreen(frag: str, target, layer: float, extra: dict, textures=None, uniforms=None):
@@ -310,8 +311,6 @@ class GLBackend:
             vao.render(ctx.TRIANGLES, vertices=3)
             vao.release()
 
-        if opts.mode != "fast":
-            multiple, overflowed = geo.list_flags(W, H)
         if pixel_loop:  # pass 2a at W×H: pixels done from their centre by Newton (subsamples.frag)
             pixel_fbo, pixel_color, _, pixel_grey, pixel_depth = self._target(W, H, False, False,
                                                                                "DEPTH_OUT" in defines)
@@ -354,9 +353,9 @@ class GLBackend:
                 ctx.enable(ctx.DEPTH_TEST)
                 geo.draw(prog)
         ctx.disable(ctx.DEPTH_TEST)
-        if pixel_loop:  # the pixels not done in pass 2a: the box filter of the samples (MERGE)
-            textures = {"u_samples": color[0], **({"u_sample_depth": color[-1]} if "DEPTH_OUT" in defines else {})}
-            fullscreen("subsamples.frag", pixel_fbo, 0.0, {"MERGE": None}, textures)
+        if pixel_loop:  # the pixels not done in pass 2a: the box filter of their samples
+            geo.bind_lists(W, H)
+            self._downsample(color[0], color[-1] if "DEPTH_OUT" in defines else None, W, H, s, into=pixel_color)
             color = pixel_color
         check_error(ctx, f"deformation pass ({opts.mode})")
         ctx.memory_barrier()  # shader storage writes visible to the read-backs
@@ -478,11 +477,13 @@ class GLBackend:
         return self._rays[key]
 
     def fullscreen_pass(self, frag: str, defines: dict, inputs: dict, uniforms: dict, size: tuple[int, int],
-                        components: tuple[int, ...] = (1,)):
+                        components: tuple[int, ...] = (1,), into=None):
         """Run a full-screen fragment pass into a new R32F texture of ``size`` (W, H); the
         caller releases it. ``inputs`` maps sampler names to textures or float arrays (H, W)
         (arrays are uploaded for the pass and released after it). ``components``: one float
-        texture per fragment output with that many components (then a tuple is returned)."""
+        texture per fragment output with that many components (then a tuple is returned).
+        ``into``: an existing texture to draw into instead (pixels the shader discards keep
+        their values); it is returned."""
         ctx = self.ctx
         W, H = size
         prog = self.programs.program("fullscreen.vert", frag, defines=defines)
@@ -499,7 +500,7 @@ class GLBackend:
         for name, value in uniforms.items():
             if name in prog:
                 prog[name].value = value
-        outs = [ctx.texture((W, H), n, dtype="f4") for n in components]
+        outs = [into] if into is not None else [ctx.texture((W, H), n, dtype="f4") for n in components]
         fbo = ctx.framebuffer(color_attachments=outs)
         fbo.use()
         fbo.viewport = (0, 0, W, H)
@@ -547,13 +548,18 @@ class GLBackend:
         tex.read_into(out)
         return out
 
-    def _downsample(self, samples, depth, W: int, H: int, s: int):
-        """Box filter over s×s samples: grey, and the mean depth of covered samples if given."""
-        grey = self.fullscreen_pass("downsample.frag", {"SS": s}, {"u_samples": samples}, {}, (W, H))
+    def _downsample(self, samples, depth, W: int, H: int, s: int, into=None):
+        """Box filter over s×s samples: grey, and the mean depth of covered samples if given.
+        ``into``: the (grey, depth) textures to draw into, skipping the pixels subsamples.frag
+        finished (their candidate count is LIST_DONE; the lists bound as images)."""
+        skip = {} if into is None else {"SKIP_DONE": None}
+        into = into if into is not None else (None, None)
+        grey = self.fullscreen_pass("downsample.frag", {"SS": s, **skip}, {"u_samples": samples}, {}, (W, H),
+                                    into=into[0])
         if depth is None:
             return grey, None
-        return grey, self.fullscreen_pass("downsample.frag", {"SS": s, "COVERED_MEAN": None},
-                                          {"u_samples": depth}, {}, (W, H))
+        return grey, self.fullscreen_pass("downsample.frag", {"SS": s, "COVERED_MEAN": None, **skip},
+                                          {"u_samples": depth}, {}, (W, H), into=into[-1])
 
     def noise_pass(self, grey, params, bit_depth: int, seed: int, table=None):
         """noise.frag on an R32F texture or (H, W) array: grey + σ(grey)·z, the same field as
