@@ -1,8 +1,10 @@
 """Shared fixtures: one EGL context for every GL test, its error flag checked around each; a
-virtual X server (Xvfb) for the window tests."""
+virtual X server (Xvfb) for the window tests and ``preview_window`` to run one there."""
+import contextlib
 import os
 import shutil
 import subprocess
+import sys
 
 import pytest
 
@@ -55,3 +57,24 @@ def xserver():
     yield display
     proc.terminate()
     proc.wait(10)
+
+
+@pytest.fixture
+def preview_window(xserver):
+    """``with preview_window(*cli_args, cwd=...) as (app, env):`` runs ``glsim preview …`` on the
+    Xvfb display (stdout and stderr piped as text; ``env`` has its DISPLAY, for xdotool) and
+    kills it on the way out if it is still running."""
+    env = {**os.environ, "DISPLAY": xserver}
+
+    @contextlib.contextmanager
+    def run(*args, **popen):
+        app = subprocess.Popen([sys.executable, "-m", "glsim.cli", "preview", *args], stdout=subprocess.PIPE,
+                               stderr=subprocess.PIPE, text=True, env=env, **popen)
+        try:
+            yield app, env
+        finally:
+            if app.poll() is None:
+                app.kill()
+                app.wait()
+
+    return run

@@ -1,7 +1,6 @@
 """`glsim preview LIBRARY_DIR`: the calibration-library pager. Its drawn points against the
 library's own ground truth (projected points from the pair JSON, not the detector's output),
 paging by key events, the screenshot through the CLI, named errors, and the window under Xvfb."""
-import os
 import shutil
 import subprocess
 import sys
@@ -106,13 +105,10 @@ def test_screenshot_through_the_cli_and_named_errors(library, tmp_path):
         LibraryPager(broken).frame()
 
 
-def test_window_pages_under_xvfb(library, xserver):
+def test_window_pages_under_xvfb(library, preview_window):
     """A real window on a virtual X server: a real key press turns the page (the frame log says
     which pair is shown and how many points each camera found)."""
-    env = {**os.environ, "DISPLAY": xserver}
-    app = subprocess.Popen([sys.executable, "-m", "glsim.cli", "preview", str(library), "--size", *map(str, SIZE),
-                            "--log-frames"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env)
-    try:
+    with preview_window(str(library), "--size", *map(str, SIZE), "--log-frames") as (app, env):
         first = app.stdout.readline()
         assert "page=0 pair=0" in first and "cam0=81 cam1=81" in first, first + app.stderr.read()
         deadline = time.monotonic() + 30
@@ -125,7 +121,3 @@ def test_window_pages_under_xvfb(library, xserver):
         assert "page=1 pair=1" in app.stdout.readline()
         subprocess.run(["xdotool", "key", "--window", wid, "q"], env=env, capture_output=True)
         assert app.wait(30) == 0
-    finally:
-        if app.poll() is None:
-            app.kill()
-            app.wait()

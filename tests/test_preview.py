@@ -456,39 +456,36 @@ def _xwd(path):
 
 
 
-def test_window_under_xvfb(xserver, small_toml, tmp_path, gl_ctx):
-    env = {**os.environ, "DISPLAY": xserver}
-    app = subprocess.Popen([sys.executable, "-m", "glsim.cli", "preview", str(small_toml), "--size", *map(str, SIZE),
-                            "--log-frames", "--no-timings"], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
-                           text=True, env=env, cwd=tmp_path)
-    import queue
-    import threading
-    out, lines = queue.Queue(), []
-    threading.Thread(target=lambda: [out.put(line) for line in app.stdout], daemon=True).start()
+def test_window_under_xvfb(preview_window, small_toml, tmp_path, gl_ctx):
+    with preview_window(str(small_toml), "--size", *map(str, SIZE), "--log-frames", "--no-timings",
+                        cwd=tmp_path) as (app, env):
+        import queue
+        import threading
+        out, lines = queue.Queue(), []
+        threading.Thread(target=lambda: [out.put(line) for line in app.stdout], daemon=True).start()
 
-    def wait_for(text, timeout=60):
-        t0 = time.monotonic()
-        while time.monotonic() - t0 < timeout:
-            try:
-                line = out.get(timeout=0.5)
-            except queue.Empty:
-                continue
-            lines.append(line)
-            if text in line and "quality=full" in line:
-                return line
-        raise AssertionError(f"no frame with {text!r} within {timeout} s: {lines}")
+        def wait_for(text, timeout=60):
+            t0 = time.monotonic()
+            while time.monotonic() - t0 < timeout:
+                try:
+                    line = out.get(timeout=0.5)
+                except queue.Empty:
+                    continue
+                lines.append(line)
+                if text in line and "quality=full" in line:
+                    return line
+            raise AssertionError(f"no frame with {text!r} within {timeout} s: {lines}")
 
-    def window_pixels():
-        wid = subprocess.run(["xdotool", "search", "--name", "glsim preview"], env=env, capture_output=True,
-                             text=True).stdout.split()[0]
-        dump = tmp_path / "w.xwd"
-        subprocess.run(["xwd", "-id", wid, "-silent", "-out", str(dump)], env=env, check=True)
-        return wid, _xwd(dump)
+        def window_pixels():
+            wid = subprocess.run(["xdotool", "search", "--name", "glsim preview"], env=env, capture_output=True,
+                                 text=True).stdout.split()[0]
+            dump = tmp_path / "w.xwd"
+            subprocess.run(["xwd", "-id", wid, "-silent", "-out", str(dump)], env=env, check=True)
+            return wid, _xwd(dump)
 
-    def xdo(*args):
-        subprocess.run(["xdotool", *args], env=env, check=True)
+        def xdo(*args):
+            subprocess.run(["xdotool", *args], env=env, check=True)
 
-    try:
         wait_for("step=0")
         wid, shown = window_pixels()
         with Preview(small_toml, size=SIZE, ctx=gl_ctx) as pv:
@@ -513,10 +510,6 @@ def test_window_under_xvfb(xserver, small_toml, tmp_path, gl_ctx):
         # q quits (the window is gone before xdotool sends the key release, so its status is not checked)
         subprocess.run(["xdotool", "key", "--window", wid, "q"], env=env, capture_output=True)
         assert app.wait(30) == 0
-    finally:
-        if app.poll() is None:
-            app.kill()
-            app.wait()
 
 
 # ---- glsim bench preview ------------------------------------------------------------------------------
