@@ -151,22 +151,31 @@ void invert_closed(real2 p[4], real2 q, out real xi[2], out real eta[2], out boo
     good[0] = linear ? B != 0.0 : disc >= 0.0;
     good[1] = good[0] && !linear;
     for (int k = 0; k < 2; ++k) {
-        real tk = good[k] ? t[k] : 0.5;
-        real2 den = e + tk * g;
-        real dd = dot(den, den);
-        real s = dot(h - tk * f, den) / (dd == 0.0 ? 1.0 : dd);
-        real x = 2.0 * s - 1.0, y = 2.0 * tk - 1.0;
-        // roots far outside the element are rejected before polishing (saves half the work)
-        bool near = abs(x) <= POLISH_RANGE && abs(y) <= POLISH_RANGE;
-        for (int i = 0; i < 2 && near; ++i) {
-            real dx, dy, det;
-            newton_step(p, x, y, q, dx, dy, det);
-            x += dx;
-            y += dy;
+        ok[k] = false;
+        xi[k] = 0.0;
+        eta[k] = 0.0;
+        // a root with |eta| > POLISH_RANGE is rejected below; t[0] = Q / A is such a root
+        // wherever |Q| > (1 + POLISH_RANGE) / 2 |A| (as for near-parallelogram patches): the
+        // loop form lets llvmpipe skip the block when every lane of a vector can (same results)
+        bool may = good[k] && (k == 1 || linear || abs(Q) <= 0.5 * (1.0 + POLISH_RANGE) * abs(A));
+        for (bool once = may; once; once = false) {
+            real tk = t[k];
+            real2 den = e + tk * g;
+            real dd = dot(den, den);
+            real s = dot(h - tk * f, den) / (dd == 0.0 ? 1.0 : dd);
+            real x = 2.0 * s - 1.0, y = 2.0 * tk - 1.0;
+            // roots far outside the element are rejected before polishing (saves half the work)
+            bool near = abs(x) <= POLISH_RANGE && abs(y) <= POLISH_RANGE;
+            for (int i = 0; i < 2 && near; ++i) {
+                real dx, dy, det;
+                newton_step(p, x, y, q, dx, dy, det);
+                x += dx;
+                y += dy;
+            }
+            ok[k] = near && dd != 0.0 && !isnan(x) && !isnan(y) && !isinf(x) && !isinf(y);
+            xi[k] = ok[k] ? x : 0.0;
+            eta[k] = ok[k] ? y : 0.0;
         }
-        ok[k] = good[k] && near && dd != 0.0 && !isnan(x) && !isnan(y) && !isinf(x) && !isinf(y);
-        xi[k] = ok[k] ? x : 0.0;
-        eta[k] = ok[k] ? y : 0.0;
     }
 }
 

@@ -62,6 +62,11 @@ layout(std430, binding = 16) readonly buffer Local { float elem_local[]; };
 // reference pixel of C as hi (2) + lo (2), made in float64
 layout(std430, binding = 14) readonly buffer RefLocal { float ref_local[]; };
 #endif
+#ifdef REF_PINHOLE
+// float64 exact with a pinhole reference camera (glsim.backends.gl.geometry.ref_pinhole_buffer):
+// per element its reference-frame corners as (fx X + skew Y + cx Z, fy Y + cy Z, Z) (12)
+layout(std430, binding = 14) readonly buffer RefPinhole { real ref_pinhole[]; };
+#endif
 #define CANDIDATE_TEXTURES
 #include "candidates.glsl"
 #ifdef QUADRATIC
@@ -210,6 +215,14 @@ bool exact_reference(int e, real xi, real eta, out real2 ref) {
     ref_lo -= ref - hi;   // what the float32 sum dropped (Fast2Sum: |hi| >= |lo| here)
     real2 xn_ref = C.xy / C.z + dxn;
     ref_ok = zd > 0.0 && dot(xn_ref, xn_ref) < u_ref_valid_r2;
+#elif defined(REF_PINHOLE)
+    // the pinhole projection of the blended corners: (fx X + skew Y + cx Z, fy Y + cy Z) / Z
+    int r = e * 12;
+    real3 R[4];
+    for (int i = 0; i < 4; ++i) R[i] = real3(ref_pinhole[r + 3 * i], ref_pinhole[r + 3 * i + 1], ref_pinhole[r + 3 * i + 2]);
+    real3 w = bilinear3(R, xi, eta);
+    ref_ok = w.z > 0.0;
+    ref = ref_ok ? w.xy / w.z : real2(0.0);
 #else
     ivec4 q = quads[e];
     real3 R[4];  // undeformed corners in the reference camera's frame (mm)
@@ -302,13 +315,14 @@ void main() {
     }
 #else
     ivec2 pix = ivec2(gl_FragCoord.xy) / SS;
-    uint n = candidate_count(pix);
 #if defined(RESOLVE)
+    uint n = candidate_count(pix);
     if (n < 2u || n > uint(CANDIDATES)) discard;
 #elif defined(FALLBACK)
+    uint n = candidate_count(pix);
     if (n <= uint(CANDIDATES) || n == LIST_DONE) discard;
-#else
-    if (n != 1u) discard;
+#elif !defined(EARLY_TESTS)   // (with them, classify.frag's layer holds one-candidate pixels only)
+    if (candidate_count(pix) != 1u) discard;
 #endif
     vec2 sample_px = gl_FragCoord.xy / float(SS) - 0.5;  // this sample's pixel coordinates
     real2 px = real2(gl_FragCoord.xy) / real(SS) - 0.5;

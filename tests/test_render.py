@@ -72,6 +72,34 @@ def test_exact_mapping_equals_analytic_shift(backend, tol, distortion, ctx_for):
             assert np.abs(moved - shift).max() < 1e-9
 
 
+@pytest.mark.parametrize("backend,tol", [("cpu", 1e-9), pytest.param("gl", 1e-4, marks=pytest.mark.gl)])
+def test_distorted_reference_camera_equals_analytic_shift(backend, tol, ctx_for, tmp_path):
+    """A reference image taken through a distorting camera (speckle.image + speckle.camera):
+    GL's general reference projection (a pinhole reference camera takes the per-element path,
+    REF_PINHOLE) against OpenCV's projectPoints with that camera's distortion."""
+    import dataclasses
+
+    import imageio.v3 as iio
+
+    from glsim.scene import Speckle
+
+    base = plate_scene(distortion=Distortion(k1=-0.2), mode="exact")
+    with Renderer(base, "cpu") as r:
+        image, auto = r.reference.image, r.reference.camera
+    path = tmp_path / "reference.tiff"
+    iio.imwrite(path, image.astype(np.float32))
+    ref_cam = dataclasses.replace(auto, distortion=Distortion(k1=0.08, k2=-0.02, p2=5e-4))
+    scene = base.replace(speckle=Speckle(image=str(path), camera=ref_cam))
+    with backend_renderer(scene, backend, ctx_for) as r:
+        assert np.any(r.reference.camera.distortion.coeffs)
+        truth = r.render(0, 1, truth=True).truth
+        expected = opencv_ref_uv(r, 300.0, SHIFT)
+    m = truth.mask
+    assert m.sum() > 0.3 * m.size
+    err = np.linalg.norm(truth.ref_uv[m] - expected[m], axis=-1)
+    assert err.max() <= tol, err.max()
+
+
 @pytest.mark.parametrize("backend", ["cpu", pytest.param("gl", marks=pytest.mark.gl)])
 def test_truth_maps_are_masked_consistently(backend, ctx_for):
     with backend_renderer(plate_scene(), backend, ctx_for) as r:

@@ -233,6 +233,11 @@ class GLBackend:
                      and not np.any(ref_cam.distortion.coeffs))
         if ref_local:
             defines["REF_LOCAL"] = None
+        # float64 exact with a pinhole reference camera: its projection as per-element blends
+        ref_pinhole = (opts.mode == "exact" and fp64 and patches is None
+                       and not np.any(ref_cam.distortion.coeffs))
+        if ref_pinhole:
+            defines["REF_PINHOLE"] = None
         # float32 exact on a driver with float64: the per-element and per-camera work (records,
         # ray map) in float64, the per-sample work in float32 relative to each element's centre
         camera_local = ref_local and self.fp64
@@ -258,6 +263,8 @@ class GLBackend:
             geo.bind(view, fp64)
             if ref_local:
                 geo.ref_local_buffer(ref_cam.intrinsics).bind_to_storage_buffer(14)
+            if ref_pinhole:
+                geo.ref_pinhole_buffer(ref_cam.intrinsics).bind_to_storage_buffer(14)
             geo.set_uniforms(prog, view, fp64)
             camera_uniforms(prog)
             self._set(prog, "u_ref_intr", ref_cam.intrinsics, fp64)

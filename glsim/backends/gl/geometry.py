@@ -99,6 +99,21 @@ class GeometryBuffers:
             self._bufs[key] = self.ctx.buffer(np.ascontiguousarray(rec).tobytes())
         return self._bufs[key]
 
+    def ref_pinhole_buffer(self, intrinsics: np.ndarray):
+        """Per element, 12 float64 (binding 14, deform.frag REF_PINHOLE): its undeformed corners
+        in a pinhole reference camera's frame as (fx X + skew Y + cx Z, fy Y + cy Z, Z) (px·mm,
+        px·mm, mm), so that the reference pixel of a point is their bilinear blend divided by
+        its third component (made once)."""
+        key = ("ref_pinhole", tuple(np.asarray(intrinsics, float)))
+        if key not in self._bufs:
+            Xr, _ = self.geo.reference()
+            R = np.asarray(Xr, np.float64).reshape(-1, 3)[np.asarray(self.geo.quads)]     # (M, 4, 3)
+            fx, fy, skew, cx, cy = np.asarray(intrinsics, np.float64)
+            X, Y, Z = R[..., 0], R[..., 1], R[..., 2]
+            rec = np.stack([fx * X + skew * Y + cx * Z, fy * Y + cy * Z, Z], -1)
+            self._bufs[key] = self.ctx.buffer(np.ascontiguousarray(rec, np.float64).tobytes())
+        return self._bufs[key]
+
     def index_buffer(self):
         """Six indices per element into the 4 M attribute-less vertices (made once)."""
         def make():
