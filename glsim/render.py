@@ -27,7 +27,7 @@ from glsim.scene.bilinear import bilinear
 from glsim.scene.camera import Camera, pixel_to_normalized, project_camera_frame, to_camera, undistort
 from glsim.effects import prepare as prepare_effects
 from glsim.stages.geometry import MeshGeometry, ViewSpec
-from glsim.io.truth import Truth
+from glsim.io.truth import Truth, pixel_positions
 from glsim.stages.quadview import PatchData, chord_error_bound, fast_local_coords as quadratic_fast_coords, \
     make_quad_view, q4_image_bound
 from glsim.stages.view import NEAR_MM, View, _labels, make_view
@@ -249,13 +249,12 @@ class Renderer:
         xi = np.where(mask, raster["xi"].reshape(H, W), np.nan)
         eta = np.where(mask, raster["eta"].reshape(H, W), np.nan)
         ref = np.where(mask[..., None], raster["ref_uv"].reshape(H, W, 2), np.nan)
-        cam1 = self.scene.cameras[0]
-        Xu = np.full((H, W, 3), np.nan)
-        Xd = np.full((H, W, 3), np.nan)
-        evaluate = evaluate or (lambda nodes, e, x, y: bilinear(nodes[self.mesh.quads[e]], x, y))
-        Xu[mask] = to_camera(evaluate(self.mesh.nodes, elem[mask], xi[mask], eta[mask]), cam1)
-        Xd[mask] = to_camera(evaluate(deformed, elem[mask], xi[mask], eta[mask]), cam1)
-        return Truth(mask=mask, element=elem, xi=xi, eta=eta, ref_uv=ref, X_undeformed=Xu, X_deformed=Xd)
+        cam1, nodes, quads = self.scene.cameras[0], self.mesh.nodes, self.mesh.quads
+        evaluate = evaluate or (lambda nodes, e, x, y: bilinear(nodes[quads[e]], x, y))
+        e, x, y = elem[mask], xi[mask], eta[mask]
+        return Truth(mask=mask, element=elem, xi=xi, eta=eta, ref_uv=ref,
+                     positions=pixel_positions(mask, lambda: (to_camera(evaluate(nodes, e, x, y), cam1),
+                                                              to_camera(evaluate(deformed, e, x, y), cam1))))
 
 
 def _saturated(image: np.ndarray) -> float:

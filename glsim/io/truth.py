@@ -36,6 +36,7 @@ import struct
 from dataclasses import dataclass
 from functools import cached_property
 from pathlib import Path
+from typing import Callable
 
 import numpy as np
 
@@ -246,18 +247,43 @@ class Truth:
     ``element``: element index (−1 = background); ``xi``, ``eta``: local coordinates in
     [−1, 1] (FE corner order); ``ref_uv``: reference-image coordinates (px) the pixel was
     given; ``X_undeformed``/``X_deformed``: the material point in camera 0's frame (mm),
-    evaluated in float64 from (element, ξ, η).
+    evaluated in float64 from (element, ξ, η) on first access (``positions`` makes both), so
+    that who needs only (element, ξ, η), as a library's compact truth, does not pay for them.
     """
     mask: np.ndarray
     element: np.ndarray
     xi: np.ndarray
     eta: np.ndarray
     ref_uv: np.ndarray
-    X_undeformed: np.ndarray
-    X_deformed: np.ndarray
+    positions: Callable[[], tuple[np.ndarray, np.ndarray]] = dataclasses.field(repr=False)
+
+    FIELDS = ("mask", "element", "xi", "eta", "ref_uv", "X_undeformed", "X_deformed")
+
+    @cached_property
+    def _X(self) -> tuple[np.ndarray, np.ndarray]:
+        return self.positions()
+
+    @property
+    def X_undeformed(self) -> np.ndarray:
+        return self._X[0]
+
+    @property
+    def X_deformed(self) -> np.ndarray:
+        return self._X[1]
 
     def as_dict(self) -> dict[str, np.ndarray]:
-        return {f.name: getattr(self, f.name) for f in dataclasses.fields(self)}
+        return {name: getattr(self, name) for name in self.FIELDS}
+
+
+def pixel_positions(mask: np.ndarray, points) -> Callable[[], tuple[np.ndarray, np.ndarray]]:
+    """``Truth.positions`` for the covered pixels of ``mask`` (H, W): ``points()`` gives their
+    undeformed and deformed points (n, 3), camera 0's frame, mm; NaN elsewhere."""
+    def make():
+        H, W = mask.shape
+        Xu, Xd = np.full((H, W, 3), np.nan), np.full((H, W, 3), np.nan)
+        Xu[mask], Xd[mask] = points()
+        return Xu, Xd
+    return make
 
 
 # ---- reading ----------------------------------------------------------------------------------------
@@ -381,11 +407,9 @@ class CompactTruth:
         e = self.element[mask]
         xi, eta = self.xi[mask], self.eta[mask]
         q = g.quads[e]
-        cam1 = self.camera1
-        Xu = np.full((H, W, 3), np.nan)
-        Xd = np.full((H, W, 3), np.nan)
-        Xu[mask] = to_camera(bilinear(g.nodes[q], xi, eta), cam1)
-        Xd[mask] = to_camera(bilinear(g.deformed(self.step)[q], xi, eta), cam1)
+        cam1, step = self.camera1, self.step
+        positions = pixel_positions(mask, lambda: (to_camera(bilinear(g.nodes[q], xi, eta), cam1),
+                                                   to_camera(bilinear(g.deformed(step)[q], xi, eta), cam1)))
         ref = np.full((H, W, 2), np.nan)
         rc = self.reference_camera
         Xr = to_camera(g.nodes, rc)[g.quads][e]
@@ -394,8 +418,7 @@ class CompactTruth:
             ref[mask] = bilinear(corners, xi, eta)
         else:                      # the reference camera's projection of the material point
             ref[mask] = project_camera_frame(bilinear(Xr, xi, eta), rc)[0]
-        return Truth(mask=mask, element=self.element, xi=self.xi, eta=self.eta, ref_uv=ref,
-                    X_undeformed=Xu, X_deformed=Xd)
+        return Truth(mask=mask, element=self.element, xi=self.xi, eta=self.eta, ref_uv=ref, positions=positions)
 
     def at(self, points, step: int | None = None) -> PointTruth:
         """Ground truth at ``points`` (N, 2) — pixel coordinates (u, v) of camera 0 in the
