@@ -78,6 +78,11 @@ class GeometryBuffers:
         flags = self._buffer("flags", lambda: ctx.buffer(bytes(16 + 8 * words)))
         return quads, self._bufs["ref_uv", fp64], self._bufs["ref_xr", fp64], flags
 
+    def _reference_corners(self) -> np.ndarray:
+        """Each element's undeformed corners in the reference camera's frame, (M, 4, 3) float64, mm."""
+        Xr, _ = self.geo.reference()
+        return np.asarray(Xr, np.float64).reshape(-1, 3)[np.asarray(self.geo.quads)]
+
     def ref_local_buffer(self, intrinsics: np.ndarray):
         """Per element, 20 float32 (binding 14, deform.frag REF_LOCAL): its undeformed corners in
         the reference camera's frame relative to their centre X̄ (4 × 3, mm), X̄ (3), 0, and the
@@ -85,8 +90,7 @@ class GeometryBuffers:
         shader projects X̄ + Δ as ū + J Δ-exact differences, not 600 mm positions (made once)."""
         key = ("ref_local", tuple(np.asarray(intrinsics, float)))
         if key not in self._bufs:
-            Xr, _ = self.geo.reference()
-            R = np.asarray(Xr, np.float64).reshape(-1, 3)[np.asarray(self.geo.quads)]     # (M, 4, 3)
+            R = self._reference_corners()
             c = R.mean(axis=1)
             fx, fy, skew, cx, cy = np.asarray(intrinsics, np.float64)
             with np.errstate(divide="ignore", invalid="ignore"):
@@ -106,8 +110,7 @@ class GeometryBuffers:
         its third component (made once)."""
         key = ("ref_pinhole", tuple(np.asarray(intrinsics, float)))
         if key not in self._bufs:
-            Xr, _ = self.geo.reference()
-            R = np.asarray(Xr, np.float64).reshape(-1, 3)[np.asarray(self.geo.quads)]     # (M, 4, 3)
+            R = self._reference_corners()
             fx, fy, skew, cx, cy = np.asarray(intrinsics, np.float64)
             X, Y, Z = R[..., 0], R[..., 1], R[..., 2]
             rec = np.stack([fx * X + skew * Y + cx * Z, fy * Y + cy * Z, Z], -1)
