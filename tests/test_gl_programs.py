@@ -88,6 +88,58 @@ def test_glsl_camera_matches_opencv(gl_ctx, name, fp64, tol):
     assert np.abs(und[:, :2] - cv_und).max() * cam.fx < tol
 
 
+def _quads_and_targets(rng, n: int):
+    """Quads of every kind, with targets inside and around them: near-parallelograms (whose
+    second root lies far away), general convex quads, and folded (bow-tie) ones with two
+    roots near the element."""
+    base = np.array([[-1.0, -1.0], [1.0, -1.0], [1.0, 1.0], [-1.0, 1.0]])
+    kinds = []
+    for jitter in (1e-9, 0.3, 1.2):   # near-parallelogram, convex, often folded
+        shear = rng.uniform(-0.5, 0.5, (n, 1, 1)) * np.array([[0.0, 0.0], [0.0, 1.0], [0.0, 1.0], [0.0, 0.0]])
+        p = base + shear + rng.normal(0.0, jitter, (n, 4, 2))
+        kinds.append(p * rng.uniform(0.5, 20.0, (n, 1, 1)) + rng.uniform(-50, 50, (n, 1, 2)))
+    p = np.concatenate(kinds)
+    s, t = rng.uniform(-0.3, 1.3, (2, len(p), 1))   # (ξ, η) in [-1.6, 1.6]
+    q = (p[:, 0] * (1 - s) * (1 - t) + p[:, 1] * s * (1 - t) + p[:, 2] * s * t + p[:, 3] * (1 - s) * t)
+    return p, q
+
+
+@pytest.mark.gl
+def test_glsl_invert_closed_matches_the_oracle(gl_ctx):
+    """bilinear.glsl's closed-form inverse (both roots, the far one skipped where it cannot be
+    near the element) against glsim.scene.bilinear.invert_closed in float64: the same roots
+    found, at the same (ξ, η) to 1e-9."""
+    from glsim.scene.bilinear import invert_closed
+
+    if not GLBackend(np.zeros((8, 8), np.float32), ctx=gl_ctx).fp64:
+        pytest.skip("the driver has no GL_ARB_gpu_shader_fp64")
+    p, q = _quads_and_targets(np.random.default_rng(5), 4000)
+    n = len(p)
+    cache = ProgramCache(gl_ctx, dirs=(GLSL_DIR,))
+    prog = cache.compute("bilinear_check.comp", {"FP64": None})
+    bufs = [gl_ctx.buffer(np.ascontiguousarray(p, "f8").tobytes()), gl_ctx.buffer(np.ascontiguousarray(q, "f8").tobytes()),
+            gl_ctx.buffer(reserve=n * 6 * 8)]
+    for i, b in enumerate(bufs):
+        b.bind_to_storage_buffer(i)
+    prog["u_count"].value = n
+    prog.run(group_x=(n + 63) // 64)
+    roots = np.frombuffer(bufs[2].read(), "f8").reshape(n, 2, 3)
+    for b in bufs:
+        b.release()
+    cache.release()
+    xi, eta, ok = invert_closed(p, q)            # (2, n) each
+    gl_ok = roots[..., 2].T == 1.0
+    # a root the oracle polishes to |ξ| or |η| beyond 1.5 may be dropped by the shader before
+    # polishing (and the reverse): only roots near the element must agree
+    near = (np.abs(xi) <= 1.4) & (np.abs(eta) <= 1.4)
+    assert (gl_ok[near] == ok[near]).all()
+    both = near & ok
+    assert both.any(axis=0).sum() > 0.7 * n      # most targets have a root near the element …
+    assert (both.sum(axis=0) == 2).sum() > 100    # … and some two: a fold near the element
+    assert np.abs(roots[..., 0].T[both] - xi[both]).max() < 1e-9
+    assert np.abs(roots[..., 1].T[both] - eta[both]).max() < 1e-9
+
+
 @pytest.mark.gl
 def test_programs_compiled_only_with_what_the_scene_asks_for(gl_ctx):
     """The GL program's #defines are exactly the scene's choices: mode, interpolation,
