@@ -302,9 +302,14 @@ def test_bench_scaling_reduced_run_writes_elsewhere(tmp_path, capsys):
         for mode in ("fast", "q4", "exact"):
             row = r["renderers"][mode]
             assert row["median_s"] > 0 and row["host_ms"] >= 0 and row["coverage"] > 0.3
+            # the render timed pass by pass: every pass named by its shader, within its wall time
+            assert 0 < sum(row["passes"].values()) <= row["passes_wall_s"]
+        assert {"view.comp", "candidates.frag", "classify.frag", "deform.frag"} <= set(r["renderers"]["exact"]["passes"])
+        assert set(r["renderers"]["fast"]["passes"]) == {"deform.frag"}
         assert r["peak_rss_mb"] > 0
     assert [g["met"] for g in report["goals"]][:3] == [None, None, None]   # 128k and 2k not measured
-    assert (tmp_path / "scaling.md").read_text().startswith("# glsim scaling benchmark")
+    md = (tmp_path / "scaling.md").read_text()
+    assert md.startswith("# glsim scaling benchmark") and "| 300 | " in md.split("## Where the time goes (exact")[1]
 
 
 @pytest.mark.gl

@@ -765,6 +765,12 @@ def scaling_table(sc: dict) -> str:
     return "\n".join(lines)
 
 
+def scaling_passes(sc: dict) -> str:
+    """docs/scaling.md: the exact mode's passes over the element sweep."""
+    from glsim.evaluation.scaling import PASSES_NOTE, passes_table
+    return f"{PASSES_NOTE} One render per element count, after the timed ones:\n\n" + passes_table(sc["elements"], "exact")
+
+
 def scaling_goals(sc: dict) -> str:
     """docs/scaling.md: issue 19's goals as the run judged them, and what grows with the pixel count."""
     pts = {r["elements"]: r for r in _sc_pts(sc)}
@@ -908,7 +914,7 @@ GENERATORS = {"preview": preview, "accuracy-table": accuracy_table, "accuracy-fa
               "verify-scale": verify_scale, "verify-choices": verify_choices, "verify-facts": verify_facts,
               "verify-timing": verify_timing, "sweep-facts": sweep_facts, "sweep-frontier": sweep_frontier,
               "sweep-timing": sweep_timing, "scaling-host": scaling_host, "scaling-oracle": scaling_oracle,
-              "scaling-table": scaling_table, "scaling-goals": scaling_goals,
+              "scaling-table": scaling_table, "scaling-goals": scaling_goals, "scaling-passes": scaling_passes,
               "preview-overhead": preview_overhead, "fe-bulge-centre": fe_bulge_centre,
               "fe-bulge-centre-5mm": fe_bulge_centre_5mm, "sweep-subsets": sweep_subsets,
               "quadratic-tables": quadratic_tables, "quadratic-rows": quadratic_rows, "quadratic-fast": quadratic_fast,

@@ -13,6 +13,9 @@ depends on the element count — the first render (uploads and shader builds inc
 process's peak resident memory and the bytes of the mesh's GL buffers. Optionally the float64
 CPU oracle (exact mode, one render) in its own process, with its peak memory.
 
+Then, per point and mode, one more render timed pass by pass (each draw and dispatch between
+two ``finish`` calls, :meth:`GLBackend.pass_times`): where the time goes as the mesh grows.
+
 Writes ``scaling.json`` and ``scaling.md``; only the full run writes to bench/results.
 """
 from __future__ import annotations
@@ -117,6 +120,12 @@ def measure(size: tuple[int, int], n: int, reps: int) -> dict:
     for _ in range(reps):                     # interleaved: every renderer once per repetition
         for call in calls.values():
             call()
+    for mode in MODES:                        # then one render per mode, pass by pass
+        with renderer.backend.pass_times() as p:
+            t = time.perf_counter()
+            renderer.render(0, 0, mode=mode)
+            rows[mode]["passes_wall_s"] = time.perf_counter() - t
+        rows[mode]["passes"] = p.seconds
     geo = renderer.backend.geometry
     gl_bytes = sum(b.size for k, b in geo._bufs.items() if not isinstance(b, tuple))
     gl_bytes += sum(b.size for entry in geo._steps.values() for b in entry[1:3])
@@ -289,6 +298,8 @@ def markdown(report: dict) -> str:
               "elements" in report["sizes"][0] else "## Image size", "", HEADER.format(first="size")]
     lines += [_row(r, f"{r['size'][0]}×{r['size'][1]} ({r['size'][0] * r['size'][1] / 1e6:.1f} Mpx)"
                    if "size" in r else "?") for r in report["sizes"]]
+    lines += ["", "## Where the time goes (exact, one render timed pass by pass)", "", PASSES_NOTE, "",
+              passes_table(report["elements"], "exact")]
     if report["oracle"]:
         lines += ["", "## CPU oracle (exact, float64, one render)", "",
                   "| elements | time (s) | peak RSS (MB) |", "|---|---|---|"]
@@ -296,6 +307,27 @@ def markdown(report: dict) -> str:
             lines.append(f"| {r['elements']:,} | {r['seconds']:.3g} | {r['peak_rss_mb']:.0f} |" if "seconds" in r
                          else f"| {r.get('args', ['?', '?'])[1]} | failed: {r['error'].splitlines()[0]} | |")
     return "\n".join(lines) + "\n"
+
+
+PASSES_NOTE = ("Each draw or dispatch between two `finish` calls (ms), named by its shader; \"rest\": that "
+               "render's wall time less its passes (read-back, clears, Python). Their sum exceeds a pipelined "
+               "render's time a little.")
+
+
+def passes_table(points: list[dict], mode: str) -> str:
+    """Where ``mode``'s time goes per element count: each pass's seconds (ms) from the render
+    timed pass by pass, the rest of that render (read-back, clears, host) and its wall time."""
+    pts = [r for r in points if "passes" in r.get("renderers", {}).get(mode, {})]
+    names = list(dict.fromkeys(n for r in pts for n in r["renderers"][mode]["passes"]))
+    lines = ["| elements | " + " | ".join(f"`{n}`" for n in names) + " | rest | wall |",
+             "|---|" + "---|" * (len(names) + 2)]
+    for r in pts:
+        row = r["renderers"][mode]
+        ms = [row["passes"].get(n) for n in names]
+        rest = row["passes_wall_s"] - sum(x for x in ms if x)
+        lines.append(f"| {r['elements']:,} | " + " | ".join("–" if x is None else f"{1e3 * x:.1f}" for x in ms)
+                     + f" | {1e3 * rest:.1f} | {1e3 * row['passes_wall_s']:.1f} |")
+    return "\n".join(lines)
 
 
 def rewrite(path) -> str:

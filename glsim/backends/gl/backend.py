@@ -28,6 +28,7 @@ from glsim.stages.geometry import ViewSpec
 from glsim.stages.view import warn_dropped, warn_problems
 from glsim.backends.gl.context import check_error, create_context
 from glsim.backends.gl.geometry import LAYERS, GeometryBuffers
+from glsim.backends.gl import timing
 from glsim.backends.gl.programs import ProgramCache
 
 
@@ -159,6 +160,11 @@ class GLBackend:
         self.programs.release()
         if self._own_ctx:
             self.ctx.release()
+
+    def pass_times(self):
+        """A context manager timing each pass of the renders in its block on its own
+        (:func:`glsim.backends.gl.timing.pass_times`; named by their shader files)."""
+        return timing.pass_times(self.ctx, self.programs.name_of)
 
     # ---- rendering -------------------------------------------------------------------------
     @staticmethod

@@ -135,6 +135,13 @@ class ProgramCache:
         return self._build({"source": name}, dict(defines or {}),
                            lambda source: self.ctx.compute_shader(source))
 
+    def name_of(self, prog) -> str:
+        """The file of ``prog``'s last stage (fragment or compute shader), "?" if not built here."""
+        for (stages, _), p in self._programs.items():
+            if p is prog:
+                return stages[-1][1]
+        return "?"
+
     def release(self) -> None:
         for prog in self._programs.values():
             prog.release()

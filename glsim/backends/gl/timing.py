@@ -1,10 +1,16 @@
-"""How much of a render's wall time the host spends outside the GL driver.
+"""How much of a render's wall time the host spends outside the GL driver, and where the
+driver's time goes.
 
 ``with driver_time() as t: ...`` counts the seconds spent inside moderngl calls (and so in the
 driver: submissions, dispatches, waits for read-backs) while the block runs; the rest of the
 block's wall time is the host's own work, Python and numpy: the "CPU side" of a render that the
 scaling benchmark reports (``glsim bench scaling``). On llvmpipe the driver also executes the
 shaders; on a GPU most of that time is the wait for the read-back.
+
+``with pass_times(ctx, name_of) as p: ...`` times each draw and dispatch in the block on its
+own (``p.seconds``: pass name → seconds, summed over its calls), with the driver finished before
+and after each, so that no pass hides behind another: a breakdown of one render, not its
+pipelined wall time.
 """
 from __future__ import annotations
 
@@ -60,3 +66,39 @@ def driver_time():
     finally:
         for cls, name, value in saved:
             setattr(cls, name, value)
+
+
+class PassTimes:
+    def __init__(self):
+        self.seconds: dict[str, float] = {}
+
+
+@contextlib.contextmanager
+def pass_times(ctx, name_of):
+    """Patch moderngl's draw and dispatch calls for the block's duration: ``ctx.finish()``
+    before and after each, its time added under ``name_of(program)``."""
+    import moderngl
+
+    p = PassTimes()
+
+    def timed(fn, program_of):
+        @functools.wraps(fn)
+        def inner(self, *args, **kwargs):
+            ctx.finish()
+            t0 = time.perf_counter()
+            out = fn(self, *args, **kwargs)
+            ctx.finish()
+            name = name_of(program_of(self))
+            p.seconds[name] = p.seconds.get(name, 0.0) + time.perf_counter() - t0
+            return out
+        return inner
+
+    saved = [(moderngl.VertexArray, "render", lambda vao: vao.program), (moderngl.ComputeShader, "run", lambda c: c)]
+    originals = [(cls, name, getattr(cls, name)) for cls, name, _ in saved]
+    for cls, name, program_of in saved:
+        setattr(cls, name, timed(getattr(cls, name), program_of))
+    try:
+        yield p
+    finally:
+        for cls, name, fn in originals:
+            setattr(cls, name, fn)
