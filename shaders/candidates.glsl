@@ -1,6 +1,6 @@
 // Candidate lists of the exact and q4 modes: per pixel, how many elements' covers may hold one
 // of its samples (u_cand_count) and the first CANDIDATES of them (u_cand_list, one layer each).
-// Written by candidates.frag (pass 1), read by deform.frag (pass 2); the backend clears the
+// Written by candidates.comp (pass 1), read by deform.frag (pass 2); the backend clears the
 // counts before each view.
 #define CANDIDATES 8
 // a count set by subsamples.frag: the pixel is done (every later pass skips it)
@@ -11,6 +11,21 @@ layout(r32ui, binding = 1) uniform coherent uimage2DArray u_cand_list;
 // (glsim.stages.view.TIGHT_PAD_PX): (a.x, a.y, lo_a, hi_a), (lo_b, hi_b, 0, 0) along the unit
 // axes a and b = (-a.y, a.x), px
 layout(std430, binding = 12) readonly buffer Tight { vec4 tight[]; };
+
+#ifdef LIST_WRITER
+// pass 1 (candidates.comp, candidates.frag): which passes pass 2 needs (reset by the backend): a
+// pixel with more than one candidate, one with more than CANDIDATES; and whether candidates.comp
+// left an element's box to the cover triangles
+layout(std430, binding = 13) buffer ListFlags { uint multiple; uint overflowed; uint big; };
+
+// Add element e to pixel pix's list.
+void list_candidate(ivec2 pix, int e) {
+    uint n = imageAtomicAdd(u_cand_count, pix, 1u);
+    if (n < uint(CANDIDATES)) imageStore(u_cand_list, ivec3(pix, int(n)), uvec4(uint(e)));
+    else overflowed = 1u;
+    if (n == 1u) multiple = 1u;
+}
+#endif
 
 #ifdef CANDIDATE_TEXTURES
 // pass 2 reads the lists as textures (units 2 and 3)

@@ -4,7 +4,7 @@
 // the low halves of (xi, eta) too), LIGHTING (Phong,
 // shade.glsl), DEPTH_OUT (write camera-frame depth Z at DEPTH_LOCATION, for depth of field).
 //
-// Modes exact and q4 read candidate lists: pass 1 (candidates.frag) listed, per pixel, the
+// Modes exact and q4 read candidate lists: pass 1 (candidates.comp) listed, per pixel, the
 // elements whose cover may hold one of its samples. Then, each over its own pixels:
 // - this file as a full-screen pass (lists.vert): pixels with one candidate, straight-line;
 // - RESOLVE (resolve.frag, full screen): pixels with 2..CANDIDATES candidates; each sample

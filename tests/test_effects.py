@@ -84,10 +84,10 @@ def test_programs_carry_only_the_scene_effects(effects_scene, gl_ctx):
         assert len(deform) == 1
         extra = set(deform[0]) - {"MODE_EXACT", "INTERP_BSPLINE3", "SS", "FP64", "EARLY_TESTS", "REF_PINHOLE"}
         assert extra == expect, effect
-        # rays: exact mode's ray map; view.comp, candidates.frag, classify.frag, resolve.frag: its
+        # rays: exact mode's ray map; view.comp, candidates.comp, classify.frag, resolve.frag: its
         # per-view element pass (covers on the GPU), the candidate lists, their layers and the
         # pixels with several candidates
-        passes = {files[-1] for files, _ in compiled} - {"deform.frag", "rays.frag", "view.comp", "candidates.frag",
+        passes = {files[-1] for files, _ in compiled} - {"deform.frag", "rays.frag", "view.comp", "candidates.comp",
                                                          "classify.frag", "resolve.frag"}
         assert passes == {"lighting": set(), "optics": {"blur.frag"}, "noise": {"noise.frag"}, None: set()}[effect]
         assert ("noise" in res.stages) == (effect == "noise")

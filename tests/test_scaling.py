@@ -283,6 +283,31 @@ def test_candidate_lists_and_their_overflow_give_the_oracle(gl_ctx, mode, layers
 
 
 @pytest.mark.gl
+@pytest.mark.parametrize("mode", ["exact", "q4"])
+def test_elements_too_large_for_one_invocation_are_listed_by_their_covers(gl_ctx, mode):
+    """candidates.comp lists each element from one invocation and leaves boxes over
+    BIN_MAX_SIDE (192) px on a side to the cover triangles (exact.vert BIG_ONLY): one 300 px
+    element in front of 108 small ones, both listings in one view, against the oracle."""
+    from test_render import custom_mesh_scene, grid_nodes
+
+    # (sizes that put no outline on a row or column of pixel centres)
+    big_n, big_q = grid_nodes(1, 1, 60.3, 45.3, 300.0)         # one element, ~300×225 px
+    small_n, small_q = grid_nodes(12, 9, 80.7, 60.7, 310.0)    # 108 elements of ~32 px behind it
+    scene, mesh = custom_mesh_scene(np.vstack([big_n, small_n]), np.vstack([big_q, small_q + len(big_n)]),
+                                    size=(480, 360))
+    with Renderer(scene, "gl", ctx=gl_ctx, mesh=mesh) as g, Renderer(scene, "cpu", mesh=mesh) as c:
+        a = g.render(0, 0, truth=True, mode=mode)
+        b = c.render(0, 0, truth=True, mode=mode)
+        built = [d for files, d in g.backend.programs.compiled if files == ("exact.vert", "candidates.frag")]
+    assert built == [{"BIG_ONLY": None}]
+    assert np.array_equal(a.truth.mask, b.truth.mask) and (a.truth.element == 0).sum() > 50_000
+    differ = a.truth.element != b.truth.element     # only on shared edges: the same point either way
+    assert np.abs(a.truth.X_deformed[differ] - b.truth.X_deformed[differ]).max(initial=0) < 1e-9
+    assert differ.sum() < 0.01 * a.truth.mask.sum()
+    assert np.abs(a.image.astype(float) - b.image).max() * 255 < 0.01
+
+
+@pytest.mark.gl
 def test_bench_scaling_reduced_run_writes_elsewhere(tmp_path, capsys):
     """A reduced `glsim bench scaling` runs end to end (each point in its own process) and
     writes where it is told; aimed at bench/results it is refused before anything runs."""
@@ -304,7 +329,7 @@ def test_bench_scaling_reduced_run_writes_elsewhere(tmp_path, capsys):
             assert row["median_s"] > 0 and row["host_ms"] >= 0 and row["coverage"] > 0.3
             # the render timed pass by pass: every pass named by its shader, within its wall time
             assert 0 < sum(row["passes"].values()) <= row["passes_wall_s"]
-        assert {"view.comp", "candidates.frag", "classify.frag", "deform.frag"} <= set(r["renderers"]["exact"]["passes"])
+        assert {"view.comp", "candidates.comp", "classify.frag", "deform.frag"} <= set(r["renderers"]["exact"]["passes"])
         assert set(r["renderers"]["fast"]["passes"]) == {"deform.frag"}
         assert r["peak_rss_mb"] > 0
     assert [g["met"] for g in report["goals"]][:3] == [None, None, None]   # 128k and 2k not measured

@@ -7,7 +7,7 @@ dispatch (modes exact and q4: element records, cover rectangles) and one draw ca
 Passes, each only when the scene asks for it: the exact mode's per-camera ray map (cached);
 the deformation pass at s×s samples per pixel (reference sampling, lighting, truth maps, depth):
 in fast mode the element triangles with a depth test; in exact and q4 the candidate lists
-(candidates.frag), their depth layers (classify.frag) and full-screen programs that each run
+(candidates.comp), their depth layers (classify.frag) and full-screen programs that each run
 only on their layer (with ``subsamples = "newton"``, subsamples.frag at W×H first finishes the
 pixels it can); for s > 1 the box filter down to W×H (of the pixels not finished); the depth-of-field blur
 (separable Gaussian or disk); the noise pass; then one read-back.
@@ -300,7 +300,7 @@ class GLBackend:
 
         if opts.mode != "fast":
             # element records, covers and tight rectangles of this view (view.comp), then pass 1:
-            # per pixel, the elements whose tight rectangle meets its samples (candidates.frag)
+            # per pixel, the elements whose tight rectangle meets its samples (candidates.comp)
             if camera_local:
                 geo.view_pass(view, opts.mode, True, lambda p: camera_uniforms(p, True), 0.5 - 0.5 / s, local=True)
             else:

@@ -22,7 +22,7 @@ from glsim.stages.geometry import STEPS_KEPT, MeshGeometry, ViewSpec
 from glsim.stages.view import GRAZING_COS, NEAR_MM, ray_radius
 
 _CORNERS = np.array([0, 1, 2, 0, 2, 3], np.uint32)  # two triangles per element, as the oracle's fast mode
-_GROUP = 64          # view.comp's local size
+_GROUP = 64          # view.comp's and candidates.comp's local size
 CANDIDATES = 8       # candidates.glsl: elements listed per pixel before it overflows
 # classify.frag's window depths: the full-screen pass 2 program run on each (lists.vert)
 LAYERS = {"deform.frag": 0.25, "resolve.frag": 0.5}
@@ -221,7 +221,7 @@ class GeometryBuffers:
     # ---- candidate lists (modes exact and q4) -----------------------------------------------
     def _lists(self, W: int, H: int):
         """Per-pixel candidate count (r32ui) and list (CANDIDATES layers), a framebuffer to clear
-        the counts and an attachment-less one for pass 1, and the list markers (candidates.frag)."""
+        the counts and an attachment-less one for pass 1, and the list flags (candidates.glsl)."""
         key = ("lists", W, H)
         if key not in self._bufs:
             for k in [k for k in self._bufs if isinstance(k, tuple) and k[0] == "lists"]:
@@ -231,24 +231,36 @@ class GeometryBuffers:
             count = ctx.texture((W, H), 1, dtype="u4")
             lists = ctx.texture_array((W, H, CANDIDATES), 1, dtype="u4")
             self._bufs[key] = (count, lists, ctx.framebuffer(color_attachments=[count]), ctx.empty_framebuffer((W, H)),
-                               ctx.buffer(bytes(8)))
+                               ctx.buffer(bytes(12)))
         return self._bufs[key]
 
     def candidates_pass(self, W: int, H: int, s: int) -> None:
-        """Pass 1: list, per pixel, the elements whose tight rectangle meets its s×s samples
-        (candidates.frag over the cover rectangles written by :meth:`view_pass`)."""
-        count, lists, clear, empty, overflow = self._lists(W, H)
+        """Pass 1: list, per pixel, the elements whose tight rectangle meets its s×s samples:
+        candidates.comp, one invocation per element over its cover's box (the rectangles written
+        by :meth:`view_pass`); then, only if some box was too large for it, candidates.frag over
+        those elements' cover rectangles."""
+        count, lists, clear, empty, flags = self._lists(W, H)
         clear.clear(0.0, 0.0, 0.0, 0.0)
-        overflow.write(bytes(8))
-        overflow.bind_to_storage_buffer(13)
-        prog = self.programs.program("exact.vert", "candidates.frag")
-        prog["u_size"].value = (float(W), float(H))
-        prog["u_half"].value = 0.5 - 0.5 / s
+        flags.write(bytes(12))
+        flags.bind_to_storage_buffer(13)
         self.bind_lists(W, H)
-        empty.use()
-        empty.viewport = (0, 0, W, H)
-        self.draw(prog)
+        self._bufs["cover"].bind_to_storage_buffer(9)
+        prog = self.programs.compute("candidates.comp")
+        prog["u_count"].value = self.M
+        prog["u_size"].value = (W, H)
+        prog["u_half"].value = 0.5 - 0.5 / s
+        groups = (self.M + _GROUP - 1) // _GROUP
+        gx = min(groups, _MAX_GROUPS)
+        prog.run(group_x=gx, group_y=(groups + gx - 1) // gx)
         self.ctx.memory_barrier()
+        if np.frombuffer(flags.read(size=4, offset=8), np.uint32)[0]:
+            prog = self.programs.program("exact.vert", "candidates.frag", defines={"BIG_ONLY": None})
+            prog["u_size"].value = (float(W), float(H))
+            prog["u_half"].value = 0.5 - 0.5 / s
+            empty.use()
+            empty.viewport = (0, 0, W, H)
+            self.draw(prog)
+            self.ctx.memory_barrier()
 
     def classify_pass(self, depth_only, W: int, H: int, s: int) -> None:
         """Pass 1b: each sample's depth set to the layer of its pixel's candidate count
@@ -278,7 +290,7 @@ class GeometryBuffers:
     def list_flags(self, W: int, H: int) -> tuple[bool, bool]:
         """Whether some pixel has more than one candidate, and whether one has more than the
         lists hold (then the fallback draws it)."""
-        multiple, overflowed = np.frombuffer(self._lists(W, H)[4].read(), np.uint32)
+        multiple, overflowed = np.frombuffer(self._lists(W, H)[4].read(size=8), np.uint32)
         return bool(multiple), bool(overflowed)
 
     def draw(self, prog) -> None:
