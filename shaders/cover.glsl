@@ -12,8 +12,12 @@ layout(std430, binding = 9) readonly buffer Cover { vec2 cover[]; };
 bool cover_box(int e, ivec2 size, out ivec2 a, out ivec2 b) {
     vec2 lo = min(min(cover[4 * e], cover[4 * e + 1]), min(cover[4 * e + 2], cover[4 * e + 3]));
     vec2 hi = max(max(cover[4 * e], cover[4 * e + 1]), max(cover[4 * e + 2], cover[4 * e + 3]));
+    if (any(isnan(lo)) || any(isnan(hi))) {   // empty (the rasterizer drops such covers too)
+        a = ivec2(0);
+        b = ivec2(-1);
+        return true;
+    }
     a = ivec2(clamp(ceil(lo), vec2(0.0), vec2(size)));
     b = ivec2(clamp(floor(hi), vec2(-1.0), vec2(size - 1)));
-    if (any(isnan(lo)) || any(isnan(hi))) b = a - 1;   // (the rasterizer drops such covers too)
     return all(lessThanEqual(b - a + 1, ivec2(BIN_MAX_SIDE)));
 }
