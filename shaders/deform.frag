@@ -315,14 +315,16 @@ void main() {
     }
 #else
     ivec2 pix = ivec2(gl_FragCoord.xy) / SS;
-#if defined(RESOLVE)
+#if defined(RESOLVE) || defined(FALLBACK) || !defined(EARLY_TESTS)
+    // (the one-candidate pass with EARLY_TESTS needs no count: classify.frag's layer implies it)
     uint n = candidate_count(pix);
+#endif
+#if defined(RESOLVE)
     if (n < 2u || n > uint(CANDIDATES)) discard;
 #elif defined(FALLBACK)
-    uint n = candidate_count(pix);
     if (n <= uint(CANDIDATES) || n == LIST_DONE) discard;
-#elif !defined(EARLY_TESTS)   // (with them, classify.frag's layer holds one-candidate pixels only)
-    if (candidate_count(pix) != 1u) discard;
+#elif !defined(EARLY_TESTS)
+    if (n != 1u) discard;
 #endif
     vec2 sample_px = gl_FragCoord.xy / float(SS) - 0.5;  // this sample's pixel coordinates
     real2 px = real2(gl_FragCoord.xy) / real(SS) - 0.5;

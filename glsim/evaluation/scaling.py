@@ -125,7 +125,7 @@ def measure(size: tuple[int, int], n: int, reps: int) -> dict:
             t = time.perf_counter()
             renderer.render(0, 0, mode=mode)
             rows[mode]["passes_wall_s"] = time.perf_counter() - t
-        rows[mode]["passes"] = p.seconds
+        rows[mode]["passes"] = p
     geo = renderer.backend.geometry
     gl_bytes = sum(b.size for k, b in geo._bufs.items() if not isinstance(b, tuple))
     gl_bytes += sum(b.size for entry in geo._steps.values() for b in entry[1:3])

@@ -233,17 +233,12 @@ class GLBackend:
         if patches is not None:
             defines.update(QUADRATIC=None, PIECES=int(patches.pieces))
         fp64 = "FP64" in defines
-        # float32 exact: the reference projection relative to each element's centre (a
-        # pinhole reference camera; a distorted one keeps the direct projection)
-        ref_local = (opts.mode == "exact" and not fp64 and patches is None
-                     and not np.any(ref_cam.distortion.coeffs))
-        if ref_local:
-            defines["REF_LOCAL"] = None
-        # float64 exact with a pinhole reference camera: its projection as per-element blends
-        ref_pinhole = (opts.mode == "exact" and fp64 and patches is None
-                       and not np.any(ref_cam.distortion.coeffs))
-        if ref_pinhole:
-            defines["REF_PINHOLE"] = None
+        # exact with a pinhole reference camera (a distorted one keeps the direct projection):
+        # float32 projects relative to each element's centre, float64 from per-element blends
+        pinhole_ref = opts.mode == "exact" and patches is None and not np.any(ref_cam.distortion.coeffs)
+        ref_local = pinhole_ref and not fp64
+        if pinhole_ref:
+            defines["REF_LOCAL" if ref_local else "REF_PINHOLE"] = None
         # float32 exact on a driver with float64: the per-element and per-camera work (records,
         # ray map) in float64, the per-sample work in float32 relative to each element's centre
         camera_local = ref_local and self.fp64
@@ -267,10 +262,9 @@ class GLBackend:
         def setup(prog):
             """Bind and set everything deform.frag (and its vertex shader) reads."""
             geo.bind(view, fp64)
-            if ref_local:
-                geo.ref_local_buffer(ref_cam.intrinsics).bind_to_storage_buffer(14)
-            if ref_pinhole:
-                geo.ref_pinhole_buffer(ref_cam.intrinsics).bind_to_storage_buffer(14)
+            if pinhole_ref:
+                (geo.ref_local_buffer if ref_local else geo.ref_pinhole_buffer)(ref_cam.intrinsics) \
+                    .bind_to_storage_buffer(14)
             geo.set_uniforms(prog, view, fp64)
             camera_uniforms(prog)
             self._set(prog, "u_ref_intr", ref_cam.intrinsics, fp64)

@@ -212,11 +212,16 @@ class GeometryBuffers:
             self._buffer("local", lambda: self.ctx.buffer(reserve=max(1, self.M * 32 * 4))).bind_to_storage_buffer(16)
         cover.bind_to_storage_buffer(9)
         tight.bind_to_storage_buffer(12)
+        self._per_element(prog)
+        self.ctx.memory_barrier()
+        self.view_passes += 1
+
+    def _per_element(self, prog) -> None:
+        """Dispatch compute ``prog`` with one invocation per element (groups of _GROUP, in 2-D
+        beyond _MAX_GROUPS groups)."""
         groups = (self.M + _GROUP - 1) // _GROUP
         gx = min(groups, _MAX_GROUPS)
         prog.run(group_x=gx, group_y=(groups + gx - 1) // gx)
-        self.ctx.memory_barrier()
-        self.view_passes += 1
 
     # ---- candidate lists (modes exact and q4) -----------------------------------------------
     def _lists(self, W: int, H: int):
@@ -249,9 +254,7 @@ class GeometryBuffers:
         prog["u_count"].value = self.M
         prog["u_size"].value = (W, H)
         prog["u_half"].value = 0.5 - 0.5 / s
-        groups = (self.M + _GROUP - 1) // _GROUP
-        gx = min(groups, _MAX_GROUPS)
-        prog.run(group_x=gx, group_y=(groups + gx - 1) // gx)
+        self._per_element(prog)
         self.ctx.memory_barrier()
         if np.frombuffer(flags.read(size=4, offset=8), np.uint32)[0]:
             prog = self.programs.program("exact.vert", "candidates.frag", defines={"BIG_ONLY": None})

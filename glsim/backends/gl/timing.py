@@ -8,7 +8,7 @@ scaling benchmark reports (``glsim bench scaling``). On llvmpipe the driver also
 shaders; on a GPU most of that time is the wait for the read-back.
 
 ``with pass_times(ctx, name_of) as p: ...`` times each draw and dispatch in the block on its
-own (``p.seconds``: pass name → seconds, summed over its calls), with the driver finished before
+own (``p``: pass name → seconds, summed over its calls), with the driver finished before
 and after each, so that no pass hides behind another: a breakdown of one render, not its
 pipelined wall time.
 """
@@ -68,37 +68,32 @@ def driver_time():
             setattr(cls, name, value)
 
 
-class PassTimes:
-    def __init__(self):
-        self.seconds: dict[str, float] = {}
-
-
 @contextlib.contextmanager
 def pass_times(ctx, name_of):
     """Patch moderngl's draw and dispatch calls for the block's duration: ``ctx.finish()``
-    before and after each, its time added under ``name_of(program)``."""
+    before and after each, its time added to the yielded dict under ``name_of(program)``."""
     import moderngl
 
-    p = PassTimes()
+    seconds: dict[str, float] = {}
 
     def timed(fn, program_of):
         @functools.wraps(fn)
         def inner(self, *args, **kwargs):
+            name = name_of(program_of(self))
             ctx.finish()
             t0 = time.perf_counter()
             out = fn(self, *args, **kwargs)
             ctx.finish()
-            name = name_of(program_of(self))
-            p.seconds[name] = p.seconds.get(name, 0.0) + time.perf_counter() - t0
+            seconds[name] = seconds.get(name, 0.0) + time.perf_counter() - t0
             return out
         return inner
 
-    saved = [(moderngl.VertexArray, "render", lambda vao: vao.program), (moderngl.ComputeShader, "run", lambda c: c)]
-    originals = [(cls, name, getattr(cls, name)) for cls, name, _ in saved]
-    for cls, name, program_of in saved:
+    calls = [(moderngl.VertexArray, "render", lambda vao: vao.program), (moderngl.ComputeShader, "run", lambda c: c)]
+    saved = [(cls, name, getattr(cls, name)) for cls, name, _ in calls]
+    for cls, name, program_of in calls:
         setattr(cls, name, timed(getattr(cls, name), program_of))
     try:
-        yield p
+        yield seconds
     finally:
-        for cls, name, fn in originals:
+        for cls, name, fn in saved:
             setattr(cls, name, fn)
