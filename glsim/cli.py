@@ -8,6 +8,7 @@ import warnings
 from pathlib import Path
 
 from glsim.errors import GlsimError
+from glsim.limits import parse_steps
 from glsim.scene import BACKENDS, MODES, bulge_scene, demo_effects, load_scene
 
 
@@ -22,16 +23,7 @@ def _progress(done: int, total: int, path: str) -> None:
 
 def _steps(text: str | None):
     """'0,2,5' or '0-3' → list of ints (None = every step)."""
-    if text is None:
-        return None
-    steps: list[int] = []
-    try:
-        for part in text.split(","):
-            a, _, b = part.partition("-")
-            steps += list(range(int(a), int(b) + 1)) if b else [int(a)]
-    except ValueError:
-        raise GlsimError(f"--steps: cannot read {text!r}; write e.g. 0,2,5 or 0-3") from None
-    return steps
+    return None if text is None else parse_steps(text, "--steps")
 
 
 def _overrides(scene, args):

@@ -15,6 +15,7 @@ Truth always reports the element's own (ξ, η) (for T6 those of the collapsed p
 """
 from __future__ import annotations
 
+import functools
 import time
 import warnings
 from dataclasses import dataclass
@@ -22,6 +23,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from glsim.errors import RenderWarning, SceneError
+from glsim.limits import check_gl_target, check_image_size, check_memory
 from glsim.scene import quadratic as qd
 from glsim.scene.bilinear import bilinear
 from glsim.scene.camera import Camera, pixel_to_normalized, project_camera_frame, to_camera, undistort
@@ -71,6 +73,25 @@ class Renderer:
         self.backend_name = backend or scene.render.backend
         self.backend = make_backend(self.backend_name, self.reference, ctx)
         self._geometry: MeshGeometry | None = None
+        if self._gl_max:   # the reference image is one texture
+            H, W = self.reference.image.shape
+            check_image_size("speckle", W, H, "the reference image", "give a smaller image, or a smaller "
+                             "speckle.oversample", self._gl_max)
+
+    @functools.cached_property
+    def _gl_max(self) -> int | None:
+        """The GL context's largest texture and render-buffer side (px); None for the CPU oracle."""
+        info = getattr(self.backend, "ctx", None) and self.backend.ctx.info
+        return min(info["GL_MAX_TEXTURE_SIZE"], info["GL_MAX_RENDERBUFFER_SIZE"]) if info else None
+
+    def check_size(self, camera: int | str, truth: bool = False, opts: Render | None = None) -> None:
+        """SceneError if rendering ``camera`` with ``opts`` (default: the scene's [render]) needs a GL
+        target over this context's limit or more memory than this process may use (:mod:`glsim.limits`)."""
+        cam = self.scene.camera(camera)
+        spp = (opts or self.scene.render).samples_per_pixel
+        if self._gl_max:
+            check_gl_target("render.samples_per_pixel", cam.size, spp, self._gl_max)
+        check_memory(f"cameras[{self.scene.cameras.index(cam)}].size", cam.size, spp, truth)
 
     def __enter__(self) -> "Renderer":
         return self
@@ -117,6 +138,7 @@ class Renderer:
         on the GPU from the mesh uploaded once and the step's nodes uploaded once); the CPU
         oracle gets the full numpy :class:`View`."""
         opts = self.scene.replace(render=options).render if options else self.scene.render
+        self.check_size(camera, truth, opts)
         t0 = time.perf_counter()
         cam = self.scene.camera(camera)
         curved = self.mesh.is_quadratic and opts.mode != "fast"

@@ -16,6 +16,8 @@ import numpy as np
 
 from glsim.scene.camera import Camera, _check_rotation, look_at, rodrigues, stereo_pose
 from glsim.errors import SceneError
+from glsim.limits import (MAX_ELEMENTS, MAX_SAMPLES_PER_PIXEL, MAX_STEPS, check_gl_target, check_image_size,
+                          refuse_count, require_file)
 from glsim.scene.mesh import UNITS_TO_MM
 
 Vec3 = tuple[float, float, float]
@@ -120,6 +122,8 @@ class Plate:
         for k in ("nx", "ny"):
             _check(getattr(self, k) >= 1, f"specimen.plate.{k}", f"must be ≥ 1, got {getattr(self, k)}",
                    "the number of elements along that side")
+        refuse_count("specimen.plate.nx", self.nx * self.ny, MAX_ELEMENTS, "elements (nx × ny)",
+                     "use fewer elements; the plate is flat")
         for i, tr in enumerate(self.translations):
             _check(np.shape(tr) == (3,), f"specimen.plate.translations[{i}]", "must have 3 entries",
                    "give [dx, dy, dz] in mm")
@@ -142,6 +146,9 @@ class Bulge:
         for k in ("steps", "n_core", "n_ring"):
             _check(getattr(self, k) >= 1, f"specimen.bulge.{k}", f"must be ≥ 1, got {getattr(self, k)}",
                    "a count")
+        refuse_count("specimen.bulge.steps", self.steps, MAX_STEPS, "load steps", "use fewer load steps")
+        refuse_count("specimen.bulge.n_core", self.n_core * (self.n_core + 4 * self.n_ring), MAX_ELEMENTS,
+                     "elements (n_core² + 4·n_core·n_ring)", "use smaller n_core and n_ring")
 
 
 EXODUS_SUFFIXES = (".e", ".exo", ".ex2", ".exii", ".g", ".gen")
@@ -241,6 +248,8 @@ class Render:
         _check(isinstance(spp, (int, np.integer)) and not isinstance(spp, bool) and spp >= 1
                and math.isqrt(spp) ** 2 == spp, "render.samples_per_pixel",
                f"must be a perfect square ≥ 1, got {spp!r}", "use 1, 4, 9, 16, …")
+        refuse_count("render.samples_per_pixel", spp, MAX_SAMPLES_PER_PIXEL, "samples per pixel",
+                     "use 1, 4, 9, 16, … (16 is usually plenty)")
         _check(0.0 <= self.background <= 1.0, "render.background",
                f"must lie in [0, 1], got {self.background}", "a fraction of full scale")
 
@@ -475,6 +484,7 @@ class Scene:
             _check(name not in names[:i], f"cameras[{i}].name",
                    f"{name!r} is already the name of cameras[{names.index(name)}]",
                    "give each camera a unique name")
+        self._check_sizes()
         files = {"speckle.image": self.speckle.image} if self.speckle.image else {}
         if self.noise is not None and self.noise.variance_file:
             files["noise.variance_file"] = self.noise.variance_file
@@ -484,8 +494,22 @@ class Scene:
             files.update({f"specimen.mesh.files[{i}]": p for i, p in enumerate(mesh.files)})
             files.update({f"specimen.mesh.csv[{i}]": p for i, p in enumerate(mesh.csv)})
         for key, path in files.items():
-            _check(self.resolve(path).is_file(), key, f"file {self.resolve(path)} not found",
-                   "check the path (relative paths start at the scene file's directory)")
+            require_file(self.resolve(path), key, "check the path (relative paths start at the scene file's directory)")
+
+    def _check_sizes(self) -> None:
+        """Image sizes against glsim's limits (:mod:`glsim.limits`), and a speckle dot camera 0 can show."""
+        cams = [(f"cameras[{i}].size", c) for i, c in enumerate(self.cameras)]
+        if self.speckle.camera is not None:
+            cams.append(("speckle.camera.size", self.speckle.camera))
+        for key, cam in cams:
+            check_image_size(key, cam.width, cam.height, "the image", "give a smaller size")
+        for key, cam in cams[:len(self.cameras)]:   # GL renders at W·√spp × H·√spp; the CPU oracle in chunks
+            if self.render.backend == "gl":
+                check_gl_target("render.samples_per_pixel", cam.size, self.render.samples_per_pixel)
+        first = self.cameras[0]
+        _check(self.speckle.image or self.speckle.dot_diameter_px <= min(first.size), "speckle.dot_diameter_px",
+               f"{self.speckle.dot_diameter_px:g} px is larger than camera {first.name}'s image ({first.width} × "
+               f"{first.height} px): the pattern would be one blank dot", "give dots of 3–10 px, e.g. 5")
 
     def camera(self, which: int | str) -> Camera:
         """A camera by index or name."""

@@ -15,6 +15,7 @@ import tifffile
 from scipy import fft, ndimage, optimize
 
 from glsim.errors import SceneError
+from glsim.io.images import check_image_file
 
 _DOT_CHUNK = 20000  # dots rasterised per np.maximum.at call; bounds temporary memory
 
@@ -205,6 +206,7 @@ def load_reference(path, key="speckle.image"):
     if not os.path.isfile(path):
         raise SceneError(key, f"file not found: {path}",
                          "give an existing image file (path relative to the scene file)")
+    check_image_file(path, key)
     try:
         if path.lower().endswith((".tif", ".tiff")):
             img = tifffile.imread(path)

@@ -3,6 +3,7 @@ image with the virtual reference camera that took it (paper §2.1, Fig. 1)."""
 from __future__ import annotations
 
 import math
+import warnings
 from dataclasses import dataclass
 
 import numpy as np
@@ -10,7 +11,8 @@ import numpy as np
 from glsim.scene import mesh as meshmod
 from glsim.scene import speckle
 from glsim.scene.camera import Camera, project_camera_frame, to_camera
-from glsim.errors import SceneError
+from glsim.errors import RenderWarning, SceneError
+from glsim.limits import MIN_DOTS_ACROSS, check_image_size
 from glsim.io.fe import load_mesh, load_series
 from glsim.io.series import is_time_series
 from glsim.scene import Scene
@@ -207,10 +209,26 @@ def make_reference(scene: Scene, mesh: meshmod.Mesh) -> Reference:
     cam = sp.camera or reference_camera(scene, mesh, mm_per_px, None)
     if sp.camera is not None:
         require_coverage(mesh, cam, "speckle.camera")
+    check_image_size("speckle.mm_per_px" if sp.mm_per_px else "speckle.oversample", cam.width, cam.height,
+                     "the generated reference image", "give a larger mm_per_px or a smaller oversample")
     dot = sp.dot_diameter_px * cam_mm_per_px / mm_per_px
+    _check_dot(dot, cam, sp.dot_diameter_px)
     dots = speckle.draw_dots((cam.height, cam.width), dot, sp.density, seed=sp.seed,
                              edge_px=min(sp.edge_px * cam_mm_per_px / mm_per_px, dot))
     return Reference(speckle.rasterize(dots), cam, dots)
+
+
+def _check_dot(dot: float, cam: Camera, camera_px: float) -> None:
+    """Refuse a speckle dot (``dot`` reference px) larger than the reference image; warn
+    (RenderWarning) when fewer than MIN_DOTS_ACROSS fit across it: the pattern cannot be seen."""
+    across = min(cam.width, cam.height) / dot
+    if across < 1:
+        raise SceneError("speckle.dot_diameter_px", f"{camera_px:g} px makes dots of {dot:.4g} reference px, larger "
+                         f"than the reference image ({cam.width} × {cam.height} px)", "give dots of 3–10 px, e.g. 5")
+    if across < MIN_DOTS_ACROSS:
+        warnings.warn(f"speckle.dot_diameter_px = {camera_px:g} px: only {across:.2g} dots fit across the specimen, "
+                      "so the pattern cannot be seen (a blank or single-blob image); give dots of 3–10 px",
+                      RenderWarning, stacklevel=3)
 
 
 def _element_samples(mesh: meshmod.Mesh, n: int = 4):

@@ -74,6 +74,8 @@ def write_sequence(scene: Scene, directory: str | None = None, steps=None, camer
                                  f"use steps from 0…{n - 1}, e.g. --steps 0-{n - 1}")
         cams = [scene.camera(c) for c in (cameras if cameras is not None else range(len(scene.cameras)))]
         _check_effect_inputs(scene, cams)
+        for cam in cams:
+            r.check_size(cam.name, truth)
         # Everything is read and checked: from here on files are written.
         removed = _remove_previous(out, scene) if force and not resume else []
         scene_json = io.write_text(out / "scene.json", scene.to_json())

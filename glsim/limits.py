@@ -1,0 +1,122 @@
+"""Limits on what an input may ask glsim to build, checked before anything large is allocated.
+
+A hostile or mistaken input — a header declaring 30000 × 30000 px, ``steps = "0-1000000000"``,
+a camera of 100000² px, a library of 10¹⁰ variants — is refused by key with the limit and the fix
+(:class:`~glsim.errors.SceneError`) instead of ending in a MemoryError or a GL error. Counts are
+computed arithmetically, never by building the list first. The limits, documented here once:
+"""
+from __future__ import annotations
+
+import os
+import stat
+from pathlib import Path
+
+from glsim.errors import SceneError
+
+MAX_IMAGE_SIDE = 16384        # px per side of a camera, a GL render target (W·√spp) and a reference image:
+#                               the GL_MAX_TEXTURE_SIZE every GL 4.x driver offers (a GL render also checks
+#                               its own context's); files' headers are read before they are decoded
+MAX_IMAGE_PIXELS = 1 << 28    # px of a reference image (16384²)
+MAX_SAMPLES_PER_PIXEL = 256   # render.samples_per_pixel: 16 × 16 sub-samples
+MAX_STEPS = 10_000            # load steps asked for (--steps, a library's steps) or built (specimen.bulge.steps)
+MAX_ELEMENTS = 4_000_000      # elements of a built-in specimen (plate nx·ny, bulge n_core and n_ring)
+MAX_VALUES = 1_000_000        # values of one library [vary] key (range, linspace, draw n) and variants
+MIN_DOTS_ACROSS = 4           # speckle dots across the reference image's shorter side: fewer is warned of
+MAX_NESTING = 64              # nested tables and lists in a scene or spec file
+BYTES_PER_SAMPLE = 64         # memory estimate of a render: per sub-sample (GL targets, image, raster) …
+TRUTH_BYTES_PER_PIXEL = 128   # … and per pixel of truth maps; refused above the machine's memory
+
+
+def refuse_count(key: str, count: int, limit: int, what: str, fix: str) -> None:
+    """SceneError if ``count`` of ``what`` exceeds ``limit``."""
+    if count > limit:
+        raise SceneError(key, f"gives {count:,} {what}, more than glsim's limit of {limit:,}", fix)
+
+
+def check_image_size(key: str, width: int, height: int, what: str, fix: str,
+                     max_side: int = MAX_IMAGE_SIDE) -> None:
+    """SceneError if an image of ``width`` × ``height`` px exceeds ``max_side`` or MAX_IMAGE_PIXELS."""
+    if max(width, height) > max_side or width * height > MAX_IMAGE_PIXELS:
+        raise SceneError(key, f"{what} is {width} × {height} px; the limit is {max_side} px a side and "
+                         f"{MAX_IMAGE_PIXELS:,} px in all", fix)
+
+
+def memory_budget() -> int:
+    """Bytes a process may use: the machine's memory, or less under an address-space limit."""
+    import resource
+    budget = os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
+    soft = resource.getrlimit(resource.RLIMIT_AS)[0]
+    return budget if soft == resource.RLIM_INFINITY else min(budget, soft)
+
+
+def check_gl_target(key: str, size, spp: int, max_side: int = MAX_IMAGE_SIDE) -> None:
+    """SceneError if a GL render of an image of ``size`` (W, H) at ``spp`` samples per pixel needs a
+    target (W·√spp × H·√spp) over ``max_side`` px a side."""
+    W, H = size
+    s = round(spp ** 0.5)
+    if max(W, H) * s > max_side:
+        raise SceneError(key, f"a {W} × {H} px image at {spp} samples per pixel needs a {W * s} × {H * s} px GL "
+                         f"render target, more than the limit of {max_side} px a side",
+                         f"use at most {(max_side // max(W, H)) ** 2} samples per pixel, or backend = 'cpu'")
+
+
+def check_memory(key: str, size, spp: int, truth: bool) -> None:
+    """SceneError if rendering an image of ``size`` (W, H) at ``spp`` samples per pixel (and its truth)
+    needs more memory than :func:`memory_budget` (estimate: BYTES_PER_SAMPLE, TRUTH_BYTES_PER_PIXEL)."""
+    W, H = size
+    need = W * H * (spp * BYTES_PER_SAMPLE + truth * TRUTH_BYTES_PER_PIXEL)
+    budget = memory_budget()
+    if need > budget:
+        raise SceneError(key, f"a {W} × {H} px image at {spp} samples per pixel{' with truth' * truth} needs about "
+                         f"{need / 2**30:.3g} GiB, more than the {budget / 2**30:.3g} GiB this process may use",
+                         "use a smaller camera size or fewer samples per pixel" + (", or no truth" if truth else ""))
+
+
+def parse_steps(text: str, key: str) -> list[int]:
+    """'0,2,5' or '0-3' → load steps, counted before the list is made (at most MAX_STEPS)."""
+    parts = []
+    try:
+        for part in text.split(","):
+            a, _, b = part.partition("-")
+            parts.append((int(a), int(b) if b else int(a)))
+    except ValueError:
+        raise SceneError(key, f"cannot read {text!r}", "write e.g. 0,2,5 or 0-3") from None
+    refuse_count(key, sum(max(0, b - a + 1) for a, b in parts), MAX_STEPS, "load steps",
+                 "select the load steps to render, e.g. 0-3 or 0,10,20")
+    return [s for a, b in parts for s in range(a, b + 1)]
+
+
+def check_nesting(data, key: str, limit: int = MAX_NESTING) -> None:
+    """SceneError if tables and lists in ``data`` nest deeper than ``limit`` (checked without recursion)."""
+    todo = [(data, 0)]
+    while todo:
+        value, depth = todo.pop()
+        if depth > limit:
+            raise SceneError(key, f"nests tables or lists more than {limit} deep", "flatten the file")
+        if isinstance(value, dict):
+            todo += [(v, depth + 1) for v in value.values()]
+        elif isinstance(value, (list, tuple)):
+            todo += [(v, depth + 1) for v in value]
+
+
+def not_a_file(path) -> str:
+    """Why ``path`` cannot be read as an input file ("" for a regular file): missing, a directory,
+    a FIFO, a device (/dev/zero never ends), …"""
+    try:
+        mode = os.stat(path).st_mode
+    except OSError as exc:
+        return "not found" if isinstance(exc, FileNotFoundError) else f"cannot be read ({exc.strerror or exc})"
+    if stat.S_ISREG(mode):
+        return ""
+    kinds = ((stat.S_ISDIR, "a directory"), (stat.S_ISFIFO, "a FIFO (named pipe)"), (stat.S_ISSOCK, "a socket"),
+             (stat.S_ISCHR, "a character device"), (stat.S_ISBLK, "a block device"))
+    return f"is {next((k for test, k in kinds if test(mode)), 'not a regular file')}, not a file"
+
+
+def require_file(path, key: str, fix: str) -> Path:
+    """``path`` as a Path if it is a regular file; else SceneError(key) saying what it is."""
+    why = not_a_file(path)
+    if why:
+        named = f"file {path}" if why == "not found" else str(path)
+        raise SceneError(key, f"{named} {why}" if key != str(path) else f"{'file ' * (why == 'not found')}{why}", fix)
+    return Path(path)
