@@ -8,6 +8,7 @@ import dataclasses
 import difflib
 import json
 import math
+import re
 import typing
 from dataclasses import MISSING, dataclass, field
 from pathlib import Path
@@ -270,12 +271,60 @@ class Output:
         _check(self.format in FORMATS, "output.format", f"{self.format!r} is not one of {FORMATS}",
                "use 'tiff' (8/16-bit) or 'png'")
         try:
-            names = {self.pattern.format(camera=c, step=k, ext="tif") for c in "ab" for k in (0, 1)}
+            names = {self.pattern.format(camera=c, step=k, ext="tif") for c in ("cam0", "cam1") for k in (0, 1)}
         except (KeyError, IndexError, ValueError) as exc:
             raise SceneError("output.pattern", f"{self.pattern!r} cannot be formatted ({exc!r})",
                              "use only the fields {camera}, {step} and {ext}") from None
         _check(len(names) == 4, "output.pattern", f"{self.pattern!r} gives two images the same file name",
                "include both {camera} and {step}, e.g. '{camera}_{step:04d}.{ext}'")
+        longest = self.pattern.format(camera="c" * NAME_MAX, step=0, ext="tiff")
+        for name in sorted(names) + [longest]:
+            why = _outside(name)
+            _check(not why, "output.pattern", f"{_shown(self.pattern)} gives {_shown(name)}, which {why}",
+                   "give names relative to the output directory: subfolders as 'a/b', no '..', no leading '/' or "
+                   "'.', no backslash or control character, e.g. '{camera}_{step:04d}.{ext}'")
+
+
+NAME_MAX = 64
+_NAME = re.compile(rf"[A-Za-z0-9_-][A-Za-z0-9_.-]{{0,{NAME_MAX - 1}}}")
+
+
+def _outside(name: str) -> str:
+    """Why the relative file name ``name`` could leave (or hide in) the output directory; "" if not."""
+    bad = next((ch for ch in name if ch < " " or ch in "\\\x7f"), None)
+    if bad is not None:
+        return f"contains {bad!r}"
+    if name.startswith("/"):
+        return "is an absolute path"
+    part = next((p for p in name.split("/") if not p or p.startswith(".")), None)
+    if part is not None:
+        return {"": "has an empty part", "..": "has the part '..', which leaves the output directory"}.get(
+            part, f"has the hidden name {_shown(part)}")
+    longest = max(len(p.encode()) for p in name.split("/"))
+    return f"has a part of {longest} bytes (at most 255)" if longest > 255 else ""
+
+
+def _shown(value, width: int = 48) -> str:
+    """``repr(value)``, cut to ``width`` characters."""
+    text = repr(value)
+    return text if len(text) <= width else text[:width - 2] + "…'"
+
+
+def _check_name(name, key: str) -> None:
+    """``name`` ends up in file names: it must be plain (see ``_NAME``)."""
+    if isinstance(name, str) and _NAME.fullmatch(name):
+        return
+    if not isinstance(name, str):
+        why = "is not a string"
+    elif len(name) > NAME_MAX:
+        why = f"is {len(name)} characters long"
+    elif not name:
+        why = "is empty"
+    else:
+        bad = next((ch for ch in name if not _NAME.fullmatch("a" + ch)), None)
+        why = f"contains {bad!r}" if bad else "starts with '.'"
+    raise SceneError(key, f"{_shown(name)} cannot name files: it {why}",
+                     f"use 1–{NAME_MAX} letters, digits, '_', '-' or '.' (not first), e.g. 'cam0'")
 
 
 LIGHT_COMBINE = ("additive", "multiplicative")
@@ -481,6 +530,7 @@ class Scene:
                "add a [[cameras]] table")
         names = [c.name for c in self.cameras]
         for i, name in enumerate(names):
+            _check_name(name, f"cameras[{i}].name")
             _check(name not in names[:i], f"cameras[{i}].name",
                    f"{name!r} is already the name of cameras[{names.index(name)}]",
                    "give each camera a unique name")

@@ -12,6 +12,7 @@ Rules of the output directory (README "Output directory"):
   removed first (other files are kept) and everything is rendered anew.
 * An image and its truth maps appear together or not at all (see
   :func:`glsim.io.images.write_image_with_truth`).
+* One run writes a directory at a time, and only inside it (:mod:`glsim.io.outdir`).
 * For a time-series mesh (Exodus II, .pvd, XDMF) ``steps.json`` beside ``scene.json`` gives
   the solver's time of each load step (null for an undeformed step 0 glsim put in front).
 """
@@ -27,6 +28,7 @@ from pathlib import Path
 
 from glsim.errors import SceneError
 from glsim.io import images as io
+from glsim.io import outdir
 from glsim.render import Renderer, Truth
 from glsim.scene import Scene
 
@@ -63,6 +65,13 @@ def write_sequence(scene: Scene, directory: str | None = None, steps=None, camer
     if backend and backend != scene.render.backend:
         scene = scene.replace(render={"backend": backend})
     out = Path(directory or scene.resolve(scene.output.directory))
+    with outdir.locked(out):
+        return _write(scene, out, steps, cameras, truth, progress, truth_format, force)
+
+
+def _write(scene: Scene, out: Path, steps, cameras, truth: bool, progress, truth_format: str,
+           force: bool) -> Written:
+    """:func:`write_sequence` holding the lock of ``out``."""
     resume = _check_directory(out, scene, force)
     ext = io.EXTENSIONS[scene.output.format]
     with Renderer(scene) as r:                      # reads and checks mesh, steps' files, reference
@@ -76,6 +85,9 @@ def write_sequence(scene: Scene, directory: str | None = None, steps=None, camer
         _check_effect_inputs(scene, cams)
         for cam in cams:
             r.check_size(cam.name, truth)
+        keys = [(step, cam.name) for step in steps for cam in cams]
+        paths = dict(zip(keys, outdir.inside(out, [scene.output.pattern.format(camera=c, step=s, ext=ext)
+                                                   for s, c in keys], "output.pattern")))
         # Everything is read and checked: from here on files are written.
         removed = _remove_previous(out, scene) if force and not resume else []
         scene_json = io.write_text(out / "scene.json", scene.to_json())
@@ -89,7 +101,7 @@ def write_sequence(scene: Scene, directory: str | None = None, steps=None, camer
         total = len(cams) * len(steps)
         for step in steps:
             for cam in cams:
-                path = out / scene.output.pattern.format(camera=cam.name, step=step, ext=ext)
+                path = paths[step, cam.name]
                 want = io.truth_paths(path, TRUTH_MAPS, truth_format) if truth else []
                 if resume and path.is_file() and all(p.is_file() for p in want):
                     kept.append(str(path))
@@ -125,9 +137,7 @@ FORCE_FIX = ("write to a new directory (-o), or pass --force (force=True) to rep
 def _check_directory(out: Path, scene: Scene, force: bool) -> bool:
     """True to resume a render of the same scene in ``out``; False for a new render. Raises
     SceneError for a directory holding something else, unless ``force``."""
-    if out.exists() and not out.is_dir():
-        raise SceneError(str(out), "is a file, not a directory", "give a directory for the images")
-    if not out.is_dir() or not any(out.iterdir()):
+    if not outdir.entries(out):
         return False
     old = _read_json(out / "scene.json")
     new = json.loads(scene.to_json())
@@ -138,7 +148,7 @@ def _check_directory(out: Path, scene: Scene, force: bool) -> bool:
     if old is None and (out / "scene.json").exists():
         problem = "holds a scene.json that is not glsim's"
     elif old is None:
-        names = sorted(p.name for p in out.iterdir())
+        names = sorted(p.name for p in outdir.entries(out))
         shown = ", ".join(names[:3]) + (", …" if len(names) > 3 else "")
         problem = f"is not empty ({len(names)} entries: {shown}) and holds no scene.json of a render"
     else:

@@ -13,6 +13,7 @@ The directory rules:
   written after the last manifest flush of an interrupted run has no row, and is rendered again
   (deterministically: the same bytes) when the run is resumed.
 * Temporaries of interrupted writes (``.NAME.*.part*``) are removed when a run starts and ends.
+* One run writes a directory at a time, and only inside it (:mod:`glsim.io.outdir`).
 """
 from __future__ import annotations
 
@@ -27,6 +28,7 @@ from pathlib import Path
 
 from glsim.errors import GlsimError
 from glsim.io import images as io
+from glsim.io import outdir
 from glsim.io import truth as truthio
 from glsim.workflows.library import manifest as mf
 from glsim.workflows.library.spec import Plan, mesh_key
@@ -95,15 +97,13 @@ def _first_difference(old: dict, plan: Plan) -> str:
 def _prepare_directory(out: Path, plan: Plan, fingerprint: str, force: bool) -> bool:
     """True to resume; False for a new library. Raises LibraryError for a directory that holds
     something else."""
-    if out.exists() and not out.is_dir():
-        raise LibraryError(f"{out}: is a file, not a directory — give a directory for the library (-o)")
-    if not out.is_dir() or not any(out.iterdir()):
+    if not outdir.entries(out):
         return False
     info = mf.read_library_info(out)
     if info is not None and info.get("fingerprint") == fingerprint and not force:
         return True
     if info is None:
-        names = sorted(p.name for p in out.iterdir())
+        names = sorted(p.name for p in outdir.entries(out))
         shown = ", ".join(names[:3]) + (", …" if len(names) > 3 else "")
         raise LibraryError(f"{out}: is not empty ({len(names)} entries: {shown}) and holds no library — "
                            "write the library to a new or empty directory (-o)")
@@ -408,6 +408,13 @@ def run(plan: Plan, out: str | Path, workers: int | None = None, scheduler: str 
         force: bool = False, progress: bool = False, flush_s: float = 2.0) -> Summary:
     """Render ``plan`` into ``out`` (see the module text); returns the :class:`Summary`."""
     out = Path(out)
+    outdir.inside(out, [rel for job in plan.jobs for rel in (job.image, job.truth) if rel], "output.pattern")
+    with outdir.locked(out):
+        return _run(plan, out, workers, scheduler, force, progress, flush_s)
+
+
+def _run(plan: Plan, out: Path, workers, scheduler, force: bool, progress: bool, flush_s: float) -> Summary:
+    """:func:`run` holding the lock of ``out``."""
     t0 = time.perf_counter()
     fingerprint = plan.fingerprint()
     resume = _prepare_directory(out, plan, fingerprint, force)
