@@ -4,8 +4,8 @@
 // function decides, computed `precise` (no fused multiply-add) so that two elements sharing
 // an edge get exactly opposite values; exact ties go to the element on the +x (then +y) side.
 #ifdef FP64
-#define NEWTON_TOL 1e-12
-#define NEAR_TOL 1e-6
+#define NEWTON_TOL 1e-12lf
+#define NEAR_TOL 1e-6lf
 #else
 #define NEWTON_TOL 1e-6
 #define NEAR_TOL 1e-3
@@ -44,6 +44,7 @@ void edge_functions_2d(real2 p[4], real2 q, out real E[4], out real2 m[4]) {
 }
 
 // Edge functions of patch P for the ray (xn, 1): E = (xn, 1) . (P_i x P_j), and the gradient in xn.
+// With pinhole_corners(P) and the sample's pixel point for xn, the same in pixel space.
 void edge_functions_ray(real3 P[4], real2 xn, out real E[4], out real2 m[4]) {
     for (int k = 0; k < 4; ++k) {
         int j = (k + 1) & 3;
@@ -53,6 +54,17 @@ void edge_functions_ray(real3 P[4], real2 xn, out real E[4], out real2 m[4]) {
         precise real e = (xn.x * mx + xn.y * my) + mz;
         E[k] = e;
         m[k] = real2(mx, my);
+    }
+}
+
+// K P of camera-frame corners for pinhole intrinsics intr (fx, fy, skew, cx, cy): (u, v, 1) .
+// (A_i x A_j) is fx fy times the ray's edge function, measured from the sample's pixel point,
+// which is exact, instead of its rounded ray (glsim.scene.bilinear.pinhole_corners).
+void pinhole_corners(real3 P[4], real intr[5], out real3 A[4]) {
+    for (int i = 0; i < 4; ++i) {
+        precise real a = (intr[0] * P[i].x + intr[2] * P[i].y) + intr[3] * P[i].z;
+        precise real b = intr[1] * P[i].y + intr[4] * P[i].z;
+        A[i] = real3(a, b, P[i].z);
     }
 }
 
@@ -140,7 +152,7 @@ void invert_closed(real2 p[4], real2 q, out real xi[2], out real eta[2], out boo
     real B = cross2(f, e) - cross2(h, g);
     real C = -cross2(h, e);
     real scale = abs(A) + abs(B) + abs(C);
-    bool linear = abs(A) <= 1e-12 * (scale == 0.0 ? 1.0 : scale);
+    bool linear = abs(A) <= real(1e-12lf) * (scale == 0.0 ? 1.0 : scale);
     real disc = B * B - 4.0 * A * C;
     real sq = sqrt(max(disc, 0.0));
     real Q = -0.5 * (B + (B >= 0.0 ? sq : -sq));
@@ -184,8 +196,9 @@ void invert_closed(real2 p[4], real2 q, out real xi[2], out real eta[2], out boo
 // Y - y Z = 0 are two planes through the ray; at the corners they give a 2-D inverse bilinear
 // problem with target (0, 0), p = P.xy - xn P.z, given here (deform.frag's CAMERA_LOCAL makes
 // it relative to the element's centre in float32). A root counts where the tie rule (owned)
-// gives it to this element.
-bool intersect_ray_patch_p(real3 P[4], real2 p[4], real2 xn, out real xi, out real eta, out real Z) {
+// gives it to this element; PIXEL_TIES (a pinhole camera; the including shader declares its
+// u_intr) decides it in pixel space at the sample's pixel point px.
+bool intersect_ray_patch_p(real3 P[4], real2 p[4], real2 xn, real2 px, out real xi, out real eta, out real Z) {
     real xs[2], es[2];
     bool ok[2];
     invert_closed(p, real2(0.0), xs, es, ok);
@@ -199,7 +212,13 @@ bool intersect_ray_patch_p(real3 P[4], real2 p[4], real2 xn, out real xi, out re
         for (bool once = near_edge(xs[k], es[k]); once; once = false) {  // the tie rule
             real E[4];
             real2 m[4];
+#ifdef PIXEL_TIES
+            real3 A[4];
+            pinhole_corners(P, u_intr, A);
+            edge_functions_ray(A, px, E, m);
+#else
             edge_functions_ray(P, xn, E, m);
+#endif
             if (!owned(xs[k], es[k], E, m, orientation_ray(P, xs[k], es[k]))) ok[k] = false;
         }
         if (!ok[k]) continue;
@@ -211,9 +230,3 @@ bool intersect_ray_patch_p(real3 P[4], real2 p[4], real2 xn, out real xi, out re
     return found;
 }
 
-// The same with p made from P here.
-bool intersect_ray_patch(real3 P[4], real2 xn, out real xi, out real eta, out real Z) {
-    real2 p[4];
-    for (int i = 0; i < 4; ++i) p[i] = P[i].xy - xn * P[i].z;
-    return intersect_ray_patch_p(P, p, xn, xi, eta, Z);
-}

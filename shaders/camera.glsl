@@ -8,7 +8,7 @@
 // Residual tolerance of undistort, relative to 1 + |xd|. In single precision distort's own
 // rounding leaves residuals up to ~5e-8, so 2e-7 keeps a margin (~1e-3 px at f = 2000 px).
 #ifdef FP64
-#define UNDISTORT_TOL 1e-14
+#define UNDISTORT_TOL 1e-14lf
 #else
 #define UNDISTORT_TOL 2e-7
 #endif
@@ -84,9 +84,12 @@ bool undistort(real2 xd, real k[12], real valid_r2, out real2 xn) {
 }
 
 // Pixels -> normalized distorted coordinates (inverse of K).
+// `precise`: the same operations in the same order as numpy's, so that FP64 rays are the oracle's
+// bit for bit (no contraction of skew * yd into the subtraction).
 real2 pixel_to_normalized(real2 uv, real intr[5]) {
-    real yd = (uv.y - intr[4]) / intr[1];
-    return real2((uv.x - intr[3] - intr[2] * yd) / intr[0], yd);
+    precise real yd = (uv.y - intr[4]) / intr[1];
+    precise real xd = (uv.x - intr[3] - intr[2] * yd) / intr[0];
+    return real2(xd, yd);
 }
 
 // Normalized distorted coordinates -> pixels: u = fx xd + skew yd + cx, v = fy yd + cy.

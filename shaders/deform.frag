@@ -22,7 +22,11 @@ layout(early_fragment_tests) in;
 #endif
 #include "camera.glsl"
 #include "interp.glsl"
+#if defined(PIXEL_TIES)
+uniform real u_intr[5];   // the view camera (pinhole): bilinear.glsl's tie rule in pixel space
+#endif
 #include "bilinear.glsl"
+#include "hilo.glsl"
 #if !defined(MODE_FAST) || defined(LIGHTING)
 // the mesh (connectivity, the step's nodes) and the camera transform
 #include "view.glsl"
@@ -84,7 +88,8 @@ flat in int v_elem;
 layout(std430, binding = 4) buffer Dropped { uint dropped_samples; };
 
 #if defined(MODE_EXACT)
-uniform sampler2D u_rays;   // rays.frag: per-sample undistorted normalized coordinates (hi, lo)
+#include "raymap.glsl"
+uniform RAY_SAMPLER u_rays;   // rays.frag: per-sample undistorted normalized coordinates
 uniform real u_ref_intr[5];
 uniform real u_ref_dist[12];
 uniform real u_ref_valid_r2;
@@ -146,22 +151,6 @@ real2 ref_lo = real2(0.0);   // REF_LOCAL: what float32 dropped from the last ma
 bool inside_reference(real2 ref) {
     return !(ref.x < -0.5 || ref.y < -0.5 || ref.x > real(u_ref_size.x) - 0.5 || ref.y > real(u_ref_size.y) - 0.5);
 }
-#if defined(MODE_EXACT)
-real2 ray_lo = real2(0.0);   // float32 builds: the ray's low half, apart (CAMERA_LOCAL)
-
-// The ray (xn, 1) of a ray-map texel (hi, lo): summed in FP64 builds; float32 builds return the
-// high half and keep the low one in ray_lo.
-real2 ray_of(vec4 texel) {
-#ifdef FP64
-    ray_lo = real2(0.0);
-    return real2(texel.xy) + real2(texel.zw);
-#else
-    ray_lo = texel.zw;
-    return texel.xy;
-#endif
-}
-#endif
-
 #if defined(MODE_EXACT) && !defined(QUADRATIC)
 // Element e's corners in the camera frame (mm), from view.comp's records.
 void element_camera(int e, out real3 P[4]) {
@@ -290,7 +279,7 @@ bool map_sample(int e, real2 px, real2 xn, out real xi, out real eta, out real2 
     element_camera(e, P);
     real2 p[4];
     projected_corners(e, P, xn, ray_lo, p);
-    if (!intersect_ray_patch_p(P, p, xn, xi, eta, Z)) return false;
+    if (!intersect_ray_patch_p(P, p, xn, px, xi, eta, Z)) return false;
     ref_ok = exact_reference(e, xi, eta, ref);
 #endif
     ref_ok = ref_ok && inside_reference(ref);
@@ -330,9 +319,7 @@ void main() {
     real2 px = real2(gl_FragCoord.xy) / real(SS) - 0.5;
     real2 xn = real2(0.0);
 #if defined(MODE_EXACT)
-    vec4 ray = texelFetch(u_rays, ivec2(gl_FragCoord.xy), 0);
-    if (ray.x >= 1e30) discard;  // rays.frag's NO_RAY
-    xn = ray_of(ray);
+    if (!ray_at(u_rays, ivec2(gl_FragCoord.xy), xn)) discard;
 #endif
     int elem = -1;
     real Z = 0.0;
@@ -384,15 +371,21 @@ void main() {
     out_depth = float(Z);
 #endif
 #ifdef TRUTH
-    vec2 ref32 = vec2(ref);
-    out_map = vec4(ref32, float(xi), float(eta));
-#if defined(REF_LOCAL)
-    out_extra = vec4(float(elem + 1), vec2(ref_lo), 0.0);
-#else
-    out_extra = vec4(float(elem + 1), vec2(ref - real2(ref32)), 0.0);
-#endif
+#if defined(FP64)
+    // float64 truth as float32 hi + lo, split with bit operations (hilo.glsl)
+    vec4 ref_hl = split_double2(ref), xe_hl = split_double2(real2(xi, eta));
+    out_map = vec4(ref_hl.xy, xe_hl.xy);
+    out_extra = vec4(float(elem + 1), ref_hl.zw, 0.0);
 #ifdef TRUTH_LO
-    out_lo = vec2(xi - real(float(xi)), eta - real(float(eta)));
+    out_lo = xe_hl.zw;
+#endif
+#else
+    out_map = vec4(vec2(ref), float(xi), float(eta));
+#if defined(MODE_FAST)
+    out_extra = vec4(float(elem + 1), 0.0, 0.0, 0.0);
+#else
+    out_extra = vec4(float(elem + 1), vec2(ref_lo), 0.0);   // REF_LOCAL's dropped part, else 0
+#endif
 #endif
 #endif
 }

@@ -5,14 +5,14 @@
 // spans the patch's cell (e % PIECES, (e / PIECES) % PIECES) of its PIECES x PIECES grid).
 // Needs view.glsl (u_rot, u_trans), camera.glsl and bilinear.glsl (invert_closed).
 #ifdef FP64
-#define Q_TOL 1e-13          // stop once max(|dxi|, |deta|) <= Q_TOL ...
-#define Q_RESIDUAL 1e-9      // ... or after Q_MAX_ITER accept a residual <= this x the patch size
+#define Q_TOL 1e-13lf          // stop once max(|dxi|, |deta|) <= Q_TOL ...
+#define Q_RESIDUAL 1e-9lf      // ... or after Q_MAX_ITER accept a residual <= this x the patch size
 #else
 #define Q_TOL 1e-6
 #define Q_RESIDUAL 1e-5
 #endif
 #define Q_MAX_ITER 30
-#define Q_INSIDE 1e-9        // |xi|, |eta| <= 1 + Q_INSIDE (and a piece's share likewise)
+#define Q_INSIDE real(1e-9lf)       // |xi|, |eta| <= 1 + Q_INSIDE (and a piece's share likewise)
 #define Q_START_RANGE 1.25   // a piece root farther out than this (piece coordinates) is no start
 
 // per patch: its 9 control points in the mesh's local frame at this load step (binding 14) and,

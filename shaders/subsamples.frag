@@ -14,14 +14,14 @@
 #include "deform.frag"
 
 #ifdef FP64
-#define SUBSAMPLE_TOL 1e-7
+#define SUBSAMPLE_TOL 1e-7lf
 #else
 #define SUBSAMPLE_TOL 1e-4
 #endif
 #define SUBSAMPLE_STEPS 3
 #define OTHER_ROOT_RANGE 3.0
 
-uniform sampler2D u_centre_rays;   // rays.frag at 1 spp
+uniform RAY_SAMPLER u_centre_rays;   // rays.frag at 1 spp
 uniform float u_background;
 
 void main() {
@@ -30,8 +30,8 @@ void main() {
     real3 P[4];
     element_camera(e, P);
     real4 Pz = real4(P[0].z, P[1].z, P[2].z, P[3].z);
-    vec4 rc = texelFetch(u_centre_rays, pix, 0);
-    real2 xc = ray_of(rc);
+    real2 xc;
+    bool centre_ray = ray_at(u_centre_rays, pix, xc);
     real2 p[4];
     projected_corners(e, P, xc, ray_lo, p);
     real xs[2], es[2];
@@ -42,13 +42,13 @@ void main() {
     bool in1 = ok[1] && z1 > 0.0 && in_range(xs[1], es[1]);
     int r = in0 && (!in1 || z0 <= z1) ? 0 : 1;
     bool other_far = !ok[1 - r] || max(abs(xs[1 - r]), abs(es[1 - r])) > OTHER_ROOT_RANGE;
-    bool done = rc.x < 1e30 && (r == 0 ? in0 : in1) && other_far && !near_edge(xs[r], es[r]);
+    bool done = centre_ray && (r == 0 ? in0 : in1) && other_far && !near_edge(xs[r], es[r]);
     float acc = 0.0, zacc = 0.0, zn = 0.0;
     uint dropped = 0u;
     for (int j = 0; j < SS; ++j)
         for (int i = 0; i < SS; ++i) {
-            vec4 ray = texelFetch(u_rays, pix * SS + ivec2(i, j), 0);
-            real2 xn = ray_of(ray);
+            real2 xn;
+            bool has_ray = ray_at(u_rays, pix * SS + ivec2(i, j), xn);
             projected_corners(e, P, xn, ray_lo, p);
             real xi = xs[r], eta = es[r];
             bool converged = false;
@@ -60,7 +60,7 @@ void main() {
                 converged = det != 0.0 && max(abs(dx), abs(dy)) <= SUBSAMPLE_TOL;
             }
             real Z = dot(shape_functions(xi, eta), Pz);
-            done = done && ray.x < 1e30 && converged && Z > 0.0 && in_range(xi, eta) && !near_edge(xi, eta);
+            done = done && has_ray && converged && Z > 0.0 && in_range(xi, eta) && !near_edge(xi, eta);
             real2 ref;
             float grey = u_background;
             if (exact_reference(e, xi, eta, ref) && inside_reference(ref)) {

@@ -5,6 +5,7 @@
 #define COVER
 #include "camera.glsl"
 #include "view.glsl"
+#include "hilo.glsl"
 
 layout(local_size_x = 64) in;
 
@@ -51,14 +52,14 @@ void main() {
 #ifdef RECORD_LOCAL
     real3 C = 0.25 * (P[0] + P[1] + P[2] + P[3]);
     real2 xc = C.z > 0.0 ? C.xy / C.z : real2(0.0);
-    vec2 hi = vec2(xc);
+    vec4 xc_hl = split_double2(xc);   // hilo.glsl (RECORD_LOCAL is an FP64 build)
     int l = 32 * e;
     for (int i = 0; i < 4; ++i)
         for (int k = 0; k < 3; ++k) {
             elem_local[l + 3 * i + k] = float(P[i][k]);
             elem_local[l + 12 + 3 * i + k] = float(P[i][k] - C[k]);
         }
-    vec4 tail[2] = vec4[2](vec4(float(C.z > 0.0 ? C.z : 0.0), 0.0, hi), vec4(vec2(xc - real2(hi)), 0.0, 0.0));
+    vec4 tail[2] = vec4[2](vec4(float(C.z > 0.0 ? C.z : 0.0), 0.0, xc_hl.xy), vec4(xc_hl.zw, 0.0, 0.0));
     for (int k = 0; k < 4; ++k) {
         elem_local[l + 24 + k] = tail[0][k];
         elem_local[l + 28 + k] = tail[1][k];

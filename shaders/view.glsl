@@ -106,7 +106,7 @@ void extent_add(inout Extent x, real2 p) {
 // along the axes, and (a, lo_a, hi_a), (lo_b, hi_b) for candidates.glsl.
 void extent_rect(Extent x, real sag, out vec2 rect[4], out vec4 tight[2]) {
     sag += u_extra_sag;
-    real round_off = 1e-6 * (x.umax + real(u_size.x) + real(u_size.y));
+    real round_off = real(1e-6lf) * (x.umax + real(u_size.x) + real(u_size.y));
     real2 a = x.a, b = real2(-x.a.y, x.a.x);
     real pad = 2.0 * sag + COVER_PAD_PX + round_off + u_cover_grow * (abs(a.x) + abs(a.y));
     real la = x.lo_a - pad, ha = x.hi_a + pad, lb = x.lo_b - pad, hb = x.hi_b + pad;

@@ -95,8 +95,10 @@ def _q4(view: View, e, q, tol=1e-12):
     return ok, depth, xi, eta, bl.bilinear(view.ref_uv[e], xi, eta)
 
 
-def _exact(view: View, e, xn, ray_ok):
-    xi, eta, depth, ok = bl.intersect_ray_patch(view.Xd[e], xn)
+def _exact(view: View, e, q, xn, ray_ok):
+    cam = view.camera   # a pinhole camera decides ties from the samples' pixel points (exact)
+    pixel = None if np.any(cam.distortion.coeffs) else (q, cam.intrinsics)
+    xi, eta, depth, ok = bl.intersect_ray_patch(view.Xd[e], xn, pixel)
     ref_uv, ref_ok = project_camera_frame(bl.bilinear(view.Xr[e], xi, eta), view.ref_camera)
     # a point the reference camera cannot see counts as outside the reference image (NaN)
     return ok & ray_ok, depth, xi, eta, np.where(ref_ok[:, None], ref_uv, np.nan)
@@ -149,7 +151,7 @@ def rasterize(view: View, mode: str, s: int = 1) -> dict:
             return _fast(view, e, q)
         if mode == "q4":
             return _q4(view, e, q)
-        return _exact(view, e, xn, xn_ok)
+        return _exact(view, e, q, xn, xn_ok)
 
     return _nearest(view.camera, view.ref_camera, _boxes(view, mode, s), s, mode == "exact", map_chunk)
 

@@ -146,7 +146,8 @@ def edge_functions_2d(p, q, edges=EDGES):
 def edge_functions_ray(P, xn):
     """Edge functions of patches P (..., 4, 3) (camera frame) for the rays (xn, 1), xn (..., 2):
     E = (xn, 1) · (Pᵢ × Pⱼ), the side of the plane through the camera centre and edge i → j
-    (exactly antisymmetric in (i, j)), and the gradients m (..., 4, 2) of E in xn."""
+    (exactly antisymmetric in (i, j)), and the gradients m (..., 4, 2) of E in xn. With P
+    replaced by :func:`pinhole_corners` and xn by pixel points (u, v), the same in pixel space."""
     i, j = [k for k, _ in EDGES], [k for _, k in EDGES]
     A, B = P[..., i, :], P[..., j, :]
     mx = A[..., 1] * B[..., 2] - A[..., 2] * B[..., 1]
@@ -154,6 +155,17 @@ def edge_functions_ray(P, xn):
     mz = A[..., 0] * B[..., 1] - A[..., 1] * B[..., 0]
     x, y = xn[..., 0:1], xn[..., 1:2]
     return (x * mx + y * my) + mz, np.stack([mx, my], -1)
+
+
+def pinhole_corners(P, intr):
+    """K·P for camera-frame points P (..., 3) and pinhole intrinsics (fx, fy, skew, cx, cy):
+    (fx X + skew Y + cx Z, fy Y + cy Z, Z). Then (u, v, 1) · (Aᵢ × Aⱼ) = fx fy · E of
+    :func:`edge_functions_ray`: the same side, measured from the sample's pixel point, which is
+    exact, instead of its rounded normalized ray — so an outline through pixel centres is an
+    exact tie wherever K·P is exact (whole or dyadic set-ups) and the tie rule decides."""
+    fx, fy, skew, cx, cy = (float(v) for v in intr)
+    X, Y, Z = P[..., 0], P[..., 1], P[..., 2]
+    return np.stack([(fx * X + skew * Y) + cx * Z, fy * Y + cy * Z, Z], -1)
 
 
 def edge_owns(E, m, s):
@@ -195,7 +207,7 @@ def orientation_ray(P, xi, eta):
     return np.where(local != 0, np.sign(local), np.sign(vol))
 
 
-def intersect_ray_patch(P, xn):
+def intersect_ray_patch(P, xn, pixel=None):
     """Nearest intersection of the camera rays through normalized image points xn (..., 2)
     (the ray from the origin along (x, y, 1)) with bilinear patches P (..., 4, 3) (camera
     frame, mm).
@@ -203,7 +215,9 @@ def intersect_ray_patch(P, xn):
     A point X lies on the ray iff X − x·Z = 0 and Y − y·Z = 0: two planes through the ray.
     Evaluated at the corners they turn the intersection into a 2-D inverse bilinear problem
     with target (0, 0). Returns (ξ, η, depth Z, ok); ok needs a root inside the element in
-    front of the camera and owned under the tie rule (module docstring).
+    front of the camera and owned under the tie rule (module docstring), decided in pixel space
+    (:func:`pinhole_corners`) where ``pixel = (q, intr)`` gives the samples' pixel points q
+    (..., 2) of a pinhole camera.
     """
     p2 = P[..., :2] - xn[..., None, :] * P[..., 2:3]
     xi, eta, ok = invert_closed(p2, np.zeros(p2.shape[:-2] + (2,)))
@@ -215,7 +229,11 @@ def intersect_ray_patch(P, xn):
         P, xn = np.broadcast_to(P, batch + (4, 3)), np.broadcast_to(xn, batch + (2,))
         k, *rest = np.nonzero(near)
         Ps, xs, es = P[tuple(rest)], xi[near], eta[near]
-        E, m = edge_functions_ray(Ps, xn[tuple(rest)])
+        if pixel is None:
+            E, m = edge_functions_ray(Ps, xn[tuple(rest)])
+        else:
+            q = np.broadcast_to(pixel[0], batch + (2,))
+            E, m = edge_functions_ray(pinhole_corners(Ps, pixel[1]), q[tuple(rest)])
         ok[near] = owned(xs, es, E, m, orientation_ray(Ps, xs, es))
     first = np.where(ok[0] & (~ok[1] | (Z[0] <= Z[1])), 0, 1)
     pick = lambda a: np.take_along_axis(a, first[None], 0)[0]  # noqa: E731

@@ -95,6 +95,36 @@ def test_subpixel_shift_sweep_coverage_is_exact(backend, mode, ctx_for):
             assert np.array_equal(t.element, want), (d, int((t.element != want).sum()))
 
 
+# The same on a plate whose numbers are not dyadic (issue 25's outline): fx = 1500 px, Z = 300 mm,
+# 5 px per mm, so the outline's rays (xn = ±0.08, ±0.06) are not representable in binary; the
+# outline still passes through pixel centres (120, 360; 90, 270). Ties are decided at the
+# samples' exact pixel points (glsim.scene.bilinear.pinhole_corners), not their rounded rays.
+OUTLINE_CAM = Camera(name="c", size=(480, 360), fx=1500.0, fy=1500.0, cx=240.0, cy=180.0)
+
+
+def outline_plate(shifts_px):
+    """The 48 × 36 mm plate of 8 × 6 elements of 30 px, outline on pixel centres at step 0; step
+    k is the rigid shift (δ, −δ/2) px with δ = shifts_px[k − 1]."""
+    plate = Plate(width=48, height=36, nx=8, ny=6, translations=tuple((d / 5, -d / 10, 0.0) for d in shifts_px))
+    return Scene(cameras=(OUTLINE_CAM,), specimen=Specimen(plate=plate, t=(0.0, 0.0, 300.0)))
+
+
+@pytest.mark.parametrize("mode", ["exact", "q4"])
+@pytest.mark.parametrize("backend", BACKENDS)
+def test_outline_through_pixel_centres_is_half_open(backend, mode, ctx_for):
+    """240 × 180 px covered (not 241 × 181, nor a row or column less) at shift 0 and at every
+    shift of the sweep: u0 ≤ u < u1, v0 ≤ v < v1 of the shifted outline, element by element."""
+    with Renderer(outline_plate(SHIFTS[1:]), backend, ctx=ctx_for(backend)) as r:
+        for step, d in enumerate(SHIFTS):
+            t = r.render(0, step, truth=True, mode=mode).truth
+            i = np.floor((np.arange(480) - (120 + d)) / 30).astype(int)
+            j = np.floor((np.arange(360) - (90 - d / 2)) / 30).astype(int)
+            ok = (i[None, :] >= 0) & (i[None, :] < 8) & (j[:, None] >= 0) & (j[:, None] < 6)
+            want = np.where(ok, j[:, None] * 8 + i[None, :], -1)
+            assert int(t.mask.sum()) == 43200, (d, int(t.mask.sum()))
+            assert np.array_equal(t.element, want), (d, int((t.element != want).sum()))
+
+
 def test_subpixel_shift_sweep_fast_mode_oracle_is_exact():
     """The oracle's fast mode follows the same tie rule on its triangles' edges."""
     with Renderer(aligned_plate(SHIFTS[1:]), "cpu") as r:

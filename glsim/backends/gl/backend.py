@@ -244,6 +244,9 @@ class GLBackend:
         camera_local = ref_local and self.fp64
         if camera_local:
             defines["CAMERA_LOCAL"] = None
+        ray_kind = "bits" if fp64 else "split" if camera_local else "float"
+        if opts.mode == "exact" and patches is None and not np.any(cam.distortion.coeffs):
+            defines["PIXEL_TIES"] = None   # ties decided at the exact pixel point (bilinear.glsl)
         geo = self._buffers(view)
         patch_buffers = self._patch_buffers(patches, opts.mode, fp64) if patches is not None else ()
 
@@ -289,7 +292,7 @@ class GLBackend:
                 if prog.get("u_ref", None) is not None:
                     prog["u_ref"].value = 0
             if prog.get("u_rays", None) is not None:
-                self._ray_map(cam, s, fp64 or camera_local).use(1)
+                self._ray_map(cam, s, ray_kind).use(1)
                 prog["u_rays"].value = 1
 
         if opts.mode != "fast":
@@ -327,7 +330,7 @@ class GLBackend:
             geo.classify_pass(pixel_depth, W, H, 1)
             ctx.depth_func, pixel_fbo.depth_mask = "==", False
             fullscreen("subsamples.frag", pixel_fbo, LAYERS["deform.frag"], {"EARLY_TESTS": None},
-                       {"u_centre_rays": self._ray_map(cam, 1, fp64 or camera_local)},
+                       {"u_centre_rays": self._ray_map(cam, 1, ray_kind)},
                        {"u_background": float(opts.background)})
             ctx.depth_func, pixel_fbo.depth_mask = "<", True
             ctx.memory_barrier()   # its LIST_DONE marks seen by the passes below
@@ -417,10 +420,9 @@ class GLBackend:
         elements, e = np.unique(e, return_inverse=True)
         view = view.subset(elements)   # the covered elements' numpy view only
         if mode == "exact":
-            key = (view.camera.size, tuple(view.camera.intrinsics), tuple(view.camera.distortion.coeffs), 1, fp64)
-            if fp64 and key in self._rays:
-                rays = np.frombuffer(self._rays[key].read(), np.float32).reshape(H * W, 4)[hit].astype(np.float64)
-                xn = rays[:, :2] + rays[:, 2:]
+            key = (view.camera.size, tuple(view.camera.intrinsics), tuple(view.camera.distortion.coeffs), 1, "bits")
+            if fp64 and key in self._rays:   # the float64 rays the shader used, bit for bit
+                xn = np.frombuffer(self._rays[key].read(), np.float64).reshape(H * W, 2)[hit]
             else:
                 cam = view.camera
                 q = np.column_stack([hit % W, hit // W]).astype(np.float64)
@@ -460,17 +462,22 @@ class GLBackend:
             if name in prog:
                 prog[name].value = value
 
-    def _ray_map(self, cam, s: int, fp64: bool):
-        """Cached per camera model and supersampling: (W·s)×(H·s) RGBA32F undistorted rays."""
-        key = (cam.size, tuple(cam.intrinsics), tuple(cam.distortion.coeffs), s, fp64)
+    def _ray_map(self, cam, s: int, kind: str):
+        """Cached per camera model, supersampling and ``kind`` (shaders/rays.frag): (W·s)×(H·s)
+        undistorted rays, "bits" as float64 pairs (RGBA32UI), "split" as float32 hi + lo made in
+        float64, "float" in float32 (RGBA32F)."""
+        key = (cam.size, tuple(cam.intrinsics), tuple(cam.distortion.coeffs), s, kind)
         if key not in self._rays:
             W, H = cam.size
-            defines = {"SS": s, **({"FP64": None} if fp64 else {})}
+            fp64 = kind != "float"
+            defines = {"SS": s, **({"FP64": None} if fp64 else {}),
+                       **({"RAY_BITS": None} if kind == "bits" else {"RAY_SPLIT": None} if kind == "split" else {})}
             prog = self.programs.program("fullscreen.vert", "rays.frag", defines=defines)
             self._set(prog, "u_intr", cam.intrinsics, fp64)
             self._set(prog, "u_dist", cam.distortion.coeffs, fp64)
             self._set(prog, "u_valid_r2", [cam.distortion.valid_radius() ** 2], fp64)
-            out = self.ctx.texture((W * s, H * s), 4, dtype="f4")
+            out = self.ctx.texture((W * s, H * s), 4, dtype="u4" if kind == "bits" else "f4")
+            out.filter = (self.ctx.NEAREST, self.ctx.NEAREST)   # (an integer texture must not filter)
             fbo = self.ctx.framebuffer(color_attachments=[out])
             fbo.use()
             fbo.viewport = (0, 0, W * s, H * s)
