@@ -20,7 +20,8 @@ MAX_IMAGE_PIXELS = 1 << 28    # px of a reference image (16384²)
 MAX_SAMPLES_PER_PIXEL = 256   # render.samples_per_pixel: 16 × 16 sub-samples
 MAX_STEPS = 10_000            # load steps asked for (--steps, a library's steps) or built (specimen.bulge.steps)
 MAX_ELEMENTS = 4_000_000      # elements of a built-in specimen (plate nx·ny, bulge n_core and n_ring)
-MAX_VALUES = 1_000_000        # values of one library [vary] key (range, linspace, draw n) and variants
+MAX_VALUES = 1_000_000        # values of one library [vary] key (range, linspace, draw n), and variants
+MAX_IMAGES = 4_000_000        # images of one library (variants × cameras × steps)
 MIN_DOTS_ACROSS = 4           # speckle dots across the reference image's shorter side: fewer is warned of
 MAX_NESTING = 64              # nested tables and lists in a scene or spec file
 BYTES_PER_SAMPLE = 64         # memory estimate of a render: per sub-sample (GL targets, image, raster) …
@@ -86,13 +87,27 @@ def parse_steps(text: str, key: str) -> list[int]:
     return [s for a, b in parts for s in range(a, b + 1)]
 
 
-def check_nesting(data, key: str, limit: int = MAX_NESTING) -> None:
-    """SceneError if tables and lists in ``data`` nest deeper than ``limit`` (checked without recursion)."""
+_DEEP = (f"nests tables or lists more than {MAX_NESTING} deep", "flatten the file")
+
+
+def parse_nested(loads, text: str, key: str):
+    """``loads(text)`` (json.loads, tomllib.loads), refusing (SceneError) tables or lists nested deeper
+    than MAX_NESTING, where the parsers' own recursion would end in RecursionError."""
+    try:
+        data = loads(text)
+    except RecursionError:
+        raise SceneError(key, *_DEEP) from None
+    check_nesting(data, key)
+    return data
+
+
+def check_nesting(data, key: str) -> None:
+    """SceneError(key) if tables and lists in ``data`` nest deeper than MAX_NESTING (checked without recursion)."""
     todo = [(data, 0)]
     while todo:
         value, depth = todo.pop()
-        if depth > limit:
-            raise SceneError(key, f"nests tables or lists more than {limit} deep", "flatten the file")
+        if depth > MAX_NESTING:
+            raise SceneError(key, *_DEEP)
         if isinstance(value, dict):
             todo += [(v, depth + 1) for v in value.values()]
         elif isinstance(value, (list, tuple)):

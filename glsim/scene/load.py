@@ -27,6 +27,7 @@ import typing
 from pathlib import Path
 
 from glsim.errors import SceneError
+from glsim.limits import check_nesting, not_a_file, parse_nested
 from glsim.scene.camera import Camera
 from glsim.scene.model import SECTIONS, Scene, _build, _coerce, _reject_unknown
 
@@ -38,6 +39,7 @@ except ModuleNotFoundError:  # Python 3.10
 
 def scene_from_dict(data: dict, base_dir: str | Path = ".") -> Scene:
     """Build a Scene from parsed TOML (see the module docstring for the layout)."""
+    check_nesting(data, "scene")
     _reject_unknown(data, SECTIONS, "")
     tables = data.get("cameras")
     if not isinstance(tables, list) or not tables:
@@ -62,6 +64,8 @@ def _from_resolved(data: dict) -> tuple[dict, str]:
 
     d = drop_none(data)
     base = d.pop("base_dir", ".")
+    if not isinstance(base, str):
+        raise SceneError("base_dir", f"expected a directory name, got {base!r}", "give the scene's directory")
     posed = list(d.get("cameras", [])) + [d.get("specimen", {}), d.get("speckle", {}).get("camera", {})]
     for table in posed:
         if isinstance(table, dict) and "R" in table:
@@ -73,17 +77,20 @@ def load_scene(path: str | Path) -> Scene:
     """Read and validate a TOML scene file (relative paths in it start at its directory), or a
     ``scene.json`` that glsim wrote next to its outputs (the resolved scene, re-rendered as is)."""
     path = Path(path)
-    if not path.is_file():
-        raise SceneError(str(path), "scene file not found", "check the path")
+    why = not_a_file(path)
+    if why:
+        raise SceneError(str(path), "scene file not found" if why == "not found" else why, "check the path")
     if path.suffix == ".json":
         try:
-            data, base = _from_resolved(json.loads(path.read_text(encoding="utf-8")))
-        except (ValueError, AttributeError) as exc:
+            data, base = _from_resolved(parse_nested(json.loads, path.read_text(encoding="utf-8"), str(path)))
+        except SceneError:
+            raise
+        except (ValueError, AttributeError, KeyError, TypeError) as exc:
             raise SceneError(str(path), f"is not a scene.json written by glsim ({exc})",
                              "give a TOML scene file or an unmodified scene.json") from None
         return scene_from_dict(data, base)
     try:
-        data = tomllib.loads(path.read_text(encoding="utf-8"))
+        data = parse_nested(tomllib.loads, path.read_text(encoding="utf-8"), str(path))
     except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
         raise SceneError(str(path), f"is not a valid TOML file ({exc})", "fix the syntax there") from None
     return scene_from_dict(data, path.parent)

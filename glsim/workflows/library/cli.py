@@ -40,14 +40,18 @@ def parser() -> argparse.ArgumentParser:
     return ap
 
 
-def _table(plan, limit: int = 40) -> str:
+TABLE_ROWS = 40   # --dry-run's table: the first 35 variants and the last 5 (only those are built and checked)
+
+
+def _table(plan, limit: int = TABLE_ROWS) -> str:
     head = ["variant", *plan.keys, "images"]
     counts: dict[str, int] = {}
     for j in plan.jobs:
         counts[j.variant] = counts.get(j.variant, 0) + 1
     rows = [[v.id, *(json.dumps(v.params[k]) if not isinstance(v.params[k], float) else f"{v.params[k]:.6g}"
                      for k in plan.keys), str(counts.get(v.id, 0))] for v in plan.variants]
-    shown = rows if len(rows) <= limit else rows[:limit - 5] + [["…"] * len(head)] + rows[-5:]
+    gap = len(rows) > limit or plan.sampled
+    shown = rows[:limit - 5] + [["…"] * len(head)] + rows[-5:] if gap else rows
     width = [max(len(r[i]) for r in [head] + shown) for i in range(len(head))]
     line = lambda r: "  ".join(c.ljust(w) for c, w in zip(r, width)).rstrip()  # noqa: E731
     return "\n".join([line(head)] + [line(r) for r in shown])
@@ -136,16 +140,21 @@ def main(argv: list[str] | None = None) -> int:
             if args.verify:
                 raise GlsimError(f"--verify checks a library directory, and {src} is not one — give the DIR the "
                                  "library was written to")
-            plan = load_plan(src)
+            plan = load_plan(src, sample=TABLE_ROWS if args.dry_run else None)
             out = Path(args.output) if args.output else src.with_suffix("")
         if args.dry_run:
+            scale = plan.n_variants / len(plan.variants)     # > 1: only the tabulated variants were built
             seconds, size, source = estimate(plan)
+            seconds, size = seconds * scale, size * scale
+            images = round(len(plan.jobs) * scale)
+            print(f"{plan.n_variants} variants, {'about ' * plan.sampled}{images} images (cameras "
+                  f"{', '.join(plan.cameras)}; steps {', '.join(map(str, plan.steps))}), truth "
+                  f"{plan.truth_dtype if plan.truth else 'off'}"
+                  + (f"; the {len(plan.variants)} variants shown were checked, the run checks all" * plan.sampled))
             print(_table(plan))
             w = args.workers or runner.default_workers()
-            print(f"{len(plan.variants)} variants, {len(plan.jobs)} images (cameras {', '.join(plan.cameras)}; steps "
-                  f"{', '.join(map(str, plan.steps))}), truth {plan.truth_dtype if plan.truth else 'off'}")
             print(f"estimated: {_size(size)} on disk; {_duration(seconds)} on one worker, about "
-                  f"{_duration(seconds / max(1.0, speedup(min(w, len(plan.jobs)))))} with {w} (rough: from {source})")
+                  f"{_duration(seconds / max(1.0, speedup(min(w, images))))} with {w} (rough: from {source})")
             print("dry run: nothing was written")
             return 0
         summary = runner.run(plan, out, workers=args.workers, scheduler=args.scheduler, force=args.force,

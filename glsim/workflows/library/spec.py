@@ -30,7 +30,6 @@ from __future__ import annotations
 
 import copy
 import hashlib
-import itertools
 import json
 import math
 import zlib
@@ -41,6 +40,7 @@ import numpy as np
 
 from glsim.errors import GlsimError, SceneError
 from glsim.io.images import EXTENSIONS
+from glsim.limits import MAX_IMAGES, MAX_VALUES, check_memory, check_nesting, not_a_file, parse_nested, parse_steps, refuse_count
 from glsim.scene import Scene, scene_from_dict
 from glsim.scene.load import _from_resolved
 
@@ -50,6 +50,7 @@ except ModuleNotFoundError:  # Python 3.10
     import tomli as tomllib
 
 MODES = ("grid", "zip", "random")
+SAMPLE_TAIL = 5       # expand(sample=n): the last variants built besides the first n − SAMPLE_TAIL
 TOP_KEYS = ("scene", "seed", "mode", "n", "cameras", "steps", "truth", "truth_dtype", "vary")
 LISTS = ("range", "linspace")
 DRAWS = ("uniform", "normal", "integers", "choice")
@@ -63,6 +64,14 @@ class SpecError(GlsimError):
 
 def _fail(key: str, problem: str, fix: str) -> None:
     raise SpecError(f"{key}: {problem} — {fix}")
+
+
+def _limit(key: str, count: int, limit: int, what: str, fix: str) -> None:
+    """:func:`glsim.limits.refuse_count` as a SpecError."""
+    try:
+        refuse_count(key, count, limit, what, fix)
+    except SceneError as exc:
+        raise SpecError(str(exc)) from None
 
 
 @dataclass(frozen=True)
@@ -102,6 +111,12 @@ class Plan:
     variants: tuple[Variant, ...]
     jobs: tuple[Job, ...]
     meshes: dict = field(default_factory=dict)     # specimen key → placed Mesh (checked)
+    n_variants: int = 0                            # all variants; more than ``variants`` when sampled
+
+    @property
+    def sampled(self) -> bool:
+        """Whether only some variants were expanded (``expand(..., sample=)``: a dry run's table)."""
+        return self.n_variants > len(self.variants)
 
     def fingerprint(self) -> str:
         """SHA-256 of what the library holds: every variant's resolved scene, the images, truth."""
@@ -116,7 +131,10 @@ class Plan:
         return h.hexdigest()
 
     def variant(self, vid: str) -> Variant:
-        return self.variants[int(vid[1:])]
+        i = int(vid[1:])
+        if i < len(self.variants) and self.variants[i].id == vid:
+            return self.variants[i]
+        return next(v for v in self.variants if v.id == vid)
 
 
 def _show(v) -> str:
@@ -128,12 +146,16 @@ def _show(v) -> str:
 def read_spec(path: str | Path) -> tuple[dict, Path]:
     """The spec's table and its directory."""
     path = Path(path)
-    if not path.is_file():
-        raise SpecError(f"{path}: spec file not found — check the path (a library spec is a TOML file)")
+    why = not_a_file(path)
+    if why:
+        raise SpecError(f"{path}: {'spec file ' * (why == 'not found')}{why} — check the path (a library spec is a "
+                        "TOML file)")
     try:
-        data = tomllib.loads(path.read_text(encoding="utf-8"))
+        data = parse_nested(tomllib.loads, path.read_text(encoding="utf-8"), str(path))
     except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
         raise SpecError(f"{path}: is not a valid TOML file ({exc}) — fix the syntax there") from None
+    except SceneError as exc:
+        raise SpecError(str(exc)) from None
     return data, path.resolve().parent
 
 
@@ -149,18 +171,24 @@ def _base_scene(spec: dict, spec_dir: Path) -> tuple[dict, str]:
         _fail("scene", f"expected a file name or a table, got {sc!r}", 'write scene = "bulge.toml" or [scene]')
     p = Path(sc)
     p = p if p.is_absolute() else spec_dir / p
-    if not p.is_file():
-        _fail("scene", f"file {p} not found", "check the path (relative paths start at the spec's directory)")
+    why = not_a_file(p)
+    if why:
+        _fail("scene", f"file {p} {why}" if why == "not found" else f"{p} {why}",
+              "check the path (relative paths start at the spec's directory)")
     if p.suffix == ".json":
         try:
-            data, base = _from_resolved(json.loads(p.read_text(encoding="utf-8")))
-        except (ValueError, AttributeError) as exc:
+            data, base = _from_resolved(parse_nested(json.loads, p.read_text(encoding="utf-8"), str(p)))
+        except SceneError as exc:
+            raise SpecError(f"scene: {exc}") from None
+        except (ValueError, AttributeError, KeyError, TypeError) as exc:
             _fail("scene", f"{p} is not a scene.json written by glsim ({exc})", "give a TOML scene file")
         return data, base
     try:
-        return tomllib.loads(p.read_text(encoding="utf-8")), str(p.resolve().parent)
+        return parse_nested(tomllib.loads, p.read_text(encoding="utf-8"), str(p)), str(p.resolve().parent)
     except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
         _fail("scene", f"{p} is not a valid TOML file ({exc})", "fix the syntax there")
+    except SceneError as exc:
+        raise SpecError(f"scene: {exc}") from None
 
 
 def _flatten(vary, prefix: str = "") -> list[tuple[str, object]]:
@@ -233,16 +261,15 @@ class _Key:
                 if step == 0 or (stop - start) / step <= 0:
                     _fail(f"{key}.range", f"{arg} gives no values", "give start < stop with a positive step")
                 count = math.ceil((stop - start) / step - 1e-9)
+                _limit(f"{key}.range", count, MAX_VALUES, "values", "use a larger step or a narrower range")
                 integer = all(isinstance(x, int) for x in (start, stop, step))
                 self.values = [start + i * step if integer else float(start + i * step) for i in range(count)]
             else:
                 a = _numbers(path, name, arg, 3)
                 if not (isinstance(a[2], int) and a[2] >= 1):
                     _fail(f"{key}.linspace", f"count {a[2]!r} is not an integer ≥ 1", "write linspace = [2, 8, 4]")
+                _limit(f"{key}.linspace", a[2], MAX_VALUES, "values", "give a smaller count")
                 self.values = [float(x) for x in np.linspace(a[0], a[1], a[2])]
-            if len(self.values) > 1_000_000:
-                _fail(key, f"gives {len(self.values)} values", "use fewer (a library of millions of variants "
-                      "is surely a mistake)")
             return
         self.kind = "draw"
         if name == "choice":
@@ -269,6 +296,7 @@ class _Key:
                 _fail(f"{key}.n" if n is not None else key,
                       f"a {name} draw needs n (how many values) in {mode} mode" + (f", got {n!r}" if n is not None else ""),
                       "add n = 5 to the table, or use mode = \"random\"")
+            _limit(f"{key}.n", n, MAX_VALUES, "values", "draw fewer values")
             self.values = self.sample(_seed_for(seed, path), n)
 
     def sample(self, rng: np.random.Generator, n: int) -> list:
@@ -332,26 +360,28 @@ def _steps(value) -> list[int] | None:
     if value is None:
         return None
     if isinstance(value, str):
-        out = []
         try:
-            for part in value.split(","):
-                a, _, b = part.partition("-")
-                out += list(range(int(a), int(b) + 1)) if b else [int(a)]
-        except ValueError:
-            _fail("steps", f"cannot read {value!r}", 'write steps = [0, 3] or "0-3"')
-        return out
+            return parse_steps(value, "steps")
+        except SceneError as exc:
+            raise SpecError(str(exc)) from None
     if isinstance(value, list) and value and all(isinstance(s, int) and not isinstance(s, bool) for s in value):
         return list(value)
     _fail("steps", f"expected a list of load steps, got {value!r}", 'write steps = [0, 3] or "0-3"')
 
 
-def expand(spec: dict, spec_dir: str | Path = ".") -> Plan:
+def expand(spec: dict, spec_dir: str | Path = ".", sample: int | None = None) -> Plan:
     """Expand and check a spec table (see the module text). Raises SpecError naming the key
     (and the variant) and the fix; reads every input the variants need (meshes, displacement
-    files, noise tables) but writes nothing."""
+    files, noise tables) but writes nothing. Counts (values, variants, images) are checked
+    against :mod:`glsim.limits` before anything is built. ``sample``: of more variants than that,
+    only the first ``sample - SAMPLE_TAIL`` and the last SAMPLE_TAIL are built (a dry run's table)."""
     from glsim.workflows.sequence import _check_effect_inputs
     from glsim.stages.reference import specimen_mesh
 
+    try:
+        check_nesting(spec, "spec")
+    except SceneError as exc:
+        raise SpecError(str(exc)) from None
     unknown = sorted(set(spec) - set(TOP_KEYS))
     if unknown:
         import difflib
@@ -373,6 +403,7 @@ def expand(spec: dict, spec_dir: str | Path = ".") -> Plan:
             _fail("n", f"random mode needs n ≥ 1 variants, got {n!r}", "add n = 10 at the top of the spec")
         if seed is None:
             _fail("seed", "is required in random mode", "add seed = 1 (the same seed gives the same library)")
+        _limit("n", n, MAX_VALUES, "variants", "draw fewer variants")
     elif n is not None:
         _fail("n", f"is only used in random mode (mode is {mode!r})", "remove n, or set mode = \"random\"")
     truth = spec.get("truth", True)
@@ -387,21 +418,19 @@ def expand(spec: dict, spec_dir: str | Path = ".") -> Plan:
         _fail("vary", f"expected a table, got {vary!r}", "write [vary] with path = [values]")
     keys = [_Key(p, v, mode, seed) for p, v in _flatten(vary)]
 
-    # the variants' values
-    if mode == "grid":
-        rows = list(itertools.product(*[k.values for k in keys])) if keys else [()]
-    elif mode == "zip":
+    # the variants' values, counted before any is made
+    if mode == "zip":
         lengths = {k.path: len(k.values) for k in keys}
         if len(set(lengths.values())) > 1:
             _fail("vary", f"zip mode needs lists of one length, got {', '.join(f'{p}: {m}' for p, m in lengths.items())}",
                   "give every key the same number of values, or use mode = \"grid\"")
-        rows = list(zip(*[k.values for k in keys])) if keys else [()]
-    else:
-        cols = [k.sample(_seed_for(seed, k.path), n) for k in keys]
-        rows = list(zip(*cols)) if keys else [()] * n
-    if len(rows) > 1_000_000:
-        _fail("vary", f"gives {len(rows)} variants", "use fewer values or the random mode")
-    width = max(4, len(str(len(rows) - 1)))
+    count = n if mode == "random" else math.prod(len(k.values) for k in keys) if mode == "grid" else \
+        len(keys[0].values) if keys else 1
+    _limit("vary", count, MAX_VALUES, "variants", "use fewer values or the random mode with a smaller n")
+    cols = [k.sample(_seed_for(seed, k.path), n) if mode == "random" else k.values for k in keys]
+    width = max(4, len(str(count - 1)))
+    picked = range(count) if sample is None or count <= sample else \
+        [*range(sample - SAMPLE_TAIL), *range(count - SAMPLE_TAIL, count)]
 
     cam_sel = spec.get("cameras")
     if cam_sel is not None and not (isinstance(cam_sel, list) and cam_sel
@@ -410,7 +439,8 @@ def expand(spec: dict, spec_dir: str | Path = ".") -> Plan:
     steps = _steps(spec.get("steps"))
 
     variants, jobs, meshes = [], [], {}
-    for i, row in enumerate(rows):
+    for i in picked:
+        row = _row(mode, keys, cols, i)
         vid = f"v{i:0{width}d}"
         params = {k.path: _plain(v) for k, v in zip(keys, row)}
         data = copy.deepcopy(base)
@@ -453,6 +483,8 @@ def expand(spec: dict, spec_dir: str | Path = ".") -> Plan:
                                 f"— use steps from 0…{nsteps - 1}")
         try:
             _check_effect_inputs(scene, [scene.camera(c) for c in cams])
+            for c in cams:
+                check_memory(f"cameras.{c}.size", scene.camera(c).size, scene.render.samples_per_pixel, truth)
         except SceneError as exc:
             raise SpecError(f"{where}: {exc}") from None
         ext = EXTENSIONS[scene.output.format]
@@ -462,6 +494,8 @@ def expand(spec: dict, spec_dir: str | Path = ".") -> Plan:
                 stem = image.rsplit(".", 1)[0]
                 jobs.append(Job(vid, c, s, image, stem + ".truth" if truth else ""))
         variants.append(Variant(vid, i, params, scene))
+        _limit("vary", len(jobs) * count // len(variants), MAX_IMAGES, "images (variants × cameras × steps)",
+                     "use fewer variants, cameras or steps")
     if not jobs:
         _fail("cameras", "no image to render", "select at least one camera and step")
     all_steps = tuple(sorted({j.step for j in jobs}))
@@ -469,7 +503,18 @@ def expand(spec: dict, spec_dir: str | Path = ".") -> Plan:
     return Plan(source={**spec, "scene": base} if not isinstance(spec.get("scene"), dict) else dict(spec),
                 base_dir=base_dir, keys=tuple(k.path for k in keys), mode=mode, seed=seed, truth=truth,
                 truth_dtype=dtype, cameras=all_cams, steps=all_steps, variants=tuple(variants), jobs=tuple(jobs),
-                meshes=meshes)
+                meshes=meshes, n_variants=count)
+
+
+def _row(mode: str, keys: list, cols: list, i: int) -> tuple:
+    """Variant ``i``'s values: grid rows in itertools.product order (the last key fastest)."""
+    if mode != "grid":
+        return tuple(c[i] for c in cols)
+    row = []
+    for k in reversed(keys):
+        i, r = divmod(i, len(k.values))
+        row.append(k.values[r])
+    return tuple(reversed(row))
 
 
 def _index_path(key: str) -> str:
@@ -491,10 +536,10 @@ def reference_key(scene: Scene, backend: str) -> str:
                        "base_dir": d["base_dir"], "backend": backend}, sort_keys=True)
 
 
-def load_plan(path: str | Path) -> Plan:
-    """Read and expand a spec file."""
+def load_plan(path: str | Path, sample: int | None = None) -> Plan:
+    """Read and expand a spec file (``sample``: see :func:`expand`)."""
     spec, spec_dir = read_spec(path)
     try:
-        return expand(spec, spec_dir)
+        return expand(spec, spec_dir, sample)
     except SpecError as exc:
         raise SpecError(f"{path}: {exc}") from None
