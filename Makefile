@@ -4,7 +4,7 @@ VENV   := .venv
 BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.glsim-installed
 EGL_PKGS := libegl1 libegl-mesa0 libgl1-mesa-dri libgbm1
-X11_PKGS := xvfb xdotool x11-apps chromium
+X11_PKGS := xvfb xdotool x11-apps chromium glslang-tools
 
 .PHONY: demo test test-gl bench venv egl x11 clean readme-check
 
@@ -46,9 +46,10 @@ egl:
 
 # The preview window's test runs under a virtual X server it starts itself (Xvfb), sends real
 # key and mouse events (xdotool) and reads the window back (xwd); the notebook widget's test runs
-# JupyterLab in headless Chromium. Without them those tests are skipped.
+# JupyterLab in headless Chromium; the float64-path audit reads glslangValidator's intermediate
+# tree (tests/test_fp64_path.py). Without them those tests are skipped.
 x11:
-	@if command -v Xvfb >/dev/null && command -v xdotool >/dev/null && command -v xwd >/dev/null && command -v chromium >/dev/null; then \
+	@if command -v Xvfb >/dev/null && command -v xdotool >/dev/null && command -v xwd >/dev/null && command -v chromium >/dev/null && command -v glslangValidator >/dev/null; then \
 	  echo "Xvfb: found"; \
 	elif [ "$$(id -u)" = 0 ] && command -v apt-get >/dev/null; then \
 	  echo "Xvfb: missing, installing $(X11_PKGS)"; \

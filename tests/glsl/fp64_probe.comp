@@ -1,0 +1,41 @@
+// The double-path primitives of the shaders on a batch of inputs, written bit for bit, for
+// comparison with their numpy twins in tests/test_fp64_path.py: hilo.glsl's split_double,
+// camera.glsl's pixel_to_normalized, bilinear.glsl's pinhole_corners and edge_functions_ray.
+#include "camera.glsl"
+#include "bilinear.glsl"
+#include "hilo.glsl"
+
+layout(local_size_x = 64) in;
+
+// per item: x, uv (2), intr (5), P (4 × 3), q (2) — 22 doubles
+layout(std430, binding = 0) readonly buffer In { double inputs[]; };
+// per item: split (hi, lo), xd (2), A (4 × 3), E (4), m (4 × 2) — 28 doubles
+layout(std430, binding = 1) writeonly buffer Out { double outputs[]; };
+
+uniform int u_count;
+
+void main() {
+    int i = int(gl_GlobalInvocationID.x);
+    if (i >= u_count) return;
+    int a = 22 * i, o = 28 * i;
+    vec2 hl = split_double(inputs[a]);
+    outputs[o] = double(hl.x);
+    outputs[o + 1] = double(hl.y);
+    double intr[5];
+    for (int k = 0; k < 5; ++k) intr[k] = inputs[a + 3 + k];
+    dvec2 xd = pixel_to_normalized(dvec2(inputs[a + 1], inputs[a + 2]), intr);
+    outputs[o + 2] = xd.x;
+    outputs[o + 3] = xd.y;
+    dvec3 P[4], A[4];
+    for (int k = 0; k < 4; ++k) P[k] = dvec3(inputs[a + 8 + 3 * k], inputs[a + 9 + 3 * k], inputs[a + 10 + 3 * k]);
+    pinhole_corners(P, intr, A);
+    double E[4];
+    dvec2 m[4];
+    edge_functions_ray(A, dvec2(inputs[a + 20], inputs[a + 21]), E, m);
+    for (int k = 0; k < 4; ++k) {
+        for (int c = 0; c < 3; ++c) outputs[o + 4 + 3 * k + c] = A[k][c];
+        outputs[o + 16 + k] = E[k];
+        outputs[o + 20 + 2 * k] = m[k].x;
+        outputs[o + 21 + 2 * k] = m[k].y;
+    }
+}

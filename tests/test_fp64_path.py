@@ -1,0 +1,161 @@
+"""The float64 path of the shaders, guarded on whatever driver runs the tests (issue 25).
+
+GLSL only asks double operations to be as precise as float (GLSL 4.50 §4.7.1); NVIDIA contracts
+``a*b - c`` into an fma unless the result is ``precise``, and a compiler may fold a
+double→float→double round trip to the identity. These tests hold the shaders to the rules of
+design-notes "GPU facts" without a GPU:
+- every floating literal that float32 cannot represent carries a suffix (``lf``), unless listed
+  below as float32 code;
+- in every float64 program the GL backend builds, each float→double conversion (glslang's
+  intermediate tree) is one of an audited list of values that float32 holds exactly;
+- the double-path primitives give their numpy twins' results bit for bit (probe).
+"""
+import re
+import shutil
+import subprocess
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from glsim.backends.gl.programs import ProgramCache, assemble
+from glsim.render import Renderer
+from glsim.scene import bilinear as bl
+from glsim.scene import bulge_scene
+from glsim.scene.camera import pixel_to_normalized
+
+SHADERS = Path(__file__).parents[1] / "shaders"
+GLSL_DIR = Path(__file__).parent / "glsl"
+
+_LITERAL = re.compile(r"(?<![\w.])((?:\d+\.\d*|\.\d+|\d+)(?:[eE][+-]?\d+)?)(lf|LF|f|F|u|U)?(?![\w.])")
+# Inexact literals without a suffix that are float32 on purpose: (file, literal) → why
+FLOAT32_LITERALS = {
+    ("bilinear.glsl", "1e-6"): "NEWTON_TOL of float32 builds (#else of FP64)",
+    ("bilinear.glsl", "1e-3"): "NEAR_TOL of float32 builds",
+    ("camera.glsl", "2e-7"): "UNDISTORT_TOL of float32 builds",
+    ("quadratic.glsl", "1e-6"): "Q_TOL of float32 builds",
+    ("quadratic.glsl", "1e-5"): "Q_RESIDUAL of float32 builds",
+    ("subsamples.frag", "1e-4"): "SUBSAMPLE_TOL of float32 builds",
+    ("blur.frag", "3.194528"): "a float constant of the float32 blur",
+    ("noise.glsl", "6.283185307179586"): "2π in the float32 noise",
+    ("shade.glsl", "0.2"): "a float32 series coefficient of the Phong shading",
+    ("raymap.glsl", "1e30"): "NO_RAY test of float32 builds (any value ≥ 1e30 is NO_RAY)",
+    ("rays.frag", "1e30"): "NO_RAY: written as float32, read with ≥ 1e30",
+    ("view.glsl", "1e30"): "FAR_AWAY: a sentinel compared with ≥, never used in arithmetic",
+}
+
+
+def test_inexact_literals_carry_a_suffix():
+    """A literal float32 cannot hold exactly (1e-12, 0.1) is float32 in GLSL unless suffixed
+    lf: in a double expression it would bring float32 rounding (2^-24 relative) into it."""
+    found = set()
+    for path in sorted(SHADERS.iterdir()):
+        if path.suffix == ".py":
+            continue
+        for line in path.read_text().splitlines():
+            for m in _LITERAL.finditer(line.split("//")[0]):
+                text, suffix = m.groups()
+                if suffix is None and any(c in text for c in ".eE") and float(np.float32(text)) != float(text):
+                    found.add((path.name, text))
+    assert found <= set(FLOAT32_LITERALS), sorted(found - set(FLOAT32_LITERALS))
+
+
+# float→double conversions allowed in float64 programs, by the converted value's name: each
+# holds values float32 represents exactly
+EXACT_FLOAT_SOURCES = {
+    "gl_FragCoord": "half-integer pixel coordinates (< 2^23)",
+    "u_ref_size": "the reference image's width and height in px (integers)",
+    "u_size": "the image's width and height in px (integers)",
+    "hl": "the probe's split halves",
+}
+
+
+def _conversions(stage: str, text: str) -> set[str]:
+    """The names under each 'Convert float to double' node of glslang's intermediate tree."""
+    tree = subprocess.run(["glslangValidator", "--stdin", "-S", stage, "-i"], input=text, capture_output=True,
+                          text=True, check=True).stdout.splitlines()
+    out = [re.sub(r"^\d+:\d+", "", line) for line in tree]   # (the source line, then the depth)
+    names = set()
+    for k, line in enumerate(out):
+        if "Convert float to double" in line:
+            depth = len(line) - len(line.lstrip())
+            for below in out[k + 1:]:
+                if len(below) - len(below.lstrip()) <= depth:
+                    names.add("<expression without a name>")
+                    break
+                m = re.search(r"'(\w+)'", below)
+                if m:
+                    names.add(m.group(1))
+                    break
+    return names
+
+
+@pytest.mark.gl
+@pytest.mark.skipif(shutil.which("glslangValidator") is None,
+                    reason="glslangValidator not installed (make test installs Debian's glslang-tools as root)")
+def test_float64_programs_convert_from_float_only_exact_values(gl_ctx):
+    """Every float64 program built for exact and q4 renders (truth, lighting, depth of field,
+    Newton sub-samples, quadratic elements) converts float to double only for values float32
+    holds exactly (EXACT_FLOAT_SOURCES): no float step in the double path."""
+    from glsim.scene import Lighting, Optics   # noqa: F401  (the scene's effect tables)
+    scene = bulge_scene(size=(96, 72), steps=1)
+    built = []
+    with Renderer(scene, "gl", ctx=gl_ctx) as r:
+        for mode in ("exact", "q4"):
+            for spp in (1, 4):
+                r.render(1, 1, truth=True, mode=mode, samples_per_pixel=spp)
+        r.render(1, 1, mode="exact", samples_per_pixel=4, subsamples="newton")
+        built += r.backend.programs.compiled
+    fp64 = [(files, d) for files, d in built if "FP64" in d]
+    assert len(fp64) >= 6
+    stages = {"vert": "vert", "frag": "frag", "comp": "comp"}
+    bad = {}
+    for files, defines in fp64:
+        for f in files:
+            names = _conversions(stages[f.rsplit(".", 1)[1]], assemble(f, defines).text)
+            for n in names - set(EXACT_FLOAT_SOURCES):
+                bad.setdefault(n, set()).add(f)
+    assert not bad, bad
+
+
+@pytest.mark.gl
+def test_double_path_primitives_are_bit_for_bit_numpys(gl_ctx):
+    """split_double, pixel_to_normalized, pinhole_corners and the ray edge functions against
+    numpy on 4096 random inputs: equal bit for bit (the driver honours `precise`; no float step).
+    split_double: hi is x with its low 29 mantissa bits cleared, lo = float32(x − hi)."""
+    from glsim.backends.gl.backend import GLBackend
+
+    if not GLBackend(np.zeros((8, 8), np.float32), ctx=gl_ctx).fp64:
+        pytest.skip("the driver has no GL_ARB_gpu_shader_fp64")
+    rng = np.random.default_rng(25)
+    n = 4096
+    x = rng.standard_normal(n) * 10.0 ** rng.uniform(-6, 3, n)
+    uv = rng.uniform(-10, 2000, (n, 2)) + rng.integers(0, 3, (n, 1)) / 3
+    intr = np.column_stack([rng.uniform(500, 5000, n), rng.uniform(500, 5000, n), rng.uniform(-2, 2, n),
+                            rng.uniform(100, 1000, n), rng.uniform(100, 1000, n)]) / 3
+    P = rng.uniform(-50, 50, (n, 4, 3)) + [0, 0, 300.0]
+    q = rng.uniform(-10, 2000, (n, 2)) / 7
+    data = np.column_stack([x, uv, intr, P.reshape(n, 12), q])
+    cache = ProgramCache(gl_ctx, dirs=(GLSL_DIR,))
+    prog = cache.compute("fp64_probe.comp", {"FP64": None})
+    bufs = [gl_ctx.buffer(np.ascontiguousarray(data, "f8").tobytes()), gl_ctx.buffer(reserve=n * 28 * 8)]
+    for i, b in enumerate(bufs):
+        b.bind_to_storage_buffer(i)
+    prog["u_count"].value = n
+    prog.run(group_x=(n + 63) // 64)
+    got = np.frombuffer(bufs[1].read(), "f8").reshape(n, 28)
+    for b in bufs:
+        b.release()
+    cache.release()
+
+    hi = (x.view(np.uint64) & np.uint64(~((1 << 29) - 1) & (2**64 - 1))).view(np.float64)
+    lo = (x - hi).astype(np.float32).astype(np.float64)
+    np.testing.assert_array_equal(got[:, 0], hi)
+    np.testing.assert_array_equal(got[:, 1], lo)
+    assert np.all(np.abs(got[:, 0] + got[:, 1] - x) <= 2.0 ** -48 * np.abs(x))
+    np.testing.assert_array_equal(got[:, 2:4], np.stack([pixel_to_normalized(uv[i], intr[i]) for i in range(n)]))
+    A = np.stack([bl.pinhole_corners(P[i], intr[i]) for i in range(n)])
+    E, m = bl.edge_functions_ray(A, q)
+    np.testing.assert_array_equal(got[:, 4:16], A.reshape(n, 12))
+    np.testing.assert_array_equal(got[:, 16:20], E)
+    np.testing.assert_array_equal(got[:, 20:28], m.reshape(n, 8))
