@@ -66,7 +66,6 @@ EXACT_FLOAT_SOURCES = {
     "gl_FragCoord": "half-integer pixel coordinates (< 2^23)",
     "u_ref_size": "the reference image's width and height in px (integers)",
     "u_size": "the image's width and height in px (integers)",
-    "hl": "the probe's split halves",
 }
 
 
@@ -94,10 +93,9 @@ def _conversions(stage: str, text: str) -> set[str]:
 @pytest.mark.skipif(shutil.which("glslangValidator") is None,
                     reason="glslangValidator not installed (make test installs Debian's glslang-tools as root)")
 def test_float64_programs_convert_from_float_only_exact_values(gl_ctx):
-    """Every float64 program built for exact and q4 renders (truth, lighting, depth of field,
-    Newton sub-samples, quadratic elements) converts float to double only for values float32
-    holds exactly (EXACT_FLOAT_SOURCES): no float step in the double path."""
-    from glsim.scene import Lighting, Optics   # noqa: F401  (the scene's effect tables)
+    """Every float64 program built for exact and q4 renders (1 and 4 spp, truth, Newton
+    sub-samples) converts float to double only for values float32 holds exactly
+    (EXACT_FLOAT_SOURCES): no float step in the double path."""
     scene = bulge_scene(size=(96, 72), steps=1)
     built = []
     with Renderer(scene, "gl", ctx=gl_ctx) as r:
