@@ -1,4 +1,4 @@
-"""glsim.camera against OpenCV (cv2.projectPoints, cv2.undistortPoints, cv2.Rodrigues)."""
+"""glsim.scene.camera against OpenCV (cv2.projectPoints, cv2.undistortPoints, cv2.Rodrigues)."""
 
 import math
 

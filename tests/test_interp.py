@@ -1,4 +1,4 @@
-"""glsim.interp: numpy kernels against scipy.ndimage and polynomial reproduction."""
+"""glsim.stages.interp: numpy kernels against scipy.ndimage and polynomial reproduction."""
 
 import numpy as np
 import pytest

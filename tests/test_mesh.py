@@ -1,4 +1,4 @@
-"""glsim.mesh: shape functions, file round trips, solid boundaries, rejections, generators."""
+"""glsim.scene.mesh (and glsim.io.fe): shape functions, file round trips, solid boundaries, rejections, generators."""
 import itertools
 
 import meshio

@@ -1,4 +1,4 @@
-"""glsim.speckle: generated pattern statistics, argument checks, reference-image loading."""
+"""glsim.scene.speckle: generated pattern statistics, argument checks, reference-image loading."""
 
 import imageio.v3 as iio
 import numpy as np

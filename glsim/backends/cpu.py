@@ -282,7 +282,9 @@ def render_view(view: View, sample, opts, truth: bool, fx=None, raster=None):
 
 
 class CPUBackend:
-    """backend="cpu": float64 numpy, the oracle. Same interface as the GL backend."""
+    """backend="cpu": float64 numpy, the oracle. ``render_view(view, opts, truth, effects)`` as the GL
+    backend's (which also takes ``patches=`` for curved elements, where this one has
+    :meth:`render_quadratic_view`); no GL passes (``fullscreen_pass``, ``pass_times``)."""
     name = "cpu"
 
     def __init__(self, reference_image: np.ndarray, dots=None):

@@ -20,7 +20,7 @@ from glsim.scene.camera import Camera
 
 def euler_xyz(R) -> np.ndarray:
     """(theta, phi, psi) in degrees with R = Rz(psi)·Ry(phi)·Rx(theta), the inverse of
-    :func:`glsim.camera.rotation_xyz` (phi in (−90°, 90°))."""
+    :func:`glsim.scene.camera.rotation_xyz` (phi in (−90°, 90°))."""
     R = np.asarray(R, dtype=np.float64)
     theta = math.atan2(R[2, 1], R[2, 2])
     phi = math.atan2(-R[2, 0], math.hypot(R[0, 0], R[1, 0]))

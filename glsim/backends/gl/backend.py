@@ -577,7 +577,7 @@ class GLBackend:
 
     def noise_pass(self, grey, params, bit_depth: int, seed: int, table=None):
         """noise.frag on an R32F texture or (H, W) array: grey + σ(grey)·z, the same field as
-        :func:`glsim.noise.add_noise`."""
+        :func:`glsim.effects.noise.add_noise`."""
         inputs = {"u_src": grey}
         if params.model == "heteroscedastic":
             inputs["u_variance"] = noise.variance_texture(table, bit_depth)
