@@ -16,10 +16,16 @@ them last: it is permuted on reading. Other node counts (TRI7, HEX27, TETRA14, W
 are refused by name (their Exodus node order is not confirmed here; VTU, Gmsh or Abaqus
 files of them are read through meshio); bars, beams and spheres are ignored. Labels are the
 file's own node and element numbers.
+
+A classic netCDF file (CDF-1, CDF-2, CDF-5; not the HDF5-based netCDF-4) is checked before it is
+read: every variable, and every stored step of the record variables, must lie inside the file,
+so that a truncated file (netCDF reads the missing bytes as zeros) or a damaged record count
+is refused naming the step, instead of giving a wrong image or a huge allocation.
 """
 from __future__ import annotations
 
 import contextlib
+import math
 import re
 from pathlib import Path
 from typing import Iterator
@@ -105,6 +111,7 @@ def open_exodus(path) -> Iterator[Series]:
     path = Path(path)
     netCDF4 = _netcdf4()
     where = str(path)
+    _check_extent(path)
     try:
         ds = netCDF4.Dataset(path, "r")
     except OSError as exc:
@@ -189,12 +196,104 @@ def _series(ds, path: Path) -> Series:
 
     def read(name: str, k: int) -> np.ndarray:
         j = index[name]
-        if f"vals_nod_var{j + 1}" in v:
-            return np.asarray(v[f"vals_nod_var{j + 1}"][k, :], dtype=np.float64)
-        if "vals_nod_var" in v:
-            return np.asarray(v["vals_nod_var"][k, j, :], dtype=np.float64)
+        try:
+            if f"vals_nod_var{j + 1}" in v:
+                return np.asarray(v[f"vals_nod_var{j + 1}"][k, :], dtype=np.float64)
+            if "vals_nod_var" in v:
+                return np.asarray(v["vals_nod_var"][k, j, :], dtype=np.float64)
+        except (RuntimeError, OSError, IndexError) as exc:   # HDF5's errors for a damaged netCDF-4 file
+            raise SceneError(where, f"stored step {k} of nodal variable {name!r} cannot be read ({exc})",
+                             "write or copy the file again") from None
         raise SceneError(where, f"names nodal variable {name!r} but stores no values for it "
                          f"(no vals_nod_var{j + 1} or vals_nod_var)", "write the file with its nodal values")
 
     return Series(path=path, points=points, dim=n_dim, cells=cells, cell_labels=cell_labels,
                   node_labels=node_labels, times=times, fields=fields, read=read, block_names=block_names)
+
+
+# ---- classic netCDF: the layout in the header against the file's length --------------------------
+
+_CDF_SIZES = {1: 1, 2: 1, 3: 2, 4: 4, 5: 4, 6: 8, 7: 1, 8: 2, 9: 4, 10: 8, 11: 8}   # nc_type → bytes
+_STREAMING = 0xFFFFFFFF
+
+
+def _check_extent(path: Path) -> None:
+    """SceneError naming the variable or stored step of a classic netCDF file (CDF-1, -2, -5) that
+    lies beyond the end of the file: a truncated file, or a damaged record count."""
+    size = path.stat().st_size
+    with open(path, "rb") as f:
+        if f.read(3) != b"CDF":
+            return                                  # netCDF-4 (HDF5), or not netCDF: netCDF4 says
+        try:
+            numrecs, variables = _classic_layout(f, f.read(1)[0], size)
+        except (EOFError, IndexError, ValueError) as exc:
+            raise SceneError(str(path), f"its netCDF header is truncated or damaged ({exc})",
+                             "write or copy the file again") from None
+    records = [(name, begin, n) for name, record, begin, n in variables if record]
+    recsize = records[0][2] if len(records) == 1 else sum(-(-n // 4) * 4 for _, _, n in records)
+    for name, record, begin, n in variables:
+        if not record and begin + n > size:
+            raise SceneError(str(path), f"variable {name!r} ends at byte {begin + n:,}, beyond the end of the file "
+                             f"({size:,} bytes): the file is truncated", "write or copy the file again")
+    if numrecs == _STREAMING or not records:
+        return
+    inside = {name: 0 if begin + n > size else (size - begin - n) // recsize + 1 if recsize else numrecs
+              for name, begin, n in records}       # whole records of each variable inside the file
+    name = min(inside, key=inside.get)
+    if inside[name] < numrecs:
+        raise SceneError(str(path), f"stored step {inside[name]} of the {numrecs:,} its header declares lies beyond "
+                         f"the end of the file ({size:,} bytes; variable {name!r} of that step is missing): the file "
+                         "is truncated or its record count damaged", "write or copy the file again")
+
+
+def _classic_layout(f, version: int, size: int) -> tuple[int, list]:
+    """The record count and, per variable, (name, is a record variable, begin, bytes per record
+    or in all) from a classic netCDF header (after its magic 'CDF')."""
+    if version not in (1, 2, 5):
+        raise ValueError(f"format version {version}")
+    wide = version == 5
+
+    def number(eight: bool = wide) -> int:
+        data = f.read(8 if eight else 4)
+        if len(data) < (8 if eight else 4):
+            raise EOFError("ends inside the header")
+        return int.from_bytes(data, "big")
+
+    def count(item_bytes: int) -> int:                  # a list's length, bounded by what the file can hold
+        n = number()
+        if n * item_bytes > size:
+            raise ValueError(f"a list of {n:,} entries in a file of {size:,} bytes")
+        return n
+
+    def skip(nbytes: int) -> None:                      # and the padding to 4 bytes
+        if f.seek(-(-nbytes // 4) * 4, 1) > size:
+            raise EOFError("ends inside the header")
+
+    def name() -> str:
+        n = count(1)
+        return f.read(-(-n // 4) * 4)[:n].decode("utf-8", "replace")
+
+    def attributes() -> None:
+        number(False)
+        for _ in range(count(12)):
+            name()
+            kind = number(False)
+            skip(count(_CDF_SIZES[kind]) * _CDF_SIZES[kind])
+
+    numrecs = number()
+    number(False)
+    dims = [(name(), number()) for _ in range(count(8))]
+    attributes()
+    number(False)
+    variables = []
+    for _ in range(count(16)):
+        label = name()
+        ids = [number() for _ in range(count(4))]
+        attributes()
+        kind = number(False)
+        number()                                        # vsize: recomputed (it overflows for big variables)
+        begin = number(version != 1)
+        shape = [dims[i][1] for i in ids]
+        record = bool(ids) and shape[0] == 0
+        variables.append((label, record, begin, math.prod(shape[record:]) * _CDF_SIZES[kind]))
+    return numrecs, variables

@@ -40,7 +40,8 @@ from typing import Callable
 
 import numpy as np
 
-from glsim.errors import GlsimError
+from glsim.errors import GlsimError, SceneError
+from glsim.limits import check_image_size, not_a_file, parse_nested
 from glsim.scene.bilinear import bilinear, intersect_ray_patch
 from glsim.scene.camera import Camera, Distortion, pixel_to_normalized, project_camera_frame, to_camera, undistort
 
@@ -329,33 +330,51 @@ class CompactTruth:
     def mode(self) -> str:
         return self.header["mode"]
 
+    def _camera(self, name: str) -> Camera:
+        try:
+            return camera_from_dict(self.header[name])
+        except (KeyError, TypeError, ValueError) as exc:   # SceneError is a ValueError
+            raise TruthFileError(f"{self.path}: its header's {name} is damaged ({exc}){DAMAGED}") from None
+
     @cached_property
     def camera(self) -> Camera:
-        return camera_from_dict(self.header["camera"])
+        return self._camera("camera")
 
     @cached_property
     def camera1(self) -> Camera:
-        return camera_from_dict(self.header["camera1"])
+        return self._camera("camera1")
 
     @cached_property
     def reference_camera(self) -> Camera:
-        return camera_from_dict(self.header["reference_camera"])
+        return self._camera("reference_camera")
 
     # -- the stored maps
-    def _blob(self, name: str) -> bytes:
+    def _blob(self, name: str, size: int) -> bytes:
+        """Blob ``name`` decompressed, refused unless it is exactly ``size`` bytes (never more is made)."""
         off, n = self.header["blobs"][name]
+        zstd = _zstd()
+        data = self._blobs[off:off + n]
         try:
-            return _zstd().ZstdDecompressor().decompress(self._blobs[off:off + n])
-        except Exception as exc:  # zstd's own error type
-            raise TruthFileError(f"{self.path}: blob {name!r} does not decompress ({exc}); the file is "
-                                 "damaged: run `glsim library DIR --verify`, then the library command "
-                                 "again to re-render it") from None
+            declared = zstd.frame_content_size(data)
+            if declared in (-1, size):
+                data = zstd.ZstdDecompressor().decompress(data, max_output_size=size)
+        except zstd.ZstdError as exc:
+            raise TruthFileError(f"{self.path}: blob {name!r} does not decompress ({exc}){DAMAGED}") from None
+        if declared not in (-1, size) or len(data) != size:
+            raise TruthFileError(f"{self.path}: blob {name!r} holds {declared if declared != -1 else len(data)} bytes "
+                                 f"where the header's size gives {size}{DAMAGED}")
+        return data
 
     @cached_property
     def element(self) -> np.ndarray:
         """(H, W) int64 element index (0-based, the mesh's quads order; −1 = background)."""
         W, H = self.size
-        return np.frombuffer(self._blob("element"), np.int32).reshape(H, W).astype(np.int64)
+        el = np.frombuffer(self._blob("element", 4 * W * H), np.int32).reshape(H, W).astype(np.int64)
+        covered = int(np.count_nonzero(el >= 0))
+        if el.min(initial=-1) < -1 or covered != self.header["covered"]:
+            raise TruthFileError(f"{self.path}: its element map holds {covered} covered pixels (header: "
+                                 f"{self.header['covered']}) or indices below −1{DAMAGED}")
+        return el
 
     @property
     def mask(self) -> np.ndarray:
@@ -366,7 +385,7 @@ class CompactTruth:
         W, H = self.size
         idx, same1, same2 = _runs(self.element)
         n = len(idx)
-        raw = self._blob("local")
+        raw = self._blob("local", 2 * n * np.dtype(self.header["dtype"]).itemsize)
         if self.header["dtype"] == "float64":
             codes = _unshuffle(raw, np.uint64, 2 * n)
             vals = [decode_local(codes[:n], same1, same2), decode_local(codes[n:], same1, same2)]
@@ -393,7 +412,7 @@ class CompactTruth:
     def geometry(self) -> Geometry:
         if self._geometry is None:
             path = self.path.parent / self.header["geometry"]
-            if not path.is_file():
+            if not_a_file(path):
                 raise TruthFileError(f"{self.path}: its geometry file {path} is missing; keep the library's "
                                      "geometry/ folder beside the variant folders, or re-run the library "
                                      "command on the directory to write it")
@@ -405,6 +424,9 @@ class CompactTruth:
         g, mask = self.geometry, self.mask
         W, H = self.size
         e = self.element[mask]
+        if e.size and e.max() >= len(g.quads):
+            raise TruthFileError(f"{self.path}: element {e.max()} is not in its geometry file ({len(g.quads)} "
+                                 f"elements){DAMAGED}")
         xi, eta = self.xi[mask], self.eta[mask]
         q = g.quads[e]
         cam1, step = self.camera1, self.step
@@ -497,29 +519,65 @@ def _candidates(lo, hi, xn, ok, cells: int = 64):
 
 
 def read(path: str | Path, geometry: Geometry | None = None) -> CompactTruth:
-    """Read a ``.truth`` file (the maps are decoded when first used)."""
+    """Read a ``.truth`` file (the maps are decoded when first used). Its header is checked first:
+    the sizes it declares against :mod:`glsim.limits` and the file's length, before anything
+    is decompressed (with its output bounded to the declared size)."""
     path = Path(path)
+    why = not_a_file(path)
+    if why:
+        raise TruthFileError(f"{path}: cannot be read ({why}); check the path")
     try:
-        data = path.read_bytes()
+        with open(path, "rb") as f:
+            head = f.read(16)
+            if head[:8] != MAGIC or len(head) < 16:
+                raise TruthFileError(f"{path}: not a glsim compact truth file (it does not start with {MAGIC!r}); "
+                                     "give a .truth file written by `glsim library`")
+            (n,) = struct.unpack("<Q", head[8:])
+            room = os.fstat(f.fileno()).st_size - 16
+            header = _header(path, f.read(min(n, room)) if n <= room else b"")
+            end = max(o + k for o, k in header["blobs"].values())
+            if room - n < end:
+                raise TruthFileError(f"{path}: truncated ({room - n} of {end} data bytes); re-render it with the "
+                                     "library command (it re-renders files that fail their checksum)")
+            blobs = f.read(end)
     except OSError as exc:
         raise TruthFileError(f"{path}: cannot be read ({exc.strerror or exc}); check the path") from None
-    if data[:8] != MAGIC or len(data) < 16:
-        raise TruthFileError(f"{path}: not a glsim compact truth file (it does not start with {MAGIC!r}); "
-                             "give a .truth file written by `glsim library`")
-    (n,) = struct.unpack("<Q", data[8:16])
-    try:
-        header = json.loads(data[16:16 + n])
-    except ValueError as exc:
-        raise TruthFileError(f"{path}: its header is damaged ({exc}); re-render it with the library command") from None
-    if header.get("format") != FORMAT or header.get("version") != VERSION:
-        raise TruthFileError(f"{path}: format {header.get('format')!r} version {header.get('version')!r} is not "
-                             f"{FORMAT!r} version {VERSION}; read it with the glsim that wrote it")
-    blobs = data[16 + n:]
-    end = max((o + k for o, k in header["blobs"].values()), default=0)
-    if len(blobs) < end:
-        raise TruthFileError(f"{path}: truncated ({len(blobs)} of {end} data bytes); re-render it with the "
-                             "library command (it re-renders files that fail their checksum)")
     return CompactTruth(path, header, blobs, geometry)
+
+
+DAMAGED = "; the file is damaged: run `glsim library DIR --verify`, then the library command again to re-render it"
+
+
+def _header(path: Path, text: bytes) -> dict:
+    """A truth file's header, its fields and sizes checked (TruthFileError naming the field)."""
+    try:
+        header = parse_nested(json.loads, text.decode("utf-8"), str(path))
+    except (ValueError, SceneError) as exc:
+        raise TruthFileError(f"{path}: its header is damaged ({exc}){DAMAGED}") from None
+    if not isinstance(header, dict) or header.get("format") != FORMAT or header.get("version") != VERSION:
+        got = (header.get("format"), header.get("version")) if isinstance(header, dict) else (None, None)
+        raise TruthFileError(f"{path}: format {got[0]!r} version {got[1]!r} is not {FORMAT!r} version {VERSION}; "
+                             "read it with the glsim that wrote it")
+    count = lambda v: isinstance(v, int) and not isinstance(v, bool) and v >= 0  # noqa: E731
+    blobs, size = header.get("blobs"), header.get("size")
+    checks = {"size": isinstance(size, list) and len(size) == 2 and all(count(v) and v > 0 for v in size),
+              "covered": count(header.get("covered")), "dtype": header.get("dtype") in DTYPES,
+              "step": count(header.get("step")), "mode": isinstance(header.get("mode"), str),
+              "geometry": isinstance(header.get("geometry"), str),
+              "geometry_sha256": isinstance(header.get("geometry_sha256"), str),
+              "blobs": isinstance(blobs, dict) and set(blobs) == {"element", "local"} and all(
+                  isinstance(b, list) and len(b) == 2 and all(map(count, b)) for b in blobs.values())}
+    bad = next((k for k, ok in checks.items() if not ok), None)
+    if bad:
+        raise TruthFileError(f"{path}: its header's {bad} is {header.get(bad)!r}{DAMAGED}")
+    try:
+        check_image_size(f"{path}: size", *size, "the image", "re-render it with the library command")
+    except SceneError as exc:
+        raise TruthFileError(str(exc)) from None
+    if header["covered"] > size[0] * size[1]:
+        raise TruthFileError(f"{path}: its header's covered {header['covered']} exceeds its {size[0]} × {size[1]} "
+                             f"px{DAMAGED}")
+    return header
 
 
 load = read

@@ -48,13 +48,20 @@ def _table(plan, limit: int = TABLE_ROWS) -> str:
     counts: dict[str, int] = {}
     for j in plan.jobs:
         counts[j.variant] = counts.get(j.variant, 0) + 1
-    rows = [[v.id, *(json.dumps(v.params[k]) if not isinstance(v.params[k], float) else f"{v.params[k]:.6g}"
-                     for k in plan.keys), str(counts.get(v.id, 0))] for v in plan.variants]
+    rows = [[v.id, *(_cell(v.params[k]) for k in plan.keys), str(counts.get(v.id, 0))] for v in plan.variants]
     gap = len(rows) > limit or plan.sampled
     shown = rows[:limit - 5] + [["…"] * len(head)] + rows[-5:] if gap else rows
     width = [max(len(r[i]) for r in [head] + shown) for i in range(len(head))]
     line = lambda r: "  ".join(c.ljust(w) for c, w in zip(r, width)).rstrip()  # noqa: E731
     return "\n".join([line(head)] + [line(r) for r in shown])
+
+
+def _cell(value) -> str:
+    """A parameter as the table shows it, with its type: 1.0 stays 1.0 (6 significant digits)."""
+    if not isinstance(value, float):
+        return json.dumps(value)
+    text = f"{value:.6g}"
+    return text if any(c in text for c in ".eni") else text + ".0"
 
 
 def speedup(workers: int) -> float:
@@ -132,7 +139,7 @@ def main(argv: list[str] | None = None) -> int:
                 return 1 if problems else 0
             info = mf.read_library_info(src)
             if info is None:
-                raise GlsimError(f"{src}: holds no library (no readable library.json) — give a spec file, or a "
+                raise GlsimError(f"{src}: holds no library (no library.json, or a damaged one) — give a spec file, or a "
                                  "directory that `glsim library SPEC -o DIR` wrote")
             plan = expand(info["spec"], info["base_dir"])
             out = src

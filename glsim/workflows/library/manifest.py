@@ -34,6 +34,7 @@ import json
 from pathlib import Path
 
 from glsim.io import images as io
+from glsim.limits import parse_nested
 
 FILE_COLUMNS = ("camera", "step", "file", "bytes", "sha256", "truth_file", "truth_bytes", "truth_sha256")
 TIME_COLUMNS = ("render_s", "truth_s", "encode_s", "write_s", "saturated")
@@ -122,8 +123,24 @@ def write_library_info(out: Path, info: dict) -> Path:
 
 
 def read_library_info(out: Path) -> dict | None:
+    """``library.json`` of the library in ``out``; None if there is none, or a damaged one."""
     try:
-        data = json.loads((Path(out) / LIBRARY).read_text(encoding="utf-8"))
-    except (OSError, ValueError, UnicodeDecodeError):
+        data = parse_nested(json.loads, (Path(out) / LIBRARY).read_text(encoding="utf-8"), LIBRARY)
+    except (OSError, ValueError, UnicodeDecodeError):    # SceneError (nested too deep) is a ValueError
         return None
-    return data if isinstance(data, dict) and data.get("format") == "glsim-library" else None
+    return data if isinstance(data, dict) and data.get("format") == "glsim-library" and _complete(data) else None
+
+
+def _complete(info: dict) -> bool:
+    """Whether ``info`` has every field of :func:`library_info` that resume and verify read, with
+    jobs of known variants and files inside the library."""
+    text = lambda v: isinstance(v, str)  # noqa: E731
+    inside = lambda p: text(p) and not Path(p).is_absolute() and ".." not in Path(p).parts  # noqa: E731
+    try:
+        ids = {v["id"] for v in info["variants"] if text(v["id"]) and isinstance(v["params"], dict)}
+        return (isinstance(info["spec"], dict) and text(info["base_dir"]) and all(map(text, info["keys"]))
+                and len(ids) == len(info["variants"]) and all(
+                    isinstance(j, list) and len(j) == 5 and j[0] in ids and text(j[1]) and isinstance(j[2], int)
+                    and inside(j[3]) and (j[4] == "" or inside(j[4])) for j in info["jobs"]))
+    except (KeyError, TypeError):
+        return False

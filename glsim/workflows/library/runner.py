@@ -471,7 +471,7 @@ def verify(out: str | Path) -> tuple[int, list[str]]:
     out = Path(out)
     info = mf.read_library_info(out)
     if info is None:
-        raise LibraryError(f"{out}: holds no library (no readable library.json) — give a directory that "
+        raise LibraryError(f"{out}: holds no library (no library.json, or a damaged one) — give a directory that "
                            "`glsim library SPEC -o DIR` wrote")
     plan = mf.StoredPlan(info)
     good, problems = check_records(out, plan, mf.read_manifest(out))
@@ -482,10 +482,15 @@ def verify(out: str | Path) -> tuple[int, list[str]]:
             continue
         try:
             t = truthio.read(out / rec["truth_file"])
+            t.xi          # decoded: the element map and (ξ, η), not only the header
         except GlsimError as exc:
             lines.append(str(exc))
             continue
         geo = ((out / rec["truth_file"]).parent / t.header["geometry"]).resolve()
+        if not geo.is_relative_to(out.resolve()):
+            lines.append(f"{out / rec['truth_file']}: its header names the geometry file {t.header['geometry']!r}, "
+                         "outside the library (not followed)")
+            continue
         if geo in seen:
             continue
         seen.add(geo)
