@@ -6,6 +6,8 @@ hexahedron27, tetra10, wedge15 solids) become 9-node patches (``Mesh.patches``,
 :mod:`glsim.scene.quadratic`); a file mixing linear and quadratic elements is refused."""
 from __future__ import annotations
 
+import contextlib
+import io
 import json
 from pathlib import Path
 from typing import Sequence
@@ -14,6 +16,7 @@ import meshio
 import numpy as np
 
 from glsim.errors import SceneError
+from glsim.limits import require_file
 from glsim.scene import quadratic as qd
 from glsim.scene.mesh import Mesh, check_finite, place_mesh, quad_normals, with_displacements
 
@@ -70,16 +73,25 @@ _NODES_PER_CELL = {"quad8": 8, "quad9": 9, "triangle6": 6, "hexahedron20": 20, "
 QUADRATIC_CELLS = tuple(_NODES_PER_CELL)
 
 def _require_file(path) -> Path:
-    path = Path(path)
-    if not path.is_file():
-        raise SceneError(str(path), "file not found", "check the path (relative paths start at the working directory)")
-    return path
+    return require_file(path, str(path), "check the path (relative paths start at the working directory)")
+
+
+def meshio_read(path):
+    """``meshio.read``, its printed messages captured: for a file it cannot read it prints why and
+    calls ``sys.exit``, which here raises meshio.ReadError with those words instead."""
+    said = io.StringIO()
+    try:
+        with contextlib.redirect_stdout(said), contextlib.redirect_stderr(said):
+            return meshio.read(path)
+    except SystemExit:
+        lines = [line.strip().removeprefix("Error: ") for line in said.getvalue().splitlines()]
+        raise meshio.ReadError("; ".join(filter(None, lines)) or "meshio gave up") from None
 
 
 def _read_meshio(path):
     path = _require_file(path)
     try:
-        return meshio.read(path)
+        raw = meshio_read(path)
     except Exception as exc:  # meshio's readers raise many types; wrap their words once
         if isinstance(exc, KeyError) and "wedge15" in str(exc):
             raise SceneError(str(path), "meshio cannot read its wedge15 cells (meshio 5.3's table of cell "
@@ -87,6 +99,9 @@ def _read_meshio(path):
                              "upgrade meshio") from exc
         raise SceneError(str(path), f"meshio could not read it ({type(exc).__name__}: {exc})",
                          "give an Abaqus .inp, VTK .vtk/.vtu or Gmsh .msh file") from exc
+    if np.ndim(raw.points) != 2 or not len(raw.points):
+        raise SceneError(str(path), "holds no nodes (an empty or truncated file?)", "give the FE mesh file")
+    return raw
 
 
 def _xyz(points) -> np.ndarray:
@@ -103,18 +118,32 @@ def _abaqus_labels(path: Path) -> tuple[list[int], list[list[int]]]:
     nodes: list[int] = []
     elements: list[list[int]] = []
     block = None
-    with open(path) as f:
+    with _text(path) as f:
         for line in f:
             if line.startswith("*"):  # keyword or ** comment: both end a data block in meshio
                 keyword = line.partition(",")[0].strip().replace("*", "").upper()
                 block = keyword if not line.startswith("**") and keyword in ("NODE", "ELEMENT") else None
                 if block == "ELEMENT":
                     elements.append([])
-            elif line.strip() and block == "NODE":
-                nodes.append(int(line.split(",")[0]))
-            elif line.strip() and block == "ELEMENT":
-                elements[-1] += [int(k) for k in line.split(",") if k.strip()]
+            elif line.strip() and block in ("NODE", "ELEMENT"):
+                try:
+                    numbers = [int(k) for k in line.split(",")[:1 if block == "NODE" else None] if k.strip()]
+                except ValueError:
+                    raise SceneError(str(path), f"*{block} line {line.strip()[:60]!r} does not start with integer "
+                                     "labels", "write one node or element per line: label, …") from None
+                (nodes if block == "NODE" else elements[-1]).extend(numbers)
     return nodes, elements
+
+
+@contextlib.contextmanager
+def _text(path: Path):
+    """``path`` opened as UTF-8 text; bytes that are not (a latin-1 file) raise SceneError naming it."""
+    try:
+        with open(path, encoding="utf-8") as f:
+            yield f
+    except UnicodeDecodeError as exc:
+        raise SceneError(str(path), f"is not UTF-8 text (it holds the byte 0x{exc.object[exc.start]:02x}: latin-1?)",
+                         "save it as UTF-8 or ASCII") from None
 
 
 def _labels(path: Path, raw) -> tuple[np.ndarray, list[np.ndarray]]:
@@ -286,7 +315,7 @@ def _csv_step(path, node_labels: np.ndarray, step: int = 1) -> np.ndarray:
     given = np.zeros(len(node_labels), dtype=bool)
     bad: list = []          # (line, label, values) of non-finite displacements
     seen_data = False
-    with open(path) as f:
+    with _text(path) as f:
         for lineno, line in enumerate(f, 1):
             text = line.strip()
             if not text:

@@ -24,7 +24,7 @@ import meshio
 import numpy as np
 
 from glsim.errors import SceneError
-from glsim.io.meshfiles import QUADRATIC_CELLS, SOLID_FIX, _surface, _xyz
+from glsim.io.meshfiles import QUADRATIC_CELLS, SOLID_FIX, _surface, _xyz, meshio_read
 from glsim.scene.model import TIME_SERIES_SUFFIXES
 
 __all__ = ["Series", "is_time_series"]
@@ -93,7 +93,7 @@ def _read_vtk(path: Path, pvd: Path):
     if not path.is_file():
         raise SceneError(str(pvd), f"lists {path.name}, which does not exist", "keep the .vtu files beside the .pvd")
     try:
-        return meshio.read(path)
+        return meshio_read(path)
     except Exception as exc:
         raise SceneError(str(path), f"meshio could not read it ({type(exc).__name__}: {exc})",
                          "list .vtu/.vtk files in the .pvd collection (not .pvtu)") from exc
