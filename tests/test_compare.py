@@ -64,3 +64,47 @@ def test_compare_names_what_is_missing(rendered, tmp_path, capsys):
     good.write_text("u,v,U,V,W\n48,36,0,0,0\n")
     assert glsim(["compare", str(good), "--truth", str(out), "--step", "5"]) == 2
     assert "--step 5:" in capsys.readouterr().err and not (tmp_path / "compare").exists()
+
+
+@pytest.mark.parametrize("sep", [";", "\t", " ", ","])
+def test_compare_reads_the_separators_dic_programs_write(sep, tmp_path):
+    """Issue 29: a MatchID-style ';' export (decimal commas too) was refused."""
+    from glsim.evaluation.compare import read_result
+
+    rows = [["u", "v", "U", "V", "W"], ["48", "36.5", "0.25", "-0.1", "0"], ["50", "30", "1e-3", "0", "0"]]
+    text = "\n".join(sep.join(r) for r in rows) + "\n"
+    if sep in ";\t":
+        text = text.replace("36.5", "36,5").replace("0.25", "0,25")
+    (tmp_path / "dic.csv").write_text(text)
+    res = read_result(tmp_path / "dic.csv")
+    np.testing.assert_array_equal(res["uv"], [[48, 36.5], [50, 30]])
+    np.testing.assert_array_equal(res["U"], [[0.25, -0.1, 0], [1e-3, 0, 0]])
+
+
+def test_compare_says_a_header_only_file_has_no_data_rows(rendered, tmp_path, capsys):
+    out, _ = rendered
+    (tmp_path / "head.csv").write_text("u;v;U;V;W\n")
+    assert glsim(["compare", str(tmp_path / "head.csv"), "--truth", str(out), "--step", "1"]) == 2
+    assert "no data rows" in capsys.readouterr().err
+    (tmp_path / "short.csv").write_text("u,v,U,V,W\n1,2,0,0,0\n1,2,0\n")
+    assert glsim(["compare", str(tmp_path / "short.csv"), "--truth", str(out), "--step", "1"]) == 2
+    assert "data row 2 has 3 values, the header 5" in capsys.readouterr().err
+
+
+def test_compare_map_colour_bar_shows_the_errors_without_an_offset(tmp_path, monkeypatch):
+    """Issue 29: errors of 1e-2 ± 1e-13 mm were labelled "1e-13 + 1e-2"."""
+    from types import SimpleNamespace
+
+    from glsim.evaluation import compare, report
+
+    figs = []
+    monkeypatch.setattr(report, "save_figure", lambda fig, path, dpi: figs.append(fig) or path)
+    n = 20
+    U = np.zeros((n, 3))
+    U[:, 0] = 1e-2 + np.linspace(0, 1e-13, n)
+    result = {"uv": np.random.default_rng(0).uniform(0, 50, (n, 2)), "valid": np.ones(n, bool), "U": U}
+    truth = SimpleNamespace(displacement=np.zeros((n, 3)), X_deformed=None, valid=np.ones(n, bool))
+    compare.plot_map(result, truth, tmp_path / "map.png")
+    figs[0].canvas.draw()
+    bar = figs[0].axes[-1]
+    assert bar.yaxis.get_offset_text().get_text() == ""

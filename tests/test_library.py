@@ -426,6 +426,16 @@ def test_dry_run_prints_the_table_and_writes_nothing(tmp_path):
     assert not out.exists()
 
 
+def test_dry_run_prints_a_float_as_a_float(tmp_path, capsys):
+    """Issue 29: noise.sigma = [1.0, 2.5] showed as 1 and 2.5."""
+    from glsim.workflows.library.cli import main
+
+    spec = _spec(tmp_path, SPEC.replace("[0.5, 2.0]", "[1.0, 2.5]").replace("{integers = [0, 100], n = 2}", "[7]"))
+    assert main([str(spec), "--dry-run"]) == 0
+    rows = [line.split() for line in capsys.readouterr().out.splitlines()[2:4]]
+    assert rows == [["v0000", "1.0", "7", "4"], ["v0001", "2.5", "7", "4"]]
+
+
 # ---- Dask ---------------------------------------------------------------------------------------------
 
 def _free_port() -> int:

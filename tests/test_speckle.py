@@ -149,3 +149,13 @@ def test_stats_of_flat_image_are_nan_not_errors():
     stats = speckle.speckle_stats(np.full((32, 32), 0.5))
     assert stats["n_speckles"] == 0 and np.isnan(stats["dot_diameter_px"])
     assert stats["grey_std"] == 0.0
+
+
+def test_dot_diameter_error_names_one_limit():
+    """Issue 29: the message said "≥ 2 px" and "at least 3 camera pixels"."""
+    from glsim.scene import Speckle
+
+    for make in (lambda: Speckle(dot_diameter_px=1.5), lambda: speckle.draw_dots((32, 32), 1.5)):
+        with pytest.raises(SceneError, match="speckle.dot_diameter_px") as e:
+            make()
+        assert "2 px" in str(e.value) and "3" not in str(e.value).replace("1.5", "")

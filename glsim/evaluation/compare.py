@@ -1,6 +1,7 @@
 """``glsim compare RESULT --truth DIR``: a DIC result against glsim's ground truth.
 
-RESULT is a CSV with a header row: ``u, v`` (the subset centres, pixel coordinates of camera 0's
+RESULT is a CSV (fields separated by ``,``, ``;``, tabs or spaces, as the header row shows; with
+``;`` or tabs a decimal comma is read too) with a header row: ``u, v`` (the subset centres, pixel coordinates of camera 0's
 reference image) and ``X, Y, Z`` (measured positions at the load step, mm, camera 0's frame)
 and/or ``U, V, W`` (measured displacements from the reference state, mm); an optional ``valid``
 column (0/1). The ``measured_*.npz`` that ``glsim verify`` keeps from pyvale is read too
@@ -49,8 +50,7 @@ def read_result(path: str | Path, state: int = -1) -> dict[str, np.ndarray]:
                 if key in z:
                     out[key] = np.asarray(z[key][state], np.float64)
         return out
-    with open(path, newline="", encoding="utf-8") as f:
-        rows = list(csv.reader(f))
+    rows, sep = _read_rows(path)
     if not rows:
         raise GlsimError(f"{path}: empty; give a header row u, v, X, Y, Z and/or U, V, W")
     head = [h.strip() for h in rows[0]]
@@ -58,18 +58,34 @@ def read_result(path: str | Path, state: int = -1) -> dict[str, np.ndarray]:
     if not {"u", "v"} <= set(col) or not any(set(c) <= set(col) for c in COMPONENTS.values()):
         raise GlsimError(f"{path}: the header has {', '.join(head)}; needed: u, v and X, Y, Z and/or U, V, W "
                          "(mm, camera 0's frame)")
+    if len(rows) == 1:
+        raise GlsimError(f"{path}: no data rows, only the header; give one row per subset centre")
+    short = next(((i, len(r)) for i, r in enumerate(rows[1:], 1) if len(r) != len(head)), None)
+    if short:
+        raise GlsimError(f"{path}: data row {short[0]} has {short[1]} values, the header {len(head)}; every row "
+                         "needs one value per header column")
+    decimal = "," if sep in (";", "\t") else "."      # a decimal comma where ',' does not separate
     try:
-        data = np.array([[float(x) for x in r] for r in rows[1:] if r], np.float64)
+        data = np.array([[float(x.replace(decimal, ".")) for x in r] for r in rows[1:]], np.float64)
     except ValueError as exc:
         raise GlsimError(f"{path}: not all values are numbers ({exc})") from None
-    if data.ndim != 2 or data.shape[1] != len(head):
-        raise GlsimError(f"{path}: every row needs {len(head)} values, as the header")
     out = {"uv": data[:, [col["u"], col["v"]]],
            "valid": data[:, col["valid"]] != 0 if "valid" in col else np.ones(len(data), bool)}
     for key, names in COMPONENTS.items():
         if set(names) <= set(col):
             out[key] = data[:, [col[n] for n in names]]
     return out
+
+
+def _read_rows(path: Path) -> tuple[list[list[str]], str | None]:
+    """The non-blank rows of a CSV and its separator, the first of ``;``, tab, ``,`` in the header
+    row (None: whitespace)."""
+    with open(path, newline="", encoding="utf-8-sig") as f:
+        lines = [line for line in f.read().splitlines() if line.strip()]
+    sep = next((s for s in (";", "\t", ",") if lines and s in lines[0]), None)
+    if sep is None:
+        return [line.split() for line in lines], None
+    return [r for r in csv.reader(lines, delimiter=sep)], sep
 
 
 def truth_at(truth_dir: str | Path, uv: np.ndarray, step: int):
@@ -138,7 +154,8 @@ def plot_map(result: dict, truth, path: Path) -> Path:
     ax.set_aspect("equal")
     ax.set_xlabel("u (px, camera 0 reference)")
     ax.set_ylabel("v (px)")
-    fig.colorbar(sc, ax=ax, label=f"|{key} measured − true| (mm)")
+    bar = fig.colorbar(sc, ax=ax, label=f"|{key} measured − true| (mm)")
+    bar.ax.ticklabel_format(useOffset=False)      # the errors themselves, never "1e-13 + 1e-2"
     return save_figure(fig, path, dpi=100)
 
 

@@ -99,7 +99,7 @@ class Speckle:
                "reference pixels per camera pixel, typically 2–4")
         _check(self.dot_diameter_px >= 2.0, "speckle.dot_diameter_px",
                f"must be ≥ 2 px, got {self.dot_diameter_px}",
-               "DIC needs speckles of at least 3 camera pixels")
+               "give a diameter of at least 2 camera pixels (smaller dots alias), e.g. 4")
         _check(0 <= self.edge_px <= self.dot_diameter_px, "speckle.edge_px",
                f"must lie in [0, dot_diameter_px], got {self.edge_px}",
                "the dots' edge width in camera pixels; ≥ 2 avoids aliasing at 1 sample per pixel")

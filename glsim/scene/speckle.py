@@ -79,7 +79,7 @@ def draw_dots(shape, dot_diameter_px, density=0.5, seed=0, edge_px=1.0, black=0.
     """The random dots of :func:`generate` (same arguments, same draws)."""
     h, w = _check_shape(shape)
     diameter = _check_number("speckle.dot_diameter_px", dot_diameter_px, 2, math.inf, False, True,
-                             "give a dot diameter of at least 2 px (3-5 px suits subset-based DIC)")
+                             "give a dot diameter of at least 2 px (smaller dots alias), e.g. 4")
     density = _check_number("speckle.density", density, 0, 1, True, True,
                             "give the dark-area fraction strictly between 0 and 1, e.g. 0.5")
     edge_px = _check_number("speckle.edge_px", edge_px, 0, diameter, False, False,
