@@ -126,6 +126,8 @@ def _delegated(name: str, argv: list[str]) -> int:
         from glsim.workflows.calib.cli import main as run
     elif name == "docs":
         from glsim.evaluation.cli import docs_main as run
+    elif name == "check":
+        from glsim.evaluation.check import main as run
     elif name == "library":
         from glsim.workflows.library.cli import main as run
     elif name == "preview":
@@ -140,6 +142,7 @@ DELEGATED = {"bench": "benchmarks: glsim bench {accuracy,effects,library,preview
              "verify": "independent stereo-DIC verification: glsim verify run …",
              "preview": "interactive preview window: glsim preview SCENE.toml [--screenshot out.png]",
              "docs": "README/docs figures from bench/results: glsim docs [--check]",
+             "check": "GL against the oracle and closed forms on this machine's driver: glsim check [--json F]",
              "library": "image libraries from a spec: glsim library SPEC.toml -o DIR [--workers N] …"}
 
 

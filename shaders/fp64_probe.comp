@@ -1,5 +1,5 @@
 // The double-path primitives of the shaders on a batch of inputs, written bit for bit, for
-// comparison with their numpy twins in tests/test_fp64_path.py: hilo.glsl's split_double,
+// comparison with their numpy twins (glsim.evaluation.check.fp64_probe, glsim check): hilo.glsl's split_double,
 // camera.glsl's pixel_to_normalized, bilinear.glsl's pinhole_corners and edge_functions_ray.
 #include "camera.glsl"
 #include "bilinear.glsl"

@@ -129,7 +129,7 @@ def bulge_pair(request):
 # (mode, spp): max |Δref_uv| px, max pixels with |Δgrey| > 0.5 grey level (8 bit)
 GL_TOL = {
     ("exact", 1): (1e-9, 0), ("exact", 4): (1e-9, 0),
-    ("q4", 1): (1e-5, 4), ("q4", 4): (1e-5, 8),
+    ("q4", 1): (1e-9, 4), ("q4", 4): (1e-9, 8),
     ("fast", 1): (5e-4, 4), ("fast", 4): (5e-4, 8),
 }
 

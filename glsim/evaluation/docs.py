@@ -903,7 +903,23 @@ def quadratic_fast(q: dict) -> str:
             f"pieces per side (each halving of the piece size divides it by {ratios}; 1/n² gives 4).")
 
 
-GENERATORS = {"preview": preview, "accuracy-table": accuracy_table, "accuracy-facts": accuracy_facts, "peer": peer,
+def check_drivers(*reports: dict) -> str:
+    """README: the drivers `glsim check` was run on (bench/results/check-*.json), check by check."""
+    names = [r["name"] for r in reports[0]["checks"]]
+    lines = ["| check | bound | " + " | ".join(machine_line(r["machine"]) + f", {r['date']}, {_s(r['seconds'])} s" for r in reports) + " |",
+             "|---|---|" + "---|" * len(reports)]
+    for k, name in enumerate(names):
+        row = reports[0]["checks"][k]
+        cells = []
+        for r in reports:
+            c = r["checks"][k]
+            cells.append("skipped" if c["passed"] is None else
+                         f"{_s(c['value'])} {'✓' if c['passed'] else '**✗**'}")
+        lines.append(f"| {name} | {_s(row['bound'])} {row['unit']} | " + " | ".join(cells) + " |")
+    return "\n".join(lines)
+
+
+GENERATORS = {"check-drivers": check_drivers, "preview": preview, "accuracy-table": accuracy_table, "accuracy-facts": accuracy_facts, "peer": peer,
               "effects": effects, "effects-dof": effects_dof, "effects-dof-facts": effects_dof_facts, "verify-table": verify_table,
               "verify-runs-table": verify_runs_table, "sweep-table": sweep_table, "sweep": sweep, "calibration": calibration,
               "calibration-detection": calibration_detection, "calibration-accuracy": calibration_accuracy,

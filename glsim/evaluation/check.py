@@ -1,0 +1,253 @@
+"""``glsim check``: does the GL path give the oracle's answer on this machine's driver?
+
+A fixed set of small scenes is rendered on the GL backend and compared with the CPU oracle
+(numpy float64) or a closed form. Each check prints its bound, the measured value and
+pass/fail; the command names the driver, exits 1 on a failure and writes the report as JSON.
+Each bound says where it comes from (``why``):
+
+- float64 primitives bit for bit: the double path's building blocks against their numpy twins
+  (a driver that contracts or folds where ``precise`` forbids it, or computes doubles in float,
+  fails here first);
+- coverage: a plate whose outline passes through pixel centres, with numbers that are not
+  dyadic, at rigid shifts of 0 and ±1e-7 … ±1e-2 px: the closed form of the tie rule (README,
+  "Conventions"), pixel for pixel;
+- mapping and truth on the bulge pair: float64 arithmetic (exact) keeps |Δref| and |ΔX|
+  within 1e-9 (relative rounding 1.1e-16 on coordinates < 10^4 px, times conditioning well
+  under 10^3, leaves three orders of margin), in exact and q4; fast is float32 by design;
+- each optical effect on the bulge against the oracle: grey levels of 8 bit.
+"""
+from __future__ import annotations
+
+import dataclasses
+import json
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from glsim.render import Renderer
+from glsim.scene import Plate, Scene, Specimen, bulge_scene, demo_effects
+from glsim.scene import bilinear as bl
+from glsim.scene.camera import Camera, pixel_to_normalized
+
+SHIFTS = [0.0] + [s * m for m in (1e-7, 1e-6, 1e-5, 1e-4, 9e-4, 1 / 256, 1e-2) for s in (1, -1)]
+BULGE_SIZE = (406, 308)
+
+
+@dataclass(frozen=True)
+class Check:
+    """One check: ``run(gl, cpu)`` → the measured value, passed when ≤ ``bound`` (``unit``)."""
+    name: str
+    bound: float
+    unit: str
+    why: str
+    run: Callable[["Context"], float]
+
+
+@dataclass
+class Context:
+    """The renderers a run shares (made on first use, closed at the end) and the GL context."""
+    ctx: object
+    _pairs: dict = dataclasses.field(default_factory=dict)
+
+    def pair(self, name: str, scene: Scene) -> tuple[Renderer, Renderer]:
+        if name not in self._pairs:
+            self._pairs[name] = (Renderer(scene, "gl", ctx=self.ctx), Renderer(scene, "cpu"))
+        return self._pairs[name]
+
+    def close(self) -> None:
+        for g, c in self._pairs.values():
+            g.close()
+            c.close()
+
+
+# ---- float64 primitives ------------------------------------------------------------------------
+def fp64_probe(ctx, n: int = 4096, seed: int = 25) -> dict[str, int]:
+    """shaders/fp64_probe.comp on ``n`` random inputs against numpy: the number of results that
+    differ in any bit, per primitive (split_double, pixel_to_normalized, pinhole_corners, edge
+    functions and their gradients). split_double's twin: x with its low 29 mantissa bits
+    cleared, and float32(x − that)."""
+    from glsim.backends.gl.programs import ProgramCache
+
+    rng = np.random.default_rng(seed)
+    x = rng.standard_normal(n) * 10.0 ** rng.uniform(-6, 3, n)
+    uv = rng.uniform(-10, 2000, (n, 2)) + rng.integers(0, 3, (n, 1)) / 3
+    intr = np.column_stack([rng.uniform(500, 5000, n), rng.uniform(500, 5000, n), rng.uniform(-2, 2, n),
+                            rng.uniform(100, 1000, n), rng.uniform(100, 1000, n)]) / 3
+    P = rng.uniform(-50, 50, (n, 4, 3)) + [0, 0, 300.0]
+    q = rng.uniform(-10, 2000, (n, 2)) / 7
+    data = np.column_stack([x, uv, intr, P.reshape(n, 12), q])
+    cache = ProgramCache(ctx)
+    bufs = [ctx.buffer(np.ascontiguousarray(data, "f8").tobytes()), ctx.buffer(reserve=n * 28 * 8)]
+    try:
+        prog = cache.compute("fp64_probe.comp", {"FP64": None})
+        for i, b in enumerate(bufs):
+            b.bind_to_storage_buffer(i)
+        prog["u_count"].value = n
+        prog.run(group_x=(n + 63) // 64)
+        got = np.frombuffer(bufs[1].read(), "f8").reshape(n, 28)
+    finally:
+        for b in bufs:
+            b.release()
+        cache.release()
+    hi = (x.view(np.uint64) & np.uint64(2**64 - 2**29)).view(np.float64)
+    lo = (x - hi).astype(np.float32).astype(np.float64)
+    A = np.stack([bl.pinhole_corners(P[i], intr[i]) for i in range(n)])
+    E, m = bl.edge_functions_ray(A, q)
+    want = {"split_double": (got[:, :2], np.column_stack([hi, lo])),
+            "pixel_to_normalized": (got[:, 2:4], np.stack([pixel_to_normalized(uv[i], intr[i]) for i in range(n)])),
+            "pinhole_corners": (got[:, 4:16], A.reshape(n, 12)),
+            "edge_functions": (got[:, 16:28], np.column_stack([E, m.reshape(n, 8)]))}
+    return {k: int(np.any(a.view(np.uint64) != b.view(np.uint64), axis=-1).sum()) for k, (a, b) in want.items()}
+
+
+def _probe(c: Context) -> float:
+    from glsim.backends.gl.backend import GLBackend
+    if not GLBackend(np.zeros((8, 8), np.float32), ctx=c.ctx).fp64:
+        return float("nan")   # reported as "no float64" (check_row)
+    return float(sum(fp64_probe(c.ctx).values()))
+
+
+# ---- coverage -----------------------------------------------------------------------------------
+OUTLINE_CAM = Camera(name="c", size=(480, 360), fx=1500.0, fy=1500.0, cx=240.0, cy=180.0)
+
+
+def outline_plate(shifts_px=SHIFTS[1:]) -> Scene:
+    """A 48 × 36 mm plate of 8 × 6 elements of 30 px at 300 mm (5 px/mm: the outline's rays
+    ±0.08, ±0.06 are not dyadic), outline on pixel centres (120, 360; 90, 270) at step 0; step
+    k is the rigid shift (δ, −δ/2) px, δ = shifts_px[k − 1]."""
+    plate = Plate(width=48, height=36, nx=8, ny=6, translations=tuple((d / 5, -d / 10, 0.0) for d in shifts_px))
+    return Scene(cameras=(OUTLINE_CAM,), specimen=Specimen(plate=plate, t=(0.0, 0.0, 300.0)))
+
+
+def outline_owner(d: float) -> np.ndarray:
+    """The element owning each pixel centre of the plate shifted by (d, −d/2) px under the tie
+    rule (half-open boxes u0 ≤ u < u1, v0 ≤ v < v1), −1 outside."""
+    i = np.floor((np.arange(480) - (120 + d)) / 30).astype(int)
+    j = np.floor((np.arange(360) - (90 - d / 2)) / 30).astype(int)
+    ok = (i[None, :] >= 0) & (i[None, :] < 8) & (j[:, None] >= 0) & (j[:, None] < 6)
+    return np.where(ok, j[:, None] * 8 + i[None, :], -1)
+
+
+def _coverage(mode: str) -> Callable[[Context], float]:
+    def run(c: Context) -> float:
+        g, _ = c.pair("outline", outline_plate())
+        return float(sum(int((g.render(0, k, truth=True, mode=mode).truth.element != outline_owner(d)).sum())
+                         for k, d in enumerate(SHIFTS)))
+    return run
+
+
+# ---- the bulge pair -----------------------------------------------------------------------------
+def _bulge(c: Context):
+    return c.pair("bulge", bulge_scene(size=BULGE_SIZE, steps=1))
+
+
+def _mapping(mode: str, spp: int, what: str) -> Callable[[Context], float]:
+    """Max over both cameras of |Δref_uv| (px), |ΔX_deformed| (mm) or the pixels whose grey
+    differs by more than 0.5 of 8 bit, GL against the oracle in the same mode."""
+    def run(c: Context) -> float:
+        g, o = _bulge(c)
+        worst = 0.0
+        for cam in (0, 1):
+            a = g.render(cam, 1, truth=True, mode=mode, samples_per_pixel=spp)
+            b = o.render(cam, 1, truth=True, mode=mode, samples_per_pixel=spp)
+            both = a.truth.mask & b.truth.mask
+            if what == "ref":
+                v = np.linalg.norm(a.truth.ref_uv[both] - b.truth.ref_uv[both], axis=-1).max()
+            elif what == "X":
+                v = np.linalg.norm(a.truth.X_deformed[both] - b.truth.X_deformed[both], axis=-1).max()
+            else:
+                v = float((np.abs(a.image.astype(np.float64) - b.image) * 255 > 0.5).sum())
+            worst = max(worst, float(v))
+        return worst
+    return run
+
+
+def _effect(effect: str) -> Callable[[Context], float]:
+    """Pixels whose grey differs by more than 0.5 of 8 bit, exact mode, with one effect on."""
+    def run(c: Context) -> float:
+        scene = demo_effects(bulge_scene(size=BULGE_SIZE, steps=1))
+        scene = dataclasses.replace(scene, **{e: (getattr(scene, e) if e == effect else None)
+                                              for e in ("lighting", "optics", "noise")})
+        g, o = c.pair(effect, scene)
+        a, b = g.render(1, 1, mode="exact"), o.render(1, 1, mode="exact")
+        return float((np.abs(a.image.astype(np.float64) - b.image) * 255 > 0.5).sum())
+    return run
+
+
+FLOAT64 = ("float64 arithmetic: relative rounding 1.1e-16 on coordinates < 1e4 (px or mm) "
+           "with conditioning < 1e3 stays below 1e-9")
+CHECKS = (
+    Check("float64 primitives", 0, "results differing in any bit", "split_double, pixel_to_normalized, "
+          "pinhole_corners, edge functions: the same operations as numpy's, `precise` (4096 inputs)", _probe),
+    Check("coverage exact, outline on pixel centres, 15 shifts", 0, "px off the tie rule",
+          "ties decided at the exact pixel point (glsim.scene.bilinear.pinhole_corners)", _coverage("exact")),
+    Check("coverage q4, outline on pixel centres, 15 shifts", 0, "px off the tie rule",
+          "2-D edge functions at the exact pixel centres, the same float64 corners as the oracle", _coverage("q4")),
+    Check("bulge exact 1 spp: reference point", 1e-9, "px", FLOAT64, _mapping("exact", 1, "ref")),
+    Check("bulge exact 1 spp: truth X", 1e-9, "mm", FLOAT64, _mapping("exact", 1, "X")),
+    Check("bulge exact 4 spp: grey", 0, "px > 0.5 grey of 8 bit", "the same samples as the oracle to 1e-9 px",
+          _mapping("exact", 4, "grey")),
+    Check("bulge q4 1 spp: reference point", 1e-9, "px", FLOAT64, _mapping("q4", 1, "ref")),
+    Check("bulge fast 1 spp: reference point", 5e-4, "px", "as tests/test_render.py GL_TOL (fast: float32 "
+          "vertex projection and interpolation)", _mapping("fast", 1, "ref")),
+    Check("lighting, exact", 2, "px > 0.5 grey of 8 bit", "as tests/test_effects.py (element edges)", _effect("lighting")),
+    Check("depth of field, exact", 0, "px > 0.5 grey of 8 bit", "as tests/test_effects.py", _effect("optics")),
+    Check("noise, exact", 2, "px > 0.5 grey of 8 bit", "as tests/test_effects.py (element edges)", _effect("noise")),
+)
+
+
+def run_checks(ctx=None, checks=CHECKS, progress=print) -> dict:
+    """Run ``checks`` on the GL context ``ctx`` (a new one if None); the report as a dict."""
+    from glsim.backends.gl.context import create_context, info
+    from glsim.evaluation.report import machine_info
+
+    own = ctx is None
+    ctx = create_context() if own else ctx
+    c = Context(ctx)
+    rows = []
+    t_all = time.perf_counter()
+    try:
+        for ch in checks:
+            t0 = time.perf_counter()
+            value = ch.run(c)
+            row = {"name": ch.name, "bound": ch.bound, "unit": ch.unit, "why": ch.why,
+                   "value": None if np.isnan(value) else value,
+                   "passed": None if np.isnan(value) else bool(value <= ch.bound),
+                   "seconds": round(time.perf_counter() - t0, 2)}
+            rows.append(row)
+            progress(check_row(row))
+        machine = machine_info(info(ctx))
+    finally:
+        c.close()
+        if own:
+            ctx.release()
+    return {"machine": machine, "date": time.strftime("%Y-%m-%d"), "seconds": round(time.perf_counter() - t_all, 1),
+            "passed": all(r["passed"] is not False for r in rows), "checks": rows}
+
+
+def check_row(r: dict) -> str:
+    state = "skipped (no float64)" if r["passed"] is None else "pass" if r["passed"] else "FAIL"
+    value = "–" if r["value"] is None else f"{r['value']:.3g}"
+    return f"{state:>6}  {r['name']}: {value} ≤ {r['bound']:.3g} {r['unit']}  ({r['seconds']} s)"
+
+
+def main(argv: list[str]) -> int:
+    """glsim check [--json PATH]: exit 0 when every check passes, 1 otherwise."""
+    import argparse
+
+    from glsim.evaluation.report import machine_line
+    from glsim.io import images as io
+
+    ap = argparse.ArgumentParser(prog="glsim check", description=__doc__.split("\n\n")[0])
+    ap.add_argument("--json", help="also write the report here (bench/results/check-<driver>.json for the README)")
+    args = ap.parse_args(argv)
+    report = run_checks(checks=CHECKS)
+    print(f"glsim check on {machine_line(report['machine'])}: "
+          f"{'all passed' if report['passed'] else 'FAILED'} in {report['seconds']} s")
+    if args.json:
+        Path(args.json).parent.mkdir(parents=True, exist_ok=True)
+        io.write_text(Path(args.json), json.dumps(report, indent=2) + "\n")
+    return 0 if report["passed"] else 1

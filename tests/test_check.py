@@ -1,0 +1,29 @@
+"""`glsim check` end to end: every check of the driver at hand passes and is reported with its
+bound; a failing check makes the command exit 1."""
+import json
+
+import pytest
+
+from glsim.evaluation import check
+
+
+@pytest.mark.gl
+def test_glsim_check_passes_here_and_writes_its_report(tmp_path, capsys):
+    out = tmp_path / "check.json"
+    assert check.main(["--json", str(out)]) == 0
+    report = json.loads(out.read_text())
+    assert report["passed"] and [r["name"] for r in report["checks"]] == [c.name for c in check.CHECKS]
+    assert all(r["passed"] is not False and r["value"] <= r["bound"] for r in report["checks"] if r["value"] is not None)
+    text = capsys.readouterr().out
+    assert report["machine"]["gl"]["renderer"] in text.splitlines()[-1]     # the driver is named
+    for r in report["checks"]:
+        assert f"{r['name']}: " in text and f"≤ {r['bound']:.3g} {r['unit']}" in text
+
+
+@pytest.mark.gl
+def test_a_failing_check_fails_the_command(monkeypatch, tmp_path, capsys):
+    wrong = check.Check("a grey level off", 0.0, "grey levels", "a deliberately failing check", lambda c: 1.0)
+    monkeypatch.setattr(check, "CHECKS", (wrong,))
+    assert check.main(["--json", str(tmp_path / "c.json")]) == 1
+    assert "FAIL  a grey level off: 1 ≤ 0 grey levels" in capsys.readouterr().out
+    assert json.loads((tmp_path / "c.json").read_text())["passed"] is False
