@@ -111,10 +111,10 @@ def test_gl_compact_truth_matches_full_maps_and_float32_bound(tmp_path, gl_ctx):
         assert d < 1e-6        # mm: element half-size (4 mm) × 3e-8
 
 
-def test_at_points_equals_the_maps_of_camera1_in_the_reference_state(tmp_path):
+def test_at_points_equals_the_maps_of_camera0_in_the_reference_state(tmp_path):
     scene = _plate_scene("exact", distortion={"k1": -0.1, "k2": 0.05})
     with Renderer(scene) as r:
-        c0, full0, _ = _compact(tmp_path, r, "cam0", 0)      # camera 1, reference state
+        c0, full0, _ = _compact(tmp_path, r, "cam0", 0)      # camera 0, reference state
         c1, full1, _ = _compact(tmp_path, r, "cam1", 1)      # another image of the library
     H, W = full0.mask.shape
     v, u = np.mgrid[0:H, 0:W]
@@ -131,7 +131,7 @@ def test_at_points_equals_the_maps_of_camera1_in_the_reference_state(tmp_path):
     q = g.quads[at.element[at.valid]]
     from glsim.scene.bilinear import bilinear
     from glsim.scene.camera import to_camera
-    Xd = to_camera(bilinear(g.deformed(1)[q], at.xi[at.valid], at.eta[at.valid]), c1.camera1)
+    Xd = to_camera(bilinear(g.deformed(1)[q], at.xi[at.valid], at.eta[at.valid]), c1.camera0)
     np.testing.assert_array_equal(at.X_deformed[at.valid], Xd)
     assert np.isnan(at.X_undeformed[~at.valid]).all()
 
@@ -155,6 +155,51 @@ def test_at_points_on_an_analytic_plate(tmp_path):
     np.testing.assert_allclose(at.displacement, np.broadcast_to([0.3, -0.2, 1.5], (200, 3)), atol=1e-10, rtol=0)
     far = c.at([[-500.0, -500.0]])
     assert not far.valid[0] and np.isnan(far.displacement).all()
+
+
+def test_header_names_camera0_and_old_files_with_camera1_still_read(tmp_path):
+    """Issue 29: the header key for camera 0 was "camera1"; files written so still read."""
+    import json
+    import struct
+
+    scene = _plate_scene()
+    with Renderer(scene) as r:
+        c, _, path = _compact(tmp_path, r, "cam1", 1)
+    assert "camera0" in c.header and "camera1" not in c.header
+    data = path.read_bytes()
+    (n,) = struct.unpack("<Q", data[8:16])
+    header = json.loads(data[16:16 + n])
+    header["camera1"] = header.pop("camera0")
+    text = json.dumps(header, sort_keys=True).encode()
+    (tmp_path / "old.truth").write_bytes(data[:8] + struct.pack("<Q", len(text)) + text + data[16 + n:])
+    old = T.load(tmp_path / "old.truth")
+    assert old.camera0 == c.camera0 == scene.cameras[0]
+    pts = [[30.0, 25.0], [40.5, 20.25]]
+    np.testing.assert_array_equal(old.at(pts).X_deformed, c.at(pts).X_deformed)
+
+
+def test_render_truth_npz_loads_with_maps_and_at(tmp_path):
+    """Issue 29: truth.load refused `glsim render --truth`'s *_truth.npz."""
+    from glsim.workflows.sequence import write_sequence
+
+    scene = _plate_scene(distortion={"k1": -0.05}).replace(output={"pattern": "imgs/{camera}_{step:04d}.{ext}"})
+    write_sequence(scene, tmp_path / "r", truth=True)
+    with Renderer(scene) as r:
+        c, _, _ = _compact(tmp_path, r, "cam1", 1)
+    t = T.load(tmp_path / "r" / "imgs" / "cam1_0001_truth.npz")
+    assert isinstance(t, T.MapTruth) and t.step == 1 and t.size == c.size
+    with np.load(tmp_path / "r" / "imgs" / "cam1_0001_truth.npz") as z:
+        for name in T.Truth.FIELDS:
+            np.testing.assert_array_equal(getattr(t.maps(), name), z[name], err_msg=name)
+    np.testing.assert_array_equal(t.maps().X_deformed, c.maps().X_deformed)
+    pts = np.random.default_rng(5).uniform([10, 8], [60, 46], (50, 2))
+    for a, b in ((t.at(pts), c.at(pts)), (t.at(pts, step=0), c.at(pts, step=0))):
+        assert a.step == b.step and a.valid.sum() > 40
+        np.testing.assert_array_equal(a.valid, b.valid)
+        np.testing.assert_array_equal(a.X_deformed, b.X_deformed)
+    (tmp_path / "lone_truth.npz").write_bytes((tmp_path / "r" / "imgs" / "cam1_0001_truth.npz").read_bytes())
+    with pytest.raises(GlsimError, match="no scene.json in its folder or above"):
+        T.load(tmp_path / "lone_truth.npz").at(pts)
 
 
 def test_damaged_files_are_named_with_the_fix(tmp_path):

@@ -4,7 +4,9 @@ fraction of the space of the full float64 maps, and read back as full maps on de
 
 A library writes per image one ``{stem}.truth`` file and per distinct specimen one geometry
 file (``geometry/{hash}.npz``: placed undeformed nodes, quads, element labels, the
-displacements of the rendered load steps). ``load(path)`` reads a truth file;
+displacements of the rendered load steps). ``load(path)`` reads either truth file glsim writes:
+a library's ``.truth`` (:class:`CompactTruth`) or ``glsim render --truth``'s ``*_truth.npz``
+(:class:`MapTruth`, the full float64 maps), with the same ``maps()`` and ``at(points)``;
 :meth:`CompactTruth.maps` returns the same maps as ``Renderer.render(..., truth=True).truth``
 (bit for bit for ``element``, ``xi``, ``eta``, ``X_undeformed``, ``X_deformed``), and
 :meth:`CompactTruth.at` gives the 3-D reference and deformed positions and the displacement at
@@ -14,8 +16,9 @@ File layout (version 1), little endian::
 
     b"GLTRUTH1"  uint64 header length  header (UTF-8 JSON)  blobs…
 
-The header names the image's camera, camera 0 (the frame of the positions), the reference
-camera, the render mode, the load step, the geometry file (relative path and SHA-256) and the
+The header names the image's camera (``camera``), camera 0 (``camera0``, the frame of the
+positions; files written before glsim numbered cameras from 0 everywhere call it ``camera1``),
+the reference camera, the render mode, the load step, the geometry file (relative path and SHA-256) and the
 blobs (offset and length after the header). Blob ``element``: the (H, W) int32 element map
 (−1 = background), zstd. Blob ``local``: (ξ, η) of the covered pixels in raster order. For
 ``dtype = "float64"`` (default, lossless) each value's IEEE bits, as int64, are predicted along
@@ -24,7 +27,8 @@ or none at the start of a run), the residuals zigzag-coded, byte-shuffled and zs
 decoding is exact integer arithmetic, so the values come back bit for bit. ``dtype =
 "float32"`` stores the values rounded to float32 (|Δξ| ≤ 3e-8), byte-shuffled and zstd'd.
 
-Only numpy, zstandard and glsim's scene layer are used: no GL, no renderer.
+Only numpy, zstandard and glsim's scene layer are used (and, for ``MapTruth.at``, the mesh
+loader of :mod:`glsim.stages.reference`): no GL, no renderer.
 """
 from __future__ import annotations
 
@@ -35,12 +39,13 @@ import os
 import struct
 from dataclasses import dataclass
 from functools import cached_property
-from pathlib import Path
+from pathlib import Path, PurePosixPath
 from typing import Callable
 
 import numpy as np
 
 from glsim.errors import GlsimError, SceneError
+from glsim.io.images import EXTENSIONS
 from glsim.limits import check_image_size, not_a_file, parse_nested
 from glsim.scene.bilinear import bilinear, intersect_ray_patch
 from glsim.scene.camera import Camera, Distortion, pixel_to_normalized, project_camera_frame, to_camera, undistort
@@ -230,11 +235,11 @@ def encode(element: np.ndarray, xi: np.ndarray, eta: np.ndarray, header: dict,
     return b"".join([MAGIC, struct.pack("<Q", len(text)), text] + [b for _, b in blobs])
 
 
-def image_header(camera: Camera, camera1: Camera, reference_camera: Camera, mode: str, step: int,
+def image_header(camera: Camera, camera0: Camera, reference_camera: Camera, mode: str, step: int,
                  geometry: str, geometry_sha256: str) -> dict:
     """The metadata of one image's truth. ``geometry``: the geometry file's path relative to
     the truth file's directory."""
-    return {"camera": camera_dict(camera), "camera1": camera_dict(camera1),
+    return {"camera": camera_dict(camera), "camera0": camera_dict(camera0),
             "reference_camera": camera_dict(reference_camera), "mode": mode, "step": int(step),
             "geometry": geometry, "geometry_sha256": geometry_sha256}
 
@@ -341,8 +346,9 @@ class CompactTruth:
         return self._camera("camera")
 
     @cached_property
-    def camera1(self) -> Camera:
-        return self._camera("camera1")
+    def camera0(self) -> Camera:
+        """Camera 0, the frame of the positions."""
+        return self._camera("camera0" if "camera0" in self.header else "camera1")   # "camera1": older files
 
     @cached_property
     def reference_camera(self) -> Camera:
@@ -429,9 +435,9 @@ class CompactTruth:
                                  f"elements){DAMAGED}")
         xi, eta = self.xi[mask], self.eta[mask]
         q = g.quads[e]
-        cam1, step = self.camera1, self.step
-        positions = pixel_positions(mask, lambda: (to_camera(bilinear(g.nodes[q], xi, eta), cam1),
-                                                   to_camera(bilinear(g.deformed(step)[q], xi, eta), cam1)))
+        cam0, step = self.camera0, self.step
+        positions = pixel_positions(mask, lambda: (to_camera(bilinear(g.nodes[q], xi, eta), cam0),
+                                                   to_camera(bilinear(g.deformed(step)[q], xi, eta), cam0)))
         ref = np.full((H, W, 2), np.nan)
         rc = self.reference_camera
         Xr = to_camera(g.nodes, rc)[g.quads][e]
@@ -448,15 +454,88 @@ class CompactTruth:
         there (camera 0's ray intersected exactly with the undeformed mesh, the nearest hit),
         its position undeformed and at ``step`` (default: this image's step), camera 0's frame,
         mm. Points whose ray misses the specimen are ``valid`` False and NaN."""
-        return points_truth(self.geometry, self.camera1, points, self.step if step is None else step)
+        return points_truth(self.geometry, self.camera0, points, self.step if step is None else step)
 
 
-def points_truth(g: Geometry, cam1: Camera, points, step: int) -> PointTruth:
+class MapTruth:
+    """One image's truth as ``glsim render --truth`` writes it: the full float64 maps of a
+    ``*_truth.npz``. :meth:`at` takes the mesh, camera 0 and the image's load step from the
+    render's ``scene.json`` (the first one in the file's folder or above it)."""
+
+    def __init__(self, path: Path, arrays: dict[str, np.ndarray]):
+        self.path = path
+        self._arrays = arrays
+
+    @property
+    def size(self) -> tuple[int, int]:
+        H, W = self.mask.shape
+        return W, H
+
+    @property
+    def mask(self) -> np.ndarray:
+        return self._arrays["mask"]
+
+    @property
+    def element(self) -> np.ndarray:
+        return self._arrays["element"]
+
+    @property
+    def xi(self) -> np.ndarray:
+        return self._arrays["xi"]
+
+    @property
+    def eta(self) -> np.ndarray:
+        return self._arrays["eta"]
+
+    def maps(self) -> Truth:
+        """The maps as written (the renderer's ``Truth``)."""
+        a = self._arrays
+        return Truth(mask=a["mask"], element=a["element"], xi=a["xi"], eta=a["eta"], ref_uv=a["ref_uv"],
+                     positions=lambda: (a["X_undeformed"], a["X_deformed"]))
+
+    @cached_property
+    def _render(self) -> tuple[Geometry, Camera, int]:
+        """The render's geometry, camera 0 and this image's load step, from its scene.json."""
+        from glsim.scene import load_scene
+        from glsim.stages.reference import specimen_mesh
+
+        folder = next((d for d in self.path.parents if (d / "scene.json").is_file()), None)
+        if folder is None:
+            raise TruthFileError(f"{self.path}: no scene.json in its folder or above; at() needs the render's "
+                                 "scene.json — keep the truth file inside the directory glsim render wrote")
+        scene = load_scene(folder / "scene.json")
+        mesh = specimen_mesh(scene)
+        if mesh.is_quadratic:
+            raise TruthFileError(f"{self.path}: the specimen has quadratic elements, and at() evaluates bilinear Q4 "
+                                 "elements — use the maps (maps()) instead")
+        image = (self.path.parent / self.path.name[:-len("_truth.npz")]).relative_to(folder).as_posix()
+        ext = EXTENSIONS[scene.output.format]
+        step = next((s for s in range(mesh.n_steps) for c in scene.cameras if str(PurePosixPath(
+            scene.output.pattern.format(camera=c.name, step=s, ext=ext)).with_suffix("")) == image), None)
+        if step is None:
+            raise TruthFileError(f"{self.path}: {folder / 'scene.json'} names no image {image}.{ext}; keep the truth "
+                                 "file where glsim render wrote it, under its own name")
+        g = Geometry(mesh.nodes, mesh.quads, tuple(range(mesh.n_steps)), np.stack(mesh.displacements),
+                     mesh.element_labels)
+        return g, scene.cameras[0], step
+
+    @property
+    def step(self) -> int:
+        """The image's load step (from the render's scene.json)."""
+        return self._render[2]
+
+    def at(self, points, step: int | None = None) -> PointTruth:
+        """As :meth:`CompactTruth.at`."""
+        g, cam0, own = self._render
+        return points_truth(g, cam0, points, own if step is None else step)
+
+
+def points_truth(g: Geometry, cam0: Camera, points, step: int) -> PointTruth:
     """See :meth:`CompactTruth.at`."""
     pts = np.asarray(points, np.float64).reshape(-1, 2)
     n = len(pts)
-    xn, ray_ok = undistort(pixel_to_normalized(pts, cam1.intrinsics), cam1.distortion.coeffs)
-    P = to_camera(g.nodes, cam1)[g.quads]                            # (M, 4, 3) camera-0 frame
+    xn, ray_ok = undistort(pixel_to_normalized(pts, cam0.intrinsics), cam0.distortion.coeffs)
+    P = to_camera(g.nodes, cam0)[g.quads]                            # (M, 4, 3) camera-0 frame
     front = (P[..., 2] > 0).all(axis=1)
     with np.errstate(divide="ignore", invalid="ignore"):
         proj = P[..., :2] / np.where(front[:, None], P[..., 2], 1.0)[..., None]
@@ -478,8 +557,8 @@ def points_truth(g: Geometry, cam1: Camera, points, step: int) -> PointTruth:
     Xu = np.full((n, 3), np.nan)
     Xd = np.full((n, 3), np.nan)
     q = g.quads[best_e[valid]]
-    Xu[valid] = to_camera(bilinear(g.nodes[q], best_xi[valid], best_eta[valid]), cam1)
-    Xd[valid] = to_camera(bilinear(g.deformed(step)[q], best_xi[valid], best_eta[valid]), cam1)
+    Xu[valid] = to_camera(bilinear(g.nodes[q], best_xi[valid], best_eta[valid]), cam0)
+    Xd[valid] = to_camera(bilinear(g.deformed(step)[q], best_xi[valid], best_eta[valid]), cam0)
     return PointTruth(points=pts, valid=valid, element=best_e, xi=best_xi, eta=best_eta,
                       X_undeformed=Xu, X_deformed=Xd, step=step)
 
@@ -531,7 +610,7 @@ def read(path: str | Path, geometry: Geometry | None = None) -> CompactTruth:
             head = f.read(16)
             if head[:8] != MAGIC or len(head) < 16:
                 raise TruthFileError(f"{path}: not a glsim compact truth file (it does not start with {MAGIC!r}); "
-                                     "give a .truth file written by `glsim library`")
+                                     "give a library's .truth file, or a *_truth.npz of glsim render --truth")
             (n,) = struct.unpack("<Q", head[8:])
             room = os.fstat(f.fileno()).st_size - 16
             header = _header(path, f.read(min(n, room)) if n <= room else b"")
@@ -580,7 +659,22 @@ def _header(path: Path, text: bytes) -> dict:
     return header
 
 
-load = read
+def load(path: str | Path, geometry: Geometry | None = None) -> CompactTruth | MapTruth:
+    """Any truth file glsim writes: a library's ``.truth`` (:func:`read`; ``geometry``: its
+    geometry, if already read) or ``glsim render --truth``'s ``*_truth.npz``."""
+    path = Path(path)
+    if not path.name.endswith("_truth.npz"):
+        return read(path, geometry)
+    why = not_a_file(path)
+    if why:
+        raise TruthFileError(f"{path}: cannot be read ({why}); check the path")
+    try:
+        with np.load(path, allow_pickle=False) as z:
+            arrays = {k: z[k] for k in Truth.FIELDS}
+    except (OSError, ValueError, KeyError) as exc:
+        raise TruthFileError(f"{path}: not a truth file of glsim render --truth ({exc}); give a *_truth.npz it "
+                             "wrote, or a library's .truth file") from None
+    return MapTruth(path, arrays)
 
 
 def sha256_bytes(data: bytes) -> str:

@@ -532,7 +532,7 @@ def reference_key(scene: Scene, backend: str) -> str:
     """What a Renderer's mesh, reference image and backend depend on: variants with the same key
     are rendered by one Renderer (one GL context, textures and programs)."""
     d = scene.to_dict()
-    return json.dumps({"specimen": d["specimen"], "speckle": d["speckle"], "camera1": d["cameras"][0],
+    return json.dumps({"specimen": d["specimen"], "speckle": d["speckle"], "camera0": d["cameras"][0],
                        "base_dir": d["base_dir"], "backend": backend}, sort_keys=True)
 
 
