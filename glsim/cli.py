@@ -51,7 +51,7 @@ def _run(scene, out: str, args, label: str) -> int:
           f"backend={args.backend or r.backend}, mode={r.mode}, interpolation={r.interpolation}, "
           f"spp={r.samples_per_pixel})")
     if max(w.saturated, default=0.0) > 0:
-        print(f"saturated (clipped) pixels: up to {100 * max(w.saturated):.3g} % of an image")
+        print(f"saturated (clipped) pixels: up to {100 * max(w.saturated):.3g} % of an image's specimen pixels")
     print(f"resolved scene: {w.scene_json}")
     return 0
 

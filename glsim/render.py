@@ -18,7 +18,7 @@ from __future__ import annotations
 import functools
 import time
 import warnings
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -32,7 +32,7 @@ from glsim.stages.geometry import MeshGeometry, ViewSpec
 from glsim.io.truth import Truth, pixel_positions
 from glsim.stages.quadview import PatchData, chord_error_bound, fast_local_coords as quadratic_fast_coords, \
     make_quad_view, q4_image_bound
-from glsim.stages.view import NEAR_MM, View, _labels, make_view
+from glsim.stages.view import NEAR_MM, View, _labels, coverage, make_view, warn_unseen
 from glsim.backends import make_backend
 from glsim.stages.reference import make_reference, specimen_mesh
 from glsim.scene import Render, Scene
@@ -51,7 +51,13 @@ class Result:
     seconds: float
     truth: Truth | None = None
     stages: tuple[str, ...] = ()      # the pipeline stages / GL passes that ran
-    saturated: float = 0.0            # fraction of pixels below 0 or above full scale (clipped when written)
+    saturated: float = 0.0            # fraction of the specimen's pixels below 0 or above full scale (clipped)
+    coverage: np.ndarray | None = field(default=None, repr=False)  # (H, W) bool: the specimen's pixels
+
+    @property
+    def covered(self) -> float:
+        """Fraction of the image's pixels on the specimen (:func:`glsim.stages.view.coverage`)."""
+        return float(self.coverage.mean()) if self.coverage is not None and self.coverage.size else 0.0
 
 
 class Renderer:
@@ -168,9 +174,10 @@ class Renderer:
             tr = self._quadratic_truth(self._fast_to_patches(raster), step, cam)
         else:
             tr = self._truth(view.camera.size, deformed, raster) if truth else None
+        covered = self._covered(cam, deformed, self.drawn_mesh.quads)
         return Result(image=image, camera=view.camera, step=step, backend=self.backend_name,
                       options=opts, seconds=seconds, truth=tr, stages=tuple(stages),
-                      saturated=_saturated(image))
+                      saturated=_saturated(image, covered), coverage=covered)
 
     def _patch_data(self, view: ViewSpec, step: int, opts: Render) -> PatchData:
         """The GL backend's quadratic payload for ``view`` (its elements are the pieces): the
@@ -224,6 +231,13 @@ class Renderer:
         r["xi"][hit], r["eta"][hit] = np.where(ok, xi, xi0), np.where(ok, eta, eta0)
         return r
 
+    @staticmethod
+    def _covered(cam: Camera, deformed: np.ndarray, quads: np.ndarray) -> np.ndarray:
+        """The specimen's pixels in ``cam``; warns when there are none (RenderWarning, saying why)."""
+        covered = coverage(cam, deformed, quads)
+        warn_unseen(cam, covered, deformed, stacklevel=5)
+        return covered
+
     def _render_quadratic(self, cam: Camera, step: int, truth: bool, opts: Render, t0: float) -> Result:
         """exact / q4 of a quadratic mesh: the CPU oracle on the curved patches (lit with the
         point on the patch and the normals of its linear pieces, as GL)."""
@@ -236,8 +250,9 @@ class Renderer:
         image, raster, stages = self.backend.render_quadratic_view(view, opts, truth, fx)
         seconds = time.perf_counter() - t0
         tr = self._quadratic_truth(raster, step, cam) if truth else None
+        covered = self._covered(cam, pieces.mesh.deformed(step), pieces.mesh.quads)
         return Result(image=image, camera=cam, step=step, backend=self.backend_name, options=opts, seconds=seconds,
-                      truth=tr, stages=tuple(stages), saturated=_saturated(image))
+                      truth=tr, stages=tuple(stages), saturated=_saturated(image, covered), coverage=covered)
 
     def _fast_to_patches(self, raster: dict) -> dict:
         """A fast-mode raster of the pieces → the patches: element and (ξ, η) of the parent,
@@ -279,11 +294,13 @@ class Renderer:
                                                               to_camera(evaluate(deformed, e, x, y), cam1))))
 
 
-def _saturated(image: np.ndarray) -> float:
-    """Fraction of pixels below 0 or above full scale (the extremes first: most images have none)."""
-    if image.size == 0 or (image.min() >= 0 and image.max() <= 1):
+def _saturated(image: np.ndarray, covered: np.ndarray) -> float:
+    """Fraction of the specimen's pixels (``covered``) below 0 or above full scale; the background
+    is not counted (the extremes first: most images have none)."""
+    n = np.count_nonzero(covered)
+    if n == 0 or (image.min() >= 0 and image.max() <= 1):
         return 0.0
-    return float(np.mean((image < 0) | (image > 1)))
+    return float(np.count_nonzero(((image < 0) | (image > 1)) & covered) / n)
 
 
 def render(scene: Scene, camera: int | str = 0, step: int = 0, backend: str | None = None,

@@ -85,6 +85,28 @@ def test_info_names_the_renderer(capsys):
     assert ("precision = 'fp32' renders exact faster" in line) == (rate < SLOW_FP64_RATE)
 
 
+@pytest.mark.parametrize("phi, why", [(90.0, "outside its field of view"), (200.0, r"the specimen lies behind it\)")])
+def test_render_warns_when_a_camera_sees_none_of_the_specimen(tmp_path, phi, why):
+    """Issue 29: a stereo angle that turns camera 1 away from the specimen wrote black images, exit 0."""
+    from glsim.errors import RenderWarning
+
+    scene = tmp_path / "away.toml"
+    scene.write_text((ROOT / "examples" / "plate_shift.toml").read_text().replace("[specimen.plate]", f"""
+[[cameras]]
+name = "cam1"
+size = [160, 120]
+fx = 900.0
+fy = 900.0
+cx = 79.5
+cy = 59.5
+pose = {{stereo = {{Tx = -60.0, Ty = 0.0, Tz = 5.0, Theta = 0.0, Phi = {phi}, Psi = 0.0}}}}
+
+[specimen.plate]"""))
+    with pytest.warns(RenderWarning, match=r"camera cam1: sees none of the specimen \(.*" + why) as seen:
+        assert main(["render", str(scene), "-o", str(tmp_path / "o"), "--steps", "0", "--backend", "cpu", "-q"]) == 0
+    assert not any("cam0" in str(w.message) and "sees none" in str(w.message) for w in seen)
+
+
 def test_info_says_why_a_driver_without_float64_gets_float32():
     from types import SimpleNamespace
 

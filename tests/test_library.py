@@ -188,7 +188,7 @@ def test_layout_manifest_images_and_truth(reference_library, tmp_path):
     rows = _manifest_rows(lib, drop=())
     assert list(rows[0]) == ["variant", "noise.sigma", "speckle.seed", "camera", "step", "file", "bytes", "sha256",
                              "truth_file", "truth_bytes", "truth_sha256", "render_s", "truth_s", "encode_s",
-                             "write_s", "saturated"]
+                             "write_s", "saturated", "covered"]
     assert [(r["variant"], r["camera"], r["step"]) for r in rows[:3]] == [("v0000", "cam0", "0"), ("v0000", "cam1", "0"),
                                                                          ("v0000", "cam0", "2")]
     assert rows[2]["noise.sigma"] == "0.5" and rows[2]["speckle.seed"] == "51"
@@ -424,6 +424,35 @@ def test_dry_run_prints_the_table_and_writes_nothing(tmp_path):
     assert lines[2].split() == ["v0000", "0.5", "51", "4"]
     assert "estimated:" in r.stdout and "nothing was written" in r.stdout
     assert not out.exists()
+
+
+def test_camera_that_sees_no_specimen_warns_and_the_manifest_says_covered(tmp_path):
+    """Issue 29: stereo angles 90° and 200° gave black images without a word, and `saturated`
+    counted the noisy background (0.257 on every image)."""
+    from glsim.errors import RenderWarning
+
+    spec = _spec(tmp_path, """seed = 3
+steps = [0]
+""" + SCENE + """
+[scene.noise]
+sigma = 5.0
+[vary]
+cameras.1.pose.stereo.Phi = [11.0, 90.0, 200.0]
+""")
+    with pytest.warns(RenderWarning) as seen:
+        run(load_plan(spec), tmp_path / "lib", workers=1)
+    said = [str(w.message) for w in seen if "sees none of the specimen" in str(w.message)]
+    assert len(said) == 2 and all(s.startswith("camera cam1: ") for s in said)
+    assert "(the specimen lies behind it)" in said[1] and "outside its field of view" in said[0]
+    rows = {(r["variant"], r["camera"]): r for r in _manifest_rows(tmp_path / "lib", drop=())}
+    for (variant, camera), r in rows.items():
+        seen_none = camera == "cam1" and variant != "v0000"
+        assert (float(r["covered"]) == 0.0) == seen_none and float(r["covered"]) < 0.9
+        img = io.read_image(tmp_path / "lib" / r["file"])
+        if seen_none:
+            assert float(r["saturated"]) == 0.0      # all background: nothing of the specimen clips
+        else:   # the speckle (0.1–0.9 ± 5 %) barely clips; the background around 0 clips half the time
+            assert 0.0 < float(r["saturated"]) < 0.1 < np.mean((img == 0) | (img == img.max()))
 
 
 def test_dry_run_prints_a_float_as_a_float(tmp_path, capsys):

@@ -283,11 +283,24 @@ def test_clipped_pixels_and_their_colours(fresh):
     frame = pv.refine()
     img = pv.camera_image(0)
     d = pv.overlay_data(0)
-    assert np.array_equal(d["above"], img > 1) and np.array_equal(d["below"], img < 0)
-    assert d["above"].sum() > 100
+    on = pv.results()[0].coverage            # the specimen's pixels only: the background is not counted
+    assert np.array_equal(d["above"], (img > 1) & on) and np.array_equal(d["below"], (img < 0) & on)
+    assert d["above"].sum() > 100 and d["specimen_px"] == on.sum()
     tile = pv.tile(0)
     assert np.array_equal(np.all(tile[20:] == (255, 30, 30), axis=-1), d["above"][20:])
     assert frame is pv._frame
+
+
+def test_clipped_count_is_of_the_specimen_not_the_noisy_background(fresh):
+    """Issue 29: with noise the panel said "26 % low": the background around grey 0."""
+    pv = fresh
+    pv.set("noise", True)
+    pv.set("noise_sigma", 2.0)
+    pv.set("overlay:clipped", True)
+    pv.refine()
+    img, d = pv.camera_image(0), pv.overlay_data(0)
+    on = pv.results()[0].coverage
+    assert (img < 0)[~on].mean() > 0.3 and d["below"].sum() / d["specimen_px"] < 0.02
 
 
 def test_edges_range_and_speckle(fresh):

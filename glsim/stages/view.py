@@ -15,8 +15,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from glsim.scene.camera import (Camera, distort, normalized_to_pixel, pixel_to_normalized, project_camera_frame,
-                                to_camera, undistort)
+from glsim.scene.camera import (Camera, distort, normalized_to_pixel, pixel_to_normalized, project,
+                                project_camera_frame, to_camera, undistort)
 from glsim.errors import RenderWarning, SceneError
 
 NEAR_MM = 1e-3  # corners closer to the camera plane than this cannot be projected
@@ -347,6 +347,41 @@ def warn_dropped(cam: Camera, count: int, s: int) -> None:
                       "reference image and are left at the background; enlarge the reference "
                       "image (speckle.mm_per_px or size) or check the reference camera",
                       RenderWarning, stacklevel=4)
+
+
+def coverage(cam: Camera, deformed: np.ndarray, quads: np.ndarray, samples: int = 4) -> np.ndarray:
+    """(H, W) bool: pixels inside the projected deformed elements (``samples`` points per edge, so
+    lens distortion bends the edges as in the image; elements that cannot be projected whole are
+    left out): the specimen's pixels, without rendering."""
+    import cv2
+
+    W, H = cam.size
+    mask = np.zeros((H, W), np.uint8)
+    t = np.linspace(0.0, 1.0, samples + 1)[:-1]
+    corners = deformed[quads]                                    # (M, 4, 3)
+    nxt = np.roll(corners, -1, axis=1)
+    P = corners[:, :, None] * (1 - t[None, None, :, None]) + nxt[:, :, None] * t[None, None, :, None]
+    uv, ok = project(P.reshape(-1, 3), cam)
+    uv = uv.reshape(len(quads), -1, 2)
+    ok = ok.reshape(len(quads), -1).all(axis=1)
+    uv = np.clip(uv, -1e7, 1e7)                                  # cv2's fixed point (shift 4) stays in int32
+    polys = [np.rint(p * 16).astype(np.int32) for p, good in zip(uv, ok) if good]
+    if polys:
+        cv2.fillPoly(mask, polys, 1, lineType=cv2.LINE_8, shift=4)
+    return mask.astype(bool)
+
+
+def warn_unseen(cam: Camera, covered: np.ndarray, nodes: np.ndarray, stacklevel: int = 3) -> None:
+    """Warn (RenderWarning) when ``cam`` sees none of the specimen (``covered``: :func:`coverage`),
+    saying why: every node (``nodes``, world mm) behind it, or all outside its field of view."""
+    if covered.any():
+        return
+    z = to_camera(nodes, cam)[:, 2]
+    why = ("the specimen lies behind it" if (z <= 0).all() else
+           "the specimen lies outside its field of view" if (z > 0).all() else
+           "the specimen lies behind it or outside its field of view")
+    warnings.warn(f"camera {cam.name}: sees none of the specimen ({why}), so its image is background only; "
+                  "check its pose (stereo angles, look_at) and focal length", RenderWarning, stacklevel=stacklevel)
 
 
 def _labels(idx: np.ndarray, labels: np.ndarray | None, most: int = 8) -> str:

@@ -19,7 +19,10 @@ one per vary key    the value of each varied parameter, named by its dotted path
 ``truth_s``         seconds encoding the compact truth
 ``encode_s``        seconds encoding the image (quantise, TIFF/PNG, hash)
 ``write_s``         seconds writing both files
-``saturated``       fraction of pixels clipped when quantised
+``saturated``       fraction of the specimen's pixels clipped when quantised (the background,
+                    noisy around 0, is not counted)
+``covered``         fraction of the image's pixels on the specimen (0: the camera sees none of
+                    it, and the render warned why)
 ==================  ==========================================================================
 
 Values of varied parameters are JSON (numbers as Python writes them, strings quoted, lists
@@ -37,7 +40,7 @@ from glsim.io import images as io
 from glsim.limits import parse_nested
 
 FILE_COLUMNS = ("camera", "step", "file", "bytes", "sha256", "truth_file", "truth_bytes", "truth_sha256")
-TIME_COLUMNS = ("render_s", "truth_s", "encode_s", "write_s", "saturated")
+TIME_COLUMNS = ("render_s", "truth_s", "encode_s", "write_s", "saturated", "covered")
 MANIFEST = "manifest.csv"
 LIBRARY = "library.json"
 GEOMETRY_DIR = "geometry"

@@ -135,7 +135,8 @@ def _encode_and_write(out: Path, job: dict, res, header: dict | None, dtype: str
     files = []
     rec = {"variant": job["variant"], "camera": job["camera"], "step": job["step"], "file": job["image"],
            "bytes": len(data), "sha256": truthio.sha256_bytes(data), "truth_file": job["truth"],
-           "truth_bytes": 0, "truth_sha256": "", "render_s": res.seconds, "saturated": res.saturated}
+           "truth_bytes": 0, "truth_sha256": "", "render_s": res.seconds, "saturated": res.saturated,
+           "covered": res.covered}
     if job["truth"]:
         t = res.truth
         tdata = truthio.encode(t.element, t.xi, t.eta, header, dtype)

@@ -455,14 +455,14 @@ class Preview:
         img = res[i].image
         deformed = self.mesh.deformed(self.p.step)
         if on["clipped"]:
-            out["above"], out["below"] = ov.clipped(img)
+            out["above"], out["below"] = ov.clipped(img, res[i].coverage)
+            out["specimen_px"] = int(np.count_nonzero(res[i].coverage))
         if on["range"]:
             out["range_px"] = ov.displacement_range(scene.cameras[i], self.mesh.nodes, deformed)
         if on["speckle"] and quality == "full":
             key = (self._version, i)
             if key not in self._speckle_cache:
-                mask = ov.coverage(scene.cameras[i], deformed, self.mesh.quads)
-                self._speckle_cache = {key: ov.speckle_size(img, mask)}
+                self._speckle_cache = {key: ov.speckle_size(img, res[i].coverage)}
             out["speckle"] = self._speckle_cache[key]
         if any(on[k] for k in TRUTH_OVERLAYS):
             tr = self.truths(quality)
@@ -605,7 +605,9 @@ class Preview:
                 lo, hi = data["range_px"]
                 parts.append(f"displacement {lo:.2f}-{hi:.2f} px")
             if "above" in data:
-                parts.append(f"clipped {100 * data['above'].mean():.2g}% high, {100 * data['below'].mean():.2g}% low")
+                n = max(data["specimen_px"], 1)
+                parts.append(f"clipped {100 * data['above'].sum() / n:.2g}% high, {100 * data['below'].sum() / n:.2g}% "
+                              "low (of the specimen's pixels)")
             if "coc" in data:
                 c = data["coc"]
                 near, far = data["dof"]

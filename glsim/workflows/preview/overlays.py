@@ -83,9 +83,10 @@ def dof_limits(optics: Optics) -> tuple[float, float]:
     return near, far
 
 
-def clipped(image: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """(above full scale, below zero): the pixels that clip when quantised."""
-    return image > 1.0, image < 0.0
+def clipped(image: np.ndarray, covered: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(above full scale, below zero): the specimen's pixels (``covered``) that clip when
+    quantised; the background is not counted."""
+    return (image > 1.0) & covered, (image < 0.0) & covered
 
 
 def node_displacement_px(cam: Camera, nodes: np.ndarray, deformed: np.ndarray) -> np.ndarray:
@@ -118,24 +119,6 @@ def edge_polylines(cam: Camera, deformed: np.ndarray, quads: np.ndarray, samples
     uv, ok = project(P.reshape(-1, 3), cam)
     uv, ok = uv.reshape(P.shape[0], -1, 2), ok.reshape(P.shape[0], -1)
     return [uv[i] for i in range(len(uv)) if ok[i].all()]
-
-
-def coverage(cam: Camera, deformed: np.ndarray, quads: np.ndarray, samples: int = 4) -> np.ndarray:
-    """(H, W) bool: pixels inside the projected deformed elements (edges sampled, so lens
-    distortion bends them as in the image); the region the speckle is measured in."""
-    W, H = cam.size
-    mask = np.zeros((H, W), np.uint8)
-    t = np.linspace(0.0, 1.0, samples + 1)[:-1]
-    corners = deformed[quads]                                    # (M, 4, 3)
-    nxt = np.roll(corners, -1, axis=1)
-    P = corners[:, :, None] * (1 - t[None, None, :, None]) + nxt[:, :, None] * t[None, None, :, None]
-    uv, ok = project(P.reshape(-1, 3), cam)
-    uv = uv.reshape(len(quads), -1, 2)
-    ok = ok.reshape(len(quads), -1).all(axis=1)
-    polys = [np.rint(p * 16).astype(np.int32) for p, good in zip(uv, ok) if good]
-    if polys:
-        cv2.fillPoly(mask, polys, 1, lineType=cv2.LINE_8, shift=4)
-    return mask.astype(bool)
 
 
 def speckle_region(mask: np.ndarray, margin: int = 3) -> tuple[int, int, int, int] | None:
