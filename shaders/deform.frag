@@ -42,9 +42,12 @@ uniform vec2 u_ref_size;  // reference image W, H (px)
 uniform float u_far;      // depth range (mm): gl_FragDepth = Z / u_far
 
 #if defined(MODE_FAST)
-in vec2 v_ref;
-in vec2 v_xe;
-in float v_depth;
+// fast.geom: the triangle's projected vertices (px), reference points, (xi, eta) and depths
+flat in vec2 g_uv[3];
+flat in vec2 g_ref[3];
+flat in vec2 g_xe[3];
+flat in float g_z[3];
+flat in int g_elem;
 #else
 // Per-view element records written by view.comp, float64 or float32 as `real`: exact: corners
 // in the camera frame (12); q4: distorted pixel corners (8) and depths Z (4).
@@ -82,8 +85,8 @@ uniform real u_valid_r2;
 #endif
 #include "quadratic.glsl"
 #endif
-#endif
 flat in int v_elem;
+#endif
 // samples that hit the specimen but map outside the reference image (reset before each pass)
 layout(std430, binding = 4) buffer Dropped { uint dropped_samples; };
 
@@ -293,11 +296,21 @@ void main() {
     real xi, eta;
     real2 ref;
 #if defined(MODE_FAST)
-    ref = real2(v_ref);
-    xi = v_xe.x;
-    eta = v_xe.y;
-    float Z = v_depth;
-    int elem = v_elem;
+    // the perspective-correct interpolation of glsim.backends.cpu._fast in float32, at the
+    // sample's exact pixel point q: barycentrics from edge functions relative to vertex 0
+    vec2 q = gl_FragCoord.xy / float(SS) - 0.5;
+    vec2 a = g_uv[0], ab = g_uv[1] - a, ac = g_uv[2] - a, aq = q - a;
+    float den = ab.x * ac.y - ab.y * ac.x;
+    float l1 = (aq.x * ac.y - aq.y * ac.x) / den, l2 = (ab.x * aq.y - ab.y * aq.x) / den;
+    vec3 w = vec3(1.0 - l1 - l2, l1, l2) / vec3(g_z[0], g_z[1], g_z[2]);
+    float sw = w.x + w.y + w.z;
+    float Z = 1.0 / sw;
+    w *= Z;
+    ref = real2(w.x * g_ref[0] + w.y * g_ref[1] + w.z * g_ref[2]);
+    vec2 xe = w.x * g_xe[0] + w.y * g_xe[1] + w.z * g_xe[2];
+    xi = xe.x;
+    eta = xe.y;
+    int elem = g_elem;
     if (ref.x < -0.5 || ref.y < -0.5 || ref.x > real(u_ref_size.x) - 0.5 || ref.y > real(u_ref_size.y) - 0.5) {
         atomicAdd(dropped_samples, 1u);  // counted for the warning (glsim.stages.view.warn_dropped)
         discard;

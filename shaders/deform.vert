@@ -14,9 +14,10 @@ uniform real u_valid_r2;
 uniform vec2 u_size;  // image size W, H (px)
 uniform float u_far;  // depth range (mm)
 
+out vec2 v_uv;      // the projected vertex (px), for fast.geom
 out vec2 v_ref;
 out vec2 v_xe;
-out float v_depth;   // camera-frame Z, perspective-correct
+out float v_depth;   // camera-frame Z
 flat out int v_elem;
 
 const vec2 CORNER_XE[4] = vec2[4](vec2(-1.0, -1.0), vec2(1.0, -1.0), vec2(1.0, 1.0), vec2(-1.0, 1.0));
@@ -31,6 +32,7 @@ void main() {
     v_xe = CORNER_XE[c];
     if (!projectable) {
         gl_Position = vec4(-2.0, -2.0, -2.0, 1.0);
+        v_uv = vec2(0.0);
         v_ref = vec2(0.0);
         v_depth = 0.0;
         return;
@@ -39,7 +41,8 @@ void main() {
     project_camera_frame(P[c], u_intr, u_dist, u_valid_r2, uv);
     // pixel centre u lands on NDC (u + 0.5) / W * 2 - 1; rows are not flipped, so framebuffer
     // row v (counted from GL's bottom) is image row v (counted from the top)
-    vec2 ndc = (vec2(uv) + 0.5) / u_size * 2.0 - 1.0;
+    v_uv = vec2(uv);
+    vec2 ndc = (v_uv + 0.5) / u_size * 2.0 - 1.0;
     float w = float(P[c].z);
     gl_Position = vec4(ndc * w, (2.0 * w / u_far - 1.0) * w, w);  // w = Z: perspective-correct
     int n = quads[e][c];

@@ -82,7 +82,7 @@ def test_programs_carry_only_the_scene_effects(effects_scene, gl_ctx):
             compiled = r.backend.programs.compiled
         deform = [d for files, d in compiled if "deform.frag" in files]
         assert len(deform) == 1
-        extra = set(deform[0]) - {"MODE_EXACT", "INTERP_BSPLINE3", "SS", "FP64", "EARLY_TESTS", "REF_PINHOLE"}
+        extra = set(deform[0]) - {"MODE_EXACT", "INTERP_BSPLINE3", "SS", "FP64", "EARLY_TESTS", "REF_PINHOLE", "PIXEL_TIES"}
         assert extra == expect, effect
         # rays: exact mode's ray map; view.comp, candidates.comp, classify.frag, resolve.frag: its
         # per-view element pass (covers on the GPU), the candidate lists, their layers and the

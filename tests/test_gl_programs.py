@@ -160,7 +160,7 @@ def test_fast_mode_compiles_no_double_arithmetic(gl_ctx):
     with Renderer(scene, "gl", ctx=gl_ctx) as r:
         r.render(0, 1, truth=True)
         (files, defines), = r.backend.programs.compiled
-    assert files == ("deform.vert", "deform.frag")
+    assert files == ("deform.vert", "fast.geom", "deform.frag")
     assert set(defines) == {"MODE_FAST", "INTERP_BSPLINE3", "SS", "TRUTH"}
 
 

@@ -343,7 +343,7 @@ class GLBackend:
         fbo.viewport = (0, 0, W * s, H * s)
         ctx.disable(ctx.CULL_FACE)
         if opts.mode == "fast":  # the element triangles, projected in the vertex stage
-            prog = self.programs.program("deform.vert", "deform.frag", defines=defines)
+            prog = self.programs.program("deform.vert", "deform.frag", defines=defines, geometry="fast.geom")
             setup(prog)   # (may make the ray map, which binds its own framebuffer)
             fbo.use()
             ctx.enable(ctx.DEPTH_TEST)

@@ -125,10 +125,11 @@ class ProgramCache:
             self.compiled.append((tuple(stages.values()), defines))
         return self._programs[key]
 
-    def program(self, vertex: str, fragment: str, defines: dict | None = None):
-        """A vertex + fragment program."""
-        return self._build({"vertex_shader": vertex, "fragment_shader": fragment},
-                           dict(defines or {}), self.ctx.program)
+    def program(self, vertex: str, fragment: str, defines: dict | None = None, geometry: str | None = None):
+        """A vertex + fragment program, with a geometry shader between them if ``geometry``."""
+        stages = {"vertex_shader": vertex, **({"geometry_shader": geometry} if geometry else {}),
+                  "fragment_shader": fragment}
+        return self._build(stages, dict(defines or {}), self.ctx.program)
 
     def compute(self, name: str, defines: dict | None = None):
         """A compute shader."""
