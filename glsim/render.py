@@ -16,6 +16,7 @@ Truth always reports the element's own (ξ, η) (for T6 those of the collapsed p
 from __future__ import annotations
 
 import functools
+from collections.abc import Callable
 import time
 import warnings
 from dataclasses import dataclass, field
@@ -51,13 +52,24 @@ class Result:
     seconds: float
     truth: Truth | None = None
     stages: tuple[str, ...] = ()      # the pipeline stages / GL passes that ran
-    saturated: float = 0.0            # fraction of the specimen's pixels below 0 or above full scale (clipped)
-    coverage: np.ndarray | None = field(default=None, repr=False)  # (H, W) bool: the specimen's pixels
+    specimen: Callable[[], np.ndarray] | None = field(default=None, repr=False)  # makes ``coverage`` when first asked
+
+    @functools.cached_property
+    def coverage(self) -> np.ndarray:
+        """(H, W) bool: the specimen's pixels (:func:`glsim.stages.view.coverage`), made on first
+        access (a CPU projection of every element: not part of the render's cost)."""
+        W, H = self.camera.size
+        return self.specimen() if self.specimen is not None else np.zeros((H, W), bool)
 
     @property
     def covered(self) -> float:
-        """Fraction of the image's pixels on the specimen (:func:`glsim.stages.view.coverage`)."""
-        return float(self.coverage.mean()) if self.coverage is not None and self.coverage.size else 0.0
+        """Fraction of the image's pixels on the specimen."""
+        return float(self.coverage.mean()) if self.coverage.size else 0.0
+
+    @functools.cached_property
+    def saturated(self) -> float:
+        """Fraction of the specimen's pixels below 0 or above full scale (clipped when quantised)."""
+        return _saturated(self.image, self.coverage)
 
 
 class Renderer:
@@ -174,10 +186,9 @@ class Renderer:
             tr = self._quadratic_truth(self._fast_to_patches(raster), step, cam)
         else:
             tr = self._truth(view.camera.size, deformed, raster) if truth else None
-        covered = self._covered(cam, deformed, self.drawn_mesh.quads)
         return Result(image=image, camera=view.camera, step=step, backend=self.backend_name,
                       options=opts, seconds=seconds, truth=tr, stages=tuple(stages),
-                      saturated=_saturated(image, covered), coverage=covered)
+                      specimen=self._specimen(cam, deformed, self.drawn_mesh.quads))
 
     def _patch_data(self, view: ViewSpec, step: int, opts: Render) -> PatchData:
         """The GL backend's quadratic payload for ``view`` (its elements are the pieces): the
@@ -232,11 +243,11 @@ class Renderer:
         return r
 
     @staticmethod
-    def _covered(cam: Camera, deformed: np.ndarray, quads: np.ndarray) -> np.ndarray:
-        """The specimen's pixels in ``cam``; warns when there are none (RenderWarning, saying why)."""
-        covered = coverage(cam, deformed, quads)
-        warn_unseen(cam, covered, deformed, stacklevel=5)
-        return covered
+    def _specimen(cam: Camera, deformed: np.ndarray, quads: np.ndarray) -> Callable[[], np.ndarray]:
+        """Warns when ``cam`` sees none of the specimen (RenderWarning, saying why); returns what
+        makes its pixel mask on demand."""
+        warn_unseen(cam, deformed, quads, stacklevel=5)
+        return lambda: coverage(cam, deformed, quads)
 
     def _render_quadratic(self, cam: Camera, step: int, truth: bool, opts: Render, t0: float) -> Result:
         """exact / q4 of a quadratic mesh: the CPU oracle on the curved patches (lit with the
@@ -250,9 +261,9 @@ class Renderer:
         image, raster, stages = self.backend.render_quadratic_view(view, opts, truth, fx)
         seconds = time.perf_counter() - t0
         tr = self._quadratic_truth(raster, step, cam) if truth else None
-        covered = self._covered(cam, pieces.mesh.deformed(step), pieces.mesh.quads)
         return Result(image=image, camera=cam, step=step, backend=self.backend_name, options=opts, seconds=seconds,
-                      truth=tr, stages=tuple(stages), saturated=_saturated(image, covered), coverage=covered)
+                      truth=tr, stages=tuple(stages),
+                      specimen=self._specimen(cam, pieces.mesh.deformed(step), pieces.mesh.quads))
 
     def _fast_to_patches(self, raster: dict) -> dict:
         """A fast-mode raster of the pieces → the patches: element and (ξ, η) of the parent,

@@ -69,7 +69,7 @@ def scene(size: tuple[int, int]):
     """The peer plate as one glsim Scene, cubic interpolation: camera i at camera 0's pose with
     radial k1 = K1S[i] (one renderer for every variant: timing interleaves them)."""
     s = plate_scene(size, PLATE_ELEMENTS[0] * PLATE_ELEMENTS[1])
-    return dataclasses.replace(s, cameras=tuple(dataclasses.replace(s.cameras[0], name=f"k1={k1:g}",
+    return dataclasses.replace(s, cameras=tuple(dataclasses.replace(s.cameras[0], name=f"k1_{k1:g}",
                                                                     distortion=Distortion(k1=k1)) for k1 in K1S))
 
 

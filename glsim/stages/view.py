@@ -371,15 +371,28 @@ def coverage(cam: Camera, deformed: np.ndarray, quads: np.ndarray, samples: int 
     return mask.astype(bool)
 
 
-def warn_unseen(cam: Camera, covered: np.ndarray, nodes: np.ndarray, stacklevel: int = 3) -> None:
-    """Warn (RenderWarning) when ``cam`` sees none of the specimen (``covered``: :func:`coverage`),
-    saying why: every node (``nodes``, world mm) behind it, or all outside its field of view."""
-    if covered.any():
+def warn_unseen(cam: Camera, nodes: np.ndarray, quads: np.ndarray, stacklevel: int = 3) -> None:
+    """Warn (RenderWarning) when ``cam`` sees none of the specimen (nodes in world mm), saying why:
+    behind it, or outside its field of view. Decided from the nodes' bounding box (8 corners, no
+    per-element work) where that suffices — all behind the camera, or all in front with their
+    rays (x/z, y/z; a box's rays lie in their rectangle) farther from the axis than any ray of the
+    image (:func:`ray_radius`) — else from :func:`coverage`. A box that may be seen is not
+    looked at more closely."""
+    lo, hi = nodes.min(axis=0), nodes.max(axis=0)
+    box = to_camera(np.array([[(lo, hi)[i >> k & 1][k] for k in range(3)] for i in range(8)]), cam)
+    z = box[:, 2]
+    if (z <= 0).all():
+        why = "the specimen lies behind it"
+    elif (z > 0).all():
+        xn = box[:, :2] / z[:, None]
+        gap = np.maximum(np.maximum(xn.min(0), -xn.max(0)), 0.0)   # per axis: the rectangle's distance from the axis
+        if not np.hypot(*gap) > ray_radius(cam):
+            return
+        why = "the specimen lies outside its field of view"
+    elif coverage(cam, nodes, quads).any():
         return
-    z = to_camera(nodes, cam)[:, 2]
-    why = ("the specimen lies behind it" if (z <= 0).all() else
-           "the specimen lies outside its field of view" if (z > 0).all() else
-           "the specimen lies behind it or outside its field of view")
+    else:
+        why = "the specimen lies behind it or outside its field of view"
     warnings.warn(f"camera {cam.name}: sees none of the specimen ({why}), so its image is background only; "
                   "check its pose (stereo angles, look_at) and focal length", RenderWarning, stacklevel=stacklevel)
 
