@@ -135,3 +135,31 @@ def require_file(path, key: str, fix: str) -> Path:
         named = f"file {path}" if why == "not found" else str(path)
         raise SceneError(key, f"{named} {why}" if key != str(path) else f"{'file ' * (why == 'not found')}{why}", fix)
     return Path(path)
+
+
+def check_image_file(path: str | Path, key: str) -> None:
+    """SceneError(key) if the image file's header declares more pixels than glsim's limits
+    (:mod:`glsim.limits`): read before the image is decoded. An unreadable header is left to the reader."""
+    import logging
+    import struct
+
+    log = logging.getLogger("tifffile")       # it logs a patched header's inconsistencies
+    quiet, log.disabled = log.disabled, True
+    try:
+        with open(path, "rb") as f:
+            head = f.read(24)
+        if head[:8] == b"\x89PNG\r\n\x1a\n":
+            W, H = struct.unpack(">II", head[16:24])
+        elif str(path).lower().endswith((".tif", ".tiff")):
+            import tifffile
+            with tifffile.TiffFile(path) as tf:
+                W, H = tf.pages[0].imagewidth, tf.pages[0].imagelength
+        else:
+            from PIL import Image
+            with Image.open(path) as im:
+                W, H = im.size
+    except Exception:  # noqa: BLE001 — the reader that decodes it names the problem
+        return
+    finally:
+        log.disabled = quiet
+    check_image_size(key, W, H, f"{path} (as its header declares)", "give a smaller reference image")

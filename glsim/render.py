@@ -35,7 +35,8 @@ from glsim.stages.quadview import PatchData, chord_error_bound, fast_local_coord
     make_quad_view, q4_image_bound
 from glsim.stages.view import NEAR_MM, View, _labels, coverage, make_view, warn_unseen
 from glsim.backends import make_backend
-from glsim.stages.reference import make_reference, specimen_mesh
+from glsim.io.fe import specimen_mesh
+from glsim.stages.reference import make_reference
 from glsim.scene import Render, Scene
 
 QUADRATIC_FAST_PIECES = 4   # fast mode: n × n linear pieces per quadratic element (docs/quadratic.md)

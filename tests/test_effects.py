@@ -156,7 +156,8 @@ def test_noise_on_a_flat_field_matches_the_model(backend, request):
     scene = Scene(cameras=(cam,), specimen=Specimen(plate=Plate(width=400, height=400, nx=2, ny=2), t=(0, 0, 300.0)),
                   noise=Noise(sigma=2.0))
     ctx = request.getfixturevalue("gl_ctx") if backend == "gl" else None
-    from glsim.stages.reference import Reference, specimen_mesh
+    from glsim.io.fe import specimen_mesh
+    from glsim.stages.reference import Reference
     mesh = specimen_mesh(scene)
     from glsim.stages.reference import _auto_camera
     ref_cam = _auto_camera(mesh.nodes, cam.center, 1.0, (500, 500))

@@ -22,7 +22,7 @@ from glsim.io.fe import load_series  # noqa: E402
 from glsim.render import Renderer  # noqa: E402
 from glsim.scene.bilinear import shape_functions  # noqa: E402
 from glsim.scene.load import scene_from_dict  # noqa: E402
-from glsim.stages.reference import specimen_mesh  # noqa: E402
+from glsim.io.fe import specimen_mesh  # noqa: E402
 
 RNG = np.random.default_rng(20)
 DIST = 300.0       # mm from camera 0 (the world frame) to the specimen

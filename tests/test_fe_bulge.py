@@ -14,7 +14,7 @@ import pytest
 
 from glsim.io.fe import load_mesh
 from glsim.scene.mesh import bulge_displacements
-from glsim.stages.reference import specimen_mesh
+from glsim.io.fe import specimen_mesh
 from glsim.render import render
 from glsim.scene import load_scene
 

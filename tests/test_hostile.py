@@ -27,7 +27,8 @@ from glsim.errors import GlsimError, RenderWarning
 from glsim.io import truth as T
 from glsim.scene import load_scene, model, scene_from_dict
 from glsim.scene.camera import Camera, Distortion
-from glsim.stages.reference import make_reference, specimen_mesh
+from glsim.io.fe import specimen_mesh
+from glsim.stages.reference import make_reference
 from glsim.workflows.library import expand, load_plan, run, verify
 from glsim.workflows.library.cli import main as library_main
 from glsim.workflows.library.spec import TOP_KEYS

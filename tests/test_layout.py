@@ -5,7 +5,7 @@ import ast
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1] / "glsim"
-LAYERS = ("errors", "scene", "io", "stages", "effects", "backends", "render", "workflows", "evaluation", "cli")
+LAYERS = ("errors", "limits", "scene", "io", "stages", "effects", "backends", "render", "workflows", "evaluation", "cli")
 
 
 def _imports(path: Path) -> set[str]:

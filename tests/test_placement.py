@@ -13,7 +13,8 @@ from glsim.errors import SceneError
 from glsim.render import Renderer
 from glsim.scene import load_scene
 from glsim.scene.camera import rodrigues
-from glsim.stages.reference import make_reference, placement, specimen_mesh
+from glsim.io.fe import specimen_mesh
+from glsim.stages.reference import make_reference, placement
 
 WIDTH, HEIGHT = 60.0, 40.0          # mm, the plate of the issue
 MM_PER_PX = 0.05                    # the reference image's scale

@@ -15,7 +15,7 @@ import pytest
 
 from glsim.scene.camera import look_at, project, rodrigues, stereo_pose
 from glsim.errors import SceneError
-from glsim.stages.reference import specimen_mesh
+from glsim.io.fe import specimen_mesh
 from glsim.scene import Bulge, Output, Render, Scene, Speckle, bulge_scene, demo_effects, load_scene
 
 EXAMPLES = Path(__file__).resolve().parent.parent / "examples"

@@ -26,7 +26,7 @@ from glsim.errors import GlsimError
 from glsim.io import images as io
 from glsim.io.truth import Geometry, points_truth
 from glsim.scene import load_scene
-from glsim.stages.reference import specimen_mesh
+from glsim.io.fe import specimen_mesh
 
 COMPONENTS = {"X": ("X", "Y", "Z"), "U": ("U", "V", "W")}
 

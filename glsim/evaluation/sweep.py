@@ -38,7 +38,8 @@ from glsim.io import images as io
 from glsim.scene import speckle
 from glsim.scene.camera import Camera, pixel_rays, project_camera_frame, to_camera
 from glsim.errors import GlsimError
-from glsim.stages.reference import Reference, camera_scale, specimen_mesh
+from glsim.io.fe import specimen_mesh
+from glsim.stages.reference import Reference, camera_scale
 from glsim.render import Renderer
 from glsim.scene import Plate, Render, Scene, Specimen, Speckle
 

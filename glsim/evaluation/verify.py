@@ -35,7 +35,8 @@ from glsim.evaluation.report import gl_info, machine_info
 from glsim.scene.bilinear import bilinear
 from glsim.scene.camera import Camera, to_camera
 from glsim.errors import GlsimError
-from glsim.stages.reference import Reference, make_reference, specimen_mesh
+from glsim.io.fe import specimen_mesh
+from glsim.stages.reference import Reference, make_reference
 from glsim.render import Renderer, Truth
 from glsim.scene import Bulge, Scene, bulge_scene
 

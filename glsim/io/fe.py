@@ -14,6 +14,8 @@ from glsim.io.exodus import open_exodus
 from glsim.io.meshfiles import _require_file, read_mesh_file
 from glsim.io.series import (Series, _check_displacement, _default_displacement, _displacement, _open_pvd, _open_xdmf,
                              _select, _series_surface, is_time_series)
+from glsim.scene import Scene
+from glsim.scene import mesh as meshmod
 from glsim.scene.mesh import Mesh, place_mesh
 from glsim.scene.model import EXODUS_SUFFIXES
 
@@ -85,3 +87,31 @@ def load_mesh(path, unit: str = "mm", R=None, t=None, point_data_steps: Sequence
                              "path, displacement=…, times=…) or give no displacement source")
         return load_series(path, unit, R, t)
     return read_mesh_file(path, unit, R, t, point_data_steps, displacement_files, csv_files, field)
+
+
+def specimen_mesh(scene: Scene) -> meshmod.Mesh:
+    """The scene's FE mesh placed in the world (mm), with all its load steps."""
+    sp = scene.specimen
+    if sp.bulge is not None:
+        b = sp.bulge
+        m = meshmod.bulge(b.radius, b.thickness, b.w0, b.steps, b.n_core, b.n_ring)
+    elif sp.plate is not None:
+        p = sp.plate
+        m = meshmod.plate(p.width, p.height, p.nx, p.ny)
+        steps = [np.broadcast_to(np.asarray(tr, float), m.nodes.shape) for tr in p.translations]
+        m = meshmod.with_displacements(m, steps)
+    else:
+        f = sp.mesh  # path, unit and sources were validated by the scene
+        if is_time_series(scene.resolve(f.path)):
+            m = load_series(scene.resolve(f.path), unit=f.unit, displacement=f.displacement,
+                            times=f.times, steps=f.steps)
+        elif f.displacement or f.times or f.steps:
+            raise SceneError("specimen.mesh.path", f"{f.path} holds no time series (an XDMF file without "
+                             "a temporal collection)", "use point_data, files or csv with single-state files")
+        else:
+            m = load_mesh(
+                scene.resolve(f.path), unit=f.unit,
+                point_data_steps=list(f.point_data) or None,
+                displacement_files=[scene.resolve(x) for x in f.files] or None,
+                csv_files=[scene.resolve(x) for x in f.csv] or None, field=f.field or None)
+    return meshmod.place_mesh(m, "mm", np.asarray(sp.R, float), np.asarray(sp.t, float))

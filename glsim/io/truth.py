@@ -497,7 +497,7 @@ class MapTruth:
     def _render(self) -> tuple[Geometry, Camera, int]:
         """The render's geometry, camera 0 and this image's load step, from its scene.json."""
         from glsim.scene import load_scene
-        from glsim.stages.reference import specimen_mesh
+        from glsim.io.fe import specimen_mesh
 
         folder = next((d for d in self.path.parents if (d / "scene.json").is_file()), None)
         if folder is None:

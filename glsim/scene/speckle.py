@@ -15,7 +15,7 @@ import tifffile
 from scipy import fft, ndimage, optimize
 
 from glsim.errors import SceneError
-from glsim.io.images import check_image_file
+from glsim.limits import check_image_file
 
 _DOT_CHUNK = 20000  # dots rasterised per np.maximum.at call; bounds temporary memory
 

@@ -13,8 +13,6 @@ from glsim.scene import speckle
 from glsim.scene.camera import Camera, project_camera_frame, to_camera
 from glsim.errors import RenderWarning, SceneError
 from glsim.limits import MIN_DOTS_ACROSS, check_image_size
-from glsim.io.fe import load_mesh, load_series
-from glsim.io.series import is_time_series
 from glsim.scene import Scene
 
 MARGIN_PX = 8  # reference-image border around the specimen's projection
@@ -28,34 +26,6 @@ class Reference:
     image: np.ndarray
     camera: Camera
     dots: speckle.Dots | None = None
-
-
-def specimen_mesh(scene: Scene) -> meshmod.Mesh:
-    """The scene's FE mesh placed in the world (mm), with all its load steps."""
-    sp = scene.specimen
-    if sp.bulge is not None:
-        b = sp.bulge
-        m = meshmod.bulge(b.radius, b.thickness, b.w0, b.steps, b.n_core, b.n_ring)
-    elif sp.plate is not None:
-        p = sp.plate
-        m = meshmod.plate(p.width, p.height, p.nx, p.ny)
-        steps = [np.broadcast_to(np.asarray(tr, float), m.nodes.shape) for tr in p.translations]
-        m = meshmod.with_displacements(m, steps)
-    else:
-        f = sp.mesh  # path, unit and sources were validated by the scene
-        if is_time_series(scene.resolve(f.path)):
-            m = load_series(scene.resolve(f.path), unit=f.unit, displacement=f.displacement,
-                            times=f.times, steps=f.steps)
-        elif f.displacement or f.times or f.steps:
-            raise SceneError("specimen.mesh.path", f"{f.path} holds no time series (an XDMF file without "
-                             "a temporal collection)", "use point_data, files or csv with single-state files")
-        else:
-            m = load_mesh(
-                scene.resolve(f.path), unit=f.unit,
-                point_data_steps=list(f.point_data) or None,
-                displacement_files=[scene.resolve(x) for x in f.files] or None,
-                csv_files=[scene.resolve(x) for x in f.csv] or None, field=f.field or None)
-    return meshmod.place_mesh(m, "mm", np.asarray(sp.R, float), np.asarray(sp.t, float))
 
 
 def specimen_frame(scene: Scene) -> tuple[np.ndarray, np.ndarray]:

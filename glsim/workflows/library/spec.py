@@ -376,7 +376,7 @@ def expand(spec: dict, spec_dir: str | Path = ".", sample: int | None = None) ->
     against :mod:`glsim.limits` before anything is built. ``sample``: of more variants than that,
     only the first ``sample - SAMPLE_TAIL`` and the last SAMPLE_TAIL are built (a dry run's table)."""
     from glsim.workflows.sequence import _check_effect_inputs
-    from glsim.stages.reference import specimen_mesh
+    from glsim.io.fe import specimen_mesh
 
     try:
         check_nesting(spec, "spec")

@@ -20,7 +20,7 @@ from glsim.errors import GlsimError
 from glsim.render import Renderer
 from glsim.scene import Scene, load_scene
 from glsim.scene.camera import Camera
-from glsim.stages.reference import specimen_mesh
+from glsim.io.fe import specimen_mesh
 from glsim.workflows.preview import draw, overlays as ov
 from glsim.workflows.preview.controls import OVERLAYS, Control, Model, moved_light
 from glsim.workflows.preview.sceneio import pinned_speckle, reference_inputs, save_scene
