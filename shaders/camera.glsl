@@ -16,23 +16,26 @@
 #define UNDISTORT_MAX_HALVINGS 20
 
 // (radial factor, its derivative with respect to r2)
+// `precise` here and below: numpy's operations in numpy's order, so that FP64 builds give the
+// oracle's projections bit for bit on every driver (no contraction into fused multiply-adds).
 real2 distortion_radial(real r2, real k[12]) {
-    real num = 1.0 + r2 * (k[0] + r2 * (k[1] + r2 * k[4]));
-    real den = 1.0 + r2 * (k[5] + r2 * (k[6] + r2 * k[7]));
-    real dnum = k[0] + r2 * (2.0 * k[1] + 3.0 * r2 * k[4]);
-    real dden = k[5] + r2 * (2.0 * k[6] + 3.0 * r2 * k[7]);
-    real radial = num / den;
-    return real2(radial, (dnum - radial * dden) / den);
+    precise real num = 1.0 + r2 * (k[0] + r2 * (k[1] + r2 * k[4]));
+    precise real den = 1.0 + r2 * (k[5] + r2 * (k[6] + r2 * k[7]));
+    precise real dnum = k[0] + r2 * (2.0 * k[1] + 3.0 * r2 * k[4]);
+    precise real dden = k[5] + r2 * (2.0 * k[6] + 3.0 * r2 * k[7]);
+    precise real radial = num / den;
+    precise real dradial = (dnum - radial * dden) / den;
+    return real2(radial, dradial);
 }
 
 // Normalized undistorted xn -> normalized distorted xd (OpenCV's model).
 real2 distort(real2 xn, real k[12]) {
     real x = xn.x, y = xn.y;
-    real r2 = x * x + y * y;
+    precise real r2 = x * x + y * y;
     real radial = distortion_radial(r2, k).x;
-    return real2(
-        x * radial + 2.0 * k[2] * x * y + k[3] * (r2 + 2.0 * x * x) + r2 * (k[8] + k[9] * r2),
-        y * radial + k[2] * (r2 + 2.0 * y * y) + 2.0 * k[3] * x * y + r2 * (k[10] + k[11] * r2));
+    precise real xd = x * radial + 2.0 * k[2] * x * y + k[3] * (r2 + 2.0 * x * x) + r2 * (k[8] + k[9] * r2);
+    precise real yd = y * radial + k[2] * (r2 + 2.0 * y * y) + 2.0 * k[3] * x * y + r2 * (k[10] + k[11] * r2);
+    return real2(xd, yd);
 }
 
 // d xd / d xn. GLSL matrices are column-major: J[col][row], so J[j][i] = d xd_i / d xn_j.
@@ -84,8 +87,6 @@ bool undistort(real2 xd, real k[12], real valid_r2, out real2 xn) {
 }
 
 // Pixels -> normalized distorted coordinates (inverse of K).
-// `precise`: the same operations in the same order as numpy's, so that FP64 rays are the oracle's
-// bit for bit (no contraction of skew * yd into the subtraction).
 real2 pixel_to_normalized(real2 uv, real intr[5]) {
     precise real yd = (uv.y - intr[4]) / intr[1];
     precise real xd = (uv.x - intr[3] - intr[2] * yd) / intr[0];
@@ -94,7 +95,9 @@ real2 pixel_to_normalized(real2 uv, real intr[5]) {
 
 // Normalized distorted coordinates -> pixels: u = fx xd + skew yd + cx, v = fy yd + cy.
 real2 normalized_to_pixel(real2 xd, real intr[5]) {
-    return real2(intr[0] * xd.x + intr[2] * xd.y + intr[3], intr[1] * xd.y + intr[4]);
+    precise real u = intr[0] * xd.x + intr[2] * xd.y + intr[3];
+    precise real v = intr[1] * xd.y + intr[4];
+    return real2(u, v);
 }
 
 // Camera-frame point (mm) -> pixels. False for Z <= 0 or beyond the valid radius; uv is then

@@ -1,15 +1,16 @@
 // The double-path primitives of the shaders on a batch of inputs, written bit for bit, for
-// comparison with their numpy twins (glsim.evaluation.check.fp64_probe, glsim check): hilo.glsl's split_double,
-// camera.glsl's pixel_to_normalized, bilinear.glsl's pinhole_corners and edge_functions_ray.
+// comparison with their numpy twins (glsim.evaluation.check.fp64_probe, glsim check): hilo.glsl's
+// split_double, camera.glsl's pixel_to_normalized, distort and normalized_to_pixel, bilinear.glsl's
+// pinhole_corners and edge_functions_ray.
 #include "camera.glsl"
 #include "bilinear.glsl"
 #include "hilo.glsl"
 
 layout(local_size_x = 64) in;
 
-// per item: x, uv (2), intr (5), P (4 × 3), q (2) — 22 doubles
+// per item: x, uv (2), intr (5), P (4 × 3), q (2), k (12), xn (2) — 36 doubles
 layout(std430, binding = 0) readonly buffer In { double inputs[]; };
-// per item: split (hi, lo), xd (2), A (4 × 3), E (4), m (4 × 2) — 28 doubles
+// per item: split (hi, lo), xd (2), A (4 × 3), E (4), m (4 × 2), distort(xn) (2), its pixel (2) — 32 doubles
 layout(std430, binding = 1) writeonly buffer Out { double outputs[]; };
 
 uniform int u_count;
@@ -17,7 +18,7 @@ uniform int u_count;
 void main() {
     int i = int(gl_GlobalInvocationID.x);
     if (i >= u_count) return;
-    int a = 22 * i, o = 28 * i;
+    int a = 36 * i, o = 32 * i;
     vec2 hl = split_double(inputs[a]);
     outputs[o] = double(hl.x);
     outputs[o + 1] = double(hl.y);
@@ -38,4 +39,12 @@ void main() {
         outputs[o + 20 + 2 * k] = m[k].x;
         outputs[o + 21 + 2 * k] = m[k].y;
     }
+    double k[12];
+    for (int c = 0; c < 12; ++c) k[c] = inputs[a + 22 + c];
+    dvec2 d = distort(dvec2(inputs[a + 34], inputs[a + 35]), k);
+    dvec2 uv = normalized_to_pixel(d, intr);
+    outputs[o + 28] = d.x;
+    outputs[o + 29] = d.y;
+    outputs[o + 30] = uv.x;
+    outputs[o + 31] = uv.y;
 }

@@ -115,8 +115,8 @@ def test_float64_programs_convert_from_float_only_exact_values(gl_ctx):
 
 @pytest.mark.gl
 def test_double_path_primitives_are_bit_for_bit_numpys(gl_ctx):
-    """split_double, pixel_to_normalized, pinhole_corners and the ray edge functions against
-    numpy on 4096 random inputs (glsim.evaluation.check.fp64_probe, also `glsim check`'s first
+    """split_double, pixel_to_normalized, pinhole_corners, the ray edge functions, distort and
+    normalized_to_pixel against numpy on 4096 random inputs (glsim.evaluation.check.fp64_probe, also `glsim check`'s first
     check): equal bit for bit — the driver honours `precise` and computes doubles in double."""
     from glsim.backends.gl.backend import GLBackend
     from glsim.evaluation.check import fp64_probe
@@ -124,4 +124,4 @@ def test_double_path_primitives_are_bit_for_bit_numpys(gl_ctx):
     if not GLBackend(np.zeros((8, 8), np.float32), ctx=gl_ctx).fp64:
         pytest.skip("the driver has no GL_ARB_gpu_shader_fp64")
     assert fp64_probe(gl_ctx) == {"split_double": 0, "pixel_to_normalized": 0, "pinhole_corners": 0,
-                                  "edge_functions": 0}
+                                  "edge_functions": 0, "distort": 0, "normalized_to_pixel": 0}

@@ -30,7 +30,7 @@ from glsim.evaluation import bounds
 from glsim.render import Renderer
 from glsim.scene import Plate, Scene, Specimen, bulge_scene, demo_effects
 from glsim.scene import bilinear as bl
-from glsim.scene.camera import Camera, pixel_to_normalized
+from glsim.scene.camera import Camera, distort, normalized_to_pixel, pixel_to_normalized
 
 SHIFTS = [0.0] + [s * m for m in (1e-7, 1e-6, 1e-5, 1e-4, 9e-4, 1 / 256, 1e-2) for s in (1, -1)]
 BULGE_SIZE = (406, 308)
@@ -67,7 +67,7 @@ class Context:
 def fp64_probe(ctx, n: int = 4096, seed: int = 25) -> dict[str, int]:
     """shaders/fp64_probe.comp on ``n`` random inputs against numpy: the number of results that
     differ in any bit, per primitive (split_double, pixel_to_normalized, pinhole_corners, edge
-    functions and their gradients). split_double's twin: x with its low 29 mantissa bits
+    functions and their gradients, distort, normalized_to_pixel). split_double's twin: x with its low 29 mantissa bits
     cleared, and float32(x − that)."""
     from glsim.backends.gl.programs import ProgramCache
 
@@ -78,16 +78,18 @@ def fp64_probe(ctx, n: int = 4096, seed: int = 25) -> dict[str, int]:
                             rng.uniform(100, 1000, n), rng.uniform(100, 1000, n)]) / 3
     P = rng.uniform(-50, 50, (n, 4, 3)) + [0, 0, 300.0]
     q = rng.uniform(-10, 2000, (n, 2)) / 7
-    data = np.column_stack([x, uv, intr, P.reshape(n, 12), q])
+    k = rng.uniform(-0.3, 0.3, (n, 12)) * [1, 0.3, 0.01, 0.01, 0.1, 0.1, 0.03, 0.01, 0.01, 0.01, 0.01, 0.01]
+    xn = rng.uniform(-0.6, 0.6, (n, 2))
+    data = np.column_stack([x, uv, intr, P.reshape(n, 12), q, k, xn])
     cache = ProgramCache(ctx)
-    bufs = [ctx.buffer(np.ascontiguousarray(data, "f8").tobytes()), ctx.buffer(reserve=n * 28 * 8)]
+    bufs = [ctx.buffer(np.ascontiguousarray(data, "f8").tobytes()), ctx.buffer(reserve=n * 32 * 8)]
     try:
         prog = cache.compute("fp64_probe.comp", {"FP64": None})
         for i, b in enumerate(bufs):
             b.bind_to_storage_buffer(i)
         prog["u_count"].value = n
         prog.run(group_x=(n + 63) // 64)
-        got = np.frombuffer(bufs[1].read(), "f8").reshape(n, 28)
+        got = np.frombuffer(bufs[1].read(), "f8").reshape(n, 32)
     finally:
         for b in bufs:
             b.release()
@@ -99,7 +101,10 @@ def fp64_probe(ctx, n: int = 4096, seed: int = 25) -> dict[str, int]:
     want = {"split_double": (got[:, :2], np.column_stack([hi, lo])),
             "pixel_to_normalized": (got[:, 2:4], np.stack([pixel_to_normalized(uv[i], intr[i]) for i in range(n)])),
             "pinhole_corners": (got[:, 4:16], A.reshape(n, 12)),
-            "edge_functions": (got[:, 16:28], np.column_stack([E, m.reshape(n, 8)]))}
+            "edge_functions": (got[:, 16:28], np.column_stack([E, m.reshape(n, 8)])),
+            "distort": (got[:, 28:30], np.stack([distort(xn[i], k[i]) for i in range(n)])),
+            "normalized_to_pixel": (got[:, 30:32], np.stack([normalized_to_pixel(distort(xn[i], k[i]), intr[i])
+                                                             for i in range(n)]))}
     return {k: int(np.any(a.view(np.uint64) != b.view(np.uint64), axis=-1).sum()) for k, (a, b) in want.items()}
 
 
@@ -183,7 +188,8 @@ def _effect(effect: str) -> Callable[[Context], float]:
 FLOAT64 = "glsim.evaluation.bounds: float64, 1e-9 px or mm"
 CHECKS = (
     Check("float64 primitives", 0, "results differing in any bit", "split_double, pixel_to_normalized, "
-          "pinhole_corners, edge functions: the same operations as numpy's, `precise` (4096 inputs)", _probe),
+          "pinhole_corners, edge functions, distort, normalized_to_pixel: the same operations as numpy's, "
+          "`precise` (4096 inputs)", _probe),
     Check("coverage exact, outline on pixel centres, 15 shifts", 0, "px off the tie rule",
           "ties decided at the exact pixel point (glsim.scene.bilinear.pinhole_corners)", _coverage("exact")),
     Check("coverage q4, outline on pixel centres, 15 shifts", 0, "px off the tie rule",
