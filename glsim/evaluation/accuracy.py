@@ -22,11 +22,13 @@ import statistics
 import sys
 import time
 from dataclasses import dataclass
+from functools import partial
 
 import numpy as np
 
 from glsim.backends import cpu as oracle
 from glsim.scene import speckle
+from glsim.evaluation.formatting import num
 from glsim.evaluation.report import machine_info
 from glsim.render import Renderer, Result
 from glsim.scene import INTERPOLATIONS, MODES, Plate, Scene, Specimen, Speckle, bulge_scene, stereo_rig
@@ -321,8 +323,7 @@ def _label(r: dict) -> str:
     return f"{r['backend']} {_mode(r)} {r['arithmetic']} {r['interpolation']} {r['spp']} spp"
 
 
-def _g(x: float | None, fmt: str = ".3g") -> str:
-    return "—" if x is None else format(x, fmt)
+_g = partial(num, missing="—")          # a table cell: a figure, or "—" where the run has none
 
 
 COLUMNS = ("| backend | mode | arith. | interp | spp | reps | time (s) | min–max (s) | map RMS (px) "

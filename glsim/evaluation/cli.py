@@ -304,7 +304,7 @@ def docs_main(argv: list[str]) -> int:
                 print(d)
             if diffs:
                 print("glsim docs: generated regions differ from bench/results; run `glsim docs` to regenerate "
-                      "them (edit the text outside the regions, or the generator in glsim/evaluation/docs.py)",
+                      "them (edit the text outside the regions, or its generator in glsim/evaluation/docs_*.py)",
                       file=sys.stderr)
                 return 1
             print("glsim docs: every generated region matches its results file")

@@ -25,6 +25,7 @@ from pathlib import Path
 
 import numpy as np
 
+from glsim.evaluation.formatting import sig
 from glsim.io import images as io
 from glsim.render import Renderer
 from glsim.scene import Optics, Plate, Render, Scene, Specimen, bulge_scene, demo_effects
@@ -241,15 +242,11 @@ def dof_table(rows: list[dict]) -> str:
              "|---|---|---|---|---|---|---|---|---|---|---|---|"]
     for r in rows:
         lines.append(f"| {r['scene']} | {r['size'][0]}×{r['size'][1]} | {r['blur_px'][0]:.2g}–{r['blur_px'][1]:.2g} | "
-                     f"{r['kernel']} | {r['scheme']} | "
-                     f"{_g(r['mean_error'])} | {_g(r['max_error'])} | {r['over_goal']} of {r['pixels']} | "
+                     f"{r['kernel']} | {r['scheme']} | {sig(r['mean_error'], trailing_zeros=False)} | "
+                     f"{sig(r['max_error'], trailing_zeros=False)} | {r['over_goal']} of {r['pixels']} | "
                      f"{r['seconds']:.3g} | {r['seconds'] / sep[r['scene']]:.2g}× | {r['cpu_seconds']:.3g} | "
                      f"{', '.join(s for s in r['stages'] if s.startswith('blur'))} |")
     return "\n".join(lines)
-
-
-def _g(x: float) -> str:
-    return "0" if x == 0 else f"{x:.2g}" if 1e-3 <= x < 1e4 else f"{x:.1e}".replace("e-0", "e-")
 
 
 def write(report: dict, out: Path) -> str:

@@ -38,6 +38,7 @@ import statistics
 import sys
 import tempfile
 import time
+from functools import partial
 from pathlib import Path
 
 import numpy as np
@@ -45,6 +46,7 @@ import numpy as np
 from glsim.backends import cpu as oracle
 from glsim.evaluation.accuracy import PLATE_ELEMENTS, PLATE_TEXTURE_PX, TARGET_MAP_MAX_PX, Combo, \
     effective_precision, plate_geometry, riley_setup
+from glsim.evaluation.formatting import num
 from glsim.evaluation.report import gl_info, machine_info, machine_line, write_results
 from glsim.evaluation.scaling import plate_scene
 from glsim.render import Renderer
@@ -297,8 +299,7 @@ def goals(report: dict) -> list[dict]:
              "met": met(fast, GOAL_FAST_RATIO)}]
 
 
-def _g(x, fmt=".3g") -> str:
-    return "—" if x is None else format(x, fmt)
+_g = partial(num, missing="—")          # a table cell: a figure, or "—" where the run has none
 
 
 HEADER = ("| renderer | k1 | time median (s) | min–max (s) | glsim / riley | riley / glsim | map RMS (px) "

@@ -31,6 +31,7 @@ import traceback
 import numpy as np
 
 from glsim.evaluation.accuracy import PLATE_FILL, PLATE_TEXTURE_PX, plate_geometry, riley_setup
+from glsim.evaluation.formatting import num
 from glsim.scene import Plate, Render, Scene, Specimen, Speckle, stereo_rig
 from glsim.scene.camera import Distortion
 
@@ -217,7 +218,7 @@ def scaling(elements=FULL_ELEMENTS, sizes=FULL_SIZES, size_elements=SIZE_ELEMENT
 
 
 # ---- report ------------------------------------------------------------------------------------
-def _s(r: dict, name: str):
+def _median_s(r: dict, name: str):
     x = r.get("renderers", {}).get(name, {})
     return x.get("median_s")
 
@@ -233,12 +234,12 @@ def goals(report: dict) -> list[dict]:
     g128, g2 = near(GOAL_ELEMENTS), near(2_000)
     out = []
     for mode in ("exact", "fast"):
-        riley, mine = (_s(pts[g128], "riley"), _s(pts[g128], mode)) if g128 else (None, None)
+        riley, mine = (_median_s(pts[g128], "riley"), _median_s(pts[g128], mode)) if g128 else (None, None)
         out.append({"goal": f"{mode} at {GOAL_ELEMENTS:,} elements no slower than riley-raster",
                     "measured": None if not (riley and mine) else f"{mine:.3g} s vs {riley:.3g} s ({mine / riley:.2f}×) "
                     f"at {pts[g128]['elements']:,} elements",
                     "met": None if not (riley and mine) else mine <= riley})
-    a, b = (_s(pts[g128], "exact"), _s(pts[g2], "exact")) if g128 and g2 else (None, None)
+    a, b = (_median_s(pts[g128], "exact"), _median_s(pts[g2], "exact")) if g128 and g2 else (None, None)
     out.append({"goal": f"exact at {GOAL_ELEMENTS:,} elements within 2× its time at 2,000",
                 "measured": None if not (a and b) else f"{a:.3g} s vs {b:.3g} s ({a / b:.2f}×)",
                 "met": None if not (a and b) else a <= 2 * b})
@@ -252,21 +253,17 @@ def goals(report: dict) -> list[dict]:
     return out
 
 
-def _fmt(x, digits=3):
-    return "–" if x is None else f"{x:.{digits}g}"
-
-
 def _row(r: dict, first: str) -> str:
     if "renderers" not in r:
         return f"| {first} | failed: {r.get('error', '?').splitlines()[0]} |||||||||"
-    rl = _s(r, "riley")
-    cells = [first, f"{r['elements']:,}", _fmt(rl)]
+    rl = _median_s(r, "riley")
+    cells = [first, f"{r['elements']:,}", num(rl)]
     for m in MODES:
-        cells.append(_fmt(_s(r, m)))
+        cells.append(num(_median_s(r, m)))
     for m in ("fast", "exact"):
-        x = _s(r, m)
+        x = _median_s(r, m)
         cells.append("–" if not (x and rl) else f"{x / rl:.2f}")
-    cells.append(" / ".join(_fmt(r["renderers"][m].get("host_ms"), 2) for m in MODES))
+    cells.append(" / ".join(num(r["renderers"][m].get("host_ms"), ".2g") for m in MODES))
     cells.append(f"{r['peak_rss_mb']:.0f}")
     cells.append(f"{r['gl_buffer_mb']:.0f}")
     return "| " + " | ".join(cells) + " |"

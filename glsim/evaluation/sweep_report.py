@@ -6,6 +6,7 @@ import json
 from pathlib import Path
 
 from glsim.evaluation.frontier import frontier_markdown, plot_frontier
+from glsim.evaluation.formatting import num
 from glsim.evaluation.report import save_figure
 from glsim.evaluation.sweep import APPARENT_STRIDE, ROI_MARGIN_PX, _by, _style, analyse
 from glsim.io import images as io
@@ -68,10 +69,6 @@ def plot_sweep(res: dict, path: str | Path) -> Path:
     return save_figure(fig, path, dpi=100)
 
 
-def _e(x) -> str:
-    return "–" if x is None else f"{x:.1e}"
-
-
 def sweep_markdown(sweep: dict) -> list[str]:
     """The sweep part of sweep.md: settings, amplitudes, per-shift tables, timings."""
     m, c2 = sweep["machine"], sweep["calculate_2d"]
@@ -109,11 +106,11 @@ def sweep_markdown(sweep: dict) -> list[str]:
         cells = []
         for run in runs:
             rr = _by(sweep, run["name"])[name]
-            cells += [_e(rr["max_abs_bias_u"]), _e(rr["max_std_u"])]
+            cells += [num(rr["max_abs_bias_u"], ".1e"), num(rr["max_std_u"], ".1e")]
         grey = r["max_grey_rms_vs_model"] * 255
         lines.append(f"| {name} | {r['render_seconds_median']:.3f} | " + " | ".join(cells)
-                     + f" | {_e(r['max_abs_gen_u'])} | {_e(r['max_abs_apparent_u'])} | "
-                     f"{_e(r['max_abs_apparent_v'])} | {'0' if r['source'] == 'model' else format(grey, '.2g')} |")
+                     + f" | {num(r['max_abs_gen_u'], '.1e')} | {num(r['max_abs_apparent_u'], '.1e')} | "
+                     f"{num(r['max_abs_apparent_v'], '.1e')} | {'0' if r['source'] == 'model' else format(grey, '.2g')} |")
     lines += ["", "Valid subsets: " + ", ".join(f"{run['name']} {next(iter(_by(sweep, run['name']).values()))['n_valid']}"
                                                  f"/{next(iter(_by(sweep, run['name']).values()))['n_subsets']}"
                                                  for run in runs)

@@ -32,6 +32,7 @@ from scipy import ndimage
 from glsim.io import images as io
 from glsim.io.calibfiles import pyvale_calibration
 from glsim.evaluation.report import gl_info, machine_info
+from glsim.evaluation.formatting import num
 from glsim.scene.bilinear import bilinear
 from glsim.scene.camera import Camera, to_camera
 from glsim.errors import GlsimError
@@ -256,10 +257,6 @@ def compare(exchange: str | Path, run: dict) -> dict:
 
 
 # ---- report -----------------------------------------------------------------------------------
-def _g(x) -> str:
-    return "–" if x is None else f"{x:.2e}"
-
-
 def results_markdown(res: dict) -> str:
     """The results as markdown: settings, then one Tables 4/5 block per DIC run."""
     m = res["machine"]
@@ -285,9 +282,9 @@ def results_markdown(res: dict) -> str:
                   "|---|---|---|---|---|---|---|---|---|---|"]
         for s in run["states"]:
             for r in s["rows"]:
-                lines.append(f"| {s['label']} | {r['dir']} | {_g(r['mean_mm'])} | {_g(r['std_mm'])} | "
-                             f"{_g(r['mean_px'])} | {_g(r['std_px'])} | {_g(r['max_abs_px'])} | "
-                             f"{'yes' if r['goal_met'] else 'no'} | {_g(r['paper_mean_px'])} | {_g(r['paper_std_px'])} |")
+                lines.append(f"| {s['label']} | {r['dir']} | {num(r['mean_mm'], '.2e')} | {num(r['std_mm'], '.2e')} | "
+                             f"{num(r['mean_px'], '.2e')} | {num(r['std_px'], '.2e')} | {num(r['max_abs_px'], '.2e')} | "
+                             f"{'yes' if r['goal_met'] else 'no'} | {num(r['paper_mean_px'], '.2e')} | {num(r['paper_std_px'], '.2e')} |")
         lines.append("")
     return "\n".join(lines)
 
