@@ -22,7 +22,7 @@ from glsim.scene import bulge_scene, load_scene
 from glsim.scene.camera import project
 from glsim.workflows.preview import Preview
 from glsim.workflows.preview import overlays as ov
-from glsim.workflows.preview.core import display_grey
+from glsim.workflows.preview.panes import display_grey
 from glsim.stages.reference import make_reference
 
 pytestmark = pytest.mark.gl
