@@ -18,23 +18,22 @@ from __future__ import annotations
 import functools
 from collections.abc import Callable
 import time
-import warnings
 from dataclasses import dataclass, field
 
 import numpy as np
 
-from glsim.errors import RenderWarning, SceneError
+from glsim.errors import SceneError
 from glsim.limits import check_gl_target, check_image_size, check_memory
 from glsim.scene import quadratic as qd
 from glsim.scene.bilinear import bilinear
-from glsim.scene.camera import Camera, pixel_to_normalized, project_camera_frame, to_camera, undistort
+from glsim.scene.camera import Camera, to_camera
 from glsim.effects import prepare as prepare_effects
-from glsim.stages.geometry import MeshGeometry, ViewSpec
+from glsim.stages.geometry import MeshGeometry
 from glsim.io.truth import Truth, pixel_positions
-from glsim.stages.quadview import PatchData, chord_error_bound, fast_local_coords as quadratic_fast_coords, \
-    make_quad_view, q4_image_bound
-from glsim.stages.view import NEAR_MM, View, _labels, coverage, make_view, warn_unseen
+from glsim.stages.quadview import fast_local_coords as quadratic_fast_coords
+from glsim.stages.view import View, coverage, make_view, warn_unseen
 from glsim.backends import make_backend
+from glsim.backends.contract import Curved, Request
 from glsim.io.fe import specimen_mesh
 from glsim.stages.reference import make_reference
 from glsim.scene import Render, Scene
@@ -153,95 +152,29 @@ class Renderer:
     def render(self, camera: int | str = 0, step: int = 0, truth: bool = False, **options) -> Result:
         """Render one image. ``options`` override the scene's [render] table (mode, …).
 
-        GL: the view is a :class:`ViewSpec` (the camera's transform; the per-element work runs
-        on the GPU from the mesh uploaded once and the step's nodes uploaded once); the CPU
-        oracle gets the full numpy :class:`View`."""
+        Both backends take the same request (glsim.backends.contract): the view as a
+        :class:`ViewSpec` (the camera's transform; the mesh and the step's nodes are shared),
+        the effects, and for a quadratic mesh in exact and q4 its curved patches."""
         opts = self.scene.replace(render=options).render if options else self.scene.render
         self.check_size(camera, truth, opts)
         t0 = time.perf_counter()
         cam = self.scene.camera(camera)
-        curved = self.mesh.is_quadratic and opts.mode != "fast"
-        if curved and self.backend_name != "gl":
-            return self._render_quadratic(cam, step, truth, opts, t0)
-        patches = None
-        if self.backend_name == "gl":
-            view = self.geometry.view(cam, step)
-            deformed = view.step_geo.deformed
-            depths = view.corner_depths() if self.scene.optics is not None else np.empty(0)
-            if curved:
-                patches = self._patch_data(view, step, opts)
-        else:
-            deformed = self.drawn_mesh.deformed(step)
-            view = self.view(camera, step, deformed)
-            depths = view.Xd[..., 2]
+        view = self.geometry.view(cam, step)
+        deformed = view.step_geo.deformed
+        depths = view.corner_depths() if self.scene.optics is not None else np.empty(0)
         fx = prepare_effects(self.scene, deformed, self.drawn_mesh.quads, cam, self.scene.cameras.index(cam), step,
-                             depths, normals=self.backend_name != "gl")
-        if patches is not None:
-            image, raster, stages = self.backend.render_view(view, opts, truth, fx, patches=patches)
-        else:
-            image, raster, stages = self.backend.render_view(view, opts, truth, fx)
+                             depths, normals=not self.backend.capabilities.device_geometry)
+        curved = Curved(self.mesh, self.pieces, step) if self.mesh.is_quadratic and opts.mode != "fast" else None
+        out = self.backend.render(Request(view, opts, truth, fx, curved))
         seconds = time.perf_counter() - t0
-        if truth and patches is not None:
-            tr = self._quadratic_truth(self._pieces_to_patches(raster, cam, step, opts.mode), step, cam)
-        elif truth and self.mesh.is_quadratic:
-            tr = self._quadratic_truth(self._fast_to_patches(raster), step, cam)
-        else:
-            tr = self._truth(view.camera.size, deformed, raster) if truth else None
-        return Result(image=image, camera=view.camera, step=step, backend=self.backend_name,
-                      options=opts, seconds=seconds, truth=tr, stages=tuple(stages),
+        tr = None
+        if truth and self.mesh.is_quadratic:   # the raster of the patches (fast: of the pieces, mapped here)
+            tr = self._quadratic_truth(out.samples if curved else self._fast_to_patches(out.samples), step, cam)
+        elif truth:
+            tr = self._truth(cam.size, deformed, out.samples)
+        return Result(image=out.image, camera=cam, step=step, backend=self.backend_name,
+                      options=opts, seconds=seconds, truth=tr, stages=out.stages,
                       specimen=self._specimen(cam, deformed, self.drawn_mesh.quads))
-
-    def _patch_data(self, view: ViewSpec, step: int, opts: Render) -> PatchData:
-        """The GL backend's quadratic payload for ``view`` (its elements are the pieces): the
-        step's patch points (cached per step), the reference data (once), the chord bound."""
-        cache = self.__dict__.setdefault("_patch_cache", {})
-        if "ref" not in cache:
-            ref_cam = self.reference.camera
-            xr = qd.patch_points(self.mesh.patches, to_camera(self.mesh.nodes, ref_cam))
-            uv, _ = project_camera_frame(xr, ref_cam)
-            cache["ref"] = (xr, uv)
-        if cache.get("step", (None,))[0] != step:
-            P = qd.patch_points(self.mesh.patches, self.mesh.deformed(step))
-            folded = np.flatnonzero(qd.folded(P))
-            cache["step"] = (step, P - self.geometry.origin, chord_error_bound(P, self.pieces.n), folded)
-        _, local, chord_mm, folded = cache["step"]
-        if folded.size:
-            warnings.warn(f"camera {view.camera.name}: elements {_labels(folded, self.mesh.element_labels)} are "
-                          "folded (the surface normal reverses inside the element: a mid-side node too far from its "
-                          "edge's middle?); their pixels stay finite (the nearest root is drawn); check the mesh",
-                          RenderWarning, stacklevel=4)
-        z_near = max(float(view.corner_depths().min()), NEAR_MM)
-        f = float(max(view.camera.intrinsics[0], view.camera.intrinsics[1]))
-        sag_px = chord_mm * f / z_near
-        if opts.mode == "q4":   # the q4 image map strays from the projected pieces: O(elements) per view
-            P_cam = to_camera(local + self.geometry.origin, view.camera)
-            sag_px = max(sag_px, q4_image_bound(P_cam, view.camera, self.pieces.n))
-        xr, uv = cache["ref"]
-        return PatchData(pieces=self.pieces.n, local=local, ref_xr=xr, ref_uv=uv,
-                         extra_sag_px=1.5 * sag_px, token=(id(self), step))
-
-    def _pieces_to_patches(self, raster: dict, cam: Camera, step: int, mode: str) -> dict:
-        """A GL exact / q4 raster of the pieces → the patches: the piece's patch as element; the
-        patch's (ξ, η) GL found, polished in float64 by :func:`glsim.scene.quadratic.newton`
-        (on the pixel's ray, or in the image for q4; kept where that does not converge)."""
-        r = dict(raster)
-        hit = np.flatnonzero(r["element"] >= 0)
-        e = self.pieces.parent[r["element"][hit]]
-        W, _ = cam.size
-        q = np.column_stack([hit % W, hit // W]).astype(np.float64)
-        P = qd.patch_points(self.mesh.patches[e], to_camera(self.mesh.deformed(step), cam)) if hit.size else \
-            np.zeros((0, 9, 3))
-        if mode == "exact":
-            xn, _ = undistort(pixel_to_normalized(q, cam.intrinsics), cam.distortion.coeffs)
-            p2, target = P[..., :2] - xn[:, None, :] * P[..., 2:3], np.zeros_like(q)
-        else:
-            p2, target = project_camera_frame(P, cam)[0], q
-        xi0, eta0 = r["xi"][hit], r["eta"][hit]
-        xi, eta, ok = qd.newton(p2, target, xi0, eta0, qd.patch_size(p2))
-        r["element"], r["xi"], r["eta"] = r["element"].copy(), r["xi"].copy(), r["eta"].copy()
-        r["element"][hit] = e
-        r["xi"][hit], r["eta"][hit] = np.where(ok, xi, xi0), np.where(ok, eta, eta0)
-        return r
 
     @staticmethod
     def _specimen(cam: Camera, deformed: np.ndarray, quads: np.ndarray) -> Callable[[], np.ndarray]:
@@ -249,22 +182,6 @@ class Renderer:
         makes its pixel mask on demand."""
         warn_unseen(cam, deformed, quads, stacklevel=5)
         return lambda: coverage(cam, deformed, quads)
-
-    def _render_quadratic(self, cam: Camera, step: int, truth: bool, opts: Render, t0: float) -> Result:
-        """exact / q4 of a quadratic mesh: the CPU oracle on the curved patches (lit with the
-        point on the patch and the normals of its linear pieces, as GL)."""
-        pieces = self.pieces
-        view = make_quad_view(cam, self.reference.camera, self.mesh.nodes, self.mesh.deformed(step), self.mesh.patches,
-                              self.mesh.element_labels, pieces=pieces, pieces_def=pieces.mesh.deformed(step),
-                              mode=opts.mode)
-        fx = prepare_effects(self.scene, pieces.mesh.deformed(step), pieces.mesh.quads, cam,
-                             self.scene.cameras.index(cam), step, view.Pd[..., 2])
-        image, raster, stages = self.backend.render_quadratic_view(view, opts, truth, fx)
-        seconds = time.perf_counter() - t0
-        tr = self._quadratic_truth(raster, step, cam) if truth else None
-        return Result(image=image, camera=cam, step=step, backend=self.backend_name, options=opts, seconds=seconds,
-                      truth=tr, stages=tuple(stages),
-                      specimen=self._specimen(cam, pieces.mesh.deformed(step), pieces.mesh.quads))
 
     def _fast_to_patches(self, raster: dict) -> dict:
         """A fast-mode raster of the pieces → the patches: element and (ξ, η) of the parent,

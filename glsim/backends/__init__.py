@@ -1,6 +1,7 @@
 """Backends: the same scene rendered by the float64 CPU oracle (:mod:`glsim.backends.cpu`) or by
-OpenGL shaders (:mod:`glsim.backends.gl`, the only place moderngl is imported). Both take a
-:class:`~glsim.stages.view.View` per image in ``render_view`` and return the same results."""
+OpenGL shaders (:mod:`glsim.backends.gl`, the only place moderngl is imported), behind one
+contract (:mod:`glsim.backends.contract`): ``render(Request) -> Raster`` and their
+``capabilities``."""
 from __future__ import annotations
 
 from glsim.errors import SceneError

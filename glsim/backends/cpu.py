@@ -13,8 +13,10 @@ from glsim.scene import bilinear as bl
 from glsim.scene import quadratic as qd
 from glsim.stages import interp
 from glsim.scene.camera import pixel_grid, pixel_to_normalized, project_camera_frame, undistort
-from glsim.stages.truth import fast_local_coords
-from glsim.stages.view import View, warn_dropped
+from glsim.backends.contract import Capabilities, Raster, Request
+from glsim.stages.quadview import make_quad_view
+from glsim.stages.truth import polish
+from glsim.stages.view import View, make_view, warn_dropped
 
 CHUNK = 1 << 21  # candidate (element, sample) pairs evaluated at once
 
@@ -257,6 +259,8 @@ def render_view(view: View, sample, opts, truth: bool, fx=None, raster=None):
         grey[hit] = _shade(view, r, hit, grey[hit], fx)
         stages.append("light")
     image = _box(grey, H, W, s) if s > 1 else grey.reshape(H, W)
+    if s > 1:
+        stages.append("downsample")
     if fx.blur:
         from glsim.effects import dof as blur
 
@@ -275,17 +279,17 @@ def render_view(view: View, sample, opts, truth: bool, fx=None, raster=None):
     if not truth:
         return image, None, stages
     r = r if s == 1 else raster(view, opts.mode, 1)
-    if opts.mode == "fast":  # truth at the material point that coloured the pixel
-        t = np.flatnonzero(r["element"] >= 0)
-        r["xi"][t], r["eta"][t] = fast_local_coords(view, r["element"][t], r["ref_uv"][t], r["xi"][t], r["eta"][t])
+    if opts.mode == "fast":  # truth at the material point that coloured the pixel (exact, q4: float64 already)
+        r = polish(view, "fast", r)
     return image, r, stages
 
 
 class CPUBackend:
-    """backend="cpu": float64 numpy, the oracle. ``render_view(view, opts, truth, effects)`` as the GL
-    backend's (which also takes ``patches=`` for curved elements, where this one has
-    :meth:`render_quadratic_view`); no GL passes (``fullscreen_pass``, ``pass_times``)."""
+    """backend="cpu": float64 numpy, the oracle, behind the backend contract
+    (:mod:`glsim.backends.contract`): it builds the numpy view of a request (every element's
+    corners, projections and boxes; the curved patches' for quadratic elements) and renders it."""
     name = "cpu"
+    capabilities = Capabilities(device_geometry=False, float64=True, passes=False)
 
     def __init__(self, reference_image: np.ndarray, dots=None):
         self._image = reference_image
@@ -306,12 +310,18 @@ class CPUBackend:
                 self._samplers[interpolation] = lambda uv: interp.sample(coeffs, uv, interpolation)
         return self._samplers[interpolation]
 
-    def render_view(self, view: View, opts, truth: bool = False, effects=None):
-        return render_view(view, self.sampler(opts.interpolation), opts, truth, effects)
-
-    def render_quadratic_view(self, view, opts, truth: bool = False, effects=None):
-        """:meth:`render_view` for a :class:`~glsim.stages.quadview.QuadView` (exact, q4)."""
-        return render_view(view, self.sampler(opts.interpolation), opts, truth, effects, rasterize_quadratic)
+    def render(self, request: Request) -> Raster:
+        v, opts, c = request.view, request.options, request.curved
+        if c is not None:
+            m = c.mesh
+            view = make_quad_view(v.camera, v.ref_camera, m.nodes, m.deformed(c.step), m.patches, m.element_labels,
+                                  pieces=c.pieces, pieces_def=c.pieces.mesh.deformed(c.step), mode=opts.mode)
+        else:
+            mesh = v.mesh_geo.mesh
+            view = make_view(v.camera, v.ref_camera, mesh.nodes, v.step_geo.deformed, mesh.quads, mesh.element_labels)
+        image, r, stages = render_view(view, self.sampler(opts.interpolation), opts, request.truth, request.effects,
+                                       rasterize_quadratic if c is not None else None)
+        return Raster(image, r, tuple(stages))
 
     def close(self) -> None:
         self._samplers.clear()

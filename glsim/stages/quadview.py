@@ -17,7 +17,7 @@ import numpy as np
 
 from glsim.errors import RenderWarning
 from glsim.scene import quadratic as qd
-from glsim.scene.camera import Camera, project_camera_frame, to_camera
+from glsim.scene.camera import Camera, pixel_to_normalized, project_camera_frame, to_camera, undistort
 from glsim.stages.view import NEAR_MM, _labels, check_reference, make_view
 
 QUAD_BOX_GRID = 9
@@ -181,3 +181,57 @@ def q4_image_bound(Pd: np.ndarray, cam: Camera, pieces: int) -> float:
     true, true_ok = project_camera_frame(np.einsum("gi,mid->mgd", N, Pd), cam)
     dev = np.where(true_ok, np.linalg.norm(image - true, axis=-1), 0.0).max()
     return float(dev) + chord_error_bound(np.pad(uv, ((0, 0), (0, 0), (0, 1))), pieces)
+
+
+def patch_data(mesh, pieces, step: int, view, mode: str, cache: dict) -> PatchData:
+    """The GL path's payload for drawing quadratic ``mesh`` (its linear ``pieces``, the view's
+    elements) at ``step`` seen by ``view`` (a ViewSpec) in ``mode`` exact or q4: the step's patch
+    points (kept in ``cache`` per step, with a warning naming folded elements), the reference
+    data (once) and the chord bound."""
+    if "ref" not in cache:
+        ref_cam = view.ref_camera
+        xr = qd.patch_points(mesh.patches, to_camera(mesh.nodes, ref_cam))
+        cache["ref"] = (xr, project_camera_frame(xr, ref_cam)[0])
+    origin = view.mesh_geo.origin
+    if cache.get("step", (None,))[0] != step:
+        P = qd.patch_points(mesh.patches, mesh.deformed(step))
+        cache["step"] = (step, P - origin, chord_error_bound(P, pieces.n), np.flatnonzero(qd.folded(P)))
+    _, local, chord_mm, folded = cache["step"]
+    if folded.size:
+        warnings.warn(f"camera {view.camera.name}: elements {_labels(folded, mesh.element_labels)} are "
+                      "folded (the surface normal reverses inside the element: a mid-side node too far from its "
+                      "edge's middle?); their pixels stay finite (the nearest root is drawn); check the mesh",
+                      RenderWarning, stacklevel=5)
+    z_near = max(float(view.corner_depths().min()), NEAR_MM)
+    f = float(max(view.camera.intrinsics[0], view.camera.intrinsics[1]))
+    sag_px = chord_mm * f / z_near
+    if mode == "q4":   # the q4 image map strays from the projected pieces: O(elements) per view
+        sag_px = max(sag_px, q4_image_bound(to_camera(local + origin, view.camera), view.camera, pieces.n))
+    xr, uv = cache["ref"]
+    return PatchData(pieces=pieces.n, local=local, ref_xr=xr, ref_uv=uv, extra_sag_px=1.5 * sag_px,
+                     token=(id(cache), step))
+
+
+def pieces_to_patches(raster: dict, mesh, pieces, step: int, cam: Camera, mode: str) -> dict:
+    """An exact / q4 raster whose elements are ``pieces`` of quadratic ``mesh`` and whose (ξ, η)
+    are their patches' (the GL path's) → the patches: the piece's patch as element, (ξ, η)
+    polished in float64 by :func:`glsim.scene.quadratic.newton` (on the pixel's ray, or in the
+    image for q4; kept where that does not converge)."""
+    r = dict(raster)
+    hit = np.flatnonzero(r["element"] >= 0)
+    e = pieces.parent[r["element"][hit]]
+    W, _ = cam.size
+    q = np.column_stack([hit % W, hit // W]).astype(np.float64)
+    P = qd.patch_points(mesh.patches[e], to_camera(mesh.deformed(step), cam)) if hit.size else np.zeros((0, 9, 3))
+    if mode == "exact":
+        xn, _ = undistort(pixel_to_normalized(q, cam.intrinsics), cam.distortion.coeffs)
+        p2, target = P[..., :2] - xn[:, None, :] * P[..., 2:3], np.zeros_like(q)
+    else:
+        p2, target = project_camera_frame(P, cam)[0], q
+    xi0, eta0 = r["xi"][hit], r["eta"][hit]
+    xi, eta, ok = qd.newton(p2, target, xi0, eta0, qd.patch_size(p2))
+    r["element"], r["xi"], r["eta"] = r["element"].copy(), r["xi"].copy(), r["eta"].copy()
+    r["element"][hit] = e
+    r["xi"][hit], r["eta"][hit] = np.where(ok, xi, xi0), np.where(ok, eta, eta0)
+    return r
+

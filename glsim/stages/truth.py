@@ -64,3 +64,28 @@ def fast_local_coords(view: View, e, ref_uv, xi0, eta0):
     xi, eta = newton_from(p2, np.zeros((len(e), 2)), xi0, eta0, steps=30, tol=1e-14)
     good = ok & np.isfinite(xi) & np.isfinite(eta)
     return np.where(good, xi, xi0), np.where(good, eta, eta0)
+
+
+def polish(view: View, mode: str, raster: dict, xn=None) -> dict:
+    """``raster`` (flat arrays over H·W of ``view``'s camera) with float64 (ξ, η) wherever a
+    sample hit an element: :func:`polish_exact` on the pixel's ray (``xn`` (H·W, 2), the rays
+    the backend used, else made here), :func:`polish_q4` at the pixel centre, or
+    :func:`fast_local_coords`. The one truth-polishing step of both backends."""
+    hit = np.flatnonzero(raster["element"] >= 0)
+    if not hit.size:
+        return raster
+    W, _ = view.camera.size
+    e, xi, eta = raster["element"][hit], raster["xi"][hit], raster["eta"][hit]
+    q = np.column_stack([hit % W, hit // W]).astype(np.float64)
+    if mode == "exact":
+        cam = view.camera
+        rays = undistort(pixel_to_normalized(q, cam.intrinsics), cam.distortion.coeffs)[0] if xn is None else xn[hit]
+        xi, eta = polish_exact(view, e, rays, xi, eta)
+    elif mode == "q4":
+        xi, eta = polish_q4(view, e, q, xi, eta)
+    else:
+        xi, eta = fast_local_coords(view, e, raster["ref_uv"][hit], xi, eta)
+    out = dict(raster, xi=raster["xi"].copy(), eta=raster["eta"].copy())
+    out["xi"][hit], out["eta"][hit] = xi, eta
+    return out
+

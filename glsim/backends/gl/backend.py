@@ -22,9 +22,10 @@ from glsim.stages import interp
 from glsim.effects import noise
 from glsim.effects.dof import blur_scheme, kernel_radius, shader_uniforms
 from glsim.effects import Effects
-from glsim.scene.camera import pixel_to_normalized, undistort
 from glsim.stages import truth
 from glsim.stages.geometry import ViewSpec
+from glsim.stages.quadview import patch_data, pieces_to_patches
+from glsim.backends.contract import Capabilities, Raster, Request
 from glsim.stages.view import warn_dropped, warn_problems
 from glsim.backends.gl.context import check_error, create_context
 from glsim.backends.gl.geometry import LAYERS, GeometryBuffers
@@ -100,6 +101,8 @@ class GLBackend:
         self._textures: dict[str, object] = {}
         self._targets: dict[tuple, tuple] = {}
         self._rays: dict[tuple, object] = {}
+        self._curved: dict[int, dict] = {}        # per quadratic mesh: glsim.stages.quadview.patch_data's cache
+        self._patch_cache: dict[tuple, object] = {}   # the patches' GL buffers (_patch_buffers)
         self.geometry: GeometryBuffers | None = None  # the mesh's buffers (one mesh at a time)
 
     # ---- resources -------------------------------------------------------------------------
@@ -149,8 +152,10 @@ class GLBackend:
         for tex in (*self._textures.values(), *self._rays.values(), *(self._dot_buffers or ())[:2]):
             tex.release()
         self._dot_buffers = None
-        for buf in self.__dict__.pop("_patch_cache", {}).values():
+        for buf in self._patch_cache.values():
             buf.release()
+        self._patch_cache.clear()
+        self._curved.clear()
         self._targets.clear()
         self._textures.clear()
         self._rays.clear()
@@ -184,26 +189,30 @@ class GLBackend:
             self.geometry = GeometryBuffers(self.ctx, self.programs, view.mesh_geo)
         return self.geometry
 
-    def render_view(self, view: ViewSpec, opts, truth: bool = False, effects=None, patches=None):
-        """Image (H, W) float32, the pixel-centre raster if ``truth`` (as the CPU backend), and
-        the list of passes run. ``patches`` (a :class:`~glsim.stages.quadview.PatchData`, modes
-        exact and q4): the view's elements are quadratic patches' linear pieces, and each
-        sample is mapped on its curved patch (shaders/quadratic.glsl); the raster's element is
-        then the piece and (ξ, η) the patch's, not polished here."""
-        self._patches = patches if opts.mode != "fast" else None
-        try:
-            return self._render_view(view, opts, truth, effects)
-        finally:
-            self._patches = None
+    @property
+    def capabilities(self) -> Capabilities:
+        return Capabilities(device_geometry=True, float64=self.fp64, passes=True)
 
-    def _render_view(self, view: ViewSpec, opts, truth: bool, effects):
-        fx = effects or Effects()
+    def render(self, request: Request) -> Raster:
+        """One request (glsim.backends.contract). Curved elements (exact, q4): the view's
+        elements are the quadratic patches' linear pieces and each sample is mapped on its
+        curved patch (shaders/quadratic.glsl); the raster comes back in the patches' terms."""
+        v, opts, c = request.view, request.options, request.curved
+        patches = None
+        if c is not None:
+            patches = patch_data(c.mesh, c.pieces, c.step, v, opts.mode, self._curved.setdefault(id(c.mesh), {}))
+        image, raster, stages = self._render_view(v, opts, request.truth, request.effects, patches)
+        if raster is not None and c is not None:
+            raster = pieces_to_patches(raster, c.mesh, c.pieces, c.step, v.camera, opts.mode)
+        return Raster(image, raster, tuple(stages))
+
+    def _render_view(self, view: ViewSpec, opts, truth: bool, fx, patches):
         s = opts.supersampling
         W, H = view.camera.size
-        color, raster = self._deform(view, opts, s, truth and s == 1, fx)
-        stages = ["deform"]
+        color, raster = self._deform(view, opts, s, truth and s == 1, fx, patches)
+        stages = ["raster", "interpolate"] + (["light"] if fx.lighting is not None else [])   # one pass
         grey, depth, temps = color[0], (color[-1] if fx.blur else None), []
-        if newton_subsamples(opts, s, self._patches is not None):
+        if newton_subsamples(opts, s, patches is not None):
             stages.append("subsamples")
         elif s > 1:
             grey, depth = self._downsample(grey, depth, W, H, s)
@@ -219,17 +228,16 @@ class GLBackend:
         for t in temps:
             t.release()
         if truth and s > 1:
-            _, raster = self._deform(view, replace(opts, samples_per_pixel=1), 1, True, Effects(), warn=False)
+            _, raster = self._deform(view, replace(opts, samples_per_pixel=1), 1, True, Effects(), patches, warn=False)
         return image, raster, stages
 
-    def _deform(self, view: ViewSpec, opts, s: int, truth: bool, fx, warn: bool = True):
+    def _deform(self, view: ViewSpec, opts, s: int, truth: bool, fx, patches, warn: bool = True):
         """The deformation pass into the cached target; returns its color textures and, if
         ``truth``, the read-back raster."""
         ctx = self.ctx
         W, H = view.camera.size
         cam, ref_cam = view.camera, view.ref_camera
         defines = program_defines(opts, truth, self.fp64, fx)
-        patches = getattr(self, "_patches", None)
         if patches is not None:
             defines.update(QUADRATIC=None, PIECES=int(patches.pieces))
         fp64 = "FP64" in defines
@@ -394,7 +402,7 @@ class GLBackend:
     def _patch_buffers(self, patches, mode: str, fp64: bool):
         """Bindings 14 (the patches' local control points at this step) and 15 (their reference
         data: frame points for exact, image points for q4), made once per step / renderer."""
-        cache = self.__dict__.setdefault("_patch_cache", {})
+        cache = self._patch_cache
         dt = np.float64 if fp64 else np.float32
         out = []
         for name, key, array in (("local", patches.token, patches.local),
@@ -409,32 +417,22 @@ class GLBackend:
         return out
 
     def _float64_truth(self, view: ViewSpec, mode: str, raster: dict, fp64: bool) -> dict:
-        """Replace the float32 (ξ, η) read back by float64 ones (glsim.stages.truth): two Newton
-        steps on the pixel's ray (exact; the ray map's hi/lo pair in fp64 builds) or pixel
-        (q4); in fast mode the material point the reference camera sees at ``ref_uv``."""
-        hit = np.flatnonzero(raster["element"] >= 0)
-        if not hit.size:
+        """The raster with float64 (ξ, η) (glsim.stages.truth.polish) from the float32 ones read
+        back, over the covered elements' numpy view only; exact mode polishes on the float64
+        rays the shader used (the ray map, bit for bit) where it has them."""
+        hit = raster["element"] >= 0
+        if not hit.any():
             return raster
         W, H = view.camera.size
-        e, xi, eta = raster["element"][hit], raster["xi"][hit], raster["eta"][hit]
-        elements, e = np.unique(e, return_inverse=True)
-        view = view.subset(elements)   # the covered elements' numpy view only
-        if mode == "exact":
-            key = (view.camera.size, tuple(view.camera.intrinsics), tuple(view.camera.distortion.coeffs), 1, "bits")
-            if fp64 and key in self._rays:   # the float64 rays the shader used, bit for bit
-                xn = np.frombuffer(self._rays[key].read(), np.float64).reshape(H * W, 2)[hit]
-            else:
-                cam = view.camera
-                q = np.column_stack([hit % W, hit // W]).astype(np.float64)
-                xn, _ = undistort(pixel_to_normalized(q, cam.intrinsics), cam.distortion.coeffs)
-            xi, eta = truth.polish_exact(view, e, xn, xi, eta)
-        elif mode == "q4":
-            xi, eta = truth.polish_q4(view, e, np.column_stack([hit % W, hit // W]).astype(np.float64), xi, eta)
-        else:
-            xi, eta = truth.fast_local_coords(view, e, raster["ref_uv"][hit], xi, eta)
-        raster["xi"], raster["eta"] = raster["xi"].copy(), raster["eta"].copy()
-        raster["xi"][hit], raster["eta"][hit] = xi, eta
-        return raster
+        elements, local = np.unique(raster["element"][hit], return_inverse=True)
+        sub = np.full(len(hit), -1, np.int64)
+        sub[hit] = local
+        key = (view.camera.size, tuple(view.camera.intrinsics), tuple(view.camera.distortion.coeffs), 1, "bits")
+        xn = (np.frombuffer(self._rays[key].read(), np.float64).reshape(H * W, 2)
+              if mode == "exact" and fp64 and key in self._rays else None)
+        out = truth.polish(view.subset(elements), mode, dict(raster, element=sub), xn)
+        out["element"] = raster["element"]
+        return out
 
     def _bind_dots(self, prog) -> None:
         """Bind procedural.glsl's storage buffers (made once) and set its uniforms."""

@@ -1,0 +1,81 @@
+"""The backend contract: what :class:`glsim.render.Renderer` asks of a backend, the same for the
+float64 CPU oracle and the GL shaders. One request type in (:class:`Request`: a
+:class:`~glsim.stages.geometry.ViewSpec`, the scene's [render] options, the effects, the curved
+elements), one result out (:class:`Raster`), and a frozen :class:`Capabilities` the renderer
+asks instead of the backend's name. Each backend verifies what it can draw before it allocates
+anything (pyvale's renderers verify a request, then render its plan).
+
+Stages are named from one vocabulary, :data:`STAGES`, in the order they run; a backend reports
+those it ran (GL runs raster, interpolate and light in one pass, and its blur as passes named
+``blur_<scheme>``).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Protocol
+
+import numpy as np
+
+from glsim.effects import Effects
+from glsim.scene import Render
+from glsim.scene.mesh import Mesh
+from glsim.scene.quadratic import Pieces
+from glsim.stages.geometry import ViewSpec
+
+STAGES = ("raster", "subsamples", "interpolate", "light", "downsample", "blur", "noise")
+
+
+@dataclass(frozen=True)
+class Capabilities:
+    """What a backend does itself.
+
+    ``device_geometry``: the per-element work (records, normals, covers) runs on the device from
+    the ViewSpec, so the renderer prepares no per-element numpy data for it; ``float64``: exact
+    and q4 compute in float64 (GL: ``GL_ARB_gpu_shader_fp64``; precision = "fp64" falls back to
+    float32 where False); ``passes``: GL passes that benches time one by one (``pass_times``) and
+    full-screen passes (``fullscreen_pass``)."""
+    device_geometry: bool
+    float64: bool
+    passes: bool
+
+
+@dataclass(frozen=True)
+class Curved:
+    """Modes exact and q4 of a quadratic mesh: each sample is mapped on its curved patch. The
+    view's elements are ``pieces`` (the mesh's linear pieces); ``mesh`` is the quadratic mesh."""
+    mesh: Mesh
+    pieces: Pieces
+    step: int
+
+
+@dataclass(frozen=True)
+class Request:
+    """One image to render: ``view`` (one camera, one step), ``options`` (the scene's [render]),
+    ``truth`` (also the pixel-centre raster), ``effects`` (what the scene asks for), ``curved``."""
+    view: ViewSpec
+    options: Render
+    truth: bool = False
+    effects: Effects = field(default_factory=Effects)
+    curved: Curved | None = None
+
+
+@dataclass(frozen=True, eq=False)
+class Raster:
+    """A backend's answer: ``image`` float32 (H, W) in [0, 1] of full scale; ``samples``, if the
+    request asked for truth, the pixel-centre raster as flat arrays over H·W — ``element`` (−1
+    where none; the quadratic patch when curved, else the view's element), ``xi``, ``eta``
+    (float64, polished: glsim.stages.truth.polish), ``ref_uv`` (px); ``stages`` run (STAGES)."""
+    image: np.ndarray
+    samples: dict | None
+    stages: tuple[str, ...]
+
+
+class Backend(Protocol):
+    name: str
+    capabilities: Capabilities
+
+    def render(self, request: Request) -> Raster:
+        """Render one request."""
+
+    def close(self) -> None:
+        """Release what the backend holds (a GL context it made)."""
