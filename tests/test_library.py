@@ -87,6 +87,11 @@ def _manifest_rows(d: Path, drop=mf.TIME_COLUMNS):
         return [{k: v for k, v in row.items() if k not in drop} for row in csv.DictReader(f)]
 
 
+def _truth_of(lib: Path, image: str) -> Path:
+    """The truth file of ``image`` (relative to the library), as its manifest row names it."""
+    return lib / next(r["truth_file"] for r in _manifest_rows(lib) if r["file"] == image)
+
+
 @pytest.fixture(scope="module")
 def reference_library(tmp_path_factory):
     """The spec rendered once, uninterrupted, in this process (1 worker)."""
@@ -204,11 +209,83 @@ def test_layout_manifest_images_and_truth(reference_library, tmp_path):
         res = r.render("cam1", 2, truth=True)
     io.write_image(tmp_path / "x.tif", res.image, 8)
     assert (tmp_path / "x.tif").read_bytes() == (lib / "v0003" / "cam1_0002.tif").read_bytes()
-    maps = T.load(lib / "v0003" / "cam1_0002.truth").maps()
+    maps = T.load(_truth_of(lib, "v0003/cam1_0002.tif")).maps()
     for name in ("element", "xi", "eta", "X_undeformed", "X_deformed"):
         np.testing.assert_array_equal(getattr(maps, name), getattr(res.truth, name), err_msg=name)
     np.testing.assert_allclose(maps.ref_uv, res.truth.ref_uv, atol=1e-4, equal_nan=True)
     assert len(list((lib / "geometry").iterdir())) == 1                 # one specimen: one geometry file
+
+
+EFFECTS = """
+[scene.lighting]
+ambient = 0.1
+[[scene.lighting.lights]]
+position = [0.0, 0.0, 0.0]
+[scene.optics]
+focal_length = 50.0
+f_number = 8.0
+focus_distance = 300.0
+pixel_pitch = 0.005
+"""
+
+
+def test_variants_differing_only_in_noise_lighting_optics_speckle_or_format_share_one_truth_file(tmp_path):
+    """Truth is content-addressed: one file per truth key, rendered once; every variant's own
+    render gives that file's (element, ξ, η) bit for bit (GL)."""
+    from glsim.scene import load_scene
+    spec = _spec(tmp_path, "mode = 'zip'\nsteps = [2]\n" + SCENE + EFFECTS + "[vary]\nnoise.sigma = [0.5, 2.0, 1.0]\n"
+                 "speckle.seed = [1, 2, 3]\nspeckle.density = [0.5, 0.4, 0.6]\nlighting.ambient = [0.1, 0.3, 0.0]\n"
+                 "optics.f_number = [8.0, 4.0, 16.0]\noutput.format = ['tiff', 'png', 'tiff']\n")
+    lib = tmp_path / "lib"
+    s = run(load_plan(spec), lib, workers=1)
+    assert s.written == 6 and not s.failed
+    rows = _manifest_rows(lib)
+    assert sorted(p.name for p in (lib / "truth").iterdir()) == sorted({Path(r["truth_file"]).name for r in rows})
+    assert len({r["truth_file"] for r in rows}) == 2 and len({r["truth_sha256"] for r in rows}) == 2
+    assert sum(float(r["truth_s"]) > 0 for r in _manifest_rows(lib, drop=())) == 2     # each rendered once
+    for v in ("v0000", "v0001", "v0002"):
+        with Renderer(load_scene(lib / v / "scene.json")) as r:
+            full = r.render("cam1", 2, truth=True).truth
+        t = T.load(_truth_of(lib, f"{v}/cam1_0002.{'png' if v == 'v0001' else 'tif'}"))
+        for name in ("element", "xi", "eta"):
+            np.testing.assert_array_equal(getattr(t, name), getattr(full, name), err_msg=f"{v} {name}")
+    assert verify(lib) == (6, [])
+
+
+def test_every_truth_key_ingredient_changes_the_key(monkeypatch):
+    from glsim.workflows.library.spec import truth_keys
+    changed = {"cameras.1.fx": (360.0, 361.0), "cameras.1.distortion.k1": (0.0, 0.01),
+               "cameras.1.pose.stereo.Phi": (11.0, 12.0), "cameras.1.size": ([64, 48], [66, 48]),
+               "cameras.0.cx": (31.5, 31.0), "specimen.plate.translations": ([[0.1, 0.0, 0.0], [0.25, -0.1, 0.3]],
+                                                                            [[0.1, 0.0, 0.0], [0.25, -0.1, 0.4]]),
+               "specimen.pose.t": ([0.0, 0.0, 300.0], [0.0, 0.0, 301.0]), "speckle.oversample": (2.0, 3.0),
+               "render.mode": ("exact", "q4"), "render.precision": ("fp64", "fp32"), "render.backend": ("gl", "cpu"),
+               "render.samples_per_pixel": (1, 4)}
+    same = {"noise.sigma": (0.0, 2.0), "speckle.seed": (0, 5), "speckle.density": (0.5, 0.3),
+            "speckle.dot_diameter_px": (4.0, 5.0), "output.format": ("tiff", "png"),
+            "render.interpolation": ("bspline3", "linear"), "render.background": (0.0, 0.2), "seed": (0, 1)}
+    paths = list(changed) + list(same)
+    vary = {p: [v[0]] * (len(paths) + 1) for p, v in {**changed, **same}.items()}
+    for k, p in enumerate(paths):               # variant k + 1 changes path k only
+        vary[p][k + 1] = {**changed, **same}[p][1]
+    spec = {"mode": "zip", "seed": 1, **_toml(SCENE), "vary": vary}
+    plan = expand(spec, ".")
+    keys = {(j.variant, j.camera, j.step): j.truth for j in plan.jobs}
+    assert keys["v0000", "cam1", 0] != keys["v0000", "cam1", 2] != keys["v0000", "cam0", 2]    # step, camera
+    for k, p in enumerate(paths):
+        v = f"v{k + 1:04d}"
+        moved = [keys[v, c, s] != keys["v0000", c, s] for c in ("cam0", "cam1") for s in (0, 2)]
+        if p in same:
+            assert not any(moved), p
+        elif p.startswith("cameras.1"):       # camera 1's own truth only
+            assert moved == [False, False, True, True], p
+        else:
+            assert all(moved), p
+    assert {j.truth for j in expand({**spec, "truth_dtype": "float32"}, ".").jobs}.isdisjoint(keys.values())
+    v = plan.variants[0]
+    before = truth_keys(v.scene, plan.meshes[next(iter(plan.meshes))], ["cam0"], [0], "float64")
+    monkeypatch.setattr(T, "VERSION", T.VERSION + 1)
+    assert truth_keys(v.scene, plan.meshes[next(iter(plan.meshes))], ["cam0"], [0], "float64") != before
 
 
 def test_a_reused_renderer_gives_the_bytes_of_a_fresh_one(tmp_path):
@@ -252,7 +329,7 @@ def test_float32_truth_png_images_and_no_truth(tmp_path):
                  + "[scene.output]\nformat = 'png'\npattern = '{camera}/{step:02d}.{ext}'\n[vary]\nnoise.sigma = [1.0]\n")
     s = run(load_plan(spec), tmp_path / "lib", workers=1)
     assert s.written == 1 and verify(tmp_path / "lib") == (1, [])
-    t = T.load(tmp_path / "lib" / "v0000" / "cam1" / "01.truth")
+    t = T.load(_truth_of(tmp_path / "lib", "v0000/cam1/01.png"))
     assert t.header["dtype"] == "float32" and io.read_image(tmp_path / "lib" / "v0000" / "cam1" / "01.png").shape == (48, 64)
     with Renderer(load_plan(spec).variants[0].scene) as r:
         full = r.render("cam1", 1, truth=True).truth
@@ -272,13 +349,15 @@ def test_one_and_two_workers_give_the_same_bytes_and_resume_renders_only_what_is
     assert s.workers == 2 and s.written == 16 and not s.failed
     assert _files(lib) == _files(ref)
     assert _manifest_rows(lib) == _manifest_rows(ref)
-    # damage one image, remove one truth file: resume renders those two images only
+    # damage one image, remove one truth file (shared by the 4 variants' cam1 images of step 0): resume
+    # renders the damaged image and one image of that truth key with its truth, and keeps the other 3 images
     img = lib / "v0001" / "cam0_0002.tif"
     img.write_bytes(img.read_bytes()[:-7] + b"garbage")
-    (lib / "v0002" / "cam1_0000.truth").unlink()
+    _truth_of(lib, "v0002/cam1_0000.tif").unlink()
     r = subprocess.run(GLSIM + ["library", str(lib), "--verify"], capture_output=True, text=True)
-    assert r.returncode == 1 and "14 images good, 2 problems" in r.stdout, r.stdout
+    assert r.returncode == 1 and "11 images good, 5 problems" in r.stdout, r.stdout
     assert "v0001/cam0_0002.tif: image missing or fails its size/SHA-256" in r.stdout
+    assert "v0003/cam1_0000.tif: truth missing or fails its size/SHA-256" in r.stdout
     from glsim.cli import main                           # resume from the spec stored in the library
     assert main(["library", str(lib), "--workers", "1", "-q"]) == 0
     assert "2 images written, 14 kept" in capsys.readouterr().out
@@ -403,7 +482,7 @@ def test_disk_full_is_a_clear_error_and_resumes(reference_library, tmp_path, mon
 
     monkeypatch.setattr(worker, "write_group", full)
     lib = tmp_path / "full"
-    with pytest.raises(GlsimError, match=r"cam1_0000.truth: cannot be written \(No space left on device\) — the disk is full: free space, then run the "
+    with pytest.raises(GlsimError, match=r"v0001/cam1_0000.tif: cannot be written \(No space left on device\) — the disk is full: free space, then run the "
                                          "same command again"):
         run(load_plan(spec), lib, workers=1)
     monkeypatch.setattr(worker, "write_group", real)
@@ -497,7 +576,7 @@ def test_dask_cluster_with_a_worker_killed_gives_the_same_library(reference_libr
         p = subprocess.Popen(GLSIM + ["library", str(spec), "-o", str(lib), "--scheduler", address, "-q"],
                              stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
         deadline = time.time() + 30
-        while time.time() < deadline and not list(lib.glob("v*/*.truth")):
+        while time.time() < deadline and not list(lib.glob("truth/*.truth")):
             time.sleep(0.05)
         procs[1].send_signal(signal.SIGKILL)                # one worker dies mid-run
         out, err = p.communicate(timeout=120)

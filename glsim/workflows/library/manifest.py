@@ -12,11 +12,13 @@ one per vary key    the value of each varied parameter, named by its dotted path
 ``file``            the image, relative to the library root
 ``bytes``           its size
 ``sha256``          its SHA-256 (hex)
-``truth_file``      the compact truth (``.truth``), relative to the root; empty without truth
+``truth_file``      the compact truth, ``truth/{key}.truth`` (shared by the images of one truth
+                    key, :func:`.spec.truth_keys`); empty without truth
 ``truth_bytes``     its size (0 without truth)
 ``truth_sha256``    its SHA-256 (empty without truth)
 ``render_s``        seconds the render took (with GL truth read-back when truth is on)
-``truth_s``         seconds encoding the compact truth
+``truth_s``         seconds encoding the compact truth (0 for an image whose truth file another
+                    image wrote)
 ``encode_s``        seconds encoding the image (quantise, TIFF/PNG, hash)
 ``write_s``         seconds writing both files
 ``saturated``       fraction of the specimen's pixels clipped when quantised (the background,
@@ -44,6 +46,7 @@ TIME_COLUMNS = ("render_s", "truth_s", "encode_s", "write_s", "saturated", "cove
 MANIFEST = "manifest.csv"
 LIBRARY = "library.json"
 GEOMETRY_DIR = "geometry"
+VERSION = 2          # of library.json; 1: one truth file per image, beside it
 
 
 def columns(keys) -> list[str]:
@@ -92,7 +95,7 @@ def read_manifest(out: Path) -> dict:
 
 
 def library_info(plan, fingerprint: str) -> dict:
-    return {"format": "glsim-library", "version": 1, "fingerprint": fingerprint, "spec": plan.source,
+    return {"format": "glsim-library", "version": VERSION, "fingerprint": fingerprint, "spec": plan.source,
             "base_dir": plan.base_dir, "mode": plan.mode, "seed": plan.seed, "keys": list(plan.keys),
             "truth": plan.truth, "truth_dtype": plan.truth_dtype, "cameras": list(plan.cameras),
             "steps": list(plan.steps), "columns": columns(plan.keys),

@@ -6,7 +6,13 @@ The directory rules:
 * Nothing is written before the whole spec is expanded and checked (:mod:`.spec`).
 * A directory holding a library of the same plan (same fingerprint in ``library.json``) is
   resumed: images whose files exist with the size and SHA-256 of their manifest row are kept,
-  everything else is rendered (again). Any other non-empty directory is refused, unless
+  everything else is rendered (again).
+* Truth is content-addressed: every image whose truth key (:func:`.spec.truth_keys`) is the same
+  points to one file ``truth/{key}.truth``, rendered and written once, by the first image of
+  the key still to render (the others render their image only). A truth file is good if it
+  has the size and SHA-256 its manifest rows give, or, where no row gives them yet (written
+  after the last manifest update), if it decodes: its name is its key, and it was renamed
+  into place whole. A manifest row is written once its image and its truth file both are. Any other non-empty directory is refused, unless
   ``force`` and it holds a library: then that library's files are removed first.
 * Images and their truth are renamed into place as one group (:mod:`.worker`); the manifest
   is rewritten atomically every ``flush_s`` seconds and at the end, so it always loads. An image
@@ -31,10 +37,11 @@ from glsim.io import images as io
 from glsim.io import outdir
 from glsim.io import truth as truthio
 from glsim.workflows.library import manifest as mf
-from glsim.workflows.library.spec import Plan, mesh_key
+from glsim.workflows.library.spec import TRUTH_DIR, Plan, mesh_key
 from glsim.workflows.library.worker import WriteError, make_task, render_task
 
 CHUNK = 8          # images per task at most (a variant with more is split)
+TRUTH_BAD = "truth missing or fails its size/SHA-256"
 
 
 class LibraryError(GlsimError):
@@ -82,6 +89,8 @@ class Summary:
 
 def _first_difference(old: dict, plan: Plan) -> str:
     new = mf.library_info(plan, "")
+    if old.get("version") != new["version"]:
+        return f"it was written by an older glsim (library version {old.get('version')}, one truth file per image)"
     for key in ("keys", "mode", "seed", "truth", "truth_dtype", "cameras", "steps", "images"):
         if old.get(key) != new.get(key):
             return f"{key} is {json.dumps(old.get(key))} there, {json.dumps(new.get(key))} now"
@@ -115,7 +124,7 @@ def _prepare_directory(out: Path, plan: Plan, fingerprint: str, force: bool) -> 
         vid = str(v.get("id", ""))
         if vid.startswith("v") and vid[1:].isdigit() and (out / vid).is_dir():
             shutil.rmtree(out / vid)
-    for name in (mf.GEOMETRY_DIR,):
+    for name in (mf.GEOMETRY_DIR, TRUTH_DIR):
         if (out / name).is_dir():
             shutil.rmtree(out / name)
     for name in (mf.MANIFEST, mf.LIBRARY):
@@ -149,6 +158,8 @@ def _write_setup(out: Path, plan: Plan, fingerprint: str) -> dict:
     """library.json, each variant's scene.json and the geometry files; returns
     mesh key → (geometry path relative to out, its SHA-256)."""
     mf.write_library_info(out, mf.library_info(plan, fingerprint))
+    if plan.truth:
+        (out / TRUTH_DIR).mkdir(exist_ok=True)
     geometry = {}
     for v in plan.variants:
         key = mesh_key(v.scene)
@@ -194,23 +205,43 @@ def _file_ok(path: Path, size: int, sha: str) -> bool:
         return False
 
 
-def check_records(out: Path, plan: Plan, records: dict) -> tuple[dict, list]:
-    """The records whose files exist with their size and SHA-256, and a list of problems
-    (job, what) for every other image of the plan (files hashed on a few threads)."""
+def check_records(out: Path, plan: Plan, records: dict) -> tuple[dict, list, dict]:
+    """The records whose files are good, a list of problems (job, what) for every other image
+    of the plan, and the good truth files (path → (bytes, SHA-256); see the module text for
+    the rule). Each file is hashed once, on a few threads."""
     from concurrent.futures import ThreadPoolExecutor
 
-    good, problems = {}, []
+    rows: dict[str, list] = {}
+    for job in plan.jobs:
+        rec = records.get((job.variant, job.camera, job.step))
+        if job.truth:
+            rows.setdefault(job.truth, []).extend([rec] if rec and rec.get("truth_file") == job.truth else [])
     with ThreadPoolExecutor(max_workers=min(8, (os.cpu_count() or 1) + 2)) as pool:
-        results = list(pool.map(lambda job: _check_job(out, job, records), plan.jobs))
+        truths = dict(zip(rows, pool.map(lambda path: _truth_status(out, path, rows[path]), rows)))
+        results = list(pool.map(lambda job: _check_job(out, job, records, truths), plan.jobs))
+    good, problems = {}, []
     for job, (rec, what) in zip(plan.jobs, results):
         if what:
             problems.append((job, what))
         else:
             good[(job.variant, job.camera, job.step)] = rec
-    return good, problems
+    return good, problems, {path: t for path, t in truths.items() if t}
 
 
-def _check_job(out: Path, job, records: dict) -> tuple[dict | None, str]:
+def _truth_status(out: Path, path: str, rows: list) -> tuple[int, str] | None:
+    """(bytes, SHA-256) of the truth file ``path`` if it is good (see the module text), else None."""
+    row = next((r for r in rows if r.get("truth_sha256")), None)
+    if row is not None:
+        ok = _file_ok(out / path, row["truth_bytes"], row["truth_sha256"])
+        return (row["truth_bytes"], row["truth_sha256"]) if ok else None
+    try:
+        truthio.read(out / path).xi            # the header, the element map and (ξ, η) decode
+        return (out / path).stat().st_size, truthio.sha256_file(out / path)
+    except (GlsimError, OSError):
+        return None
+
+
+def _check_job(out: Path, job, records: dict, truths: dict) -> tuple[dict | None, str]:
     """(the job's record, "") if its files are good, else (None, what is wrong)."""
     rec = records.get((job.variant, job.camera, job.step))
     if rec is None:
@@ -220,23 +251,42 @@ def _check_job(out: Path, job, records: dict) -> tuple[dict | None, str]:
         return None, "manifest row names other files"
     if not _file_ok(out / job.image, rec["bytes"], rec["sha256"]):
         return None, "image missing or fails its size/SHA-256"
-    if job.truth and not _file_ok(out / job.truth, rec["truth_bytes"], rec["truth_sha256"]):
-        return None, "truth missing or fails its size/SHA-256"
+    if job.truth and truths.get(job.truth) is None:
+        return None, TRUTH_BAD
     return rec, ""
+
+
+def _rows(records: dict, truths: dict) -> dict:
+    """The records whose image and truth file are both written (the manifest's rows), with
+    their truth file's size and SHA-256."""
+    rows = {}
+    for k, rec in records.items():
+        t = rec["truth_file"]
+        if not t:
+            rows[k] = rec
+        elif t in truths:
+            rows[k] = {**rec, "truth_bytes": truths[t][0], "truth_sha256": truths[t][1]}
+    return rows
 
 
 # ---- running -----------------------------------------------------------------------------------------
 
-def _tasks(out: Path, plan: Plan, todo, geometry: dict) -> list[dict]:
+def _tasks(out: Path, plan: Plan, todo, geometry: dict, truths: dict) -> list[dict]:
+    """Tasks of ≤ CHUNK images of one variant; of each truth file not in ``truths`` (the good
+    ones), the first image still to render renders it."""
     by_variant: dict[str, list] = {}
+    owners, seen = set(), set(truths)
     for job in todo:
         by_variant.setdefault(job.variant, []).append(job)
+        if job.truth and job.truth not in seen:
+            seen.add(job.truth)
+            owners.add(job)
     tasks = []
     for vid, jobs in by_variant.items():
         v = plan.variant(vid)
         rel, sha = geometry[mesh_key(v.scene)]
         for k in range(0, len(jobs), CHUNK):
-            tasks.append(make_task(v, jobs[k:k + CHUNK], out, rel, sha, plan.truth_dtype))
+            tasks.append(make_task(v, jobs[k:k + CHUNK], out, rel, sha, plan.truth_dtype, owners))
     return tasks
 
 
@@ -421,18 +471,30 @@ def _run(plan: Plan, out: Path, workers, scheduler, force: bool, progress: bool,
     _check_writable(out)
     sweep_temporaries(out)
     geometry = _write_setup(out, plan, fingerprint)
-    records, todo = {}, list(plan.jobs)
+    records, truths, todo = {}, {}, list(plan.jobs)
     if resume:
-        records, problems = check_records(out, plan, mf.read_manifest(out))
-        todo = [job for job, _ in problems]
+        rows = mf.read_manifest(out)
+        records, problems, truths = check_records(out, plan, rows)
+        todo = [job for job, what in problems if what != TRUTH_BAD]
+        pending = {job.truth for job in todo}
+        for job, what in problems:     # a good image whose truth file is bad: kept, unless it renders that file
+            if what != TRUTH_BAD:
+                continue
+            if job.truth in pending:
+                records[(job.variant, job.camera, job.step)] = rows[(job.variant, job.camera, job.step)]
+            else:
+                todo.append(job)
+                pending.add(job.truth)
     workers = default_workers() if workers is None else workers
     if workers < 1:
         raise LibraryError(f"--workers {workers}: must be ≥ 1 — give the number of worker processes")
     summary = Summary(out=str(out), total=len(plan.jobs), kept=len(records),
                       workers=min(workers, max(1, len(todo))), engine="dask" if scheduler else "local")
-    tasks = _tasks(out, plan, todo, geometry)
+    tasks = _tasks(out, plan, todo, geometry, truths)
     bar = _progress = _Progress(len(todo), progress)
     last_flush = [time.perf_counter()]
+
+    fresh = set()
 
     def on_done(task, result):
         status, payload = result
@@ -441,13 +503,16 @@ def _run(plan: Plan, out: Path, workers, scheduler, force: bool, progress: bool,
             return
         for rec in payload:
             records[(rec["variant"], rec["camera"], rec["step"])] = rec
+            fresh.add((rec["variant"], rec["camera"], rec["step"]))
+            if rec["truth_sha256"]:
+                truths[rec["truth_file"]] = (rec["truth_bytes"], rec["truth_sha256"])
             summary.written += 1
             summary.bytes += rec["bytes"] + rec["truth_bytes"]
             for c in ("render_s", "truth_s", "encode_s", "write_s"):
                 setattr(summary, c, getattr(summary, c) + rec[c])
         bar.update(payload)
         if time.perf_counter() - last_flush[0] >= flush_s:
-            mf.write_manifest(out, plan, records)
+            mf.write_manifest(out, plan, _rows(records, truths))
             last_flush[0] = time.perf_counter()
 
     try:
@@ -455,10 +520,15 @@ def _run(plan: Plan, out: Path, workers, scheduler, force: bool, progress: bool,
     finally:
         _progress.end()
         try:
-            mf.write_manifest(out, plan, records)
+            mf.write_manifest(out, plan, _rows(records, truths))
         except OSError:
             pass
         sweep_temporaries(out)
+    orphans = [k for k, rec in records.items() if rec["truth_file"] and rec["truth_file"] not in truths]
+    summary.written -= len(fresh.intersection(orphans))   # their truth file failed: no manifest row, rendered next time
+    summary.kept -= len(set(orphans) - fresh)
+    summary.failed += [(vid, "the truth file of its images was not written (another task failed)")
+                       for vid in dict.fromkeys(k[0] for k in orphans)]
     summary.seconds = time.perf_counter() - t0
     return summary
 
@@ -474,12 +544,13 @@ def verify(out: str | Path) -> tuple[int, list[str]]:
         raise LibraryError(f"{out}: holds no library (no library.json, or a damaged one) — give a directory that "
                            "`glsim library SPEC -o DIR` wrote")
     plan = mf.StoredPlan(info)
-    good, problems = check_records(out, plan, mf.read_manifest(out))
+    good, problems, _ = check_records(out, plan, mf.read_manifest(out))
     lines = [f"{job.image}: {what}" for job, what in problems]
     seen = set()
     for rec in good.values():
-        if not rec.get("truth_file"):
+        if not rec.get("truth_file") or rec["truth_file"] in seen:
             continue
+        seen.add(rec["truth_file"])
         try:
             t = truthio.read(out / rec["truth_file"])
             t.xi          # decoded: the element map and (ξ, η), not only the header

@@ -93,7 +93,7 @@ class Job:
     camera: str
     step: int
     image: str
-    truth: str           # "" without truth
+    truth: str           # "" without truth; else truth/{key}.truth, shared by the images of one truth key
 
 
 @dataclass(frozen=True)
@@ -438,7 +438,7 @@ def expand(spec: dict, spec_dir: str | Path = ".", sample: int | None = None) ->
         _fail("cameras", f"expected a list of camera names or indices, got {cam_sel!r}", 'write cameras = ["cam0"]')
     steps = _steps(spec.get("steps"))
 
-    variants, jobs, meshes = [], [], {}
+    variants, jobs, meshes, digests = [], [], {}, {}
     for i in picked:
         row = _row(mode, keys, cols, i)
         vid = f"v{i:0{width}d}"
@@ -488,11 +488,11 @@ def expand(spec: dict, spec_dir: str | Path = ".", sample: int | None = None) ->
         except SceneError as exc:
             raise SpecError(f"{where}: {exc}") from None
         ext = EXTENSIONS[scene.output.format]
+        tkeys = truth_keys(scene, meshes[mkey], cams, vsteps, dtype, digests) if truth else {}
         for s in vsteps:
             for c in cams:
                 image = f"{vid}/" + scene.output.pattern.format(camera=c, step=s, ext=ext)
-                stem = image.rsplit(".", 1)[0]
-                jobs.append(Job(vid, c, s, image, stem + ".truth" if truth else ""))
+                jobs.append(Job(vid, c, s, image, f"{TRUTH_DIR}/{tkeys[c, s]}.truth" if truth else ""))
         variants.append(Variant(vid, i, params, scene))
         _limit("vary", len(jobs) * count // len(variants), MAX_IMAGES, "images (variants × cameras × steps)",
                      "use fewer variants, cameras or steps")
@@ -526,6 +526,49 @@ def mesh_key(scene: Scene) -> str:
     """What the specimen mesh depends on (variants with the same key share one mesh)."""
     d = scene.to_dict()
     return json.dumps({"specimen": d["specimen"], "base_dir": d["base_dir"]}, sort_keys=True)
+
+
+TRUTH_DIR = "truth"      # a library's truth files: truth/{key}.truth, one per distinct truth key
+KEY_VERSION = 1          # of what truth_keys hashes: bump it when that changes
+PATTERN_KEYS = ("seed", "density", "dot_diameter_px", "edge_px")   # speckle keys that only draw the pattern
+
+
+def _digest(arrays) -> str:
+    h = hashlib.sha256()
+    for a in arrays:
+        a = np.ascontiguousarray(a)
+        h.update(f"{a.dtype.str}{a.shape}".encode())
+        h.update(memoryview(a).cast("B"))
+    return h.hexdigest()
+
+
+def truth_keys(scene: Scene, mesh, cameras, steps, dtype: str, cache: dict | None = None) -> dict:
+    """(camera name, step) → the truth key of that image: SHA-256 (first 32 hex digits) of
+    everything that changes a bit of its compact truth file — the mesh (placed nodes, quads,
+    labels, every step's displacements: the geometry file its header names), the step, the
+    camera (intrinsics, distortion, pose, size, as the header holds it), camera 0, the specimen
+    table and the speckle's placement (what the reference camera depends on: not its seed,
+    density or dot size), render mode, precision, backend, samples per pixel, the truth dtype,
+    and the truth format's and this key's versions. Noise, lighting, optics, the speckle
+    pattern and the output format do not enter: variants differing only in those share one
+    truth file. ``cache``: mesh digests by ``id(mesh)``, kept between calls."""
+    from glsim.io import truth as truthio
+
+    cache = {} if cache is None else cache
+    if id(mesh) not in cache:       # the mesh is kept with its digest, so its id stays its own
+        cache[id(mesh)] = (mesh, _digest([mesh.nodes, mesh.quads, mesh.element_labels, *mesh.displacements,
+                                          *([] if mesh.patches is None else [mesh.patches])]))
+    d = scene.to_dict()
+    sp = {k: v for k, v in d["speckle"].items() if k not in PATTERN_KEYS}
+    sp["image"] = str(scene.resolve(sp["image"])) if sp["image"] else ""
+    r = scene.render
+    base = {"version": [truthio.FORMAT, truthio.VERSION, KEY_VERSION], "dtype": dtype, "mesh": cache[id(mesh)][1],
+            "specimen": d["specimen"], "specimen_dir": d["base_dir"], "speckle": sp,
+            "camera0": truthio.camera_dict(scene.cameras[0]),
+            "render": [r.mode, r.precision, r.backend, r.samples_per_pixel, r.subsamples]}
+    return {(c, s): hashlib.sha256(json.dumps({**base, "step": s, "camera": truthio.camera_dict(scene.camera(c))},
+                                              sort_keys=True).encode()).hexdigest()[:32]
+            for s in steps for c in cameras}
 
 
 def reference_key(scene: Scene, backend: str) -> str:

@@ -137,7 +137,7 @@ def _encode_and_write(out: Path, job: dict, res, header: dict | None, dtype: str
            "bytes": len(data), "sha256": truthio.sha256_bytes(data), "truth_file": job["truth"],
            "truth_bytes": 0, "truth_sha256": "", "render_s": res.seconds, "saturated": res.saturated,
            "covered": res.covered}
-    if job["truth"]:
+    if job["render_truth"]:
         t = res.truth
         tdata = truthio.encode(t.element, t.xi, t.eta, header, dtype)
         rec["truth_bytes"], rec["truth_sha256"] = len(tdata), truthio.sha256_bytes(tdata)
@@ -146,7 +146,7 @@ def _encode_and_write(out: Path, job: dict, res, header: dict | None, dtype: str
     files.append((out / job["image"], data))
     write_group(files)
     t3 = time.perf_counter()
-    rec.update(encode_s=t1 - t0, truth_s=t2 - t1, write_s=t3 - t2)
+    rec.update(encode_s=t1 - t0, truth_s=(t2 - t1) if job["render_truth"] else 0.0, write_s=t3 - t2)
     return rec
 
 
@@ -194,9 +194,9 @@ def render_task(task: dict) -> list[dict]:
     try:
         try:
             for job in task["jobs"]:
-                res = r.render(job["camera"], job["step"], truth=bool(job["truth"]))
+                res = r.render(job["camera"], job["step"], truth=job["render_truth"])
                 header = None
-                if job["truth"]:
+                if job["render_truth"]:
                     header = truthio.image_header(res.camera, scene.cameras[0], r.reference.camera,
                                                   res.options.mode, job["step"],
                                                   truthio.relpath(out / task["geometry"], (out / job["truth"]).parent),
@@ -221,13 +221,15 @@ class WriteError(GlsimError):
     """A library file could not be written (disk full, permissions); resuming fixes it."""
 
 
-def make_task(variant, jobs, out: Path, geometry: str, geometry_sha256: str, truth_dtype: str) -> dict:
-    """The plain-data task of ``jobs`` (all of ``variant``)."""
+def make_task(variant, jobs, out: Path, geometry: str, geometry_sha256: str, truth_dtype: str,
+              owners=frozenset()) -> dict:
+    """The plain-data task of ``jobs`` (all of ``variant``); the jobs in ``owners`` render and
+    write their truth file, the others only their image (their truth file is another job's)."""
     scene = variant.scene
     return {"variant": variant.id, "scene": scene.to_json(), "out": str(out), "backend": scene.render.backend,
             "geometry": geometry, "geometry_sha256": geometry_sha256, "truth_dtype": truth_dtype,
             "jobs": [{"variant": j.variant, "camera": j.camera, "step": j.step, "image": j.image, "truth": j.truth,
-                      "format": scene.output.format} for j in jobs]}
+                      "render_truth": j in owners, "format": scene.output.format} for j in jobs]}
 
 
 # ---- process pools ---------------------------------------------------------------------------------
