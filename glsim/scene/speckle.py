@@ -74,49 +74,106 @@ class Dots:
         return float(self.radii.max(initial=0.0)) + self.edge_px / 2
 
 
-def draw_dots(shape, dot_diameter_px, density=0.5, seed=0, edge_px=1.0, black=0.1, white=0.9,
-              diameter_spread=0.2) -> Dots:
-    """The random dots of :func:`generate` (same arguments, same draws)."""
-    h, w = _check_shape(shape)
-    diameter = _check_number("speckle.dot_diameter_px", dot_diameter_px, 2, math.inf, False, True,
-                             "give a dot diameter of at least 2 px (smaller dots alias), e.g. 4")
+CELL_DIAMETERS = 16  # side of the pattern's lattice cells, in nominal dot diameters
+
+
+def _pattern_args(dot_diameter, density, edge, diameter_spread, min_diameter, unit):
+    """The generator's arguments checked (SceneError naming the speckle key), as floats."""
+    fix = (f"give a dot diameter of at least {min_diameter:g} {unit} (smaller dots alias), e.g. 4" if min_diameter
+           else "give a positive dot diameter")
+    diameter = _check_number("speckle.dot_diameter_px", dot_diameter, min_diameter, math.inf,
+                             not min_diameter, True, fix)
     density = _check_number("speckle.density", density, 0, 1, True, True,
                             "give the dark-area fraction strictly between 0 and 1, e.g. 0.5")
-    edge_px = _check_number("speckle.edge_px", edge_px, 0, diameter, False, False,
-                            "give an edge width between 0 (hard) and the dot diameter, e.g. 1.0")
+    edge = _check_number("speckle.edge_px", edge, 0, diameter, False, False,
+                         "give an edge width between 0 (hard) and the dot diameter, e.g. 1.0")
     spread = _check_number("speckle.diameter_spread", diameter_spread, 0, 1, False, True,
                            "give the relative diameter spread in [0, 1), e.g. 0.2")
+    return diameter, density, edge, spread
+
+
+def _check_seed(seed):
+    if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
+        raise SceneError("speckle.seed", f"expected a non-negative integer, got {seed!r}",
+                         "give an integer seed >= 0, e.g. 0")
+    return int(seed)
+
+
+def _grey_levels(black, white):
     black = _check_number("speckle.black", black, 0, 1, False, False, "give a grey level in [0, 1]")
     white = _check_number("speckle.white", white, 0, 1, False, False, "give a grey level in [0, 1]")
     if black >= white:
         raise SceneError("speckle.black", f"black ({black:g}) must be darker than white ({white:g})",
                          "give black < white, e.g. black = 0.1, white = 0.9")
-    if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
-        raise SceneError("speckle.seed", f"expected a non-negative integer, got {seed!r}",
-                         "give an integer seed >= 0, e.g. 0")
+    return black, white
 
-    rng = np.random.default_rng(seed)
-    reach = diameter * (1 + spread) / 2 + edge_px / 2  # a dot darkens only px closer than this
+
+def _zigzag(i: int) -> int:
+    """A cell index as a non-negative integer (0, −1, 1, −2, … → 0, 1, 2, 3, …)."""
+    return 2 * i if i >= 0 else -2 * i - 1
+
+
+def pattern_reach(dot_diameter, edge, diameter_spread=0.2) -> float:
+    """Largest distance from a dot's centre at which the dot still darkens (units of the diameter)."""
+    return dot_diameter * (1 + diameter_spread) / 2 + edge / 2
+
+
+def draw_pattern(lo, hi, dot_diameter, density=0.5, seed=0, edge=1.0, diameter_spread=0.2):
+    """The dots of the Boolean-model pattern that reach the rectangle ``lo``…``hi`` (2-D, any
+    length unit: mm on a specimen, px in an image): centres (n, 2) and radii (n,).
+
+    The pattern is a property of the plane, not of the rectangle: the plane is cut into square
+    cells of side ``CELL_DIAMETERS × dot_diameter`` anchored at its origin, and cell (i, j)
+    holds a Poisson number of dots, uniform over the cell, drawn from a generator seeded by
+    (``seed``, i, j) alone. A dot therefore sits at the same point whichever rectangle asks for
+    it; a larger rectangle only adds dots. Diameters are uniform in ``dot_diameter × (1 ±
+    diameter_spread)``; the intensity makes the expected dark-area fraction ``1 − exp(−λ ·
+    mean dot area)`` equal to ``density``. ``edge``: the dots' smoothstep edge width, which only
+    widens the margin of dots kept around the rectangle."""
+    diameter, density, edge, spread = _pattern_args(dot_diameter, density, edge, diameter_spread, 0, "")
+    seed = _check_seed(seed)
+    lo, hi = np.asarray(lo, np.float64), np.asarray(hi, np.float64)
+    reach = pattern_reach(diameter, edge, spread)
     mean_area = math.pi / 4 * diameter**2 * (1 + spread**2 / 3)  # E[d^2] of a uniform diameter
-    lam = -math.log1p(-density) / mean_area  # dots per px^2
-    # Centres cover the image (px centres 0..h-1, edges at -0.5, h-0.5) plus every dot that reaches it.
-    lo = -0.5 - reach
-    n_dots = rng.poisson(lam * (h + 2 * reach) * (w + 2 * reach))
-    rows_cols = rng.uniform(lo, [h - lo - 1, w - lo - 1], size=(n_dots, 2))
-    radii = diameter / 2 * rng.uniform(1 - spread, 1 + spread, n_dots)
-    return Dots(rows_cols[:, ::-1].copy(), radii, edge_px, black, white, (h, w))
+    cell = CELL_DIAMETERS * diameter
+    per_cell = -math.log1p(-density) / mean_area * cell * cell   # expected dots per cell
+    first = np.floor((lo - reach) / cell).astype(np.int64)
+    last = np.floor((hi + reach) / cell).astype(np.int64)
+    centres, radii = [np.zeros((0, 2))], [np.zeros(0)]
+    for j in range(int(first[1]), int(last[1]) + 1):
+        for i in range(int(first[0]), int(last[0]) + 1):
+            rng = np.random.default_rng([seed, _zigzag(i), _zigzag(j)])
+            n = rng.poisson(per_cell)
+            xy = np.array([i, j], np.float64) * cell + rng.random((n, 2)) * cell
+            r = diameter / 2 * rng.uniform(1 - spread, 1 + spread, n)
+            keep = np.all((xy >= lo - reach) & (xy <= hi + reach), axis=1)
+            centres.append(xy[keep])
+            radii.append(r[keep])
+    return np.concatenate(centres), np.concatenate(radii)
+
+
+def draw_dots(shape, dot_diameter_px, density=0.5, seed=0, edge_px=1.0, black=0.1, white=0.9,
+              diameter_spread=0.2) -> Dots:
+    """The random dots of :func:`generate` (same arguments, same draws): :func:`draw_pattern`
+    in the image's pixel coordinates (u, v) = (column, row), its lattice anchored at the centre
+    of pixel (0, 0), so a larger image holds the smaller one's dots at the same pixels."""
+    h, w = _check_shape(shape)
+    diameter, density, edge_px, spread = _pattern_args(dot_diameter_px, density, edge_px, diameter_spread, 2, "px")
+    black, white = _grey_levels(black, white)
+    centres, radii = draw_pattern((-0.5, -0.5), (w - 0.5, h - 0.5), diameter, density, seed, edge_px, spread)
+    return Dots(centres, radii, edge_px, black, white, (h, w))
 
 
 def generate(shape, dot_diameter_px, density=0.5, seed=0, edge_px=1.0, black=0.1, white=0.9,
              diameter_spread=0.2):
     """Random-disc (Boolean model) speckle pattern: dark dots on a white background.
 
-    Dot centres are a Poisson process, uniform over the image and a margin around it;
-    diameters are uniform in ``dot_diameter_px * (1 +- diameter_spread)``. The dot count
-    makes the expected dark-area fraction ``1 - exp(-lambda * mean dot area)`` equal to
-    ``density``. Each dot's edge is a smoothstep ramp of full width ``edge_px`` px
-    (0 = hard edge) centred on its radius; overlapping dots combine by maximum darkness.
-    Grey levels go from ``white`` (background) to ``black`` (dot cores).
+    Dot centres are a Poisson process over the image and a margin around it, drawn cell by
+    cell (:func:`draw_pattern`); diameters are uniform in ``dot_diameter_px * (1 +-
+    diameter_spread)``. The dot count makes the expected dark-area fraction ``1 - exp(-lambda *
+    mean dot area)`` equal to ``density``. Each dot's edge is a smoothstep ramp of full width
+    ``edge_px`` px (0 = hard edge) centred on its radius; overlapping dots combine by maximum
+    darkness. Grey levels go from ``white`` (background) to ``black`` (dot cores).
 
     Returns float32 (H, W) in [0, 1]; the same arguments give bit-identical output.
     """

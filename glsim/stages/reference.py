@@ -112,7 +112,10 @@ def placement_camera(pl: Placement, nodes: np.ndarray, R: np.ndarray, t: np.ndar
     Its distance is ten times the half-diagonal of the specimen's bounding box, so the
     projection of a flat specimen is a similarity at ``mm_per_px``. With ``size`` (W, H) the
     image's centre pixel ((W − 1)/2, (H − 1)/2) sees C; with ``size`` None the image is sized to
-    the specimen's projection plus a margin of MARGIN_PX."""
+    the specimen's projection plus a margin of MARGIN_PX to MARGIN_PX + 1, its pixel centres on
+    the lattice (a, b) = (X·u, X·v) ∈ mm_per_px·ℤ² of the plane through C (the specimen frame's
+    origin, seen along n, falls on a pixel centre): the pixels sit at the same material points
+    however far the mesh reaches."""
     dist = 10.0 * pl.half_diagonal
     eye = R @ (pl.C + dist * pl.n) + t
     Rc = np.stack([R @ pl.u, R @ pl.v, -(R @ pl.n)])       # rows: camera x, y, z in the world
@@ -123,8 +126,12 @@ def placement_camera(pl: Placement, nodes: np.ndarray, R: np.ndarray, t: np.ndar
     if size is None:
         uv, _ = project_camera_frame(to_camera(nodes, probe), probe)
         lo, hi = uv.min(axis=0), uv.max(axis=0)
-        W, H = (int(math.ceil(x)) + 2 * MARGIN_PX + 1 for x in hi - lo)
-        cx, cy = MARGIN_PX - lo[0], MARGIN_PX - lo[1]
+        origin = -np.array([np.dot(pl.C, pl.u), np.dot(pl.C, pl.v)]) / mm_per_px   # the origin's foot, px
+        # pixel 0's lattice point; ±1e-6 px: an outline on the lattice (a plate's edge at the origin)
+        # gets the same image, not one that float rounding of the nodes makes a pixel larger
+        first = origin + np.floor(lo - MARGIN_PX - origin + 1e-6)
+        W, H = (int(math.ceil(x - 1e-6)) + MARGIN_PX + 1 for x in hi - first)
+        cx, cy = -first
     else:
         W, H = size
         cx, cy = (W - 1) / 2, (H - 1) / 2
@@ -155,6 +162,53 @@ def camera_scale(cam: Camera, points: np.ndarray) -> float:
     return float(z / math.sqrt(cam.fx * cam.fy))
 
 
+SCALE_DIGITS = 4   # significant digits of the generator's mm per camera-0 px (pattern_scale)
+
+
+def pattern_scale(cam: Camera, pl: Placement, local: np.ndarray, R: np.ndarray, t: np.ndarray) -> float:
+    """The generator's unit: camera 0's (``cam``) mean mm per px on the specimen, rounded to
+    SCALE_DIGITS significant digits, which turns ``dot_diameter_px`` and ``edge_px`` into mm.
+
+    Taken where camera 0's optical axis meets the plane of the placement ``pl`` (through C,
+    normal n), that point moved into the bounding box of the nodes ``local`` along u and v if it
+    lies outside; at C if the axis meets the plane behind the camera or runs along it (``R``,
+    ``t``: the specimen's pose). For a flat specimen that camera 0 looks at, this depends on the
+    camera and the specimen's plane only, not on its meshing or on how far it reaches; the
+    rounding absorbs float rounding elsewhere."""
+    eye = (cam.center - t) @ R                                   # the specimen's frame
+    axis = (cam.rotation[2] @ R)                                 # the optical axis (world: Rcᵀ·ẑ)
+    P = pl.C
+    across = float(np.dot(axis, pl.n))
+    if across != 0.0:
+        lam = float(np.dot(pl.C - eye, pl.n)) / across
+        if lam > 0:
+            hit = eye + lam * axis
+            a, b = local @ pl.u, local @ pl.v
+            da = np.clip(np.dot(hit, pl.u), a.min(), a.max()) - np.dot(pl.C, pl.u)
+            db = np.clip(np.dot(hit, pl.v), b.min(), b.max()) - np.dot(pl.C, pl.v)
+            P = pl.C + da * pl.u + db * pl.v
+    s = camera_scale(cam, (R @ P + t)[None])
+    if s <= 0:                                                   # the point is behind camera 0
+        s = camera_scale(cam, (R @ pl.C + t)[None])
+    return float(f"{s:.{SCALE_DIGITS}g}") if s > 0 else s
+
+
+def _surface_dots(pl: Placement, cam: Camera, mm_per_px: float, dot_mm: float, edge_mm: float, sp) -> speckle.Dots:
+    """The generator's dots for the automatic reference camera ``cam`` of placement ``pl``:
+    drawn in mm on the plane through C in its coordinates (a, b) = (X·u, X·v) of the specimen
+    frame (:func:`speckle.draw_pattern`, lattice anchored at the frame's origin), then mapped
+    to the image's px, where that plane projects as a similarity: u = cx + (a − C·u)/mm_per_px,
+    v = cy + (b − C·v)/mm_per_px."""
+    W, H = cam.size
+    c_ab = np.array([np.dot(pl.C, pl.u), np.dot(pl.C, pl.v)])
+    c_px = np.array([cam.cx, cam.cy])
+    lo = c_ab + (np.array([-0.5, -0.5]) - c_px) * mm_per_px        # the image's footprint, mm
+    hi = c_ab + (np.array([W - 0.5, H - 0.5]) - c_px) * mm_per_px
+    centres, radii = speckle.draw_pattern(lo, hi, dot_mm, sp.density, sp.seed, edge_mm)
+    return speckle.Dots((centres - c_ab) / mm_per_px + c_px, radii / mm_per_px, edge_mm / mm_per_px,
+                        0.1, 0.9, (H, W))
+
+
 def make_reference(scene: Scene, mesh: meshmod.Mesh) -> Reference:
     """The reference image and camera: loaded or generated, as the scene's [speckle] says.
     Raises SceneError when the reference image leaves part of the specimen without pattern."""
@@ -174,17 +228,25 @@ def make_reference(scene: Scene, mesh: meshmod.Mesh) -> Reference:
             cam = placement_camera(pl, mesh.nodes, R, t, sp.mm_per_px, image.shape[::-1])
             require_coverage(mesh, cam, "speckle.image", sp.mm_per_px, (R, t), (pl.C, pl.n))
         return Reference(image, cam)
-    cam_mm_per_px = camera_scale(cam1, mesh.nodes)
+    # The generator: dots in mm, sized in camera-0 px by pattern_scale (not by the mesh's extent).
+    R, t = specimen_frame(scene)
+    pl = placement(scene, mesh)
+    cam_mm_per_px = pattern_scale(cam1, pl, (mesh.nodes - t) @ R, R, t)
     mm_per_px = sp.mm_per_px or cam_mm_per_px / sp.oversample
-    cam = sp.camera or reference_camera(scene, mesh, mm_per_px, None)
+    cam = sp.camera or placement_camera(pl, mesh.nodes, R, t, mm_per_px, None)
     if sp.camera is not None:
         require_coverage(mesh, cam, "speckle.camera")
     check_image_size("speckle.mm_per_px" if sp.mm_per_px else "speckle.oversample", cam.width, cam.height,
                      "the generated reference image", "give a larger mm_per_px or a smaller oversample")
-    dot = sp.dot_diameter_px * cam_mm_per_px / mm_per_px
+    dot_mm = sp.dot_diameter_px * cam_mm_per_px
+    edge_mm = min(sp.edge_px * cam_mm_per_px, dot_mm)
+    dot = dot_mm / mm_per_px
     _check_dot(dot, cam, sp.dot_diameter_px)
-    dots = speckle.draw_dots((cam.height, cam.width), dot, sp.density, seed=sp.seed,
-                             edge_px=min(sp.edge_px * cam_mm_per_px / mm_per_px, dot))
+    if sp.camera is not None:   # a given camera: the dots lie in its image (px), which the scene fixes
+        dots = speckle.draw_dots((cam.height, cam.width), dot, sp.density, seed=sp.seed, edge_px=edge_mm / mm_per_px)
+    else:
+        speckle.draw_dots((2, 2), dot, sp.density, seed=sp.seed, edge_px=edge_mm / mm_per_px)  # the px checks
+        dots = _surface_dots(pl, cam, mm_per_px, dot_mm, edge_mm, sp)
     return Reference(speckle.rasterize(dots), cam, dots)
 
 
