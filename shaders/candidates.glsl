@@ -5,18 +5,18 @@
 #define CANDIDATES 8
 // a count set by subsamples.frag: the pixel is done (every later pass skips it)
 #define LIST_DONE 0xFFFFFFFFu
-layout(r32ui, binding = 0) uniform coherent uimage2D u_cand_count;
-layout(r32ui, binding = 1) uniform coherent uimage2DArray u_cand_list;
+layout(r32ui, binding = IMAGE_CAND_COUNT) uniform coherent uimage2D u_cand_count;
+layout(r32ui, binding = IMAGE_CAND_LIST) uniform coherent uimage2DArray u_cand_list;
 // per element, from view.comp: its tight rectangle, padded only for float32 rounding
 // (glsim.stages.view.TIGHT_PAD_PX): (a.x, a.y, lo_a, hi_a), (lo_b, hi_b, 0, 0) along the unit
 // axes a and b = (-a.y, a.x), px
-layout(std430, binding = 12) readonly buffer Tight { vec4 tight[]; };
+layout(std430, binding = BINDING_TIGHT) readonly buffer Tight { vec4 tight[]; };
 
 #ifdef LIST_WRITER
 // pass 1 (candidates.comp, candidates.frag): which passes pass 2 needs (reset by the backend): a
 // pixel with more than one candidate, one with more than CANDIDATES; and whether candidates.comp
 // left an element's box to the cover triangles
-layout(std430, binding = 13) buffer ListFlags { uint multiple; uint overflowed; uint big; };
+layout(std430, binding = BINDING_LIST_FLAGS) buffer ListFlags { uint multiple; uint overflowed; uint big; };
 
 // Add element e to pixel pix's list.
 void list_candidate(ivec2 pix, int e) {

@@ -5,7 +5,7 @@
 // take at most BIN_MAX_SIDE × (BIN_MAX_SIDE + 1). Larger boxes are left to the cover triangles
 // (exact.vert BIG_ONLY + candidates.frag).
 #define BIN_MAX_SIDE 192
-layout(std430, binding = 9) readonly buffer Cover { vec2 cover[]; };
+layout(std430, binding = BINDING_COVER) readonly buffer Cover { vec2 cover[]; };
 
 // The pixels [a, b] (inclusive) of element e's cover within an image of `size` (empty: b < a);
 // false where the box is larger than BIN_MAX_SIDE on a side.

@@ -35,7 +35,7 @@ uniform real u_intr[5];   // the view camera (pinhole): bilinear.glsl's tie rule
 #include "shade.glsl"
 // per element: the step's unit corner normals in the world frame (12), float32, uploaded once
 // per step (glsim.backends.gl.geometry.GeometryBuffers.normals); rotated here by u_rot
-layout(std430, binding = 1) readonly buffer Normals { float corner_normals[]; };
+layout(std430, binding = BINDING_NORMALS) readonly buffer Normals { float corner_normals[]; };
 #endif
 
 uniform vec2 u_ref_size;  // reference image W, H (px)
@@ -51,28 +51,28 @@ flat in int g_elem;
 #else
 // Per-view element records written by view.comp, float64 or float32 as `real`: exact: corners
 // in the camera frame (12); q4: distorted pixel corners (8) and depths Z (4).
-layout(std430, binding = 0) readonly buffer Elements { real elem_data[]; };
+layout(std430, binding = BINDING_ELEMENTS) readonly buffer Elements { real elem_data[]; };
 // the mesh, uploaded once per renderer (glsim.backends.gl.geometry): per node, reference-image
 // coordinates (q4) or the undeformed position in the reference camera's frame (exact)
 #if defined(MODE_Q4)
-layout(std430, binding = 7) readonly buffer RefUV { real ref_uv[]; };
+layout(std430, binding = BINDING_REF_UV) readonly buffer RefUV { real ref_uv[]; };
 #else
-layout(std430, binding = 8) readonly buffer RefXr { real ref_xr[]; };
+layout(std430, binding = BINDING_REF_XR) readonly buffer RefXr { real ref_xr[]; };
 #endif
 #ifdef CAMERA_LOCAL
 // float32 exact on a driver with float64: view.comp's RECORD_LOCAL records (32 per element)
-layout(std430, binding = 16) readonly buffer Local { float elem_local[]; };
+layout(std430, binding = BINDING_LOCAL) readonly buffer Local { float elem_local[]; };
 #endif
 #ifdef REF_LOCAL
 // float32 exact with a pinhole reference camera (glsim.backends.gl.geometry.ref_local_buffer):
 // per element its reference-frame corners relative to their centre C (12), C (3), 0, and the
 // reference pixel of C as hi (2) + lo (2), made in float64
-layout(std430, binding = 14) readonly buffer RefLocal { float ref_local[]; };
+layout(std430, binding = BINDING_REF_LOCAL) readonly buffer RefLocal { float ref_local[]; };
 #endif
 #ifdef REF_PINHOLE
 // float64 exact with a pinhole reference camera (glsim.backends.gl.geometry.ref_pinhole_buffer):
 // per element its reference-frame corners as (fx X + skew Y + cx Z, fy Y + cy Z, Z) (12)
-layout(std430, binding = 14) readonly buffer RefPinhole { real ref_pinhole[]; };
+layout(std430, binding = BINDING_REF_PINHOLE) readonly buffer RefPinhole { real ref_pinhole[]; };
 #endif
 #define CANDIDATE_TEXTURES
 #include "candidates.glsl"
@@ -88,7 +88,7 @@ uniform real u_valid_r2;
 flat in int v_elem;
 #endif
 // samples that hit the specimen but map outside the reference image (reset before each pass)
-layout(std430, binding = 4) buffer Dropped { uint dropped_samples; };
+layout(std430, binding = BINDING_DROPPED) buffer Dropped { uint dropped_samples; };
 
 #if defined(MODE_EXACT)
 #include "raymap.glsl"

@@ -6,7 +6,7 @@
 #include "camera.glsl"
 #include "view.glsl"
 
-layout(std430, binding = 7) readonly buffer RefUV { real ref_uv[]; };  // per node (px)
+layout(std430, binding = BINDING_REF_UV) readonly buffer RefUV { real ref_uv[]; };  // per node (px)
 
 uniform real u_intr[5];
 uniform real u_dist[12];

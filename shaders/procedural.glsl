@@ -4,9 +4,9 @@
 // whose cells are at least the dots' reach wide, so the 3 x 3 cells around uv hold them all.
 
 // per dot, sorted by cell: centre relative to its cell's corner (u, v) and radius, px
-layout(std430, binding = 2) readonly buffer Dots { float dot_data[]; };
+layout(std430, binding = BINDING_DOTS) readonly buffer Dots { float dot_data[]; };
 // per cell (row-major, nx per row): first dot, number of dots
-layout(std430, binding = 3) readonly buffer Cells { int cell_data[]; };
+layout(std430, binding = BINDING_DOT_CELLS) readonly buffer Cells { int cell_data[]; };
 
 uniform vec2 u_grid_origin_hi;   // grid origin split in two floats (hi + lo) for FP64 builds
 uniform vec2 u_grid_origin_lo;

@@ -15,10 +15,10 @@
 #define Q_INSIDE real(1e-9lf)       // |xi|, |eta| <= 1 + Q_INSIDE (and a piece's share likewise)
 #define Q_START_RANGE 1.25   // a piece root farther out than this (piece coordinates) is no start
 
-// per patch: its 9 control points in the mesh's local frame at this load step (binding 14) and,
+// per patch: its 9 control points in the mesh's local frame at this load step (binding PATCH_NODES) and,
 // uploaded once, in the reference camera's frame (exact, 27) or as reference-image px (q4, 18)
-layout(std430, binding = 14) readonly buffer PatchNodes { real patch_nodes[]; };
-layout(std430, binding = 15) readonly buffer PatchRef { real patch_ref[]; };
+layout(std430, binding = BINDING_PATCH_NODES) readonly buffer PatchNodes { real patch_nodes[]; };
+layout(std430, binding = BINDING_PATCH_REF) readonly buffer PatchRef { real patch_ref[]; };
 
 const int Q_IA[9] = int[9](0, 2, 2, 0, 1, 2, 1, 0, 1);
 const int Q_IB[9] = int[9](0, 0, 2, 2, 0, 1, 2, 1, 1);

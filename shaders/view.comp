@@ -13,14 +13,14 @@ uniform int u_count;        // elements
 uniform real u_valid_r2;
 
 // exact: corners in the camera frame (12, mm); q4: distorted pixel corners (8) and depths Z (4)
-layout(std430, binding = 0) writeonly buffer Elements { real elem_data[]; };
-layout(std430, binding = 9) writeonly buffer Cover { vec2 cover[]; };  // 4 corners per element (px)
-layout(std430, binding = 12) writeonly buffer Tight { vec4 tight[]; };  // 2 per element (candidates.glsl)
+layout(std430, binding = BINDING_ELEMENTS) writeonly buffer Elements { real elem_data[]; };
+layout(std430, binding = BINDING_COVER) writeonly buffer Cover { vec2 cover[]; };  // 4 corners per element (px)
+layout(std430, binding = BINDING_TIGHT) writeonly buffer Tight { vec4 tight[]; };  // 2 per element (candidates.glsl)
 #ifdef RECORD_LOCAL
 // float32 exact on a driver with float64 (deform.frag CAMERA_LOCAL), 32 float32 per element:
 // the corners (12, rounded), the corners relative to their centre C (12), C.z, 0, and
 // C.xy / C.z as hi (2) + lo (2), 0, 0 — made here in float64
-layout(std430, binding = 16) writeonly buffer Local { float elem_local[]; };
+layout(std430, binding = BINDING_LOCAL) writeonly buffer Local { float elem_local[]; };
 #endif
 
 void main() {

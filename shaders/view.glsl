@@ -6,13 +6,13 @@
 // nodes once per load step (relative to the mesh's origin, float64 or float32 as `real`); per
 // view only uniforms change: X_cam = R (X - origin) + t.
 
-layout(std430, binding = 5) readonly buffer Quads { ivec4 quads[]; };
-layout(std430, binding = 6) readonly buffer Nodes { real nodes[]; };        // 3 per node, local frame
+layout(std430, binding = BINDING_QUADS) readonly buffer Quads { ivec4 quads[]; };
+layout(std430, binding = BINDING_NODES) readonly buffer Nodes { real nodes[]; };        // 3 per node, local frame
 // element problems found on the GPU for the warnings: two bitsets of u_flag_words words
 // (grazing, does not project) and "any set" markers; cleared by the backend when read
-layout(std430, binding = 10) buffer Flags { uint flag_any[4]; uint flag_bits[]; };
+layout(std430, binding = BINDING_FLAGS) buffer Flags { uint flag_any[4]; uint flag_bits[]; };
 // per load step: zero-area, tiny and folded elements (not also named as grazing)
-layout(std430, binding = 11) readonly buffer Excluded { uint excluded_bits[]; };
+layout(std430, binding = BINDING_EXCLUDED) readonly buffer Excluded { uint excluded_bits[]; };
 
 uniform real u_rot[9];       // R, row-major
 uniform real u_trans[3];     // R origin + t (mm)

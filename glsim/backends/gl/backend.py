@@ -27,6 +27,7 @@ from glsim.stages.geometry import ViewSpec
 from glsim.stages.quadview import patch_data, pieces_to_patches
 from glsim.backends.contract import Capabilities, Raster, Request
 from glsim.stages.view import warn_dropped, warn_problems
+from glsim.backends.gl.bindings import storage
 from glsim.backends.gl.context import check_error, create_context
 from glsim.backends.gl.geometry import LAYERS, GeometryBuffers
 from glsim.backends.gl import timing
@@ -275,7 +276,7 @@ class GLBackend:
             geo.bind(view, fp64)
             if pinhole_ref:
                 (geo.ref_local_buffer if ref_local else geo.ref_pinhole_buffer)(ref_cam.intrinsics) \
-                    .bind_to_storage_buffer(14)
+                    .bind_to_storage_buffer(storage("REF_LOCAL" if ref_local else "REF_PINHOLE"))
             geo.set_uniforms(prog, view, fp64)
             camera_uniforms(prog)
             self._set(prog, "u_ref_intr", ref_cam.intrinsics, fp64)
@@ -285,14 +286,14 @@ class GLBackend:
                                 ("u_ref_size", tuple(float(x) for x in ref_cam.size))):
                 if prog.get(name, None) is not None:
                     prog[name].value = value
-            dropped.bind_to_storage_buffer(4)
-            for binding, buf in zip((14, 15), patch_buffers):
-                buf.bind_to_storage_buffer(binding)
+            dropped.bind_to_storage_buffer(storage("DROPPED"))
+            for name, buf in zip(("PATCH_NODES", "PATCH_REF"), patch_buffers):
+                buf.bind_to_storage_buffer(storage(name))
             if fx.lighting is not None:
                 for name, value in _light_uniforms(fx).items():
                     if prog.get(name, None) is not None:
                         prog[name].write(np.ascontiguousarray(value).tobytes())
-                normals.bind_to_storage_buffer(1)
+                normals.bind_to_storage_buffer(storage("NORMALS"))
             if opts.interpolation == "procedural":
                 self._bind_dots(prog)
             else:
@@ -400,7 +401,7 @@ class GLBackend:
         return color, self._float64_truth(view, opts.mode, raster, fp64)
 
     def _patch_buffers(self, patches, mode: str, fp64: bool):
-        """Bindings 14 (the patches' local control points at this step) and 15 (their reference
+        """Bindings PATCH_NODES (the patches' local control points at this step) and PATCH_REF (their reference
         data: frame points for exact, image points for q4), made once per step / renderer."""
         cache = self._patch_cache
         dt = np.float64 if fp64 else np.float32
@@ -454,8 +455,8 @@ class GLBackend:
             self._dot_buffers = (self.ctx.buffer(dot_data.tobytes() or bytes(12)),
                                  self.ctx.buffer(cell_data.tobytes()), uniforms)
         dot_buf, cell_buf, uniforms = self._dot_buffers
-        dot_buf.bind_to_storage_buffer(2)
-        cell_buf.bind_to_storage_buffer(3)
+        dot_buf.bind_to_storage_buffer(storage("DOTS"))
+        cell_buf.bind_to_storage_buffer(storage("DOT_CELLS"))
         for name, value in uniforms.items():
             if name in prog:
                 prog[name].value = value

@@ -18,6 +18,7 @@ from collections import OrderedDict
 
 import numpy as np
 
+from glsim.backends.gl.bindings import image, storage
 from glsim.stages.geometry import STEPS_KEPT, MeshGeometry, ViewSpec
 from glsim.stages.view import GRAZING_COS, NEAR_MM, ray_radius
 
@@ -84,7 +85,7 @@ class GeometryBuffers:
         return np.asarray(Xr, np.float64).reshape(-1, 3)[np.asarray(self.geo.quads)]
 
     def ref_local_buffer(self, intrinsics: np.ndarray):
-        """Per element, 20 float32 (binding 14, deform.frag REF_LOCAL): its undeformed corners in
+        """Per element, 20 float32 (binding REF_LOCAL, deform.frag): its undeformed corners in
         the reference camera's frame relative to their centre X̄ (4 × 3, mm), X̄ (3), 0, and the
         reference pixel of X̄ as float32 hi (2) + lo (2) — all from float64, so that a float32
         shader projects X̄ + Δ as ū + J Δ-exact differences, not 600 mm positions (made once)."""
@@ -104,7 +105,7 @@ class GeometryBuffers:
         return self._bufs[key]
 
     def ref_pinhole_buffer(self, intrinsics: np.ndarray):
-        """Per element, 12 float64 (binding 14, deform.frag REF_PINHOLE): its undeformed corners
+        """Per element, 12 float64 (binding REF_PINHOLE, deform.frag): its undeformed corners
         in a pinhole reference camera's frame as (fx X + skew Y + cx Z, fy Y + cy Z, Z) (px·mm,
         px·mm, mm), so that the reference pixel of a point is their bilinear blend divided by
         its third component (made once)."""
@@ -147,7 +148,7 @@ class GeometryBuffers:
     def normals(self, view: ViewSpec, flat: bool):
         """The step's unit corner normals in the world frame (the lighting's: per element for
         ``flat``, else per node, area-weighted; float32, 12 per element), computed and uploaded
-        once per step (binding 1 when lit); deform.frag rotates them into the camera's frame."""
+        once per step (binding NORMALS when lit); deform.frag rotates them into the camera's frame."""
         key = ("normals", view.step_geo.index, flat)
         entry = self._bufs.get(key)
         if entry is None or entry[0] is not view.step_geo:
@@ -168,8 +169,9 @@ class GeometryBuffers:
         """Upload what this view needs (at most once per renderer / step) and bind it."""
         quads, ref_uv, ref_xr, flags = self._mesh_buffers(fp64)
         nodes, bits, _ = self._step_buffers(view, fp64)
-        for binding, buf in ((5, quads), (6, nodes), (7, ref_uv), (8, ref_xr), (10, flags), (11, bits)):
-            buf.bind_to_storage_buffer(binding)
+        for name, buf in (("QUADS", quads), ("NODES", nodes), ("REF_UV", ref_uv), ("REF_XR", ref_xr), ("FLAGS", flags),
+                          ("EXCLUDED", bits)):
+            buf.bind_to_storage_buffer(storage(name))
 
     def set_uniforms(self, prog, view: ViewSpec, fp64: bool) -> None:
         """The view's transform and the constants of view.glsl."""
@@ -189,10 +191,10 @@ class GeometryBuffers:
     # ---- the per-view pass -----------------------------------------------------------------
     def view_pass(self, view: ViewSpec, mode: str, fp64: bool, camera_uniforms, grow: float = 0.0,
                   local: bool = False) -> None:
-        """view.comp: element records (binding 0), cover rectangles (binding 9, grown by
-        ``grow`` px for pass 1 at pixel resolution) and tight rectangles (binding 12); with
+        """view.comp: element records (binding ELEMENTS), cover rectangles (COVER, grown by
+        ``grow`` px for pass 1 at pixel resolution) and tight rectangles (TIGHT); with
         ``local`` (exact, float64) also the float32 records of deform.frag's CAMERA_LOCAL
-        (binding 16)."""
+        (LOCAL)."""
         defines = {f"MODE_{mode.upper()}": None, **({"FP64": None} if fp64 else {}),
                    **({"RECORD_LOCAL": None} if local else {})}
         prog = self.programs.compute("view.comp", defines)
@@ -207,11 +209,11 @@ class GeometryBuffers:
         elem = self._buffer(("elem", fp64), lambda: self.ctx.buffer(reserve=max(1, self.M * 12 * size)))
         cover = self._buffer("cover", lambda: self.ctx.buffer(reserve=max(1, self.M * 4 * 8)))
         tight = self._buffer("tight", lambda: self.ctx.buffer(reserve=max(1, self.M * 2 * 16)))
-        elem.bind_to_storage_buffer(0)
+        elem.bind_to_storage_buffer(storage("ELEMENTS"))
         if local:
-            self._buffer("local", lambda: self.ctx.buffer(reserve=max(1, self.M * 32 * 4))).bind_to_storage_buffer(16)
-        cover.bind_to_storage_buffer(9)
-        tight.bind_to_storage_buffer(12)
+            self._buffer("local", lambda: self.ctx.buffer(reserve=max(1, self.M * 32 * 4))).bind_to_storage_buffer(storage("LOCAL"))
+        cover.bind_to_storage_buffer(storage("COVER"))
+        tight.bind_to_storage_buffer(storage("TIGHT"))
         self._per_element(prog)
         self.ctx.memory_barrier()
         self.view_passes += 1
@@ -247,9 +249,9 @@ class GeometryBuffers:
         count, lists, clear, empty, flags = self._lists(W, H)
         clear.clear(0.0, 0.0, 0.0, 0.0)
         flags.write(bytes(12))
-        flags.bind_to_storage_buffer(13)
+        flags.bind_to_storage_buffer(storage("LIST_FLAGS"))
         self.bind_lists(W, H)
-        self._bufs["cover"].bind_to_storage_buffer(9)
+        self._bufs["cover"].bind_to_storage_buffer(storage("COVER"))
         prog = self.programs.compute("candidates.comp")
         prog["u_count"].value = self.M
         prog["u_size"].value = (W, H)
@@ -281,9 +283,9 @@ class GeometryBuffers:
     def bind_lists(self, W: int, H: int, prog=None) -> None:
         """The lists as images (pass 1) and, for ``prog`` (pass 2), as textures on units 2, 3."""
         count, lists, *_ = self._lists(W, H)
-        count.bind_to_image(0, read=True, write=True)
-        lists.bind_to_image(1, read=True, write=True)
-        self._bufs["tight"].bind_to_storage_buffer(12)
+        count.bind_to_image(image("CAND_COUNT"), read=True, write=True)
+        lists.bind_to_image(image("CAND_LIST"), read=True, write=True)
+        self._bufs["tight"].bind_to_storage_buffer(storage("TIGHT"))
         if prog is not None:
             for unit, (name, tex) in enumerate((("u_count_tex", count), ("u_list_tex", lists)), start=2):
                 if prog.get(name, None) is not None:

@@ -7,6 +7,7 @@ from dataclasses import dataclass
 from importlib import resources
 from pathlib import Path
 
+from glsim.backends.gl import bindings
 from glsim.errors import ShaderError
 
 VERSION = "#version 450 core"
@@ -56,7 +57,8 @@ class Source:
 
 
 def assemble(name: str, defines: dict | None = None, dirs: tuple = ()) -> Source:
-    """#version, one #define per item (value None → bare define), precision macros, then the
+    """#version, one #define per item (value None → bare define), precision macros, the binding
+    table (glsim.backends.gl.bindings), then the
     file with its #include "x.glsl" lines replaced (each file included once)."""
     lines: list[str] = [VERSION]
     origin: list[tuple[str, int]] = [("<version>", 1)]
@@ -66,6 +68,9 @@ def assemble(name: str, defines: dict | None = None, dirs: tuple = ()) -> Source
     for i, text in enumerate(PRECISION.splitlines(), 1):
         lines.append(text)
         origin.append(("<precision>", i))
+    for i, text in enumerate(bindings.defines().splitlines(), 1):
+        lines.append(text)
+        origin.append(("<bindings>", i))
     seen: set[str] = set()
 
     def add(fname: str) -> None:
