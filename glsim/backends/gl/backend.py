@@ -31,34 +31,8 @@ from glsim.backends.gl.bindings import storage
 from glsim.backends.gl.context import check_error, create_context
 from glsim.backends.gl.geometry import LAYERS, GeometryBuffers
 from glsim.backends.gl import timing
+from glsim.backends.gl.plan import BLUR_PASSES, newton_subsamples, plan
 from glsim.backends.gl.programs import ProgramCache
-
-
-def program_defines(opts, truth: bool, fp64: bool, fx=None) -> dict:
-    """The #defines of the deformation program for these render options and effects."""
-    d = {f"MODE_{opts.mode.upper()}": None, f"INTERP_{opts.interpolation.upper()}": None,
-         "SS": opts.supersampling}
-    if opts.precision == "fp64" and fp64 and opts.mode != "fast":
-        d["FP64"] = None
-    if truth:
-        d["TRUTH"] = None
-        if "FP64" in d:  # (xi, eta) are float64 in the shader: write their low float32 halves too
-            d["TRUTH_LO"] = None
-    if fx is not None and fx.lighting is not None:
-        d["LIGHTING"] = None
-        d["MAX_LIGHTS"] = max(1, len(fx.lighting.lights))
-        if fx.lighting.combine == "multiplicative":
-            d["LIGHT_MULTIPLICATIVE"] = None
-    if fx is not None and fx.blur:
-        d["DEPTH_OUT"] = None
-        d["DEPTH_LOCATION"] = 1 + 2 * truth + ("TRUTH_LO" in d)
-    return d
-
-
-def newton_subsamples(opts, s: int, quadratic: bool) -> bool:
-    """Whether the sub-samples of single-candidate pixels are placed by Newton steps from their
-    pixel centre (shaders/subsamples.frag, which then replaces the box filter)."""
-    return opts.subsamples == "newton" and opts.mode == "exact" and s > 1 and not quadratic
 
 
 def pack_pairs(c: np.ndarray) -> np.ndarray:
@@ -238,24 +212,10 @@ class GLBackend:
         ctx = self.ctx
         W, H = view.camera.size
         cam, ref_cam = view.camera, view.ref_camera
-        defines = program_defines(opts, truth, self.fp64, fx)
-        if patches is not None:
-            defines.update(QUADRATIC=None, PIECES=int(patches.pieces))
+        p = plan(opts, truth, self.fp64, fx, cam, ref_cam, patches.pieces if patches is not None else None)
+        defines = p.define_dict
         fp64 = "FP64" in defines
-        # exact with a pinhole reference camera (a distorted one keeps the direct projection):
-        # float32 projects relative to each element's centre, float64 from per-element blends
-        pinhole_ref = opts.mode == "exact" and patches is None and not np.any(ref_cam.distortion.coeffs)
-        ref_local = pinhole_ref and not fp64
-        if pinhole_ref:
-            defines["REF_LOCAL" if ref_local else "REF_PINHOLE"] = None
-        # float32 exact on a driver with float64: the per-element and per-camera work (records,
-        # ray map) in float64, the per-sample work in float32 relative to each element's centre
-        camera_local = ref_local and self.fp64
-        if camera_local:
-            defines["CAMERA_LOCAL"] = None
-        ray_kind = "bits" if fp64 else "split" if camera_local else "float"
-        if opts.mode == "exact" and patches is None and not np.any(cam.distortion.coeffs):
-            defines["PIXEL_TIES"] = None   # ties decided at the exact pixel point (bilinear.glsl)
+        pinhole_ref, ref_local, camera_local, ray_kind = p.ref is not None, p.ref == "REF_LOCAL", p.camera_local, p.rays
         geo = self._buffers(view)
         patch_buffers = self._patch_buffers(patches, opts.mode, fp64) if patches is not None else ()
 
@@ -313,7 +273,7 @@ class GLBackend:
                 geo.view_pass(view, opts.mode, fp64, camera_uniforms, grow=0.5 - 0.5 / s)
             geo.candidates_pass(W, H, s)
             multiple, overflowed = geo.list_flags(W, H)
-        pixel_loop = newton_subsamples(opts, s, patches is not None)
+        pixel_loop = p.subsamples
 
         def fullscreen(frag: str, target, layer: float, extra: dict, textures=None, uniforms=None):
             """One full-screen program of pass 2 (lists.vert at window depth ``layer``) into ``target``."""
@@ -543,15 +503,14 @@ class GLBackend:
             stages.append(name.lower())
             return out
 
-        if scheme in ("disk", "gather"):
-            return run("BLUR_DISK" if scheme == "disk" else "BLUR_GATHER", {"u_src": grey})
+        first, *second = BLUR_PASSES[scheme]   # (glsim.backends.gl.plan)
+        if not second:
+            return run(first, {"u_src": grey})
         if scheme == "expansion":
-            moments, rows = run("BLUR_ROWS", {"u_src": grey}, (4, 4))
-            return run("BLUR_COLUMNS", {"u_image": grey, "u_moments": moments, "u_rows": rows})
-        h = run("BLUR_HORIZONTAL", {"u_src": grey})
-        if scheme == "hybrid":
-            return run("BLUR_HYBRID", {"u_src": h, "u_image": grey})
-        return run("BLUR_VERTICAL", {"u_src": h})
+            moments, rows = run(first, {"u_src": grey}, (4, 4))
+            return run(second[0], {"u_image": grey, "u_moments": moments, "u_rows": rows})
+        h = run(first, {"u_src": grey})
+        return run(second[0], {"u_src": h, "u_image": grey} if scheme == "hybrid" else {"u_src": h})
 
     @staticmethod
     def read(tex) -> np.ndarray:

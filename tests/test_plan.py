@@ -1,0 +1,81 @@
+"""The GL render plan (glsim.backends.gl.plan) without GL: the #defines and passes follow from
+the request alone; and with GL: the passes a render runs are the plan's."""
+import dataclasses
+
+import numpy as np
+import pytest
+
+from glsim.backends.gl.plan import Pass, plan
+from glsim.effects import prepare as prepare_effects
+from glsim.io.fe import specimen_mesh
+from glsim.render import Renderer
+from glsim.scene import Render, bulge_scene, demo_effects
+from glsim.scene.camera import Camera, Distortion
+
+PIN = Camera(name="c", size=(64, 48), fx=800.0, fy=800.0, cx=31.5, cy=23.5)
+BARREL = dataclasses.replace(PIN, distortion=Distortion(k1=-0.1))
+
+
+def shaders(p):
+    return [x.shader for x in p.passes]
+
+
+def test_exact_float64_plan():
+    p = plan(Render(mode="exact"), True, True, None, PIN, PIN)
+    d = p.define_dict
+    assert {"MODE_EXACT", "FP64", "TRUTH", "TRUTH_LO", "REF_PINHOLE", "PIXEL_TIES"} <= set(d) and d["SS"] == 1
+    assert p.rays == "bits" and p.ref == "REF_PINHOLE" and not p.camera_local and not p.subsamples
+    assert shaders(p) == ["rays.frag", "view.comp", "candidates.comp", "candidates.frag", "classify.frag",
+                          "deform.frag", "resolve.frag", "deform.frag"]
+    assert [x.when for x in p.passes if x.when] == ["uncached", "big", "several", "overflow"]
+
+
+def test_float32_exact_and_drivers_without_float64():
+    p = plan(Render(mode="exact", precision="fp32"), False, True, None, BARREL, PIN)
+    assert "FP64" not in p.define_dict and {"REF_LOCAL", "CAMERA_LOCAL"} <= set(p.define_dict)
+    assert p.rays == "split" and "PIXEL_TIES" not in p.define_dict       # a distorted view camera
+    q = plan(Render(mode="exact"), False, False, None, PIN, BARREL)      # no fp64, distorted reference
+    assert q.rays == "float" and q.ref is None and "FP64" not in q.define_dict
+
+
+def test_fast_q4_and_curved_plans():
+    fast = plan(Render(mode="fast", samples_per_pixel=4), True, True, None, PIN, PIN)
+    assert shaders(fast) == ["deform.frag", "downsample.frag"] and "FP64" not in fast.define_dict
+    assert "TRUTH" not in fast.define_dict      # truth maps only at 1 spp (a second render)
+    q4 = plan(Render(mode="q4"), False, True, None, PIN, PIN, pieces=4)
+    assert {"MODE_Q4", "FP64", "QUADRATIC"} <= set(q4.define_dict) and q4.define_dict["PIECES"] == 4
+    assert q4.rays is None and q4.ref is None and "rays.frag" not in shaders(q4)
+
+
+def test_effects_add_their_passes_only():
+    scene = demo_effects(bulge_scene(size=(406, 308), steps=1))
+    pitch = 30.0 / (6818.0 * 406 / 1624)   # the rig's pixel pitch for its 30 mm lens; f/1 defocuses the bulge
+    scene = dataclasses.replace(scene, optics=dataclasses.replace(scene.optics, f_number=1.0, pixel_pitch=pitch))
+    mesh = specimen_mesh(scene)
+    fx = prepare_effects(scene, mesh.deformed(1), mesh.quads, scene.cameras[0], 0, 1, np.array([550.0, 650.0]),
+                         normals=False)
+    p = plan(Render(mode="exact", samples_per_pixel=4, subsamples="newton"), False, True, fx, PIN, PIN)
+    assert {"LIGHTING", "DEPTH_OUT"} <= set(p.define_dict) and p.subsamples
+    assert shaders(p)[-5:] == ["downsample.frag", "downsample.frag", "blur.frag", "blur.frag", "noise.frag"]
+    assert [x.variant for x in p.passes if x.variant] == ["BLUR_ROWS", "BLUR_COLUMNS"]   # "auto": expansion
+    assert Pass("subsamples.frag") in p.passes
+    bare = plan(Render(mode="exact"), False, True, None, PIN, PIN)
+    assert not {"LIGHTING", "DEPTH_OUT"} & set(bare.define_dict) and "noise.frag" not in shaders(bare)
+
+
+@pytest.mark.gl
+@pytest.mark.parametrize("options", [dict(mode="fast"), dict(mode="q4"), dict(mode="exact", samples_per_pixel=4),
+                                     dict(mode="exact", samples_per_pixel=4, subsamples="newton")])
+def test_a_render_runs_the_plans_passes(options, gl_ctx):
+    """Every pass that ran is in the plan; every unconditional pass of the plan ran."""
+    scene = demo_effects(bulge_scene(size=(96, 72), steps=1))
+    with Renderer(scene, "gl", ctx=gl_ctx) as r:
+        r.render(0, 1, **options)                       # programs built, ray map made
+        with r.backend.pass_times() as ran:
+            r.render(0, 1, **options)
+        view = r.geometry.view(scene.cameras[0], 1)
+        fx = prepare_effects(scene, view.step_geo.deformed, r.drawn_mesh.quads, scene.cameras[0], 0, 1,
+                             view.corner_depths())
+    p = plan(dataclasses.replace(scene.render, **options), False, True, fx, scene.cameras[0], r.reference.camera)
+    assert set(ran) <= set(shaders(p)), (sorted(ran), shaders(p))
+    assert {x.shader for x in p.passes if not x.when} <= set(ran), (sorted(ran), shaders(p))
