@@ -432,6 +432,73 @@ def test_a_killed_pool_worker_is_replaced_and_the_library_completes(reference_li
     assert _files(lib) == _files(ref)
 
 
+def _descendants(pid: int) -> list[int]:
+    """Every process below ``pid`` (its pool workers and their writer processes)."""
+    try:
+        import psutil
+        return [c.pid for c in psutil.Process(pid).children(recursive=True)]
+    except ImportError:
+        pass
+    except Exception:          # psutil.NoSuchProcess: it has ended
+        return []
+    out, todo = [], [pid]
+    while todo:
+        p = todo.pop()
+        for task in Path(f"/proc/{p}/task").glob("*"):
+            try:
+                kids = [int(k) for k in (task / "children").read_text().split()]
+            except OSError:
+                continue
+            out += kids
+            todo += kids
+    return out
+
+
+def _alive(pid: int) -> bool:
+    """Whether ``pid`` runs (a zombie, ended but not yet reaped, does not)."""
+    try:
+        return Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0] != "Z"
+    except (OSError, IndexError):
+        return False
+
+
+@pytest.mark.parametrize("sig", [signal.SIGKILL, signal.SIGTERM])
+def test_no_worker_outlives_the_command_however_it_ends(tmp_path, sig):
+    """The command killed (SIGKILL: no chance to stop its workers) or terminated (SIGTERM: as
+    Ctrl-C, a message and no partial files) while 2 workers render: every worker process and
+    writer process below it has ended within 5 s."""
+    if not Path("/proc/self/task").is_dir():
+        pytest.skip("needs /proc to list the processes")
+    spec = _spec(tmp_path, SCENE.replace("[64, 48]", "[320, 240]") + "[vary]\nnoise.sigma = {linspace = [0.5, 2, 20]}\n")
+    lib = tmp_path / "lib"
+    p = subprocess.Popen(GLSIM + ["library", str(spec), "-o", str(lib), "--workers", "2", "-q"],
+                         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    deadline = time.time() + 90
+    while p.poll() is None and time.time() < deadline and not list(lib.glob("v*/*.tif")):
+        time.sleep(0.05)
+    kids = _descendants(p.pid)
+    assert p.poll() is None and len(kids) >= 2, "the library ended, or had no workers, before the signal"
+    os.kill(p.pid, sig)
+    _, err = p.communicate(timeout=60)
+    deadline = time.time() + 5
+    while time.time() < deadline and [k for k in kids if _alive(k)]:
+        time.sleep(0.1)
+    assert not [k for k in kids if _alive(k)], f"processes {kids} survived their parent"
+    if sig == signal.SIGTERM:
+        assert p.returncode == 130 and "interrupted — no partial files were left" in err and "Traceback" not in err, err
+        assert not [f for f in lib.rglob("*") if ".part" in f.name]
+
+
+def test_an_unreachable_scheduler_writes_nothing(tmp_path, monkeypatch):
+    pytest.importorskip("distributed")
+    from glsim.workflows.library import runner
+    monkeypatch.setattr(runner, "CONNECT_S", 2)
+    spec = _spec(tmp_path)
+    with pytest.raises(GlsimError, match="no Dask scheduler answered"):
+        run(load_plan(spec), tmp_path / "lib", scheduler=f"tcp://127.0.0.1:{_free_port()}")
+    assert not (tmp_path / "lib").exists()
+
+
 def test_a_worker_killed_while_tasks_are_handed_out_is_replaced(reference_library, tmp_path, monkeypatch):
     """The pool breaks inside submit (a worker died before all tasks were queued): the runner starts a
     fresh pool for what is left instead of letting BrokenProcessPool escape."""

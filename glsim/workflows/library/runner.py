@@ -347,12 +347,16 @@ def worker_result(task, fn=render_task):
 
 
 def _kill_workers(ex) -> None:
-    """Kill the pool's worker processes. A broken pool needs it: CPython 3.11 terminates the
-    workers it knows when one dies, but a worker spawned meanwhile (by a submit racing the
-    breakage) is never told to stop, and the pool's thread then joins it forever — the
-    command hung at exit."""
-    for p in list((getattr(ex, "_processes", None) or {}).values()):
+    """Kill the pool's worker processes and wait for them to end (their writer processes end
+    with them, :mod:`.lifeline`). A broken pool needs it: CPython 3.11 terminates the workers
+    it knows when one dies, but a worker spawned meanwhile (by a submit racing the breakage) is
+    never told to stop, and the pool's thread then joins it forever — the command hung at
+    exit."""
+    procs = list((getattr(ex, "_processes", None) or {}).values())
+    for p in procs:
         p.kill()
+    for p in procs:
+        p.join(5)
 
 
 def _run_pool(tasks, workers: int, on_done, summary: Summary, fn=render_task):
@@ -363,7 +367,7 @@ def _run_pool(tasks, workers: int, on_done, summary: Summary, fn=render_task):
     from glsim.workflows.library.worker import gpus, pool_init
 
     ctx = mp.get_context("spawn")
-    init = (tuple(gpus()),)    # worker k on GPU k (mod the GPU count), if any
+    init = (tuple(gpus()), os.getpid())    # worker k on GPU k (mod the GPU count), if any; ends with this process
     pending = list(tasks)
     while pending:
         ex = ProcessPoolExecutor(max_workers=workers, mp_context=ctx, initializer=pool_init, initargs=init)
@@ -402,51 +406,68 @@ def _run_pool(tasks, workers: int, on_done, summary: Summary, fn=render_task):
                                    "with fewer --workers if memory is short")
 
 
-def _run_dask(tasks, scheduler: str, on_done, summary: Summary, fingerprint: str, fn=render_task):
+CONNECT_S = 15        # seconds for a Dask scheduler to answer
+JOIN_S = 60           # seconds for its first worker to join
+
+
+def connect(scheduler: str):
+    """A Dask client of the scheduler at ``scheduler`` once a worker has joined; LibraryError
+    naming the address and the fix when none answers within CONNECT_S s or no worker joins
+    within JOIN_S s."""
     try:
-        from distributed import Client, as_completed
+        from distributed import Client
     except ImportError:
         raise LibraryError("--scheduler needs Dask distributed — install it with pip install 'glsim[dask]' "
                            "(or pip install distributed)") from None
     try:
-        client = Client(scheduler, timeout="15s")
+        client = Client(scheduler, timeout=f"{CONNECT_S}s")
     except Exception as exc:   # OSError, TimeoutError, ValueError for a malformed address
         raise LibraryError(f"--scheduler {scheduler}: no Dask scheduler answered ({type(exc).__name__}: {exc}) — "
                            "start one with `dask scheduler` and workers with `dask worker ADDRESS --nthreads 1`, and "
                            "give its tcp://HOST:PORT") from None
     try:
-        try:
-            client.wait_for_workers(1, timeout=60)
-        except Exception:
-            raise LibraryError(f"--scheduler {scheduler}: no Dask worker joined within 60 s — start workers with "
-                               f"`dask worker {scheduler} --nthreads 1` (glsim installed, the library directory "
-                               "on a filesystem they can write)") from None
-        summary.workers = len(client.scheduler_info().get("workers", {}))
-        futures = {}
-        for i, t in enumerate(tasks):
-            f = client.submit(worker_result, t, fn, key=f"glsim-library-{fingerprint[:12]}-{i:06d}", pure=False)
-            futures[f] = t
-        for f in as_completed(list(futures)):
-            try:
-                result = f.result()
-            except WriteError:
-                raise
-            except Exception as exc:   # KilledWorker and the like: the task failed on every try
-                result = ("error", f"{type(exc).__name__}: {exc}")
-            on_done(futures[f], result)
-    finally:
+        client.wait_for_workers(1, timeout=JOIN_S)
+    except Exception:
         client.close()
+        raise LibraryError(f"--scheduler {scheduler}: no Dask worker joined within {JOIN_S} s — start workers with "
+                           f"`dask worker {scheduler} --nthreads 1` (glsim installed, the library directory "
+                           "on a filesystem they can write)") from None
+    return client
 
 
-def execute(tasks: list[dict], fn, on_done, summary: Summary, scheduler: str | None = None,
-            key: str = "tasks") -> None:
+def _run_dask(tasks, client, on_done, summary: Summary, key: str, fn=render_task):
+    from distributed import as_completed
+
+    summary.workers = len(client.scheduler_info().get("workers", {}))
+    futures = {}
+    for i, t in enumerate(tasks):
+        f = client.submit(worker_result, t, fn, key=f"glsim-library-{key[:12]}-{i:06d}", pure=False)
+        futures[f] = t
+    for f in as_completed(list(futures)):
+        try:
+            result = f.result()
+        except WriteError:
+            raise
+        except Exception as exc:   # KilledWorker and the like: the task failed on every try
+            result = ("error", f"{type(exc).__name__}: {exc}")
+        on_done(futures[f], result)
+
+
+def execute(tasks: list[dict], fn, on_done, summary: Summary, scheduler=None, key: str = "tasks") -> None:
     """Run ``fn(task)`` for every task — in this process (``summary.workers`` 1), a local process
-    pool of ``summary.workers`` (a dead worker's tasks rerun in a fresh pool), or on the Dask
-    scheduler at ``scheduler`` — calling ``on_done(task, ("ok", records) | ("error", message))``
-    in this process as each finishes. ``fn`` must be importable by name (workers unpickle it)."""
+    pool of ``summary.workers`` (a dead worker's tasks rerun in a fresh pool), or on a Dask
+    cluster (``scheduler``: its tcp://HOST:PORT, or a client from :func:`connect`) — calling
+    ``on_done(task, ("ok", records) | ("error", message))`` in this process as each finishes.
+    ``fn`` must be importable by name (workers unpickle it)."""
     if not tasks:
         return
-    if scheduler:
+    if isinstance(scheduler, str):
+        client = connect(scheduler)
+        try:
+            _run_dask(tasks, client, on_done, summary, key, fn)
+        finally:
+            client.close()
+    elif scheduler is not None:
         _run_dask(tasks, scheduler, on_done, summary, key, fn)
     elif summary.workers == 1:
         _run_inprocess(tasks, on_done, fn)
@@ -456,15 +477,21 @@ def execute(tasks: list[dict], fn, on_done, summary: Summary, scheduler: str | N
 
 def run(plan: Plan, out: str | Path, workers: int | None = None, scheduler: str | None = None,
         force: bool = False, progress: bool = False, flush_s: float = 2.0) -> Summary:
-    """Render ``plan`` into ``out`` (see the module text); returns the :class:`Summary`."""
+    """Render ``plan`` into ``out`` (see the module text); returns the :class:`Summary`. With a
+    ``scheduler``, nothing is written before it has answered and a worker has joined."""
     out = Path(out)
     outdir.inside(out, [rel for job in plan.jobs for rel in (job.image, job.truth) if rel], "output.pattern")
-    with outdir.locked(out):
-        return _run(plan, out, workers, scheduler, force, progress, flush_s)
+    client = connect(scheduler) if scheduler else None
+    try:
+        with outdir.locked(out):
+            return _run(plan, out, workers, client, force, progress, flush_s)
+    finally:
+        if client is not None:
+            client.close()
 
 
-def _run(plan: Plan, out: Path, workers, scheduler, force: bool, progress: bool, flush_s: float) -> Summary:
-    """:func:`run` holding the lock of ``out``."""
+def _run(plan: Plan, out: Path, workers, client, force: bool, progress: bool, flush_s: float) -> Summary:
+    """:func:`run` holding the lock of ``out`` (``client``: a Dask client, or None)."""
     t0 = time.perf_counter()
     fingerprint = plan.fingerprint()
     resume = _prepare_directory(out, plan, fingerprint, force)
@@ -489,7 +516,7 @@ def _run(plan: Plan, out: Path, workers, scheduler, force: bool, progress: bool,
     if workers < 1:
         raise LibraryError(f"--workers {workers}: must be ≥ 1 — give the number of worker processes")
     summary = Summary(out=str(out), total=len(plan.jobs), kept=len(records),
-                      workers=min(workers, max(1, len(todo))), engine="dask" if scheduler else "local")
+                      workers=min(workers, max(1, len(todo))), engine="dask" if client else "local")
     tasks = _tasks(out, plan, todo, geometry, truths)
     bar = _progress = _Progress(len(todo), progress)
     last_flush = [time.perf_counter()]
@@ -516,7 +543,7 @@ def _run(plan: Plan, out: Path, workers, scheduler, force: bool, progress: bool,
             last_flush[0] = time.perf_counter()
 
     try:
-        execute(tasks, render_task, on_done, summary, scheduler, fingerprint)
+        execute(tasks, render_task, on_done, summary, client, fingerprint)
     finally:
         _progress.end()
         try:

@@ -55,7 +55,7 @@ def _scene(scene_json: str):
     import json
 
     from glsim.scene import scene_from_dict
-    from glsim.scene.load import _from_resolved
+    from glsim.scene.load import from_resolved as _from_resolved
     return scene_from_dict(*_from_resolved(json.loads(scene_json)))
 
 
@@ -237,15 +237,20 @@ def make_task(variant, jobs, out: Path, geometry: str, geometry_sha256: str, tru
 _DEVICE: int | None = None   # this pool worker's EGL device (pool_init), None: glcontext's choice
 
 
-def pool_init(devices=()) -> None:
-    """Local pool workers leave Ctrl-C to the parent (which stops them); on a multi-GPU
-    machine the k-th worker process the parent started renders on ``devices[k % len(devices)]`` (EGL
+def pool_init(devices=(), parent: int | None = None) -> None:
+    """Local pool workers leave Ctrl-C to the parent (which stops them) and end when the
+    ``parent`` process dies, however it dies (:mod:`.lifeline`); on a multi-GPU machine the
+    k-th worker process the parent started renders on ``devices[k % len(devices)]`` (EGL
     device indices, :func:`glsim.backends.gl.context.gpu_devices`). k is the number the parent
     gave the process when it made it: no lock a killed worker could leave held."""
     import multiprocessing as mp
     import signal
+
+    from glsim.workflows.library.lifeline import die_with_parent
     global _DEVICE
     signal.signal(signal.SIGINT, signal.SIG_IGN)
+    if parent is not None:
+        die_with_parent(parent)
     if devices:
         k = (getattr(mp.current_process(), "_identity", ()) or (os.getpid(),))[0] - 1
         _DEVICE = devices[k % len(devices)]
