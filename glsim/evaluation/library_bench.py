@@ -32,9 +32,9 @@ STEPS = 3            # load steps after the reference: 4 states × 2 cameras = 8
 
 def _spec(size, n_variants: int, truth: bool) -> dict:
     from glsim.scene import bulge_scene
-    from glsim.scene.load import _from_resolved
+    from glsim.scene.load import from_resolved
 
-    scene, base = _from_resolved(json.loads(bulge_scene(size=size, steps=STEPS).to_json()))
+    scene, base = from_resolved(json.loads(bulge_scene(size=size, steps=STEPS).to_json()))
     sigmas = [round(0.5 + 0.1 * i, 3) for i in range(n_variants)]
     return {"scene": scene, "truth": truth, "vary": {"noise": {"sigma": sigmas}}}, base
 

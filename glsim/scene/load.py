@@ -54,7 +54,7 @@ def scene_from_dict(data: dict, base_dir: str | Path = ".") -> Scene:
     return Scene(cameras=tuple(cameras), base_dir=str(Path(base_dir).resolve()), **rest)
 
 
-def _from_resolved(data: dict) -> tuple[dict, str]:
+def from_resolved(data: dict) -> tuple[dict, str]:
     """The layout of :meth:`Scene.to_dict` (a written ``scene.json``) as the scene-file layout:
     no nulls, poses as ``pose = {R, t}``, and the recorded base directory."""
     def drop_none(x):
@@ -82,7 +82,7 @@ def load_scene(path: str | Path) -> Scene:
         raise SceneError(str(path), "scene file not found" if why == "not found" else why, "check the path")
     if path.suffix == ".json":
         try:
-            data, base = _from_resolved(parse_nested(json.loads, path.read_text(encoding="utf-8"), str(path)))
+            data, base = from_resolved(parse_nested(json.loads, path.read_text(encoding="utf-8"), str(path)))
         except SceneError:
             raise
         except (ValueError, AttributeError, KeyError, TypeError) as exc:

@@ -468,12 +468,12 @@ def render_pairs(task: dict) -> list[float]:
     """Worker side of :func:`_render_on_engine`: render ``task["pairs"]`` of the library in
     ``task["out"]`` with this worker thread's renderer for the library's settings (made once:
     the target's reference image and the plate mesh over every pose); the seconds per pair."""
-    from glsim.scene.load import _from_resolved
+    from glsim.scene.load import from_resolved
     from glsim.scene import scene_from_dict
     from glsim.workflows.library import worker
 
     m, settings = task["manifest"], task["settings"]
-    scene = scene_from_dict(*_from_resolved(json.loads(task["scene"])))
+    scene = scene_from_dict(*from_resolved(json.loads(task["scene"])))
     target = target_from_dict(m["target"])
     poses = posemod.make_poses(scene.cameras, _half_size(target), m["n_pairs"], _pose_spec(m["poses"]),
                                m["seed"])

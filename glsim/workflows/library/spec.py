@@ -42,7 +42,7 @@ from glsim.errors import GlsimError, SceneError
 from glsim.io.images import EXTENSIONS
 from glsim.limits import MAX_IMAGES, MAX_VALUES, check_memory, check_nesting, not_a_file, parse_nested, parse_steps, refuse_count
 from glsim.scene import Scene, scene_from_dict
-from glsim.scene.load import _from_resolved
+from glsim.scene.load import from_resolved as _from_resolved
 
 try:
     import tomllib

@@ -12,7 +12,7 @@ import numpy as np
 from glsim.errors import SceneError
 from glsim.io import images as io
 from glsim.scene import Scene, Speckle
-from glsim.scene.load import _from_resolved
+from glsim.scene.load import from_resolved
 
 
 def reference_inputs(scene: Scene) -> tuple:
@@ -44,7 +44,7 @@ def scene_toml(scene: Scene, directory: str | Path) -> str:
     ``directory``: file paths are rewritten relative to it (absolute across drives)."""
     import tomli_w
 
-    data, base = _from_resolved(scene.to_dict())
+    data, base = from_resolved(scene.to_dict())
     directory = Path(directory).resolve()
 
     def rel(p: str) -> str:
