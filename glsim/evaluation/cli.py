@@ -47,7 +47,8 @@ def add_backends_arguments(p: argparse.ArgumentParser) -> None:
 def sweep_command(args: argparse.Namespace) -> int:
     """Run a parsed ``sweep``, ``sweep-compare``, ``frontier`` or ``backends`` command."""
     from glsim.evaluation.sweep import MIN_SIZE, run_dic, write_exchange
-    from glsim.evaluation.sweep_report import _e, backend_agreement, backend_markdown, report
+    from glsim.evaluation.formatting import num
+    from glsim.evaluation.sweep_report import backend_agreement, backend_markdown, report
 
     if args.command == "backends":
         agreement = backend_agreement(*(json.loads(Path(p).read_text()) for p in (args.gl_json, args.cpu_json)))
@@ -77,7 +78,7 @@ def sweep_command(args: argparse.Namespace) -> int:
     if sweep is not None:
         for r in sweep["results"]:
             print(f"{r['sequence']:18s} {r['run']}: max |bias u| {r['max_abs_bias_u']:.2e} px, max std "
-                  f"{r['max_std_u']:.2e} px, max |u − u_model| {_e(r['max_abs_gen_u'])} px")
+                  f"{r['max_std_u']:.2e} px, max |u − u_model| {num(r['max_abs_gen_u'], '.1e')} px")
     print(f"glsim sweep: wrote {args.results}/" + ("sweep.json, sweep.png, " if exchange else "")
           + "sweep.md, frontier.png")
     return 0

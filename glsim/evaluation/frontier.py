@@ -7,7 +7,7 @@ import math
 from pathlib import Path
 
 from glsim.evaluation.report import save_figure
-from glsim.evaluation.sweep import _by, _style
+from glsim.evaluation.sweep import results_by_sequence, sequence_style
 
 
 INTERP_COLOURS = {"linear": "tab:gray", "cubic": "tab:orange", "bspline3": "tab:blue",
@@ -100,7 +100,7 @@ def plot_frontier(accuracy: dict, sweep: dict | None, path: str | Path) -> Path:
         for r in sweep["results"]:
             if r["run"] != run:
                 continue
-            c, m, _ = _style(r["sequence"])
+            c, m, _ = sequence_style(r["sequence"])
             if r["source"] == "model":
                 ax.axhline(r["max_abs_bias_u"], color=c, ls="--", lw=0.8)
                 seq_handles.append(Line2D([], [], color=c, ls="--", lw=0.8,
@@ -143,7 +143,7 @@ def frontier_facts(accuracy: dict, sweep: dict | None) -> dict:
                 if rec:
                     f[(mode, interp, spp)] = rec
     if sweep is not None:
-        f["sweep"] = _by(sweep)
+        f["sweep"] = results_by_sequence(sweep)
     return f
 
 

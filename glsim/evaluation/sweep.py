@@ -407,11 +407,11 @@ STYLE = {"model": ("k", "o", "-"), "exact-procedural": ("tab:green", "s", "--"),
          "exact-procedural-spp4": ("tab:olive", "s", "--"), "exact-bspline3-spp4": ("tab:cyan", "^", "-")}
 
 
-def _style(name: str):
+def sequence_style(name: str):
     return STYLE.get(name, ("tab:gray", "P", "-"))
 
 
-def _by(sweep: dict, run: str | None = None) -> dict:
+def results_by_sequence(sweep: dict, run: str | None = None) -> dict:
     """sweep results of one run (default the first) by sequence name."""
     run = run or sweep["runs"][0]["name"]
     return {r["sequence"]: r for r in sweep["results"] if r["run"] == run}

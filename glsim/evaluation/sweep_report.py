@@ -8,7 +8,8 @@ from pathlib import Path
 from glsim.evaluation.frontier import frontier_markdown, plot_frontier
 from glsim.evaluation.formatting import num
 from glsim.evaluation.report import save_figure
-from glsim.evaluation.sweep import APPARENT_STRIDE, ROI_MARGIN_PX, _by, _style, analyse
+from glsim.evaluation.sweep import (APPARENT_STRIDE, ROI_MARGIN_PX, analyse, results_by_sequence,
+                                    sequence_style)
 from glsim.io import images as io
 
 
@@ -27,7 +28,7 @@ def plot_sweep(res: dict, path: str | Path) -> Path:
         rows = [r for r in res["results"] if r["run"] == run]
         size = rows[0]["subset_size"] if rows else "?"
         for r in rows:
-            c, m, ls = _style(r["sequence"])
+            c, m, ls = sequence_style(r["sequence"])
             s = [x["shift_px"] for x in r["rows"]]
             kw = dict(color=c, marker=m, ls=ls, label=r["sequence"], ms=5, mfc="none" if r["spp"] > 1 else c)
             axes[0, j].plot(s, [x["bias_u"] for x in r["rows"]], **kw)
@@ -44,7 +45,7 @@ def plot_sweep(res: dict, path: str | Path) -> Path:
     for r in first:
         if r["source"] == "model":
             continue
-        c, m, ls = _style(r["sequence"])
+        c, m, ls = sequence_style(r["sequence"])
         s = [x["shift_px"] for x in r["rows"]]
         kw = dict(color=c, marker=m, ls=ls, label=r["sequence"], ms=5, mfc="none" if r["spp"] > 1 else c)
         if "apparent_u" in r["rows"][0]:
@@ -73,7 +74,7 @@ def sweep_markdown(sweep: dict) -> list[str]:
     """The sweep part of sweep.md: settings, amplitudes, per-shift tables, timings."""
     m, c2 = sweep["machine"], sweep["calculate_2d"]
     runs = sweep["runs"]
-    first = _by(sweep)
+    first = results_by_sequence(sweep)
     lines = [
         f"- Machine: `{m['node']}`, {m['cpu']}, {m['cores']} cores; GL: {m['gl']['renderer']}; {sweep['date']}",
         f"- Scene: one {sweep['size'][0]}×{sweep['size'][1]} px camera square onto a flat 48 × 42 mm plate at "
@@ -105,19 +106,18 @@ def sweep_markdown(sweep: dict) -> list[str]:
     for name, r in first.items():
         cells = []
         for run in runs:
-            rr = _by(sweep, run["name"])[name]
+            rr = results_by_sequence(sweep, run["name"])[name]
             cells += [num(rr["max_abs_bias_u"], ".1e"), num(rr["max_std_u"], ".1e")]
         grey = r["max_grey_rms_vs_model"] * 255
         lines.append(f"| {name} | {r['render_seconds_median']:.3f} | " + " | ".join(cells)
                      + f" | {num(r['max_abs_gen_u'], '.1e')} | {num(r['max_abs_apparent_u'], '.1e')} | "
                      f"{num(r['max_abs_apparent_v'], '.1e')} | {'0' if r['source'] == 'model' else format(grey, '.2g')} |")
-    lines += ["", "Valid subsets: " + ", ".join(f"{run['name']} {next(iter(_by(sweep, run['name']).values()))['n_valid']}"
-                                                 f"/{next(iter(_by(sweep, run['name']).values()))['n_subsets']}"
-                                                 for run in runs)
+    valid = [next(iter(results_by_sequence(sweep, run["name"]).values())) for run in runs]
+    lines += ["", "Valid subsets: " + ", ".join(f"{run['name']} {v['n_valid']}/{v['n_subsets']}" for run, v in zip(runs, valid))
               + " (every sequence, every shift). Render times are medians per 512×512 image on this machine "
                 "(the model: the numpy evaluation in float64).", ""]
     for run in runs:
-        rows = _by(sweep, run["name"])
+        rows = results_by_sequence(sweep, run["name"])
         lines += [f"## DIC bias ± std per shift, {run['name']} (subset {run['subset_size']} px), px", "",
                   "| shift (px) | " + " | ".join(rows) + " |", "|---|" + "---|" * len(rows)]
         for k, sh in enumerate(sweep["shifts_px"]):
