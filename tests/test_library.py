@@ -252,6 +252,22 @@ def test_variants_differing_only_in_noise_lighting_optics_speckle_or_format_shar
     assert verify(lib) == (6, [])
 
 
+def test_the_library_renderer_keeps_only_the_compact_truth(tmp_path):
+    """The worker's renderer returns the int32 element map and (ξ, η) of the covered pixels only
+    (no float64 map), and they encode to the bytes of the full maps' truth file."""
+    from glsim.workflows.library import worker
+    scene = load_plan(_spec(tmp_path, "steps = [2]\n" + SCENE)).variants[0].scene
+    try:
+        t = worker.renderer_for(scene).render("cam1", 2, truth=True).truth
+    finally:
+        worker.release()
+    n = int(np.count_nonzero(t.element >= 0))
+    assert t.element.dtype == np.int32 and t.element.shape == (48, 64) and t.xi.shape == t.eta.shape == (n,) and n > 0
+    with Renderer(scene) as r:
+        full = r.render("cam1", 2, truth=True).truth
+    assert T.encode_compact(t.element, t.xi, t.eta, {}) == T.encode(full.element, full.xi, full.eta, {})
+
+
 def test_every_truth_key_ingredient_changes_the_key(monkeypatch):
     from glsim.workflows.library.spec import truth_keys
     changed = {"cameras.1.fx": (360.0, 361.0), "cameras.1.distortion.k1": (0.0, 0.01),

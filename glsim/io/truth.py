@@ -78,9 +78,10 @@ def _runs(element: np.ndarray):
     return idx, same1, same2
 
 
-def _shuffle(a: np.ndarray) -> bytes:
-    """Byte planes: all first bytes, then all second bytes, … (compresses small integers well)."""
-    return np.ascontiguousarray(np.ascontiguousarray(a).view(np.uint8).reshape(-1, a.itemsize).T).tobytes()
+def _shuffle(a: np.ndarray) -> np.ndarray:
+    """Byte planes: all first bytes, then all second bytes, … (compresses small integers well);
+    a contiguous uint8 array (zstd reads it in place)."""
+    return np.ascontiguousarray(np.ascontiguousarray(a).view(np.uint8).reshape(-1, a.itemsize).T)
 
 
 def _unshuffle(data: bytes, dtype, n: int) -> np.ndarray:
@@ -100,16 +101,20 @@ def _seg_cumsum(v: np.ndarray, start: np.ndarray) -> np.ndarray:
     return cs - before[first]
 
 
-def encode_local(values: np.ndarray, same1: np.ndarray, same2: np.ndarray) -> np.ndarray:
-    """float64 values (n,) → zigzag residual codes (n,) uint64 (see the module text)."""
+def encode_local(values: np.ndarray, same1: np.ndarray, same2: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
+    """float64 values (n,) → zigzag residual codes (n,) uint64 (see the module text), into
+    ``out`` (n,) uint64 if given. Integer arithmetic wraps modulo 2⁶⁴ (as the decoder's)."""
     iv = np.ascontiguousarray(values, np.float64).view(np.int64)
-    r = iv.copy()
-    with np.errstate(over="ignore"):
-        d1 = iv[1:] - iv[:-1]
-        r[1:] = np.where(same1[1:], d1, r[1:])
-        r[2:] = np.where(same2[2:], d1[1:] - d1[:-1], r[2:])
+    r = np.empty(len(iv), np.int64) if out is None else out.view(np.int64)
+    r[:] = iv
+    d1 = iv[1:] - iv[:-1]
+    np.copyto(r[1:], d1, where=same1[1:])
+    np.copyto(r[2:], d1[1:] - d1[:-1], where=same2[2:])
+    sign = (r >> np.int64(63)).view(np.uint64)
     u = r.view(np.uint64)
-    return (u << np.uint64(1)) ^ (r >> np.int64(63)).view(np.uint64)
+    np.left_shift(u, np.uint64(1), out=u)
+    np.bitwise_xor(u, sign, out=u)
+    return u
 
 
 def decode_local(codes: np.ndarray, same1: np.ndarray, same2: np.ndarray) -> np.ndarray:
@@ -205,31 +210,49 @@ def read_geometry(path: str | Path) -> Geometry:
 
 # ---- writing ----------------------------------------------------------------------------------------
 
+def compact(element: np.ndarray, xi: np.ndarray, eta: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """What a truth file stores of the maps ``element`` (H, W) int (−1 background) and
+    ``xi``/``eta`` (H, W) float64: the int32 element map and (ξ, η) of its n covered pixels in
+    raster order, (n,) float64 each — gathered from the maps, no full-size copy of them made."""
+    el = np.ascontiguousarray(element, np.int32)
+    idx = np.flatnonzero(el.ravel() >= 0)
+    return el, np.asarray(xi, np.float64).ravel()[idx], np.asarray(eta, np.float64).ravel()[idx]
+
+
 def encode(element: np.ndarray, xi: np.ndarray, eta: np.ndarray, header: dict,
            dtype: str = "float64") -> bytes:
     """A truth file's bytes. ``element`` (H, W) int (−1 background), ``xi``/``eta`` (H, W)
     float64 (values outside the covered pixels are ignored); ``header``: the metadata
     (cameras, mode, step, geometry, …; see :func:`image_header`)."""
+    return encode_compact(*compact(element, xi, eta), header, dtype)
+
+
+def encode_compact(el: np.ndarray, xs: np.ndarray, es: np.ndarray, header: dict, dtype: str = "float64") -> bytes:
+    """:func:`encode` from :func:`compact`'s arrays: ``el`` (H, W) int32, ``xs``/``es`` (n,)
+    float64 of the n covered pixels."""
     if dtype not in DTYPES:
         raise GlsimError(f"truth dtype {dtype!r} is not one of {DTYPES}; use float64 (lossless) or float32")
-    element = np.asarray(element)
-    H, W = element.shape
-    el = np.ascontiguousarray(element, np.int32)
+    H, W = el.shape
     idx, same1, same2 = _runs(el)
+    n = len(idx)
+    if len(xs) != n or len(es) != n:
+        raise ValueError(f"{len(xs)} ξ and {len(es)} η values for {n} covered pixels")
     cz = _zstd().ZstdCompressor(level=ZSTD_LEVEL)
-    xs, es = np.asarray(xi, np.float64).ravel()[idx], np.asarray(eta, np.float64).ravel()[idx]
     if dtype == "float64":
-        local = np.concatenate([encode_local(xs, same1, same2), encode_local(es, same1, same2)])
+        local = np.empty(2 * n, np.uint64)
+        encode_local(xs, same1, same2, out=local[:n])
+        encode_local(es, same1, same2, out=local[n:])
         codec = "int64-row-delta2-zigzag+shuffle+zstd"
     else:
-        local = np.concatenate([xs, es]).astype(np.float32)
+        local = np.empty(2 * n, np.float32)
+        local[:n], local[n:] = xs, es
         codec = "float32+shuffle+zstd"
-    blobs = [("element", cz.compress(el.tobytes())), ("local", cz.compress(_shuffle(local)))]
+    blobs = [("element", cz.compress(np.ascontiguousarray(el, np.int32))), ("local", cz.compress(_shuffle(local)))]
     offsets, pos = {}, 0
     for name, b in blobs:
         offsets[name] = [pos, len(b)]
         pos += len(b)
-    head = {"format": FORMAT, "version": VERSION, "size": [W, H], "covered": int(len(idx)), "dtype": dtype,
+    head = {"format": FORMAT, "version": VERSION, "size": [W, H], "covered": int(n), "dtype": dtype,
             "codec": {"element": "int32+zstd", "local": codec}, **header, "blobs": offsets}
     text = json.dumps(head, sort_keys=True).encode()
     return b"".join([MAGIC, struct.pack("<Q", len(text)), text] + [b for _, b in blobs])

@@ -34,21 +34,21 @@ _LOCAL = threading.local()
 
 
 class CompactRaster:
-    """The truth a library stores: the renderer's raster at pixel centres, no full maps."""
+    """The truth a library stores (:func:`glsim.io.truth.compact`): ``element`` (H, W) int32,
+    ``xi``/``eta`` (n,) float64 of the n covered pixels in raster order."""
 
     def __init__(self, element, xi, eta):
         self.element, self.xi, self.eta = element, xi, eta
 
 
 class CompactRenderer(Renderer):
-    """A Renderer whose truth is only (element, ξ, η): the float64 maps that
-    :meth:`Renderer._truth` would build are what the compact truth file determines, so the
-    library does not compute them."""
+    """A Renderer whose truth is only the compact (element, ξ, η): no float64 map of the
+    positions or reference coordinates is made (the truth file determines them), and the
+    backend's full-size raster is dropped as soon as the covered pixels are gathered."""
 
     def _truth(self, size, deformed, raster, evaluate=None) -> CompactRaster:
         W, H = size
-        return CompactRaster(raster["element"].reshape(H, W), raster["xi"].reshape(H, W),
-                             raster["eta"].reshape(H, W))
+        return CompactRaster(*truthio.compact(raster["element"].reshape(H, W), raster["xi"], raster["eta"]))
 
 
 def _scene(scene_json: str):
@@ -139,7 +139,7 @@ def _encode_and_write(out: Path, job: dict, res, header: dict | None, dtype: str
            "covered": res.covered}
     if job["render_truth"]:
         t = res.truth
-        tdata = truthio.encode(t.element, t.xi, t.eta, header, dtype)
+        tdata = truthio.encode_compact(t.element, t.xi, t.eta, header, dtype)
         rec["truth_bytes"], rec["truth_sha256"] = len(tdata), truthio.sha256_bytes(tdata)
         files.append((out / job["truth"], tdata))
     t2 = time.perf_counter()
