@@ -3,6 +3,8 @@ meshed as Q4, Q8, Q9, T3 or graded Q4, or reaching further outside camera 0's vi
 same dots at the same material points, so its images agree."""
 from __future__ import annotations
 
+import dataclasses
+
 import meshio
 import numpy as np
 import pytest
@@ -180,9 +182,10 @@ def test_a_pattern_is_the_same_whichever_rectangle_asks_for_it():
 
 def test_the_dot_size_does_not_follow_the_mesh_extent(tmp_path):
     """The generator's unit for dot_diameter_px, camera 0's mm per px, is taken where camera 0's
-    optical axis meets the plate and rounded to 4 significant digits: the same for the plate
-    and the plate reaching further (whose bounding box centre, the old point, moved 6 mm), so
-    the reference pixels are the same size; within 1 % of camera 0's scale at the plate's centre."""
+    optical axis meets the plate: the same bit for bit for the plate and the plate reaching
+    further (whose bounding box centre, the old point, moved 6 mm), so the reference pixels are
+    the same size; within 1 % of camera 0's scale at the plate's centre. An axis that misses
+    the plate takes the nearest point of its bounding box."""
     scales = []
     for d, kw in (("a", {}), ("b", {"extra": True})):
         scene = scene_file(tmp_path / d, **kw)
@@ -193,7 +196,13 @@ def test_the_dot_size_does_not_follow_the_mesh_extent(tmp_path):
         cam = make_reference(scene, mesh).camera
         eye = (cam.center - t) @ R
         assert abs(eye[2]) / cam.fx == pytest.approx(s / 2, rel=1e-12)   # oversample 2: half a camera-0 px
-        assert float(f"{s:.4g}") == s
         scales.append(s)
     assert scales[0] == scales[1]
-    assert scales[0] == pytest.approx(camera_scale(scene.cameras[0], (R @ [WIDTH / 2, HEIGHT / 2, 0] + t)[None]), rel=0.01)
+    cam0 = scene.cameras[0]
+    assert scales[0] == pytest.approx(camera_scale(cam0, (R @ [WIDTH / 2, HEIGHT / 2, 0] + t)[None]), rel=0.01)
+    away = dataclasses.replace(cam0, t=tuple(np.add(cam0.t, [200.0, 0.0, 0.0])))   # its axis meets Z = 0 at X < 0
+    eye, axis = (away.center - t) @ R, away.rotation[2] @ R
+    hit = eye - eye[2] / axis[2] * axis
+    assert hit[0] < -100 and 0 < hit[1] < HEIGHT
+    edge = camera_scale(away, (R @ [0.0, hit[1], 0.0] + t)[None])
+    assert pattern_scale(away, pl, (mesh.nodes - t) @ R, R, t) == pytest.approx(edge, rel=1e-12)

@@ -100,15 +100,17 @@ RUN = {"name": "s11", "subset_size": 11}
 @pytest.fixture(scope="module")
 def exchange(tmp_path_factory) -> Path:
     out = tmp_path_factory.mktemp("sweep")
-    sweep.write_exchange(out, size=SIZE, shifts_px=(0.0, 0.5), sequences=SEQS, backend="cpu", runs=[RUN])
+    # 0.3 px: the reference image's pixels lie on the plate's lattice (issue 29), on which this
+    # camera's pixel centres fall at whole and half-pixel shifts, where bspline3 is exact
+    sweep.write_exchange(out, size=SIZE, shifts_px=(0.0, 0.3), sequences=SEQS, backend="cpu", runs=[RUN])
     return out
 
 
 def test_exchange_layout(exchange):
     m = json.loads((exchange / "manifest.json").read_text())
     assert m["format"] == "glsim-sweep/1" and m["size"] == list(SIZE) and m["bit_depth"] == 16
-    assert m["shifts_px"] == [0.0, 0.5]
-    assert m["shift_mm"] == pytest.approx([0.0, 0.5 * m["mm_per_px"]])
+    assert m["shifts_px"] == [0.0, 0.3]
+    assert m["shift_mm"] == pytest.approx([0.0, 0.3 * m["mm_per_px"]])
     assert m["runs"] == [RUN]
     c2 = m["calculate_2d"]
     assert c2["image_filter_kernel"] == 1 and c2["interpolation_routine"] == "BSPLINE" and "subset_size" not in c2

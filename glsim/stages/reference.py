@@ -162,35 +162,33 @@ def camera_scale(cam: Camera, points: np.ndarray) -> float:
     return float(z / math.sqrt(cam.fx * cam.fy))
 
 
-SCALE_DIGITS = 4   # significant digits of the generator's mm per camera-0 px (pattern_scale)
-
-
 def pattern_scale(cam: Camera, pl: Placement, local: np.ndarray, R: np.ndarray, t: np.ndarray) -> float:
-    """The generator's unit: camera 0's (``cam``) mean mm per px on the specimen, rounded to
-    SCALE_DIGITS significant digits, which turns ``dot_diameter_px`` and ``edge_px`` into mm.
+    """The generator's unit: camera 0's (``cam``) mean mm per px on the specimen, which turns
+    ``dot_diameter_px`` and ``edge_px`` into mm (and, over ``oversample``, gives the reference
+    image's mm per px).
 
     Taken where camera 0's optical axis meets the plane of the placement ``pl`` (through C,
     normal n), that point moved into the bounding box of the nodes ``local`` along u and v if it
     lies outside; at C if the axis meets the plane behind the camera or runs along it (``R``,
     ``t``: the specimen's pose). For a flat specimen that camera 0 looks at, this depends on the
-    camera and the specimen's plane only, not on its meshing or on how far it reaches; the
-    rounding absorbs float rounding elsewhere."""
+    camera and the specimen's plane only, not on its meshing or on how far it reaches (the old
+    point, the bounding box's centre, moves with the extent). It is not rounded: it varies
+    continuously, so float rounding of the nodes moves the dots by float rounding only."""
     eye = (cam.center - t) @ R                                   # the specimen's frame
-    axis = (cam.rotation[2] @ R)                                 # the optical axis (world: Rcᵀ·ẑ)
+    axis = cam.rotation[2] @ R                                   # the optical axis, Rcᵀ·ẑ
     P = pl.C
     across = float(np.dot(axis, pl.n))
     if across != 0.0:
         lam = float(np.dot(pl.C - eye, pl.n)) / across
         if lam > 0:
-            hit = eye + lam * axis
-            a, b = local @ pl.u, local @ pl.v
-            da = np.clip(np.dot(hit, pl.u), a.min(), a.max()) - np.dot(pl.C, pl.u)
-            db = np.clip(np.dot(hit, pl.v), b.min(), b.max()) - np.dot(pl.C, pl.v)
-            P = pl.C + da * pl.u + db * pl.v
+            P = eye + lam * axis
+            for e in (pl.u, pl.v):                               # into the bounding box along u, v
+                a = local @ e
+                x = float(np.dot(P, e))
+                if not a.min() <= x <= a.max():
+                    P = P + (min(max(x, a.min()), a.max()) - x) * e
     s = camera_scale(cam, (R @ P + t)[None])
-    if s <= 0:                                                   # the point is behind camera 0
-        s = camera_scale(cam, (R @ pl.C + t)[None])
-    return float(f"{s:.{SCALE_DIGITS}g}") if s > 0 else s
+    return s if s > 0 else camera_scale(cam, (R @ pl.C + t)[None])   # P behind camera 0: C
 
 
 def _surface_dots(pl: Placement, cam: Camera, mm_per_px: float, dot_mm: float, edge_mm: float, sp) -> speckle.Dots:
