@@ -24,11 +24,11 @@ from glsim.evaluation.report import machine_line
 from glsim.evaluation.report import machine_info
 from glsim.io import images as io
 from glsim.scene import Noise
-from glsim.workflows.calib import detect, library
+from glsim.workflows.calib import detect, detection, dotcentres, dotfit, dotgrid, library
+from glsim.workflows.calib.dotcentres import METHODS
 from glsim.workflows.calib.targets import Charuco, Chessboard, DotGrid
 
 RESULTS = Path(__file__).resolve().parent.parent / "bench" / "results"
-METHODS = ("fit", "centroid", "centroid-dot", "edge-ellipse", "blob")
 NAMES = {"fit": "model fit (default)", "centroid": "grey-level centroid, ±0.45 pitch window (before)",
          "centroid-dot": "grey-level centroid, window = dot + 3 px", "edge-ellipse": "ellipse through sub-pixel edge points",
          "blob": "OpenCV blob centres (findCirclesGrid)"}
@@ -101,11 +101,11 @@ def measure(lib, pairs: int, noise: float, methods=METHODS) -> dict:
                 errors[m].append(e[ok])
                 marker_errors[m].append(e[ok & markers])
             # the Cramér–Rao bound of each dot found by the fit, at this noise level
-            img = detect.to_unit(image, cam.bit_depth)
-            blobs = detect.find_grid(img, lib.target)
-            if blobs is not None and detect.regular(blobs, lib.target.rows, lib.target.cols):
-                pts, _, e = detect.refine_fit(img, blobs, lib.target)
-                b = detect.mean_norm(detect.centre_bound(img, e, noise_sigma(noise, cam.bit_depth)))
+            img = detection.to_unit(image, cam.bit_depth)
+            blobs = dotgrid.find_grid(img, lib.target)
+            if blobs is not None and dotgrid.regular(blobs, lib.target.rows, lib.target.cols):
+                pts, _, e = dotcentres.refine_fit(img, blobs, lib.target)
+                b = dotfit.mean_norm(dotfit.centre_bound(img, e, noise_sigma(noise, cam.bit_depth)))
                 ok = np.isfinite(b)
                 near = np.linalg.norm(pts[:, None] - truth[None], axis=2)
                 is_marker = markers[np.nanargmin(np.where(np.isnan(near), np.inf, near), axis=1)]

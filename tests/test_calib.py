@@ -14,8 +14,9 @@ import numpy as np
 import pytest
 
 from glsim.io.calibfiles import euler_xyz, read_rig_yaml
+from glsim.io.hashes import sha256_file
 from glsim.workflows.calib import calibrate as cal
-from glsim.workflows.calib import detect
+from glsim.workflows.calib import boards, detect, detection, dotgrid
 from glsim.workflows.calib import library as libmod
 from glsim.workflows.calib import poses as posemod
 from glsim.workflows.calib import study
@@ -261,10 +262,10 @@ def test_found_grids_with_repeated_points_are_rejected():
     last visible dots in place of the missing ones."""
     cam = libmod.paper_rig(CI_SCALE)[0]
     uv, _ = project(DotGrid().points() @ rotation_xyz(20, 30, 40).T + [0, 0, 370.0], cam)
-    assert detect.regular(uv, 9, 9)
+    assert dotgrid.regular(uv, 9, 9)
     bad = uv.reshape(9, 9, 2).copy()
     bad[0, 7:] = bad[0, 6]
-    assert not detect.regular(bad.reshape(-1, 2), 9, 9)
+    assert not dotgrid.regular(bad.reshape(-1, 2), 9, 9)
 
 
 @pytest.mark.gl
@@ -284,7 +285,7 @@ def test_detection_orientation_under_any_roll(gl_ctx):
         truth = libmod.dot_truth(target, Rw, tw, cams[0])["centroid"]
         assert d is not None
         assert np.abs(d.points - (truth[::-1] if reversed_ else truth)).max() < 0.05, (target, roll)
-    assert len(detect.grid_permutations(9, 9)) == 8 and len(detect.grid_permutations(7, 9)) == 4
+    assert len(dotgrid.grid_permutations(9, 9)) == 8 and len(dotgrid.grid_permutations(7, 9)) == 4
 
 
 @pytest.mark.gl
@@ -516,7 +517,7 @@ def test_detection_cache_follows_the_images(ci_library, ci_detections, tmp_path)
             (ci_library.directory / "pairs" / f"0005_{cam.name}.tif").read_bytes())
     p = json.loads((lib.directory / "pairs" / "0001.json").read_text())
     for cam in lib.cameras:
-        p["cameras"][cam.name]["sha256"] = libmod._sha256(lib.directory / "pairs" / f"0001_{cam.name}.tif")
+        p["cameras"][cam.name]["sha256"] = sha256_file(lib.directory / "pairs" / f"0001_{cam.name}.tif")
     (lib.directory / "pairs" / "0001.json").write_text(json.dumps(p))
     again = cal.detect_library(libmod.load_library(lib.directory), 41)
     assert np.array_equal(again[0][0], first[0][0], equal_nan=True)
@@ -586,11 +587,11 @@ def test_charuco_corners_refined_beyond_opencv(tmp_path, gl_ctx):
     raw, refined = [], []
     for pair in lib.pairs:
         for cam in lib.cameras:
-            img = detect.to_unit(read_image(lib.image_path(pair, cam)), cam.bit_depth)
+            img = detection.to_unit(read_image(lib.image_path(pair, cam)), cam.bit_depth)
             truth = libmod.image_truth(lib, pair, cam)["projected"]
-            corners, ids, _, _ = cv2.aruco.CharucoDetector(target.board()).detectBoard(detect._gray8(img))
+            corners, ids, _, _ = cv2.aruco.CharucoDetector(target.board()).detectBoard(detection.to_gray8(img))
             raw.append(np.linalg.norm(corners.reshape(-1, 2) - truth[ids.ravel()], axis=1))
-            d = detect.detect_charuco(img, target)
+            d = boards.detect_charuco(img, target)
             refined.append(np.linalg.norm(d.points[d.ok] - truth[d.ok], axis=1))
     raw, refined = np.concatenate(raw), np.concatenate(refined)
     assert len(refined) == len(raw) > 50
@@ -617,9 +618,9 @@ def test_calib_run_on_chessboard_and_charuco_libraries(tmp_path, gl_ctx, capsys)
     corners = libmod.image_truth(lib, lib.pairs[0], lib.cameras[0])["projected"]
     cb = targets["cb"]
     img = read_image(tmp_path / "cb" / "pairs" / "0000_cam0.tif")
-    d = detect.detect_chessboard(img, cb, 8)
+    d = boards.detect_chessboard(img, cb, 8)
     assert d is not None
-    perm = detect.orient_chessboard(detect.to_unit(img, 8), d.points[::-1].copy(), cb)
+    perm = boards.orient_chessboard(detection.to_unit(img, 8), d.points[::-1].copy(), cb)
     assert np.array_equal(d.points[::-1][perm], d.points)                # a reversed order is put back
     assert corners.shape == (len(targets["ch"].points()), 2)
     bad = libmod.write_library(libmod.paper_rig(CI_SCALE), Chessboard(rows=7, cols=9, square=12.0, px_per_mm=5), 1,
@@ -699,12 +700,12 @@ def test_a_dot_off_its_neighbours_homography_rejects_the_grid():
     target = DotGrid()
     cam = libmod.paper_rig(CI_SCALE)[0]
     uv, _ = project(target.points() @ rotation_xyz(20, 30, 40).T + [0, 0, 370.0], cam)
-    assert detect.inconsistent(uv, target) is None
+    assert dotgrid.inconsistent(uv, target) is None
     bad = uv.copy()
     bad[40] += [1.8, 0.0]                                           # 0.1 of the spacing
-    assert detect.inconsistent(bad, target)[0] == 40
+    assert dotgrid.inconsistent(bad, target)[0] == 40
     bad[40] = np.nan                                                # a dot not found is no disagreement
-    assert detect.inconsistent(bad, target) is None
+    assert dotgrid.inconsistent(bad, target) is None
 
 
 @pytest.mark.gl

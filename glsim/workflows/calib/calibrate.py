@@ -22,6 +22,7 @@ import numpy as np
 from glsim.io import images as io
 from glsim.io.atomic import atomic_paths
 from glsim.io.calibfiles import euler_xyz, write_rig_yaml
+from glsim.io.hashes import sha256_file
 from glsim.scene.camera import Camera, distort, normalized_to_pixel, pixel_rays, project
 from glsim.errors import SceneError
 from glsim.workflows.calib import library as libmod
@@ -234,7 +235,7 @@ def image_checksums(lib: libmod.Library, pair: dict) -> list[str]:
         if not path.is_file():
             raise SceneError(str(path), "is missing (its pair's ground truth and any detection cache cannot stand in "
                              "for it)", f"restore it, or {libmod._pair_fix(json_path)}")
-        sha = libmod._sha256(path)
+        sha = sha256_file(path)
         recorded = pair["cameras"][cam.name].get("sha256")
         if recorded is not None and recorded != sha:
             raise SceneError(str(path), f"differs from the image {json_path.name} recorded when it was rendered "
@@ -249,8 +250,8 @@ def detect_library(lib: libmod.Library, min_points: int, processes: int = 1, pro
     """Detections of every pair: {pair index: (points of camera 0, of camera 1, …)}, each (N, 2)
     px with NaN rows where a dot was lost, or None where a camera's grid was not found.
 
-    ``method``: the dot estimator (detect.METHODS; default the model fit); chessboards and
-    ChArUco boards are found by OpenCV's detectors (detect.detect_chessboard/detect_charuco).
+    ``method``: the dot estimator (dotcentres.METHODS; default the model fit); chessboards and
+    ChArUco boards are found by OpenCV's detectors (boards.detect_chessboard/detect_charuco).
     Cached in ``detections_v{DETECTOR_VERSION}_{method}_min{min_points}.npz`` in the library,
     keyed by the SHA-256 of each pair's images: a pair whose images changed is detected again,
     a missing or damaged image is named (SceneError), never passed over from the cache. New

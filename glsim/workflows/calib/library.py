@@ -31,7 +31,9 @@ from typing import Callable
 import numpy as np
 
 from glsim.io import images as io
+from glsim.io.cameras import camera_from_dict, camera_to_dict
 from glsim.io.calibfiles import opencv_distortion, stereo_extrinsics, write_rig_yaml
+from glsim.io.hashes import sha256_file
 from glsim.scene.camera import Camera, Distortion, project, stereo_pose
 from glsim.errors import SceneError
 from glsim.render import Renderer
@@ -163,15 +165,10 @@ def target_from_dict(d: dict, where: str = "library.json"):
                          "restore the file, or make the library again with `glsim calib library`") from None
 
 
-def camera_to_dict(cam: Camera) -> dict:
-    return dataclasses.asdict(cam)
-
-
-def camera_from_dict(d: dict, where: str = "library.json") -> Camera:
+def read_camera(d: dict, where: str = "library.json") -> Camera:
+    """A camera of library.json, or a SceneError naming the file."""
     try:
-        d = dict(d)
-        d["distortion"] = Distortion(**d["distortion"])
-        return Camera(**d)
+        return camera_from_dict(d)
     except (TypeError, KeyError, ValueError) as exc:
         if isinstance(exc, SceneError):
             raise
@@ -306,14 +303,6 @@ def settings_differences(old: dict, new: dict) -> list[str]:
     return out
 
 
-def _sha256(path) -> str:
-    h = hashlib.sha256()
-    with open(path, "rb") as f:
-        for chunk in iter(lambda: f.read(1 << 20), b""):
-            h.update(chunk)
-    return h.hexdigest()
-
-
 def write_library(rig, target, n_pairs: int, out_dir, seed: int = 0, backend: str | None = None,
                   spec: posemod.PoseSpec = posemod.PoseSpec(), noise=None, ctx=None,
                   progress: Callable[[int, int], None] | None = None, effects=(), workers: int = 1,
@@ -418,7 +407,7 @@ def render_pair(r: Renderer, target, pose, world_pose, i: int, settings: str, se
         name = f"{pair_name(i)}_{cam.name}.tif"
         path = io.write_image(out / "pairs" / name, image, cam.bit_depth)
         truth = dot_truth(target, Rw, tw, cam) if isinstance(target, DotGrid) else _corner_truth(target, Rw, tw, cam)
-        record["cameras"][cam.name] = {"image": name, "sha256": _sha256(path),
+        record["cameras"][cam.name] = {"image": name, "sha256": sha256_file(path),
                                        **{key: v.tolist() for key, v in truth.items()},
                                        "complete": bool(truth["visible"].all())}
     io.write_text(out / "pairs" / f"{pair_name(i)}.json", json.dumps(record))
@@ -564,7 +553,7 @@ def load_library(directory) -> Library:
                          "restore it, or make the library again with `glsim calib library`")
     if not isinstance(manifest["cameras"], list) or not manifest["cameras"]:
         raise SceneError(str(path), "cameras: is not a list of cameras", "restore it, or make the library again")
-    cams = tuple(camera_from_dict(c, str(path)) for c in manifest["cameras"])
+    cams = tuple(read_camera(c, str(path)) for c in manifest["cameras"])
     target = target_from_dict(manifest["target"], str(path)) if isinstance(manifest["target"], dict) else \
         target_from_dict({}, str(path))
     pairs = []
