@@ -19,6 +19,13 @@ class SceneError(GlsimError, ValueError):
         super().__init__(msg)
 
 
+def check(ok: bool, key: str, problem: str, fix: str) -> None:
+    """Raise :class:`SceneError` (``key``, ``problem``, ``fix``) unless ``ok``: the scene's and the
+    calibration targets' value checks."""
+    if not ok:
+        raise SceneError(key, problem, fix)
+
+
 class GLUnavailableError(GlsimError, RuntimeError):
     """No headless OpenGL (EGL) context could be made; backend="cpu" still works."""
 

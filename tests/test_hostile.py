@@ -25,7 +25,7 @@ import pytest
 from glsim.cli import main
 from glsim.errors import GlsimError, RenderWarning
 from glsim.io import truth as T
-from glsim.scene import load_scene, model, scene_from_dict
+from glsim.scene import load_scene, model, scene_from_dict, tables
 from glsim.scene.camera import Camera, Distortion
 from glsim.io.fe import specimen_mesh
 from glsim.stages.reference import make_reference
@@ -363,10 +363,10 @@ def test_a_damaged_library_json_is_named_in_verify_and_resume(library, tmp_path,
 hypothesis = pytest.importorskip("hypothesis")
 st = hypothesis.strategies
 
-_NAMES = set(model.SECTIONS) | set(TOP_KEYS)
+_NAMES = set(tables.SECTIONS) | set(TOP_KEYS)
 for _cls in (Camera, Distortion, model.Speckle, model.Plate, model.Bulge, model.MeshFile, model.Specimen,
-             model.Render, model.Output, model.Light, model.Lighting, model.Optics, model.Noise, model.Stereo,
-             model.LookAt, model.Pose):
+             model.Render, model.Output, model.Light, model.Lighting, model.Optics, model.Noise, tables.Stereo,
+             tables.LookAt, tables.Pose):
     _NAMES |= {f.name for f in dataclasses.fields(_cls)}
 KEYS = st.sampled_from(sorted(_NAMES)) | st.text(max_size=4)
 LEAVES = (st.none() | st.booleans() | st.integers(-2 ** 70, 2 ** 70) | st.floats() | st.text(max_size=6)

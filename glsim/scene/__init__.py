@@ -2,7 +2,8 @@
 built-in scenes, and the models it is made of (camera, mesh, Q4 element, speckle)."""
 from glsim.scene.load import load_scene, scene_from_dict
 from glsim.scene.model import (BACKENDS, INTERPOLATIONS, MODES, Bulge, Light, Lighting, MeshFile, Noise, Optics,
-                               Output, Plate, Pose, Render, Scene, Specimen, Speckle, Stereo)
+                               Output, Plate, Render, Scene, Specimen, Speckle)
+from glsim.scene.tables import Pose, Stereo
 from glsim.scene.presets import bulge_scene, demo_effects, stereo_rig
 
 __all__ = ["BACKENDS", "INTERPOLATIONS", "MODES", "Bulge", "Light", "Lighting", "MeshFile", "Noise", "Optics",

@@ -290,7 +290,7 @@ class Camera:
             raise SceneError("bit_depth", f"must be 8, 10, 12 or 16, got {self.bit_depth!r}",
                              "give the sensor's bits per pixel")
         set_("bit_depth", int(self.bit_depth))
-        set_("R", _check_rotation(self.R))
+        set_("R", check_rotation(self.R))
         t = np.asarray(self.t, dtype=np.float64) if _numeric(self.t) else np.full(1, np.nan)
         if t.shape != (3,) or not np.all(np.isfinite(t)):
             raise SceneError("t", f"must be 3 finite numbers (mm), got {self.t!r}",
@@ -347,7 +347,7 @@ def _finite(v, key, fix) -> float:
     return float(v)
 
 
-def _check_rotation(R) -> tuple:
+def check_rotation(R) -> tuple:
     fix = "give a proper rotation matrix, e.g. from a Rodrigues vector with glsim.scene.camera.rodrigues(rvec)"
     m = np.asarray(R, dtype=np.float64) if _numeric(R) else np.full(1, np.nan)
     if m.shape != (3, 3) or not np.all(np.isfinite(m)):

@@ -29,7 +29,8 @@ from pathlib import Path
 from glsim.errors import SceneError
 from glsim.limits import check_nesting, not_a_file, parse_nested
 from glsim.scene.camera import Camera
-from glsim.scene.model import SECTIONS, Scene, _build, _coerce, _reject_unknown
+from glsim.scene.model import Scene
+from glsim.scene.tables import SECTIONS, build, coerce, reject_unknown
 
 try:
     import tomllib
@@ -40,7 +41,7 @@ except ModuleNotFoundError:  # Python 3.10
 def scene_from_dict(data: dict, base_dir: str | Path = ".") -> Scene:
     """Build a Scene from parsed TOML (see the module docstring for the layout)."""
     check_nesting(data, "scene")
-    _reject_unknown(data, SECTIONS, "")
+    reject_unknown(data, SECTIONS, "")
     tables = data.get("cameras")
     if not isinstance(tables, list) or not tables:
         raise SceneError("cameras", "at least one [[cameras]] table is required",
@@ -48,9 +49,9 @@ def scene_from_dict(data: dict, base_dir: str | Path = ".") -> Scene:
     cameras: list[Camera] = []
     for i, table in enumerate(tables):
         first = cameras[0] if cameras else None
-        cameras.append(_build(Camera, table, f"cameras[{i}]", first, name=f"cam{i}"))
+        cameras.append(build(Camera, table, f"cameras[{i}]", first, name=f"cam{i}"))
     hints = typing.get_type_hints(Scene)
-    rest = {k: _coerce(data[k], hints[k], k) for k in SECTIONS[1:] if k in data}
+    rest = {k: coerce(data[k], hints[k], k) for k in SECTIONS[1:] if k in data}
     return Scene(cameras=tuple(cameras), base_dir=str(Path(base_dir).resolve()), **rest)
 
 

@@ -5,24 +5,22 @@ the stereo angles, radians for ``rvec``. Files are read by :mod:`glsim.scene.loa
 from __future__ import annotations
 
 import dataclasses
-import difflib
 import json
 import math
 import re
 import typing
-from dataclasses import MISSING, dataclass, field
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
-from glsim.scene.camera import Camera, _check_rotation, look_at, rodrigues, stereo_pose
-from glsim.errors import SceneError
+from glsim.scene.camera import Camera
+from glsim.errors import SceneError, check
 from glsim.limits import (MAX_ELEMENTS, MAX_SAMPLES_PER_PIXEL, MAX_STEPS, check_gl_target, check_image_size,
                           refuse_count, require_file)
 from glsim.scene.mesh import UNITS_TO_MM
+from glsim.scene.tables import Vec3, build, reject_unknown
 
-Vec3 = tuple[float, float, float]
-Mat3 = tuple[Vec3, Vec3, Vec3]
 MODES = ("fast", "q4", "exact")
 INTERPOLATIONS = ("linear", "cubic", "bspline3", "bspline5", "procedural")
 BACKENDS = ("gl", "cpu")
@@ -71,40 +69,40 @@ class Speckle:
                                      f"which is not used with speckle.image = {self.image!r}",
                                      f"remove {f.name} (the image is used as it is), or remove image to "
                                      f"generate the pattern")
-        _check(self.mm_per_px >= 0, "speckle.mm_per_px", f"must be ≥ 0, got {self.mm_per_px}",
-               "give the reference image scale in mm per pixel (0 = automatic)")
+        check(self.mm_per_px >= 0, "speckle.mm_per_px", f"must be ≥ 0, got {self.mm_per_px}",
+              "give the reference image scale in mm per pixel (0 = automatic)")
         placed = {k: getattr(self, k) for k in ("centre", "u_axis", "normal")
                   if getattr(self, k) != _SPECKLE_PLACEMENT[k]}
-        _check(self.camera is None or not placed, f"speckle.{next(iter(placed), 'centre')}",
-               "places the image, which speckle.camera already fixes",
-               "remove it, or remove speckle.camera")
-        _check(len(self.centre) in (0, 2, 3), "speckle.centre", f"must have 2 or 3 entries, got {list(self.centre)}",
-               "give the image centre in specimen mm, [X, Y] or [X, Y, Z]")
-        _check(not self.centre or bool(self.image), "speckle.centre", "places a speckle.image; the generated "
-               "pattern is always centred on the specimen", "remove centre, or give an image")
-        _check(len(self.normal) in (0, 3), "speckle.normal", f"must have 3 entries, got {list(self.normal)}",
-               "the direction the image faces, in the specimen's frame, e.g. [0, 0, 1]")
+        check(self.camera is None or not placed, f"speckle.{next(iter(placed), 'centre')}",
+              "places the image, which speckle.camera already fixes",
+              "remove it, or remove speckle.camera")
+        check(len(self.centre) in (0, 2, 3), "speckle.centre", f"must have 2 or 3 entries, got {list(self.centre)}",
+              "give the image centre in specimen mm, [X, Y] or [X, Y, Z]")
+        check(not self.centre or bool(self.image), "speckle.centre", "places a speckle.image; the generated "
+              "pattern is always centred on the specimen", "remove centre, or give an image")
+        check(len(self.normal) in (0, 3), "speckle.normal", f"must have 3 entries, got {list(self.normal)}",
+              "the direction the image faces, in the specimen's frame, e.g. [0, 0, 1]")
         for k in ("u_axis", "normal"):
-            _check(not getattr(self, k) or float(np.linalg.norm(getattr(self, k))) > 0, f"speckle.{k}",
-                   "must not be zero", "give a direction in the specimen's frame")
+            check(not getattr(self, k) or float(np.linalg.norm(getattr(self, k))) > 0, f"speckle.{k}",
+                  "must not be zero", "give a direction in the specimen's frame")
         n = np.asarray(self.normal or (0.0, 0.0, 1.0), float)
         u = np.asarray(self.u_axis, float)
-        _check(float(np.linalg.norm(np.cross(u, n))) > 1e-6 * float(np.linalg.norm(u) * np.linalg.norm(n)),
-               "speckle.u_axis", f"{list(self.u_axis)} is parallel to the image normal {n.tolist()}",
-               "give the in-plane direction of the image's u axis")
-        _check(not self.image or self.camera is not None or self.mm_per_px > 0, "speckle.mm_per_px",
-               f"is needed with the reference image file {self.image!r}",
-               "give the image scale in mm per pixel, or a speckle.camera table")
-        _check(self.oversample > 0, "speckle.oversample", f"must be > 0, got {self.oversample}",
-               "reference pixels per camera pixel, typically 2–4")
-        _check(self.dot_diameter_px >= 2.0, "speckle.dot_diameter_px",
-               f"must be ≥ 2 px, got {self.dot_diameter_px}",
-               "give a diameter of at least 2 camera pixels (smaller dots alias), e.g. 4")
-        _check(0 <= self.edge_px <= self.dot_diameter_px, "speckle.edge_px",
-               f"must lie in [0, dot_diameter_px], got {self.edge_px}",
-               "the dots' edge width in camera pixels; ≥ 2 avoids aliasing at 1 sample per pixel")
-        _check(0 < self.density < 1, "speckle.density", f"must lie in (0, 1), got {self.density}",
-               "the covered area fraction, typically 0.5")
+        check(float(np.linalg.norm(np.cross(u, n))) > 1e-6 * float(np.linalg.norm(u) * np.linalg.norm(n)),
+              "speckle.u_axis", f"{list(self.u_axis)} is parallel to the image normal {n.tolist()}",
+              "give the in-plane direction of the image's u axis")
+        check(not self.image or self.camera is not None or self.mm_per_px > 0, "speckle.mm_per_px",
+              f"is needed with the reference image file {self.image!r}",
+              "give the image scale in mm per pixel, or a speckle.camera table")
+        check(self.oversample > 0, "speckle.oversample", f"must be > 0, got {self.oversample}",
+              "reference pixels per camera pixel, typically 2–4")
+        check(self.dot_diameter_px >= 2.0, "speckle.dot_diameter_px",
+              f"must be ≥ 2 px, got {self.dot_diameter_px}",
+              "give a diameter of at least 2 camera pixels (smaller dots alias), e.g. 4")
+        check(0 <= self.edge_px <= self.dot_diameter_px, "speckle.edge_px",
+              f"must lie in [0, dot_diameter_px], got {self.edge_px}",
+              "the dots' edge width in camera pixels; ≥ 2 avoids aliasing at 1 sample per pixel")
+        check(0 < self.density < 1, "speckle.density", f"must lie in (0, 1), got {self.density}",
+              "the covered area fraction, typically 0.5")
 
 
 @dataclass(frozen=True)
@@ -118,16 +116,16 @@ class Plate:
 
     def __post_init__(self):
         for k in ("width", "height"):
-            _check(getattr(self, k) > 0, f"specimen.plate.{k}", f"must be > 0, got {getattr(self, k)}",
-                   "give it in mm")
+            check(getattr(self, k) > 0, f"specimen.plate.{k}", f"must be > 0, got {getattr(self, k)}",
+                  "give it in mm")
         for k in ("nx", "ny"):
-            _check(getattr(self, k) >= 1, f"specimen.plate.{k}", f"must be ≥ 1, got {getattr(self, k)}",
-                   "the number of elements along that side")
+            check(getattr(self, k) >= 1, f"specimen.plate.{k}", f"must be ≥ 1, got {getattr(self, k)}",
+                  "the number of elements along that side")
         refuse_count("specimen.plate.nx", self.nx * self.ny, MAX_ELEMENTS, "elements (nx × ny)",
                      "use fewer elements; the plate is flat")
         for i, tr in enumerate(self.translations):
-            _check(np.shape(tr) == (3,), f"specimen.plate.translations[{i}]", "must have 3 entries",
-                   "give [dx, dy, dz] in mm")
+            check(np.shape(tr) == (3,), f"specimen.plate.translations[{i}]", "must have 3 entries",
+                  "give [dx, dy, dz] in mm")
 
 
 @dataclass(frozen=True)
@@ -142,11 +140,11 @@ class Bulge:
 
     def __post_init__(self):
         for k in ("radius", "thickness"):
-            _check(getattr(self, k) > 0, f"specimen.bulge.{k}", f"must be > 0, got {getattr(self, k)}",
-                   "give it in mm")
+            check(getattr(self, k) > 0, f"specimen.bulge.{k}", f"must be > 0, got {getattr(self, k)}",
+                  "give it in mm")
         for k in ("steps", "n_core", "n_ring"):
-            _check(getattr(self, k) >= 1, f"specimen.bulge.{k}", f"must be ≥ 1, got {getattr(self, k)}",
-                   "a count")
+            check(getattr(self, k) >= 1, f"specimen.bulge.{k}", f"must be ≥ 1, got {getattr(self, k)}",
+                  "a count")
         refuse_count("specimen.bulge.steps", self.steps, MAX_STEPS, "load steps", "use fewer load steps")
         refuse_count("specimen.bulge.n_core", self.n_core * (self.n_core + 4 * self.n_ring), MAX_ELEMENTS,
                      "elements (n_core² + 4·n_core·n_ring)", "use smaller n_core and n_ring")
@@ -177,32 +175,32 @@ class MeshFile:
     steps: tuple[int, ...] = ()        # time series: the stored-step indices to render
 
     def __post_init__(self):
-        _check(bool(self.path), "specimen.mesh.path", "is empty", "give the FE mesh file, e.g. 'model.inp'")
-        _check(self.unit in UNITS_TO_MM, "specimen.mesh.unit", f"unknown unit {self.unit!r}",
-               f"use one of {', '.join(UNITS_TO_MM)}")
+        check(bool(self.path), "specimen.mesh.path", "is empty", "give the FE mesh file, e.g. 'model.inp'")
+        check(self.unit in UNITS_TO_MM, "specimen.mesh.unit", f"unknown unit {self.unit!r}",
+              f"use one of {', '.join(UNITS_TO_MM)}")
         sources = [k for k in ("point_data", "files", "csv") if getattr(self, k)]
-        _check(len(sources) <= 1, f"specimen.mesh.{sources[-1] if sources else ''}",
-               f"only one displacement source may be given, got {', '.join(sources)}",
-               "keep one of point_data, files, csv")
-        _check(not self.field or bool(self.files), "specimen.mesh.field", "is only used with files",
-               "remove it, or give the per-step files")
+        check(len(sources) <= 1, f"specimen.mesh.{sources[-1] if sources else ''}",
+              f"only one displacement source may be given, got {', '.join(sources)}",
+              "keep one of point_data, files, csv")
+        check(not self.field or bool(self.files), "specimen.mesh.field", "is only used with files",
+              "remove it, or give the per-step files")
         names = (self.displacement,) if isinstance(self.displacement, str) else self.displacement
-        _check(isinstance(names, (list, tuple)) and len(names) <= 3 and all(isinstance(n, str) for n in names),
-               "specimen.mesh.displacement", f"{self.displacement!r} is not 1–3 field names",
-               'give a vector field "u" or component fields ["disp_x", "disp_y", "disp_z"]')
+        check(isinstance(names, (list, tuple)) and len(names) <= 3 and all(isinstance(n, str) for n in names),
+              "specimen.mesh.displacement", f"{self.displacement!r} is not 1–3 field names",
+              'give a vector field "u" or component fields ["disp_x", "disp_y", "disp_z"]')
         object.__setattr__(self, "displacement", tuple(names))
-        _check(not (self.times and self.steps), "specimen.mesh.steps", "times and steps both given",
-               "keep one of them")
+        check(not (self.times and self.steps), "specimen.mesh.steps", "times and steps both given",
+              "keep one of them")
         suffix = Path(self.path).suffix.lower()
         series = [k for k in ("displacement", "times", "steps") if getattr(self, k)]
-        _check(not series or suffix in TIME_SERIES_SUFFIXES, f"specimen.mesh.{series[0] if series else ''}",
-               f"is only used with time-series files, not {suffix or 'this'} files",
-               f"give an Exodus II ({', '.join(EXODUS_SUFFIXES)}), .pvd or XDMF time series, or use "
-               "point_data, files or csv")
+        check(not series or suffix in TIME_SERIES_SUFFIXES, f"specimen.mesh.{series[0] if series else ''}",
+              f"is only used with time-series files, not {suffix or 'this'} files",
+              f"give an Exodus II ({', '.join(EXODUS_SUFFIXES)}), .pvd or XDMF time series, or use "
+              "point_data, files or csv")
         single = [k for k in ("point_data", "files", "csv", "field") if getattr(self, k)]
-        _check(not single or suffix not in EXODUS_SUFFIXES + (".pvd",), f"specimen.mesh.{single[0] if single else ''}",
-               f"is for single-state files; {suffix} files hold their own time steps",
-               "use displacement = [...] and times or steps instead")
+        check(not single or suffix not in EXODUS_SUFFIXES + (".pvd",), f"specimen.mesh.{single[0] if single else ''}",
+              f"is for single-state files; {suffix} files hold their own time steps",
+              "use displacement = [...] and times or steps instead")
 
 
 @dataclass(frozen=True)
@@ -220,9 +218,9 @@ class Specimen:
 
     def __post_init__(self):
         given = [k for k in ("mesh", "plate", "bulge") if getattr(self, k) is not None]
-        _check(len(given) == 1, "specimen",
-               f"exactly one of mesh, plate, bulge must be given, got {', '.join(given) or 'none'}",
-               "keep one of [specimen.bulge], [specimen.plate], [specimen.mesh] path = 'model.inp'")
+        check(len(given) == 1, "specimen",
+              f"exactly one of mesh, plate, bulge must be given, got {', '.join(given) or 'none'}",
+              "keep one of [specimen.bulge], [specimen.plate], [specimen.mesh] path = 'model.inp'")
 
 
 @dataclass(frozen=True)
@@ -243,16 +241,16 @@ class Render:
         for key, allowed in (("backend", BACKENDS), ("mode", MODES), ("interpolation", INTERPOLATIONS),
                              ("precision", PRECISIONS), ("subsamples", SUBSAMPLES)):
             value = getattr(self, key)
-            _check(value in allowed, f"render.{key}", f"{value!r} is not one of {allowed}",
-                   f"use one of {', '.join(allowed)}")
+            check(value in allowed, f"render.{key}", f"{value!r} is not one of {allowed}",
+                  f"use one of {', '.join(allowed)}")
         spp = self.samples_per_pixel
-        _check(isinstance(spp, (int, np.integer)) and not isinstance(spp, bool) and spp >= 1
-               and math.isqrt(spp) ** 2 == spp, "render.samples_per_pixel",
-               f"must be a perfect square ≥ 1, got {spp!r}", "use 1, 4, 9, 16, …")
+        check(isinstance(spp, (int, np.integer)) and not isinstance(spp, bool) and spp >= 1
+              and math.isqrt(spp) ** 2 == spp, "render.samples_per_pixel",
+              f"must be a perfect square ≥ 1, got {spp!r}", "use 1, 4, 9, 16, …")
         refuse_count("render.samples_per_pixel", spp, MAX_SAMPLES_PER_PIXEL, "samples per pixel",
                      "use 1, 4, 9, 16, … (16 is usually plenty)")
-        _check(0.0 <= self.background <= 1.0, "render.background",
-               f"must lie in [0, 1], got {self.background}", "a fraction of full scale")
+        check(0.0 <= self.background <= 1.0, "render.background",
+              f"must lie in [0, 1], got {self.background}", "a fraction of full scale")
 
     @property
     def supersampling(self) -> int:
@@ -268,21 +266,21 @@ class Output:
     pattern: str = "{camera}_{step:04d}.{ext}"
 
     def __post_init__(self):
-        _check(self.format in FORMATS, "output.format", f"{self.format!r} is not one of {FORMATS}",
-               "use 'tiff' (8/16-bit) or 'png'")
+        check(self.format in FORMATS, "output.format", f"{self.format!r} is not one of {FORMATS}",
+              "use 'tiff' (8/16-bit) or 'png'")
         try:
             names = {self.pattern.format(camera=c, step=k, ext="tif") for c in ("cam0", "cam1") for k in (0, 1)}
         except (KeyError, IndexError, ValueError) as exc:
             raise SceneError("output.pattern", f"{self.pattern!r} cannot be formatted ({exc!r})",
                              "use only the fields {camera}, {step} and {ext}") from None
-        _check(len(names) == 4, "output.pattern", f"{self.pattern!r} gives two images the same file name",
-               "include both {camera} and {step}, e.g. '{camera}_{step:04d}.{ext}'")
+        check(len(names) == 4, "output.pattern", f"{self.pattern!r} gives two images the same file name",
+              "include both {camera} and {step}, e.g. '{camera}_{step:04d}.{ext}'")
         longest = self.pattern.format(camera="c" * NAME_MAX, step=0, ext="tiff")
         for name in sorted(names) + [longest]:
             why = _outside(name)
-            _check(not why, "output.pattern", f"{_shown(self.pattern)} gives {_shown(name)}, which {why}",
-                   "give names relative to the output directory: subfolders as 'a/b', no '..', no leading '/' or "
-                   "'.', no backslash or control character, e.g. '{camera}_{step:04d}.{ext}'")
+            check(not why, "output.pattern", f"{_shown(self.pattern)} gives {_shown(name)}, which {why}",
+                  "give names relative to the output directory: subfolders as 'a/b', no '..', no leading '/' or "
+                  "'.', no backslash or control character, e.g. '{camera}_{step:04d}.{ext}'")
 
 
 NAME_MAX = 64
@@ -336,8 +334,8 @@ NOISE_MODELS = ("gaussian", "heteroscedastic", "poisson_gaussian")
 
 def _one_of(obj, key: str, name: str, allowed) -> None:
     value = getattr(obj, name)
-    _check(value in allowed, f"{key}.{name}", f"{value!r} is not one of {allowed}",
-           f"use one of {', '.join(allowed)}")
+    check(value in allowed, f"{key}.{name}", f"{value!r} is not one of {allowed}",
+          f"use one of {', '.join(allowed)}")
 
 
 @dataclass(frozen=True)
@@ -356,13 +354,13 @@ class Light:
     edge: float = 0.0
 
     def __post_init__(self):
-        _check(0 < self.cutoff <= 180, "cutoff", f"must lie in (0, 180] degrees, got {self.cutoff}",
-               "the spotlight's half-angle")
-        _check(0 <= self.edge <= self.cutoff, "edge", f"must lie in [0, cutoff], got {self.edge}",
-               "the smooth edge's width in degrees")
-        _check(self.attenuation >= 0, "attenuation", "must be ≥ 0", "k of 1/(1 + k d²), 1/mm²")
-        _check(self.direction is None or np.linalg.norm(self.direction) > 0, "direction",
-               "must not be zero", "give the spotlight's axis, or leave it out for a point light")
+        check(0 < self.cutoff <= 180, "cutoff", f"must lie in (0, 180] degrees, got {self.cutoff}",
+              "the spotlight's half-angle")
+        check(0 <= self.edge <= self.cutoff, "edge", f"must lie in [0, cutoff], got {self.edge}",
+              "the smooth edge's width in degrees")
+        check(self.attenuation >= 0, "attenuation", "must be ≥ 0", "k of 1/(1 + k d²), 1/mm²")
+        check(self.direction is None or np.linalg.norm(self.direction) > 0, "direction",
+              "must not be zero", "give the spotlight's axis, or leave it out for a point light")
 
 
 @dataclass(frozen=True)
@@ -385,7 +383,7 @@ class Lighting:
     def __post_init__(self):
         _one_of(self, "lighting", "normals", NORMALS)
         _one_of(self, "lighting", "combine", LIGHT_COMBINE)
-        _check(self.shininess > 0, "lighting.shininess", "must be > 0", "the Phong exponent r")
+        check(self.shininess > 0, "lighting.shininess", "must be > 0", "the Phong exponent r")
 
 
 @dataclass(frozen=True)
@@ -408,16 +406,16 @@ class Optics:
 
     def __post_init__(self):
         for name in ("focal_length", "f_number", "pixel_pitch", "coc_px"):
-            _check(getattr(self, name) > 0, f"optics.{name}", f"must be > 0, got {getattr(self, name)}",
-                   "give a positive value")
-        _check(self.focus_distance > self.focal_length, "optics.focus_distance",
-               f"must exceed the focal length ({self.focal_length} mm), got {self.focus_distance}",
-               "the focused distance in mm")
+            check(getattr(self, name) > 0, f"optics.{name}", f"must be > 0, got {getattr(self, name)}",
+                  "give a positive value")
+        check(self.focus_distance > self.focal_length, "optics.focus_distance",
+              f"must exceed the focal length ({self.focal_length} mm), got {self.focus_distance}",
+              "the focused distance in mm")
         _one_of(self, "optics", "kernel", KERNELS)
         _one_of(self, "optics", "scheme", BLUR_SCHEMES)
-        _check(self.kernel == "gaussian" or self.scheme in ("auto", "gather"), "optics.scheme",
-               f"{self.scheme!r} applies to the Gaussian kernel only (the disk is not separable)",
-               "use scheme = 'auto' or 'gather' with kernel = 'disk'")
+        check(self.kernel == "gaussian" or self.scheme in ("auto", "gather"), "optics.scheme",
+              f"{self.scheme!r} applies to the Gaussian kernel only (the disk is not separable)",
+              "use scheme = 'auto' or 'gather' with kernel = 'disk'")
 
 
 @dataclass(frozen=True)
@@ -436,79 +434,11 @@ class Noise:
 
     def __post_init__(self):
         _one_of(self, "noise", "model", NOISE_MODELS)
-        _check(self.sigma >= 0, "noise.sigma", "must be ≥ 0", "percent of the dynamic range, e.g. 2")
-        _check(self.full_well > 0 and self.read_noise >= 0, "noise.full_well",
-               "full_well must be > 0 and read_noise ≥ 0", "electrons")
-        _check(self.model != "heteroscedastic" or bool(self.variance_file), "noise.variance_file",
-               "is required by the heteroscedastic model", "give a CSV of grey level;variance")
-
-
-@dataclass(frozen=True)
-class Stereo:
-    """A camera relative to the first one (MatchID convention), mm and degrees:
-    X_cam = Rz(Psi)·Ry(Phi)·Rx(Theta)·X_cam0 + (Tx, Ty, Tz)."""
-    Tx: float
-    Ty: float
-    Tz: float
-    Theta: float
-    Phi: float
-    Psi: float
-
-
-@dataclass(frozen=True)
-class LookAt:
-    """A camera at ``eye`` looking at ``target``, image-up as close to ``up`` as possible (mm)."""
-    eye: Vec3
-    target: Vec3 = (0.0, 0.0, 0.0)
-    up: Vec3 = (0.0, -1.0, 0.0)
-
-    def __post_init__(self):
-        look_at(self.eye, self.target, self.up)  # raises SceneError("target" or "up") if degenerate
-
-
-@dataclass(frozen=True)
-class Pose:
-    """A ``pose`` table: ``R`` (3×3) or ``rvec`` (Rodrigues, rad) and ``t`` (mm), or, for
-    cameras only, ``stereo`` or ``look_at`` alone. Missing parts are the identity."""
-    R: Mat3 | None = None
-    rvec: Vec3 | None = None
-    t: Vec3 | None = None
-    stereo: Stereo | None = None
-    look_at: LookAt | None = None
-
-    def __post_init__(self):
-        given = [f.name for f in dataclasses.fields(self) if getattr(self, f.name) is not None]
-        for whole in ("stereo", "look_at"):
-            _check(whole not in given or len(given) == 1, whole,
-                   f"cannot be combined with {', '.join(k for k in given if k != whole)}",
-                   f"{whole} sets the whole pose: remove the other keys")
-        _check(self.R is None or self.rvec is None, "rvec", "R is given too",
-               "give the rotation either as R or as rvec")
-        if self.rvec is not None:
-            angle = float(np.linalg.norm(self.rvec))
-            _check(angle <= math.pi + 1e-9, "rvec",
-                   f"{list(self.rvec)} turns by |rvec| = {angle:.4g} rad ({math.degrees(angle):.4g}°), "
-                   f"more than π: it looks like degrees",
-                   f"rvec is in radians (axis × angle): write {_radians(self.rvec)} for these degrees, "
-                   f"or give the rotation as R")
-        if self.R is not None:
-            _check_rotation(self.R)
-
-    def matrices(self, first: Camera | None, camera: bool) -> tuple[np.ndarray, np.ndarray]:
-        """(R, t): world→camera for a camera (``first`` is the first camera, None for itself),
-        specimen→world otherwise."""
-        whole = "stereo" if self.stereo is not None else "look_at" if self.look_at is not None else ""
-        _check(not whole or camera, whole, "only cameras can be placed this way",
-               "place the specimen with R or rvec, and t")
-        if self.look_at is not None:
-            return look_at(self.look_at.eye, self.look_at.target, self.look_at.up)
-        if self.stereo is not None:
-            _check(first is not None, "stereo", "is relative to the first camera, so only later cameras "
-                   "can have it", "give the first camera R or rvec and t, or no pose (the world frame)")
-            return stereo_pose(first.rotation, first.translation, *dataclasses.astuple(self.stereo))
-        R = np.eye(3) if self.R is None else np.array(self.R, float)
-        t = np.zeros(3) if self.t is None else np.array(self.t, float)
-        return (R if self.rvec is None else rodrigues(self.rvec)), t
+        check(self.sigma >= 0, "noise.sigma", "must be ≥ 0", "percent of the dynamic range, e.g. 2")
+        check(self.full_well > 0 and self.read_noise >= 0, "noise.full_well",
+              "full_well must be > 0 and read_noise ≥ 0", "electrons")
+        check(self.model != "heteroscedastic" or bool(self.variance_file), "noise.variance_file",
+              "is required by the heteroscedastic model", "give a CSV of grey level;variance")
 
 
 @dataclass(frozen=True)
@@ -526,14 +456,14 @@ class Scene:
     base_dir: str = "."
 
     def __post_init__(self):
-        _check(len(self.cameras) >= 1, "cameras", "at least one camera is needed",
-               "add a [[cameras]] table")
+        check(len(self.cameras) >= 1, "cameras", "at least one camera is needed",
+              "add a [[cameras]] table")
         names = [c.name for c in self.cameras]
         for i, name in enumerate(names):
             _check_name(name, f"cameras[{i}].name")
-            _check(name not in names[:i], f"cameras[{i}].name",
-                   f"{name!r} is already the name of cameras[{names.index(name)}]",
-                   "give each camera a unique name")
+            check(name not in names[:i], f"cameras[{i}].name",
+                  f"{name!r} is already the name of cameras[{names.index(name)}]",
+                  "give each camera a unique name")
         self._check_sizes()
         files = {"speckle.image": self.speckle.image} if self.speckle.image else {}
         if self.noise is not None and self.noise.variance_file:
@@ -557,9 +487,9 @@ class Scene:
             if self.render.backend == "gl":
                 check_gl_target("render.samples_per_pixel", cam.size, self.render.samples_per_pixel)
         first = self.cameras[0]
-        _check(self.speckle.image or self.speckle.dot_diameter_px <= min(first.size), "speckle.dot_diameter_px",
-               f"{self.speckle.dot_diameter_px:g} px is larger than camera {first.name}'s image ({first.width} × "
-               f"{first.height} px): the pattern would be one blank dot", "give dots of 3–10 px, e.g. 5")
+        check(self.speckle.image or self.speckle.dot_diameter_px <= min(first.size), "speckle.dot_diameter_px",
+              f"{self.speckle.dot_diameter_px:g} px is larger than camera {first.name}'s image ({first.width} × "
+              f"{first.height} px): the pattern would be one blank dot", "give dots of 3–10 px, e.g. 5")
 
     def camera(self, which: int | str) -> Camera:
         """A camera by index or name."""
@@ -580,14 +510,14 @@ class Scene:
 
     def replace(self, **sections) -> "Scene":
         """A copy with some options changed, e.g. ``scene.replace(render={"mode": "q4"})``."""
-        _reject_unknown(sections, [f.name for f in dataclasses.fields(self)], "")
+        reject_unknown(sections, [f.name for f in dataclasses.fields(self)], "")
         changes = {}
         for name, value in sections.items():
             current = getattr(self, name)
             if isinstance(value, dict) and current is None:   # an effect switched on
-                value = _build(typing.get_type_hints(Scene)[name].__args__[0], value, name)
+                value = build(typing.get_type_hints(Scene)[name].__args__[0], value, name)
             elif isinstance(value, dict):
-                _reject_unknown(value, [f.name for f in dataclasses.fields(current) if f.init], name)
+                reject_unknown(value, [f.name for f in dataclasses.fields(current) if f.init], name)
                 value = dataclasses.replace(current, **value)
             changes[name] = value
         return dataclasses.replace(self, **changes)
@@ -600,16 +530,6 @@ class Scene:
         return json.dumps(self.to_dict(), indent=2)
 
 
-
-def _radians(degrees) -> str:
-    return "[" + ", ".join(f"{math.radians(v):.4g}" for v in degrees) + "]"
-
-
-def _check(ok: bool, key: str, problem: str, fix: str) -> None:
-    if not ok:
-        raise SceneError(key, problem, fix)
-
-
 def _plain(obj):
     if isinstance(obj, dict):
         return {k: _plain(v) for k, v in obj.items()}
@@ -618,109 +538,3 @@ def _plain(obj):
     if isinstance(obj, np.ndarray):
         return obj.tolist()
     return obj
-
-
-def _tuple(a: np.ndarray) -> tuple:
-    return tuple(map(tuple, a.tolist())) if a.ndim == 2 else tuple(a.tolist())
-
-
-# Tables (TOML/JSON data) → dataclasses, with errors naming the key
-
-
-def _reject_unknown(given, allowed, key: str) -> None:
-    """Raise for the first of the keys ``given`` in table ``key`` ("" = top level) not ``allowed``."""
-    unknown = sorted(set(given) - set(allowed))
-    if unknown:
-        close = difflib.get_close_matches(unknown[0], allowed, 1)
-        hint = (f"did you mean {close[0]!r}? " if close else
-                "top-level keys must come before the first [table]; " if key and unknown[0] in SECTIONS else "")
-        raise SceneError(f"{key}.{unknown[0]}" if key else unknown[0], "unknown key",
-                         f"{hint}allowed keys in {key or 'the top level'}: {', '.join(allowed)}")
-
-
-def _within(exc: SceneError, key: str) -> SceneError:
-    """``exc`` from a validator of the table at ``key``, with its key made a full scene path.
-
-    Validators name keys relative to themselves (Camera: ``fx``; Distortion: ``distortion.k1``)
-    or in full (Plate: ``specimen.plate.nx``): ``cameras[0]`` + ``fx`` → ``cameras[0].fx``,
-    ``cameras[0].distortion`` + ``distortion.k1`` → ``cameras[0].distortion.k1``.
-    """
-    if not key or exc.key == key or exc.key.startswith((key + ".", key + "[")):
-        return exc
-    own = key.rpartition(".")[2].partition("[")[0]          # "cameras[0].distortion" → "distortion"
-    rest = exc.key[len(own):] if exc.key == own or exc.key.startswith(own + ".") else "." + exc.key
-    problem, _, fix = str(exc)[len(exc.key) + 2:].partition(" — ")
-    return SceneError(key + rest, problem, fix)
-
-
-def _coerce(value, hint, key: str):
-    """Convert a TOML value to the annotated type, or raise a SceneError naming ``key``."""
-    origin, args = typing.get_origin(hint), typing.get_args(hint)
-    if type(None) in args:                                   # X | None
-        return _coerce(value, next(a for a in args if a is not type(None)), key)
-    if dataclasses.is_dataclass(hint):
-        return _build(hint, value, key)
-    if hint is tuple or origin is tuple:                     # tuple, tuple[X, ...], tuple[X, Y, Z]
-        if not isinstance(value, list):
-            raise SceneError(key, f"expected a list, got {value!r}", "write e.g. [1, 2, 3]")
-        if not args:
-            return tuple(tuple(v) if isinstance(v, list) else v for v in value)
-        if args[-1] is not Ellipsis and len(value) != len(args):
-            raise SceneError(key, f"expected a list of {len(args)}, got {value!r}",
-                             f"give exactly {len(args)} entries")
-        hints = [args[0]] * len(value) if args[-1] is Ellipsis else args
-        return tuple(_coerce(v, h, f"{key}[{i}]") for i, (v, h) in enumerate(zip(value, hints)))
-    if hint in (int, float):
-        if isinstance(value, bool) or not isinstance(value, int if hint is int else (int, float)):
-            raise SceneError(key, f"expected {'an integer' if hint is int else 'a number'}, got {value!r}",
-                             "write e.g. 4" if hint is int else "write e.g. 1.0")
-        if not math.isfinite(value):
-            raise SceneError(key, f"must be finite, got {value}", "give a finite number")
-        return hint(value)
-    if hint in (str, bool) and not isinstance(value, hint):
-        raise SceneError(key, f"expected {'a string' if hint is str else 'true or false'}, got {value!r}",
-                         'write it in quotes, e.g. "x"' if hint is str else "write true or false")
-    return value
-
-
-SECTIONS = ("cameras", "specimen", "speckle", "render", "output", "lighting", "optics", "noise",
-            "seed")  # top level of a file
-
-# Values a TOML table may leave out although the dataclass requires them.
-TABLE_DEFAULTS = {Camera: {"name": "reference"}}
-
-
-def _build(cls, table, key: str, first: Camera | None = None, **defaults):
-    """Build dataclass ``cls`` from the TOML table at ``key``.
-
-    Unknown keys, wrong types, missing required keys and the class's own checks all raise
-    a SceneError naming the full key. Camera and Specimen take a ``pose`` table (see Pose)
-    instead of their fields R and t; ``first`` is the first camera, for stereo poses.
-    """
-    if not isinstance(table, dict):
-        raise SceneError(key, f"expected a table, got {table!r}", f"write {key} as a table of key = value")
-    fields = [f for f in dataclasses.fields(cls) if f.init]
-    names = [f.name for f in fields]
-    posed = cls in (Camera, Specimen)
-    allowed = [n for n in names if not (posed and n in ("R", "t"))] + ["pose"] * posed
-    _reject_unknown(table, allowed, key)
-    hints = typing.get_type_hints(cls)
-    kwargs = {**TABLE_DEFAULTS.get(cls, {}), **defaults}
-    for name, value in table.items():
-        if name == "pose":
-            pose = _coerce(value, Pose, f"{key}.pose")
-            try:
-                R, t = pose.matrices(first, camera=cls is Camera)
-            except SceneError as exc:
-                raise _within(exc, f"{key}.pose") from None
-            kwargs.update(R=_tuple(R), t=_tuple(t))
-        else:
-            kwargs[name] = _coerce(value, hints[name], f"{key}.{name}")
-    missing = [f.name for f in fields
-               if f.name not in kwargs and f.default is MISSING and f.default_factory is MISSING]
-    if missing:
-        raise SceneError(f"{key}.{missing[0]}", "is required", f"add {', '.join(missing)} to {key}")
-    try:
-        return cls(**kwargs)
-    except SceneError as exc:
-        raise _within(exc, key) from None

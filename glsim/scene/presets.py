@@ -7,7 +7,8 @@ import math
 import numpy as np
 
 from glsim.scene.camera import Camera, Distortion, look_at
-from glsim.scene.model import Bulge, Light, Lighting, Noise, Optics, Render, Scene, Specimen, _tuple
+from glsim.scene.model import Bulge, Light, Lighting, Noise, Optics, Render, Scene, Specimen
+from glsim.scene.tables import as_tuple
 
 def stereo_rig(size=(1624, 1234), fx=6818.0, distance=600.0, stereo_angle=30.0,
                distortion: Distortion = Distortion(), bit_depth: int = 8) -> tuple[Camera, Camera]:
@@ -23,7 +24,7 @@ def stereo_rig(size=(1624, 1234), fx=6818.0, distance=600.0, stereo_angle=30.0,
     R2, t2 = look_at(eye2, target, np.array([0.0, -1.0, 0.0]))
     common = dict(size=(W, H), fx=fx, fy=fx, cx=(W - 1) / 2, cy=(H - 1) / 2,
                   distortion=distortion, bit_depth=bit_depth)
-    return Camera(name="cam0", **common), Camera(name="cam1", R=_tuple(R2), t=_tuple(t2), **common)
+    return Camera(name="cam0", **common), Camera(name="cam1", R=as_tuple(R2), t=as_tuple(t2), **common)
 
 
 def bulge_scene(size=(1624, 1234), steps: int = 3, **render) -> Scene:
@@ -36,7 +37,7 @@ def bulge_scene(size=(1624, 1234), steps: int = 3, **render) -> Scene:
     half = math.radians(15.0)
     # The plate's local −z (its bulge direction) points along the rig's bisector, to the cameras.
     Rp = np.array([[math.cos(half), 0, -math.sin(half)], [0, 1, 0], [math.sin(half), 0, math.cos(half)]])
-    specimen = Specimen(bulge=Bulge(steps=steps), R=_tuple(Rp), t=(0.0, 0.0, 600.0))
+    specimen = Specimen(bulge=Bulge(steps=steps), R=as_tuple(Rp), t=(0.0, 0.0, 600.0))
     return Scene(cameras=(cam0, cam1), specimen=specimen, render=Render(**render))
 
 

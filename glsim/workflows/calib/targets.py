@@ -21,16 +21,11 @@ import numpy as np
 
 from glsim.scene import mesh as meshmod
 from glsim.scene.camera import Camera
-from glsim.errors import SceneError
+from glsim.errors import check
 from glsim.stages.reference import Reference
 
 REF_DISTANCE = 1000.0   # mm from the reference pinhole to the plate in its canonical position
 PAD_PX = 4              # reference-image border beyond the plate, background grey
-
-
-def _check(ok: bool, key: str, problem: str, fix: str) -> None:
-    if not ok:
-        raise SceneError(key, problem, fix)
 
 
 @dataclass(frozen=True)
@@ -45,10 +40,10 @@ class Defects:
     seed: int = 0
 
     def __post_init__(self):
-        _check(self.sigma >= 0 and math.isfinite(self.sigma), "target.defects.sigma",
-               f"must be a finite number ≥ 0, got {self.sigma}", "give the dot-centre scatter in mm")
-        _check(abs(self.pitch_error) < 0.1, "target.defects.pitch_error",
-               f"must lie in (−0.1, 0.1), got {self.pitch_error}", "give a relative error, e.g. 1e-4")
+        check(self.sigma >= 0 and math.isfinite(self.sigma), "target.defects.sigma",
+              f"must be a finite number ≥ 0, got {self.sigma}", "give the dot-centre scatter in mm")
+        check(abs(self.pitch_error) < 0.1, "target.defects.pitch_error",
+              f"must lie in (−0.1, 0.1), got {self.pitch_error}", "give a relative error, e.g. 1e-4")
 
 
 @dataclass(frozen=True)
@@ -76,34 +71,34 @@ class DotGrid:
     def __post_init__(self):
         for key in ("rows", "cols"):
             v = getattr(self, key)
-            _check(isinstance(v, int) and v >= 3, f"target.{key}", f"must be an integer ≥ 3, got {v!r}",
-                   "findCirclesGrid needs at least 3 × 3 dots")
+            check(isinstance(v, int) and v >= 3, f"target.{key}", f"must be an integer ≥ 3, got {v!r}",
+                  "findCirclesGrid needs at least 3 × 3 dots")
         for key in ("pitch", "dot_diameter", "marker_diameter", "px_per_mm"):
             v = getattr(self, key)
-            _check(v > 0, f"target.{key}", f"must be > 0, got {v}", "give it in mm (px_per_mm: px per mm)")
+            check(v > 0, f"target.{key}", f"must be > 0, got {v}", "give it in mm (px_per_mm: px per mm)")
         for key in ("dot_diameter", "marker_diameter"):
-            _check(getattr(self, key) <= 0.7 * self.pitch, f"target.{key}",
-                   f"{getattr(self, key)} mm leaves too little gap at pitch {self.pitch} mm",
-                   "keep dots ≤ 0.7 × pitch (detection windows span ±0.45 pitch)")
-        _check(self.margin >= 0.5 * self.pitch, "target.margin", f"must be ≥ pitch/2, got {self.margin}",
-               "leave a border of at least half a pitch around the outer dots")
-        _check(abs(self.dot_grey - self.background_grey) >= 0.1, "target.dot_grey",
-               f"contrast {abs(self.dot_grey - self.background_grey):.3g} is below 0.1",
-               "make dot_grey and background_grey differ by ≥ 0.1 of full scale")
+            check(getattr(self, key) <= 0.7 * self.pitch, f"target.{key}",
+                  f"{getattr(self, key)} mm leaves too little gap at pitch {self.pitch} mm",
+                  "keep dots ≤ 0.7 × pitch (detection windows span ±0.45 pitch)")
+        check(self.margin >= 0.5 * self.pitch, "target.margin", f"must be ≥ pitch/2, got {self.margin}",
+              "leave a border of at least half a pitch around the outer dots")
+        check(abs(self.dot_grey - self.background_grey) >= 0.1, "target.dot_grey",
+              f"contrast {abs(self.dot_grey - self.background_grey):.3g} is below 0.1",
+              "make dot_grey and background_grey differ by ≥ 0.1 of full scale")
         for key in ("dot_grey", "background_grey"):
             v = getattr(self, key)
-            _check(0 <= v <= 1, f"target.{key}", f"must lie in [0, 1], got {v}", "a fraction of full scale")
+            check(0 <= v <= 1, f"target.{key}", f"must lie in [0, 1], got {v}", "a fraction of full scale")
         markers = _default_markers(self.rows, self.cols) if self.markers is None else \
             tuple((int(r), int(c)) for r, c in self.markers)
         for r, c in markers:
-            _check(0 <= r < self.rows and 0 <= c < self.cols, "target.markers",
-                   f"cell ({r}, {c}) is outside the {self.rows} × {self.cols} grid", "give (row, col) cells")
-        _check(not markers or len(symmetries(self.rows, self.cols, markers)) == 1, "target.markers",
-               f"{markers} look the same after a turn of the grid", "use an L of three cells, e.g. "
-               "((r, c), (r, c + 1), (r + 2, c))")
-        _check(not markers or abs(self.marker_diameter - self.dot_diameter) >= 0.2 * self.dot_diameter,
-               "target.marker_diameter", "is too close to dot_diameter to tell markers apart",
-               "make it differ by ≥ 20 %, e.g. 0.6 × dot_diameter")
+            check(0 <= r < self.rows and 0 <= c < self.cols, "target.markers",
+                  f"cell ({r}, {c}) is outside the {self.rows} × {self.cols} grid", "give (row, col) cells")
+        check(not markers or len(symmetries(self.rows, self.cols, markers)) == 1, "target.markers",
+              f"{markers} look the same after a turn of the grid", "use an L of three cells, e.g. "
+              "((r, c), (r, c + 1), (r + 2, c))")
+        check(not markers or abs(self.marker_diameter - self.dot_diameter) >= 0.2 * self.dot_diameter,
+              "target.marker_diameter", "is too close to dot_diameter to tell markers apart",
+              "make it differ by ≥ 20 %, e.g. 0.6 × dot_diameter")
         object.__setattr__(self, "markers", markers)
 
     @property
@@ -167,10 +162,10 @@ class Chessboard:
 
     def __post_init__(self):
         for key in ("rows", "cols"):
-            _check(isinstance(getattr(self, key), int) and getattr(self, key) >= 3, f"target.{key}",
-                   f"must be an integer ≥ 3, got {getattr(self, key)!r}", "count squares, not corners")
+            check(isinstance(getattr(self, key), int) and getattr(self, key) >= 3, f"target.{key}",
+                  f"must be an integer ≥ 3, got {getattr(self, key)!r}", "count squares, not corners")
         for key in ("square", "px_per_mm", "margin"):
-            _check(getattr(self, key) > 0, f"target.{key}", f"must be > 0, got {getattr(self, key)}", "give it in mm")
+            check(getattr(self, key) > 0, f"target.{key}", f"must be > 0, got {getattr(self, key)}", "give it in mm")
 
     @property
     def size(self) -> tuple[float, float]:
@@ -214,14 +209,14 @@ class Charuco:
 
     def __post_init__(self):
         import cv2
-        _check(hasattr(cv2.aruco, self.dictionary), "target.dictionary", f"{self.dictionary!r} is unknown",
-               "use an OpenCV name such as DICT_5X5_100")
-        _check(0 < self.marker < self.square, "target.marker", f"must lie in (0, square), got {self.marker}",
-               "the marker sits inside a square")
+        check(hasattr(cv2.aruco, self.dictionary), "target.dictionary", f"{self.dictionary!r} is unknown",
+              "use an OpenCV name such as DICT_5X5_100")
+        check(0 < self.marker < self.square, "target.marker", f"must lie in (0, square), got {self.marker}",
+              "the marker sits inside a square")
         px = self.square * self.px_per_mm
-        _check(abs(px - round(px)) < 1e-9, "target.px_per_mm",
-               f"square × px_per_mm = {px:g} is not a whole number of pixels",
-               "choose px_per_mm so that every square is a whole number of reference pixels")
+        check(abs(px - round(px)) < 1e-9, "target.px_per_mm",
+              f"square × px_per_mm = {px:g} is not a whole number of pixels",
+              "choose px_per_mm so that every square is a whole number of reference pixels")
 
     @property
     def size(self) -> tuple[float, float]:
@@ -247,8 +242,8 @@ class Charuco:
         board = self.board().generateImage((bw, bh), marginSize=0, borderBits=1)
         image = np.ones((H, W), np.float32)
         v0, u0 = (H - bh) // 2, (W - bw) // 2
-        _check((H - bh) % 2 == 0 and (W - bw) % 2 == 0, "target.margin",
-               "the board does not sit on whole reference pixels", "use a margin of whole pixels")
+        check((H - bh) % 2 == 0 and (W - bw) % 2 == 0, "target.margin",
+              "the board does not sit on whole reference pixels", "use a margin of whole pixels")
         image[v0:v0 + bh, u0:u0 + bw] = board / 255.0
         return image
 

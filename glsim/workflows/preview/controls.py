@@ -12,7 +12,7 @@ import numpy as np
 from glsim.errors import SceneError
 from glsim.scene import MODES, Light, Scene, demo_effects
 from glsim.scene.camera import Camera, rodrigues
-from glsim.scene.model import _tuple
+from glsim.scene.tables import as_tuple
 
 OVERLAYS = ("displacement", "edges", "overlap", "coc", "clipped", "speckle", "range")
 COMPONENTS = ("magnitude", "x", "y", "z")
@@ -107,7 +107,7 @@ class Rig:
             if off.any():
                 Q = _rotation_between(self.target - C, self.target + off - C)
                 R = R @ Q.T
-            out.append(dataclasses.replace(cam, R=_tuple(R), t=_tuple(-R @ C)))
+            out.append(dataclasses.replace(cam, R=as_tuple(R), t=as_tuple(-R @ C)))
         return tuple(out)
 
 
