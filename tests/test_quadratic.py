@@ -532,9 +532,9 @@ def test_solid_outer_faces_through_meshio(tmp_path, kind, suffix, fmt):
     cells = solid_cells(kind, nx, ny, at)
     if suffix is None:   # meshio 5.3.5 cannot hold wedge15 cells (KeyError); the face table, in memory
         from types import SimpleNamespace
-        from glsim.io.meshfiles import _surface
-        quads, labels, patches = _surface(tmp_path, SimpleNamespace(cells=[SimpleNamespace(type=kind, data=cells)]),
-                                          nodes, [np.arange(1, len(cells) + 1)])
+        from glsim.io.meshfiles import surface_from_cells
+        quads, labels, patches = surface_from_cells(tmp_path, SimpleNamespace(cells=[SimpleNamespace(type=kind, data=cells)]),
+                                                    nodes, [np.arange(1, len(cells) + 1)])
         mesh = Mesh(nodes, quads, np.arange(1, len(nodes) + 1), labels, patches=patches)
     else:
         path = tmp_path / f"s{suffix}"

@@ -11,9 +11,9 @@ import numpy as np
 
 from glsim.errors import SceneError
 from glsim.io.exodus import open_exodus
-from glsim.io.meshfiles import _require_file, read_mesh_file
-from glsim.io.series import (Series, _check_displacement, _default_displacement, _displacement, _open_pvd, _open_xdmf,
-                             _select, _series_surface, is_time_series)
+from glsim.io.meshfiles import read_mesh_file, require_input_file
+from glsim.io.series import (Series, check_displacement, default_displacement, displacement_at, is_time_series, open_pvd,
+                             open_xdmf, select_steps, series_surface)
 from glsim.scene import Scene
 from glsim.scene import mesh as meshmod
 from glsim.scene.mesh import Mesh, place_mesh
@@ -23,15 +23,15 @@ from glsim.scene.model import EXODUS_SUFFIXES
 @contextlib.contextmanager
 def open_series(path) -> Iterator[Series]:
     """Open an Exodus II, .pvd or XDMF time-series file as a :class:`Series` (closed on exit)."""
-    path = _require_file(path)
+    path = require_input_file(path)
     suffix = path.suffix.lower()
     if suffix in EXODUS_SUFFIXES:
         with open_exodus(path) as series:
             yield series
     elif suffix == ".pvd":
-        yield _open_pvd(path)
+        yield open_pvd(path)
     elif suffix in (".xdmf", ".xmf"):
-        with _open_xdmf(path) as series:
+        with open_xdmf(path) as series:
             yield series
     else:
         raise SceneError(str(path), f"suffix {path.suffix!r} is not a time-series format",
@@ -53,12 +53,12 @@ def load_series(path, unit: str = "mm", R=None, t=None, displacement: str | Sequ
         raise SceneError("specimen.mesh.displacement", f"{len(names)} names given",
                          "give one vector field, or 2–3 component fields")
     with open_series(path) as s:
-        picked = _select(s, times, steps)
-        quads, labels, patches = _series_surface(s)
+        picked = select_steps(s, times, steps)
+        quads, labels, patches = series_surface(s)
         n = len(s.points)
         if picked:
-            fields = _check_displacement(s, names or _default_displacement(s))
-            us = [_displacement(s, fields, k) for k in picked]
+            fields = check_displacement(s, names or default_displacement(s))
+            us = [displacement_at(s, fields, k) for k in picked]
         else:
             us = []
         step_times = [float(s.times[k]) for k in picked]

@@ -72,7 +72,7 @@ _NODES_PER_CELL = {"quad8": 8, "quad9": 9, "triangle6": 6, "hexahedron20": 20, "
                    "wedge15": 15}
 QUADRATIC_CELLS = tuple(_NODES_PER_CELL)
 
-def _require_file(path) -> Path:
+def require_input_file(path) -> Path:
     return require_file(path, str(path), "check the path (relative paths start at the working directory)")
 
 
@@ -89,7 +89,7 @@ def meshio_read(path):
 
 
 def _read_meshio(path):
-    path = _require_file(path)
+    path = require_input_file(path)
     try:
         raw = meshio_read(path)
     except Exception as exc:  # meshio's readers raise many types; wrap their words once
@@ -104,7 +104,7 @@ def _read_meshio(path):
     return raw
 
 
-def _xyz(points) -> np.ndarray:
+def as_xyz(points) -> np.ndarray:
     """(N,2) or (N,3) → (N,3) with z = 0 for 2-D data."""
     points = np.asarray(points, dtype=np.float64)
     return np.pad(points, ((0, 0), (0, 3 - points.shape[1])))
@@ -221,7 +221,7 @@ def _quadratic_block(path: Path, kind: str, cells: np.ndarray, nodes: np.ndarray
     return _outward_patches(nodes, rows, nodes[cells[parent, :corners]].mean(axis=1)), parent
 
 
-def _surface(path: Path, raw, nodes: np.ndarray, element_labels: list[np.ndarray]):
+def surface_from_cells(path: Path, raw, nodes: np.ndarray, element_labels: list[np.ndarray]):
     """Surface quads (M,4), their element labels and, for quadratic elements, the 9-node
     patches (M,9) (else None) from meshio's cell blocks."""
     quads, labels, patches = [], [], []
@@ -309,7 +309,7 @@ def _file_step(path, n: int, field: str | None, step: int, node_labels: np.ndarr
 
 def _csv_step(path, node_labels: np.ndarray, step: int = 1) -> np.ndarray:
     """Displacement (N,3) from a CSV of `label;ux;uy;uz` lines (',' also accepted, one header line allowed)."""
-    path = _require_file(path)
+    path = require_input_file(path)
     index = {int(label): i for i, label in enumerate(node_labels)}
     u = np.zeros((len(node_labels), 3))
     given = np.zeros(len(node_labels), dtype=bool)
@@ -376,9 +376,9 @@ def read_mesh_file(path, unit: str = "mm", R=None, t=None, point_data_steps: Seq
                          "use only one of point_data_steps, displacement_files, csv_files")
     raw = _read_meshio(path)
     path = Path(path)
-    nodes = _xyz(raw.points)
+    nodes = as_xyz(raw.points)
     node_labels, element_labels = _labels(path, raw)
-    quads, labels, patches = _surface(path, raw, nodes, element_labels)
+    quads, labels, patches = surface_from_cells(path, raw, nodes, element_labels)
     if point_data_steps is not None:
         steps = _point_data_steps(path, raw, point_data_steps, node_labels)
     elif displacement_files is not None:

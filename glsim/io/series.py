@@ -24,7 +24,7 @@ import meshio
 import numpy as np
 
 from glsim.errors import SceneError
-from glsim.io.meshfiles import QUADRATIC_CELLS, SOLID_FIX, _surface, _xyz, meshio_read
+from glsim.io.meshfiles import QUADRATIC_CELLS, SOLID_FIX, as_xyz, meshio_read, surface_from_cells
 from glsim.scene.model import TIME_SERIES_SUFFIXES
 
 __all__ = ["Series", "is_time_series"]
@@ -108,7 +108,7 @@ def _point_fields(point_data: dict, n: int) -> dict[str, int]:
     return fields
 
 
-def _open_pvd(path: Path) -> Series:
+def open_pvd(path: Path) -> Series:
     try:
         root = ET.parse(path).getroot()
     except ET.ParseError as exc:
@@ -153,7 +153,7 @@ def _open_pvd(path: Path) -> Series:
                              f"(has: {', '.join(data) or 'none'})", "write the field at every time step")
         return np.asarray(data[name])
 
-    return Series(path=path, points=_xyz(points), dim=_planar_dim(points),
+    return Series(path=path, points=as_xyz(points), dim=_planar_dim(points),
                   cells=[(b.type, np.asarray(b.data, dtype=np.int64)) for b in first.cells],
                   cell_labels=_ordinal_labels(first.cells),
                   node_labels=_node_labels(first.point_data, n),
@@ -181,7 +181,7 @@ def _node_labels(point_data: dict, n: int) -> np.ndarray:
 # --- XDMF time series -------------------------------------------------------------------
 
 @contextlib.contextmanager
-def _open_xdmf(path: Path) -> Iterator[Series]:
+def open_xdmf(path: Path) -> Iterator[Series]:
     try:
         reader = meshio.xdmf.TimeSeriesReader(path)
     except Exception as exc:
@@ -224,7 +224,7 @@ def _open_xdmf(path: Path) -> Iterator[Series]:
                                  f"(has: {', '.join(cache[k]) or 'none'})", "write the field at every time step")
             return np.asarray(cache[k][name])
 
-        yield Series(path=path, points=_xyz(points), dim=_planar_dim(points),
+        yield Series(path=path, points=as_xyz(points), dim=_planar_dim(points),
                      cells=[(b.type, np.asarray(b.data, dtype=np.int64)) for b in cells],
                      cell_labels=_ordinal_labels(cells), node_labels=np.arange(1, n + 1),
                      times=np.asarray(times, dtype=np.float64), fields=fields, read=read)
@@ -232,7 +232,7 @@ def _open_xdmf(path: Path) -> Iterator[Series]:
 
 # --- fields, times, surface -------------------------------------------------------------
 
-def _default_displacement(s: Series) -> tuple[str, ...]:
+def default_displacement(s: Series) -> tuple[str, ...]:
     """The displacement fields when the scene names none: a vector field called displacement/u/…,
     the only vector field, or component fields disp_x/disp_y(/disp_z), …"""
     vectors = [name for name, c in s.fields.items() if c in (2, 3)]
@@ -250,7 +250,7 @@ def _default_displacement(s: Series) -> tuple[str, ...]:
                      f"[\"ux\", \"uy\", \"uz\"] (component fields) or \"u\" (a vector field); {s.summary()}")
 
 
-def _check_displacement(s: Series, names: Sequence[str]) -> list[str | None]:
+def check_displacement(s: Series, names: Sequence[str]) -> list[str | None]:
     """Validated displacement names: one vector field, or 2–3 scalar component fields (None:
     zero — an empty name, or a z component missing from a 2-D file)."""
     if len(names) == 1 and names[0]:
@@ -284,7 +284,7 @@ def _check_displacement(s: Series, names: Sequence[str]) -> list[str | None]:
     return out + [None] * (3 - len(out))
 
 
-def _displacement(s: Series, names: list[str | None], k: int) -> np.ndarray:
+def displacement_at(s: Series, names: list[str | None], k: int) -> np.ndarray:
     """Displacement (N,3) in file units at stored step k."""
     n = len(s.points)
     u = np.zeros((n, 3))
@@ -313,7 +313,7 @@ def _displacement(s: Series, names: list[str | None], k: int) -> np.ndarray:
     return u
 
 
-def _select(s: Series, times: Sequence[float], steps: Sequence[int]) -> list[int]:
+def select_steps(s: Series, times: Sequence[float], steps: Sequence[int]) -> list[int]:
     """Stored-step indices picked by `times` (the file's time values) or `steps` (indices,
     negative from the end); all by default."""
     n = len(s.times)
@@ -342,7 +342,7 @@ def _select(s: Series, times: Sequence[float], steps: Sequence[int]) -> list[int
     return list(range(n))
 
 
-def _series_surface(s: Series):
+def series_surface(s: Series):
     """Surface quads, element labels and quadratic patches (or None); same-type solid blocks
     are merged first so faces shared between blocks are inner faces."""
     merged: dict[str, list] = {}
@@ -361,6 +361,6 @@ def _series_surface(s: Series):
     blocks = [meshio.CellBlock(kind, np.concatenate([c for c, _ in parts])) for kind, parts in merged.items()]
     labels = [np.concatenate([lab for _, lab in parts]) for parts in merged.values()]
 
-    return _surface(s.path, SimpleNamespace(cells=blocks), s.points, labels)  # all of meshio.Mesh it reads
+    return surface_from_cells(s.path, SimpleNamespace(cells=blocks), s.points, labels)  # all of meshio.Mesh it reads
 
 
