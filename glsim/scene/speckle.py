@@ -75,10 +75,12 @@ class Dots:
 
 
 CELL_DIAMETERS = 16  # side of the pattern's lattice cells, in nominal dot diameters
+BLACK, WHITE = 0.1, 0.9  # the generator's grey levels: dot cores, background
 
 
-def _pattern_args(dot_diameter, density, edge, diameter_spread, min_diameter, unit):
-    """The generator's arguments checked (SceneError naming the speckle key), as floats."""
+def pattern_args(dot_diameter, density, edge, diameter_spread=0.2, min_diameter=2.0, unit="px"):
+    """The generator's arguments checked (SceneError naming the speckle key), as floats: the dot
+    diameter at least ``min_diameter`` (2 px: smaller dots alias; 0: any positive size)."""
     fix = (f"give a dot diameter of at least {min_diameter:g} {unit} (smaller dots alias), e.g. 4" if min_diameter
            else "give a positive dot diameter")
     diameter = _check_number("speckle.dot_diameter_px", dot_diameter, min_diameter, math.inf,
@@ -130,7 +132,7 @@ def draw_pattern(lo, hi, dot_diameter, density=0.5, seed=0, edge=1.0, diameter_s
     diameter_spread)``; the intensity makes the expected dark-area fraction ``1 − exp(−λ ·
     mean dot area)`` equal to ``density``. ``edge``: the dots' smoothstep edge width, which only
     widens the margin of dots kept around the rectangle."""
-    diameter, density, edge, spread = _pattern_args(dot_diameter, density, edge, diameter_spread, 0, "")
+    diameter, density, edge, spread = pattern_args(dot_diameter, density, edge, diameter_spread, 0, "")
     seed = _check_seed(seed)
     lo, hi = np.asarray(lo, np.float64), np.asarray(hi, np.float64)
     reach = pattern_reach(diameter, edge, spread)
@@ -152,19 +154,19 @@ def draw_pattern(lo, hi, dot_diameter, density=0.5, seed=0, edge=1.0, diameter_s
     return np.concatenate(centres), np.concatenate(radii)
 
 
-def draw_dots(shape, dot_diameter_px, density=0.5, seed=0, edge_px=1.0, black=0.1, white=0.9,
+def draw_dots(shape, dot_diameter_px, density=0.5, seed=0, edge_px=1.0, black=BLACK, white=WHITE,
               diameter_spread=0.2) -> Dots:
     """The random dots of :func:`generate` (same arguments, same draws): :func:`draw_pattern`
     in the image's pixel coordinates (u, v) = (column, row), its lattice anchored at the centre
     of pixel (0, 0), so a larger image holds the smaller one's dots at the same pixels."""
     h, w = _check_shape(shape)
-    diameter, density, edge_px, spread = _pattern_args(dot_diameter_px, density, edge_px, diameter_spread, 2, "px")
+    diameter, density, edge_px, spread = pattern_args(dot_diameter_px, density, edge_px, diameter_spread, 2, "px")
     black, white = _grey_levels(black, white)
     centres, radii = draw_pattern((-0.5, -0.5), (w - 0.5, h - 0.5), diameter, density, seed, edge_px, spread)
     return Dots(centres, radii, edge_px, black, white, (h, w))
 
 
-def generate(shape, dot_diameter_px, density=0.5, seed=0, edge_px=1.0, black=0.1, white=0.9,
+def generate(shape, dot_diameter_px, density=0.5, seed=0, edge_px=1.0, black=BLACK, white=WHITE,
              diameter_spread=0.2):
     """Random-disc (Boolean model) speckle pattern: dark dots on a white background.
 

@@ -204,7 +204,7 @@ def _surface_dots(pl: Placement, cam: Camera, mm_per_px: float, dot_mm: float, e
     hi = c_ab + (np.array([W - 0.5, H - 0.5]) - c_px) * mm_per_px
     centres, radii = speckle.draw_pattern(lo, hi, dot_mm, sp.density, sp.seed, edge_mm)
     return speckle.Dots((centres - c_ab) / mm_per_px + c_px, radii / mm_per_px, edge_mm / mm_per_px,
-                        0.1, 0.9, (H, W))
+                        speckle.BLACK, speckle.WHITE, (H, W))
 
 
 def make_reference(scene: Scene, mesh: meshmod.Mesh) -> Reference:
@@ -243,7 +243,7 @@ def make_reference(scene: Scene, mesh: meshmod.Mesh) -> Reference:
     if sp.camera is not None:   # a given camera: the dots lie in its image (px), which the scene fixes
         dots = speckle.draw_dots((cam.height, cam.width), dot, sp.density, seed=sp.seed, edge_px=edge_mm / mm_per_px)
     else:
-        speckle.draw_dots((2, 2), dot, sp.density, seed=sp.seed, edge_px=edge_mm / mm_per_px)  # the px checks
+        speckle.pattern_args(dot, sp.density, edge_mm / mm_per_px)   # at least 2 reference px, as draw_dots
         dots = _surface_dots(pl, cam, mm_per_px, dot_mm, edge_mm, sp)
     return Reference(speckle.rasterize(dots), cam, dots)
 
