@@ -222,3 +222,19 @@ def test_this_machines_devices_are_listed():
         assert ctx.info["GL_RENDERER"] and ctx.error == "GL_NO_ERROR"
     finally:
         ctx.release()
+
+
+@pytest.mark.gl
+def test_renderers_on_one_context_share_their_programs(gl_ctx):
+    """A second Renderer on the same context compiles nothing (programs are cached per context
+    and define set) and gives the same image; its own log still lists what it used."""
+    from glsim.backends.gl.programs import _shared
+
+    scene = bulge_scene(size=(96, 72), steps=1)
+    with Renderer(scene, "gl", ctx=gl_ctx) as a:
+        first = a.render(0, 1, mode="exact").image
+    built = len(_shared(gl_ctx))
+    with Renderer(scene, "gl", ctx=gl_ctx) as b:
+        again = b.render(0, 1, mode="exact").image
+        assert len(_shared(gl_ctx)) == built and b.backend.programs.compiled
+    assert np.array_equal(first, again)

@@ -116,28 +116,29 @@ class GLBackend:
         self.ctx.detect_framebuffer(0).use()
 
     def close(self) -> None:
-        self._unbind()
-        for fbo, color, depth, grey_only, depth_only in self._targets.values():
-            fbo.release()
-            grey_only.release()
-            depth_only.release()
-            for t in color:
-                t.release()
-            depth.release()
-        for tex in (*self._textures.values(), *self._rays.values(), *(self._dot_buffers or ())[:2]):
-            tex.release()
-        self._dot_buffers = None
-        for buf in self._patch_cache.values():
-            buf.release()
-        self._patch_cache.clear()
-        self._curved.clear()
-        self._targets.clear()
-        self._textures.clear()
-        self._rays.clear()
-        if self.geometry is not None:
-            self.geometry.release()
-            self.geometry = None
-        self.programs.release()
+        with self.ctx:   # this context's objects, released in it
+            self._unbind()
+            for fbo, color, depth, grey_only, depth_only in self._targets.values():
+                fbo.release()
+                grey_only.release()
+                depth_only.release()
+                for t in color:
+                    t.release()
+                depth.release()
+            for tex in (*self._textures.values(), *self._rays.values(), *(self._dot_buffers or ())[:2]):
+                tex.release()
+            self._dot_buffers = None
+            for buf in self._patch_cache.values():
+                buf.release()
+            self._patch_cache.clear()
+            self._curved.clear()
+            self._targets.clear()
+            self._textures.clear()
+            self._rays.clear()
+            if self.geometry is not None:
+                self.geometry.release()
+                self.geometry = None
+            self.programs.release()
         if self._own_ctx:
             self.ctx.release()
 
@@ -176,7 +177,8 @@ class GLBackend:
         patches = None
         if c is not None:
             patches = patch_data(c.mesh, c.pieces, c.step, v, opts.mode, self._curved.setdefault(id(c.mesh), {}))
-        image, raster, stages = self._render_view(v, opts, request.truth, request.effects, patches)
+        with self.ctx:   # current on this thread for the render (another context may have been made current)
+            image, raster, stages = self._render_view(v, opts, request.truth, request.effects, patches)
         if raster is not None and c is not None:
             raster = pieces_to_patches(raster, c.mesh, c.pieces, c.step, v.camera, opts.mode)
         return Raster(image, raster, tuple(stages))

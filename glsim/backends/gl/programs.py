@@ -105,16 +105,20 @@ def translate_log(log: str, sources: dict[str, Source]) -> str:
 
 
 class ProgramCache:
-    """Compiles programs once per (files, defines) for one GL context.
-
-    ``dirs`` are searched for shader files before the packaged ones.
-    """
+    """Compiles programs once per (files, defines) and GL context: the packaged shaders' programs
+    are shared by every cache on the same context (kept in ``ctx.extra``, freed with the
+    context), so several renderers on one context compile each program once (pyrender keys its
+    cache by context and defines). ``dirs`` (tests' own shaders) are searched before the packaged
+    ones; such a cache keeps its programs to itself and frees them in :meth:`release`.
+    ``compiled`` lists what this cache was asked for, in order (first requests only)."""
 
     def __init__(self, ctx, dirs: tuple = ()):
         self.ctx = ctx
         self.dirs = tuple(dirs)
-        self._programs: dict = {}
-        self.compiled: list[tuple[tuple[str, ...], dict]] = []  # what was built, for tests
+        self._own = bool(self.dirs)
+        self._programs: dict = {} if self._own else _shared(ctx)
+        self._asked: set = set()
+        self.compiled: list[tuple[tuple[str, ...], dict]] = []
 
     def _build(self, stages: dict[str, str], defines: dict, make):
         key = (tuple(stages.items()), tuple(sorted(defines.items())))
@@ -127,6 +131,8 @@ class ProgramCache:
                 raise ShaderError(f"GLSL program ({files}) failed to build with defines "
                                   f"{defines}:\n{translate_log(str(exc), sources)}") from None
             self._programs[key] = prog
+        if key not in self._asked:
+            self._asked.add(key)
             self.compiled.append((tuple(stages.values()), defines))
         return self._programs[key]
 
@@ -149,6 +155,16 @@ class ProgramCache:
         return "?"
 
     def release(self) -> None:
-        for prog in self._programs.values():
-            prog.release()
-        self._programs.clear()
+        """Free this cache's own programs (the shared ones live as long as the context)."""
+        if self._own:
+            for prog in self._programs.values():
+                prog.release()
+            self._programs.clear()
+        self._asked.clear()
+
+
+def _shared(ctx) -> dict:
+    """The packaged programs of ``ctx``, shared by its caches (in ``ctx.extra``)."""
+    if not isinstance(ctx.extra, dict):
+        ctx.extra = {}
+    return ctx.extra.setdefault("glsim.programs", {})
