@@ -9,7 +9,9 @@ import pytest
 from glsim.effects.dof import blur_sigma
 from glsim.scene.camera import Camera
 from glsim.render import Renderer
-from glsim.scene import (Light, Lighting, Noise, Optics, Plate, Render, Scene, Specimen, bulge_scene, demo_effects)
+from glsim.scene import Light, Lighting, Noise, Optics, Plate, Scene, Specimen, bulge_scene, demo_effects
+
+from _plates import plate_scene
 
 SMALL = (406, 308)
 PITCH = 30.0 / (6818.0 * SMALL[0] / 1624)   # the small rig's pixel pitch for a 30 mm lens
@@ -105,20 +107,17 @@ def test_in_focus_scene_is_unchanged_bit_for_bit(backend, request):
     assert not any(s.startswith("blur") for s in rb.stages)
 
 
-def plate_scene(**effects):
-    """A 40×30 mm plate 300 mm in front of a 200×150 px camera, turned 40° about y."""
-    cam = Camera(name="c", size=(200, 150), fx=1500.0, fy=1500.0, cx=99.5, cy=74.5)
-    a = np.radians(40.0)
-    R = ((np.cos(a), 0, np.sin(a)), (0, 1, 0), (-np.sin(a), 0, np.cos(a)))
-    spec = Specimen(plate=Plate(width=40, height=30, nx=8, ny=6), R=R, t=(0.0, 0.0, 300.0))
-    return Scene(cameras=(cam,), specimen=spec, render=Render(interpolation="linear"), **effects)
+_A = np.radians(40.0)
+# a 40×30 mm plate 300 mm in front of a 200×150 px camera, turned 40° about y
+TILTED = dict(size=(200, 150), fx=1500.0, plate=Plate(width=40, height=30, nx=8, ny=6),
+              specimen_R=((np.cos(_A), 0, np.sin(_A)), (0, 1, 0), (-np.sin(_A), 0, np.cos(_A))), interpolation="linear")
 
 
 @pytest.mark.parametrize("backend", ["cpu", pytest.param("gl", marks=pytest.mark.gl)])
 def test_lambert_on_a_tilted_plate_end_to_end(backend, request):
     """A distant light along the camera axis: lit − unlit = I_i·k_r·cos(40°) on every pixel."""
     light = Light(position=(0.0, 0.0, -1e9), intensity=0.3)
-    scene = plate_scene(lighting=Lighting(lights=(light,), diffuse=0.5))
+    scene = plate_scene(**TILTED, lighting=Lighting(lights=(light,), diffuse=0.5))
     ctx = request.getfixturevalue("gl_ctx") if backend == "gl" else None
     with Renderer(scene, backend, ctx=ctx) as r:
         lit = r.render(0, 0, truth=True)
@@ -133,7 +132,7 @@ def test_lambert_on_a_tilted_plate_end_to_end(backend, request):
 def test_blur_grows_away_from_the_focus_plane():
     """Focused on the plate's centre line: the image's local contrast falls with |Z − D|."""
     optics = Optics(focal_length=30.0, f_number=1.4, focus_distance=300.0, pixel_pitch=0.02)
-    scene = plate_scene(optics=optics)
+    scene = plate_scene(**TILTED, optics=optics)
     with Renderer(scene, "cpu") as r:
         blurred = r.render(0, 0, truth=True)
     with Renderer(dataclasses.replace(scene, optics=None), "cpu") as r:

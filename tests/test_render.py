@@ -15,20 +15,9 @@ from glsim.errors import RenderWarning
 from glsim.evaluation import bounds
 from glsim.scene.mesh import Mesh
 from glsim.render import Renderer
-from glsim.scene import Plate, Render, Scene, Specimen, bulge_scene
+from glsim.scene import Plate, Scene, Specimen, bulge_scene
 
-SHIFT = (0.37, -0.21, 0.0)  # mm, in the plate's plane
-
-
-def plate_scene(size=(160, 120), fx=2000.0, distortion=Distortion(), z=300.0, R=None, t=None,
-                plate=None, specimen_R=None, **render):
-    W, H = size
-    cam = Camera(name="c", size=size, fx=fx, fy=fx, cx=(W - 1) / 2, cy=(H - 1) / 2, distortion=distortion,
-                 R=R if R is not None else ((1, 0, 0), (0, 1, 0), (0, 0, 1)), t=t if t is not None else (0, 0, 0))
-    plate = plate or Plate(width=20, height=15, nx=8, ny=6, translations=(SHIFT,))
-    spec = Specimen(plate=plate, t=(0.0, 0.0, z)) if specimen_R is None else Specimen(plate=plate, R=specimen_R, t=(0.0, 0.0, z))
-    return Scene(cameras=(cam,), specimen=spec, render=Render(**render))
-
+from _plates import SHIFT, plate_scene
 
 def opencv_ref_uv(renderer: Renderer, z: float, shift) -> np.ndarray:
     """Analytic reference coordinates of each pixel of a fronto-parallel plate at depth z (in

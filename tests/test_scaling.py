@@ -16,23 +16,26 @@ import glsim.stages.geometry
 import glsim.stages.view
 from glsim.errors import RenderWarning
 from glsim.render import Renderer
-from glsim.scene import Plate, Render, Scene, Specimen, bulge_scene
+from glsim.scene import Plate, Scene, Specimen, bulge_scene
 from glsim.scene.camera import Camera, Distortion
 from glsim.scene.mesh import Mesh
 from glsim.stages.view import cover_rectangles, make_view
 
+from _plates import plate_scene
+
 MODES = ("fast", "q4", "exact")
 
 
-def plate_scene(n_side: int, size=(96, 72), steps: int = 2, distortion=Distortion(k1=-0.1)) -> Scene:
-    W, H = size
-    cams = (Camera(name="a", size=size, fx=160.0, fy=160.0, cx=(W - 1) / 2, cy=(H - 1) / 2, distortion=distortion),
-            Camera(name="b", size=size, fx=160.0, fy=160.0, cx=(W - 1) / 2 + 3, cy=(H - 1) / 2,
-                   distortion=distortion, R=((0.9961947, 0, -0.0871557), (0, 1, 0), (0.0871557, 0, 0.9961947)),
-                   t=(20.0, 0.0, 0.0)))
-    plate = Plate(width=60, height=45, nx=n_side, ny=n_side,
-                  translations=tuple((0.1 * k, -0.05 * k, 0.0) for k in range(1, steps)))
-    return Scene(cameras=cams, specimen=Specimen(plate=plate, t=(0.0, 0.0, 200.0)), render=Render())
+# two cameras a, b (b turned 5° about y, 20 mm to the side) 200 mm from a 60×45 mm plate
+STEREO = dict(size=(96, 72), fx=160.0, distortion=Distortion(k1=-0.1), z=200.0, name="a",
+              second={"name": "b", "cx": (96 - 1) / 2 + 3, "R": ((0.9961947, 0, -0.0871557), (0, 1, 0), (0.0871557, 0, 0.9961947)),
+                      "t": (20.0, 0.0, 0.0)})
+
+
+def grid(n_side: int, steps: int = 2) -> Plate:
+    """The 60×45 mm plate of n_side × n_side elements, moved by (0.1, −0.05, 0) mm per step."""
+    return Plate(width=60, height=45, nx=n_side, ny=n_side,
+                 translations=tuple((0.1 * k, -0.05 * k, 0.0) for k in range(1, steps)))
 
 
 class Counter:
@@ -54,7 +57,7 @@ def test_gl_path_builds_no_numpy_view_and_uploads_once(gl_ctx, monkeypatch):
         monkeypatch.setattr(mod, "make_view", counters[mod.__name__])
     cover = Counter(glsim.stages.view.cover_rectangles)
     monkeypatch.setattr(glsim.stages.view, "cover_rectangles", cover)
-    with Renderer(plate_scene(12), "gl", ctx=gl_ctx) as r:
+    with Renderer(plate_scene(plate=grid(12), **STEREO), "gl", ctx=gl_ctx) as r:
         for step in (0, 1):
             for cam in (0, 1):
                 for mode in MODES:
@@ -99,7 +102,7 @@ def test_cpu_memory_per_image_does_not_grow_with_the_mesh(gl_ctx, mode):
     and 20,736 elements (the image and a few small arrays), not a per-element array."""
     peaks = []
     for n in (12, 144):
-        with Renderer(plate_scene(n), "gl", ctx=gl_ctx) as r:
+        with Renderer(plate_scene(plate=grid(n), **STEREO), "gl", ctx=gl_ctx) as r:
             r.render(0, 1, mode=mode)                           # step uploaded, programs built
             r.render(1, 1, mode=mode)
             tracemalloc.start()
@@ -341,7 +344,7 @@ def test_bench_scaling_reduced_run_writes_elsewhere(tmp_path, capsys):
 def test_load_steps_evicted_and_coming_back(gl_ctx):
     """Going round more load steps than are kept, twice: each step's buffers are made again
     when it comes back, and every image equals a fresh renderer's."""
-    scene = plate_scene(12, steps=4)
+    scene = plate_scene(plate=grid(12, steps=4), **STEREO)
     with Renderer(scene, "gl", ctx=gl_ctx) as r:
         first = [r.render(0, k, mode="exact").image for k in range(4)]
         again = [r.render(0, k, mode=m).image for k in range(4) for m in ("exact", "fast")][::2]

@@ -1,12 +1,17 @@
 """Compact truth (glsim.io.truth): the lossless coder, full maps rebuilt from (element, ξ, η)
 against the renderer's float64 maps, and ``at(points)`` against the maps and an analytic plate."""
+from pathlib import Path
+
 import numpy as np
 import pytest
 
 from glsim.errors import GlsimError
 from glsim.io import truth as T
 from glsim.render import Renderer
-from glsim.scene import scene_from_dict
+from glsim.scene import Plate, Pose, Speckle, Stereo
+from glsim.scene.camera import Distortion
+
+from _plates import plate_scene
 
 
 def _runs_case(rng, H=40, W=57):
@@ -47,20 +52,14 @@ def _split(data: bytes):
     return json.loads(data[16:16 + n]), data[16 + n:]
 
 
-def _plate_scene(mode="exact", backend="cpu", size=(72, 56), distortion=None, tilt=0.25):
-    cam = {"name": "cam0", "size": list(size), "fx": 400.0, "fy": 410.0, "cx": size[0] / 2 - 0.3,
-           "cy": size[1] / 2 + 0.2}
-    if distortion:
-        cam["distortion"] = distortion
-    cam2 = dict(cam, name="cam1", pose={"stereo": {"Tx": -60.0, "Ty": 0.0, "Tz": 5.0, "Theta": 0.0, "Phi": 11.0,
-                                                   "Psi": 0.5}})
-    return scene_from_dict({
-        "cameras": [cam, cam2],
-        "specimen": {"plate": {"width": 40.0, "height": 30.0, "nx": 5, "ny": 4,
-                               "translations": [[0.3, -0.2, 1.5]]},
-                     "pose": {"rvec": [0.1, tilt, 0.02], "t": [0.5, -0.3, 300.0]}},
-        "speckle": {"dot_diameter_px": 3.0, "seed": 4},
-        "render": {"backend": backend, "mode": mode}})
+# two cameras, the second placed by a stereo pose, before a tilted 40×30 mm plate that moves at step 1
+STEREO_PLATE = dict(size=(72, 56), fx=400.0, fy=410.0, cx=72 / 2 - 0.3, cy=56 / 2 + 0.2, name="cam0",
+                    second={"name": "cam1", "pose": Pose(stereo=Stereo(Tx=-60.0, Ty=0.0, Tz=5.0, Theta=0.0, Phi=11.0,
+                                                                       Psi=0.5))},
+                    plate=Plate(width=40.0, height=30.0, nx=5, ny=4, translations=((0.3, -0.2, 1.5),)),
+                    specimen_pose=Pose(rvec=(0.1, 0.25, 0.02), t=(0.5, -0.3, 300.0)),
+                    speckle=Speckle(dot_diameter_px=3.0, seed=4), base_dir=str(Path(".").resolve()), backend="cpu",
+                    mode="exact")
 
 
 def _compact(tmp_path, r: Renderer, camera, step, dtype="float64", **opts):
@@ -81,7 +80,7 @@ def _compact(tmp_path, r: Renderer, camera, step, dtype="float64", **opts):
 
 @pytest.mark.parametrize("mode", ["exact", "q4"])
 def test_full_maps_from_compact_truth_equal_the_renderers_float64_maps(tmp_path, mode):
-    scene = _plate_scene(mode, distortion={"k1": -0.08, "p1": 1e-3})
+    scene = plate_scene(**{**STEREO_PLATE, "mode": mode}, distortion=Distortion(k1=-0.08, p1=1e-3))
     with Renderer(scene) as r:
         for cam, step in (("cam0", 1), ("cam1", 1), ("cam1", 0)):
             c, full, path = _compact(tmp_path, r, cam, step)
@@ -96,7 +95,8 @@ def test_full_maps_from_compact_truth_equal_the_renderers_float64_maps(tmp_path,
 
 @pytest.mark.gl
 def test_gl_compact_truth_matches_full_maps_and_float32_bound(tmp_path, gl_ctx):
-    scene = _plate_scene("exact", backend="gl", size=(96, 72))
+    scene = plate_scene(**{**STEREO_PLATE, "backend": "gl", "size": (96, 72), "cx": 96 / 2 - 0.3,
+                             "cy": 72 / 2 + 0.2})
     with Renderer(scene, ctx=gl_ctx) as r:
         c, full, _ = _compact(tmp_path, r, "cam1", 1)
         maps = c.maps()
@@ -112,7 +112,7 @@ def test_gl_compact_truth_matches_full_maps_and_float32_bound(tmp_path, gl_ctx):
 
 
 def test_at_points_equals_the_maps_of_camera0_in_the_reference_state(tmp_path):
-    scene = _plate_scene("exact", distortion={"k1": -0.1, "k2": 0.05})
+    scene = plate_scene(**STEREO_PLATE, distortion=Distortion(k1=-0.1, k2=0.05))
     with Renderer(scene) as r:
         c0, full0, _ = _compact(tmp_path, r, "cam0", 0)      # camera 0, reference state
         c1, full1, _ = _compact(tmp_path, r, "cam1", 1)      # another image of the library
@@ -139,7 +139,8 @@ def test_at_points_equals_the_maps_of_camera0_in_the_reference_state(tmp_path):
 def test_at_points_on_an_analytic_plate(tmp_path):
     """Fronto-parallel plate at Z = 300 mm, rigidly translated: the material point under pixel
     (u, v) is the ray's intersection with the plane, its displacement the translation."""
-    scene = _plate_scene("exact", tilt=0.0, distortion={"k1": -0.05})
+    scene = plate_scene(**{**STEREO_PLATE, "specimen_pose": Pose(rvec=(0.1, 0.0, 0.02), t=(0.5, -0.3, 300.0))},
+                        distortion=Distortion(k1=-0.05))
     scene = scene.replace(specimen={"R": ((1.0, 0, 0), (0, 1.0, 0), (0, 0, 1.0)), "t": (0.0, 0.0, 300.0)})
     with Renderer(scene) as r:
         c, _, _ = _compact(tmp_path, r, "cam0", 1)
@@ -162,7 +163,7 @@ def test_header_names_camera0_and_old_files_with_camera1_still_read(tmp_path):
     import json
     import struct
 
-    scene = _plate_scene()
+    scene = plate_scene(**STEREO_PLATE)
     with Renderer(scene) as r:
         c, _, path = _compact(tmp_path, r, "cam1", 1)
     assert "camera0" in c.header and "camera1" not in c.header
@@ -182,7 +183,8 @@ def test_render_truth_npz_loads_with_maps_and_at(tmp_path):
     """Issue 29: truth.load refused `glsim render --truth`'s *_truth.npz."""
     from glsim.workflows.sequence import write_sequence
 
-    scene = _plate_scene(distortion={"k1": -0.05}).replace(output={"pattern": "imgs/{camera}_{step:04d}.{ext}"})
+    scene = plate_scene(**STEREO_PLATE, distortion=Distortion(k1=-0.05)).replace(
+        output={"pattern": "imgs/{camera}_{step:04d}.{ext}"})
     write_sequence(scene, tmp_path / "r", truth=True)
     with Renderer(scene) as r:
         c, _, _ = _compact(tmp_path, r, "cam1", 1)
@@ -203,7 +205,7 @@ def test_render_truth_npz_loads_with_maps_and_at(tmp_path):
 
 
 def test_damaged_files_are_named_with_the_fix(tmp_path):
-    scene = _plate_scene()
+    scene = plate_scene(**STEREO_PLATE)
     with Renderer(scene) as r:
         c, _, path = _compact(tmp_path, r, "cam0", 1)
     data = path.read_bytes()
