@@ -89,7 +89,6 @@ def peer(acc: dict) -> str:
             f"{sig(q4['seconds'])} s, {sig(ex['seconds'])} s).")
 
 
-
 # ---- peer.json -------------------------------------------------------------------------------
 def peer_rows(p: dict) -> str:
     """README: glsim GL against riley-raster (glsim bench peer): time ratios, times, mapping error, goals."""
@@ -110,6 +109,7 @@ def peer_rows(p: dict) -> str:
     lines += [f"| {g['goal']} | {g['measured']} | {'not measured' if g['met'] is None else 'yes' if g['met'] else 'no'} |"
               for g in p["goals"]]
     return "\n".join(lines)
+
 
 # ---- effects.json ----------------------------------------------------------------------------
 def effects(eff: dict) -> str:
