@@ -554,8 +554,8 @@ def test_examples_expand(tmp_path):
 
 def test_disk_full_is_a_clear_error_and_resumes(reference_library, tmp_path, monkeypatch):
     spec, ref = reference_library
-    from glsim.workflows.library import worker
-    real, calls = worker.write_group, []
+    from glsim.workflows.library import writer
+    real, calls = writer.write_group, []
 
     def full(files):
         calls.append(1)
@@ -563,16 +563,32 @@ def test_disk_full_is_a_clear_error_and_resumes(reference_library, tmp_path, mon
             raise OSError(28, "No space left on device", str(files[0][0]))
         real(files)
 
-    monkeypatch.setattr(worker, "write_group", full)
+    monkeypatch.setattr(writer, "KIND", "thread")         # the writer in this process, where the patch holds
+    monkeypatch.setattr(writer, "write_group", full)
     lib = tmp_path / "full"
     with pytest.raises(GlsimError, match=r"v0001/cam1_0000.tif: cannot be written \(No space left on device\) — the disk is full: free space, then run the "
                                          "same command again"):
         run(load_plan(spec), lib, workers=1)
-    monkeypatch.setattr(worker, "write_group", real)
+    monkeypatch.setattr(writer, "write_group", real)
     kept = len(mf.read_manifest(lib))     # the finished tasks' images (a task reports when it ends)
     assert kept == 4 and not [p for p in lib.rglob("*") if ".part" in p.name]
     s = run(load_plan(spec), lib, workers=1)
     assert (s.written, s.kept) == (16 - kept, kept) and _files(lib) == _files(ref)
+
+
+def test_the_writer_process_reports_a_file_it_cannot_write(reference_library, tmp_path):
+    """An error in the writer process stops the run with the file and the fix, in the render
+    thread; the images written before are kept, and resuming completes the library."""
+    spec, ref = reference_library
+    lib = Path(shutil.copytree(ref, tmp_path / "lib"))
+    (lib / "v0002" / "cam0_0002.tif").unlink()
+    (lib / "v0002" / "cam0_0002.tif").mkdir()            # the rename onto it fails
+    with pytest.raises(GlsimError, match=r"v0002/cam0_0002.tif: cannot be written \(Is a directory\) — check that"):
+        run(load_plan(spec), lib, workers=1)
+    (lib / "v0002" / "cam0_0002.tif").rmdir()
+    assert not [p for p in lib.rglob("*") if ".part" in p.name]
+    s = run(load_plan(spec), lib, workers=1)
+    assert (s.written, s.kept) == (1, 15) and _files(lib) == _files(ref)
 
 
 def test_dry_run_prints_the_table_and_writes_nothing(tmp_path):
@@ -691,12 +707,15 @@ def test_dask_cluster_with_a_worker_killed_gives_the_same_library(reference_libr
 
 def test_reduced_benchmark_writes_its_tables(tmp_path):
     out = tmp_path / "bench"
-    r = subprocess.run(GLSIM + ["bench", "library", "--size", "64", "48", "--images", "8", "--max-workers", "2",
+    r = subprocess.run(GLSIM + ["bench", "library", "--size", "64", "48", "--images", "16", "--max-workers", "2",
                                 "--out", str(out)], capture_output=True, text=True)
     assert r.returncode == 0, r.stderr
     import json
     res = json.loads((out / "library.json").read_text())
-    assert {"render_only", "end_to_end_images", "end_to_end_truth", "workers", "machine"} <= set(res)
-    assert [w["workers"] for w in res["workers"]] == [1, 2]
-    assert res["end_to_end_truth"]["truth_mb_per_image"] > 0 and res["peak_rss_mb"] > 0
-    assert "images/s" in (out / "library.md").read_text()
+    assert {"config", "libraries", "machine", "goals", "peak_rss_mb"} <= set(res) and res["peak_rss_mb"] > 0
+    noise, stereo = res["libraries"]["noise"], res["libraries"]["stereo"]
+    assert [(x["workers"], x["truth"], x["writer"]) for x in noise["runs"]] == [
+        (1, False, "process"), (1, True, "process"), (2, False, "process"), (2, True, "process"), (1, True, "thread")]
+    assert (noise["images"], noise["truth_keys"], stereo["truth_keys"]) == (16, 8, 12)   # stereo: camera 1's per variant
+    assert all(x["truth_files"] == noise["truth_keys"] for x in noise["runs"] if x["truth"])
+    assert "images/s" in (out / "library.md").read_text() and "(reduced run)" in (out / "library.md").read_text()

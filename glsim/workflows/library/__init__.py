@@ -2,10 +2,19 @@
 and a manifest out — resumable, in parallel processes or on a Dask cluster (``glsim library``).
 
 Modules: :mod:`.spec` (reading and expanding specs), :mod:`.worker` (rendering a task, one
-renderer per worker thread), :mod:`.manifest` (manifest.csv and library.json), :mod:`.runner`
-(directory rules, pools, resume, verify), :mod:`.cli` (the command line).
+renderer per worker thread), :mod:`.writer` (encoding and writing in a writer process),
+:mod:`.lifeline` (children that end with their parent), :mod:`.manifest` (manifest.csv and
+library.json), :mod:`.runner` (directory rules, pools, resume, verify), :mod:`.cli` (the
+command line). The names below are imported on first use, so that a writer process, which
+imports :mod:`.writer` only, loads no renderer.
 """
-from glsim.workflows.library.runner import Summary, run, verify
-from glsim.workflows.library.spec import Plan, SpecError, expand, load_plan
+_NAMES = {"Summary": "runner", "run": "runner", "verify": "runner",
+          "Plan": "spec", "SpecError": "spec", "expand": "spec", "load_plan": "spec"}
+__all__ = sorted(_NAMES)
 
-__all__ = ["Plan", "SpecError", "Summary", "expand", "load_plan", "run", "verify"]
+
+def __getattr__(name: str):
+    if name in _NAMES:
+        import importlib
+        return getattr(importlib.import_module(f"{__name__}.{_NAMES[name]}"), name)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

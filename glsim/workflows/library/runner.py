@@ -23,11 +23,14 @@ The directory rules:
 """
 from __future__ import annotations
 
+import contextlib
 import json
 import math
 import os
 import shutil
+import signal
 import sys
+import threading
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -42,6 +45,7 @@ from glsim.workflows.library.worker import WriteError, make_task, render_task
 
 CHUNK = 8          # images per task at most (a variant with more is split)
 TRUTH_BAD = "truth missing or fails its size/SHA-256"
+WRITE_TEST = ".glsim-write-test"
 
 
 class LibraryError(GlsimError):
@@ -105,8 +109,10 @@ def _first_difference(old: dict, plan: Plan) -> str:
 
 def _prepare_directory(out: Path, plan: Plan, fingerprint: str, force: bool) -> bool:
     """True to resume; False for a new library. Raises LibraryError for a directory that holds
-    something else."""
-    if not outdir.entries(out):
+    something else. What a run killed before writing library.json leaves (its write test,
+    temporaries) does not count."""
+    left = lambda p: p.name == WRITE_TEST or (p.name.startswith(".") and ".part" in p.name)  # noqa: E731
+    if all(left(p) for p in outdir.entries(out)):
         return False
     info = mf.read_library_info(out)
     if info is not None and info.get("fingerprint") == fingerprint and not force:
@@ -136,9 +142,9 @@ def _prepare_directory(out: Path, plan: Plan, fingerprint: str, force: bool) -> 
 def _check_writable(out: Path) -> None:
     try:
         out.mkdir(parents=True, exist_ok=True)
-        with io.atomic_path(out / ".glsim-write-test") as tmp:
+        with io.atomic_path(out / WRITE_TEST) as tmp:
             tmp.write_bytes(b"ok")
-        os.unlink(out / ".glsim-write-test")
+        os.unlink(out / WRITE_TEST)
     except OSError as exc:
         raise WriteError(f"{out}: cannot be written ({exc.strerror or exc}) — give a writable directory (-o)"
                          + (" with free space" if exc.errno == 28 else "")) from None
@@ -483,11 +489,37 @@ def run(plan: Plan, out: str | Path, workers: int | None = None, scheduler: str 
     outdir.inside(out, [rel for job in plan.jobs for rel in (job.image, job.truth) if rel], "output.pattern")
     client = connect(scheduler) if scheduler else None
     try:
-        with outdir.locked(out):
+        with _interrupt_once(), outdir.locked(out):
             return _run(plan, out, workers, client, force, progress, flush_s)
     finally:
         if client is not None:
             client.close()
+
+
+@contextlib.contextmanager
+def _interrupt_once():
+    """SIGTERM (kill, timeout, SLURM) stops the run as Ctrl-C does, with KeyboardInterrupt —
+    once: SIGTERM and SIGINT are ignored from the first of them until the run has stopped
+    (`timeout` sends SIGTERM twice, to the command and to its process group, and a second
+    KeyboardInterrupt inside the first one's clean-up would leave files and locks half done).
+    Only in the main thread, where signal handlers live."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    old = {s: signal.getsignal(s) for s in (signal.SIGINT, signal.SIGTERM)}
+
+    def stop(signum, frame):
+        for s in old:
+            signal.signal(s, signal.SIG_IGN)
+        raise KeyboardInterrupt
+
+    for s in old:
+        signal.signal(s, stop)
+    try:
+        yield
+    finally:
+        for s, handler in old.items():
+            signal.signal(s, handler)
 
 
 def _run(plan: Plan, out: Path, workers, client, force: bool, progress: bool, flush_s: float) -> Summary:

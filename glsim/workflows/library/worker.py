@@ -8,25 +8,22 @@ reference image and backend (only the scene's options change); otherwise the old
 GL resources are released and a new one made on the same context. A GL context is current on
 one thread, so the context and renderer are per thread (``threading.local``).
 
-Encoding (quantising, TIFF/PNG, compact truth) and writing run on a writer thread while the
-next image renders. Every image and its truth are written as one group under temporary names
-and renamed truth first, image last (:func:`glsim.io.images.atomic_paths`): a task killed at
-any moment leaves no truncated file under a final name, and a task run twice (a Dask worker
-that died and its task rerun elsewhere) writes the same bytes again.
+Encoding (quantising, TIFF/PNG, compact truth), hashing and writing run in a writer process
+(:mod:`.writer`, one per worker thread, kept) while the next image renders. Every image and
+its truth are written as one group under temporary names and renamed truth first, image last
+(:func:`glsim.io.images.atomic_paths`): a task killed at any moment leaves no truncated file
+under a final name, and a task run twice (a Dask worker that died and its task rerun
+elsewhere) writes the same bytes again.
 """
 from __future__ import annotations
 
-import io as _io
 import os
-import queue
 import threading
-import time
 from pathlib import Path
 
 import numpy as np
 
 from glsim.errors import GlsimError
-from glsim.io import images as io
 from glsim.io import truth as truthio
 from glsim.render import Renderer
 
@@ -95,126 +92,96 @@ def thread_context():
 
 
 def release() -> None:
-    """Close this thread's renderer and context (tests and the in-process runner call it)."""
+    """Close this thread's renderer, context and writer (tests and the in-process runner call it)."""
     r = getattr(_LOCAL, "renderer", None)
     if r is not None:
         r.close()
     ctx = getattr(_LOCAL, "ctx", None)
     if ctx is not None:
         ctx.release()
-    _LOCAL.renderer = _LOCAL.ctx = _LOCAL.key = None
+    w = getattr(_LOCAL, "writer", None)
+    if w is not None:
+        w.close()
+    _LOCAL.renderer = _LOCAL.ctx = _LOCAL.key = _LOCAL.writer = None
+    _LOCAL.masks = {}
 
 
-# ---- encoding and writing ------------------------------------------------------------------------
+# ---- handing images to the writer ------------------------------------------------------------------
 
-def image_bytes(image: np.ndarray, bit_depth: int, fmt: str) -> bytes:
-    """The bytes :func:`glsim.io.images.write_image` would write."""
-    data = io.quantize(image, bit_depth)
-    buf = _io.BytesIO()
-    if fmt == "tiff":
-        import tifffile
-        tifffile.imwrite(buf, data, photometric="minisblack")
-        return buf.getvalue()
-    import imageio.v3 as iio
-    return iio.imwrite("<bytes>", data, extension=".png")
+MASKS = 16    # coverage masks kept per thread
 
 
-def write_group(files: list[tuple[Path, bytes]]) -> None:
-    """Write (path, bytes) pairs as one group: temporaries first, renamed in the order given."""
-    with io.atomic_paths([p for p, _ in files]) as tmps:
-        for tmp, (_, data) in zip(tmps, files):
-            with open(tmp, "wb") as f:
-                f.write(data)
+def thread_writer():
+    """This thread's writer (:func:`.writer.make_writer`: a writer process; made on first use,
+    again if it has died)."""
+    from glsim.workflows.library.writer import make_writer
+
+    w = getattr(_LOCAL, "writer", None)
+    if w is None or not w.alive():
+        if w is not None:
+            w.close()
+        w = _LOCAL.writer = make_writer()
+    return w
 
 
-def _encode_and_write(out: Path, job: dict, res, header: dict | None, dtype: str) -> dict:
-    t0 = time.perf_counter()
-    cam = res.camera
-    data = image_bytes(res.image, cam.bit_depth, job["format"])
-    t1 = time.perf_counter()
-    files = []
-    rec = {"variant": job["variant"], "camera": job["camera"], "step": job["step"], "file": job["image"],
-           "bytes": len(data), "sha256": truthio.sha256_bytes(data), "truth_file": job["truth"],
-           "truth_bytes": 0, "truth_sha256": "", "render_s": res.seconds, "saturated": res.saturated,
-           "covered": res.covered}
-    if job["render_truth"]:
-        t = res.truth
-        tdata = truthio.encode_compact(t.element, t.xi, t.eta, header, dtype)
-        rec["truth_bytes"], rec["truth_sha256"] = len(tdata), truthio.sha256_bytes(tdata)
-        files.append((out / job["truth"], tdata))
-    t2 = time.perf_counter()
-    files.append((out / job["image"], data))
-    write_group(files)
-    t3 = time.perf_counter()
-    rec.update(encode_s=t1 - t0, truth_s=(t2 - t1) if job["render_truth"] else 0.0, write_s=t3 - t2)
-    return rec
-
-
-class _Writer:
-    """One background thread encoding and writing while the caller renders the next image."""
-
-    def __init__(self, depth: int = 2):
-        self.q: queue.Queue = queue.Queue(depth)
-        self.records: list[dict] = []
-        self.error: BaseException | None = None
-        self.thread = threading.Thread(target=self._run, daemon=True)
-        self.thread.start()
-
-    def _run(self):
-        while True:
-            item = self.q.get()
-            if item is None:
-                return
-            if self.error is None:
-                try:
-                    self.records.append(_encode_and_write(*item))
-                except BaseException as exc:  # reported by close()
-                    self.error = exc
-
-    def put(self, *item):
-        if self.error is not None:
-            raise self.error
-        self.q.put(item)
-
-    def close(self) -> list[dict]:
-        self.q.put(None)
-        self.thread.join()
-        if self.error is not None:
-            raise self.error
-        return self.records
+def _coverage(res) -> np.ndarray:
+    """``res.coverage`` (the specimen's pixels), kept for the next variants this thread's
+    renderer draws: it depends on the mesh, the camera and the step only, not on noise,
+    lighting, optics or the speckle."""
+    masks = _LOCAL.__dict__.setdefault("masks", {})
+    key = (_LOCAL.key, repr(res.camera), res.step)
+    if key not in masks:
+        if len(masks) >= MASKS:
+            masks.pop(next(iter(masks)))
+        masks[key] = res.coverage
+    return masks[key]
 
 
 def render_task(task: dict) -> list[dict]:
-    """Render and write the images of ``task`` (see :func:`make_task`); returns one manifest
-    record per image. Raises :class:`WriteError` when a file cannot be written."""
+    """Render the images of ``task`` (see :func:`make_task`) and hand them to this thread's
+    writer; returns one manifest record per image once all are written. Raises
+    :class:`WriteError` when a file cannot be written."""
     out = Path(task["out"])
+    writer = thread_writer()               # first: a new writer process starts while the GL setup runs
     scene = _scene(task["scene"])
     r = renderer_for(scene, task.get("backend"))
-    writer = _Writer()
     try:
         try:
             for job in task["jobs"]:
                 res = r.render(job["camera"], job["step"], truth=job["render_truth"])
-                header = None
-                if job["render_truth"]:
+                header, t = None, res.truth
+                if t is not None:
                     header = truthio.image_header(res.camera, scene.cameras[0], r.reference.camera,
                                                   res.options.mode, job["step"],
                                                   truthio.relpath(out / task["geometry"], (out / job["truth"]).parent),
                                                   task["geometry_sha256"])
-                writer.put(out, job, res, header, task["truth_dtype"])
+                writer.put(str(out), {**job, "bit_depth": res.camera.bit_depth}, res.image, _coverage(res),
+                           None if t is None else (t.element, t.xi, t.eta), header, task["truth_dtype"], res.seconds)
         except BaseException:
             try:
-                writer.close()
+                writer.drain()
             except BaseException:
                 pass
             raise
-        return writer.close()
+        return writer.drain()
     except OSError as exc:
-        raise WriteError(f"{exc.filename or out}: cannot be written ({exc.strerror or exc})"
+        raise WriteError(f"{_final_name(exc) or out}: cannot be written ({exc.strerror or exc})"
                          + (" — the disk is full: free space, then run the same command again to resume"
                             if getattr(exc, "errno", None) == 28 else
                             " — check that the directory is writable, then run the same command again "
                             "to resume")) from None
+
+
+def _final_name(exc: OSError) -> str | None:
+    """The library file an OSError is about: a rename's target, or the file a temporary
+    (``.NAME.XXXXXXXX.part…``, :func:`glsim.io.atomic.atomic_paths`) stands for."""
+    import re
+
+    name = exc.filename2 or exc.filename
+    if name is None:
+        return None
+    m = re.fullmatch(r"\.(.+)\.[^.]+\.part[^/]*", Path(name).name)
+    return str(Path(name).with_name(m.group(1))) if m else str(name)
 
 
 class WriteError(GlsimError):

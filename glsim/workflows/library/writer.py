@@ -1,0 +1,322 @@
+"""Encoding and writing a library's files off the render thread.
+
+moderngl holds the GIL through every GL call, so a writer *thread* beside the render loop
+overlaps little of the encoding. Each render thread therefore hands its images to a writer
+*process* (:class:`ProcessWriter`, made once per thread and kept across tasks): the image,
+its coverage mask and its compact truth are copied into one of ``SLOTS`` shared-memory blocks
+(:mod:`multiprocessing.shared_memory`), a small message names the block, and the writer
+quantises, encodes (TIFF/PNG, compact truth), hashes and writes them while the next image
+renders. A render waits for a free block (back-pressure: at most ``SLOTS`` images in flight);
+the writer's first error is raised in the render thread, at the next :meth:`~ProcessWriter.put`
+or at :meth:`~ProcessWriter.drain`. The bytes are :func:`encode_and_write`'s, which the thread
+writer (:class:`ThreadWriter`, where no child process can be made: a daemonic process such as
+a default Dask worker) runs as well. The writer process ends with its parent
+(:mod:`.lifeline`); on SIGTERM a write in progress removes its temporaries.
+
+This module imports no GL and no renderer: the writer process starts in well under a second.
+"""
+from __future__ import annotations
+
+import io as _io
+import os
+import queue
+import signal
+import sys
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+
+from glsim.errors import GlsimError
+from glsim.io import images as io
+from glsim.io import truth as truthio
+
+SLOTS = 2          # images in flight between a render thread and its writer
+ALIGN = 64         # bytes: each array's offset in a shared block
+
+
+class WriterDied(GlsimError):
+    """The writer process ended while images were in flight (killed, or out of memory)."""
+
+
+# ---- encoding and writing (the same bytes from either writer) -------------------------------------
+
+def image_bytes(image: np.ndarray, bit_depth: int, fmt: str) -> bytes:
+    """The bytes :func:`glsim.io.images.write_image` would write."""
+    data = io.quantize(image, bit_depth)
+    buf = _io.BytesIO()
+    if fmt == "tiff":
+        import tifffile
+        tifffile.imwrite(buf, data, photometric="minisblack")
+        return buf.getvalue()
+    import imageio.v3 as iio
+    return iio.imwrite("<bytes>", data, extension=".png")
+
+
+def write_group(files: list[tuple[Path, bytes]]) -> None:
+    """Write (path, bytes) pairs as one group: temporaries first, renamed in the order given."""
+    with io.atomic_paths([p for p, _ in files]) as tmps:
+        for tmp, (_, data) in zip(tmps, files):
+            with open(tmp, "wb") as f:
+                f.write(data)
+
+
+def saturated(image: np.ndarray, mask: np.ndarray) -> float:
+    """Fraction of the specimen's pixels (``mask``) below 0 or above full scale, as
+    :attr:`glsim.render.Result.saturated` (the background is not counted)."""
+    n = np.count_nonzero(mask)
+    if n == 0 or (image.min() >= 0 and image.max() <= 1):
+        return 0.0
+    return float(np.count_nonzero(((image < 0) | (image > 1)) & mask) / n)
+
+
+def encode_and_write(out: str, job: dict, image: np.ndarray, mask: np.ndarray, truth, header: dict | None,
+                     dtype: str, render_s: float) -> dict:
+    """Encode and write one image of ``job`` (a task's job, with the camera's ``bit_depth``) and,
+    if ``truth`` = (element, ξ, η) of :func:`glsim.io.truth.compact`, its truth file, as one
+    group renamed truth first, image last; returns its manifest record. ``image`` (H, W) float
+    grey levels in [0, 1] of full scale; ``mask`` (H, W) bool, the specimen's pixels;
+    ``render_s`` the render's seconds. Times in the record are seconds."""
+    t0 = time.perf_counter()
+    data = image_bytes(image, job["bit_depth"], job["format"])
+    rec = {"variant": job["variant"], "camera": job["camera"], "step": job["step"], "file": job["image"],
+           "bytes": len(data), "sha256": truthio.sha256_bytes(data), "truth_file": job["truth"],
+           "truth_bytes": 0, "truth_sha256": "", "render_s": render_s, "saturated": saturated(image, mask),
+           "covered": float(mask.mean()) if mask.size else 0.0}
+    t1 = time.perf_counter()
+    files = []
+    if truth is not None:
+        tdata = truthio.encode_compact(*truth, header, dtype)
+        rec["truth_bytes"], rec["truth_sha256"] = len(tdata), truthio.sha256_bytes(tdata)
+        files.append((Path(out) / job["truth"], tdata))
+    t2 = time.perf_counter()
+    files.append((Path(out) / job["image"], data))
+    write_group(files)
+    rec.update(encode_s=t1 - t0, truth_s=t2 - t1 if truth is not None else 0.0, write_s=time.perf_counter() - t2)
+    return rec
+
+
+# ---- the writer process ---------------------------------------------------------------------------
+
+class ProcessWriter:
+    """A writer process fed through ``slots`` shared-memory blocks (see the module text)."""
+
+    def __init__(self, slots: int = SLOTS):
+        import multiprocessing as mp
+
+        ctx = mp.get_context("spawn")
+        self.conn, child = ctx.Pipe()
+        self.proc = ctx.Process(target=serve, args=(child, os.getpid()), name="glsim-library-writer", daemon=True)
+        self.proc.start()
+        child.close()
+        self.blocks: list = [None] * slots
+        self.free = list(range(slots))
+        self.records: list[dict] = []
+        self.error: BaseException | None = None
+
+    def alive(self) -> bool:
+        return self.proc.is_alive()
+
+    def put(self, out: str, job: dict, image, mask, truth, header, dtype: str, render_s: float) -> None:
+        """Hand one image over (arguments as :func:`encode_and_write`); waits for a free block."""
+        while not self.free:
+            self._receive()
+        self._raise()
+        arrays = {"image": image, "mask": mask}
+        if truth is not None:
+            arrays.update(element=truth[0], xi=truth[1], eta=truth[2])
+        layout, size = [], 0
+        for name, a in arrays.items():
+            layout.append((name, a.dtype.str, a.shape, size))
+            size += -(-a.nbytes // ALIGN) * ALIGN
+        slot = self.free.pop()
+        block = self._block(slot, size)
+        for (name, dt, shape, offset), a in zip(layout, arrays.values()):
+            np.ndarray(shape, dt, buffer=block.buf, offset=offset)[...] = a
+        self.conn.send((slot, block.name, layout, (out, job, header, dtype, render_s)))
+
+    def _block(self, slot: int, size: int):
+        from multiprocessing.shared_memory import SharedMemory
+
+        b = self.blocks[slot]
+        if b is None or b.size < size:     # free: the writer is done with it
+            if b is not None:
+                b.close()
+                b.unlink()
+            b = self.blocks[slot] = SharedMemory(create=True, size=max(size, ALIGN))
+        return b
+
+    def _receive(self) -> None:
+        try:
+            status, slot, payload = self.conn.recv()
+        except (EOFError, OSError):
+            self.free = list(range(len(self.blocks)))
+            raise WriterDied(f"the library's writer process (pid {self.proc.pid}) ended while images were being "
+                             "written (killed, or out of memory) — run the same command again to resume") from None
+        self.free.append(slot)
+        if status == "ok":
+            self.records.append(payload)
+        elif self.error is None:
+            self.error = payload
+
+    def _raise(self) -> None:
+        if self.error is not None:
+            error, self.error = self.error, None
+            raise error
+
+    def drain(self) -> list[dict]:
+        """Wait until every image handed over is written; their records. Raises the writer's
+        first error (the images after it are written, but not in the records)."""
+        while len(self.free) < len(self.blocks):
+            self._receive()
+        records, self.records = self.records, []
+        self._raise()
+        return records
+
+    def close(self) -> None:
+        try:
+            self.conn.send(None)
+        except OSError:
+            pass
+        self.proc.join(5)
+        if self.proc.is_alive():
+            self.proc.kill()
+            self.proc.join(5)
+        for b in self.blocks:
+            if b is not None:
+                b.close()
+                try:
+                    b.unlink()
+                except FileNotFoundError:    # removed by a writer that was terminated
+                    pass
+        self.blocks = [None] * len(self.blocks)
+
+
+def _stop(signum, frame):
+    raise SystemExit(128 + signum)     # a write in progress removes its temporaries (atomic_paths)
+
+
+def serve(conn, parent: int) -> None:
+    """The writer process: for each message (slot, block name, layout, arguments) run
+    :func:`encode_and_write` on the arrays in that block and answer ("ok", slot, record) or
+    ("error", slot, exception); end at None, or when the parent ends or on SIGTERM (then the
+    blocks, which the parent may no longer be there to remove, are removed here)."""
+    from multiprocessing.shared_memory import SharedMemory
+
+    from glsim.workflows.library.lifeline import die_with_parent
+
+    signal.signal(signal.SIGINT, signal.SIG_IGN)       # Ctrl-C is the parent's to handle
+    signal.signal(signal.SIGTERM, _stop)
+    die_with_parent(parent)
+    blocks: dict[int, SharedMemory] = {}
+    closed = False          # by the parent's None: then the parent removes the blocks
+    try:
+        while (msg := conn.recv()) is not None:
+            slot, name, layout, args = msg
+            if slot not in blocks or blocks[slot].name.lstrip("/") != name.lstrip("/"):
+                if slot in blocks:
+                    blocks[slot].close()
+                blocks[slot] = SharedMemory(name)
+            buf = blocks[slot].buf
+            a = {k: np.ndarray(shape, dt, buffer=buf, offset=off) for k, dt, shape, off in layout}
+            out, job, header, dtype, render_s = args
+            truth = (a["element"], a["xi"], a["eta"]) if "element" in a else None
+            try:
+                reply = ("ok", slot, encode_and_write(out, job, a["image"], a["mask"], truth, header, dtype, render_s))
+            except Exception as exc:   # noqa: BLE001 — sent to the render thread, which raises it
+                reply = ("error", slot, _portable(exc))
+            del a, truth, buf
+            conn.send(reply)
+        closed = True
+    except (EOFError, OSError):         # the parent died, or closed its end
+        pass
+    finally:
+        for b in blocks.values():
+            b.close()
+            if not closed:    # the parent died or is dying (SIGTERM): remove the blocks and their tracker entries
+                try:
+                    b.unlink()
+                except FileNotFoundError:
+                    pass
+
+
+def _portable(exc: Exception) -> Exception:
+    """``exc`` if it survives pickling (OSError keeps errno, strerror and filename), else a
+    RuntimeError with its text."""
+    import pickle
+    try:
+        pickle.loads(pickle.dumps(exc))
+        return exc
+    except Exception:   # noqa: BLE001
+        return RuntimeError(f"{type(exc).__name__}: {exc}")
+
+
+# ---- the fallback: a thread -------------------------------------------------------------------------
+
+class ThreadWriter:
+    """:class:`ProcessWriter`'s interface on a background thread of this process (it shares
+    the GIL with the render loop)."""
+
+    def __init__(self, slots: int = SLOTS):
+        self.q: queue.Queue = queue.Queue(slots)
+        self.records: list[dict] = []
+        self.error: BaseException | None = None
+        self.pending = 0
+        self.done = threading.Condition()
+        self.thread = threading.Thread(target=self._run, name="glsim-library-writer", daemon=True)
+        self.thread.start()
+
+    def alive(self) -> bool:
+        return self.thread.is_alive()
+
+    def _run(self) -> None:
+        while (item := self.q.get()) is not None:
+            try:
+                rec, err = encode_and_write(*item), None
+            except BaseException as exc:   # noqa: BLE001 — raised in the render thread
+                rec, err = None, exc
+            with self.done:
+                if rec is not None:
+                    self.records.append(rec)
+                elif self.error is None:
+                    self.error = err
+                self.pending -= 1
+                self.done.notify_all()
+
+    def put(self, *item) -> None:
+        with self.done:
+            if self.error is not None:
+                error, self.error = self.error, None
+                raise error
+            self.pending += 1
+        self.q.put(item)
+
+    def drain(self) -> list[dict]:
+        with self.done:
+            self.done.wait_for(lambda: self.pending == 0)
+            records, self.records = self.records, []
+            if self.error is not None:
+                error, self.error = self.error, None
+                raise error
+        return records
+
+    def close(self) -> None:
+        self.q.put(None)
+        self.thread.join()
+
+
+KIND = "process"     # "thread": every writer is a ThreadWriter
+
+
+def make_writer():
+    """A ProcessWriter, or a ThreadWriter where this process may not have children (a daemonic
+    process) or cannot start one, or KIND says so."""
+    import multiprocessing as mp
+
+    if KIND == "process" and not mp.current_process().daemon:
+        try:
+            return ProcessWriter()
+        except OSError as exc:
+            print(f"glsim library: no writer process ({exc}); encoding on a thread instead", file=sys.stderr)
+    return ThreadWriter()
