@@ -29,6 +29,7 @@ from glsim.scene.bilinear import bilinear
 from glsim.scene.camera import Camera, to_camera
 from glsim.effects import prepare as prepare_effects
 from glsim.stages.geometry import MeshGeometry
+from glsim.io.images import quantize as quantize_image
 from glsim.io.truth import Truth, pixel_positions
 from glsim.stages.quadview import fast_local_coords as quadratic_fast_coords
 from glsim.stages.view import View, coverage, make_view, warn_unseen
@@ -43,7 +44,8 @@ QUADRATIC_FAST_PIECES = 4   # fast mode: n × n linear pieces per quadratic elem
 
 @dataclass(frozen=True, eq=False)
 class Result:
-    """One rendered image: float32 (H, W) grey levels in [0, 1] of full scale."""
+    """One rendered image: float32 (H, W) grey levels in [0, 1] of full scale (quantised: the
+    camera's integers, see :meth:`Renderer.render`)."""
     image: np.ndarray
     camera: Camera
     step: int
@@ -69,7 +71,7 @@ class Result:
     @functools.cached_property
     def saturated(self) -> float:
         """Fraction of the specimen's pixels below 0 or above full scale (clipped when quantised)."""
-        return _saturated(self.image, self.coverage)
+        return _saturated(self.image, self.coverage, self.camera.bit_depth)
 
 
 class Renderer:
@@ -149,8 +151,12 @@ class Renderer:
             self._geometry = MeshGeometry(self.drawn_mesh, self.reference.camera)
         return self._geometry
 
-    def render(self, camera: int | str = 0, step: int = 0, truth: bool = False, **options) -> Result:
+    def render(self, camera: int | str = 0, step: int = 0, truth: bool = False, quantize: bool = False,
+               **options) -> Result:
         """Render one image. ``options`` override the scene's [render] table (mode, …).
+        ``quantize``: the image as the camera writes it (:func:`glsim.io.images.quantize` at its
+        bit depth: uint8, or uint16 for 10–16 bits), quantised on the GPU where it can be exactly
+        (GL with float64), else in numpy — the same bits either way.
 
         Both backends take the same request (glsim.backends.contract): the view as a
         :class:`ViewSpec` (the camera's transform; the mesh and the step's nodes are shared),
@@ -165,14 +171,15 @@ class Renderer:
         fx = prepare_effects(self.scene, deformed, self.drawn_mesh.quads, cam, self.scene.cameras.index(cam), step,
                              depths, normals=not self.backend.capabilities.device_geometry)
         curved = Curved(self.mesh, self.pieces, step) if self.mesh.is_quadratic and opts.mode != "fast" else None
-        out = self.backend.render(Request(view, opts, truth, fx, curved))
+        out = self.backend.render(Request(view, opts, truth, fx, curved, cam.bit_depth if quantize else None))
+        image = quantize_image(out.image, cam.bit_depth) if quantize and out.image.dtype.kind == "f" else out.image
         seconds = time.perf_counter() - t0
         tr = None
         if truth and self.mesh.is_quadratic:   # the raster of the patches (fast: of the pieces, mapped here)
             tr = self._quadratic_truth(out.samples if curved else self._fast_to_patches(out.samples), step, cam)
         elif truth:
             tr = self._truth(cam.size, deformed, out.samples)
-        return Result(image=out.image, camera=cam, step=step, backend=self.backend_name,
+        return Result(image=image, camera=cam, step=step, backend=self.backend_name,
                       options=opts, seconds=seconds, truth=tr, stages=out.stages,
                       specimen=self._specimen(cam, deformed, self.drawn_mesh.quads))
 
@@ -223,13 +230,17 @@ class Renderer:
                                                               to_camera(evaluate(deformed, e, x, y), cam1))))
 
 
-def _saturated(image: np.ndarray, covered: np.ndarray) -> float:
-    """Fraction of the specimen's pixels (``covered``) below 0 or above full scale; the background
-    is not counted (the extremes first: most images have none)."""
+def _saturated(image: np.ndarray, covered: np.ndarray, bit_depth: int) -> float:
+    """Fraction of the specimen's pixels (``covered``) below 0 or above full scale — of a
+    quantised image, at 0 or 2^bits − 1 —; the background is not counted (the extremes first:
+    most images have none)."""
+    lo, hi = (0, (1 << bit_depth) - 1) if image.dtype.kind == "u" else (0.0, 1.0)
     n = np.count_nonzero(covered)
-    if n == 0 or (image.min() >= 0 and image.max() <= 1):
+    inside = (image > lo) & (image < hi) if image.dtype.kind == "u" else None
+    if n == 0 or (inside is None and image.min() >= lo and image.max() <= hi):
         return 0.0
-    return float(np.count_nonzero(((image < 0) | (image > 1)) & covered) / n)
+    clipped = ~inside if inside is not None else (image < lo) | (image > hi)
+    return float(np.count_nonzero(clipped & covered) / n)
 
 
 def render(scene: Scene, camera: int | str = 0, step: int = 0, backend: str | None = None,

@@ -51,17 +51,21 @@ class Curved:
 @dataclass(frozen=True)
 class Request:
     """One image to render: ``view`` (one camera, one step), ``options`` (the scene's [render]),
-    ``truth`` (also the pixel-centre raster), ``effects`` (what the scene asks for), ``curved``."""
+    ``truth`` (also the pixel-centre raster), ``effects`` (what the scene asks for), ``curved``,
+    ``quantize`` (a bit depth: the image may come back quantised as glsim.io.images.quantize
+    does, where the backend can do that exactly)."""
     view: ViewSpec
     options: Render
     truth: bool = False
     effects: Effects = field(default_factory=Effects)
     curved: Curved | None = None
+    quantize: int | None = None
 
 
 @dataclass(frozen=True, eq=False)
 class Raster:
-    """A backend's answer: ``image`` float32 (H, W) in [0, 1] of full scale; ``samples``, if the
+    """A backend's answer: ``image`` float32 (H, W) in [0, 1] of full scale, or quantised if the
+    request asked for it (uint8 / uint16); ``samples``, if the
     request asked for truth, the pixel-centre raster as flat arrays over H·W — ``element`` (−1
     where none; the quadratic patch when curved, else the view's element), ``xi``, ``eta``
     (float64, polished: glsim.stages.truth.polish), ``ref_uv`` (px); ``stages`` run (STAGES)."""

@@ -19,11 +19,16 @@ TRUTH_FORMATS = ("npz", "tiff", "tiff64", "vtk")   # tiff: float32 maps; tiff64:
 def quantize(image: np.ndarray, bit_depth: int) -> np.ndarray:
     """Grey levels in [0, 1] of full scale → integers 0 … 2^bits − 1 (round half to even, clipped).
 
-    8-bit images are uint8; 10/12/16-bit images are uint16 holding 0 … 2^bits − 1.
+    8-bit images are uint8; 10/12/16-bit images are uint16 holding 0 … 2^bits − 1. An image
+    already quantised (``Renderer.render(..., quantize=True)``: unsigned integers of that type) is
+    returned as it is.
     """
+    dtype = np.uint8 if bit_depth == 8 else np.uint16
+    if getattr(image, "dtype", None) == dtype:
+        return image
     top = (1 << bit_depth) - 1
     q = np.clip(np.rint(np.asarray(image, np.float64) * top), 0, top)
-    return q.astype(np.uint8 if bit_depth == 8 else np.uint16)
+    return q.astype(dtype)
 
 
 def _image_file(tmp: Path, data: np.ndarray, fmt: str) -> None:

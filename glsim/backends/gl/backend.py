@@ -178,12 +178,13 @@ class GLBackend:
         if c is not None:
             patches = patch_data(c.mesh, c.pieces, c.step, v, opts.mode, self._curved.setdefault(id(c.mesh), {}))
         with self.ctx:   # current on this thread for the render (another context may have been made current)
-            image, raster, stages = self._render_view(v, opts, request.truth, request.effects, patches)
+            image, raster, stages = self._render_view(v, opts, request.truth, request.effects, patches,
+                                                      request.quantize if self.fp64 else None)
         if raster is not None and c is not None:
             raster = pieces_to_patches(raster, c.mesh, c.pieces, c.step, v.camera, opts.mode)
         return Raster(image, raster, tuple(stages))
 
-    def _render_view(self, view: ViewSpec, opts, truth: bool, fx, patches):
+    def _render_view(self, view: ViewSpec, opts, truth: bool, fx, patches, quantize: int | None = None):
         s = opts.supersampling
         W, H = view.camera.size
         color, raster = self._deform(view, opts, s, truth and s == 1, fx, patches)
@@ -201,7 +202,7 @@ class GLBackend:
             grey = self.noise_pass(grey, fx.noise, fx.bit_depth, fx.noise_seed, fx.variance)
             temps.append(grey)
             stages.append("noise")
-        image = self.read(grey)
+        image = self.quantize_pass(grey, quantize) if quantize else self.read(grey)
         for t in temps:
             t.release()
         if truth and s > 1:
@@ -452,13 +453,13 @@ class GLBackend:
         return self._rays[key]
 
     def fullscreen_pass(self, frag: str, defines: dict, inputs: dict, uniforms: dict, size: tuple[int, int],
-                        components: tuple[int, ...] = (1,), into=None):
+                        components: tuple[int, ...] = (1,), into=None, dtype: str = "f4"):
         """Run a full-screen fragment pass into a new R32F texture of ``size`` (W, H); the
         caller releases it. ``inputs`` maps sampler names to textures or float arrays (H, W)
-        (arrays are uploaded for the pass and released after it). ``components``: one float
-        texture per fragment output with that many components (then a tuple is returned).
-        ``into``: an existing texture to draw into instead (pixels the shader discards keep
-        their values); it is returned."""
+        (arrays are uploaded for the pass and released after it). ``components``: one texture
+        per fragment output with that many components (then a tuple is returned), of moderngl
+        ``dtype``. ``into``: an existing texture to draw into instead (pixels the shader
+        discards keep their values); it is returned."""
         ctx = self.ctx
         W, H = size
         prog = self.programs.program("fullscreen.vert", frag, defines=defines)
@@ -475,7 +476,7 @@ class GLBackend:
         for name, value in uniforms.items():
             if name in prog:
                 prog[name].value = value
-        outs = [into] if into is not None else [ctx.texture((W, H), n, dtype="f4") for n in components]
+        outs = [into] if into is not None else [ctx.texture((W, H), n, dtype=dtype) for n in components]
         fbo = ctx.framebuffer(color_attachments=outs)
         fbo.use()
         fbo.viewport = (0, 0, W, H)
@@ -534,6 +535,19 @@ class GLBackend:
             return grey, None
         return grey, self.fullscreen_pass("downsample.frag", {"SS": s, "COVERED_MEAN": None, **skip},
                                           {"u_samples": depth}, {}, (W, H), into=into[-1])
+
+    def quantize_pass(self, grey, bit_depth: int) -> np.ndarray:
+        """shaders/quantize.frag on an R32F texture or (H, W) array: the image as
+        :func:`glsim.io.images.quantize` gives it (uint8, or uint16 for 10–16 bits), read back
+        in that type. Needs float64 (``self.fp64``)."""
+        H, W = grey.shape if isinstance(grey, np.ndarray) else grey.size[::-1]
+        dtype = np.uint8 if bit_depth == 8 else np.uint16
+        tex = self.fullscreen_pass("quantize.frag", {"FP64": None}, {"u_src": grey}, {"u_top": float((1 << bit_depth) - 1)},
+                                   (W, H), dtype="u1" if bit_depth == 8 else "u2")
+        out = np.empty((H, W), dtype)
+        tex.read_into(out)
+        tex.release()
+        return out
 
     def noise_pass(self, grey, params, bit_depth: int, seed: int, table=None):
         """noise.frag on an R32F texture or (H, W) array: grey + σ(grey)·z, the same field as
