@@ -601,7 +601,17 @@ def test_dry_run_prints_the_table_and_writes_nothing(tmp_path):
     assert lines[1].split() == ["variant", "noise.sigma", "speckle.seed", "images"]
     assert lines[2].split() == ["v0000", "0.5", "51", "4"]
     assert "estimated:" in r.stdout and "nothing was written" in r.stdout
+    assert "(measured here: v0000 cam0 step 0 renders in " in lines[-2] and "once per truth file: 4" in lines[-2]
     assert not out.exists()
+
+
+def test_the_dry_run_estimate_counts_truth_once_per_file_and_set_up_once_per_reference(tmp_path):
+    from glsim.workflows.library.cli import estimate
+    plan = load_plan(_spec(tmp_path, "steps = [0, 2]\n" + SCENE + "[vary]\nnoise.sigma = [0.5, 2.0]\n"))
+    m = {"job": plan.jobs[0], "setup_s": 1.0, "render_s": 0.1, "encode_s": 0.05, "truth_render_s": 0.2,
+         "truth_encode_s": 0.5, "image_bytes": 1000, "truth_bytes": 5000}
+    seconds, size = estimate(plan, m)       # 8 images, 4 truth files, one renderer: the writer's side is the longer
+    assert seconds == pytest.approx(1.0 + 4 * (0.05 + 0.5) + 4 * 0.1) and size == 8 * 1000 + 4 * 5000
 
 
 def test_camera_that_sees_no_specimen_warns_and_the_manifest_says_covered(tmp_path):

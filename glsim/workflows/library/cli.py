@@ -14,14 +14,6 @@ from pathlib import Path
 
 from glsim.errors import GlsimError
 
-# Rough cost model for --dry-run when no benchmark result is at hand: seconds per megapixel on
-# a 2-core llvmpipe machine (GL exact, 1 sample per pixel), and truth bytes per pixel for a
-# specimen covering about half the frame (the bulge). A measured bench/results/library.json
-# replaces the time figures.
-S_PER_MP = {"gl": 0.2, "cpu": 3.0}
-TRUTH_S_PER_MP = 1.2
-TRUTH_BYTES_PER_PX = {"float64": 3.4, "float32": 1.4}
-
 
 def parser() -> argparse.ArgumentParser:
     ap = argparse.ArgumentParser(prog="glsim library", description=__doc__,
@@ -64,45 +56,94 @@ def _cell(value) -> str:
     return text if any(c in text for c in ".eni") else text + ".0"
 
 
-def speedup(workers: int) -> float:
-    """Measured end-to-end speed-up of ``workers`` over one (bench/results/library.json), else
-    the worker count."""
+def measure(plan) -> dict:
+    """The spec's first image, measured on this machine (seconds, bytes): its variant's renderer
+    made and the image rendered once (``setup_s``: context, reference image, programs), then
+    rendered again without truth (``render_s``) and with it (``truth_render_s``: the extra),
+    the image encoded (``encode_s``, ``image_bytes``) and its truth (``truth_encode_s``,
+    ``truth_bytes``) as the writer does."""
+    import time
+    import warnings
+
+    from glsim.io import truth as truthio
+    from glsim.workflows.library import worker, writer
+
+    job = plan.jobs[0]
+    scene = plan.variant(job.variant).scene
+    clock = time.perf_counter
+    m = {"job": job, "truth_render_s": 0.0, "truth_encode_s": 0.0, "truth_bytes": 0}
     try:
-        rates = {w["workers"]: w["images_per_s"] for w in json.loads(BENCH.read_text())["workers"]}
-        return rates[workers] / rates[1]
-    except (OSError, ValueError, KeyError, TypeError, ZeroDivisionError):
-        return float(workers)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")      # the run warns where it matters
+            t0 = clock()
+            r = worker.renderer_for(scene)
+            r.render(job.camera, job.step)
+            t1 = clock()
+            res = r.render(job.camera, job.step)
+            t2 = clock()
+            data = writer.image_bytes(res.image, res.camera.bit_depth, scene.output.format)
+            truthio.sha256_bytes(data)
+            m.update(setup_s=t1 - t0, render_s=t2 - t1, encode_s=clock() - t2, image_bytes=len(data))
+            if plan.truth:
+                t0 = clock()
+                t = r.render(job.camera, job.step, truth=True).truth
+                t1 = clock()
+                tdata = truthio.encode_compact(t.element, t.xi, t.eta, {}, plan.truth_dtype)
+                m.update(truth_render_s=max(t1 - t0 - m["render_s"], 0.0), truth_encode_s=clock() - t1,
+                         truth_bytes=len(tdata))
+    finally:
+        worker.release()
+    return m
 
 
-BENCH = Path("bench/results/library.json")
+def estimate(plan, m: dict) -> tuple[float, int]:
+    """(seconds on one worker, bytes) of ``plan`` from :func:`measure`'s figures ``m``, scaled
+    by each image's pixels × samples per pixel: per image the render and, beside it in the
+    writer process, the encoding (the longer of the two counts); the truth's render and encoding
+    once per truth file; the set-up once per new reference image (a renderer change)."""
+    from glsim.workflows.library.spec import reference_key
 
-
-def estimate(plan) -> tuple[float, int, str]:
-    """(seconds, bytes, where the time figures come from) for rendering ``plan`` on one worker."""
-    per_mp, truth_mp, source = dict(S_PER_MP), TRUTH_S_PER_MP, "a 2-core llvmpipe machine (built-in figures)"
-    bench = BENCH
-    try:
-        b = json.loads(bench.read_text())
-        mp = b["config"]["width"] * b["config"]["height"] / 1e6
-        per_mp["gl"] = b["render_only"]["seconds_per_image"] / mp
-        truth_mp = max(b["end_to_end_truth"]["seconds_per_image"] - b["end_to_end_images"]["seconds_per_image"], 0) / mp
-        source = f"{bench} ({b['machine']['cpu']}, {b['machine']['gl']['renderer']})"
-    except (OSError, ValueError, KeyError, TypeError, ZeroDivisionError):
-        pass
-    seconds, size = 0.0, 0
+    first = plan.variant(m["job"].variant).scene
+    cam0 = first.camera(m["job"].camera)
+    unit = cam0.width * cam0.height
+    seconds, size, truths, refs, last = 0.0, 0, set(), {}, None
     for j in plan.jobs:
         scene = plan.variant(j.variant).scene
         cam = scene.camera(j.camera)
-        px = cam.width * cam.height
-        r = scene.render
-        t = per_mp.get(r.backend, per_mp["gl"]) * px / 1e6 * (1 + 0.85 * (r.samples_per_pixel - 1))
-        t *= 1 + 0.33 * sum(x is not None for x in (scene.lighting, scene.optics))
-        if j.truth:
-            t += truth_mp * px / 1e6
-            size += int(TRUTH_BYTES_PER_PX[plan.truth_dtype] * px)
-        seconds += t
-        size += px * (1 if cam.bit_depth == 8 else 2) + 400
-    return seconds, size, source
+        px = cam.width * cam.height / unit
+        k = px * scene.render.samples_per_pixel / first.render.samples_per_pixel
+        if j.variant not in refs:
+            refs[j.variant] = reference_key(scene, scene.render.backend)
+        if refs[j.variant] != last:
+            seconds, last = seconds + m["setup_s"], refs[j.variant]
+        render, encode = m["render_s"] * k, m["encode_s"] * k
+        if j.truth and j.truth not in truths:
+            truths.add(j.truth)
+            render, encode = render + m["truth_render_s"] * k, encode + m["truth_encode_s"] * k
+            size += int(m["truth_bytes"] * px)
+        seconds += max(render, encode)
+        size += int(m["image_bytes"] * px)
+    return seconds, size
+
+
+def _estimate_line(plan, scale: float, workers: int) -> str:
+    """The dry run's estimate, from the first image measured here (:func:`measure`), or why not."""
+    from glsim.workflows.library.worker import gpus
+
+    try:
+        m = measure(plan)
+    except (GlsimError, RuntimeError, OSError, ValueError) as exc:
+        return f"estimated: not measured — the first image did not render here ({type(exc).__name__}: {exc})"
+    seconds, size = (x * scale for x in estimate(plan, m))
+    j, g = m["job"], len(gpus())
+    truth = (f", +{m['truth_render_s']:.3g} s with truth, encoded in {m['truth_encode_s']:.3g} s (once per truth "
+             f"file: {len({job.truth for job in plan.jobs}) * scale:.0f})") if plan.truth else ""
+    more = ("" if workers == 1 else f"; about {_duration(seconds / min(workers, g))} with {workers} workers on {g} GPUs"
+            if g > 1 else f"; {workers} workers share {'one GPU' if g else 'the cores llvmpipe renders on'}: "
+            "expect little gain")
+    return (f"estimated: {_size(size)} on disk; {_duration(seconds)} on one worker{more} (measured here: {j.variant} "
+            f"{j.camera} step {j.step} renders in {m['render_s']:.3g} s{truth}; the image is encoded in "
+            f"{m['encode_s']:.3g} s beside the next render; set-up {m['setup_s']:.3g} s per new reference image)")
 
 
 def _size(n: float) -> str:
@@ -151,17 +192,13 @@ def main(argv: list[str] | None = None) -> int:
             out = Path(args.output) if args.output else src.with_suffix("")
         if args.dry_run:
             scale = plan.n_variants / len(plan.variants)     # > 1: only the tabulated variants were built
-            seconds, size, source = estimate(plan)
-            seconds, size = seconds * scale, size * scale
             images = round(len(plan.jobs) * scale)
             print(f"{plan.n_variants} variants, {'about ' * plan.sampled}{images} images (cameras "
                   f"{', '.join(plan.cameras)}; steps {', '.join(map(str, plan.steps))}), truth "
                   f"{plan.truth_dtype if plan.truth else 'off'}"
                   + (f"; the {len(plan.variants)} variants shown were checked, the run checks all" * plan.sampled))
             print(_table(plan))
-            w = args.workers or runner.default_workers()
-            print(f"estimated: {_size(size)} on disk; {_duration(seconds)} on one worker, about "
-                  f"{_duration(seconds / max(1.0, speedup(min(w, images))))} with {w} (rough: from {source})")
+            print(_estimate_line(plan, scale, args.workers or runner.default_workers()))
             print("dry run: nothing was written")
             return 0
         summary = runner.run(plan, out, workers=args.workers, scheduler=args.scheduler, force=args.force,
