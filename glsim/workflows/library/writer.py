@@ -4,14 +4,14 @@ moderngl holds the GIL through every GL call, so a writer *thread* beside the re
 overlaps little of the encoding. Each render thread therefore hands its images to a writer
 *process* (:class:`ProcessWriter`, made once per thread and kept across tasks): the image,
 its coverage mask and its compact truth are copied into one of ``SLOTS`` shared-memory blocks
-(:mod:`multiprocessing.shared_memory`), a small message names the block, and the writer
-quantises, encodes (TIFF/PNG, compact truth), hashes and writes them while the next image
-renders. A render waits for a free block (back-pressure: at most ``SLOTS`` images in flight);
-the writer's first error is raised in the render thread, at the next :meth:`~ProcessWriter.put`
-or at :meth:`~ProcessWriter.drain`. The bytes are :func:`encode_and_write`'s, which the thread
-writer (:class:`ThreadWriter`, where no child process can be made: a daemonic process such as
-a default Dask worker) runs as well. The writer process ends with its parent
-(:mod:`.lifeline`); on SIGTERM a write in progress removes its temporaries.
+(anonymous memory files), a small message names the block, and the writer quantises, encodes
+(TIFF/PNG, compact truth), hashes and writes them while the next image renders. A render waits
+for a free block (back-pressure: at most ``SLOTS`` images in flight); the writer's first error
+is raised in the render thread, at the next :meth:`~ProcessWriter.put` or at
+:meth:`~ProcessWriter.drain`. The bytes are :func:`encode_and_write`'s, which the thread writer
+(:class:`ThreadWriter`, where no writer process can be started: not Linux) runs as well. The
+writer process ends with its parent (:mod:`.lifeline`); on SIGTERM a write in progress removes
+its temporaries.
 
 This module imports no GL and no renderer: the writer process starts in well under a second.
 """
@@ -100,23 +100,37 @@ def encode_and_write(out: str, job: dict, image: np.ndarray, mask: np.ndarray, t
 # ---- the writer process ---------------------------------------------------------------------------
 
 class ProcessWriter:
-    """A writer process fed through ``slots`` shared-memory blocks (see the module text)."""
+    """A writer process fed through ``slots`` shared-memory blocks (see the module text).
+
+    The process is a fresh interpreter running this module (``python -m``, not a
+    multiprocessing child: nothing of the caller's ``__main__`` is imported again, so a script
+    without an ``if __name__ == "__main__"`` guard works, and a daemonic process may start
+    it); messages go through two pipes (:class:`multiprocessing.connection.Connection`); each
+    block is an anonymous memory file (``memfd_create``, Linux), which the writer maps through
+    ``/proc/PID/fd`` — no name to leak whatever ends the processes."""
 
     def __init__(self, slots: int = SLOTS):
-        import multiprocessing as mp
+        import subprocess
+        from multiprocessing.connection import Connection
 
-        ctx = mp.get_context("spawn")
-        self.conn, child = ctx.Pipe()
-        self.proc = ctx.Process(target=serve, args=(child, os.getpid()), name="glsim-library-writer", daemon=True)
-        self.proc.start()
-        child.close()
-        self.blocks: list = [None] * slots
+        if not hasattr(os, "memfd_create") or not os.path.isdir(f"/proc/{os.getpid()}/fd"):
+            raise OSError("no memfd_create or /proc (Linux only)")
+        down, up = os.pipe(), os.pipe()
+        env = dict(os.environ, PYTHONPATH=os.pathsep.join(p for p in sys.path if p))
+        self.proc = subprocess.Popen([sys.executable, "-m", __name__, str(down[0]), str(up[1]), str(os.getpid())],
+                                     pass_fds=(down[0], up[1]), stdin=subprocess.DEVNULL, env=env)
+        os.close(down[0])
+        os.close(up[1])
+        self.conn = Connection(down[1], readable=False)
+        self.replies = Connection(up[0], writable=False)
+        self.blocks: list = [None] * slots          # (serial, fd, mmap) per slot
+        self.serial = 0
         self.free = list(range(slots))
         self.records: list[dict] = []
         self.error: BaseException | None = None
 
     def alive(self) -> bool:
-        return self.proc.is_alive()
+        return self.proc.poll() is None
 
     def put(self, out: str, job: dict, image, mask, truth, header, dtype: str, render_s: float) -> None:
         """Hand one image over (arguments as :func:`encode_and_write`); waits for a free block."""
@@ -131,25 +145,33 @@ class ProcessWriter:
             layout.append((name, a.dtype.str, a.shape, size))
             size += -(-a.nbytes // ALIGN) * ALIGN
         slot = self.free.pop()
-        block = self._block(slot, size)
+        serial, fd, block = self._block(slot, size)
         for (name, dt, shape, offset), a in zip(layout, arrays.values()):
-            np.ndarray(shape, dt, buffer=block.buf, offset=offset)[...] = a
-        self.conn.send((slot, block.name, layout, (out, job, header, dtype, render_s)))
+            np.ndarray(shape, dt, buffer=block, offset=offset)[...] = a
+        self.conn.send((slot, (serial, fd, len(block)), layout, (out, job, header, dtype, render_s)))
 
     def _block(self, slot: int, size: int):
-        from multiprocessing.shared_memory import SharedMemory
+        import mmap
 
         b = self.blocks[slot]
-        if b is None or b.size < size:     # free: the writer is done with it
-            if b is not None:
-                b.close()
-                b.unlink()
-            b = self.blocks[slot] = SharedMemory(create=True, size=max(size, ALIGN))
+        if b is None or len(b[2]) < size:     # free: the writer is done with it
+            self._drop(slot)
+            fd = os.memfd_create(f"glsim-writer-{slot}", os.MFD_CLOEXEC)
+            os.ftruncate(fd, max(size, ALIGN))
+            self.serial += 1
+            b = self.blocks[slot] = (self.serial, fd, mmap.mmap(fd, max(size, ALIGN)))
         return b
+
+    def _drop(self, slot: int) -> None:
+        if self.blocks[slot] is not None:
+            _, fd, block = self.blocks[slot]
+            block.close()
+            os.close(fd)
+            self.blocks[slot] = None
 
     def _receive(self) -> None:
         try:
-            status, slot, payload = self.conn.recv()
+            status, slot, payload = self.replies.recv()
         except (EOFError, OSError):
             self.free = list(range(len(self.blocks)))
             raise WriterDied(f"the library's writer process (pid {self.proc.pid}) ended while images were being "
@@ -179,66 +201,63 @@ class ProcessWriter:
             self.conn.send(None)
         except OSError:
             pass
-        self.proc.join(5)
-        if self.proc.is_alive():
+        try:
+            self.proc.wait(5)
+        except Exception:    # noqa: BLE001 — subprocess.TimeoutExpired
             self.proc.kill()
-            self.proc.join(5)
-        for b in self.blocks:
-            if b is not None:
-                b.close()
-                try:
-                    b.unlink()
-                except FileNotFoundError:    # removed by a writer that was terminated
-                    pass
-        self.blocks = [None] * len(self.blocks)
+            self.proc.wait(5)
+        for slot in range(len(self.blocks)):
+            self._drop(slot)
+        self.conn.close()
+        self.replies.close()
 
 
 def _stop(signum, frame):
     raise SystemExit(128 + signum)     # a write in progress removes its temporaries (atomic_paths)
 
 
-def serve(conn, parent: int) -> None:
-    """The writer process: for each message (slot, block name, layout, arguments) run
+def serve(conn, replies, parent: int) -> None:
+    """The writer process: for each message (slot, block, layout, arguments) run
     :func:`encode_and_write` on the arrays in that block and answer ("ok", slot, record) or
-    ("error", slot, exception); end at None, or when the parent ends or on SIGTERM (then the
-    blocks, which the parent may no longer be there to remove, are removed here)."""
-    from multiprocessing.shared_memory import SharedMemory
+    ("error", slot, exception) on ``replies``; end at None, when the parent ends, or on SIGTERM."""
+    import mmap
 
     from glsim.workflows.library.lifeline import die_with_parent
 
     signal.signal(signal.SIGINT, signal.SIG_IGN)       # Ctrl-C is the parent's to handle
     signal.signal(signal.SIGTERM, _stop)
     die_with_parent(parent)
-    blocks: dict[int, SharedMemory] = {}
-    closed = False          # by the parent's None: then the parent removes the blocks
+    blocks: dict[int, tuple] = {}                      # slot → (serial, mmap)
     try:
         while (msg := conn.recv()) is not None:
-            slot, name, layout, args = msg
-            if slot not in blocks or blocks[slot].name.lstrip("/") != name.lstrip("/"):
+            slot, (serial, fd, size), layout, args = msg
+            if blocks.get(slot, (None,))[0] != serial:
                 if slot in blocks:
-                    blocks[slot].close()
-                blocks[slot] = SharedMemory(name)
-            buf = blocks[slot].buf
-            a = {k: np.ndarray(shape, dt, buffer=buf, offset=off) for k, dt, shape, off in layout}
+                    blocks[slot][1].close()
+                f = os.open(f"/proc/{parent}/fd/{fd}", os.O_RDWR)
+                try:
+                    blocks[slot] = (serial, mmap.mmap(f, size))
+                finally:
+                    os.close(f)
+            a = {k: np.ndarray(shape, dt, buffer=blocks[slot][1], offset=off) for k, dt, shape, off in layout}
             out, job, header, dtype, render_s = args
             truth = (a["element"], a["xi"], a["eta"]) if "element" in a else None
             try:
                 reply = ("ok", slot, encode_and_write(out, job, a["image"], a["mask"], truth, header, dtype, render_s))
             except Exception as exc:   # noqa: BLE001 — sent to the render thread, which raises it
                 reply = ("error", slot, _portable(exc))
-            del a, truth, buf
-            conn.send(reply)
-        closed = True
+            del a, truth
+            replies.send(reply)
     except (EOFError, OSError):         # the parent died, or closed its end
         pass
-    finally:
-        for b in blocks.values():
-            b.close()
-            if not closed:    # the parent died or is dying (SIGTERM): remove the blocks and their tracker entries
-                try:
-                    b.unlink()
-                except FileNotFoundError:
-                    pass
+
+
+def main(argv=None) -> None:
+    """``python -m glsim.workflows.library.writer READ_FD WRITE_FD PARENT_PID`` (ProcessWriter starts it)."""
+    from multiprocessing.connection import Connection
+
+    rfd, wfd, parent = (int(a) for a in (sys.argv[1:] if argv is None else argv))
+    serve(Connection(rfd, writable=False), Connection(wfd, readable=False), parent)
 
 
 def _portable(exc: Exception) -> Exception:
@@ -310,13 +329,14 @@ KIND = "process"     # "thread": every writer is a ThreadWriter
 
 
 def make_writer():
-    """A ProcessWriter, or a ThreadWriter where this process may not have children (a daemonic
-    process) or cannot start one, or KIND says so."""
-    import multiprocessing as mp
-
-    if KIND == "process" and not mp.current_process().daemon:
+    """A ProcessWriter, or a ThreadWriter where none can be started (not Linux) or KIND says so."""
+    if KIND == "process":
         try:
             return ProcessWriter()
         except OSError as exc:
             print(f"glsim library: no writer process ({exc}); encoding on a thread instead", file=sys.stderr)
     return ThreadWriter()
+
+
+if __name__ == "__main__":
+    main()
