@@ -591,6 +591,23 @@ def test_the_writer_process_reports_a_file_it_cannot_write(reference_library, tm
     assert (s.written, s.kept) == (1, 15) and _files(lib) == _files(ref)
 
 
+def test_a_writer_process_that_died_is_an_error_not_a_hang(tmp_path):
+    from glsim.workflows.library import writer
+    w = writer.ProcessWriter()
+    job = {"variant": "v0", "camera": "c", "step": 0, "image": "a.tif", "truth": "", "format": "tiff", "bit_depth": 8}
+    image, mask = np.full((4, 5), 0.5, np.float32), np.ones((4, 5), bool)
+    w.put(str(tmp_path), job, image, mask, None, None, "float64", 0.0)
+    assert [r["file"] for r in w.drain()] == ["a.tif"] and (tmp_path / "a.tif").is_file()
+    w.proc.kill()
+    w.proc.wait()
+    with pytest.raises(writer.WriterDied, match="writer process .* ended while images were being written"):
+        for _ in range(3):                   # the dead end shows at a put or at the drain
+            w.put(str(tmp_path), {**job, "image": "b.tif"}, image, mask, None, None, "float64", 0.0)
+        w.drain()
+    w.close()
+    assert not w.alive()
+
+
 def test_dry_run_prints_the_table_and_writes_nothing(tmp_path):
     spec = _spec(tmp_path)
     out = tmp_path / "spec"

@@ -148,7 +148,15 @@ class ProcessWriter:
         serial, fd, block = self._block(slot, size)
         for (name, dt, shape, offset), a in zip(layout, arrays.values()):
             np.ndarray(shape, dt, buffer=block, offset=offset)[...] = a
-        self.conn.send((slot, (serial, fd, len(block)), layout, (out, job, header, dtype, render_s)))
+        try:
+            self.conn.send((slot, (serial, fd, len(block)), layout, (out, job, header, dtype, render_s)))
+        except OSError:
+            self._died()
+
+    def _died(self):
+        self.free = list(range(len(self.blocks)))
+        raise WriterDied(f"the library's writer process (pid {self.proc.pid}) ended while images were being "
+                         "written (killed, or out of memory) — run the same command again to resume") from None
 
     def _block(self, slot: int, size: int):
         import mmap
@@ -173,9 +181,7 @@ class ProcessWriter:
         try:
             status, slot, payload = self.replies.recv()
         except (EOFError, OSError):
-            self.free = list(range(len(self.blocks)))
-            raise WriterDied(f"the library's writer process (pid {self.proc.pid}) ended while images were being "
-                             "written (killed, or out of memory) — run the same command again to resume") from None
+            self._died()
         self.free.append(slot)
         if status == "ok":
             self.records.append(payload)
