@@ -34,11 +34,13 @@ def ctx_for(request):
 
 @pytest.fixture(autouse=True)
 def _gl_error_check(request):
-    """GL tests start and end with GL_NO_ERROR (moderngl's own tests do the same)."""
+    """GL tests start with the shared context current (a test before may have opened and closed
+    another) and start and end with GL_NO_ERROR (moderngl's own tests do the same)."""
     if request.node.get_closest_marker("gl") is None:
         yield
         return
     ctx = request.getfixturevalue("gl_ctx")
+    ctx.__enter__()
     assert ctx.error == "GL_NO_ERROR"
     yield
     assert ctx.error == "GL_NO_ERROR"

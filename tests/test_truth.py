@@ -5,6 +5,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from glsim.io.hashes import sha256_bytes
 from glsim.errors import GlsimError
 from glsim.io import truth as T
 from glsim.render import Renderer
@@ -71,7 +72,7 @@ def _compact(tmp_path, r: Renderer, camera, step, dtype="float64", **opts):
     g = T.geometry_bytes(arrays)
     (tmp_path / "g.npz").write_bytes(g)
     header = T.image_header(res.camera, r.scene.cameras[0], r.reference.camera, res.options.mode, step, "g.npz",
-                            T.sha256_bytes(g))
+                            sha256_bytes(g))
     t = res.truth
     path = tmp_path / f"{camera}_{step}.truth"
     path.write_bytes(T.encode(t.element, t.xi, t.eta, header, dtype))

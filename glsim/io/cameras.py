@@ -18,8 +18,12 @@ def camera_to_dict(cam: Camera) -> dict:
 
 
 def camera_from_dict(d: dict) -> Camera:
-    """The camera of a :func:`camera_to_dict` dict (or its JSON read back). A dict that is not one
-    raises TypeError, KeyError or ValueError (SceneError for a value the camera refuses)."""
+    """The camera of a :func:`camera_to_dict` dict (or its JSON read back; no "distortion" entry:
+    none). A dict that is not one raises TypeError, KeyError or ValueError (SceneError for a
+    value the camera refuses)."""
     d = dict(d)
-    d["distortion"] = Distortion(**d["distortion"])
+    d["distortion"] = Distortion(**d.get("distortion", {}))
+    d["size"] = tuple(d["size"])
+    d["R"] = tuple(tuple(r) for r in d["R"])
+    d["t"] = tuple(d["t"])
     return Camera(**d)

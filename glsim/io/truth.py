@@ -33,7 +33,6 @@ loader of :mod:`glsim.stages.reference`): no GL, no renderer.
 from __future__ import annotations
 
 import dataclasses
-import hashlib
 import json
 import os
 import struct
@@ -48,7 +47,8 @@ from glsim.errors import GlsimError, SceneError
 from glsim.io.images import EXTENSIONS
 from glsim.limits import check_image_size, not_a_file, parse_nested
 from glsim.scene.bilinear import bilinear, intersect_ray_patch
-from glsim.scene.camera import Camera, Distortion, pixel_to_normalized, project_camera_frame, to_camera, undistort
+from glsim.io.cameras import camera_from_dict, camera_to_dict
+from glsim.scene.camera import Camera, pixel_to_normalized, project_camera_frame, to_camera, undistort
 
 MAGIC = b"GLTRUTH1"
 FORMAT = "glsim-compact-truth"
@@ -135,21 +135,7 @@ def _zstd():
 
 # ---- cameras in the header ------------------------------------------------------------------------
 
-def camera_dict(cam: Camera) -> dict:
-    d = dataclasses.asdict(cam)
-    d["size"] = list(cam.size)
-    d["R"] = [list(r) for r in cam.R]
-    d["t"] = list(cam.t)
-    return d
-
-
-def camera_from_dict(d: dict) -> Camera:
-    d = dict(d)
-    d["distortion"] = Distortion(**d.get("distortion", {}))
-    d["size"] = tuple(d["size"])
-    d["R"] = tuple(tuple(r) for r in d["R"])
-    d["t"] = tuple(d["t"])
-    return Camera(**d)
+camera_dict = camera_to_dict   # (glsim.io.cameras: the one camera codec)
 
 
 # ---- geometry files -------------------------------------------------------------------------------
@@ -698,18 +684,6 @@ def load(path: str | Path, geometry: Geometry | None = None) -> CompactTruth | M
         raise TruthFileError(f"{path}: not a truth file of glsim render --truth ({exc}); give a *_truth.npz it "
                              "wrote, or a library's .truth file") from None
     return MapTruth(path, arrays)
-
-
-def sha256_bytes(data: bytes) -> str:
-    return hashlib.sha256(data).hexdigest()
-
-
-def sha256_file(path: str | Path, chunk: int = 1 << 20) -> str:
-    h = hashlib.sha256()
-    with open(path, "rb") as f:
-        while block := f.read(chunk):
-            h.update(block)
-    return h.hexdigest()
 
 
 def relpath(target: str | Path, start: str | Path) -> str:

@@ -116,31 +116,37 @@ class GLBackend:
         self.ctx.detect_framebuffer(0).use()
 
     def close(self) -> None:
-        with self.ctx:   # this context's objects, released in it
-            self._unbind()
-            for fbo, color, depth, grey_only, depth_only in self._targets.values():
-                fbo.release()
-                grey_only.release()
-                depth_only.release()
-                for t in color:
-                    t.release()
-                depth.release()
-            for tex in (*self._textures.values(), *self._rays.values(), *(self._dot_buffers or ())[:2]):
-                tex.release()
-            self._dot_buffers = None
-            for buf in self._patch_cache.values():
-                buf.release()
-            self._patch_cache.clear()
-            self._curved.clear()
-            self._targets.clear()
-            self._textures.clear()
-            self._rays.clear()
-            if self.geometry is not None:
-                self.geometry.release()
-                self.geometry = None
-            self.programs.release()
+        self._make_current()   # this context's objects, released in it
+        self._unbind()
+        for fbo, color, depth, grey_only, depth_only in self._targets.values():
+            fbo.release()
+            grey_only.release()
+            depth_only.release()
+            for t in color:
+                t.release()
+            depth.release()
+        for tex in (*self._textures.values(), *self._rays.values(), *(self._dot_buffers or ())[:2]):
+            tex.release()
+        self._dot_buffers = None
+        for buf in self._patch_cache.values():
+            buf.release()
+        self._patch_cache.clear()
+        self._curved.clear()
+        self._targets.clear()
+        self._textures.clear()
+        self._rays.clear()
+        if self.geometry is not None:
+            self.geometry.release()
+            self.geometry = None
+        self.programs.release()
         if self._own_ctx:
             self.ctx.release()
+
+    def _make_current(self) -> None:
+        """Make this backend's context current on this thread (another context may have been
+        made current since, and the programs are shared per context). Left current: EGL's
+        "exit" would leave no context current at all."""
+        self.ctx.__enter__()
 
     def pass_times(self):
         """A context manager timing each pass of the renders in its block on its own
@@ -177,9 +183,9 @@ class GLBackend:
         patches = None
         if c is not None:
             patches = patch_data(c.mesh, c.pieces, c.step, v, opts.mode, self._curved.setdefault(id(c.mesh), {}))
-        with self.ctx:   # current on this thread for the render (another context may have been made current)
-            image, raster, stages = self._render_view(v, opts, request.truth, request.effects, patches,
-                                                      request.quantize if self.fp64 else None)
+        self._make_current()
+        image, raster, stages = self._render_view(v, opts, request.truth, request.effects, patches,
+                                                  request.quantize if self.fp64 else None)
         if raster is not None and c is not None:
             raster = pieces_to_patches(raster, c.mesh, c.pieces, c.step, v.camera, opts.mode)
         return Raster(image, raster, tuple(stages))

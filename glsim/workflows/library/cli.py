@@ -12,6 +12,7 @@ import json
 import sys
 from pathlib import Path
 
+from glsim.io.hashes import sha256_bytes
 from glsim.errors import GlsimError
 
 
@@ -82,7 +83,7 @@ def measure(plan) -> dict:
             res = r.render(job.camera, job.step)
             t2 = clock()
             data = writer.image_bytes(res.image, res.camera.bit_depth, scene.output.format)
-            truthio.sha256_bytes(data)
+            sha256_bytes(data)
             m.update(setup_s=t1 - t0, render_s=t2 - t1, encode_s=clock() - t2, image_bytes=len(data))
             if plan.truth:
                 t0 = clock()

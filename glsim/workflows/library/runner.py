@@ -35,6 +35,7 @@ import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from glsim.io.hashes import sha256_bytes, sha256_file
 from glsim.errors import GlsimError
 from glsim.io import images as io
 from glsim.io import outdir
@@ -183,7 +184,7 @@ def _write_setup(out: Path, plan: Plan, fingerprint: str) -> dict:
             arrays = truthio.geometry_arrays(mesh.nodes, mesh.quads, {s: mesh.displacements[s] for s in steps},
                                              mesh.element_labels)
             data = truthio.geometry_bytes(arrays)
-            sha = truthio.sha256_bytes(data)
+            sha = sha256_bytes(data)
             rel = f"{mf.GEOMETRY_DIR}/{sha[:16]}.npz"
             _write_if_changed(out / rel, data)
             geometry[key] = (rel, sha)
@@ -206,7 +207,7 @@ def sweep_temporaries(out: Path) -> int:
 
 def _file_ok(path: Path, size: int, sha: str) -> bool:
     try:
-        return path.stat().st_size == size and truthio.sha256_file(path) == sha
+        return path.stat().st_size == size and sha256_file(path) == sha
     except OSError:
         return False
 
@@ -242,7 +243,7 @@ def _truth_status(out: Path, path: str, rows: list) -> tuple[int, str] | None:
         return (row["truth_bytes"], row["truth_sha256"]) if ok else None
     try:
         truthio.read(out / path).xi            # the header, the element map and (ξ, η) decode
-        return (out / path).stat().st_size, truthio.sha256_file(out / path)
+        return (out / path).stat().st_size, sha256_file(out / path)
     except (GlsimError, OSError):
         return None
 
@@ -624,6 +625,6 @@ def verify(out: str | Path) -> tuple[int, list[str]]:
         if geo in seen:
             continue
         seen.add(geo)
-        if not geo.is_file() or truthio.sha256_file(geo) != t.header["geometry_sha256"]:
+        if not geo.is_file() or sha256_file(geo) != t.header["geometry_sha256"]:
             lines.append(f"{geo}: geometry file missing or fails its SHA-256")
     return len(good), lines

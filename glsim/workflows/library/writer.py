@@ -28,6 +28,7 @@ from pathlib import Path
 
 import numpy as np
 
+from glsim.io.hashes import sha256_bytes
 from glsim.errors import GlsimError
 from glsim.io import images as io
 from glsim.io import truth as truthio
@@ -81,14 +82,14 @@ def encode_and_write(out: str, job: dict, image: np.ndarray, mask: np.ndarray, t
     t0 = time.perf_counter()
     data = image_bytes(image, job["bit_depth"], job["format"])
     rec = {"variant": job["variant"], "camera": job["camera"], "step": job["step"], "file": job["image"],
-           "bytes": len(data), "sha256": truthio.sha256_bytes(data), "truth_file": job["truth"],
+           "bytes": len(data), "sha256": sha256_bytes(data), "truth_file": job["truth"],
            "truth_bytes": 0, "truth_sha256": "", "render_s": render_s, "saturated": saturated(image, mask),
            "covered": float(mask.mean()) if mask.size else 0.0}
     t1 = time.perf_counter()
     files = []
     if truth is not None:
         tdata = truthio.encode_compact(*truth, header, dtype)
-        rec["truth_bytes"], rec["truth_sha256"] = len(tdata), truthio.sha256_bytes(tdata)
+        rec["truth_bytes"], rec["truth_sha256"] = len(tdata), sha256_bytes(tdata)
         files.append((Path(out) / job["truth"], tdata))
     t2 = time.perf_counter()
     files.append((Path(out) / job["image"], data))
