@@ -232,8 +232,9 @@ class GLBackend:
             self._set(p, "u_intr", cam.intrinsics, double)
             self._set(p, "u_dist", cam.distortion.coeffs, double)
             self._set(p, "u_valid_r2", [cam.distortion.valid_radius() ** 2], double)
-            if patches is not None:
-                self._set(p, "u_extra_sag", [patches.extra_sag_px], double)
+            # every uniform set on every use: programs are shared per context, so a value left by
+            # another renderer (a quadratic mesh's sag) must not carry over
+            self._set(p, "u_extra_sag", [patches.extra_sag_px if patches is not None else 0.0], double)
 
         dropped = ctx.buffer(bytes(4))  # deform.frag counts samples mapping outside the reference
         buffers = [dropped]
