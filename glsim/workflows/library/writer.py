@@ -257,6 +257,8 @@ def serve(conn, replies, parent: int) -> None:
             replies.send(reply)
     except (EOFError, OSError):         # the parent died, or closed its end
         pass
+    finally:   # nothing in progress now: a SIGTERM during the interpreter's shutdown ends it quietly
+        signal.signal(signal.SIGTERM, lambda signum, frame: os._exit(128 + signum))
 
 
 def main(argv=None) -> None:
