@@ -232,15 +232,15 @@ class Renderer:
 
 def _saturated(image: np.ndarray, covered: np.ndarray, bit_depth: int) -> float:
     """Fraction of the specimen's pixels (``covered``) below 0 or above full scale — of a
-    quantised image, at 0 or 2^bits − 1 —; the background is not counted (the extremes first:
-    most images have none)."""
-    lo, hi = (0, (1 << bit_depth) - 1) if image.dtype.kind == "u" else (0.0, 1.0)
+    quantised image, at 0 or 2^bits − 1 —; the background is not counted."""
     n = np.count_nonzero(covered)
-    inside = (image > lo) & (image < hi) if image.dtype.kind == "u" else None
-    if n == 0 or (inside is None and image.min() >= lo and image.max() <= hi):
+    if image.dtype.kind == "u":
+        clipped = (image == 0) | (image == (1 << bit_depth) - 1)
+    elif n and (image.min() < 0 or image.max() > 1):   # (the extremes first: most images have none)
+        clipped = (image < 0) | (image > 1)
+    else:
         return 0.0
-    clipped = ~inside if inside is not None else (image < lo) | (image > hi)
-    return float(np.count_nonzero(clipped & covered) / n)
+    return float(np.count_nonzero(clipped & covered) / n) if n else 0.0
 
 
 def render(scene: Scene, camera: int | str = 0, step: int = 0, backend: str | None = None,

@@ -35,6 +35,11 @@ from glsim.backends.gl.plan import BLUR_PASSES, newton_subsamples, plan
 from glsim.backends.gl.programs import ProgramCache
 
 
+def _ray_key(cam, s: int, kind: str) -> tuple:
+    """The ray map cache's key: the camera model, supersampling and kind (GLBackend._ray_map)."""
+    return cam.size, tuple(cam.intrinsics), tuple(cam.distortion.coeffs), s, kind
+
+
 def pack_pairs(c: np.ndarray) -> np.ndarray:
     """(H, W) → (H, W, 4): texel (i, j) holds c at columns i, i + 1 of rows j and j + 1 (the last
     column and row repeated), so interp.glsl reads four taps per fetch."""
@@ -398,7 +403,7 @@ class GLBackend:
         elements, local = np.unique(raster["element"][hit], return_inverse=True)
         sub = np.full(len(hit), -1, np.int64)
         sub[hit] = local
-        key = (view.camera.size, tuple(view.camera.intrinsics), tuple(view.camera.distortion.coeffs), 1, "bits")
+        key = _ray_key(view.camera, 1, "bits")
         xn = (np.frombuffer(self._rays[key].read(), np.float64).reshape(H * W, 2)
               if mode == "exact" and fp64 and key in self._rays else None)
         out = truth.polish(view.subset(elements), mode, dict(raster, element=sub), xn)
@@ -435,7 +440,7 @@ class GLBackend:
         """Cached per camera model, supersampling and ``kind`` (shaders/rays.frag): (W·s)×(H·s)
         undistorted rays, "bits" as float64 pairs (RGBA32UI), "split" as float32 hi + lo made in
         float64, "float" in float32 (RGBA32F)."""
-        key = (cam.size, tuple(cam.intrinsics), tuple(cam.distortion.coeffs), s, kind)
+        key = _ray_key(cam, s, kind)
         if key not in self._rays:
             W, H = cam.size
             fp64 = kind != "float"
