@@ -441,6 +441,129 @@ class Noise:
               "is required by the heteroscedastic model", "give a CSV of grey level;variance")
 
 
+PSF_KINDS = ("gaussian", "airy", "image")
+
+
+@dataclass(frozen=True)
+class Psf:
+    """The lens point-spread function, convolved with the irradiance after pixel integration and
+    depth of field, before noise (docs/camera.md). ``gaussian``: σ = ``sigma`` px; ``airy``: the
+    diffraction-limited disk of ``wavelength_nm`` at ``f_number`` on pixels of ``pixel_pitch`` mm
+    (first zero at 1.22·λ·N); ``image``: a measured PSF file sampled in px (odd sides, centred;
+    normalised to sum 1). Boundary: clamp to edge."""
+    kind: str = "gaussian"
+    sigma: float = 0.0
+    wavelength_nm: float = 550.0
+    f_number: float = 0.0
+    pixel_pitch: float = 0.0
+    image: str = ""
+
+    def __post_init__(self):
+        _one_of(self, "psf", "kind", PSF_KINDS)
+        given = {"gaussian": ("sigma",), "airy": ("f_number", "pixel_pitch"), "image": ("image",)}[self.kind]
+        for name in ("sigma", "f_number", "pixel_pitch", "image"):
+            value = getattr(self, name)
+            if name in given:
+                check(bool(value) and (name == "image" or value > 0), f"psf.{name}",
+                      f"must be {'given' if name == 'image' else '> 0'} for kind = {self.kind!r}, got {value!r}",
+                      {"sigma": "the Gaussian's σ in px, e.g. 0.8", "f_number": "the aperture's f-number, e.g. 8",
+                       "pixel_pitch": "the pixel pitch in mm, e.g. 0.0055",
+                       "image": "a greyscale PSF file (odd sides, PSF centred), e.g. 'psf.tif'"}[name])
+            else:
+                check(not value, f"psf.{name}", f"is not used by kind = {self.kind!r}",
+                      f"remove it, or choose the kind that uses it")
+        check(self.wavelength_nm > 0, "psf.wavelength_nm", f"must be > 0, got {self.wavelength_nm}",
+              "the light's wavelength in nm, e.g. 550")
+
+
+@dataclass(frozen=True)
+class Vignetting:
+    """Fall-off of the irradiance towards the image corners, a gain per pixel (docs/camera.md):
+    ``natural`` cos⁴ of the chief-ray angle (from the camera model's undistorted ray), times
+    ``1 + radial[0]·r² + radial[1]·r⁴ + …`` (r: the normalized radius of that ray);
+    ``flat_field``: ``glsim render`` also writes each camera's gain image."""
+    natural: bool = False
+    radial: tuple[float, ...] = ()
+    flat_field: bool = False
+
+    def __post_init__(self):
+        check(self.natural or bool(self.radial), "vignetting.natural", "neither natural nor radial is given",
+              "set natural = true (cos⁴) and/or radial = [a1, a2, …], or remove [vignetting]")
+
+
+@dataclass(frozen=True)
+class Sensor:
+    """The pixel array (EMVA 1288 terms). ``fill_factor`` (0, 1]: the active share of each pixel,
+    a centred square over which its samples lie; ``prnu``: photo-response non-uniformity, the
+    per-pixel gain's σ in % of the signal; ``dsnu``: dark-signal non-uniformity, the per-pixel
+    offset's σ in DN. Both patterns are fixed per camera (seeded by the scene seed and the
+    camera, not the step)."""
+    fill_factor: float = 1.0
+    prnu: float = 0.0
+    dsnu: float = 0.0
+    line_time: float = 0.0   # s per row: a rolling shutter (0: global), docs/motion.md
+
+    def __post_init__(self):
+        check(0 < self.fill_factor <= 1, "sensor.fill_factor", f"must lie in (0, 1], got {self.fill_factor}",
+              "the active fraction of the pixel area, e.g. 0.5 (1: the whole pitch)")
+        check(0 <= self.prnu <= 100, "sensor.prnu", f"must lie in [0, 100] %, got {self.prnu}",
+              "the gain non-uniformity σ in % of the signal, e.g. 1")
+        check(self.dsnu >= 0, "sensor.dsnu", f"must be ≥ 0, got {self.dsnu}",
+              "the dark offset non-uniformity σ in DN, e.g. 2")
+        check(math.isfinite(self.line_time) and self.line_time >= 0, "sensor.line_time",
+              f"must be ≥ 0 s, got {self.line_time}", "the rolling shutter's row-to-row delay in s, e.g. 1e-5 "
+              "(0: a global shutter); row r is exposed around t_step + (r − (H − 1)/2)·line_time")
+
+
+MAX_EXPOSURE_SAMPLES = 1024   # exposure.samples: renders averaged per image
+
+
+@dataclass(frozen=True)
+class Exposure:
+    """Motion over the exposure (docs/motion.md): the image averages the irradiance over ``time``
+    seconds centred on the load step's time, sampled at ``samples`` instants (midpoint rule).
+
+    The specimen moves rigidly when ``velocity`` (mm/s) or ``angular_velocity`` (rad/s, a
+    rotation vector about ``centre``, mm; default the step's node centroid) is given, world frame;
+    otherwise its state is interpolated linearly in time between load steps, at the FE file's
+    solver times where it has them, else at ``step_time`` seconds per step (step k at k·step_time),
+    and held before the first and after the last step.
+    """
+    time: float = 0.0
+    samples: int = 1
+    velocity: Vec3 | None = None
+    angular_velocity: Vec3 | None = None
+    centre: Vec3 | None = None
+    step_time: float = 1.0
+
+    def __post_init__(self):
+        check(math.isfinite(self.time) and self.time >= 0, "exposure.time", f"must be ≥ 0 s, got {self.time}",
+              "give the exposure time in seconds, e.g. 0.001")
+        n = self.samples
+        check(isinstance(n, (int, np.integer)) and not isinstance(n, bool) and n >= 1, "exposure.samples",
+              f"must be an integer ≥ 1, got {n!r}", "give the time samples averaged over the exposure, e.g. 8")
+        refuse_count("exposure.samples", n, MAX_EXPOSURE_SAMPLES, "renders per image", "use fewer samples")
+        check(n == 1 or self.time > 0, "exposure.samples", f"{n} samples of an instantaneous exposure (time = 0)",
+              "give exposure.time > 0, or samples = 1")
+        check(math.isfinite(self.step_time) and self.step_time > 0, "exposure.step_time",
+              f"must be > 0 s, got {self.step_time}", "the seconds between load steps without solver times")
+        for k in ("velocity", "angular_velocity", "centre"):
+            v = getattr(self, k)
+            check(v is None or (np.shape(v) == (3,) and bool(np.isfinite(v).all())), f"exposure.{k}",
+                  f"must be 3 finite numbers, got {v!r}", "give [x, y, z] in the world frame")
+        check(self.centre is None or self.angular_velocity is not None, "exposure.centre",
+              "is the centre of a rotation, but angular_velocity is not given",
+              "give angular_velocity (rad/s), or remove centre")
+        check(not self.rigid or self.step_time == 1.0, "exposure.step_time",
+              "times the load steps, which a rigid motion (velocity, angular_velocity) does not interpolate",
+              "remove step_time, or remove velocity and angular_velocity")
+
+    @property
+    def rigid(self) -> bool:
+        """Whether the specimen moves rigidly (else between load steps)."""
+        return self.velocity is not None or self.angular_velocity is not None
+
+
 @dataclass(frozen=True)
 class Scene:
     """A whole virtual stereo-DIC experiment. ``base_dir`` resolves relative file paths."""
@@ -452,6 +575,10 @@ class Scene:
     lighting: Lighting | None = None   # None: no lighting code runs
     optics: Optics | None = None       # None: infinite depth of field, no blur pass
     noise: Noise | None = None         # None: noise-free
+    exposure: Exposure | None = None   # None: an instantaneous exposure, nothing moves during it
+    sensor: Sensor | None = None       # None: full fill factor, no fixed-pattern noise
+    psf: Psf | None = None             # None: no lens PSF pass
+    vignetting: Vignetting | None = None   # None: no fall-off
     seed: int = 0
     base_dir: str = "."
 
@@ -465,9 +592,12 @@ class Scene:
                   f"{name!r} is already the name of cameras[{names.index(name)}]",
                   "give each camera a unique name")
         self._check_sizes()
+        self._check_motion()
         files = {"speckle.image": self.speckle.image} if self.speckle.image else {}
         if self.noise is not None and self.noise.variance_file:
             files["noise.variance_file"] = self.noise.variance_file
+        if self.psf is not None and self.psf.image:
+            files["psf.image"] = self.psf.image
         mesh = self.specimen.mesh
         if mesh is not None:
             files["specimen.mesh.path"] = mesh.path
@@ -475,6 +605,17 @@ class Scene:
             files.update({f"specimen.mesh.csv[{i}]": p for i, p in enumerate(mesh.csv)})
         for key, path in files.items():
             require_file(self.resolve(path), key, "check the path (relative paths start at the scene file's directory)")
+
+    def _check_motion(self) -> None:
+        """A rolling shutter needs a motion to skew, and is not combined with depth of field."""
+        rolling = self.sensor is not None and self.sensor.line_time > 0
+        check(not rolling or self.exposure is not None, "sensor.line_time",
+              "delays each row, but the scene gives no motion to expose it at",
+              "add an [exposure] table (velocity, or load steps to interpolate between), or remove line_time")
+        blur = [k for k in ("optics", "psf") if getattr(self, k) is not None]
+        check(not rolling or not blur, "sensor.line_time", f"is not modelled together with [{blur[0] if blur else ''}], "
+              "which spreads light across rows (each row is rendered on its own)",
+              f"remove [{blur[0] if blur else ''}] or line_time")
 
     def _check_sizes(self) -> None:
         """Image sizes against glsim's limits (:mod:`glsim.limits`), and a speckle dot camera 0 can show."""

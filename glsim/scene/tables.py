@@ -154,7 +154,7 @@ def coerce(value, hint, key: str):
 
 
 SECTIONS = ("cameras", "specimen", "speckle", "render", "output", "lighting", "optics", "noise",
-            "seed")  # top level of a file
+            "sensor", "psf", "vignetting", "exposure", "seed")  # top level of a file
 
 # Values a TOML table may leave out although the dataclass requires them.
 TABLE_DEFAULTS = {Camera: {"name": "reference"}}
