@@ -264,6 +264,9 @@ class Truth:
     given; ``X_undeformed``/``X_deformed``: the material point in camera 0's frame (mm),
     evaluated in float64 from (element, ξ, η) on first access (``positions`` makes both), so
     that who needs only (element, ξ, η), as a library's compact truth, does not pay for them.
+    With motion over the exposure (:mod:`glsim.effects.motion`) the maps are of the mid-exposure
+    state, and ``uv_start``/``uv_end`` (H, W, 2) where the pixel's material point is in the
+    image (px) at the exposure's start and end; None otherwise.
     """
     mask: np.ndarray
     element: np.ndarray
@@ -271,8 +274,11 @@ class Truth:
     eta: np.ndarray
     ref_uv: np.ndarray
     positions: Callable[[], tuple[np.ndarray, np.ndarray]] = dataclasses.field(repr=False)
+    uv_start: np.ndarray | None = None
+    uv_end: np.ndarray | None = None
 
     FIELDS = ("mask", "element", "xi", "eta", "ref_uv", "X_undeformed", "X_deformed")
+    MOTION = ("uv_start", "uv_end")   # written when present
 
     @cached_property
     def _X(self) -> tuple[np.ndarray, np.ndarray]:
@@ -287,7 +293,7 @@ class Truth:
         return self._X[1]
 
     def as_dict(self) -> dict[str, np.ndarray]:
-        return {name: getattr(self, name) for name in self.FIELDS}
+        return {name: getattr(self, name) for name in self.FIELDS + self.MOTION if getattr(self, name) is not None}
 
 
 def pixel_positions(mask: np.ndarray, points) -> Callable[[], tuple[np.ndarray, np.ndarray]]:
@@ -500,7 +506,8 @@ class MapTruth:
         """The maps as written (the renderer's ``Truth``)."""
         a = self._arrays
         return Truth(mask=a["mask"], element=a["element"], xi=a["xi"], eta=a["eta"], ref_uv=a["ref_uv"],
-                     positions=lambda: (a["X_undeformed"], a["X_deformed"]))
+                     positions=lambda: (a["X_undeformed"], a["X_deformed"]), uv_start=a.get("uv_start"),
+                     uv_end=a.get("uv_end"))
 
     @cached_property
     def _render(self) -> tuple[Geometry, Camera, int]:
@@ -679,7 +686,7 @@ def load(path: str | Path, geometry: Geometry | None = None) -> CompactTruth | M
         raise TruthFileError(f"{path}: cannot be read ({why}); check the path")
     try:
         with np.load(path, allow_pickle=False) as z:
-            arrays = {k: z[k] for k in Truth.FIELDS}
+            arrays = {k: z[k] for k in Truth.FIELDS + tuple(m for m in Truth.MOTION if m in z)}
     except (OSError, ValueError, KeyError) as exc:
         raise TruthFileError(f"{path}: not a truth file of glsim render --truth ({exc}); give a *_truth.npz it "
                              "wrote, or a library's .truth file") from None

@@ -58,21 +58,25 @@ class MeshGeometry:
             self._reference = (Xr, ref_uv)
         return self._reference
 
-    def step(self, step: int) -> "StepGeometry":
-        """The :class:`StepGeometry` of load step ``step`` (cached for the last STEPS_KEPT steps)."""
-        if step in self._steps:
-            self._steps.move_to_end(step)
-            return self._steps[step]
-        geo = StepGeometry(self, step, self.mesh.deformed(step))
+    def step(self, step: int, state=None, deformed: np.ndarray | None = None) -> "StepGeometry":
+        """The :class:`StepGeometry` of load step ``step`` (cached for the last STEPS_KEPT steps);
+        with ``state`` (a hashable key, e.g. seconds from the step's time) and its ``deformed``
+        nodes, a state during the step's exposure (:mod:`glsim.effects.motion`), cached alike."""
+        key = step if state is None else (step, state)
+        if key in self._steps:
+            self._steps.move_to_end(key)
+            return self._steps[key]
+        geo = StepGeometry(self, key, self.mesh.deformed(step) if deformed is None else deformed)
         self.step_builds += 1
-        self._steps[step] = geo
+        self._steps[key] = geo
         while len(self._steps) > STEPS_KEPT:
             self._steps.popitem(last=False)
         return geo
 
-    def view(self, cam: Camera, step: int) -> "ViewSpec":
-        """The :class:`ViewSpec` of ``cam`` at ``step``: O(1) once the step is known."""
-        return ViewSpec(cam, self.ref_camera, self, self.step(step))
+    def view(self, cam: Camera, step: int, state=None, deformed: np.ndarray | None = None) -> "ViewSpec":
+        """The :class:`ViewSpec` of ``cam`` at ``step`` (or at its ``state``, see :meth:`step`):
+        O(1) once the step is known."""
+        return ViewSpec(cam, self.ref_camera, self, self.step(step, state, deformed))
 
 
 class StepGeometry:
