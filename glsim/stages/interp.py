@@ -99,21 +99,31 @@ def weights(t, method):
     ]
 
 
-def sample(coeffs, uv, method):
-    """Interpolated grey levels at pixel coordinates ``uv`` (..., 2) = (u, v) in unpadded image px.
-
-    ``coeffs`` is ``prepare(image, method)``. Returns float64 of shape ``uv.shape[:-1]``;
-    NaN coordinates give NaN.
-    """
+def weight_derivatives(t, method):
+    """d/dt of :func:`weights` at fractional offsets ``t``: one array per tap (they sum to 0).
+    Linear's are the slopes of its pieces (the kernel has corners at the knots)."""
     _check_method(method)
-    c = np.asarray(coeffs)
-    uv = np.asarray(uv, dtype=np.float64)
-    if uv.shape[-1:] != (2,):
-        raise ValueError(f"uv must have shape (..., 2), got {uv.shape}")
+    t = np.asarray(t, dtype=np.float64)
+    if method == "linear":
+        return [np.full(t.shape, -1.0), np.ones(t.shape)]
+    if method == "cubic":
+        return [(-1.0 + t * (4.0 - 3.0 * t)) * 0.5, t * (-10.0 + 9.0 * t) * 0.5,
+                (1.0 + t * (8.0 - 9.0 * t)) * 0.5, t * (3.0 * t - 2.0) * 0.5]
+    s = 1.0 - t
+    if method == "bspline3":
+        return [-0.5 * s * s, t * (-2.0 + 1.5 * t), 0.5 + t * (1.0 - 1.5 * t), 0.5 * t * t]
+    return [-s * s * s * s / 24.0,
+            (-50.0 + t * (40.0 + t * (60.0 + t * (-80.0 + 25.0 * t)))) / 120.0,
+            t * (-120.0 + t * t * (120.0 - 50.0 * t)) / 120.0,
+            (50.0 + t * (40.0 + t * (-60.0 + t * (-80.0 + 50.0 * t)))) / 120.0,
+            (5.0 + t * (20.0 + t * (30.0 + t * (20.0 - 25.0 * t)))) / 120.0,
+            t * t * t * t / 24.0]
+
+
+def _taps(c, uv, method, wu, wv):
+    """Σ_j wv[j] Σ_i wu[i] c[row j, column i] over the taps of ``uv`` (the clamping of :func:`sample`)."""
     n = _SUPPORT[method]
     f = np.floor(uv)
-    wu = weights(uv[..., 0] - f[..., 0], method)
-    wv = weights(uv[..., 1] - f[..., 1], method)
     rows, cols = c.shape
     # Clamp before the int cast; a first tap at -n or beyond reads only edge texels anyway.
     base = np.clip(np.nan_to_num(f) + (PAD + _FIRST[method]), -n, [cols, rows]).astype(np.intp)
@@ -126,3 +136,35 @@ def sample(coeffs, uv, method):
             s += wu[i] * flat[row_start + np.clip(base[..., 0] + i, 0, cols - 1)]
         acc += wv[j] * s
     return acc
+
+
+def _checked(uv):
+    uv = np.asarray(uv, dtype=np.float64)
+    if uv.shape[-1:] != (2,):
+        raise ValueError(f"uv must have shape (..., 2), got {uv.shape}")
+    return uv
+
+
+def sample(coeffs, uv, method):
+    """Interpolated grey levels at pixel coordinates ``uv`` (..., 2) = (u, v) in unpadded image px.
+
+    ``coeffs`` is ``prepare(image, method)``. Returns float64 of shape ``uv.shape[:-1]``;
+    NaN coordinates give NaN.
+    """
+    _check_method(method)
+    uv = _checked(uv)
+    f = np.floor(uv)
+    return _taps(np.asarray(coeffs), uv, method, weights(uv[..., 0] - f[..., 0], method),
+                 weights(uv[..., 1] - f[..., 1], method))
+
+
+def gradient(coeffs, uv, method):
+    """The interpolant's analytic gradient (∂I/∂u, ∂I/∂v) (..., 2), grey levels per px, at ``uv``
+    (..., 2): :func:`sample`'s sum with one axis' weights replaced by :func:`weight_derivatives`."""
+    _check_method(method)
+    uv = _checked(uv)
+    t = uv - np.floor(uv)
+    c = np.asarray(coeffs)
+    wu, wv = weights(t[..., 0], method), weights(t[..., 1], method)
+    du, dv = weight_derivatives(t[..., 0], method), weight_derivatives(t[..., 1], method)
+    return np.stack([_taps(c, uv, method, du, wv), _taps(c, uv, method, wu, dv)], axis=-1)

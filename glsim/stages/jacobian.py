@@ -1,0 +1,162 @@
+"""Stage "raster → image Jacobian": the derivative of the noise-free image with respect to every
+nodal displacement component, in float64 numpy from a per-sample raster (docs/jacobian.md).
+
+A sample's grey is g = I(r(ξ, η)): the reference image I (its interpolant) at the reference
+point r of the local coordinates (ξ, η) where the sample maps into its element. Only (ξ, η)
+depends on the deformed nodes X_k (camera frame), through the mapping's equation F(ξ, η, X) = 0:
+
+- ``exact``: the sample's ray (x, y, 1) meets the deformed patch, F = A·P(ξ, η) with
+  A = [[1, 0, −x], [0, 1, −y]] and P = Σ N_k X_k; r = π_ref(Σ N_k X̄_k) (X̄_k undeformed, in the
+  reference camera's frame);
+- ``q4``: the sample's pixel point q is the projected element's bilinear image,
+  F = Σ N_k π(X_k) − q; r = Σ N_k π_ref(X̄_k).
+
+Implicit differentiation: ∂(ξ, η)/∂X_k = −(∂F/∂(ξ, η))⁻¹ ∂F/∂X_k, with ∂F/∂X_k = N_k A (exact)
+or N_k ∂π/∂X(X_k) (q4); then ∂g/∂X_k = ∇I · ∂r/∂(ξ, η) · ∂(ξ, η)/∂X_k, and ∂X_k/∂u_k = R (the
+camera's rotation: displacements are in the world frame). Coverage does not move with the
+nodes between samples, so background samples and the mask contribute nothing.
+
+Columns are node-major: 3·node + c for the components (u_x, u_y, u_z) of ``mesh.nodes[node]``;
+rows are the pixels v·W + u. Grey levels (of full scale) per mm.
+"""
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+from scipy import sparse
+
+from glsim.errors import SceneError
+from glsim.scene import Render, Scene
+from glsim.scene import bilinear as bl
+from glsim.scene.camera import (Camera, distort_jacobian, pixel_to_normalized, project_camera_frame, to_camera,
+                                undistort)
+
+MODES = ("exact", "q4")
+UNREFUSED = ("noise",)   # optional tables the Jacobian allows: it is of the noise-free image
+CHUNK = 1 << 18          # samples differentiated at once (bounds memory: ~100 doubles each)
+
+
+def check_request(scene: Scene, opts: Render, quadratic: bool) -> None:
+    """SceneError naming what ``jacobian=True`` cannot differentiate: an effect table (every
+    optional table but [noise]), mode fast, procedural interpolation, quadratic elements."""
+    for f in dataclasses.fields(scene):
+        if f.default is None and getattr(scene, f.name) is not None and f.name not in UNREFUSED:
+            raise SceneError(f.name, "the image Jacobian does not differentiate this effect",
+                             f"remove [{f.name}] or render without jacobian")
+    if opts.mode not in MODES:
+        raise SceneError("render.mode", f"the image Jacobian differentiates modes {' and '.join(MODES)}, "
+                         f"not {opts.mode!r} (its triangles interpolate the reference point linearly)",
+                         "set mode = \"exact\" (or \"q4\") or render without jacobian")
+    if opts.interpolation == "procedural":
+        raise SceneError("render.interpolation", "the image Jacobian needs the reference image's interpolant; "
+                         "'procedural' evaluates the dots directly", "choose cubic, bspline3 or bspline5 "
+                         "(or linear), or render without jacobian")
+    if quadratic:
+        raise SceneError("specimen.mesh", "the image Jacobian differentiates linear elements (Q4, T3, hex8/tet4 "
+                         "faces); this mesh has quadratic ones", "use a linear mesh or render without jacobian")
+
+
+def sample_camera(cam: Camera, s: int) -> Camera:
+    """The camera whose pixel centres are ``cam``'s s×s samples per pixel
+    (:func:`glsim.scene.camera.pixel_grid`): size ×s, fx, fy, skew ×s, c' = s·(c + ½) − ½;
+    the same rays (to rounding)."""
+    if s == 1:
+        return cam
+    W, H = cam.size
+    return dataclasses.replace(cam, size=(W * s, H * s), fx=cam.fx * s, fy=cam.fy * s, skew=cam.skew * s,
+                               cx=s * (cam.cx + 0.5) - 0.5, cy=s * (cam.cy + 0.5) - 0.5)
+
+
+def projection_jacobian(X: np.ndarray, cam: Camera) -> np.ndarray:
+    """∂uv/∂X (..., 2, 3) px per mm of :func:`glsim.scene.camera.project_camera_frame` at
+    camera-frame points X (..., 3): intrinsics · distortion Jacobian · perspective division."""
+    z = X[..., 2]
+    xn = X[..., :2] / z[..., None]
+    dpersp = np.zeros(X.shape[:-1] + (2, 3))
+    dpersp[..., 0, 0] = dpersp[..., 1, 1] = 1.0 / z
+    dpersp[..., :, 2] = -xn / z[..., None]
+    K2 = np.array([[cam.fx, cam.skew], [0.0, cam.fy]])
+    return K2 @ distort_jacobian(xn, cam.distortion.coeffs) @ dpersp
+
+
+def _shape_derivatives(xi, eta):
+    """(N, ∂N/∂ξ, ∂N/∂η), each (n, 4), of the Q4 shape functions (FE corner order)."""
+    N = bl.shape_functions(xi, eta)
+    dxi = 0.25 * np.stack([-(1 - eta), 1 - eta, 1 + eta, -(1 + eta)], -1)
+    deta = 0.25 * np.stack([-(1 - xi), -(1 + xi), 1 + xi, 1 - xi], -1)
+    return N, dxi, deta
+
+
+def _tangents(N_xi, N_eta, P):
+    """(…, D, 2): the columns ∂P/∂ξ, ∂P/∂η of corners P (n, 4, D)."""
+    return np.stack([np.einsum("nk,nkd->nd", N_xi, P), np.einsum("nk,nkd->nd", N_eta, P)], -1)
+
+
+def local_derivatives(mode: str, Xd, xi, eta, ray=None, cam: Camera | None = None) -> np.ndarray:
+    """∂(ξ, η)/∂X_k (n, 4, 2, 3) per mm for the deformed corners Xd (n, 4, 3) in the camera
+    frame: mode ``exact`` on the samples' rays ``ray`` (n, 2) (undistorted normalized), ``q4``
+    in camera ``cam``'s image."""
+    N, N_xi, N_eta = _shape_derivatives(xi, eta)
+    if mode == "exact":
+        A = np.zeros((len(xi), 2, 3))
+        A[:, 0, 0] = A[:, 1, 1] = 1.0
+        A[:, :, 2] = -ray
+        dFdX = A[:, None] * N[..., None, None]                        # (n, 4, 2, 3)
+        dFdl = A @ _tangents(N_xi, N_eta, Xd)                         # (n, 2, 2)
+    else:
+        uv, _ = project_camera_frame(Xd, cam)
+        dFdX = projection_jacobian(Xd, cam) * N[..., None, None]
+        dFdl = _tangents(N_xi, N_eta, uv)
+    return -np.linalg.solve(dFdl[:, None], dFdX)
+
+
+def reference_point(mode: str, Xr, ref_cam: Camera, xi, eta):
+    """The reference point r (n, 2) px and ∂r/∂(ξ, η) (n, 2, 2), in float64 from (ξ, η):
+    ``exact`` projects the undeformed patch Xr (n, 4, 3, reference camera frame) at (ξ, η);
+    ``q4`` interpolates its corners' projections bilinearly."""
+    _, N_xi, N_eta = _shape_derivatives(xi, eta)
+    if mode == "exact":
+        X = bl.bilinear(Xr, xi, eta)
+        return project_camera_frame(X, ref_cam)[0], projection_jacobian(X, ref_cam) @ _tangents(N_xi, N_eta, Xr)
+    corners = project_camera_frame(Xr, ref_cam)[0]
+    return bl.bilinear(corners, xi, eta), _tangents(N_xi, N_eta, corners)
+
+
+def sample_rays(cam: Camera, index: np.ndarray) -> np.ndarray:
+    """Undistorted normalized rays (n, 2) of ``cam``'s pixels at flat indices ``index``."""
+    W, _ = cam.size
+    q = np.column_stack([index % W, index // W]).astype(np.float64)
+    return undistort(pixel_to_normalized(q, cam.intrinsics), cam.distortion.coeffs)[0]
+
+
+def image_jacobian(cam: Camera, s: int, ref_cam: Camera, nodes: np.ndarray, deformed: np.ndarray,
+                   quads: np.ndarray, mode: str, raster: dict, grad) -> sparse.csr_matrix:
+    """The image Jacobian (W·H × 3·nodes, CSR, grey levels per mm) of ``cam`` from ``raster``:
+    flat ``element``, ``xi``, ``eta`` (float64) over the (W·s)·(H·s) samples of
+    :func:`sample_camera` (element −1: background); the reference point is recomputed from them. ``nodes``, ``deformed`` (N, 3) world mm;
+    ``grad(uv)`` the reference interpolant's gradient (grey per px). A pixel's row is the mean
+    of its s² samples' derivatives."""
+    W, H = cam.size
+    scam = sample_camera(cam, s)
+    R = cam.rotation
+    hit = np.flatnonzero(raster["element"] >= 0)
+    parts = []
+    for k in range(0, len(hit), CHUNK):
+        idx = hit[k:k + CHUNK]
+        e, xi, eta = raster["element"][idx], raster["xi"][idx], raster["eta"][idx]
+        corners = quads[e]
+        Xd = to_camera(deformed[corners], scam)
+        Xr = to_camera(nodes[corners], ref_cam)
+        ray = sample_rays(scam, idx) if mode == "exact" else None
+        dl = local_derivatives(mode, Xd, xi, eta, ray, scam)                       # (n, 4, 2, 3)
+        r, dr = reference_point(mode, Xr, ref_cam, xi, eta)
+        dg_dl = np.einsum("nc,ncl->nl", grad(r), dr)
+        values = np.einsum("nl,nklc->nkc", dg_dl, dl) @ R / (s * s)                # per world mm
+        i, j = idx % (W * s) // s, idx // (W * s) // s
+        rows = np.repeat(j * W + i, 12)
+        cols = (3 * corners[..., None] + np.arange(3)).ravel()
+        parts.append(sparse.coo_matrix((values.ravel(), (rows, cols)), shape=(W * H, 3 * len(nodes))).tocsr())
+    out = sum(parts[1:], parts[0]) if parts else sparse.csr_matrix((W * H, 3 * len(nodes)))
+    out.sum_duplicates()
+    return out
