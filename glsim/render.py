@@ -15,9 +15,12 @@ Truth always reports the element's own (ξ, η) (for T6 those of the collapsed p
 """
 from __future__ import annotations
 
+import dataclasses
+import collections
 import functools
-from collections.abc import Callable
+from collections.abc import Callable, Iterable, Iterator, Mapping
 import time
+import warnings
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -28,6 +31,7 @@ from glsim.scene import quadratic as qd
 from glsim.scene.bilinear import bilinear
 from glsim.scene.camera import Camera, to_camera
 from glsim.effects import prepare as prepare_effects
+from glsim.effects import motion
 from glsim.stages.geometry import MeshGeometry
 from glsim.io.images import quantize as quantize_image
 from glsim.io.truth import Truth, pixel_positions
@@ -37,6 +41,7 @@ from glsim.backends import make_backend
 from glsim.backends.contract import Curved, Request
 from glsim.io.fe import specimen_mesh
 from glsim.stages.reference import make_reference
+from glsim.stages import interp, jacobian as jac
 from glsim.scene import Render, Scene
 
 QUADRATIC_FAST_PIECES = 4   # fast mode: n × n linear pieces per quadratic element (docs/quadratic.md)
@@ -55,6 +60,7 @@ class Result:
     truth: Truth | None = None
     stages: tuple[str, ...] = ()      # the pipeline stages / GL passes that ran
     specimen: Callable[[], np.ndarray] | None = field(default=None, repr=False)  # makes ``coverage`` when first asked
+    jacobian: object | None = None    # render(jacobian=True): scipy.sparse CSR, pixels × 3·nodes (docs/jacobian.md)
 
     @functools.cached_property
     def coverage(self) -> np.ndarray:
@@ -72,6 +78,20 @@ class Result:
     def saturated(self) -> float:
         """Fraction of the specimen's pixels below 0 or above full scale (clipped when quantised)."""
         return _saturated(self.image, self.coverage, self.camera.bit_depth)
+
+
+@dataclass(frozen=True, eq=False)
+class _Submitted:
+    """A request handed to the backend (its token), with what finishing its Result needs."""
+    token: object
+    camera: Camera
+    step: int
+    options: Render
+    truth: bool
+    quantize: bool
+    deformed: np.ndarray
+    curved: bool
+    seconds: float      # host time of the submit
 
 
 class Renderer:
@@ -93,6 +113,7 @@ class Renderer:
         self.backend_name = backend or scene.render.backend
         self.backend = make_backend(self.backend_name, self.reference, ctx)
         self._geometry: MeshGeometry | None = None
+        self._ref_coeffs: dict[str, np.ndarray] = {}   # float64 interpolant coefficients (the Jacobian's gradient)
         if self._gl_max:   # the reference image is one texture
             H, W = self.reference.image.shape
             check_image_size("speckle", W, H, "the reference image", "give a smaller image, or a smaller "
@@ -152,7 +173,7 @@ class Renderer:
         return self._geometry
 
     def render(self, camera: int | str = 0, step: int = 0, truth: bool = False, quantize: bool = False,
-               **options) -> Result:
+               jacobian: bool = False, **options) -> Result:
         """Render one image. ``options`` override the scene's [render] table (mode, …).
         ``quantize``: the image as the camera writes it (:func:`glsim.io.images.quantize` at its
         bit depth: uint8, or uint16 for 10–16 bits), quantised on the GPU where it can be exactly
@@ -160,10 +181,71 @@ class Renderer:
 
         Both backends take the same request (glsim.backends.contract): the view as a
         :class:`ViewSpec` (the camera's transform; the mesh and the step's nodes are shared),
-        the effects, and for a quadratic mesh in exact and q4 its curved patches."""
+        the effects, and for a quadratic mesh in exact and q4 its curved patches.
+        ``jacobian``: also ``Result.jacobian``, the noise-free image's derivative with respect to
+        the nodal displacements (:mod:`glsim.stages.jacobian`; refused by name where it cannot be made)."""
+        if self.scene.exposure is not None:   # motion over the exposure, a rolling shutter
+            return motion.render(self, camera, step, truth, quantize, jacobian, options)
+        if not jacobian:
+            return self._finish(self._submit(camera, step, truth, quantize, options))
+        opts = self.scene.replace(render=options).render if options else self.scene.render
+        jac.check_request(self.scene, opts, self.mesh.is_quadratic)
+        one = opts.supersampling == 1   # the image's own pixel-centre raster is the samples'
+        res = self._finish(self._submit(camera, step, truth or one, quantize, options))
+        raster = {"element": res.truth.element.ravel(), "xi": res.truth.xi.ravel(),
+                  "eta": res.truth.eta.ravel()} if one else None
+        return dataclasses.replace(res, truth=res.truth if truth else None,
+                                   jacobian=self._jacobian(res.camera, step, opts, raster))
+
+    def _jacobian(self, cam: Camera, step: int, opts: Render, raster: dict | None):
+        """The image Jacobian (glsim.stages.jacobian.image_jacobian) from the backend's float64
+        raster of every sample: for s > 1 rendered as the pixels of the finer sample camera
+        (its warnings were the image's)."""
+        s = opts.supersampling
+        if raster is None:
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore")
+                view = self.geometry.view(jac.sample_camera(cam, s), step)
+                raster = self.backend.render(Request(view, dataclasses.replace(opts, samples_per_pixel=1), True)).samples
+        method = opts.interpolation
+        if method not in self._ref_coeffs:
+            self._ref_coeffs[method] = interp.prepare(self.reference.image, method, np.float64)
+        coeffs = self._ref_coeffs[method]
+        mesh = self.mesh
+        return jac.image_jacobian(cam, s, self.reference.camera, mesh.nodes, mesh.deformed(step), mesh.quads,
+                                  opts.mode, raster, lambda uv: interp.gradient(coeffs, uv, method))
+
+    def render_many(self, jobs: Iterable, depth: int = 2) -> Iterator[Result]:
+        """The Results of ``jobs`` in order, pipelined: request k + depth − 1 is submitted before
+        request k is collected, so the GL backend's passes for the next image run while this
+        one's read-back is mapped and finished on the host (the oracle renders one at a time).
+        A job is a mapping of :meth:`render`'s arguments (``camera``, ``step``, ``truth``,
+        ``quantize``, render options) or a ``(camera, step)`` pair. The same images and truth,
+        bit for bit, as :meth:`render`. ``Result.seconds``: the host time of the job's submit and
+        collect (a collect waits for the GPU if it has not finished)."""
+        if depth < 1:
+            raise SceneError("depth", f"{depth!r} is not a positive integer", "give 1 (no overlap) or more")
+        pending: collections.deque = collections.deque()
+        try:
+            for job in jobs:
+                args = dict(job) if isinstance(job, Mapping) else dict(zip(("camera", "step"), job))
+                if self.scene.exposure is not None:   # several renders per image (glsim.effects.motion)
+                    yield self.render(**args)
+                    continue
+                pending.append(self._submit(args.pop("camera", 0), args.pop("step", 0), args.pop("truth", False),
+                                            args.pop("quantize", False), args))
+                if len(pending) >= depth:
+                    yield self._finish(pending.popleft())
+            while pending:
+                yield self._finish(pending.popleft())
+        finally:   # stopped early: what was submitted is collected (its buffers go back), unseen
+            while pending:
+                self.backend.collect(pending.popleft().token)
+
+    def _submit(self, camera, step: int, truth: bool, quantize: bool, options: dict) -> "_Submitted":
+        t0 = time.perf_counter()
         opts = self.scene.replace(render=options).render if options else self.scene.render
         self.check_size(camera, truth, opts)
-        t0 = time.perf_counter()
         cam = self.scene.camera(camera)
         view = self.geometry.view(cam, step)
         deformed = view.step_geo.deformed
@@ -171,23 +253,29 @@ class Renderer:
         fx = prepare_effects(self.scene, deformed, self.drawn_mesh.quads, cam, self.scene.cameras.index(cam), step,
                              depths, normals=not self.backend.capabilities.device_geometry)
         curved = Curved(self.mesh, self.pieces, step) if self.mesh.is_quadratic and opts.mode != "fast" else None
-        out = self.backend.render(Request(view, opts, truth, fx, curved, cam.bit_depth if quantize else None))
-        image = quantize_image(out.image, cam.bit_depth) if quantize and out.image.dtype.kind == "f" else out.image
-        seconds = time.perf_counter() - t0
+        token = self.backend.submit(Request(view, opts, truth, fx, curved, cam.bit_depth if quantize else None))
+        return _Submitted(token, cam, step, opts, truth, quantize, deformed, curved is not None,
+                          time.perf_counter() - t0)
+
+    def _finish(self, job: "_Submitted") -> Result:
+        t0 = time.perf_counter()
+        cam, step, out = job.camera, job.step, self.backend.collect(job.token)
+        image = quantize_image(out.image, cam.bit_depth) if job.quantize and out.image.dtype.kind == "f" else out.image
+        seconds = job.seconds + time.perf_counter() - t0
         tr = None
-        if truth and self.mesh.is_quadratic:   # the raster of the patches (fast: of the pieces, mapped here)
-            tr = self._quadratic_truth(out.samples if curved else self._fast_to_patches(out.samples), step, cam)
-        elif truth:
-            tr = self._truth(cam.size, deformed, out.samples)
+        if job.truth and self.mesh.is_quadratic:   # the raster of the patches (fast: of the pieces, mapped here)
+            tr = self._quadratic_truth(out.samples if job.curved else self._fast_to_patches(out.samples), step, cam)
+        elif job.truth:
+            tr = self._truth(cam.size, job.deformed, out.samples)
         return Result(image=image, camera=cam, step=step, backend=self.backend_name,
-                      options=opts, seconds=seconds, truth=tr, stages=out.stages,
-                      specimen=self._specimen(cam, deformed, self.drawn_mesh.quads))
+                      options=job.options, seconds=seconds, truth=tr, stages=out.stages,
+                      specimen=self._specimen(cam, job.deformed, self.drawn_mesh.quads))
 
     @staticmethod
     def _specimen(cam: Camera, deformed: np.ndarray, quads: np.ndarray) -> Callable[[], np.ndarray]:
         """Warns when ``cam`` sees none of the specimen (RenderWarning, saying why); returns what
         makes its pixel mask on demand."""
-        warn_unseen(cam, deformed, quads, stacklevel=5)
+        warn_unseen(cam, deformed, quads, stacklevel=6)
         return lambda: coverage(cam, deformed, quads)
 
     def _fast_to_patches(self, raster: dict) -> dict:

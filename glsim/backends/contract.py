@@ -22,7 +22,8 @@ from glsim.scene.mesh import Mesh
 from glsim.scene.quadratic import Pieces
 from glsim.stages.geometry import ViewSpec
 
-STAGES = ("raster", "subsamples", "interpolate", "light", "downsample", "blur", "noise")
+STAGES = ("raster", "subsamples", "interpolate", "light", "downsample", "blur", "vignette", "psf", "fixed_pattern",
+          "noise")
 
 
 @dataclass(frozen=True)
@@ -75,11 +76,21 @@ class Raster:
 
 
 class Backend(Protocol):
+    """``submit`` queues a request and returns a token that ``collect`` turns into its Raster;
+    ``render`` is both. A backend that works synchronously (the oracle) does the work in
+    ``submit``; GL queues its passes and read-backs there, so that a caller submitting the next
+    request before collecting one (``Renderer.render_many``) keeps the GPU busy."""
     name: str
     capabilities: Capabilities
 
     def render(self, request: Request) -> Raster:
         """Render one request."""
+
+    def submit(self, request: Request) -> object:
+        """Start one request."""
+
+    def collect(self, token: object) -> Raster:
+        """The Raster of a submitted request (in submission order)."""
 
     def close(self) -> None:
         """Release what the backend holds (a GL context it made)."""

@@ -21,8 +21,9 @@ from glsim.stages.view import View, make_view, warn_dropped
 CHUNK = 1 << 21  # candidate (element, sample) pairs evaluated at once
 
 
-def _boxes(view: View, mode: str, s: int) -> np.ndarray:
-    """Inclusive sample-index boxes [i0, j0, i1, j1] per element on the s-times grid."""
+def _boxes(view: View, mode: str, s: int, aperture: float = 1.0) -> np.ndarray:
+    """Inclusive sample-index boxes [i0, j0, i1, j1] per element on the s-times grid (with
+    ``aperture`` < 1 every sample of the pixels whose squares the element's box meets)."""
     W, H = view.camera.size
     if mode == "exact":
         b = view.bbox
@@ -31,8 +32,10 @@ def _boxes(view: View, mode: str, s: int) -> np.ndarray:
         return box
     lo = view.uv.min(axis=1)
     hi = view.uv.max(axis=1)
-    box = np.stack([np.ceil((lo[:, 0] + 0.5) * s - 0.5), np.ceil((lo[:, 1] + 0.5) * s - 0.5),
-                    np.floor((hi[:, 0] + 0.5) * s - 0.5), np.floor((hi[:, 1] + 0.5) * s - 0.5)], 1)
+    if aperture != 1.0:   # pixel c's samples lie inside [c − ½, c + ½]
+        box = np.concatenate([np.ceil(lo - 0.5) * s, np.floor(hi + 0.5) * s + s - 1], 1)
+    else:
+        box = np.concatenate([np.ceil((lo + 0.5) * s - 0.5), np.floor((hi + 0.5) * s - 0.5)], 1)
     box = np.clip(box, -1, [W * s, H * s, W * s - 1, H * s - 1]).astype(np.int64)
     box[:, :2] = np.maximum(box[:, :2], 0)
     box[~view.projectable] = (0, 0, -1, -1)
@@ -106,14 +109,14 @@ def _exact(view: View, e, q, xn, ray_ok):
     return ok & ray_ok, depth, xi, eta, np.where(ref_ok[:, None], ref_uv, np.nan)
 
 
-def _nearest(camera, ref_camera, box: np.ndarray, s: int, rays: bool, map_chunk) -> dict:
+def _nearest(camera, ref_camera, box: np.ndarray, s: int, rays: bool, map_chunk, aperture: float = 1.0) -> dict:
     """The nearest element per sample on the s×s-per-pixel grid, over the candidates of the
     elements' sample boxes ``box`` (chunks come in ascending element order, so exact depth
     ties go to the lower element index). ``map_chunk(e, idx, q, xn, xn_ok)`` maps the samples
     ``idx`` (grid points ``q``; their undistorted rays ``xn`` when ``rays``) into the elements
-    ``e``: ``(ok, depth, xi, eta, ref_uv)``."""
+    ``e``: ``(ok, depth, xi, eta, ref_uv)``; ``aperture``: :func:`pixel_grid`'s."""
     W, H = camera.size
-    grid = pixel_grid(camera, s * s).reshape(-1, 2)
+    grid = pixel_grid(camera, s * s, aperture).reshape(-1, 2)
     n = len(grid)
     best = {"element": np.full(n, -1, np.int64), "depth": np.full(n, np.inf),
             "xi": np.zeros(n), "eta": np.zeros(n), "ref_uv": np.zeros((n, 2))}
@@ -141,8 +144,9 @@ def _nearest(camera, ref_camera, box: np.ndarray, s: int, rays: bool, map_chunk)
     return best
 
 
-def rasterize(view: View, mode: str, s: int = 1) -> dict:
-    """Nearest element per sample on the s×s-per-pixel grid.
+def rasterize(view: View, mode: str, s: int = 1, aperture: float = 1.0) -> dict:
+    """Nearest element per sample on the s×s-per-pixel grid (offsets scaled by ``aperture``,
+    √ of the sensor's fill factor: :func:`glsim.scene.camera.pixel_grid`).
 
     Returns flat arrays over the (H·s)·(W·s) samples: ``element`` (−1 where none), ``xi``,
     ``eta``, ``ref_uv`` (reference-image px), ``depth`` (camera Z, mm) and ``dropped``
@@ -155,10 +159,11 @@ def rasterize(view: View, mode: str, s: int = 1) -> dict:
             return _q4(view, e, q)
         return _exact(view, e, q, xn, xn_ok)
 
-    return _nearest(view.camera, view.ref_camera, _boxes(view, mode, s), s, mode == "exact", map_chunk)
+    return _nearest(view.camera, view.ref_camera, _boxes(view, mode, s, aperture), s, mode == "exact", map_chunk,
+                    aperture)
 
 
-def rasterize_quadratic(view, mode: str, s: int = 1) -> dict:
+def rasterize_quadratic(view, mode: str, s: int = 1, aperture: float = 1.0) -> dict:
     """:func:`rasterize` for quadratic elements (a :class:`~glsim.stages.quadview.QuadView`),
     modes ``exact`` (the sample's ray against the curved patch,
     :func:`glsim.scene.quadratic.intersect_ray`) and ``q4`` (the paper's inverse mapping
@@ -182,7 +187,7 @@ def rasterize_quadratic(view, mode: str, s: int = 1) -> dict:
         ref, ref_ok = project_camera_frame(qd.evaluate(view.Pr[e], xi, eta), view.ref_camera)
         return ok & xn_ok, depth, xi, eta, np.where(ref_ok[:, None], ref, np.nan)
 
-    return _nearest(view.camera, view.ref_camera, box, s, mode == "exact", map_chunk)
+    return _nearest(view.camera, view.ref_camera, box, s, mode == "exact", map_chunk, aperture)
 
 
 def piece_of(e, xi, eta, n: int):
@@ -248,7 +253,7 @@ def render_view(view: View, sample, opts, truth: bool, fx=None, raster=None):
     W, H = view.camera.size
     s = opts.supersampling
     stages = ["raster", "interpolate"]
-    r = raster(view, opts.mode, s)
+    r = raster(view, opts.mode, s, fx.aperture)
     warn_dropped(view.camera, int(r["dropped"].sum()), s)
     hit = r["element"] >= 0
     grey = np.full(len(hit), float(opts.background))
@@ -270,7 +275,7 @@ def render_view(view: View, sample, opts, truth: bool, fx=None, raster=None):
         else:
             image = blur.blur_exact(image, blur.blur_sigma(depth, fx.optics))
         stages.append("blur")
-    image = image.astype(np.float32)
+    image = camera_stages(image, fx, stages)
     if fx.noise is not None:
         from glsim.effects import noise
 
@@ -282,6 +287,26 @@ def render_view(view: View, sample, opts, truth: bool, fx=None, raster=None):
     if opts.mode == "fast":  # truth at the material point that coloured the pixel (exact, q4: float64 already)
         r = polish(view, "fast", r)
     return image, r, stages
+
+
+def camera_stages(image: np.ndarray, fx, stages: list) -> np.ndarray:
+    """Vignetting and the lens PSF on the float64 irradiance, then (float32) the fixed-pattern
+    noise (docs/camera.md); the names of those run go to ``stages``."""
+    if fx.vignette is not None:
+        image = image * fx.vignette
+        stages.append("vignette")
+    if fx.psf is not None:
+        from glsim.effects import psf
+
+        image = psf.apply(image, fx.psf)
+        stages.append("psf")
+    image = image.astype(np.float32)
+    if fx.fixed_pattern:
+        from glsim.effects import noise
+
+        image = noise.fixed_pattern(image, fx.sensor.prnu, fx.sensor.dsnu, fx.bit_depth, fx.fpn_seed).astype(np.float32)
+        stages.append("fixed_pattern")
+    return image
 
 
 class CPUBackend:
@@ -322,6 +347,14 @@ class CPUBackend:
         image, r, stages = render_view(view, self.sampler(opts.interpolation), opts, request.truth, request.effects,
                                        rasterize_quadratic if c is not None else None)
         return Raster(image, r, tuple(stages))
+
+    def submit(self, request: Request) -> Raster:
+        """The oracle works synchronously: the Raster itself is the token."""
+        return self.render(request)
+
+    @staticmethod
+    def collect(token: Raster) -> Raster:
+        return token
 
     def close(self) -> None:
         self._samplers.clear()

@@ -14,7 +14,8 @@ pixels it can); for s > 1 the box filter down to W×H (of the pixels not finishe
 """
 from __future__ import annotations
 
-from dataclasses import replace
+from collections.abc import Callable
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -31,13 +32,18 @@ from glsim.backends.gl.bindings import storage
 from glsim.backends.gl.context import check_error, create_context
 from glsim.backends.gl.geometry import LAYERS, GeometryBuffers
 from glsim.backends.gl import timing
-from glsim.backends.gl.plan import BLUR_PASSES, newton_subsamples, plan
+from glsim.backends.gl.plan import BLUR_PASSES, aperture_literal, newton_subsamples, plan
 from glsim.backends.gl.programs import ProgramCache
+from glsim.backends.gl.readback import PackBuffers, Pending, read_buffer, read_texture
 
 
-def _ray_key(cam, s: int, kind: str) -> tuple:
-    """The ray map cache's key: the camera model, supersampling and kind (GLBackend._ray_map)."""
-    return cam.size, tuple(cam.intrinsics), tuple(cam.distortion.coeffs), s, kind
+_DTYPES = {"f4": np.float32, "u1": np.uint8, "u2": np.uint16}   # moderngl texture dtype → numpy
+
+
+def _ray_key(cam, s: int, kind: str, aperture: float = 1.0) -> tuple:
+    """The ray map cache's key: the camera model, supersampling, kind and the samples' aperture
+    (√ fill factor) (GLBackend._ray_map)."""
+    return cam.size, tuple(cam.intrinsics), tuple(cam.distortion.coeffs), s, kind, aperture
 
 
 def pack_pairs(c: np.ndarray) -> np.ndarray:
@@ -64,8 +70,27 @@ def _light_uniforms(fx) -> dict:
             "u_ks": np.float32(lit.specular), "u_shininess": np.float32(lit.shininess)}
 
 
+@dataclass(frozen=True, eq=False)
+class Frame:
+    """A request submitted to the GPU with its read-backs queued (:meth:`GLBackend.submit`);
+    :meth:`GLBackend.collect` fetches them."""
+    image: Pending
+    raster: Callable[[], dict | None]       # the truth raster, fetched and finished (None: not asked)
+    report: Callable[[], None]              # the view's warnings, from its fetched problem flags
+    stages: tuple[str, ...]
+    curved: object = None                   # the request's Curved (the raster is mapped to its patches)
+    camera: object = None
+    mode: str = "exact"
+
+
 class GLBackend:
-    """OpenGL renderer over one EGL context (its own, or a shared one passed in)."""
+    """OpenGL renderer over one EGL context (its own, or a shared one passed in).
+
+    A request is submitted (every pass queued, every read-back queued into a pixel-pack buffer:
+    :mod:`glsim.backends.gl.readback`) and collected (the reads mapped); ``render`` does both.
+    Pipelined callers (``Renderer.render_many``) submit the next request before collecting one.
+    Targets, scratch textures of the full-screen passes, their framebuffers and vertex arrays,
+    and the pack buffers are made once and reused, so a stream of frames allocates nothing."""
     name = "gl"
 
     def __init__(self, reference_image: np.ndarray, ctx=None, shader_dirs: tuple = (), dots=None):
@@ -84,6 +109,13 @@ class GLBackend:
         self._curved: dict[int, dict] = {}        # per quadratic mesh: glsim.stages.quadview.patch_data's cache
         self._patch_cache: dict[tuple, object] = {}   # the patches' GL buffers (_patch_buffers)
         self.geometry: GeometryBuffers | None = None  # the mesh's buffers (one mesh at a time)
+        self._pack = PackBuffers(self.ctx)
+        self._scratch: dict[tuple, list] = {}   # free (textures, framebuffer) of full-screen passes by shape
+        self._lent: dict[int, tuple] = {}       # id(texture) → its scratch entry while a frame uses it
+        self._fbos: dict[int, tuple] = {}       # id(texture) → (texture, framebuffer) drawing into it
+        self._vaos: dict[int, tuple] = {}       # id(program) → (program, attribute-less vertex array)
+        self._ray_host: dict[tuple, np.ndarray] = {}   # the float64 ray maps' bits on the host (truth polish)
+        self._dropped = None                    # deform.frag's count of samples mapping outside the reference
 
     # ---- resources -------------------------------------------------------------------------
     def _reference_texture(self, method: str):
@@ -136,6 +168,24 @@ class GLBackend:
         for buf in self._patch_cache.values():
             buf.release()
         self._patch_cache.clear()
+        for tex, fbo in self._fbos.values():
+            fbo.release()
+        entries = [e for free in self._scratch.values() for e in free] + list(self._lent.values())
+        for textures, fbo in {id(e): e for e in entries}.values():
+            fbo.release()
+            for t in textures:
+                t.release()
+        for _, vao in self._vaos.values():
+            vao.release()
+        for obj in (self._pack, self._dropped):
+            if obj is not None:
+                obj.release()
+        self._fbos.clear()
+        self._scratch.clear()
+        self._lent.clear()
+        self._vaos.clear()
+        self._ray_host.clear()
+        self._dropped = None
         self._curved.clear()
         self._targets.clear()
         self._textures.clear()
@@ -181,48 +231,64 @@ class GLBackend:
         return Capabilities(device_geometry=True, float64=self.fp64, passes=True)
 
     def render(self, request: Request) -> Raster:
-        """One request (glsim.backends.contract). Curved elements (exact, q4): the view's
-        elements are the quadratic patches' linear pieces and each sample is mapped on its
-        curved patch (shaders/quadratic.glsl); the raster comes back in the patches' terms."""
+        """One request (glsim.backends.contract): :meth:`submit`, then :meth:`collect`."""
+        return self.collect(self.submit(request))
+
+    def submit(self, request: Request) -> Frame:
+        """Queue every pass of one request and its read-backs; nothing waits for the GPU except,
+        in modes exact and q4, the 8-byte read of whether pass 2 needs its resolve and fallback
+        programs. Curved elements (exact, q4): the view's elements are the quadratic patches'
+        linear pieces and each sample is mapped on its curved patch (shaders/quadratic.glsl)."""
         v, opts, c = request.view, request.options, request.curved
         patches = None
         if c is not None:
             patches = patch_data(c.mesh, c.pieces, c.step, v, opts.mode, self._curved.setdefault(id(c.mesh), {}))
         self._make_current()
-        image, raster, stages = self._render_view(v, opts, request.truth, request.effects, patches,
-                                                  request.quantize if self.fp64 else None)
-        if raster is not None and c is not None:
-            raster = pieces_to_patches(raster, c.mesh, c.pieces, c.step, v.camera, opts.mode)
-        return Raster(image, raster, tuple(stages))
+        return self._render_view(v, opts, request.truth, request.effects, patches,
+                                 request.quantize if self.fp64 else None, c)
 
-    def _render_view(self, view: ViewSpec, opts, truth: bool, fx, patches, quantize: int | None = None):
+    def collect(self, frame: Frame) -> Raster:
+        """Fetch a submitted frame's image (and raster), and warn about its view's problems; the
+        raster comes back in the patches' terms for curved elements."""
+        self._make_current()
+        image = frame.image.fetch(self._pack)
+        frame.report()
+        raster, c = frame.raster(), frame.curved
+        if raster is not None and c is not None:
+            raster = pieces_to_patches(raster, c.mesh, c.pieces, c.step, frame.camera, frame.mode)
+        return Raster(image, raster, frame.stages)
+
+    def _render_view(self, view: ViewSpec, opts, truth: bool, fx, patches, quantize: int | None = None,
+                     curved=None) -> Frame:
         s = opts.supersampling
         W, H = view.camera.size
-        color, raster = self._deform(view, opts, s, truth and s == 1, fx, patches)
+        color, raster, report = self._deform(view, opts, s, truth and s == 1, fx, patches)
         stages = ["raster", "interpolate"] + (["light"] if fx.lighting is not None else [])   # one pass
         grey, depth, temps = color[0], (color[-1] if fx.blur else None), []
         if newton_subsamples(opts, s, patches is not None):
             stages.append("subsamples")
         elif s > 1:
-            grey, depth = self._downsample(grey, depth, W, H, s)
-            temps += [grey] + ([depth] if depth is not None else [])
+            grey, depth = self._downsample(grey, depth, W, H, s, scratch=temps)
             stages.append("downsample")
         if fx.blur:
             grey = self.blur_passes(grey, depth, fx.optics, fx.sigma_max, (W, H), temps, stages)
+        grey = self.camera_passes(grey, fx, (W, H), temps, stages)
         if fx.noise is not None:
-            grey = self.noise_pass(grey, fx.noise, fx.bit_depth, fx.noise_seed, fx.variance)
-            temps.append(grey)
+            grey = self.noise_pass(grey, fx.noise, fx.bit_depth, fx.noise_seed, fx.variance, scratch=temps)
             stages.append("noise")
-        image = self.quantize_pass(grey, quantize) if quantize else self.read(grey)
-        for t in temps:
-            t.release()
+        if quantize:
+            grey = self._quantized(grey, quantize, temps)
+        image = read_texture(self._pack, grey, _DTYPES[grey.dtype])
+        self._recycle(temps)
         if truth and s > 1:
-            _, raster = self._deform(view, replace(opts, samples_per_pixel=1), 1, True, Effects(), patches, warn=False)
-        return image, raster, stages
+            _, raster, _ = self._deform(view, replace(opts, samples_per_pixel=1), 1, True, Effects(), patches,
+                                        warn=False)
+        return Frame(image, raster or (lambda: None), report, tuple(stages), curved, view.camera, opts.mode)
 
     def _deform(self, view: ViewSpec, opts, s: int, truth: bool, fx, patches, warn: bool = True):
-        """The deformation pass into the cached target; returns its color textures and, if
-        ``truth``, the read-back raster."""
+        """The deformation pass into the cached target; returns its color textures, what
+        finishes the raster (if ``truth``; its reads queued) and what reports the view's
+        problems (its flags copied on the GPU; nothing if not ``warn``)."""
         ctx = self.ctx
         W, H = view.camera.size
         cam, ref_cam = view.camera, view.ref_camera
@@ -241,8 +307,7 @@ class GLBackend:
             # another renderer (a quadratic mesh's sag) must not carry over
             self._set(p, "u_extra_sag", [patches.extra_sag_px if patches is not None else 0.0], double)
 
-        dropped = ctx.buffer(bytes(4))  # deform.frag counts samples mapping outside the reference
-        buffers = [dropped]
+        dropped = self._dropped_counter()
         # the step's world-frame corner normals (uploaded once per step; rotated in deform.frag)
         normals = geo.normals(view, fx.lighting.normals == "flat") if fx.lighting is not None else None
 
@@ -276,7 +341,7 @@ class GLBackend:
                 if prog.get("u_ref", None) is not None:
                     prog["u_ref"].value = 0
             if prog.get("u_rays", None) is not None:
-                self._ray_map(cam, s, ray_kind).use(1)
+                self._ray_map(cam, s, ray_kind, fx.aperture).use(1)
                 prog["u_rays"].value = 1
 
         if opts.mode != "fast":
@@ -301,9 +366,7 @@ class GLBackend:
             for name, value in {**(uniforms or {}), "u_layer": layer}.items():
                 prog[name].value = value
             target.use()
-            vao = ctx.vertex_array(prog, [])
-            vao.render(ctx.TRIANGLES, vertices=3)
-            vao.release()
+            self._vao(prog).render(ctx.TRIANGLES, vertices=3)
 
         if pixel_loop:  # pass 2a at W×H: pixels done from their centre by Newton (subsamples.frag)
             pixel_fbo, pixel_color, _, pixel_grey, pixel_depth = self._target(W, H, False, False,
@@ -353,27 +416,33 @@ class GLBackend:
             color = pixel_color
         check_error(ctx, f"deformation pass ({opts.mode})")
         ctx.memory_barrier()  # shader storage writes visible to the read-backs
-        problems = geo.problems(view)  # read (and cleared) after every pass
-        if warn:
-            warn_problems(cam, problems, view.mesh_geo.labels, stacklevel=5)
-            warn_dropped(cam, int(np.frombuffer(dropped.read(), np.uint32)[0]), s)
-        for b in buffers:
-            b.release()
+        flags, size = geo.status()
+        status = read_buffer(self._pack, [(flags, size), (dropped, 4)]) if warn else None
+        geo.clear_status()     # (after the copy above: the GL orders them)
+        dropped.write(bytes(4))
+
+        def report():
+            if status is not None:
+                b = status.fetch(self._pack).tobytes()
+                warn_problems(cam, geo.problems(view, b[:size]), view.mesh_geo.labels, stacklevel=5)
+                warn_dropped(cam, int(np.frombuffer(b[size:], np.uint32)[0]), s)
+
         if not truth:
-            return color, None
-        m = np.frombuffer(color[1].read(), np.float32).reshape(H * W, 4)     # float32 columns, each widened once
-        x = np.frombuffer(color[2].read(), np.float32).reshape(H * W, 4)
-        elem = np.rint(x[:, 0]).astype(np.int64) - 1
-        raster = {"element": elem, "xi": m[:, 2].astype(np.float64), "eta": m[:, 3].astype(np.float64),
-                  "ref_uv": m[:, :2].astype(np.float64) + x[:, 1:3]}
-        if "TRUTH_LO" in defines:  # float64 in the shader: hi + lo is (ξ, η) to 2^-48
-            lo = np.frombuffer(color[3].read(), np.float32).reshape(H * W, 2)
-            raster["xi"] += lo[:, 0]
-            raster["eta"] += lo[:, 1]
-            return color, raster
-        if patches is not None:   # the patches' (ξ, η): polished by the caller (glsim.render)
-            return color, raster
-        return color, self._float64_truth(view, opts.mode, raster, fp64)
+            return color, None, report
+        reads = [read_texture(self._pack, t, np.float32) for t in color[1:4 if "TRUTH_LO" in defines else 3]]
+
+        def raster() -> dict:
+            m, x, *lo = (r.fetch(self._pack).reshape(H * W, -1) for r in reads)   # float32, each widened once
+            out = {"element": np.rint(x[:, 0]).astype(np.int64) - 1, "xi": m[:, 2].astype(np.float64),
+                   "eta": m[:, 3].astype(np.float64), "ref_uv": m[:, :2].astype(np.float64) + x[:, 1:3]}
+            if lo:  # float64 in the shader: hi + lo is (ξ, η) to 2^-48
+                out["xi"] += lo[0][:, 0]
+                out["eta"] += lo[0][:, 1]
+                return out
+            if patches is not None:   # the patches' (ξ, η): polished by the caller (glsim.render)
+                return out
+            return self._float64_truth(view, opts.mode, out, fp64)
+        return color, raster, report
 
     def _patch_buffers(self, patches, mode: str, fp64: bool):
         """Bindings PATCH_NODES (the patches' local control points at this step) and PATCH_REF (their reference
@@ -404,8 +473,9 @@ class GLBackend:
         sub = np.full(len(hit), -1, np.int64)
         sub[hit] = local
         key = _ray_key(view.camera, 1, "bits")
-        xn = (np.frombuffer(self._rays[key].read(), np.float64).reshape(H * W, 2)
-              if mode == "exact" and fp64 and key in self._rays else None)
+        if mode == "exact" and fp64 and key in self._rays and key not in self._ray_host:
+            self._ray_host[key] = np.frombuffer(self._rays[key].read(), np.float64).reshape(H * W, 2)
+        xn = self._ray_host.get(key) if mode == "exact" and fp64 else None
         out = truth.polish(view.subset(elements), mode, dict(raster, element=sub), xn)
         out["element"] = raster["element"]
         return out
@@ -436,16 +506,18 @@ class GLBackend:
             if name in prog:
                 prog[name].value = value
 
-    def _ray_map(self, cam, s: int, kind: str):
-        """Cached per camera model, supersampling and ``kind`` (shaders/rays.frag): (W·s)×(H·s)
-        undistorted rays, "bits" as float64 pairs (RGBA32UI), "split" as float32 hi + lo made in
-        float64, "float" in float32 (RGBA32F)."""
-        key = _ray_key(cam, s, kind)
+    def _ray_map(self, cam, s: int, kind: str, aperture: float = 1.0):
+        """Cached per camera model, supersampling, ``kind`` and ``aperture`` (shaders/rays.frag):
+        (W·s)×(H·s) undistorted rays, "bits" as float64 pairs (RGBA32UI), "split" as float32 hi + lo
+        made in float64, "float" in float32 (RGBA32F); ``aperture`` < 1 (√ of the sensor's fill
+        factor) scales the samples' offsets from their pixel centres."""
+        key = _ray_key(cam, s, kind, aperture)
         if key not in self._rays:
             W, H = cam.size
             fp64 = kind != "float"
             defines = {"SS": s, **({"FP64": None} if fp64 else {}),
-                       **({"RAY_BITS": None} if kind == "bits" else {"RAY_SPLIT": None} if kind == "split" else {})}
+                       **({"RAY_BITS": None} if kind == "bits" else {"RAY_SPLIT": None} if kind == "split" else {}),
+                       **({"APERTURE": aperture_literal(aperture, fp64)} if aperture != 1.0 else {})}
             prog = self.programs.program("fullscreen.vert", "rays.frag", defines=defines)
             self._set(prog, "u_intr", cam.intrinsics, fp64)
             self._set(prog, "u_dist", cam.distortion.coeffs, fp64)
@@ -465,13 +537,15 @@ class GLBackend:
         return self._rays[key]
 
     def fullscreen_pass(self, frag: str, defines: dict, inputs: dict, uniforms: dict, size: tuple[int, int],
-                        components: tuple[int, ...] = (1,), into=None, dtype: str = "f4"):
+                        components: tuple[int, ...] = (1,), into=None, dtype: str = "f4", scratch: list | None = None):
         """Run a full-screen fragment pass into a new R32F texture of ``size`` (W, H); the
         caller releases it. ``inputs`` maps sampler names to textures or float arrays (H, W)
         (arrays are uploaded for the pass and released after it). ``components``: one texture
         per fragment output with that many components (then a tuple is returned), of moderngl
         ``dtype``. ``into``: an existing texture to draw into instead (pixels the shader
-        discards keep their values); it is returned."""
+        discards keep their values); it is returned. ``scratch``: a frame's list of textures
+        on loan: the outputs are taken from the backend's reused ones and added to it
+        (:meth:`_recycle` gives them back), not made and released."""
         ctx = self.ctx
         W, H = size
         prog = self.programs.program("fullscreen.vert", frag, defines=defines)
@@ -488,17 +562,62 @@ class GLBackend:
         for name, value in uniforms.items():
             if name in prog:
                 prog[name].value = value
-        outs = [into] if into is not None else [ctx.texture((W, H), n, dtype=dtype) for n in components]
-        fbo = ctx.framebuffer(color_attachments=outs)
+        if into is not None:
+            outs, fbo = (into,), self._framebuffer_into(into)
+        elif scratch is not None:
+            outs, fbo = self._borrow((W, H), tuple(components), dtype)
+            scratch.extend(outs)
+        else:
+            outs = tuple(ctx.texture((W, H), n, dtype=dtype) for n in components)
+            fbo = ctx.framebuffer(color_attachments=list(outs))
+            uploaded.append(fbo)
         fbo.use()
         fbo.viewport = (0, 0, W, H)
-        vao = ctx.vertex_array(prog, [])
-        vao.render(ctx.TRIANGLES, vertices=3)
+        self._vao(prog).render(ctx.TRIANGLES, vertices=3)
         check_error(ctx, f"pass {frag} {sorted(defines)}")
         self._unbind()
-        for obj in (vao, fbo, *uploaded):
+        for obj in uploaded:
             obj.release()
-        return outs[0] if len(outs) == 1 else tuple(outs)
+        return outs[0] if len(outs) == 1 else outs
+
+    def _vao(self, prog):
+        """The attribute-less vertex array of a program (made once per program)."""
+        if id(prog) not in self._vaos:
+            self._vaos[id(prog)] = (prog, self.ctx.vertex_array(prog, []))
+        return self._vaos[id(prog)][1]
+
+    def _framebuffer_into(self, tex):
+        """A framebuffer drawing into one of this backend's own textures (made once per texture)."""
+        if id(tex) not in self._fbos:
+            self._fbos[id(tex)] = (tex, self.ctx.framebuffer(color_attachments=[tex]))
+        return self._fbos[id(tex)][1]
+
+    def _borrow(self, size: tuple[int, int], components: tuple[int, ...], dtype: str):
+        """Scratch textures of one shape with their framebuffer, reused across frames."""
+        free = self._scratch.setdefault((size, components, dtype), [])
+        if free:
+            entry = free.pop()
+        else:
+            outs = tuple(self.ctx.texture(size, n, dtype=dtype) for n in components)
+            entry = (outs, self.ctx.framebuffer(color_attachments=list(outs)))
+        for t in entry[0]:
+            self._lent[id(t)] = entry
+        return entry
+
+    def _recycle(self, textures: list) -> None:
+        """Give a frame's scratch textures back (the GL orders their next use after the reads
+        queued from them)."""
+        for t in textures:
+            entry = self._lent.pop(id(t), None)
+            if entry is not None and all(id(o) not in self._lent for o in entry[0]):
+                outs = entry[0]
+                self._scratch[(outs[0].size, tuple(o.components for o in outs), outs[0].dtype)].append(entry)
+
+    def _dropped_counter(self):
+        """deform.frag's count of samples mapping outside the reference (zero at each frame's start)."""
+        if self._dropped is None:
+            self._dropped = self.ctx.buffer(bytes(4))
+        return self._dropped
 
     def blur_passes(self, grey, depth, optics, sigma_max: float, size: tuple[int, int], temps: list, stages: list):
         """The depth-of-field passes of ``optics.scheme`` (glsim.effects.dof.blur_scheme) on the
@@ -513,8 +632,8 @@ class GLBackend:
         def run(name, inputs, components=(1,)):
             # FP64: sigma and window in double from double uniforms, bit for bit numpy's
             defines = {name: None, "MAX_RADIUS": radius, **({"FP64": None} if self.fp64 else {})}
-            out = self.fullscreen_pass("blur.frag", defines, {**inputs, "u_depth": depth}, uniforms, size, components)
-            temps.extend(out if isinstance(out, tuple) else (out,))
+            out = self.fullscreen_pass("blur.frag", defines, {**inputs, "u_depth": depth}, uniforms, size, components,
+                                       scratch=temps)
             stages.append(name.lower())
             return out
 
@@ -535,38 +654,50 @@ class GLBackend:
         tex.read_into(out)
         return out
 
-    def _downsample(self, samples, depth, W: int, H: int, s: int, into=None):
+    def _downsample(self, samples, depth, W: int, H: int, s: int, into=None, scratch: list | None = None):
         """Box filter over s×s samples: grey, and the mean depth of covered samples if given.
         ``into``: the (grey, depth) textures to draw into, skipping the pixels subsamples.frag
-        finished (their candidate count is LIST_DONE; the lists bound as images)."""
+        finished (their candidate count is LIST_DONE; the lists bound as images); else scratch
+        textures added to ``scratch``."""
         skip = {} if into is None else {"SKIP_DONE": None}
         into = into if into is not None else (None, None)
         grey = self.fullscreen_pass("downsample.frag", {"SS": s, **skip}, {"u_samples": samples}, {}, (W, H),
-                                    into=into[0])
+                                    into=into[0], scratch=scratch)
         if depth is None:
             return grey, None
         return grey, self.fullscreen_pass("downsample.frag", {"SS": s, "COVERED_MEAN": None, **skip},
-                                          {"u_samples": depth}, {}, (W, H), into=into[-1])
+                                          {"u_samples": depth}, {}, (W, H), into=into[-1], scratch=scratch)
 
     def quantize_pass(self, grey, bit_depth: int) -> np.ndarray:
         """shaders/quantize.frag on an R32F texture or (H, W) array: the image as
         :func:`glsim.io.images.quantize` gives it (uint8, or uint16 for 10–16 bits), read back
         in that type. Needs float64 (``self.fp64``)."""
-        H, W = grey.shape if isinstance(grey, np.ndarray) else grey.size[::-1]
-        dtype = np.uint8 if bit_depth == 8 else np.uint16
-        tex = self.fullscreen_pass("quantize.frag", {"FP64": None}, {"u_src": grey}, {"u_top": float((1 << bit_depth) - 1)},
-                                   (W, H), dtype="u1" if bit_depth == 8 else "u2")
-        out = np.empty((H, W), dtype)
-        tex.read_into(out)
-        tex.release()
-        return out
+        temps: list = []
+        out = read_texture(self._pack, self._quantized(grey, bit_depth, temps), np.uint8 if bit_depth == 8 else np.uint16)
+        self._recycle(temps)
+        return out.fetch(self._pack)
 
-    def noise_pass(self, grey, params, bit_depth: int, seed: int, table=None):
+    def _quantized(self, grey, bit_depth: int, scratch: list):
+        """The texture of :meth:`quantize_pass` (R8UI / R16UI, on loan in ``scratch``)."""
+        H, W = grey.shape if isinstance(grey, np.ndarray) else grey.size[::-1]
+        return self.fullscreen_pass("quantize.frag", {"FP64": None}, {"u_src": grey},
+                                    {"u_top": float((1 << bit_depth) - 1)}, (W, H),
+                                    dtype="u1" if bit_depth == 8 else "u2", scratch=scratch)
+
+    def noise_pass(self, grey, params, bit_depth: int, seed: int, table=None, scratch: list | None = None):
         """noise.frag on an R32F texture or (H, W) array: grey + σ(grey)·z, the same field as
-        :func:`glsim.effects.noise.add_noise`."""
+        :func:`glsim.effects.noise.add_noise` (``scratch``: as for :meth:`fullscreen_pass`)."""
         inputs = {"u_src": grey}
         if params.model == "heteroscedastic":
             inputs["u_variance"] = noise.variance_texture(table, bit_depth)
         H, W = grey.shape if isinstance(grey, np.ndarray) else grey.size[::-1]
         uniforms = {**noise.shader_uniforms(params, bit_depth), "u_seed": int(seed), "u_width": W}
-        return self.fullscreen_pass("noise.frag", noise.shader_defines(params), inputs, uniforms, (W, H))
+        return self.fullscreen_pass("noise.frag", noise.shader_defines(params), inputs, uniforms, (W, H),
+                                    scratch=scratch)
+
+    def camera_passes(self, grey, fx, size: tuple[int, int], scratch: list, stages: list):
+        """Vignetting, lens PSF and fixed-pattern noise where ``fx`` asks for them
+        (:func:`glsim.backends.gl.sensor_passes.camera_passes`)."""
+        from glsim.backends.gl.sensor_passes import camera_passes
+
+        return camera_passes(self, grey, fx, size, scratch, stages)

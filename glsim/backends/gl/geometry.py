@@ -56,6 +56,7 @@ class GeometryBuffers:
         self.geo = geo
         self.M = len(geo.quads)
         self._bufs: dict = {}
+        self._vaos: dict = {}       # (id(program), indexed) → (program, attribute-less vertex array)
         self._steps: OrderedDict = OrderedDict()
         self.uploads = {"mesh": 0, "step": 0}   # what was uploaded (tests)
         self.view_passes = 0
@@ -276,9 +277,7 @@ class GeometryBuffers:
         prog["u_layer"].value = 0.0
         self.bind_lists(W, H)
         depth_only.use()
-        vao = self.ctx.vertex_array(prog, [])
-        vao.render(self.ctx.TRIANGLES, vertices=3)
-        vao.release()
+        self._vao(prog, indexed=False).render(self.ctx.TRIANGLES, vertices=3)
 
     def bind_lists(self, W: int, H: int, prog=None) -> None:
         """The lists as images (pass 1) and, for ``prog`` (pass 2), as textures on units 2, 3."""
@@ -300,27 +299,42 @@ class GeometryBuffers:
 
     def draw(self, prog) -> None:
         """All elements' triangles (attribute-less vertices, the index buffer made once)."""
-        vao = self.ctx.vertex_array(prog, [], index_buffer=self.index_buffer(), index_element_size=4)
-        vao.render(self.ctx.TRIANGLES, vertices=6 * self.M)
-        vao.release()
+        self._vao(prog, indexed=True).render(self.ctx.TRIANGLES, vertices=6 * self.M)
 
-    def problems(self, view: ViewSpec) -> dict:
+    def _vao(self, prog, indexed: bool):
+        """A program's attribute-less vertex array (with the index buffer if ``indexed``), made once."""
+        key = (id(prog), indexed)
+        if key not in self._vaos:
+            index = {"index_buffer": self.index_buffer(), "index_element_size": 4} if indexed else {}
+            self._vaos[key] = (prog, self.ctx.vertex_array(prog, [], **index))
+        return self._vaos[key][1]
+
+    def status(self) -> tuple[object, int]:
+        """The problem flags' buffer and its size in bytes: a 16-byte header (whether anything was
+        marked grazing / unprojectable) and one bitset per kind."""
+        return self._bufs["flags"], 16 + 8 * _bitset_words(self.M)
+
+    def clear_status(self) -> None:
+        """Clear the problem flags for the next view (after :meth:`status` was copied)."""
+        flags, size = self.status()
+        flags.write(bytes(size))
+
+    def problems(self, view: ViewSpec, status: bytes) -> dict:
         """This view's element problems: the step's shape problems and what the GPU marked
-        (grazing, does not project), as sorted index arrays. Reads 16 bytes, and the bitsets
-        (then cleared) only where something was marked."""
-        flags = self._bufs["flags"]
-        any_ = np.frombuffer(flags.read(size=16), np.uint32)
+        (grazing, does not project) in ``status`` (the bytes of :meth:`status` after its passes),
+        as sorted index arrays."""
+        any_ = np.frombuffer(status[:16], np.uint32)
         out = {k: v for k, v in view.step_geo.shape().items() if k != "excluded"}
-        if any_[:2].any():
-            words = _bitset_words(self.M)
-            bits = flags.read(size=8 * words, offset=16)
-            for k, name in enumerate(("grazing", "unprojectable")):
-                if any_[k]:
-                    out[name] = np.flatnonzero(unpack_bits(bits[4 * words * k:4 * words * (k + 1)], self.M))
-            flags.write(bytes(16 + 8 * words))
+        words = _bitset_words(self.M)
+        for k, name in enumerate(("grazing", "unprojectable")):
+            if any_[k]:
+                out[name] = np.flatnonzero(unpack_bits(status[16 + 4 * words * k:16 + 4 * words * (k + 1)], self.M))
         return out
 
     def release(self) -> None:
+        for _, vao in self._vaos.values():
+            vao.release()
+        self._vaos.clear()
         for b in self._bufs.values():
             for obj in (b if isinstance(b, tuple) else (b,)):
                 if hasattr(obj, "release"):

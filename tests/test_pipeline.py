@@ -1,0 +1,86 @@
+"""Pipelined rendering (``Renderer.render_many``): the same images and truth, bit for bit, as
+one render at a time, in every mode and with both backends; a steady stream of frames makes no
+new GL objects; a stream stopped early leaves nothing queued."""
+import dataclasses
+
+import numpy as np
+import pytest
+
+from glsim.errors import SceneError
+from glsim.render import Renderer
+from glsim.scene import Noise
+from tests._plates import plate_scene
+
+BACKENDS = ["cpu", pytest.param("gl", marks=pytest.mark.gl)]
+
+
+def _scene(mode: str, spp: int):
+    scene = plate_scene((96, 72), fx=1200.0, mode=mode, samples_per_pixel=spp,
+                        second={"name": "d", "t": (-4.0, 0.0, 0.0)})
+    return dataclasses.replace(scene, noise=Noise(sigma=1.0))
+
+
+def _jobs():
+    """Both cameras, both steps, truth and quantisation mixed: every read-back kind in the queue."""
+    return [{"camera": "c", "step": 0, "truth": True}, ("d", 1), {"camera": "c", "step": 1, "quantize": True},
+            {"camera": "d", "step": 0, "truth": True, "quantize": True}, ("c", 1)]
+
+
+def _same(a, b) -> None:
+    assert a.image.dtype == b.image.dtype and a.image.tobytes() == b.image.tobytes()
+    assert (a.truth is None) == (b.truth is None) and a.stages == b.stages
+    if a.truth is not None:
+        for k in ("element", "xi", "eta", "ref_uv"):
+            assert np.array_equal(getattr(a.truth, k), getattr(b.truth, k), equal_nan=True), k
+
+
+@pytest.mark.parametrize("backend", BACKENDS)
+@pytest.mark.parametrize("mode,spp", [("fast", 1), ("q4", 4), ("exact", 1), ("exact", 4)])
+def test_render_many_gives_the_bytes_of_one_render_at_a_time(backend, mode, spp, ctx_for):
+    with Renderer(_scene(mode, spp), backend, ctx=ctx_for(backend)) as r:
+        single = []
+        for job in _jobs():
+            args = dict(job) if isinstance(job, dict) else dict(zip(("camera", "step"), job))
+            single.append(r.render(**args))
+        for depth in (1, 2, 3):
+            many = list(r.render_many(_jobs(), depth=depth))
+            assert [(x.camera.name, x.step) for x in many] == [(x.camera.name, x.step) for x in single]
+            for a, b in zip(many, single):
+                _same(a, b)
+
+
+CONSTRUCTORS = ("texture", "texture_array", "buffer", "framebuffer", "empty_framebuffer", "vertex_array",
+                "depth_renderbuffer", "renderbuffer", "program", "compute_shader")
+
+
+@pytest.mark.gl
+@pytest.mark.parametrize("mode,spp", [("fast", 1), ("exact", 4)])
+def test_a_stream_of_frames_makes_no_new_gl_objects(mode, spp, gl_ctx, monkeypatch):
+    """After a first pass over the jobs every target, scratch texture, framebuffer, vertex array
+    and pack buffer exists: a second pass calls none of the context's constructors."""
+    with Renderer(_scene(mode, spp), "gl", ctx=gl_ctx) as r:
+        list(r.render_many(_jobs()))
+        made = []
+        for name in CONSTRUCTORS:
+            make = getattr(type(gl_ctx), name)
+            monkeypatch.setattr(type(gl_ctx), name,
+                                lambda self, *a, _name=name, _make=make, **k: (made.append(_name), _make(self, *a, **k))[1])
+        list(r.render_many(_jobs()))
+        monkeypatch.undo()
+        assert made == []
+
+
+@pytest.mark.gl
+def test_a_stream_stopped_early_collects_what_it_queued(gl_ctx):
+    with Renderer(_scene("exact", 1), "gl", ctx=gl_ctx) as r:
+        stream = r.render_many(_jobs(), depth=3)
+        next(stream)
+        stream.close()                          # two frames were still queued
+        assert not r.backend._lent
+        again = r.render("c", 0, truth=True)    # the renderer goes on as before
+        _same(again, next(iter(r.render_many([{"camera": "c", "step": 0, "truth": True}]))))
+
+
+def test_depth_below_one_is_refused():
+    with Renderer(_scene("exact", 1), "cpu") as r, pytest.raises(SceneError, match="depth"):
+        list(r.render_many([("c", 0)], depth=0))
