@@ -15,6 +15,18 @@
 #define UNDISTORT_MAX_ITER 20
 #define UNDISTORT_MAX_HALVINGS 20
 
+#ifdef APERTURE
+// The pixel point of sample `q` (its index on the SS-times grid) on a sensor of fill factor
+// f < 1: its offset from the pixel centre scaled by APERTURE = sqrt(f) (a real literal), in
+// glsim.scene.camera.pixel_grid's operations and order.
+real2 aperture_sample(ivec2 q) {
+    ivec2 pix = q / SS;
+    precise real2 off = (real2(q - pix * SS) + real(0.5)) / real(SS) - real(0.5);
+    precise real2 px = real2(pix) + APERTURE * off;
+    return px;
+}
+#endif
+
 // (radial factor, its derivative with respect to r2)
 // `precise` here and below: numpy's operations in numpy's order, so that FP64 builds give the
 // oracle's projections bit for bit on every driver (no contraction into fused multiply-adds).

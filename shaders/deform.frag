@@ -328,8 +328,13 @@ void main() {
 #elif !defined(EARLY_TESTS)
     if (n != 1u) discard;
 #endif
+#ifdef APERTURE
+    real2 px = aperture_sample(ivec2(gl_FragCoord.xy));   // sensor.fill_factor < 1
+    vec2 sample_px = vec2(px);
+#else
     vec2 sample_px = gl_FragCoord.xy / float(SS) - 0.5;  // this sample's pixel coordinates
     real2 px = real2(gl_FragCoord.xy) / real(SS) - 0.5;
+#endif
     real2 xn = real2(0.0);
 #if defined(MODE_EXACT)
     if (!ray_at(u_rays, ivec2(gl_FragCoord.xy), xn)) discard;

@@ -36,13 +36,17 @@ float neg_log_unit(float u) {
     return 2.0 * s * p;
 }
 
-// Standard normal by Box-Muller (cosine branch); u1 > 0, so log never sees 0.
-// cos(2 pi u2) = -cos(2 pi (u2 - 1/2)): u2 - 1/2 is exact and the angle stays in [-pi, pi].
-float standard_normal(uint index, uint seed) {
-    float u1 = uniform01(index, seed, 0u);
-    float u2 = uniform01(index, seed, 1u);
+// Standard normal by Box-Muller (cosine branch) from streams `stream` and `stream + 1`; u1 > 0,
+// so log never sees 0. cos(2 pi u2) = -cos(2 pi (u2 - 1/2)): u2 - 1/2 is exact and the angle
+// stays in [-pi, pi].
+float standard_normal(uint index, uint seed, uint stream) {
+    float u1 = uniform01(index, seed, stream);
+    float u2 = uniform01(index, seed, stream + 1u);
     return -sqrt(2.0 * neg_log_unit(u1)) * cos(6.283185307179586 * (u2 - 0.5));
 }
+
+// The temporal noise's normal: streams 0 and 1.
+float standard_normal(uint index, uint seed) { return standard_normal(index, seed, 0u); }
 
 // Noise standard deviation in full-scale units at grey level I (full scale).
 #if defined(NOISE_GAUSSIAN)

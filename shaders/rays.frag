@@ -22,7 +22,11 @@ out vec4 out_ray;
 void main() {
     // the sample's pixel coordinates: exact (gl_FragCoord is a half-integer, SS a power of two
     // or small), as glsim.scene.camera.pixel_grid's
+#ifdef APERTURE
+    real2 px = aperture_sample(ivec2(gl_FragCoord.xy));
+#else
     precise real2 px = real2(gl_FragCoord.xy) / real(SS) - 0.5;
+#endif
     real2 xn;
     bool ok = undistort(pixel_to_normalized(px, u_intr), u_dist, u_valid_r2, xn);
 #if defined(RAY_BITS)

@@ -5,17 +5,19 @@ lighting, blur or noise code and compile no such shader.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
-
+import math
 import typing
+from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 
 from glsim.scene.camera import Camera
-from glsim.scene import Lighting, Noise, Optics, Scene
+from glsim.scene import Lighting, Noise, Optics, Scene, Sensor
 
 if typing.TYPE_CHECKING:
     from glsim.effects.lighting import LightArrays
+    from glsim.effects.psf import Kernel as PsfKernel
 
 
 @dataclass(frozen=True, eq=False)
@@ -23,7 +25,8 @@ class Effects:
     """``lights``: camera-frame light arrays; ``normals``: (M, 4, 3) unit corner normals in
     the camera frame; ``noise_seed``: this camera's and step's stream; ``variance``: the
     heteroscedastic table (levels DN, variance DN²); ``sigma_max``: the largest blur σ (or
-    disk radius) in px over the view's depth range (0: nothing to blur)."""
+    disk radius) in px over the view's depth range (0: nothing to blur); ``aperture``,
+    ``vignette``, ``psf``, ``sensor`` (fixed-pattern noise): docs/camera.md."""
     lighting: Lighting | None = None
     lights: LightArrays | None = None
     normals: np.ndarray | None = None
@@ -33,10 +36,19 @@ class Effects:
     noise_seed: int = 0
     variance: tuple | None = None
     bit_depth: int = 8
+    aperture: float = 1.0                   # √(sensor.fill_factor): the samples' offsets' scale
+    vignette: np.ndarray | None = None      # (H, W) float64 gain (glsim.effects.vignetting)
+    psf: PsfKernel | None = None            # the lens PSF (glsim.effects.psf)
+    sensor: Sensor | None = None            # for its fixed-pattern noise (prnu, dsnu)
+    fpn_seed: int = 0                       # this camera's fixed-pattern stream (not the step's)
 
     @property
     def blur(self) -> bool:
         return self.optics is not None and self.sigma_max > 0
+
+    @property
+    def fixed_pattern(self) -> bool:
+        return self.sensor is not None and (self.sensor.prnu > 0 or self.sensor.dsnu > 0)
 
 
 def corner_normals(nodes: np.ndarray, quads: np.ndarray, cam: Camera, flat: bool) -> np.ndarray:
@@ -85,6 +97,19 @@ def prepare(scene: Scene, nodes_def: np.ndarray, quads: np.ndarray, cam: Camera,
         out.update(noise=nz, noise_seed=noisemod.stream_seed(scene.seed, camera_index, step))
         if nz.model == "heteroscedastic":
             out["variance"] = noisemod.load_variance_table(scene.resolve(nz.variance_file), cam.bit_depth)
+    if scene.sensor is not None:
+        from glsim.effects import noise as noisemod
+
+        out.update(aperture=math.sqrt(scene.sensor.fill_factor), sensor=scene.sensor,
+                   fpn_seed=noisemod.fixed_pattern_seed(scene.seed, camera_index))
+    if scene.vignetting is not None:
+        from glsim.effects.vignetting import flat_field
+
+        out["vignette"] = flat_field(cam, scene.vignetting)
+    if scene.psf is not None:
+        from glsim.effects.psf import make_kernel
+
+        out["psf"] = make_kernel(scene.psf, Path(scene.base_dir))
     return Effects(**out)
 
 

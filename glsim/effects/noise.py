@@ -51,6 +51,7 @@ from glsim.errors import SceneError
 MODELS = ("gaussian", "heteroscedastic", "poisson_gaussian")
 UNIT_BITS = 24                      # bits of each hash kept for a uniform (exact in float32)
 STREAM_U1, STREAM_U2 = 0, 1         # the Box–Muller streams
+STREAM_PRNU, STREAM_DSNU = 2, 4     # the fixed-pattern maps' streams (each and the next)
 TABLE_COLS_MAX = 4096               # the variance texture wraps into rows beyond this width
 
 
@@ -100,10 +101,11 @@ def uniform01(index, seed, stream) -> np.ndarray:
     return unit_from_hash(h)
 
 
-def standard_normal(index, seed) -> np.ndarray:
-    """Standard normal (Box–Muller, cosine branch) for each flat pixel index v·W + u."""
-    u1 = uniform01(index, seed, STREAM_U1)
-    u2 = uniform01(index, seed, STREAM_U2)
+def standard_normal(index, seed, stream: int = STREAM_U1) -> np.ndarray:
+    """Standard normal (Box–Muller, cosine branch) for each flat pixel index v·W + u, from the
+    uniforms of streams ``stream`` and ``stream + 1`` (the temporal noise: 0 and 1)."""
+    u1 = uniform01(index, seed, stream)
+    u2 = uniform01(index, seed, stream + 1)
     return np.sqrt(-2.0 * np.log(u1)) * np.cos(2.0 * np.pi * u2)
 
 
@@ -134,6 +136,30 @@ def stream_seed(scene_seed: int, camera_index: int, step: int) -> int:
         h = pcg_hash(h + np.uint32(c))
         h = pcg_hash(h + np.uint32(t))
     return int(h)
+
+
+def fixed_pattern_seed(scene_seed: int, camera_index: int) -> int:
+    """The uint32 seed of a camera's fixed-pattern noise: hash(hash(scene_seed) + camera), the
+    same at every load step (its maps draw on streams STREAM_PRNU and STREAM_DSNU, which the
+    temporal noise never uses)."""
+    s = _seed_word(scene_seed, "seed")
+    c = _seed_word(camera_index, "camera_index")
+    with np.errstate(over="ignore"):
+        return int(pcg_hash(pcg_hash(np.uint32(s)) + np.uint32(c)))
+
+
+def fixed_pattern(image, prnu: float, dsnu: float, bit_depth: int, seed: int) -> np.ndarray:
+    """EMVA 1288 fixed-pattern noise, float64 (H, W): image · (1 + prnu/100 · z_p) + dsnu/(2^bits − 1) · z_d,
+    z_p and z_d standard normal maps of ``seed`` (:func:`fixed_pattern_seed`) on streams
+    STREAM_PRNU and STREAM_DSNU; ``prnu`` in % of the signal, ``dsnu`` in DN."""
+    I = np.asarray(image, np.float64)
+    H, W = I.shape
+    index = np.arange(H * W, dtype=np.uint32).reshape(H, W)
+    seed = np.uint32(_seed_word(seed, "seed"))
+    out = I * (1.0 + prnu / 100.0 * standard_normal(index, seed, STREAM_PRNU)) if prnu else I
+    if dsnu:
+        out = out + dsnu / ((1 << _check_bits(bit_depth)) - 1) * standard_normal(index, seed, STREAM_DSNU)
+    return out
 
 
 # ---- parameters --------------------------------------------------------------------------------

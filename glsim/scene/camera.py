@@ -401,16 +401,23 @@ def pixel_rays(uv, cam: Camera):
     return d / np.linalg.norm(d, axis=-1, keepdims=True), ok
 
 
-def pixel_grid(cam: Camera, spp: int = 1):
+def pixel_grid(cam: Camera, spp: int = 1, aperture: float = 1.0):
     """Sample coordinates (H·s, W·s, 2) as (u, v) px for s×s supersampling, s = √spp.
 
     Sample i of s along an axis sits at offset (i + 0.5)/s − 0.5 from the
-    pixel centre; with spp = 1 this is the pixel centres.
+    pixel centre; with spp = 1 this is the pixel centres. ``aperture`` < 1 (√ of the sensor's
+    fill factor) scales the offsets: pixel c's samples at c + aperture·((i + 0.5)/s − 0.5),
+    in float64 as shaders/rays.frag and deform.frag place them.
     """
     s = math.isqrt(spp) if _is_int(spp) and spp > 0 else 0
     if s * s != spp or s == 0:
         raise SceneError("spp", f"must be a perfect square (1, 4, 9, 16, ...), got {spp!r}",
                          "use samples per pixel = s² for an s×s sub-pixel grid")
+    if aperture != 1.0:
+        off = (np.arange(s) + 0.5) / s - 0.5
+        u = (np.arange(cam.width)[:, None] + aperture * off).ravel()
+        v = (np.arange(cam.height)[:, None] + aperture * off).ravel()
+        return np.stack(np.meshgrid(u, v), axis=-1)
     u = (np.arange(cam.width * s) + 0.5) / s - 0.5
     v = (np.arange(cam.height * s) + 0.5) / s - 0.5
     uu, vv = np.meshgrid(u, v)

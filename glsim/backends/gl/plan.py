@@ -63,7 +63,15 @@ def deform_defines(opts, truth: bool, fp64: bool, fx=None) -> dict:
     if fx is not None and fx.blur:
         d["DEPTH_OUT"] = None
         d["DEPTH_LOCATION"] = 1 + 2 * truth + ("TRUTH_LO" in d)
+    if fx is not None and fx.aperture != 1.0:
+        d["APERTURE"] = aperture_literal(fx.aperture, "FP64" in d)
     return d
+
+
+def aperture_literal(aperture: float, fp64: bool) -> str:
+    """√(sensor.fill_factor) as a GLSL literal of type ``real`` (shaders/camera.glsl's
+    aperture_sample): the float64 value's shortest repr, with ``lf`` for float64 programs."""
+    return repr(float(aperture)) + ("lf" if fp64 else "")
 
 
 def newton_subsamples(opts, s: int, quadratic: bool) -> bool:
@@ -120,6 +128,13 @@ def plan(opts, truth: bool, fp64_driver: bool, fx, camera, ref_camera, pieces: i
         passes += [Pass("downsample.frag")] * (1 + blur)   # grey, and the covered samples' mean depth
     if blur:
         passes += [Pass("blur.frag", "", name) for name in BLUR_PASSES[blur_scheme(fx.optics)]]
+    if fx is not None and fx.vignette is not None:
+        passes.append(Pass("vignette.frag"))
+    if fx is not None and fx.psf is not None:
+        passes += [Pass("psf.frag", "", v) for v in (("PSF_ROWS", "PSF_COLUMNS") if fx.psf.taps is not None
+                                                       else ("PSF_2D",))]
+    if fx is not None and fx.fixed_pattern:
+        passes.append(Pass("fpn.frag"))
     if fx is not None and fx.noise is not None:
         passes.append(Pass("noise.frag"))
     return Plan(tuple(sorted(d.items())), rays, ref, camera_local, sub, tuple(passes))
