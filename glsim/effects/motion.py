@@ -109,16 +109,19 @@ def row_camera(cam: Camera, row: int) -> Camera:
     return dataclasses.replace(cam, size=(cam.width, 1), cy=cam.cy - row)
 
 
-def render(renderer, cam: Camera, step: int, truth: bool, quantize: bool, opts):
+def render(renderer, camera: int | str, step: int, truth: bool, quantize: bool, jacobian: bool, options: dict):
     """:meth:`glsim.render.Renderer.render` of a scene with ``[exposure]``: a
     :class:`~glsim.render.Result` whose image averages the sub-frames (module text)."""
     from glsim.render import Result
 
     t0 = time.perf_counter()
     scene, mesh = renderer.scene, renderer.drawn_mesh
-    if renderer.mesh.is_quadratic:
-        raise SceneError("exposure", "moves meshes of linear elements only; this mesh has quadratic ones",
-                         "remove [exposure], or give a mesh of linear (4-node, 3-node) elements")
+    check(not renderer.mesh.is_quadratic, "exposure", "moves meshes of linear elements only; this mesh has "
+          "quadratic ones", "remove [exposure], or give a mesh of linear (4-node, 3-node) elements")
+    check(not jacobian, "jacobian", "is not made for a scene with [exposure]", "remove [exposure], or jacobian")
+    opts = scene.replace(render=options).render if options else scene.render
+    renderer.check_size(camera, truth, opts)
+    cam = scene.camera(camera)
     line = scene.sensor.line_time if scene.sensor is not None else 0.0
     W, H = cam.size
     rows = [(row_camera(cam, v), tau) for v, tau in enumerate(row_offsets(H, line))] if line > 0 else [(cam, 0.0)]
@@ -136,9 +139,12 @@ def render(renderer, cam: Camera, step: int, truth: bool, quantize: bool, opts):
     image = np.concatenate(images).astype(np.float32)
     stages = tuple(frame.stages)
     fx = frame.effects
-    if fx.noise is not None:
-        from glsim.effects import noise
+    from glsim.effects import noise
 
+    if fx.fixed_pattern:   # as the backends, after the irradiance's stages: on the whole image
+        image = noise.fixed_pattern(image, fx.sensor.prnu, fx.sensor.dsnu, fx.bit_depth, fx.fpn_seed).astype(np.float32)
+        stages += ("fixed_pattern",)
+    if fx.noise is not None:
         image = noise.add_noise(image, fx.noise, fx.bit_depth, fx.noise_seed, fx.variance)
         stages += ("noise",)
     if quantize:
@@ -152,8 +158,9 @@ def render(renderer, cam: Camera, step: int, truth: bool, quantize: bool, opts):
 
 
 class _Frames:
-    """Renders the sub-frames of one image: the state at τ through the backend, without noise
-    (added once to the average); keeps the last frame's stages and truth raster."""
+    """Renders the sub-frames of one image: the state at τ through the backend, without temporal
+    and fixed-pattern noise (added once to the average); keeps the last frame's effects, stages
+    and truth raster."""
 
     def __init__(self, renderer, tl: Timeline, index: int, step: int, opts):
         self.r, self.tl, self.index, self.step, self.opts = renderer, tl, index, step, opts
@@ -167,7 +174,7 @@ class _Frames:
         fx = prepare_effects(r.scene, nodes, mesh.quads, cam, self.index, self.step, depths,
                              normals=not r.backend.capabilities.device_geometry)
         self.effects = fx
-        out = r.backend.render(Request(view, self.opts, truth, dataclasses.replace(fx, noise=None)))
+        out = r.backend.render(Request(view, self.opts, truth, dataclasses.replace(fx, noise=None, sensor=None)))
         self.stages = out.stages
         if truth:
             self.samples = out.samples

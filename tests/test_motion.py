@@ -1,0 +1,188 @@
+"""Motion over the exposure and the rolling shutter (glsim/effects/motion.py, docs/motion.md),
+checked against closed forms: the average of shifted renders, the box-filtered edge, the
+rolling shutter's shear; GL against the oracle; the tables' validation; absent tables cost
+nothing.
+
+The scene: a 20 × 15 mm plate 300 mm before a 64 × 48 px camera (fx = 500 px: 1 mm = 5/3 px,
+exactly linear, the plate parallel to the image), textured by a reference image in mm."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from _plates import plate_scene
+from glsim.errors import SceneError
+from glsim.effects import motion
+from glsim.render import Renderer
+from glsim.scene import Exposure, Plate, Sensor, Speckle, scene_from_dict
+
+Z, FX, SIZE = 300.0, 500.0, (64, 48)
+PX_PER_MM = FX / Z
+MM_PER_REF_PX = 0.05          # reference pixel: 1/12 camera px
+
+
+def edge_scene(tmp_path, profile, translations=(), **sections):
+    """The plate textured by ``profile(X)`` (grey level of the specimen's X, mm; the reference
+    image 440 × 320 px, centred on the plate), linear interpolation (reproduces a linear profile
+    exactly), with ``sections`` (exposure, sensor, …)."""
+    import tifffile
+
+    W = 440
+    X = (np.arange(W) - (W - 1) / 2) * MM_PER_REF_PX
+    tifffile.imwrite(tmp_path / "ref.tif", np.tile(profile(X), (320, 1)).astype(np.float32))
+    scene = plate_scene(size=SIZE, fx=FX, z=Z, interpolation="linear", base_dir=str(tmp_path),
+                        plate=Plate(width=20, height=15, nx=4, ny=3, translations=translations),
+                        speckle=Speckle(image="ref.tif", mm_per_px=MM_PER_REF_PX))
+    return scene.replace(**sections) if sections else scene
+
+
+def step_edge(X):
+    return (X > 0).astype(float)     # black at X < 0, white at X > 0: the edge at X = 0 (u = cx)
+
+
+def ramp(X):
+    return np.clip(0.5 + X / 8.0, 0, 1)   # grey 0.5 at X = 0, 1/8 per mm (0.075 per camera px)
+
+
+def render(scene, backend="cpu", step=0, **kw):
+    with Renderer(scene, backend) as r:
+        return r.render(0, step, **kw)
+
+
+def test_rigid_translation_is_the_average_of_shifted_renders(tmp_path):
+    """velocity v over T with S samples = the mean of the static renders at v·τ_i (the same
+    nodes, to the bit), and truth is the mid-exposure (static) truth with the motion range v·T."""
+    v, T, S = np.array([300.0, -120.0, 0.0]), 0.01, 5
+    taus = motion.sample_offsets(T, S)
+    base = edge_scene(tmp_path, step_edge)
+    shifted = edge_scene(tmp_path, step_edge, translations=tuple(tuple(v * t) for t in taus))
+    with Renderer(shifted, "cpu") as r:
+        frames = [r.render(0, k).image.astype(np.float64) for k in range(1, S + 1)]
+        still = r.render(0, 0, truth=True).truth
+    moving = render(base.replace(exposure={"time": T, "samples": S, "velocity": v.tolist()}), truth=True)
+    np.testing.assert_array_equal(moving.image, (sum(frames) / S).astype(np.float32))
+    tr = moving.truth
+    np.testing.assert_array_equal(tr.element, still.element)
+    np.testing.assert_array_equal(tr.X_deformed, still.X_deformed)
+    d = tr.uv_end[tr.mask] - tr.uv_start[tr.mask]   # pinhole, plate parallel to the image: exactly v·T·fx/Z
+    np.testing.assert_allclose(d, np.broadcast_to(v[:2] * T * PX_PER_MM, d.shape), atol=1e-9)
+
+
+def test_moving_edge_is_the_box_filtered_edge(tmp_path):
+    """A black/white edge moving d px during the exposure: the oracle's image is the midpoint
+    rule's staircase (1/S)·#{i: u > u_e + v_px·τ_i} wherever the pixel is ≥ 1 reference px from
+    every sampled edge, and within 1/(2S) + (1 ref px)/d of the box filter clip((u − u_e)/d + ½, 0, 1)."""
+    d, T, S = 8.0, 0.01, 16
+    v_px = d / T
+    scene = edge_scene(tmp_path, step_edge, exposure={"time": T, "samples": S, "velocity": [v_px / PX_PER_MM, 0, 0]})
+    row = render(scene).image[24, 20:44].astype(np.float64)   # inside the plate (u = 15…48)
+    u = np.arange(20, 44) - (SIZE[0] - 1) / 2                 # u − u_e
+    edges = v_px * motion.sample_offsets(T, S)
+    stair = (u[:, None] > edges[None]).mean(axis=1)
+    far = np.abs(u[:, None] - edges[None]).min(axis=1) > MM_PER_REF_PX * PX_PER_MM
+    assert far.sum() > 15
+    np.testing.assert_allclose(row[far], stair[far], atol=1e-6)
+    box = np.clip(u / d + 0.5, 0, 1)
+    assert np.abs(row - box).max() <= 1 / (2 * S) + MM_PER_REF_PX * PX_PER_MM / d
+
+
+def test_rolling_shutter_shears_a_translation(tmp_path):
+    """Row r is exposed at τ_r = (r − (H − 1)/2)·L: a plate moving at v_px shows the ramp's 0.5
+    crossing at u = cx + v_px·τ_r in row r (measured by linear interpolation, exact on a linear
+    profile), and row r's truth is displaced by v·τ_r."""
+    L, v_px = 1e-4, 1500.0          # 0.15 px per row: 3.5 px from the plate's top to its bottom row
+    v = v_px / PX_PER_MM
+    scene = edge_scene(tmp_path, ramp, exposure={"velocity": [v, 0, 0]}, sensor={"line_time": L})
+    res = render(scene, truth=True)
+    H = SIZE[1]
+    tau = motion.row_offsets(H, L)
+    rows = np.flatnonzero(res.truth.mask.any(axis=1))
+    assert len(rows) >= 20
+    for r in rows:
+        g = res.image[r].astype(np.float64)
+        k = np.flatnonzero((g[:-1] < 0.5) & (g[1:] >= 0.5))[0]
+        crossing = k + (0.5 - g[k]) / (g[k + 1] - g[k])
+        assert crossing == pytest.approx((SIZE[0] - 1) / 2 + v_px * tau[r], abs=1e-4)
+    tr = res.truth
+    disp = (tr.X_deformed - tr.X_undeformed)[rows]
+    np.testing.assert_allclose(np.nanmax(disp[..., 0], axis=1), v * tau[rows], atol=1e-9)
+
+
+def test_interpolation_between_load_steps(tmp_path):
+    """No rigid motion: the state at t_k + τ interpolates linearly between the load steps (at
+    k·step_time without solver times) and is held after the last step: the image is the mean of
+    static renders of the interpolated translations (np.interp, which holds at the ends)."""
+    a, b = (0.4, 0.0, 0.0), (1.0, 0.3, 0.0)
+    scene = edge_scene(tmp_path, ramp, translations=(a, b))
+    T, S, dt = 1.0, 4, 2.0      # steps at 0, 2, 4 s
+    ex = scene.replace(exposure={"time": T, "samples": S, "step_time": dt})
+    for step in (1, 2):         # step 2: its last two samples after the last step
+        times = step * dt + motion.sample_offsets(T, S)
+        states = [tuple(np.interp(t, [0, 2, 4], [0, a[i], b[i]]) for i in range(3)) for t in times]
+        with Renderer(edge_scene(tmp_path, ramp, translations=tuple(states)), "cpu") as r:
+            expect = sum(r.render(0, k).image.astype(np.float64) for k in range(1, S + 1)) / S
+        np.testing.assert_allclose(render(ex, step=step).image, expect, atol=1e-6)
+
+
+@pytest.mark.usefixtures("gl_ctx")
+@pytest.mark.parametrize("sections", [
+    {"exposure": {"time": 0.01, "samples": 4, "velocity": [300.0, 100.0, 0.0], "angular_velocity": [0, 0, 5.0]}},
+    {"exposure": {"time": 0.002, "samples": 2, "velocity": [600.0, 0.0, 0.0]}, "sensor": {"line_time": 5e-5}},
+], ids=["exposure", "rolling"])
+def test_gl_matches_the_oracle(tmp_path, sections):
+    """GL and the oracle render the same sub-frames (their node states are made once, in numpy
+    float64, for both), and the image is their float64 mean rounded to float32 (≤ 1 float32 ulp
+    at 1, 6e-8). So |GL − oracle| ≤ the static renders' difference (the float32 shading, ~1e-6
+    here) + 6e-8, and far below half an 8-bit grey level."""
+    scene = edge_scene(tmp_path, ramp, **sections)
+    cpu, gl = render(scene, "cpu"), render(scene, "gl")
+    static = edge_scene(tmp_path, ramp)
+    bound = float(np.abs(render(static, "gl").image - render(static, "cpu").image).max()) + 2 ** -24
+    diff = float(np.abs(gl.image - cpu.image).max())
+    assert diff <= max(bound, 2e-6) <= 0.5 / 255
+
+
+@pytest.mark.parametrize("table, key", [
+    ({"exposure": {"time": -0.1}}, "exposure.time"),
+    ({"exposure": {"time": 0.0, "samples": 4}}, "exposure.samples"),
+    ({"exposure": {"time": 0.1, "samples": 0}}, "exposure.samples"),
+    ({"exposure": {"time": 0.1, "samples": 2.5}}, "exposure.samples"),
+    ({"exposure": {"velocity": [1, 2]}}, "exposure.velocity"),
+    ({"exposure": {"centre": [0, 0, 0], "velocity": [1, 0, 0]}}, "exposure.centre"),
+    ({"exposure": {"velocity": [1, 0, 0], "step_time": 2.0}}, "exposure.step_time"),
+    ({"exposure": {"step_time": 0.0}}, "exposure.step_time"),
+    ({"sensor": {"line_time": -1e-5}}, "sensor.line_time"),
+    ({"sensor": {"line_time": 1e-5}}, "sensor.line_time"),      # no motion to expose it at
+    ({"sensor": {"line_time": 1e-5}, "exposure": {"velocity": [1, 0, 0]},
+      "optics": {"focal_length": 50, "f_number": 8, "focus_distance": 300, "pixel_pitch": 0.005}},
+     "sensor.line_time"),
+])
+def test_validation_names_the_key_and_the_fix(table, key):
+    data = {"cameras": [{"size": [64, 48], "fx": 500, "fy": 500, "cx": 31.5, "cy": 23.5}],
+            "specimen": {"plate": {}, "pose": {"t": [0, 0, 300]}}, **table}
+    with pytest.raises(SceneError) as err:
+        scene_from_dict(data)
+    assert err.value.key == key and " — " in str(err.value)
+
+
+def test_unordered_solver_times_are_refused():
+    with pytest.raises(SceneError, match="do not increase"):
+        motion.step_times((0.0, 2.0, 1.0), 3, 1.0)
+    np.testing.assert_array_equal(motion.step_times((None, 1.0), 2, 0.5), [0.0, 0.5])
+
+
+@pytest.mark.parametrize("backend", ["cpu", "gl"])
+def test_absent_or_still_costs_nothing(tmp_path, backend, monkeypatch, request):
+    """Without [exposure] the motion code does not run; an instantaneous exposure of a still
+    specimen (and a global shutter, line_time 0) gives the same image and truth, bit for bit."""
+    if backend == "gl":
+        request.getfixturevalue("gl_ctx")
+    scene = edge_scene(tmp_path, ramp, translations=((0.3, 0.1, 0.0),))
+    plain = render(scene, backend, step=1, truth=True)
+    still = render(scene.replace(exposure={}, sensor={"line_time": 0.0}), backend, step=1, truth=True)
+    np.testing.assert_array_equal(still.image, plain.image)
+    for k in ("element", "xi", "eta", "ref_uv", "X_deformed"):
+        np.testing.assert_array_equal(getattr(still.truth, k), getattr(plain.truth, k))
+    assert still.truth.uv_start is None and set(still.truth.as_dict()) == set(plain.truth.as_dict())
+    monkeypatch.setattr(motion, "render", lambda *a: pytest.fail("motion code ran without [exposure]"))
+    np.testing.assert_array_equal(render(scene, backend, step=1).image, plain.image)
