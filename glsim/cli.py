@@ -118,6 +118,18 @@ def cmd_compare(args) -> int:
     return 0
 
 
+def cmd_jacobian(args) -> int:
+    from glsim.workflows.jacobian import camera_arg, jacobian
+
+    res = jacobian(_overrides(load_scene(args.scene), args), camera_arg(args.camera), args.step, args.output,
+                   args.backend)
+    J = res.jacobian
+    print(f"glsim jacobian: wrote {args.output} ({J.shape[0]} pixels × {J.shape[1]} displacement components, "
+          f"{J.nnz} non-zeros; camera {res.camera.name}, step {res.step}, backend={res.backend}, "
+          f"mode={res.options.mode}, spp={res.options.samples_per_pixel})")
+    return 0
+
+
 def _delegated(name: str, argv: list[str]) -> int:
     """`glsim bench|calib|verify|docs …`: their own argument parsers take the rest of the line."""
     if name == "bench":
@@ -180,6 +192,14 @@ def parser() -> argparse.ArgumentParser:
     r.add_argument("-o", "--output", help="output directory (default: [output] directory)")
     _common(r)
     r.set_defaults(func=cmd_render)
+    j = sub.add_parser("jacobian", help="an image's derivative w.r.t. the nodal displacements, as a sparse .npz")
+    j.add_argument("scene")
+    j.add_argument("--camera", default="0", help="camera name or index (default 0)")
+    j.add_argument("--step", type=int, required=True, help="load step")
+    j.add_argument("-o", "--output", required=True, help=".npz file to write (scipy.sparse.load_npz reads it)")
+    j.add_argument("--backend", choices=BACKENDS, help="override [render] backend")
+    j.add_argument("--mode", choices=MODES, help="override [render] mode (exact or q4)")
+    j.set_defaults(func=cmd_jacobian)
     from glsim.io.calibfiles import FORMATS
 
     rig = sub.add_parser("rig", help="stereo rig files for DIC packages").add_subparsers(dest="rig", required=True)

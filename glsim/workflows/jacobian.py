@@ -1,0 +1,48 @@
+"""``glsim jacobian SCENE --camera C --step K -o J.npz``: one image's Jacobian with respect to the
+nodal displacements (:mod:`glsim.stages.jacobian`, docs/jacobian.md) written as one ``.npz``.
+
+The file is scipy.sparse's own CSR layout (``scipy.sparse.load_npz`` reads it: ``format``,
+``shape``, ``data``, ``indices``, ``indptr``) plus ``image`` (the rendered float32 image, H × W),
+``node_labels`` (column 3·i + c is component c of node ``node_labels[i]``), ``camera``, ``step``,
+``backend``, ``mode``. Every input (scene, camera, step, the request's refusals) is checked by
+rendering before anything is written; the file appears complete or not at all.
+"""
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from glsim.errors import GlsimError
+from glsim.io.atomic import atomic_path
+from glsim.render import Renderer, Result
+from glsim.scene import Scene
+
+
+def _output(out: str | Path) -> Path:
+    out = Path(out)
+    if out.suffix != ".npz":
+        raise GlsimError(f"-o {out}: the Jacobian is written as a .npz file — give a name ending in .npz, e.g. J.npz")
+    if out.is_dir():
+        raise GlsimError(f"-o {out}: is a directory — give a file name ending in .npz")
+    return out
+
+
+def camera_arg(text: str) -> int | str:
+    """``--camera``: an index (digits) or a name."""
+    return int(text) if text.isdigit() else text
+
+
+def jacobian(scene: Scene, camera: int | str, step: int, out: str | Path, backend: str | None = None) -> Result:
+    """Render ``camera`` at ``step`` with its Jacobian and write ``out`` (.npz) atomically;
+    returns the Result."""
+    path = _output(out)
+    with Renderer(scene, backend) as r:
+        res = r.render(camera, step, jacobian=True)
+        labels = r.mesh.node_labels
+    J = res.jacobian
+    with atomic_path(path) as tmp, open(tmp, "wb") as f:
+        np.savez_compressed(f, format=np.array("csr"), shape=np.array(J.shape), data=J.data, indices=J.indices,
+                            indptr=J.indptr, image=res.image, node_labels=labels, camera=np.array(res.camera.name),
+                            step=np.array(step), backend=np.array(res.backend), mode=np.array(res.options.mode))
+    return res

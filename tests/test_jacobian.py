@@ -1,0 +1,190 @@
+"""Image Jacobians (issue 32, glsim.stages.jacobian): the oracle's against central finite
+differences of its own float64 renders, supersampled averaging, the refusals by name, GL against
+the oracle and the ``glsim jacobian`` round trip."""
+import numpy as np
+import pytest
+import scipy.sparse as sp
+
+from glsim import cli
+from glsim.backends.cpu import rasterize
+from glsim.errors import SceneError
+from glsim.io.fe import specimen_mesh
+from glsim.render import Renderer
+from glsim.scene import load_scene
+from glsim.scene.camera import Distortion
+from glsim.scene.mesh import with_displacements
+from glsim.stages import interp
+from glsim.stages import jacobian as jac
+from _plates import plate_scene
+
+TILT = ((0.96, 0.0, 0.28), (0.0, 1.0, 0.0), (-0.28, 0.0, 0.96))
+DELTA = 1e-5   # mm
+
+
+def _plate(**render):
+    """A 64×48 px camera with distortion before a tilted 20×15 mm plate, stretched, sheared and
+    bent at step 1 (one non-trivial deformation); the scene and its mesh."""
+    scene = plate_scene(size=(64, 48), fx=900.0, distortion=Distortion(k1=-0.2, p1=1e-3), specimen_R=TILT,
+                        **{"interpolation": "cubic", **render})
+    mesh = specimen_mesh(scene)
+    X = mesh.nodes
+    c = X.mean(axis=0)
+    u = np.column_stack([0.02 * (X[:, 0] - c[0]) + 0.01 * np.sin(X[:, 1]), 1.5e-3 * (X[:, 1] - c[1]) ** 2,
+                         0.3 * np.cos(X[:, 0] / 5)])
+    return scene, with_displacements(mesh, [u])
+
+
+def _image64(r: Renderer, deformed: np.ndarray):
+    """The oracle's float64 image (before its float32 cast) of ``deformed`` nodes at step 1, and
+    per pixel its samples' one element (−2 where they differ)."""
+    opts = r.scene.render
+    W, H = r.scene.cameras[0].size
+    s = opts.supersampling
+    raster = rasterize(r.view(0, 1, deformed=deformed), opts.mode, s)
+    hit = raster["element"] >= 0
+    grey = np.full(hit.shape, opts.background)
+    grey[hit] = r.backend.sampler(opts.interpolation)(raster["ref_uv"][hit])
+    el = raster["element"].reshape(H, s, W, s).transpose(0, 2, 1, 3).reshape(H * W, s * s)
+    one = np.where((el == el[:, :1]).all(axis=1), el[:, 0], -2)
+    return grey.reshape(H, s, W, s).mean(axis=(1, 3)).ravel(), one
+
+
+@pytest.mark.parametrize("mode, spp", [("exact", 1), ("q4", 1), ("exact", 4)])
+def test_oracle_matches_central_differences(mode, spp):
+    """Per pixel whose samples stay in one element in both renders: |FD − J| ≤ 1e-4 of the entry
+    (entries below 1e-3 of the column's largest count at that floor: FD's own rounding)."""
+    scene, mesh = _plate(backend="cpu", mode=mode, samples_per_pixel=spp)
+    with Renderer(scene, mesh=mesh) as r:
+        J = r.render(0, 1, jacobian=True).jacobian.tocsc()
+        assert J.shape == (64 * 48, 3 * mesh.n_nodes)
+        deformed = mesh.deformed(1)
+        checked = 0
+        for node in np.random.default_rng(1).choice(mesh.n_nodes, 5, replace=False):
+            for c in range(3):
+                (plus, ep), (minus, em) = (_image64(r, deformed + sign * DELTA * (np.arange(3) == c)
+                                                    * (np.arange(mesh.n_nodes) == node)[:, None]) for sign in (1, -1))
+                fd = (plus - minus) / (2 * DELTA)
+                col = J[:, 3 * node + c].toarray().ravel()
+                same = (ep == em) & (ep >= -1)
+                floor = 1e-3 * np.abs(col).max()
+                assert np.all(np.abs(fd - col)[same] <= 1e-4 * np.maximum(np.abs(col[same]), floor))
+                assert not np.any(col[ep == -1]), "background pixels have no derivative"
+                checked += np.count_nonzero(col[same])
+        assert checked > 100
+
+
+def test_interpolant_gradient_is_the_derivative_of_sample():
+    img = np.random.default_rng(0).random((30, 40))
+    uv = np.random.default_rng(1).random((200, 2)) * [34, 24] + 2.0
+    h = 1e-6
+    for method in interp.METHODS:
+        c = interp.prepare(img, method, np.float64)
+        fd = np.stack([(interp.sample(c, uv + d, method) - interp.sample(c, uv - d, method)) / (2 * h)
+                       for d in ([h, 0.0], [0.0, h])], axis=-1)
+        np.testing.assert_allclose(interp.gradient(c, uv, method), fd, atol=2e-8)
+
+
+def test_supersampled_pixels_average_their_samples():
+    """spp = 4: the pixel's row is the mean of its 2×2 samples' rows, which are the pixels of the
+    sample camera (size ×2) rendered at one sample per pixel."""
+    scene, mesh = _plate(backend="cpu", samples_per_pixel=4)
+    with Renderer(scene, mesh=mesh) as r:
+        J = r.render(0, 1, jacobian=True).jacobian
+        fine = r.render(0, 1, jacobian=True, samples_per_pixel=1)
+        reference = r.reference
+    scam = jac.sample_camera(scene.cameras[0], 2)
+    assert scam.size == (128, 96)
+    scene2 = scene.replace(cameras=(scam,), render={"samples_per_pixel": 1})
+    with Renderer(scene2, mesh=mesh, reference=reference) as r2:   # (the same speckle)
+        Jf = r2.render(0, 1, jacobian=True).jacobian
+    W, H = 64, 48
+    rows = np.arange(4 * W * H)
+    u, v = rows % (2 * W), rows // (2 * W)
+    pool = sp.coo_matrix((np.full(len(rows), 0.25), ((v // 2) * W + u // 2, rows)), shape=(W * H, 4 * W * H))
+    assert abs(pool @ Jf - J).max() <= 1e-12 * abs(J).max()
+    assert abs(fine.jacobian - J).max() > 1e-3 * abs(J).max()   # (not the pixel centres' Jacobian)
+
+
+OPTICS = {"focal_length": 50.0, "f_number": 2.8, "focus_distance": 300.0, "pixel_pitch": 0.005}
+
+
+@pytest.mark.parametrize("change, key", [({"lighting": {}}, "lighting"), ({"optics": OPTICS}, "optics"),
+                                         ({"vignetting": {"natural": True}}, "vignetting")])
+def test_effects_are_refused_by_name(change, key):
+    scene, mesh = _plate(backend="cpu")
+    with Renderer(scene.replace(**change), mesh=mesh) as r, \
+            pytest.raises(SceneError, match=rf"^{key}: .* — remove \[{key}\] or render without jacobian"):
+        r.render(0, 1, jacobian=True)
+
+
+def test_modes_interpolation_and_quadratic_meshes_are_refused_by_name():
+    scene, mesh = _plate(backend="cpu")
+    with Renderer(scene, mesh=mesh) as r:
+        with pytest.raises(SceneError, match=r"^render\.mode: .*'fast'.* — set mode = \"exact\""):
+            r.render(0, 1, jacobian=True, mode="fast")
+        with pytest.raises(SceneError, match=r"^render\.interpolation: .*procedural"):
+            r.render(0, 1, jacobian=True, interpolation="procedural")
+        J = r.render(0, 1, jacobian=True).jacobian
+    with Renderer(scene.replace(noise={"sigma": 1.0}), mesh=mesh) as r:   # the noise-free image's Jacobian
+        assert abs(r.render(0, 1, jacobian=True).jacobian - J).max() == 0
+    with pytest.raises(SceneError, match=r"^specimen\.mesh: .*quadratic"):
+        jac.check_request(scene, scene.render, quadratic=True)
+
+
+@pytest.mark.gl
+@pytest.mark.parametrize("mode, spp", [("exact", 1), ("q4", 1), ("exact", 4)])
+def test_gl_matches_the_oracle(gl_ctx, mode, spp):
+    scene, mesh = _plate(mode=mode, samples_per_pixel=spp)
+    out = {}
+    for backend in ("cpu", "gl"):
+        with Renderer(scene, backend, ctx=gl_ctx if backend == "gl" else None, mesh=mesh) as r:
+            out[backend] = r.render(0, 1, jacobian=True).jacobian
+    assert abs(out["gl"] - out["cpu"]).max() <= 1e-3 * abs(out["cpu"]).max()
+
+
+PLATE_TOML = """
+[[cameras]]
+name = "left"
+size = [48, 36]
+fx = 700.0
+fy = 700.0
+cx = 23.5
+cy = 17.5
+
+[specimen.plate]
+width = 20.0
+height = 15.0
+nx = 4
+ny = 3
+translations = [[0.1, 0.05, 0.0]]
+
+[specimen.pose]
+t = [0.0, 0.0, 300.0]
+
+[render]
+backend = "cpu"
+interpolation = "cubic"
+"""
+
+
+def test_cli_round_trip(tmp_path, capsys):
+    path = tmp_path / "plate.toml"
+    path.write_text(PLATE_TOML)
+    out = tmp_path / "J.npz"
+    assert cli.main(["jacobian", str(path), "--camera", "left", "--step", "1", "-o", str(out)]) == 0
+    assert "wrote" in capsys.readouterr().out
+    J = sp.load_npz(out)
+    with Renderer(load_scene(path)) as r:
+        res = r.render("left", 1, jacobian=True)
+        labels = r.mesh.node_labels
+    assert abs(J - res.jacobian).max() == 0 and J.shape == (48 * 36, 3 * len(labels))
+    with np.load(out) as f:
+        assert np.array_equal(f["node_labels"], labels) and str(f["camera"]) == "left" and int(f["step"]) == 1
+        np.testing.assert_array_equal(f["image"], res.image)
+    for args, message in ((["--camera", "right", "--step", "1"], "camera: no camera named 'right'"),
+                          (["--step", "5"], "step: 5 is outside"),
+                          (["--step", "1", "--mode", "fast"], "render.mode:")):
+        bad = tmp_path / "bad.npz"
+        assert cli.main(["jacobian", str(path), *args, "-o", str(bad)]) == 2
+        assert f"glsim: error: {message}" in capsys.readouterr().err
+        assert not bad.exists() and sorted(p.name for p in tmp_path.iterdir()) == ["J.npz", "plate.toml"]
