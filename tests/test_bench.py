@@ -102,3 +102,18 @@ def test_bench_quadratic_reduced(tmp_path, capsys):
                 if k[:2] == ("gl", "fast")]
         assert fast == sorted(fast, reverse=True)
     assert "## quad8" in (tmp_path / "quadratic.md").read_text()
+
+
+@pytest.mark.gl
+def test_bench_throughput_quick(tmp_path):
+    """`glsim bench throughput --quick`: every mode at 1 and 4 spp, one at a time and pipelined,
+    the pipelined images bit for bit the single ones; aimed at bench/results it is refused."""
+    assert cli.bench_main(["throughput", "--quick", "--out", str(cli.RESULTS)]) == 2
+    assert cli.bench_main(["throughput", "--quick", "--size", "96", "72", "--out", str(tmp_path)]) == 0
+    report = json.loads((tmp_path / "throughput.json").read_text())
+    rows = report["rows"]
+    assert [(r["mode"], r["spp"]) for r in rows] == [(m, s) for m in ("fast", "q4", "exact") for s in (1, 4)]
+    assert all(r["same_bytes"] for r in rows)
+    assert all(r["pipelined_pairs_per_s"] > 0 and r["single_pairs_per_s"] > 0 and r["passes"] for r in rows)
+    text = (tmp_path / "throughput.md").read_text()
+    assert text.startswith("# glsim throughput benchmark") and report["machine"]["gl"]["renderer"] in text

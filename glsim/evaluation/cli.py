@@ -1,4 +1,4 @@
-"""The evaluation command lines: ``glsim bench {accuracy,effects,library,preview,scaling,quadratic,peer}``, ``glsim verify {run,
+"""The evaluation command lines: ``glsim bench {accuracy,effects,library,preview,scaling,quadratic,peer,throughput}``, ``glsim verify {run,
 compare,sweep,sweep-compare,frontier,backends}`` and ``glsim docs [--check]``.
 
 Committed results live in ``bench/results``; only a full-size run writes there by default. A
@@ -213,8 +213,19 @@ def bench_main(argv: list[str]) -> int:
     pee.add_argument("--reps", type=int, default=None,
                      help=f"interleaved repetitions after one warm-up (default {peer.REPS}; with --quick 3)")
     pee.add_argument("--quick", action="store_true", help="half size, 3 repetitions (writes to build/bench)")
+    from glsim.evaluation import throughput as tp
+    thr = sub.add_parser("throughput", help="stereo pairs/s delivered as 8-bit images, one at a time and pipelined, "
+                         "fast/q4/exact × 1/4/16 spp, with riley-raster")
+    thr.add_argument("--size", nargs=2, type=int, metavar=("W", "H"),
+                     help=f"image size (default {tp.FULL_SIZE[0]} {tp.FULL_SIZE[1]}; with --quick "
+                     f"{tp.QUICK_SIZE[0]} {tp.QUICK_SIZE[1]})")
+    thr.add_argument("--reps", type=int, default=tp.REPS, help=f"interleaved repetitions (default {tp.REPS})")
+    thr.add_argument("--pairs", type=int, default=tp.PAIRS, help=f"stereo pairs per way and repetition "
+                     f"(default {tp.PAIRS})")
+    thr.add_argument("--quick", action="store_true", help="quarter size, 1 and 4 spp, 2,000 elements, 1 pair, 1 repetition "
+                     "(writes to build/bench)")
     for p, name in ((acc, "accuracy"), (eff, "effects"), (lib, "library"), (sca, "scaling"), (qua, "quadratic"),
-                    (pee, "peer")):
+                    (pee, "peer"), (thr, "throughput")):
         p.add_argument("--out", default=None, help=f"directory of {name}.json / {name}.md (default {RESULTS} for a "
                        f"full-size run, {SCRATCH} otherwise)")
     args = parser.parse_args(argv)
@@ -255,6 +266,17 @@ def bench_main(argv: list[str]) -> int:
             size = tuple(args.size) if args.size else peer.QUICK_SIZE if quick else peer.FULL_SIZE
             out = results_dir(args.out, size == peer.FULL_SIZE and args.reps >= peer.REPS, "peer")
             print(peer.write(peer.peer(size, args.reps, log=lambda m: print(m, file=sys.stderr, flush=True)), out))
+            return 0
+        if args.command == "throughput":
+            if args.pairs < 1:
+                parser.error("--pairs must be ≥ 1")
+            size = tuple(args.size) if args.size else tp.QUICK_SIZE if quick else tp.FULL_SIZE
+            spps, reps, pairs, n = ((tp.QUICK_SPPS, 1, 1, tp.QUICK_ELEMENTS) if quick
+                                    else (tp.SPPS, args.reps, args.pairs, tp.ELEMENTS))
+            full = size == tp.FULL_SIZE and not quick and reps >= tp.REPS and pairs >= tp.PAIRS
+            out = results_dir(args.out, full, "throughput")
+            print(tp.write(tp.throughput(size, reps, pairs, spps, n, log=lambda m: print(m, file=sys.stderr, flush=True)),
+                           out))
             return 0
         if args.command == "effects":
             print(effects.write(effects.effects(size, args.reps), out))
