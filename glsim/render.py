@@ -31,9 +31,9 @@ from glsim.scene import quadratic as qd
 from glsim.scene.bilinear import bilinear
 from glsim.scene.camera import Camera, to_camera
 from glsim.effects import prepare as prepare_effects
-from glsim.effects import motion
+from glsim.effects import motion, noise as noisemod
 from glsim.stages.geometry import MeshGeometry
-from glsim.io.images import quantize as quantize_image
+from glsim.io.images import quantize as quantize_image, saturated_fraction
 from glsim.io.truth import Truth, pixel_positions
 from glsim.stages.quadview import fast_local_coords as quadratic_fast_coords
 from glsim.stages.view import View, coverage, make_view, warn_unseen
@@ -77,7 +77,7 @@ class Result:
     @functools.cached_property
     def saturated(self) -> float:
         """Fraction of the specimen's pixels below 0 or above full scale (clipped when quantised)."""
-        return _saturated(self.image, self.coverage, self.camera.bit_depth)
+        return saturated_fraction(self.image, self.coverage, self.camera.bit_depth)
 
 
 @dataclass(frozen=True, eq=False)
@@ -185,7 +185,7 @@ class Renderer:
         ``jacobian``: also ``Result.jacobian``, the noise-free image's derivative with respect to
         the nodal displacements (:mod:`glsim.stages.jacobian`; refused by name where it cannot be made)."""
         if self.scene.exposure is not None:   # motion over the exposure, a rolling shutter
-            return motion.render(self, camera, step, truth, quantize, jacobian, options)
+            return self._moving(camera, step, truth, quantize, jacobian, options)
         if not jacobian:
             return self._finish(self._submit(camera, step, truth, quantize, options))
         opts = self.scene.replace(render=options).render if options else self.scene.render
@@ -196,6 +196,56 @@ class Renderer:
                   "eta": res.truth.eta.ravel()} if one else None
         return dataclasses.replace(res, truth=res.truth if truth else None,
                                    jacobian=self._jacobian(res.camera, step, opts, raster))
+
+    def _moving(self, camera, step: int, truth: bool, quantize: bool, jacobian: bool, options: dict) -> Result:
+        """:meth:`render` with ``[exposure]`` (:mod:`glsim.effects.motion`): per row of a rolling
+        shutter (else once) the mean of the sub-frames, then fixed-pattern and temporal noise."""
+        t0, scene, mesh = time.perf_counter(), self.scene, self.drawn_mesh
+        if self.mesh.is_quadratic or jacobian:
+            raise SceneError("jacobian" if jacobian else "exposure", "is not made with [exposure]" if jacobian else
+                             "moves meshes of linear elements only", "remove [exposure], or give linear elements")
+        opts = scene.replace(render=options).render if options else scene.render
+        self.check_size(camera, truth, opts)
+        cam, ex = scene.camera(camera), scene.exposure
+        line = scene.sensor.line_time if scene.sensor is not None else 0.0
+        rows = [(motion.row_camera(cam, v), t) for v, t in enumerate(motion.row_offsets(cam.height, line))] \
+            if line > 0 else [(cam, 0.0)]
+        tl, taus = motion.timeline(ex, mesh, step), motion.sample_offsets(ex.time, ex.samples)
+        images, truths = [], []
+        for c, t in rows:
+            frames = [self._frame(c, step, t + tau, tl, opts, truth and tau == 0) for tau in taus]
+            images.append(sum(out.image.astype(np.float64) for out, _ in frames) / len(taus))
+            if truth:
+                out = next((out for (out, _), tau in zip(frames, taus) if tau == 0), None) or \
+                    self._frame(c, step, t, tl, opts, True)[0]
+                tr = self._truth(c.size, tl.at(t, mesh.deformed), out.samples)
+                truths.append(motion.motion_range(tr, mesh, cam, tl, t, ex.time))
+        (out, fx), image = frames[-1], np.concatenate(images).astype(np.float32)
+        stages = tuple(out.stages)
+        if fx.fixed_pattern:   # as the backends do, on the whole image
+            image = noisemod.fixed_pattern(image, fx.sensor.prnu, fx.sensor.dsnu, fx.bit_depth,
+                                           fx.fpn_seed).astype(np.float32)
+            stages += ("fixed_pattern",)
+        if fx.noise is not None:
+            image = noisemod.add_noise(image, fx.noise, fx.bit_depth, fx.noise_seed, fx.variance)
+            stages += ("noise",)
+        specimen = self._specimen(cam, tl.at(0.0, mesh.deformed), mesh.quads) if line == 0 else \
+            (lambda: np.concatenate([coverage(c, tl.at(t, mesh.deformed), mesh.quads) for c, t in rows]))
+        return Result(image=quantize_image(image, cam.bit_depth) if quantize else image, camera=cam, step=step,
+                      backend=self.backend_name, options=opts, seconds=time.perf_counter() - t0,
+                      truth=motion.stack(truths) if truth else None, stages=stages, specimen=specimen)
+
+    def _frame(self, cam: Camera, step: int, tau: float, tl: "motion.Timeline", opts: Render, truth: bool):
+        """One sub-frame of :meth:`_moving`: the state τ s from ``step``'s time, rendered without
+        temporal and fixed-pattern noise; (Raster, the Effects)."""
+        mesh = self.drawn_mesh
+        nodes = tl.at(tau, mesh.deformed)
+        view = self.geometry.view(cam, step, None if tau == 0 else float(tau), nodes)
+        depths = view.corner_depths() if self.scene.optics is not None else np.empty(0)
+        index = self.scene.cameras.index(self.scene.camera(cam.name))   # (a row camera has its camera's name)
+        fx = prepare_effects(self.scene, nodes, mesh.quads, cam, index, step, depths,
+                             normals=not self.backend.capabilities.device_geometry)
+        return self.backend.render(Request(view, opts, truth, dataclasses.replace(fx, noise=None, sensor=None))), fx
 
     def _jacobian(self, cam: Camera, step: int, opts: Render, raster: dict | None):
         """The image Jacobian (glsim.stages.jacobian.image_jacobian) from the backend's float64
@@ -316,19 +366,6 @@ class Renderer:
         return Truth(mask=mask, element=elem, xi=xi, eta=eta, ref_uv=ref,
                      positions=pixel_positions(mask, lambda: (to_camera(evaluate(nodes, e, x, y), cam1),
                                                               to_camera(evaluate(deformed, e, x, y), cam1))))
-
-
-def _saturated(image: np.ndarray, covered: np.ndarray, bit_depth: int) -> float:
-    """Fraction of the specimen's pixels (``covered``) below 0 or above full scale — of a
-    quantised image, at 0 or 2^bits − 1 —; the background is not counted."""
-    n = np.count_nonzero(covered)
-    if image.dtype.kind == "u":
-        clipped = (image == 0) | (image == (1 << bit_depth) - 1)
-    elif n and (image.min() < 0 or image.max() > 1):   # (the extremes first: most images have none)
-        clipped = (image < 0) | (image > 1)
-    else:
-        return 0.0
-    return float(np.count_nonzero(clipped & covered) / n) if n else 0.0
 
 
 def render(scene: Scene, camera: int | str = 0, step: int = 0, backend: str | None = None,

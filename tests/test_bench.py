@@ -63,6 +63,10 @@ def test_bench_effects_quick(tmp_path):
     assert all(r["max_error"] <= report["dof_goal"] for k, r in dof.items() if k[2] != "separable")
     assert dof["hole", "gaussian", "separable"]["max_error"] > report["dof_goal"]
     assert "## Depth of field" in (tmp_path / "effects.md").read_text()
+    # motion over the exposure and the rolling shutter, GL within half a grey level of the oracle
+    motion = {(r["backend"], r["effects"]): r for r in report["motion"]}
+    assert set(motion) == {(b, m) for b in ("gl", "cpu") for m in ("exposure", "rolling")}
+    assert all(r["max_gl_vs_cpu"] <= 0.5 / 255 and r["seconds"] > 0 for r in motion.values())
 
 
 def test_reduced_runs_never_overwrite_the_committed_results(tmp_path, capsys, monkeypatch):

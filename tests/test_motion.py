@@ -184,5 +184,22 @@ def test_absent_or_still_costs_nothing(tmp_path, backend, monkeypatch, request):
     for k in ("element", "xi", "eta", "ref_uv", "X_deformed"):
         np.testing.assert_array_equal(getattr(still.truth, k), getattr(plain.truth, k))
     assert still.truth.uv_start is None and set(still.truth.as_dict()) == set(plain.truth.as_dict())
-    monkeypatch.setattr(motion, "render", lambda *a: pytest.fail("motion code ran without [exposure]"))
+    monkeypatch.setattr(Renderer, "_moving", lambda *a: pytest.fail("motion code ran without [exposure]"))
     np.testing.assert_array_equal(render(scene, backend, step=1).image, plain.image)
+
+
+def test_noise_is_added_once_to_the_mean(tmp_path):
+    """Temporal and fixed-pattern noise are drawn once on the averaged image, as without motion
+    (a still exposure gives the noisy image bit for bit); render_many renders motion scenes too."""
+    scene = edge_scene(tmp_path, ramp, translations=((0.3, 0.1, 0.0),)).replace(
+        noise={"sigma": 2.0}, sensor={"prnu": 1.0, "dsnu": 2.0})
+    plain = render(scene, step=1)
+    assert {"noise", "fixed_pattern"} <= set(plain.stages)
+    moving = scene.replace(exposure={"time": 0.01, "samples": 3, "velocity": [200.0, 0.0, 0.0]})
+    with Renderer(moving.replace(exposure={"velocity": [0.0, 0.0, 0.0]}), "cpu") as r:
+        np.testing.assert_array_equal(r.render(0, 1).image, plain.image)
+    with Renderer(moving, "cpu") as r:
+        one = r.render(0, 1, quantize=True)
+        many = list(r.render_many([(0, 1), {"camera": 0, "step": 1, "quantize": True}]))
+    assert one.stages == plain.stages and one.image.dtype == np.uint8
+    np.testing.assert_array_equal(many[1].image, one.image)

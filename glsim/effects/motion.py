@@ -1,4 +1,5 @@
-"""Motion over the exposure and the rolling shutter (docs/motion.md), for either backend.
+"""Motion over the exposure and the rolling shutter (docs/motion.md), for either backend: the
+times, states and truth; :meth:`glsim.render.Renderer.render` renders and averages the frames.
 
 Times are seconds from the load step's time t_k. A scene's ``[exposure]`` averages the
 irradiance over ``time`` T centred on t_k by the midpoint rule: ``samples`` S renders at
@@ -21,21 +22,16 @@ material point is, in the camera's pixels, at the exposure's start and end (τ_r
 from __future__ import annotations
 
 import dataclasses
-import time
 from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
 
-from glsim.backends.contract import Request
-from glsim.effects import prepare as prepare_effects
-from glsim.errors import SceneError, check
-from glsim.io.images import quantize as quantize_image
+from glsim.errors import check
 from glsim.io.truth import Truth
 from glsim.scene.bilinear import bilinear
 from glsim.scene.camera import Camera, project_camera_frame, rodrigues, to_camera
 from glsim.scene.model import Exposure
-from glsim.stages.view import coverage
 
 
 @dataclass(frozen=True, eq=False)
@@ -109,85 +105,10 @@ def row_camera(cam: Camera, row: int) -> Camera:
     return dataclasses.replace(cam, size=(cam.width, 1), cy=cam.cy - row)
 
 
-def render(renderer, camera: int | str, step: int, truth: bool, quantize: bool, jacobian: bool, options: dict):
-    """:meth:`glsim.render.Renderer.render` of a scene with ``[exposure]``: a
-    :class:`~glsim.render.Result` whose image averages the sub-frames (module text)."""
-    from glsim.render import Result
-
-    t0 = time.perf_counter()
-    scene, mesh = renderer.scene, renderer.drawn_mesh
-    check(not renderer.mesh.is_quadratic, "exposure", "moves meshes of linear elements only; this mesh has "
-          "quadratic ones", "remove [exposure], or give a mesh of linear (4-node, 3-node) elements")
-    check(not jacobian, "jacobian", "is not made for a scene with [exposure]", "remove [exposure], or jacobian")
-    opts = scene.replace(render=options).render if options else scene.render
-    renderer.check_size(camera, truth, opts)
-    cam = scene.camera(camera)
-    line = scene.sensor.line_time if scene.sensor is not None else 0.0
-    W, H = cam.size
-    rows = [(row_camera(cam, v), tau) for v, tau in enumerate(row_offsets(H, line))] if line > 0 else [(cam, 0.0)]
-    tl = timeline(scene.exposure, mesh, step)
-    taus = sample_offsets(scene.exposure.time, scene.exposure.samples)
-    index = scene.cameras.index(cam)
-    frame = _Frames(renderer, tl, index, step, opts)
-    images, truths = [], []
-    for c, tau_row in rows:
-        images.append(sum(frame(c, tau_row + tau, truth and tau == 0).image.astype(np.float64) for tau in taus)
-                      / len(taus))
-        if truth:
-            samples = frame.samples if 0.0 in taus else frame(c, tau_row, True).samples
-            truths.append(_row_truth(renderer, c, cam, tl, tau_row, scene.exposure.time, samples))
-    image = np.concatenate(images).astype(np.float32)
-    stages = tuple(frame.stages)
-    fx = frame.effects
-    from glsim.effects import noise
-
-    if fx.fixed_pattern:   # as the backends, after the irradiance's stages: on the whole image
-        image = noise.fixed_pattern(image, fx.sensor.prnu, fx.sensor.dsnu, fx.bit_depth, fx.fpn_seed).astype(np.float32)
-        stages += ("fixed_pattern",)
-    if fx.noise is not None:
-        image = noise.add_noise(image, fx.noise, fx.bit_depth, fx.noise_seed, fx.variance)
-        stages += ("noise",)
-    if quantize:
-        image = quantize_image(image, cam.bit_depth)
-    mid = tl.at(0.0, mesh.deformed)
-    specimen = renderer._specimen(cam, mid, mesh.quads) if line == 0 else \
-        (lambda: np.concatenate([coverage(c, tl.at(t, mesh.deformed), mesh.quads) for c, t in rows]))
-    return Result(image=image, camera=cam, step=step, backend=renderer.backend_name, options=opts,
-                  seconds=time.perf_counter() - t0, truth=_stack(truths) if truth else None, stages=stages,
-                  specimen=specimen)
-
-
-class _Frames:
-    """Renders the sub-frames of one image: the state at τ through the backend, without temporal
-    and fixed-pattern noise (added once to the average); keeps the last frame's effects, stages
-    and truth raster."""
-
-    def __init__(self, renderer, tl: Timeline, index: int, step: int, opts):
-        self.r, self.tl, self.index, self.step, self.opts = renderer, tl, index, step, opts
-        self.samples, self.stages, self.effects = None, (), None
-
-    def __call__(self, cam: Camera, tau: float, truth: bool):
-        r, mesh = self.r, self.r.drawn_mesh
-        nodes = self.tl.at(tau, mesh.deformed)
-        view = r.geometry.view(cam, self.step, None if tau == 0 else float(tau), nodes)
-        depths = view.corner_depths() if r.scene.optics is not None else np.empty(0)
-        fx = prepare_effects(r.scene, nodes, mesh.quads, cam, self.index, self.step, depths,
-                             normals=not r.backend.capabilities.device_geometry)
-        self.effects = fx
-        out = r.backend.render(Request(view, self.opts, truth, dataclasses.replace(fx, noise=None, sensor=None)))
-        self.stages = out.stages
-        if truth:
-            self.samples = out.samples
-        return out
-
-
-def _row_truth(renderer, cam: Camera, full: Camera, tl: Timeline, tau: float, duration: float,
-               samples: dict) -> Truth:
-    """Truth of ``cam``'s pixels (a row of ``full``, or itself) at τ (the renderer's maps) with, for
-    an exposure of ``duration`` > 0 s, where each pixel's material point is at τ ∓ duration/2
-    (``full``'s px)."""
-    mesh = renderer.drawn_mesh
-    tr = renderer._truth(cam.size, tl.at(tau, mesh.deformed), samples)
+def motion_range(tr: Truth, mesh, cam: Camera, tl: Timeline, tau: float, duration: float) -> Truth:
+    """``tr`` (pixels of a row of ``cam``, or of ``cam`` itself, rendered at τ s; ``mesh``: the
+    drawn mesh) with, for an exposure of ``duration`` > 0 s, where each pixel's material point
+    is at τ ∓ duration/2 (``cam``'s px: ``uv_start``, ``uv_end``)."""
     if duration == 0:
         return tr
     e, xi, eta = tr.element[tr.mask], tr.xi[tr.mask], tr.eta[tr.mask]
@@ -195,12 +116,12 @@ def _row_truth(renderer, cam: Camera, full: Camera, tl: Timeline, tau: float, du
     for t in (tau - duration / 2, tau + duration / 2):
         X = tl.at(t, lambda k: bilinear(mesh.deformed(k)[mesh.quads[e]], xi, eta))
         uv = np.full(tr.mask.shape + (2,), np.nan)
-        uv[tr.mask] = project_camera_frame(to_camera(X, full), full)[0]
+        uv[tr.mask] = project_camera_frame(to_camera(X, cam), cam)[0]
         ends.append(uv)
     return dataclasses.replace(tr, uv_start=ends[0], uv_end=ends[1])
 
 
-def _stack(rows: list[Truth]) -> Truth:
+def stack(rows: list[Truth]) -> Truth:
     """One :class:`Truth` of the rows' truths, top to bottom."""
     if len(rows) == 1:
         return rows[0]

@@ -7,6 +7,11 @@ GL and the CPU backend. Per row: median seconds per image (``Result.seconds``: g
 passes + read-back) over timed renders after one warm-up, the increment over the effect-free
 row and its share of the all-effects row.
 
+Motion (``motion`` rows, docs/motion.md): the same pair with ``[exposure]`` alone (4 samples
+over 0.2 s around step 1, the state interpolated between steps 0 and 1) and with a rolling
+shutter alone (``line_time`` 10 µs, a rigid 100 mm/s along x: each row rendered on its own), GL
+and CPU, with their max |GL − oracle| over the image.
+
 Depth of field (``dof`` rows): every GL scheme (``optics.scheme``: separable, hybrid, gather,
 expansion; the disk kernel's 2-D gather) on the bulge pair (depth of field only) and on the
 four scenes of :func:`dof_scenes` — a tilted plate whose outline lies in the blurred region, a
@@ -160,6 +165,43 @@ def dof_rows(base: Scene, reps: int, width: int, ctx) -> list[dict]:
     return rows
 
 
+MOTION = {"exposure": {"exposure": {"time": 0.2, "samples": 4}},
+          "rolling": {"exposure": {"velocity": [100.0, 0.0, 0.0]}, "sensor": {"line_time": 1e-5}}}
+MOTION_REPS = 1            # timed renders per camera of a motion row (the rolling shutter renders every row)
+
+
+def motion_rows(base: Scene, ctx) -> list[dict]:
+    """The ``motion`` records: each of MOTION on ``base`` (no other effect), GL and CPU, seconds per
+    image (both cameras, step 1, after one warm-up) and the max |GL − oracle| (full scale)."""
+    rows = []
+    for name, sections in MOTION.items():
+        scene = base.replace(**sections)
+        runs = {}
+        for backend in ("gl", "cpu"):
+            with Renderer(scene, backend, ctx=ctx if backend == "gl" else None) as r:
+                r.render(0, 1)   # warm-up
+                runs[backend] = [r.render(c, 1) for _ in range(MOTION_REPS) for c in range(len(scene.cameras))]
+        diff = max(float(np.abs(g.image.astype(np.float64) - c.image).max()) for g, c in zip(runs["gl"], runs["cpu"]))
+        for backend, done in runs.items():
+            rows.append({"backend": backend, "effects": name, "reps": MOTION_REPS, "settings": sections,
+                         "seconds": statistics.median(x.seconds for x in done), "seconds_all": [x.seconds for x in done],
+                         "stages": list(done[-1].stages), "max_gl_vs_cpu": diff})
+            print(f"  {backend} {name}: {rows[-1]['seconds']:.3g} s", file=sys.stderr, flush=True)
+    return rows
+
+
+def motion_table(report: dict) -> str:
+    """The motion rows as a markdown table: time per image and over the effect-free row."""
+    none = {r["backend"]: r["seconds"] for r in report["records"] if r["effects"] == "none"}
+    lines = ["| backend | motion | settings | time per image (s) | × no effect | max GL − oracle |",
+             "|---|---|---|---|---|---|"]
+    for r in report["motion"]:
+        settings = "; ".join(f"[{k}] " + ", ".join(f"{n} = {v}" for n, v in t.items()) for k, t in r["settings"].items())
+        lines.append(f"| {r['backend']} | {r['effects']} | {settings} | {r['seconds']:.3g} | "
+                     f"{r['seconds'] / none[r['backend']]:.3g} | {sig(r['max_gl_vs_cpu'], trailing_zeros=False)} |")
+    return "\n".join(lines)
+
+
 def variant(scene, name: str):
     """``scene`` with the demo's effects: none, one of them, or all."""
     full = demo_effects(scene)
@@ -195,6 +237,7 @@ def effects(size: tuple[int, int], reps: int) -> dict:
                 rows.append(rec)
                 print(f"  {backend} {name}: {rec['seconds']:.3g} s", file=sys.stderr, flush=True)
         dof = dof_rows(variant(base, "optics"), reps, min(DOF_WIDTH, size[0]), ctx)
+        moving = motion_rows(base, ctx)
     finally:
         ctx.release()
     for r in rows:
@@ -204,7 +247,7 @@ def effects(size: tuple[int, int], reps: int) -> dict:
         r["share_of_all"] = r["added_seconds"] / every
     return {"machine": machine, "date": datetime.datetime.now().astimezone().isoformat(timespec="seconds"),
             "size": list(size), "scene": f"demo_effects(bulge_scene(size={tuple(size)}, steps=1)), both cameras, step 1",
-            "records": rows, "dof_goal": DOF_GOAL, "dof": dof}
+            "records": rows, "dof_goal": DOF_GOAL, "dof": dof, "motion": moving}
 
 
 def markdown(report: dict) -> str:
@@ -224,6 +267,11 @@ def markdown(report: dict) -> str:
         lines.append(f"| {r['backend']} | {r['effects']} | {r['reps']} | {r['seconds']:.3g} | "
                      f"{min(r['seconds_all']):.3g}–{max(r['seconds_all']):.3g} | "
                      f"{r['added_seconds']:+.3g} | {r['share_of_all']:.0%} | {', '.join(r['stages'])} |")
+    if report.get("motion"):
+        lines += ["", "## Motion over the exposure and the rolling shutter (docs/motion.md)", "",
+                  "Same scene, no other effect; time: median `Result.seconds` per image (both cameras) after one "
+                  "warm-up; × no effect: over the effect-free row of the same backend; GL − oracle: the largest "
+                  "over both images, absolute, full scale.", "", motion_table(report)]
     if report.get("dof"):
         lines += ["", "## Depth of field: GL schemes against the oracle's exact 2-D gather", "",
                   f"Every covered pixel; error as a fraction of full scale (goal ≤ {report['dof_goal']:g}, half a grey "
