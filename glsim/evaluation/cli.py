@@ -1,4 +1,4 @@
-"""The evaluation command lines: ``glsim bench {accuracy,effects,library,preview,scaling,quadratic,peer,throughput}``, ``glsim verify {run,
+"""The evaluation command lines: ``glsim bench {accuracy,effects,library,preview,scaling,quadratic,peer,throughput,jacobian}``, ``glsim verify {run,
 compare,sweep,sweep-compare,frontier,backends}`` and ``glsim docs [--check]``.
 
 Committed results live in ``bench/results``; only a full-size run writes there by default. A
@@ -224,8 +224,14 @@ def bench_main(argv: list[str]) -> int:
                      f"(default {tp.PAIRS})")
     thr.add_argument("--quick", action="store_true", help="quarter size, 1 and 4 spp, 2,000 elements, 1 pair, 1 repetition "
                      "(writes to build/bench)")
+    from glsim.evaluation import jacobian_bench as jbm
+    jb = sub.add_parser("jacobian", help="time of an image Jacobian against one render and finite differences")
+    jb.add_argument("--size", nargs=2, type=int, metavar=("W", "H"), help=f"image size (default {jbm.FULL_SIZE[0]} "
+                    f"{jbm.FULL_SIZE[1]}; with --quick {jbm.QUICK_SIZE[0]} {jbm.QUICK_SIZE[1]})")
+    jb.add_argument("--reps", type=int, default=3, help="interleaved repetitions after one warm-up (default 3)")
+    jb.add_argument("--quick", action="store_true", help="quarter size (writes to build/bench)")
     for p, name in ((acc, "accuracy"), (eff, "effects"), (lib, "library"), (sca, "scaling"), (qua, "quadratic"),
-                    (pee, "peer"), (thr, "throughput")):
+                    (pee, "peer"), (thr, "throughput"), (jb, "jacobian")):
         p.add_argument("--out", default=None, help=f"directory of {name}.json / {name}.md (default {RESULTS} for a "
                        f"full-size run, {SCRATCH} otherwise)")
     args = parser.parse_args(argv)
@@ -266,6 +272,11 @@ def bench_main(argv: list[str]) -> int:
             size = tuple(args.size) if args.size else peer.QUICK_SIZE if quick else peer.FULL_SIZE
             out = results_dir(args.out, size == peer.FULL_SIZE and args.reps >= peer.REPS, "peer")
             print(peer.write(peer.peer(size, args.reps, log=lambda m: print(m, file=sys.stderr, flush=True)), out))
+            return 0
+        if args.command == "jacobian":
+            size = tuple(args.size) if args.size else jbm.QUICK_SIZE if quick else jbm.FULL_SIZE
+            out = results_dir(args.out, size == jbm.FULL_SIZE and not quick, "jacobian")
+            print(jbm.write(jbm.bench(size, args.reps), out))
             return 0
         if args.command == "throughput":
             if args.pairs < 1:

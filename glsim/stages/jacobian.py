@@ -93,22 +93,28 @@ def _tangents(N_xi, N_eta, P):
     return np.stack([np.einsum("nk,nkd->nd", N_xi, P), np.einsum("nk,nkd->nd", N_eta, P)], -1)
 
 
-def local_derivatives(mode: str, Xd, xi, eta, ray=None, cam: Camera | None = None) -> np.ndarray:
-    """∂(ξ, η)/∂X_k (n, 4, 2, 3) per mm for the deformed corners Xd (n, 4, 3) in the camera
-    frame: mode ``exact`` on the samples' rays ``ray`` (n, 2) (undistorted normalized), ``q4``
-    in camera ``cam``'s image."""
+def _left_solve(w, M):
+    """w · M⁻¹ (n, 2) for row vectors w (n, 2) and 2×2 matrices M (n, 2, 2)."""
+    a, b, c, d = M[:, 0, 0], M[:, 0, 1], M[:, 1, 0], M[:, 1, 1]
+    det = a * d - b * c
+    return np.column_stack([w[:, 0] * d - w[:, 1] * c, w[:, 1] * a - w[:, 0] * b]) / det[:, None]
+
+
+def corner_derivatives(mode: str, w, Xd, xi, eta, ray=None, cam: Camera | None = None) -> np.ndarray:
+    """∂g/∂X_k (n, 4, 3) per mm for the deformed corners Xd (n, 4, 3) in the camera frame, given
+    w = ∂g/∂(ξ, η) (n, 2): implicit differentiation of the mapping F(ξ, η, X) = 0,
+    −w · (∂F/∂(ξ, η))⁻¹ · ∂F/∂X_k. Mode ``exact`` on the samples' rays ``ray`` (n, 2)
+    (undistorted normalized), ``q4`` in camera ``cam``'s image."""
     N, N_xi, N_eta = _shape_derivatives(xi, eta)
     if mode == "exact":
         A = np.zeros((len(xi), 2, 3))
         A[:, 0, 0] = A[:, 1, 1] = 1.0
         A[:, :, 2] = -ray
-        dFdX = A[:, None] * N[..., None, None]                        # (n, 4, 2, 3)
-        dFdl = A @ _tangents(N_xi, N_eta, Xd)                         # (n, 2, 2)
-    else:
-        uv, _ = project_camera_frame(Xd, cam)
-        dFdX = projection_jacobian(Xd, cam) * N[..., None, None]
-        dFdl = _tangents(N_xi, N_eta, uv)
-    return -np.linalg.solve(dFdl[:, None], dFdX)
+        v = _left_solve(w, A @ _tangents(N_xi, N_eta, Xd))
+        return -N[..., None] * np.einsum("nl,nlc->nc", v, A)[:, None, :]
+    uv, _ = project_camera_frame(Xd, cam)
+    v = _left_solve(w, _tangents(N_xi, N_eta, uv))
+    return -N[..., None] * np.einsum("nl,nklc->nkc", v, projection_jacobian(Xd, cam))
 
 
 def reference_point(mode: str, Xr, ref_cam: Camera, xi, eta):
@@ -149,10 +155,9 @@ def image_jacobian(cam: Camera, s: int, ref_cam: Camera, nodes: np.ndarray, defo
         Xd = to_camera(deformed[corners], scam)
         Xr = to_camera(nodes[corners], ref_cam)
         ray = sample_rays(scam, idx) if mode == "exact" else None
-        dl = local_derivatives(mode, Xd, xi, eta, ray, scam)                       # (n, 4, 2, 3)
         r, dr = reference_point(mode, Xr, ref_cam, xi, eta)
-        dg_dl = np.einsum("nc,ncl->nl", grad(r), dr)
-        values = np.einsum("nl,nklc->nkc", dg_dl, dl) @ R / (s * s)                # per world mm
+        w = np.einsum("nc,ncl->nl", grad(r), dr)                                    # ∂g/∂(ξ, η)
+        values = corner_derivatives(mode, w, Xd, xi, eta, ray, scam) @ R / (s * s)  # per world mm
         i, j = idx % (W * s) // s, idx // (W * s) // s
         rows = np.repeat(j * W + i, 12)
         cols = (3 * corners[..., None] + np.arange(3)).ravel()

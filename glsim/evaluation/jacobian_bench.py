@@ -1,0 +1,67 @@
+"""``glsim bench jacobian``: the time of an image Jacobian (``Renderer.render(..., jacobian=True)``,
+docs/jacobian.md) against one render and against finite differences of the nodal Jacobian.
+
+The bulge (step 1, camera 0, exact mode, bspline3) at 1624×1234 by default, per backend and
+samples per pixel: after one warm-up, ``reps`` interleaved pairs of a plain render and a render
+with the Jacobian; medians. Finite differences are not run: they cost two renders per degree of
+freedom (3 per node), estimated as 2 · 3N times the plain render's median.
+"""
+from __future__ import annotations
+
+import statistics
+import time
+
+from glsim.render import Renderer
+from glsim.scene import bulge_scene
+
+FULL_SIZE = (1624, 1234)
+QUICK_SIZE = (406, 308)
+ROWS = (("gl", 1), ("gl", 4), ("cpu", 1))
+
+
+def bench(size=FULL_SIZE, reps: int = 3) -> dict:
+    """One row per (backend, samples per pixel) of ROWS."""
+    from glsim.evaluation.report import gl_info, machine_info
+
+    scene = bulge_scene(size=tuple(size), steps=1)
+    report = {"size": list(size), "date": time.strftime("%Y-%m-%d"), "reps": reps, "rows": []}
+    for backend, spp in ROWS:
+        with Renderer(scene.replace(render={"samples_per_pixel": spp}), backend) as r:
+            if backend == "gl":
+                report["machine"] = machine_info(gl_info(r))
+            J = r.render(0, 1, jacobian=True).jacobian
+            plain, with_jac = [], []
+            for _ in range(reps):
+                t0 = time.perf_counter()
+                r.render(0, 1)
+                t1 = time.perf_counter()
+                r.render(0, 1, jacobian=True)
+                plain.append(t1 - t0)
+                with_jac.append(time.perf_counter() - t1)
+            render, jac = statistics.median(plain), statistics.median(with_jac)
+            dofs = 3 * r.mesh.n_nodes
+            report["rows"].append({"backend": backend, "spp": spp, "dofs": dofs, "nnz": int(J.nnz),
+                                   "render": render, "jacobian": jac, "fd_estimate": 2 * dofs * render})
+    return report
+
+
+def markdown(report: dict) -> str:
+    from glsim.evaluation.report import machine_line
+
+    W, H = report["size"]
+    out = ["# Image Jacobian: time against one render and finite differences\n",
+           f"The bulge, camera 0, step 1, exact mode, bspline3, {W}×{H} px; {report['date']}; "
+           f"{machine_line(report['machine'])}. Medians of {report['reps']} interleaved renders after a warm-up. "
+           "*Render + Jacobian* is `render(..., jacobian=True)` (the image, the samples' float64 raster and the "
+           "derivatives in numpy); finite differences are estimated as 2 · 3N plain renders (not run).\n",
+           "| backend | spp | displacement components | non-zeros | render (s) | render + Jacobian (s) | "
+           "finite differences (s, est.) | FD / Jacobian |", "|---|---|---|---|---|---|---|---|"]
+    out += [f"| {r['backend']} | {r['spp']} | {r['dofs']} | {r['nnz']:,} | {r['render']:.3g} | {r['jacobian']:.3g} | "
+            f"{r['fd_estimate']:.3g} | {r['fd_estimate'] / r['jacobian']:.0f}× |" for r in report["rows"]]
+    return "\n".join(out) + "\n"
+
+
+def write(report: dict, out) -> str:
+    """jacobian.json and jacobian.md into ``out``; returns the markdown."""
+    from glsim.evaluation.report import write_results
+    return write_results(report, markdown(report), out, "jacobian")
