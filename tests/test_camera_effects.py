@@ -363,3 +363,16 @@ def test_psf_image_is_normalised_and_applied(tmp_path):
     out = psf.apply(img, k)
     assert np.abs(out[2, 2:7] - np.array([0, 1, 4, 2, 1]) / 8).max() < 1e-16   # a point's image is the PSF
     assert np.abs(np.delete(out, 2, axis=0)).max() == 0
+
+
+def test_render_writes_the_flat_field_on_request(tmp_path):
+    from glsim.io.images import read_image
+    from glsim.workflows.sequence import write_sequence
+
+    scene = wide_plate(size=(32, 24)).replace(vignetting={"natural": True, "flat_field": True})
+    write_sequence(scene, str(tmp_path / "out"), steps=[0], backend="cpu")
+    gain = read_image(tmp_path / "out" / "c_flatfield.tif")
+    assert gain.dtype == np.float32 and np.array_equal(gain, flat_field(scene.cameras[0], scene.vignetting)
+                                                       .astype(np.float32))
+    write_sequence(scene.replace(vignetting={"flat_field": False}), str(tmp_path / "plain"), steps=[0], backend="cpu")
+    assert not (tmp_path / "plain" / "c_flatfield.tif").exists()

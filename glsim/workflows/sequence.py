@@ -91,6 +91,10 @@ def _write(scene: Scene, out: Path, steps, cameras, truth: bool, progress, truth
         # Everything is read and checked: from here on files are written.
         removed = _remove_previous(out, scene) if force and not resume else []
         scene_json = io.write_text(out / "scene.json", scene.to_json())
+        if scene.vignetting is not None and scene.vignetting.flat_field:   # each camera's gain: {camera}_flatfield.tif
+            from glsim.effects.vignetting import flat_field
+            for cam in cams:
+                io.write_truth_tiff(out / cam.name, {"flatfield": flat_field(cam, scene.vignetting)})
         if truth and truth_format == "vtk":         # the FE mesh beside the .vti truth, for ParaView
             from glsim.io.vtkfiles import write_mesh_series
             write_mesh_series(out, r.mesh, scene.cameras[0])
