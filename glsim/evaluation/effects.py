@@ -12,6 +12,11 @@ over 0.2 s around step 1, the state interpolated between steps 0 and 1) and with
 shutter alone (``line_time`` 10 µs, a rigid 100 mm/s along x: each row rendered on its own), GL
 and CPU, with their max |GL − oracle| over the image.
 
+Camera (``camera`` rows, docs/camera.md): the same pair with each of a Gaussian and an Airy lens
+PSF, vignetting, a fill factor of 0.5 (at 4 samples per pixel) and fixed-pattern noise alone, GL
+and CPU, each against the same render without it, with their max |GL − oracle|;
+``glsim bench effects --only camera`` runs these rows alone and merges them into the results there.
+
 Depth of field (``dof`` rows): every GL scheme (``optics.scheme``: separable, hybrid, gather,
 expansion; the disk kernel's 2-D gather) on the bulge pair (depth of field only) and on the
 four scenes of :func:`dof_scenes` — a tilted plate whose outline lies in the blurred region, a
@@ -190,6 +195,73 @@ def motion_rows(base: Scene, ctx) -> list[dict]:
     return rows
 
 
+PITCH = 0.0055              # mm: the camera-effect rows' Airy disk on 5.5 µm pixels (first zero 0.98 px at f/8)
+CAMERA = {"psf gaussian": {"psf": {"kind": "gaussian", "sigma": 1.0}},
+          "psf airy": {"psf": {"kind": "airy", "f_number": 8.0, "pixel_pitch": PITCH}},
+          "vignetting": {"vignetting": {"natural": True, "radial": [0.1]}},
+          "fill factor": {"sensor": {"fill_factor": 0.5}, "render": {"samples_per_pixel": 4}},
+          "fixed pattern": {"sensor": {"prnu": 1.0, "dsnu": 2.0}}}
+CAMERA_REPS = 1            # timed renders per camera of a camera-effect row and of its own baseline
+
+
+def camera_rows(base: Scene, ctx) -> list[dict]:
+    """The ``camera`` records (docs/camera.md): each of CAMERA on ``base`` (no other effect), GL and
+    CPU: seconds per image (both cameras, step 1, after one warm-up) with the effect and without it
+    (the same render options; measured in the same call, interleaved), and the max |GL − oracle|
+    over both images (full scale)."""
+    rows = []
+    for name, sections in CAMERA.items():
+        scene = base.replace(**sections)
+        plain = base.replace(**{k: v for k, v in sections.items() if k == "render"})
+        runs, images = {}, {}
+        for backend in ("gl", "cpu"):
+            c = ctx if backend == "gl" else None
+            with Renderer(scene, backend, ctx=c) as r, Renderer(plain, backend, ctx=c) as r0:
+                r.render(0, 1), r0.render(0, 1)    # warm-up: programs, kernels, gains
+                done = [(r.render(k, 1), r0.render(k, 1)) for _ in range(CAMERA_REPS) for k in range(len(scene.cameras))]
+            runs[backend] = done
+            images[backend] = [x.image.astype(np.float64) for x, _ in done[-len(scene.cameras):]]
+        diff = max(float(np.abs(g - c).max()) for g, c in zip(images["gl"], images["cpu"]))
+        for backend, done in runs.items():
+            rows.append({"backend": backend, "effects": name, "reps": CAMERA_REPS, "settings": sections,
+                         "seconds": statistics.median(x.seconds for x, _ in done),
+                         "base_seconds": statistics.median(x.seconds for _, x in done),
+                         "seconds_all": [x.seconds for x, _ in done], "stages": list(done[-1][0].stages),
+                         "max_gl_vs_cpu": diff})
+            print(f"  {backend} {name}: {rows[-1]['seconds']:.3g} s", file=sys.stderr, flush=True)
+    return rows
+
+
+def camera_table(rows: list[dict]) -> str:
+    """The camera-effect rows as a markdown table (also docs/camera.md's generated region)."""
+    lines = ["| backend | effect | settings | time per image (s) | without it (s) | × without | max GL − oracle |",
+             "|---|---|---|---|---|---|---|"]
+    for r in rows:
+        settings = "; ".join(f"[{k}] " + ", ".join(f"{n} = {v}" for n, v in t.items()) for k, t in r["settings"].items())
+        lines.append(f"| {r['backend']} | {r['effects']} | {settings} | {r['seconds']:.3g} | {r['base_seconds']:.3g} | "
+                     f"{r['seconds'] / r['base_seconds']:.3g} | {sig(r['max_gl_vs_cpu'], trailing_zeros=False)} |")
+    return "\n".join(lines)
+
+
+def camera_only(size: tuple[int, int], previous: dict | None) -> dict:
+    """The camera-effect rows alone at ``size``, merged into ``previous`` (a report of the same size,
+    whose other rows are kept) or a report of their own."""
+    from glsim.evaluation.report import machine_info
+    from glsim.backends.gl.context import create_context, info
+
+    ctx = create_context()
+    try:
+        machine = machine_info(info(ctx))
+        rows = camera_rows(bulge_scene(size=size, steps=1), ctx)
+    finally:
+        ctx.release()
+    date = datetime.datetime.now().astimezone().isoformat(timespec="seconds")
+    if previous is not None and previous.get("size") == list(size):
+        return {**previous, "camera": rows, "camera_run": {"machine": machine, "date": date}}
+    return {"machine": machine, "date": date, "size": list(size), "records": [],
+            "scene": f"bulge_scene(size={tuple(size)}, steps=1), both cameras, step 1", "camera": rows}
+
+
 def motion_table(report: dict) -> str:
     """The motion rows as a markdown table: time per image and over the effect-free row."""
     none = {r["backend"]: r["seconds"] for r in report["records"] if r["effects"] == "none"}
@@ -238,6 +310,7 @@ def effects(size: tuple[int, int], reps: int) -> dict:
                 print(f"  {backend} {name}: {rec['seconds']:.3g} s", file=sys.stderr, flush=True)
         dof = dof_rows(variant(base, "optics"), reps, min(DOF_WIDTH, size[0]), ctx)
         moving = motion_rows(base, ctx)
+        camera = camera_rows(base, ctx)
     finally:
         ctx.release()
     for r in rows:
@@ -247,7 +320,7 @@ def effects(size: tuple[int, int], reps: int) -> dict:
         r["share_of_all"] = r["added_seconds"] / every
     return {"machine": machine, "date": datetime.datetime.now().astimezone().isoformat(timespec="seconds"),
             "size": list(size), "scene": f"demo_effects(bulge_scene(size={tuple(size)}, steps=1)), both cameras, step 1",
-            "records": rows, "dof_goal": DOF_GOAL, "dof": dof, "motion": moving}
+            "records": rows, "dof_goal": DOF_GOAL, "dof": dof, "motion": moving, "camera": camera}
 
 
 def markdown(report: dict) -> str:
@@ -272,6 +345,13 @@ def markdown(report: dict) -> str:
                   "Same scene, no other effect; time: median `Result.seconds` per image (both cameras) after one "
                   "warm-up; × no effect: over the effect-free row of the same backend; GL − oracle: the largest "
                   "over both images, absolute, full scale.", "", motion_table(report)]
+    if report.get("camera"):
+        run = report.get("camera_run", report)
+        lines += ["", "## Lens PSF, vignetting, fill factor, fixed-pattern noise (docs/camera.md)", "",
+                  f"Same scene, no other effect ({run['date']}); time: median `Result.seconds` per image (both cameras) "
+                  "after one warm-up, with the effect and without it in the same call (the fill-factor row and its "
+                  "baseline at 4 samples per pixel); GL − oracle: the largest over both images, absolute, full scale.",
+                  "", camera_table(report["camera"])]
     if report.get("dof"):
         lines += ["", "## Depth of field: GL schemes against the oracle's exact 2-D gather", "",
                   f"Every covered pixel; error as a fraction of full scale (goal ≤ {report['dof_goal']:g}, half a grey "
