@@ -229,8 +229,9 @@ class Renderer:
         if fx.noise is not None:
             image = noisemod.add_noise(image, fx.noise, fx.bit_depth, fx.noise_seed, fx.variance)
             stages += ("noise",)
-        specimen = self._specimen(cam, tl.at(0.0, mesh.deformed), mesh.quads) if line == 0 else \
-            (lambda: np.concatenate([coverage(c, tl.at(t, mesh.deformed), mesh.quads) for c, t in rows]))
+        specimen = self._specimen(cam, tl.at(0.0, mesh.deformed), mesh.quads)   # (warns if unseen at mid-frame)
+        if line > 0:   # each row's own state
+            specimen = lambda: np.concatenate([coverage(c, tl.at(t, mesh.deformed), mesh.quads) for c, t in rows])  # noqa: E731
         return Result(image=quantize_image(image, cam.bit_depth) if quantize else image, camera=cam, step=step,
                       backend=self.backend_name, options=opts, seconds=time.perf_counter() - t0,
                       truth=motion.stack(truths) if truth else None, stages=stages, specimen=specimen)

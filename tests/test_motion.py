@@ -108,6 +108,9 @@ def test_rolling_shutter_shears_a_translation(tmp_path):
         crossing = k + (0.5 - g[k]) / (g[k + 1] - g[k])
         assert crossing == pytest.approx((SIZE[0] - 1) / 2 + v_px * tau[r], abs=1e-4)
     tr = res.truth
+    still = render(edge_scene(tmp_path, ramp)).coverage     # per row as many pixels, each row shifted
+    assert np.abs(res.coverage.sum(axis=1) - still.sum(axis=1)).max() <= 1
+    assert np.flatnonzero(res.coverage[rows[-1]])[0] > np.flatnonzero(still[rows[-1]])[0]
     disp = (tr.X_deformed - tr.X_undeformed)[rows]
     np.testing.assert_allclose(np.nanmax(disp[..., 0], axis=1), v * tau[rows], atol=1e-9)
 

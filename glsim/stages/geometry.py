@@ -80,8 +80,9 @@ class MeshGeometry:
 
 
 class StepGeometry:
-    """One load step: deformed nodes relative to the mesh's origin (float64, (N, 3)), their
-    bounding sphere over the used nodes, and the camera-independent shape problems."""
+    """One load step (``index``; (step, τ) for a state during its exposure): deformed nodes
+    relative to the mesh's origin (float64, (N, 3)), their bounding sphere over the used nodes,
+    and the camera-independent shape problems."""
 
     def __init__(self, mesh_geo: MeshGeometry, step: int, deformed: np.ndarray):
         self.mesh_geo = mesh_geo
