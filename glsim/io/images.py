@@ -31,6 +31,19 @@ def quantize(image: np.ndarray, bit_depth: int) -> np.ndarray:
     return q.astype(dtype)
 
 
+def saturated_fraction(image: np.ndarray, covered: np.ndarray, bit_depth: int) -> float:
+    """Fraction of the specimen's pixels (``covered``) below 0 or above full scale — of a
+    quantised image, at 0 or 2^bits − 1 —; the background is not counted."""
+    n = np.count_nonzero(covered)
+    if image.dtype.kind == "u":
+        clipped = (image == 0) | (image == (1 << bit_depth) - 1)
+    elif n and (image.min() < 0 or image.max() > 1):   # (the extremes first: most images have none)
+        clipped = (image < 0) | (image > 1)
+    else:
+        return 0.0
+    return float(np.count_nonzero(clipped & covered) / n) if n else 0.0
+
+
 def _image_file(tmp: Path, data: np.ndarray, fmt: str) -> None:
     if fmt == "tiff":
         import tifffile
