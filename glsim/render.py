@@ -61,6 +61,7 @@ class Result:
     stages: tuple[str, ...] = ()      # the pipeline stages / GL passes that ran
     specimen: Callable[[], np.ndarray] | None = field(default=None, repr=False)  # makes ``coverage`` when first asked
     jacobian: object | None = None    # render(jacobian=True): scipy.sparse CSR, pixels × 3·nodes (docs/jacobian.md)
+    rig_jacobian: object | None = None   # render(rig=True): CSR, pixels × 23 camera parameters (jacobian.RIG_COLUMNS)
 
     @functools.cached_property
     def coverage(self) -> np.ndarray:
@@ -173,7 +174,7 @@ class Renderer:
         return self._geometry
 
     def render(self, camera: int | str = 0, step: int = 0, truth: bool = False, quantize: bool = False,
-               jacobian: bool = False, **options) -> Result:
+               jacobian: bool = False, rig: bool = False, **options) -> Result:
         """Render one image. ``options`` override the scene's [render] table (mode, …).
         ``quantize``: the image as the camera writes it (:func:`glsim.io.images.quantize` at its
         bit depth: uint8, or uint16 for 10–16 bits), quantised on the GPU where it can be exactly
@@ -183,7 +184,9 @@ class Renderer:
         :class:`ViewSpec` (the camera's transform; the mesh and the step's nodes are shared),
         the effects, and for a quadratic mesh in exact and q4 its curved patches.
         ``jacobian``: also ``Result.jacobian``, the noise-free image's derivative with respect to
-        the nodal displacements (:mod:`glsim.stages.jacobian`; refused by name where it cannot be made)."""
+        the nodal displacements (:mod:`glsim.stages.jacobian`; refused by name where it cannot be made);
+        ``rig``: that and ``Result.rig_jacobian``, with respect to the camera's pose and intrinsics."""
+        jacobian = jacobian or rig
         if self.scene.exposure is not None:   # motion over the exposure, a rolling shutter
             return self._moving(camera, step, truth, quantize, jacobian, options)
         if not jacobian:
@@ -194,8 +197,8 @@ class Renderer:
         res = self._finish(self._submit(camera, step, truth or one, quantize, options))
         raster = {"element": res.truth.element.ravel(), "xi": res.truth.xi.ravel(),
                   "eta": res.truth.eta.ravel()} if one else None
-        return dataclasses.replace(res, truth=res.truth if truth else None,
-                                   jacobian=self._jacobian(res.camera, step, opts, raster))
+        J, J_rig = self._jacobian(res.camera, step, opts, raster, rig)
+        return dataclasses.replace(res, truth=res.truth if truth else None, jacobian=J, rig_jacobian=J_rig)
 
     def _moving(self, camera, step: int, truth: bool, quantize: bool, jacobian: bool, options: dict) -> Result:
         """:meth:`render` with ``[exposure]`` (:mod:`glsim.effects.motion`): per row of a rolling
@@ -248,7 +251,7 @@ class Renderer:
                              normals=not self.backend.capabilities.device_geometry)
         return self.backend.render(Request(view, opts, truth, dataclasses.replace(fx, noise=None, sensor=None))), fx
 
-    def _jacobian(self, cam: Camera, step: int, opts: Render, raster: dict | None):
+    def _jacobian(self, cam: Camera, step: int, opts: Render, raster: dict | None, rig: bool):
         """The image Jacobian (glsim.stages.jacobian.image_jacobian) from the backend's float64
         raster of every sample: for s > 1 rendered as the pixels of the finer sample camera
         (its warnings were the image's)."""
@@ -264,7 +267,7 @@ class Renderer:
         coeffs = self._ref_coeffs[method]
         mesh = self.mesh
         return jac.image_jacobian(cam, s, self.reference.camera, mesh.nodes, mesh.deformed(step), mesh.quads,
-                                  opts.mode, raster, lambda uv: interp.gradient(coeffs, uv, method))
+                                  opts.mode, raster, lambda uv: interp.gradient(coeffs, uv, method), rig)
 
     def render_many(self, jobs: Iterable, depth: int = 2) -> Iterator[Result]:
         """The Results of ``jobs`` in order, pipelined: request k + depth − 1 is submitted before

@@ -1,6 +1,7 @@
 """Image Jacobians (issue 32, glsim.stages.jacobian): the oracle's against central finite
 differences of its own float64 renders, supersampled averaging, the refusals by name, GL against
 the oracle and the ``glsim jacobian`` round trip."""
+import dataclasses
 import importlib.util
 from pathlib import Path
 
@@ -14,10 +15,11 @@ from glsim.errors import SceneError
 from glsim.io.fe import specimen_mesh
 from glsim.render import Renderer
 from glsim.scene import load_scene
-from glsim.scene.camera import Distortion
+from glsim.scene.camera import Distortion, rodrigues
 from glsim.scene.mesh import with_displacements
 from glsim.stages import interp
 from glsim.stages import jacobian as jac
+from glsim.stages.view import make_view
 from _plates import plate_scene
 
 TILT = ((0.96, 0.0, 0.28), (0.0, 1.0, 0.0), (-0.28, 0.0, 0.96))
@@ -74,6 +76,51 @@ def test_oracle_matches_central_differences(mode, spp):
                 assert not np.any(col[ep == -1]), "background pixels have no derivative"
                 checked += np.count_nonzero(col[same])
         assert checked > 100
+
+
+RIG_STEPS = {"rx": 1e-7, "ry": 1e-7, "rz": 1e-7, "p1": 1e-6, "p2": 1e-6, "s1": 1e-6,
+             "s3": 1e-6, "k2": 1e-2, "k5": 1e-2, "s2": 1e-2, "s4": 1e-2, "k3": 1.0, "k6": 1.0}   # else 1e-5
+
+
+def _moved(cam, name: str, d: float):
+    """``cam`` with parameter ``name`` of jacobian.RIG_COLUMNS changed by d (rotation: exp([d·e])·R)."""
+    col = jac.RIG_COLUMNS.index(name)
+    if col < 3:
+        return dataclasses.replace(cam, R=rodrigues(d * np.eye(3)[col]) @ cam.rotation)
+    if col < 6:
+        return dataclasses.replace(cam, t=np.array(cam.t) + d * np.eye(3)[col - 3])
+    if col < 11:
+        return dataclasses.replace(cam, **{name: getattr(cam, name) + d})
+    return dataclasses.replace(cam, distortion=Distortion.from_opencv(cam.distortion.coeffs + d * np.eye(12)[col - 11]))
+
+
+@pytest.mark.parametrize("mode, spp", [("exact", 1), ("q4", 4)])
+def test_rig_jacobian_matches_central_differences(mode, spp):
+    """Every camera parameter (pose, intrinsics, the 12 distortion coefficients) of a posed, skewed
+    camera; bspline3 (C², so no kink of the kernel's second derivative in the differences)."""
+    scene, mesh = _plate(backend="cpu", mode=mode, samples_per_pixel=spp, interpolation="bspline3")
+    cam = dataclasses.replace(scene.cameras[0], skew=0.7, R=rodrigues(np.array([0.02, -0.03, 0.01])), t=(1.0, -0.5, 3.0),
+                              distortion=Distortion(k1=-0.2, p1=1e-3, k4=0.05, s1=0.01))
+    with Renderer(scene.replace(cameras=(cam,)), mesh=mesh) as r:
+        res = r.render(0, 1, rig=True)
+        assert res.jacobian.shape == (64 * 48, 3 * mesh.n_nodes) and res.rig_jacobian.shape == (64 * 48, 23)
+        J = res.rig_jacobian.toarray()
+        s, sampler, ref = r.scene.render.supersampling, r.backend.sampler("bspline3"), r.reference.camera
+
+        def image(c):
+            raster = rasterize(make_view(c, ref, mesh.nodes, mesh.deformed(1), mesh.quads, warn=False), mode, s)
+            hit = raster["element"] >= 0
+            grey = np.zeros(hit.shape)
+            grey[hit] = sampler(raster["ref_uv"][hit])
+            el = raster["element"].reshape(48, s, 64, s).transpose(0, 2, 1, 3).reshape(64 * 48, s * s)
+            return grey.reshape(48, s, 64, s).mean(axis=(1, 3)).ravel(), np.where((el == el[:, :1]).all(1), el[:, 0], -2)
+        for col, name in enumerate(jac.RIG_COLUMNS):
+            d = RIG_STEPS.get(name, 1e-5)
+            (plus, ep), (minus, em) = image(_moved(cam, name, d)), image(_moved(cam, name, -d))
+            same = (ep == em) & (ep >= -1)
+            fd = (plus - minus)[same] / (2 * d)
+            floor = 1e-3 * np.abs(J[:, col]).max()
+            assert floor > 0 and np.all(np.abs(fd - J[same, col]) <= 1e-4 * np.maximum(np.abs(J[same, col]), floor)), name
 
 
 def test_interpolant_gradient_is_the_derivative_of_sample():
@@ -141,8 +188,10 @@ def test_gl_matches_the_oracle(gl_ctx, mode, spp):
     out = {}
     for backend in ("cpu", "gl"):
         with Renderer(scene, backend, ctx=gl_ctx if backend == "gl" else None, mesh=mesh) as r:
-            out[backend] = r.render(0, 1, jacobian=True).jacobian
+            res = r.render(0, 1, rig=True)
+            out[backend], out[backend + " rig"] = res.jacobian, res.rig_jacobian
     assert abs(out["gl"] - out["cpu"]).max() <= 1e-3 * abs(out["cpu"]).max()
+    assert abs(out["gl rig"] - out["cpu rig"]).max() <= 1e-3 * abs(out["cpu rig"]).max()
 
 
 PLATE_TOML = """

@@ -29,7 +29,7 @@ from scipy import sparse
 from glsim.errors import SceneError
 from glsim.scene import Render, Scene
 from glsim.scene import bilinear as bl
-from glsim.scene.camera import (Camera, distort_jacobian, pixel_to_normalized, project_camera_frame, to_camera,
+from glsim.scene.camera import (Camera, distort, distort_jacobian, pixel_to_normalized, project_camera_frame, to_camera,
                                 undistort)
 
 MODES = ("exact", "q4")
@@ -100,21 +100,89 @@ def _left_solve(w, M):
     return np.column_stack([w[:, 0] * d - w[:, 1] * c, w[:, 1] * a - w[:, 0] * b]) / det[:, None]
 
 
+def _ray_matrix(ray) -> np.ndarray:
+    """A (n, 2, 3) = [[1, 0, −x], [0, 1, −y]] of the rays (x, y, 1): A·X = 0 on the ray."""
+    A = np.zeros((len(ray), 2, 3))
+    A[:, 0, 0] = A[:, 1, 1] = 1.0
+    A[:, :, 2] = -ray
+    return A
+
+
+def _sensitivity(mode: str, w, Xd, xi, eta, ray, cam: Camera):
+    """N (n, 4), v = w · (∂F/∂(ξ, η))⁻¹ (n, 2) and the corners' ∂g/∂X_k = −v · ∂F/∂X_k (n, 4, 3)."""
+    N, N_xi, N_eta = _shape_derivatives(xi, eta)
+    if mode == "exact":
+        A = _ray_matrix(ray)
+        v = _left_solve(w, A @ _tangents(N_xi, N_eta, Xd))
+        return N, v, -N[..., None] * np.einsum("nl,nlc->nc", v, A)[:, None, :]
+    v = _left_solve(w, _tangents(N_xi, N_eta, project_camera_frame(Xd, cam)[0]))
+    return N, v, -N[..., None] * np.einsum("nl,nklc->nkc", v, projection_jacobian(Xd, cam))
+
+
 def corner_derivatives(mode: str, w, Xd, xi, eta, ray=None, cam: Camera | None = None) -> np.ndarray:
     """∂g/∂X_k (n, 4, 3) per mm for the deformed corners Xd (n, 4, 3) in the camera frame, given
     w = ∂g/∂(ξ, η) (n, 2): implicit differentiation of the mapping F(ξ, η, X) = 0,
     −w · (∂F/∂(ξ, η))⁻¹ · ∂F/∂X_k. Mode ``exact`` on the samples' rays ``ray`` (n, 2)
     (undistorted normalized), ``q4`` in camera ``cam``'s image."""
-    N, N_xi, N_eta = _shape_derivatives(xi, eta)
+    return _sensitivity(mode, w, Xd, xi, eta, ray, cam)[2]
+
+
+def distortion_coefficient_jacobian(xn, k) -> np.ndarray:
+    """∂xd/∂k (..., 2, 12) of :func:`glsim.scene.camera.distort` with respect to its 12
+    coefficients (k1, k2, p1, p2, k3, k4, k5, k6, s1, s2, s3, s4) at undistorted ``xn``."""
+    x, y = xn[..., 0], xn[..., 1]
+    k = np.asarray(k, dtype=np.float64)
+    r2 = x * x + y * y
+    den = 1.0 + r2 * (k[5] + r2 * (k[6] + r2 * k[7]))
+    radial = (1.0 + r2 * (k[0] + r2 * (k[1] + r2 * k[4]))) / den
+    J = np.zeros(xn.shape[:-1] + (2, 12))
+    for num_col, den_col, p in ((0, 5, r2), (1, 6, r2 * r2), (4, 7, r2 * r2 * r2)):
+        J[..., 0, num_col], J[..., 1, num_col] = x * p / den, y * p / den
+        J[..., 0, den_col], J[..., 1, den_col] = -x * radial * p / den, -y * radial * p / den
+    J[..., 0, 2], J[..., 1, 2] = 2.0 * x * y, r2 + 2.0 * y * y
+    J[..., 0, 3], J[..., 1, 3] = r2 + 2.0 * x * x, 2.0 * x * y
+    J[..., 0, 8], J[..., 0, 9], J[..., 1, 10], J[..., 1, 11] = r2, r2 * r2, r2, r2 * r2
+    return J
+
+
+RIG_COLUMNS = ("rx", "ry", "rz", "tx", "ty", "tz", "fx", "fy", "cx", "cy", "skew",
+               "k1", "k2", "p1", "p2", "k3", "k4", "k5", "k6", "s1", "s2", "s3", "s4")
+
+
+def rig_derivatives(mode: str, N, v, c, Xd, cam: Camera, s: int, q=None, ray=None) -> np.ndarray:
+    """∂g/∂(camera parameters) (n, 23) in :data:`RIG_COLUMNS`' order, from :func:`_sensitivity`'s
+    N, v (of the sample camera) and camera-frame corner derivatives c. Pose: a rotation vector ω
+    applied on the left (R ← exp([ω]×)·R, per radian) and t ← t + τ (per mm) move every corner by
+    ω × (X_k − t) + τ: ∂g/∂τ = Σ c_k, ∂g/∂ω = Σ (X_k − t) × c_k. Intrinsics (per px) and
+    distortion (per unit) of ``cam``: ``exact`` through the ray of the pixel point ``q`` (n, 2,
+    ``cam``'s px; F = A(x_n)·P, ∂F/∂x_n = −P_z), ``q4`` through the corners' projections."""
+    k = cam.distortion.coeffs
+    fx, fy, skew = cam.fx, cam.fy, cam.skew
+    Y = Xd - np.asarray(cam.t)
+    out = np.empty((len(v), 23))
+    out[:, 3:6] = c.sum(axis=1)
+    out[:, 0:3] = np.cross(Y, c).sum(axis=1)
     if mode == "exact":
-        A = np.zeros((len(xi), 2, 3))
-        A[:, 0, 0] = A[:, 1, 1] = 1.0
-        A[:, :, 2] = -ray
-        v = _left_solve(w, A @ _tangents(N_xi, N_eta, Xd))
-        return -N[..., None] * np.einsum("nl,nlc->nc", v, A)[:, None, :]
-    uv, _ = project_camera_frame(Xd, cam)
-    v = _left_solve(w, _tangents(N_xi, N_eta, uv))
-    return -N[..., None] * np.einsum("nl,nklc->nkc", v, projection_jacobian(Xd, cam))
+        xd = pixel_to_normalized(q, cam.intrinsics)
+        dxd = np.zeros((len(v), 2, 5))        # ∂xd/∂(fx, fy, cx, cy, skew)
+        dxd[:, 1, 1], dxd[:, 1, 3] = -xd[:, 1] / fy, -1.0 / fy
+        dxd[:, 0, 0], dxd[:, 0, 2], dxd[:, 0, 4] = -xd[:, 0] / fx, -1.0 / fx, -xd[:, 1] / fx
+        dxd[:, 0, 1], dxd[:, 0, 3] = -skew * dxd[:, 1, 1] / fx, -skew * dxd[:, 1, 3] / fx
+        Pz = np.einsum("nk,nk->n", N, Xd[..., 2])
+        b = _left_solve(v * Pz[:, None], distort_jacobian(ray, k))
+        out[:, 6:11] = np.einsum("nl,nlp->np", b, dxd)
+        out[:, 11:] = -np.einsum("nl,nlp->np", b, distortion_coefficient_jacobian(ray, k))
+        return out
+    xn = Xd[..., :2] / Xd[..., 2:3]
+    xdk = distort(xn, k)
+    dpi = np.zeros(Xd.shape[:2] + (2, 5))
+    dpi[..., 0, 0], dpi[..., 1, 1], dpi[..., 0, 2], dpi[..., 1, 3], dpi[..., 0, 4] = \
+        xdk[..., 0], xdk[..., 1], 1.0, 1.0, xdk[..., 1]
+    K2 = np.array([[fx, skew], [0.0, fy]])
+    dpik = K2 @ distortion_coefficient_jacobian(xn, k)
+    out[:, 6:11] = -s * np.einsum("nl,nk,nklp->np", v, N, dpi)
+    out[:, 11:] = -s * np.einsum("nl,nk,nklp->np", v, N, dpik)
+    return out
 
 
 def reference_point(mode: str, Xr, ref_cam: Camera, xi, eta):
@@ -137,17 +205,19 @@ def sample_rays(cam: Camera, index: np.ndarray) -> np.ndarray:
 
 
 def image_jacobian(cam: Camera, s: int, ref_cam: Camera, nodes: np.ndarray, deformed: np.ndarray,
-                   quads: np.ndarray, mode: str, raster: dict, grad) -> sparse.csr_matrix:
+                   quads: np.ndarray, mode: str, raster: dict, grad, rig: bool = False):
     """The image Jacobian (W·H × 3·nodes, CSR, grey levels per mm) of ``cam`` from ``raster``:
     flat ``element``, ``xi``, ``eta`` (float64) over the (W·s)·(H·s) samples of
-    :func:`sample_camera` (element −1: background); the reference point is recomputed from them. ``nodes``, ``deformed`` (N, 3) world mm;
-    ``grad(uv)`` the reference interpolant's gradient (grey per px). A pixel's row is the mean
-    of its s² samples' derivatives."""
+    :func:`sample_camera` (element −1: background); the reference point is recomputed from them.
+    ``nodes``, ``deformed`` (N, 3) world mm; ``grad(uv)`` the reference interpolant's gradient
+    (grey per px). A pixel's row is the mean of its s² samples' derivatives. Returns it and, if
+    ``rig``, the W·H × 23 CSR Jacobian with respect to ``cam``'s parameters (:func:`rig_derivatives`),
+    else None."""
     W, H = cam.size
     scam = sample_camera(cam, s)
     R = cam.rotation
     hit = np.flatnonzero(raster["element"] >= 0)
-    parts = []
+    parts, rig_parts = [], []
     for k in range(0, len(hit), CHUNK):
         idx = hit[k:k + CHUNK]
         e, xi, eta = raster["element"][idx], raster["xi"][idx], raster["eta"][idx]
@@ -157,11 +227,22 @@ def image_jacobian(cam: Camera, s: int, ref_cam: Camera, nodes: np.ndarray, defo
         ray = sample_rays(scam, idx) if mode == "exact" else None
         r, dr = reference_point(mode, Xr, ref_cam, xi, eta)
         w = np.einsum("nc,ncl->nl", grad(r), dr)                                    # ∂g/∂(ξ, η)
-        values = corner_derivatives(mode, w, Xd, xi, eta, ray, scam) @ R / (s * s)  # per world mm
-        i, j = idx % (W * s) // s, idx // (W * s) // s
-        rows = np.repeat(j * W + i, 12)
+        N, v, c = _sensitivity(mode, w, Xd, xi, eta, ray, scam)
+        values = c @ R / (s * s)                                                    # per world mm
+        fi, fj = idx % (W * s), idx // (W * s)
+        pixel = fj // s * W + fi // s
         cols = (3 * corners[..., None] + np.arange(3)).ravel()
-        parts.append(sparse.coo_matrix((values.ravel(), (rows, cols)), shape=(W * H, 3 * len(nodes))).tocsr())
-    out = sum(parts[1:], parts[0]) if parts else sparse.csr_matrix((W * H, 3 * len(nodes)))
+        parts.append(sparse.coo_matrix((values.ravel(), (np.repeat(pixel, 12), cols)),
+                                       shape=(W * H, 3 * len(nodes))).tocsr())
+        if rig:
+            q = (np.column_stack([fi, fj]) + 0.5) / s - 0.5    # the samples in cam's pixels
+            values = rig_derivatives(mode, N, v, c, Xd, cam, s, q, ray) / (s * s)
+            rig_parts.append(sparse.coo_matrix((values.ravel(), (np.repeat(pixel, 23), np.tile(np.arange(23), len(idx)))),
+                                               shape=(W * H, 23)).tocsr())
+    return _total(parts, (W * H, 3 * len(nodes))), _total(rig_parts, (W * H, 23)) if rig else None
+
+
+def _total(parts: list, shape: tuple) -> sparse.csr_matrix:
+    out = sum(parts[1:], parts[0]) if parts else sparse.csr_matrix(shape)
     out.sum_duplicates()
     return out
