@@ -122,7 +122,7 @@ def cmd_jacobian(args) -> int:
     from glsim.workflows.jacobian import camera_arg, jacobian
 
     res = jacobian(_overrides(load_scene(args.scene), args), camera_arg(args.camera), args.step, args.output,
-                   args.backend)
+                   args.backend, args.rig)
     J = res.jacobian
     print(f"glsim jacobian: wrote {args.output} ({J.shape[0]} pixels × {J.shape[1]} displacement components, "
           f"{J.nnz} non-zeros; camera {res.camera.name}, step {res.step}, backend={res.backend}, "
@@ -199,6 +199,8 @@ def parser() -> argparse.ArgumentParser:
     j.add_argument("-o", "--output", required=True, help=".npz file to write (scipy.sparse.load_npz reads it)")
     j.add_argument("--backend", choices=BACKENDS, help="override [render] backend")
     j.add_argument("--mode", choices=MODES, help="override [render] mode (exact or q4)")
+    j.add_argument("--rig", action="store_true", help="also the derivative w.r.t. the camera's pose, intrinsics and "
+                   "distortion (rig_data, rig_indices, rig_indptr, rig_columns)")
     j.set_defaults(func=cmd_jacobian)
     from glsim.io.calibfiles import FORMATS
 

@@ -223,16 +223,18 @@ def test_cli_round_trip(tmp_path, capsys):
     path = tmp_path / "plate.toml"
     path.write_text(PLATE_TOML)
     out = tmp_path / "J.npz"
-    assert cli.main(["jacobian", str(path), "--camera", "left", "--step", "1", "-o", str(out)]) == 0
+    assert cli.main(["jacobian", str(path), "--camera", "left", "--step", "1", "-o", str(out), "--rig"]) == 0
     assert "wrote" in capsys.readouterr().out
     J = sp.load_npz(out)
     with Renderer(load_scene(path)) as r:
-        res = r.render("left", 1, jacobian=True)
+        res = r.render("left", 1, rig=True)
         labels = r.mesh.node_labels
     assert abs(J - res.jacobian).max() == 0 and J.shape == (48 * 36, 3 * len(labels))
     with np.load(out) as f:
         assert np.array_equal(f["node_labels"], labels) and str(f["camera"]) == "left" and int(f["step"]) == 1
         np.testing.assert_array_equal(f["image"], res.image)
+        G = sp.csr_matrix((f["rig_data"], f["rig_indices"], f["rig_indptr"]), shape=(48 * 36, 23))
+        assert abs(G - res.rig_jacobian).max() == 0 and list(f["rig_columns"]) == list(jac.RIG_COLUMNS)
     for args, message in ((["--camera", "right", "--step", "1"], "camera: no camera named 'right'"),
                           (["--step", "5"], "step: 5 is outside"),
                           (["--step", "1", "--mode", "fast"], "render.mode:")):

@@ -4,7 +4,8 @@ nodal displacements (:mod:`glsim.stages.jacobian`, docs/jacobian.md) written as 
 The file is scipy.sparse's own CSR layout (``scipy.sparse.load_npz`` reads it: ``format``,
 ``shape``, ``data``, ``indices``, ``indptr``) plus ``image`` (the rendered float32 image, H × W),
 ``node_labels`` (column 3·i + c is component c of node ``node_labels[i]``), ``camera``, ``step``,
-``backend``, ``mode``. Every input (scene, camera, step, the request's refusals) is checked by
+``backend``, ``mode``; with ``rig``, also the camera-parameter Jacobian (pixels × 23, CSR) as
+``rig_data``, ``rig_indices``, ``rig_indptr`` and its column names ``rig_columns``. Every input (scene, camera, step, the request's refusals) is checked by
 rendering before anything is written; the file appears complete or not at all.
 """
 from __future__ import annotations
@@ -17,6 +18,7 @@ from glsim.errors import GlsimError
 from glsim.io.atomic import atomic_path
 from glsim.render import Renderer, Result
 from glsim.scene import Scene
+from glsim.stages.jacobian import RIG_COLUMNS
 
 
 def _output(out: str | Path) -> Path:
@@ -33,16 +35,19 @@ def camera_arg(text: str) -> int | str:
     return int(text) if text.isdigit() else text
 
 
-def jacobian(scene: Scene, camera: int | str, step: int, out: str | Path, backend: str | None = None) -> Result:
-    """Render ``camera`` at ``step`` with its Jacobian and write ``out`` (.npz) atomically;
-    returns the Result."""
+def jacobian(scene: Scene, camera: int | str, step: int, out: str | Path, backend: str | None = None,
+             rig: bool = False) -> Result:
+    """Render ``camera`` at ``step`` with its Jacobian (and, if ``rig``, the camera parameters')
+    and write ``out`` (.npz) atomically; returns the Result."""
     path = _output(out)
     with Renderer(scene, backend) as r:
-        res = r.render(camera, step, jacobian=True)
+        res = r.render(camera, step, jacobian=True, rig=rig)
         labels = r.mesh.node_labels
-    J = res.jacobian
+    J, G = res.jacobian, res.rig_jacobian
+    extra = {} if G is None else {"rig_data": G.data, "rig_indices": G.indices, "rig_indptr": G.indptr,
+                                  "rig_columns": np.array(RIG_COLUMNS)}
     with atomic_path(path) as tmp, open(tmp, "wb") as f:
         np.savez_compressed(f, format=np.array("csr"), shape=np.array(J.shape), data=J.data, indices=J.indices,
                             indptr=J.indptr, image=res.image, node_labels=labels, camera=np.array(res.camera.name),
-                            step=np.array(step), backend=np.array(res.backend), mode=np.array(res.options.mode))
+                            step=np.array(step), backend=np.array(res.backend), mode=np.array(res.options.mode), **extra)
     return res
