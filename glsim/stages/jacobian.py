@@ -17,7 +17,9 @@ camera's rotation: displacements are in the world frame). Coverage does not move
 nodes between samples, so background samples and the mask contribute nothing.
 
 Columns are node-major: 3·node + c for the components (u_x, u_y, u_z) of ``mesh.nodes[node]``;
-rows are the pixels v·W + u. Grey levels (of full scale) per mm.
+rows are the pixels v·W + u. Grey levels (of full scale) per mm. The same per-sample quantities
+give the derivative with respect to the rendering camera's pose, intrinsics and distortion
+(:func:`rig_derivatives`).
 """
 from __future__ import annotations
 
@@ -94,10 +96,12 @@ def _tangents(N_xi, N_eta, P):
 
 
 def _left_solve(w, M):
-    """w · M⁻¹ (n, 2) for row vectors w (n, 2) and 2×2 matrices M (n, 2, 2)."""
+    """w · M⁻¹ (n, 2) for row vectors w (n, 2) and 2×2 matrices M (n, 2, 2); 0 where M is
+    singular (a ray grazing its element: no finite derivative)."""
     a, b, c, d = M[:, 0, 0], M[:, 0, 1], M[:, 1, 0], M[:, 1, 1]
-    det = a * d - b * c
-    return np.column_stack([w[:, 0] * d - w[:, 1] * c, w[:, 1] * a - w[:, 0] * b]) / det[:, None]
+    det = (a * d - b * c)[:, None]
+    num = np.column_stack([w[:, 0] * d - w[:, 1] * c, w[:, 1] * a - w[:, 0] * b])
+    return np.divide(num, det, out=np.zeros_like(num), where=det != 0)
 
 
 def _ray_matrix(ray) -> np.ndarray:
@@ -108,8 +112,12 @@ def _ray_matrix(ray) -> np.ndarray:
     return A
 
 
-def _sensitivity(mode: str, w, Xd, xi, eta, ray, cam: Camera):
-    """N (n, 4), v = w · (∂F/∂(ξ, η))⁻¹ (n, 2) and the corners' ∂g/∂X_k = −v · ∂F/∂X_k (n, 4, 3)."""
+def sensitivities(mode: str, w, Xd, xi, eta, ray, cam: Camera):
+    """Implicit differentiation of the mapping F(ξ, η, X) = 0 given w = ∂g/∂(ξ, η) (n, 2): the
+    shape functions N (n, 4), v = w · (∂F/∂(ξ, η))⁻¹ (n, 2) and the corners' ∂g/∂X_k =
+    −v · ∂F/∂X_k (n, 4, 3) per mm, for the deformed corners Xd (n, 4, 3) in the camera frame.
+    Mode ``exact`` on the samples' rays ``ray`` (n, 2) (undistorted normalized), ``q4`` in
+    camera ``cam``'s image."""
     N, N_xi, N_eta = _shape_derivatives(xi, eta)
     if mode == "exact":
         A = _ray_matrix(ray)
@@ -117,14 +125,6 @@ def _sensitivity(mode: str, w, Xd, xi, eta, ray, cam: Camera):
         return N, v, -N[..., None] * np.einsum("nl,nlc->nc", v, A)[:, None, :]
     v = _left_solve(w, _tangents(N_xi, N_eta, project_camera_frame(Xd, cam)[0]))
     return N, v, -N[..., None] * np.einsum("nl,nklc->nkc", v, projection_jacobian(Xd, cam))
-
-
-def corner_derivatives(mode: str, w, Xd, xi, eta, ray=None, cam: Camera | None = None) -> np.ndarray:
-    """∂g/∂X_k (n, 4, 3) per mm for the deformed corners Xd (n, 4, 3) in the camera frame, given
-    w = ∂g/∂(ξ, η) (n, 2): implicit differentiation of the mapping F(ξ, η, X) = 0,
-    −w · (∂F/∂(ξ, η))⁻¹ · ∂F/∂X_k. Mode ``exact`` on the samples' rays ``ray`` (n, 2)
-    (undistorted normalized), ``q4`` in camera ``cam``'s image."""
-    return _sensitivity(mode, w, Xd, xi, eta, ray, cam)[2]
 
 
 def distortion_coefficient_jacobian(xn, k) -> np.ndarray:
@@ -150,7 +150,7 @@ RIG_COLUMNS = ("rx", "ry", "rz", "tx", "ty", "tz", "fx", "fy", "cx", "cy", "skew
 
 
 def rig_derivatives(mode: str, N, v, c, Xd, cam: Camera, s: int, q=None, ray=None) -> np.ndarray:
-    """∂g/∂(camera parameters) (n, 23) in :data:`RIG_COLUMNS`' order, from :func:`_sensitivity`'s
+    """∂g/∂(camera parameters) (n, 23) in :data:`RIG_COLUMNS`' order, from :func:`sensitivities`'s
     N, v (of the sample camera) and camera-frame corner derivatives c. Pose: a rotation vector ω
     applied on the left (R ← exp([ω]×)·R, per radian) and t ← t + τ (per mm) move every corner by
     ω × (X_k − t) + τ: ∂g/∂τ = Σ c_k, ∂g/∂ω = Σ (X_k − t) × c_k. Intrinsics (per px) and
@@ -227,7 +227,7 @@ def image_jacobian(cam: Camera, s: int, ref_cam: Camera, nodes: np.ndarray, defo
         ray = sample_rays(scam, idx) if mode == "exact" else None
         r, dr = reference_point(mode, Xr, ref_cam, xi, eta)
         w = np.einsum("nc,ncl->nl", grad(r), dr)                                    # ∂g/∂(ξ, η)
-        N, v, c = _sensitivity(mode, w, Xd, xi, eta, ray, scam)
+        N, v, c = sensitivities(mode, w, Xd, xi, eta, ray, scam)
         values = c @ R / (s * s)                                                    # per world mm
         fi, fj = idx % (W * s), idx // (W * s)
         pixel = fj // s * W + fi // s
