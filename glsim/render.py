@@ -44,6 +44,7 @@ from glsim.stages.reference import make_reference
 from glsim.stages import interp, jacobian as jac
 from glsim.scene import Render, Scene
 
+SEEN_KEPT = 64              # (camera, step) views whose "seen" verdict is kept
 QUADRATIC_FAST_PIECES = 4   # fast mode: n × n linear pieces per quadratic element (docs/quadratic.md)
 
 
@@ -114,6 +115,8 @@ class Renderer:
         self.backend_name = backend or scene.render.backend
         self.backend = make_backend(self.backend_name, self.reference, ctx)
         self._geometry: MeshGeometry | None = None
+        self._closed = False
+        self._seen: dict[tuple, bool] = {}   # (camera, step) → seen (Renderer._specimen)
         self._ref_coeffs: dict[str, np.ndarray] = {}   # float64 interpolant coefficients (the Jacobian's gradient)
         if self._gl_max:   # the reference image is one texture
             H, W = self.reference.image.shape
@@ -142,6 +145,7 @@ class Renderer:
         self.close()
 
     def close(self) -> None:
+        self._closed = True
         self.backend.close()
 
     @property
@@ -283,7 +287,9 @@ class Renderer:
         try:
             for job in jobs:
                 args = dict(job) if isinstance(job, Mapping) else dict(zip(("camera", "step"), job))
-                if self.scene.exposure is not None:   # several renders per image (glsim.effects.motion)
+                if self.scene.exposure is not None or args.get("jacobian") or args.get("rig"):
+                    while pending:   # (in order) then several renders per image (glsim.effects.motion), or a
+                        yield self._finish(pending.popleft())    # Jacobian from a second raster
                     yield self.render(**args)
                     continue
                 pending.append(self._submit(args.pop("camera", 0), args.pop("step", 0), args.pop("truth", False),
@@ -293,7 +299,7 @@ class Renderer:
             while pending:
                 yield self._finish(pending.popleft())
         finally:   # stopped early: what was submitted is collected (its buffers go back), unseen
-            while pending:
+            while pending and not self._closed:
                 self.backend.collect(pending.popleft().token)
 
     def _submit(self, camera, step: int, truth: bool, quantize: bool, options: dict) -> "_Submitted":
@@ -323,13 +329,18 @@ class Renderer:
             tr = self._truth(cam.size, job.deformed, out.samples)
         return Result(image=image, camera=cam, step=step, backend=self.backend_name,
                       options=job.options, seconds=seconds, truth=tr, stages=out.stages,
-                      specimen=self._specimen(cam, job.deformed, self.drawn_mesh.quads))
+                      specimen=self._specimen(cam, job.deformed, self.drawn_mesh.quads, (cam, step)))
 
-    @staticmethod
-    def _specimen(cam: Camera, deformed: np.ndarray, quads: np.ndarray) -> Callable[[], np.ndarray]:
+    def _specimen(self, cam: Camera, deformed: np.ndarray, quads: np.ndarray, key=None) -> Callable[[], np.ndarray]:
         """Warns when ``cam`` sees none of the specimen (RenderWarning, saying why); returns what
-        makes its pixel mask on demand."""
-        warn_unseen(cam, deformed, quads, stacklevel=6)
+        makes its pixel mask on demand. ``key`` (camera, step): a view found seen is not looked
+        at again (an unseen one warns each time)."""
+        if key is None or not self._seen.get(key):
+            seen = warn_unseen(cam, deformed, quads, stacklevel=6)
+            if key is not None:
+                if len(self._seen) >= SEEN_KEPT:
+                    self._seen.pop(next(iter(self._seen)))
+                self._seen[key] = seen
         return lambda: coverage(cam, deformed, quads)
 
     def _fast_to_patches(self, raster: dict) -> dict:

@@ -371,9 +371,9 @@ def coverage(cam: Camera, deformed: np.ndarray, quads: np.ndarray, samples: int 
     return mask.astype(bool)
 
 
-def warn_unseen(cam: Camera, nodes: np.ndarray, quads: np.ndarray, stacklevel: int = 3) -> None:
-    """Warn (RenderWarning) when ``cam`` sees none of the specimen (nodes in world mm), saying why:
-    behind it, or outside its field of view. Decided from the nodes' bounding box (8 corners, no
+def warn_unseen(cam: Camera, nodes: np.ndarray, quads: np.ndarray, stacklevel: int = 3) -> bool:
+    """Warn (RenderWarning) and return False when ``cam`` sees none of the specimen (nodes in
+    world mm), saying why: behind it, or outside its field of view. Decided from the nodes' bounding box (8 corners, no
     per-element work) where that suffices — all behind the camera, or all in front with their
     rays (x/z, y/z; a box's rays lie in their rectangle) farther from the axis than any ray of the
     image (:func:`ray_radius`) — else from :func:`coverage`. A box that may be seen is not
@@ -387,14 +387,15 @@ def warn_unseen(cam: Camera, nodes: np.ndarray, quads: np.ndarray, stacklevel: i
         xn = box[:, :2] / z[:, None]
         gap = np.maximum(np.maximum(xn.min(0), -xn.max(0)), 0.0)   # per axis: the rectangle's distance from the axis
         if not np.hypot(*gap) > ray_radius(cam):
-            return
+            return True
         why = "the specimen lies outside its field of view"
     elif coverage(cam, nodes, quads).any():
-        return
+        return True
     else:
         why = "the specimen lies behind it or outside its field of view"
     warnings.warn(f"camera {cam.name}: sees none of the specimen ({why}), so its image is background only; "
                   "check its pose (stereo angles, look_at) and focal length", RenderWarning, stacklevel=stacklevel)
+    return False
 
 
 def _labels(idx: np.ndarray, labels: np.ndarray | None, most: int = 8) -> str:

@@ -17,6 +17,8 @@ elsewhere) writes the same bytes again.
 """
 from __future__ import annotations
 
+import contextlib
+
 import os
 import threading
 from pathlib import Path
@@ -147,16 +149,19 @@ def render_task(task: dict) -> list[dict]:
     r = renderer_for(scene, task.get("backend"))
     try:
         try:
-            for job in task["jobs"]:
-                res = r.render(job["camera"], job["step"], truth=job["render_truth"])
-                header, t = None, res.truth
-                if t is not None:
-                    header = truthio.image_header(res.camera, scene.cameras[0], r.reference.camera,
-                                                  res.options.mode, job["step"],
-                                                  truthio.relpath(out / task["geometry"], (out / job["truth"]).parent),
-                                                  task["geometry_sha256"])
-                writer.put(str(out), {**job, "bit_depth": res.camera.bit_depth}, res.image, _coverage(res),
-                           None if t is None else (t.element, t.xi, t.eta), header, task["truth_dtype"], res.seconds)
+            jobs = task["jobs"]   # pipelined, each image quantised as the camera writes it (on the GPU)
+            stream = contextlib.closing(r.render_many({"camera": j["camera"], "step": j["step"],
+                                                       "truth": j["render_truth"], "quantize": True} for j in jobs))
+            with stream as results:
+                for job, res in zip(jobs, results):
+                    header, t = None, res.truth
+                    if t is not None:
+                        header = truthio.image_header(res.camera, scene.cameras[0], r.reference.camera,
+                                                      res.options.mode, job["step"],
+                                                      truthio.relpath(out / task["geometry"], (out / job["truth"]).parent),
+                                                      task["geometry_sha256"])
+                    writer.put(str(out), {**job, "bit_depth": res.camera.bit_depth}, res.image, _coverage(res),
+                               None if t is None else (t.element, t.xi, t.eta), header, task["truth_dtype"], res.seconds)
         except BaseException:
             try:
                 writer.drain()

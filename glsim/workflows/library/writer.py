@@ -63,15 +63,6 @@ def write_group(files: list[tuple[Path, bytes]]) -> None:
                 f.write(data)
 
 
-def saturated(image: np.ndarray, mask: np.ndarray) -> float:
-    """Fraction of the specimen's pixels (``mask``) below 0 or above full scale, as
-    :attr:`glsim.render.Result.saturated` (the background is not counted)."""
-    n = np.count_nonzero(mask)
-    if n == 0 or (image.min() >= 0 and image.max() <= 1):
-        return 0.0
-    return float(np.count_nonzero(((image < 0) | (image > 1)) & mask) / n)
-
-
 def encode_and_write(out: str, job: dict, image: np.ndarray, mask: np.ndarray, truth, header: dict | None,
                      dtype: str, render_s: float) -> dict:
     """Encode and write one image of ``job`` (a task's job, with the camera's ``bit_depth``) and,
@@ -83,7 +74,8 @@ def encode_and_write(out: str, job: dict, image: np.ndarray, mask: np.ndarray, t
     data = image_bytes(image, job["bit_depth"], job["format"])
     rec = {"variant": job["variant"], "camera": job["camera"], "step": job["step"], "file": job["image"],
            "bytes": len(data), "sha256": sha256_bytes(data), "truth_file": job["truth"],
-           "truth_bytes": 0, "truth_sha256": "", "render_s": render_s, "saturated": saturated(image, mask),
+           "truth_bytes": 0, "truth_sha256": "", "render_s": render_s,
+           "saturated": io.saturated_fraction(image, mask, job["bit_depth"]),
            "covered": float(mask.mean()) if mask.size else 0.0}
     t1 = time.perf_counter()
     files = []

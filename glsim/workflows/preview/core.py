@@ -361,7 +361,8 @@ class Preview(Panes, Events):
         scene = self.scene if quality == "full" else scaled_scene(self.scene, self.drag_scale())
         opts = self._render_options(quality)
         step = self.p.step
-        res = self._with_scene(scene, lambda r: [r.render(i, step, **opts) for i in range(len(scene.cameras))])
+        res = self._with_scene(scene, lambda r: list(r.render_many({"camera": i, "step": step, **opts}
+                                                                  for i in range(len(scene.cameras)))))
         self.timings[f"render_{quality}"] = time.perf_counter() - t0
         self._results = (self._version, quality, res)
         return res
@@ -380,8 +381,8 @@ class Preview(Panes, Events):
         scene = scaled_scene(self.scene, scale)
         opts = self._render_options(quality)
         step = self.p.step
-        tr = self._with_scene(scene, lambda r: [r.render(i, step, truth=True, **opts).truth
-                                                for i in range(len(scene.cameras))])
+        tr = self._with_scene(scene, lambda r: [x.truth for x in r.render_many(
+            {"camera": i, "step": step, "truth": True, **opts} for i in range(len(scene.cameras)))])
         self.timings[f"truth_{quality}"] = time.perf_counter() - t0
         self._truths = (self._version, quality, scale, tr, scene)
         return tr
