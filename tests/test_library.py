@@ -170,6 +170,15 @@ def test_every_bad_spec_is_refused_naming_variant_key_and_fix_and_nothing_is_wri
     assert not out.exists()
 
 
+def test_a_rolling_shutter_library_with_truth_is_refused(tmp_path, capsys):
+    """Its rows are exposed at their own times; a library truth file holds one state per step."""
+    from glsim.cli import main
+    spec = _spec(tmp_path, SCENE + "[scene.exposure]\ntime = 0.001\n[scene.sensor]\nline_time = 1e-6\n"
+                 "[vary]\nnoise.sigma = [1.0]\n")
+    assert main(["library", str(spec), "-o", str(tmp_path / "never")]) == 2
+    assert "sensor.line_time: a rolling shutter" in capsys.readouterr().err and not (tmp_path / "never").exists()
+
+
 def test_missing_scene_file_and_directory_rules(tmp_path, reference_library):
     with pytest.raises(SpecError, match=r"scene: file .*nope.toml not found — check the path"):
         load_plan(_spec(tmp_path, "scene = 'nope.toml'\n"))

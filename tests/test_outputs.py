@@ -147,6 +147,8 @@ def test_the_same_scene_resumes(tmp_path, capsys):
     # asking for truth in tiff now: the images without those truth files are rendered again
     assert _render(scene_file, out, "--truth", "--truth-format", "tiff") == 0
     assert "wrote 3 images" in capsys.readouterr().out
+    assert _render(scene_file, out, "--truth", "--truth-format", "tiff") == 0   # and those resume in turn
+    assert "resumed: kept 3 images" in capsys.readouterr().out
 
 
 # --- an image and its truth: together or not at all -------------------------------------------------

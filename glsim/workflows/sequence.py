@@ -18,7 +18,6 @@ Rules of the output directory (README "Output directory"):
 """
 from __future__ import annotations
 
-import dataclasses
 import json
 import os
 import re
@@ -32,7 +31,6 @@ from glsim.io import outdir
 from glsim.render import Renderer, Truth
 from glsim.scene import Scene
 
-TRUTH_MAPS = tuple(f.name for f in dataclasses.fields(Truth))
 
 
 @dataclass(frozen=True)
@@ -103,10 +101,11 @@ def _write(scene: Scene, out: Path, steps, cameras, truth: bool, progress, truth
                 {"step": k, "time": t} for k, t in enumerate(r.mesh.step_times)]}))
         images, truths, seconds, saturated, kept = [], [], [], [], []
         total = len(cams) * len(steps)
+        maps = Truth.FIELDS + (Truth.MOTION if scene.exposure is not None else ())   # the maps a truth file holds
         for step in steps:
             for cam in cams:
                 path = paths[step, cam.name]
-                want = io.truth_paths(path, TRUTH_MAPS, truth_format) if truth else []
+                want = io.truth_paths(path, maps, truth_format) if truth else []
                 if resume and path.is_file() and all(p.is_file() for p in want):
                     kept.append(str(path))
                 else:

@@ -487,6 +487,10 @@ def expand(spec: dict, spec_dir: str | Path = ".", sample: int | None = None) ->
                 check_memory(f"cameras.{c}.size", scene.camera(c).size, scene.render.samples_per_pixel, truth)
         except SceneError as exc:
             raise SpecError(f"{where}: {exc}") from None
+        if truth and scene.sensor is not None and scene.sensor.line_time > 0:
+            raise SpecError(f"{where}: sensor.line_time: a rolling shutter exposes each row at its own time, and "
+                            "a library's truth files hold one state per load step — write truth = false, or "
+                            "render the rolling shutter's truth with `glsim render --truth`")
         ext = EXTENSIONS[scene.output.format]
         tkeys = truth_keys(scene, meshes[mkey], cams, vsteps, dtype, digests) if truth else {}
         for s in vsteps:
