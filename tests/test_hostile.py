@@ -22,6 +22,7 @@ import pytest
 from glsim.cli import main
 from glsim.errors import GlsimError, RenderWarning
 from glsim.io import truth as T
+from glsim.io import truthcodec as C
 from glsim.scene import load_scene
 from glsim.io.fe import specimen_mesh
 from glsim.stages.reference import make_reference
@@ -284,7 +285,7 @@ def rewrite_truth(path: Path, header=None, blobs=None) -> None:
         head["blobs"][name] = [pos, len(b)]
         pos += len(b)
     text = json.dumps(head).encode()
-    path.write_bytes(T.MAGIC + struct.pack("<Q", len(text)) + text + b"".join(parts.values()))
+    path.write_bytes(C.MAGIC + struct.pack("<Q", len(text)) + text + b"".join(parts.values()))
 
 
 def vouch(lib: Path) -> None:
@@ -324,7 +325,7 @@ def test_verify_decodes_truth_files_and_names_a_damaged_one(library, tmp_path, c
     path = next(lib.rglob("*.truth"))
     if blobs is None:         # a header that is not even a table of blobs: write it by hand
         text = json.dumps({**T.read(path).header, **header}).encode()
-        path.write_bytes(T.MAGIC + struct.pack("<Q", len(text)) + text)
+        path.write_bytes(C.MAGIC + struct.pack("<Q", len(text)) + text)
     else:
         rewrite_truth(path, header, blobs)
     vouch(lib)

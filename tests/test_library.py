@@ -19,6 +19,7 @@ from glsim.io.hashes import sha256_file
 from glsim.errors import GlsimError
 from glsim.io import images as io
 from glsim.io import truth as T
+from glsim.io import truthcodec as C
 from glsim.io.outdir import LOCK
 from glsim.render import Renderer
 from glsim.workflows.library import expand, load_plan, run, verify
@@ -276,7 +277,7 @@ def test_the_library_renderer_keeps_only_the_compact_truth(tmp_path):
     assert t.element.dtype == np.int32 and t.element.shape == (48, 64) and t.xi.shape == t.eta.shape == (n,) and n > 0
     with Renderer(scene) as r:
         full = r.render("cam1", 2, truth=True).truth
-    assert T.encode_compact(t.element, t.xi, t.eta, {}) == T.encode(full.element, full.xi, full.eta, {})
+    assert C.encode_compact(t.element, t.xi, t.eta, {}) == C.encode(full.element, full.xi, full.eta, {})
 
 
 def test_every_truth_key_ingredient_changes_the_key(monkeypatch):
@@ -311,7 +312,7 @@ def test_every_truth_key_ingredient_changes_the_key(monkeypatch):
     assert {j.truth for j in expand({**spec, "truth_dtype": "float32"}, ".").jobs}.isdisjoint(keys.values())
     v = plan.variants[0]
     before = truth_keys(v.scene, plan.meshes[next(iter(plan.meshes))], ["cam0"], [0], "float64")
-    monkeypatch.setattr(T, "VERSION", T.VERSION + 1)
+    monkeypatch.setattr(T, "VERSION", C.VERSION + 1)
     assert truth_keys(v.scene, plan.meshes[next(iter(plan.meshes))], ["cam0"], [0], "float64") != before
 
 

@@ -8,6 +8,8 @@ import pytest
 from glsim.io.hashes import sha256_bytes
 from glsim.errors import GlsimError
 from glsim.io import truth as T
+from glsim.io import truthcodec as C
+from glsim.io import geometryfile as G
 from glsim.render import Renderer
 from glsim.scene import Plate, Pose, Speckle, Stereo
 from glsim.scene.camera import Distortion
@@ -32,17 +34,17 @@ def test_lossless_coder_round_trips_bit_for_bit():
     mask = element >= 0
     eta[mask.nonzero()[0][:3], mask.nonzero()[1][:3]] = [np.nan, np.inf, -0.0]    # any bits survive
     xi[mask.nonzero()[0][5], mask.nonzero()[1][5]] = 1e308
-    idx, same1, same2 = T._runs(element)
+    idx, same1, same2 = C._runs(element)
     for v in (xi.ravel()[idx], eta.ravel()[idx], rng.integers(-2**63, 2**63 - 1, len(idx)).view(np.float64)):
-        back = T.decode_local(T.encode_local(v, same1, same2), same1, same2)
+        back = C.decode_local(C.encode_local(v, same1, same2), same1, same2)
         np.testing.assert_array_equal(back.view(np.int64), v.view(np.int64))
-    data = T.encode(element, xi, eta, {"mode": "exact", "step": 0, "geometry": "g.npz", "geometry_sha256": ""})
+    data = C.encode(element, xi, eta, {"mode": "exact", "step": 0, "geometry": "g.npz", "geometry_sha256": ""})
     t = T.CompactTruth(None, *_split(data))
     np.testing.assert_array_equal(t.element, element)
     np.testing.assert_array_equal(t.xi[mask].view(np.int64), xi[mask].view(np.int64))
     np.testing.assert_array_equal(t.eta[mask].view(np.int64), eta[mask].view(np.int64))
     assert np.isnan(t.xi[~mask]).all()
-    empty = T.encode(np.full((3, 4), -1), np.zeros((3, 4)), np.zeros((3, 4)), {})
+    empty = C.encode(np.full((3, 4), -1), np.zeros((3, 4)), np.zeros((3, 4)), {})
     assert not T.CompactTruth(None, *_split(empty)).mask.any()
 
 
@@ -68,14 +70,14 @@ def _compact(tmp_path, r: Renderer, camera, step, dtype="float64", **opts):
     renderer's full truth."""
     res = r.render(camera, step, truth=True, **opts)
     m = r.mesh
-    arrays = T.geometry_arrays(m.nodes, m.quads, {s: m.displacements[s] for s in range(m.n_steps)}, m.element_labels)
-    g = T.geometry_bytes(arrays)
+    arrays = G.geometry_arrays(m.nodes, m.quads, {s: m.displacements[s] for s in range(m.n_steps)}, m.element_labels)
+    g = G.geometry_bytes(arrays)
     (tmp_path / "g.npz").write_bytes(g)
-    header = T.image_header(res.camera, r.scene.cameras[0], r.reference.camera, res.options.mode, step, "g.npz",
+    header = C.image_header(res.camera, r.scene.cameras[0], r.reference.camera, res.options.mode, step, "g.npz",
                             sha256_bytes(g))
     t = res.truth
     path = tmp_path / f"{camera}_{step}.truth"
-    path.write_bytes(T.encode(t.element, t.xi, t.eta, header, dtype))
+    path.write_bytes(C.encode(t.element, t.xi, t.eta, header, dtype))
     return T.load(path), t, path
 
 

@@ -12,23 +12,9 @@ a library's ``.truth`` (:class:`CompactTruth`) or ``glsim render --truth``'s ``*
 :meth:`CompactTruth.at` gives the 3-D reference and deformed positions and the displacement at
 any camera-0 pixel coordinates in the reference state (what a DIC result is compared with).
 
-File layout (version 1), little endian::
-
-    b"GLTRUTH1"  uint64 header length  header (UTF-8 JSON)  blobs…
-
-The header names the image's camera (``camera``), camera 0 (``camera0``, the frame of the
-positions; files written before glsim numbered cameras from 0 everywhere call it ``camera1``),
-the reference camera, the render mode, the load step, the geometry file (relative path and SHA-256) and the
-blobs (offset and length after the header). Blob ``element``: the (H, W) int32 element map
-(−1 = background), zstd. Blob ``local``: (ξ, η) of the covered pixels in raster order. For
-``dtype = "float64"`` (default, lossless) each value's IEEE bits, as int64, are predicted along
-the row from the previous two pixels of the same element (second difference; first difference
-or none at the start of a run), the residuals zigzag-coded, byte-shuffled and zstd-compressed:
-decoding is exact integer arithmetic, so the values come back bit for bit. ``dtype =
-"float32"`` stores the values rounded to float32 (|Δξ| ≤ 3e-8), byte-shuffled and zstd'd.
-
-Only numpy, zstandard and glsim's scene layer are used (and, for ``MapTruth.at``, the mesh
-loader of :mod:`glsim.stages.reference`): no GL, no renderer.
+The file format and its coder: :mod:`glsim.io.truthcodec`; geometry files:
+:mod:`glsim.io.geometryfile`. Only numpy, zstandard and glsim's scene layer are used (and, for
+``MapTruth.at``, the mesh loader of :mod:`glsim.stages.reference`): no GL, no renderer.
 """
 from __future__ import annotations
 
@@ -43,214 +29,15 @@ from typing import Callable
 
 import numpy as np
 
-from glsim.errors import GlsimError, SceneError
+from glsim.errors import SceneError
 from glsim.io.images import EXTENSIONS
 from glsim.limits import check_image_size, not_a_file, parse_nested
 from glsim.scene.bilinear import bilinear, intersect_ray_patch
-from glsim.io.cameras import camera_from_dict, camera_to_dict
+from glsim.io.cameras import camera_from_dict
 from glsim.scene.camera import Camera, pixel_to_normalized, project_camera_frame, to_camera, undistort
-
-MAGIC = b"GLTRUTH1"
-FORMAT = "glsim-compact-truth"
-VERSION = 1
-DTYPES = ("float64", "float32")
-ZSTD_LEVEL = 3
-SUFFIX = ".truth"
-
-
-class TruthFileError(GlsimError):
-    """A truth or geometry file that cannot be read (the message names the file and why)."""
-
-
-# ---- the lossless float64 coder ------------------------------------------------------------------
-
-def _runs(element: np.ndarray):
-    """Covered pixels in raster order and where each continues its left neighbour's element
-    run (``same1``) and that run for two pixels (``same2``)."""
-    H, W = element.shape
-    flat = element.ravel()
-    idx = np.flatnonzero(flat >= 0)
-    e = flat[idx]
-    same1 = np.zeros(len(idx), bool)
-    same1[1:] = (idx[1:] == idx[:-1] + 1) & (e[1:] == e[:-1]) & (idx[1:] % W != 0)
-    same2 = np.zeros(len(idx), bool)
-    same2[2:] = same1[2:] & same1[1:-1]
-    return idx, same1, same2
-
-
-def _shuffle(a: np.ndarray) -> np.ndarray:
-    """Byte planes: all first bytes, then all second bytes, … (compresses small integers well);
-    a contiguous uint8 array (zstd reads it in place)."""
-    return np.ascontiguousarray(np.ascontiguousarray(a).view(np.uint8).reshape(-1, a.itemsize).T)
-
-
-def _unshuffle(data: bytes, dtype, n: int) -> np.ndarray:
-    size = np.dtype(dtype).itemsize
-    planes = np.frombuffer(data, np.uint8)
-    if planes.size != n * size:
-        raise ValueError(f"{planes.size} bytes where {n} values of {size} bytes were expected")
-    return np.ascontiguousarray(planes.reshape(size, n).T).view(dtype).ravel()
-
-
-def _seg_cumsum(v: np.ndarray, start: np.ndarray) -> np.ndarray:
-    """Cumulative sums of int64 ``v`` restarting wherever ``start`` (start[0] is True);
-    wraps modulo 2⁶⁴ like the encoder's differences, so the round trip is exact."""
-    cs = np.cumsum(v, dtype=np.int64)
-    before = np.concatenate((np.zeros(1, np.int64), cs[:-1]))
-    first = np.maximum.accumulate(np.where(start, np.arange(len(v)), 0))
-    return cs - before[first]
-
-
-def encode_local(values: np.ndarray, same1: np.ndarray, same2: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
-    """float64 values (n,) → zigzag residual codes (n,) uint64 (see the module text), into
-    ``out`` (n,) uint64 if given. Integer arithmetic wraps modulo 2⁶⁴ (as the decoder's)."""
-    iv = np.ascontiguousarray(values, np.float64).view(np.int64)
-    r = np.empty(len(iv), np.int64) if out is None else out.view(np.int64)
-    r[:] = iv
-    d1 = iv[1:] - iv[:-1]
-    np.copyto(r[1:], d1, where=same1[1:])
-    np.copyto(r[2:], d1[1:] - d1[:-1], where=same2[2:])
-    sign = (r >> np.int64(63)).view(np.uint64)
-    u = r.view(np.uint64)
-    np.left_shift(u, np.uint64(1), out=u)
-    np.bitwise_xor(u, sign, out=u)
-    return u
-
-
-def decode_local(codes: np.ndarray, same1: np.ndarray, same2: np.ndarray) -> np.ndarray:
-    """The inverse of :func:`encode_local`: exact, bit for bit."""
-    if not len(codes):
-        return np.zeros(0)
-    r = (codes >> np.uint64(1)).view(np.int64) ^ -(codes & np.uint64(1)).view(np.int64)
-    with np.errstate(over="ignore"):
-        d = _seg_cumsum(np.where(same1, r, 0), ~same2)          # first differences inside runs
-        iv = _seg_cumsum(np.where(same1, d, r), ~same1)
-    return iv.view(np.float64)
-
-
-def _zstd():
-    import zstandard
-    return zstandard
-
-
-# ---- cameras in the header ------------------------------------------------------------------------
-
-camera_dict = camera_to_dict   # (glsim.io.cameras: the one camera codec)
-
-
-# ---- geometry files -------------------------------------------------------------------------------
-
-def geometry_arrays(nodes, quads, displacements: dict[int, np.ndarray], element_labels=None) -> dict:
-    """The arrays of a geometry file: placed undeformed nodes (N, 3) mm, quads (M, 4), the
-    displacements (S, N, 3) of the load steps ``steps`` (S,), element labels (M,)."""
-    steps = sorted(displacements)
-    return {"nodes": np.asarray(nodes, np.float64), "quads": np.asarray(quads, np.int64),
-            "steps": np.asarray(steps, np.int64),
-            "displacements": np.stack([np.asarray(displacements[s], np.float64) for s in steps]) if steps
-            else np.zeros((0,) + np.shape(nodes)),
-            "element_labels": np.asarray(element_labels if element_labels is not None
-                                         else np.arange(len(quads)), np.int64)}
-
-
-def geometry_bytes(arrays: dict) -> bytes:
-    """A geometry file's bytes (an .npz, deflate level 1; deterministic: fixed zip timestamps)."""
-    import io as _io
-    import zipfile
-    buf = _io.BytesIO()
-    with zipfile.ZipFile(buf, "w", zipfile.ZIP_DEFLATED, compresslevel=1) as z:
-        for name, a in arrays.items():
-            item = _io.BytesIO()
-            np.lib.format.write_array(item, np.ascontiguousarray(a), allow_pickle=False)
-            info = zipfile.ZipInfo(name + ".npy", date_time=(1980, 1, 1, 0, 0, 0))
-            info.compress_type = zipfile.ZIP_DEFLATED
-            z.writestr(info, item.getvalue())
-    return buf.getvalue()
-
-
-@dataclass(frozen=True, eq=False)
-class Geometry:
-    nodes: np.ndarray
-    quads: np.ndarray
-    steps: tuple[int, ...]
-    displacements: np.ndarray
-    element_labels: np.ndarray
-
-    def deformed(self, step: int) -> np.ndarray:
-        if step not in self.steps:
-            raise TruthFileError(f"load step {step} is not in the geometry file (it holds steps "
-                                 f"{list(self.steps)}); ask for one of those")
-        return self.nodes + self.displacements[self.steps.index(step)]
-
-
-def read_geometry(path: str | Path) -> Geometry:
-    path = Path(path)
-    try:
-        with np.load(path, allow_pickle=False) as z:
-            a = {k: z[k] for k in ("nodes", "quads", "steps", "displacements", "element_labels")}
-    except (OSError, ValueError, KeyError) as exc:
-        raise TruthFileError(f"{path}: not a readable glsim geometry file ({exc}); re-run the library "
-                             "command on its directory to write it again") from None
-    return Geometry(a["nodes"], a["quads"], tuple(int(s) for s in a["steps"]), a["displacements"],
-                    a["element_labels"])
-
-
-# ---- writing ----------------------------------------------------------------------------------------
-
-def compact(element: np.ndarray, xi: np.ndarray, eta: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """What a truth file stores of the maps ``element`` (H, W) int (−1 background) and
-    ``xi``/``eta`` (H, W) float64: the int32 element map and (ξ, η) of its n covered pixels in
-    raster order, (n,) float64 each — gathered from the maps, no full-size copy of them made."""
-    el = np.ascontiguousarray(element, np.int32)
-    idx = np.flatnonzero(el.ravel() >= 0)
-    return el, np.asarray(xi, np.float64).ravel()[idx], np.asarray(eta, np.float64).ravel()[idx]
-
-
-def encode(element: np.ndarray, xi: np.ndarray, eta: np.ndarray, header: dict,
-           dtype: str = "float64") -> bytes:
-    """A truth file's bytes. ``element`` (H, W) int (−1 background), ``xi``/``eta`` (H, W)
-    float64 (values outside the covered pixels are ignored); ``header``: the metadata
-    (cameras, mode, step, geometry, …; see :func:`image_header`)."""
-    return encode_compact(*compact(element, xi, eta), header, dtype)
-
-
-def encode_compact(el: np.ndarray, xs: np.ndarray, es: np.ndarray, header: dict, dtype: str = "float64") -> bytes:
-    """:func:`encode` from :func:`compact`'s arrays: ``el`` (H, W) int32, ``xs``/``es`` (n,)
-    float64 of the n covered pixels."""
-    if dtype not in DTYPES:
-        raise GlsimError(f"truth dtype {dtype!r} is not one of {DTYPES}; use float64 (lossless) or float32")
-    H, W = el.shape
-    idx, same1, same2 = _runs(el)
-    n = len(idx)
-    if len(xs) != n or len(es) != n:
-        raise ValueError(f"{len(xs)} ξ and {len(es)} η values for {n} covered pixels")
-    cz = _zstd().ZstdCompressor(level=ZSTD_LEVEL)
-    if dtype == "float64":
-        local = np.empty(2 * n, np.uint64)
-        encode_local(xs, same1, same2, out=local[:n])
-        encode_local(es, same1, same2, out=local[n:])
-        codec = "int64-row-delta2-zigzag+shuffle+zstd"
-    else:
-        local = np.empty(2 * n, np.float32)
-        local[:n], local[n:] = xs, es
-        codec = "float32+shuffle+zstd"
-    blobs = [("element", cz.compress(np.ascontiguousarray(el, np.int32))), ("local", cz.compress(_shuffle(local)))]
-    offsets, pos = {}, 0
-    for name, b in blobs:
-        offsets[name] = [pos, len(b)]
-        pos += len(b)
-    head = {"format": FORMAT, "version": VERSION, "size": [W, H], "covered": int(n), "dtype": dtype,
-            "codec": {"element": "int32+zstd", "local": codec}, **header, "blobs": offsets}
-    text = json.dumps(head, sort_keys=True).encode()
-    return b"".join([MAGIC, struct.pack("<Q", len(text)), text] + [b for _, b in blobs])
-
-
-def image_header(camera: Camera, camera0: Camera, reference_camera: Camera, mode: str, step: int,
-                 geometry: str, geometry_sha256: str) -> dict:
-    """The metadata of one image's truth. ``geometry``: the geometry file's path relative to
-    the truth file's directory."""
-    return {"camera": camera_dict(camera), "camera0": camera_dict(camera0),
-            "reference_camera": camera_dict(reference_camera), "mode": mode, "step": int(step),
-            "geometry": geometry, "geometry_sha256": geometry_sha256}
+from glsim.io.truthcodec import (DTYPES, FORMAT, MAGIC, VERSION, TruthFileError, _runs,
+                                 _unshuffle, _zstd, decode_local)
+from glsim.io.geometryfile import Geometry, read_geometry
 
 
 # ---- the truth maps (what Renderer.render(..., truth=True) returns, and maps() decodes) ------------

@@ -66,7 +66,7 @@ def measure(plan) -> dict:
     import time
     import warnings
 
-    from glsim.io import truth as truthio
+    from glsim.io import truthcodec
     from glsim.workflows.library import worker, writer
 
     job = plan.jobs[0]
@@ -89,7 +89,7 @@ def measure(plan) -> dict:
                 t0 = clock()
                 t = r.render(job.camera, job.step, truth=True).truth
                 t1 = clock()
-                tdata = truthio.encode_compact(t.element, t.xi, t.eta, {}, plan.truth_dtype)
+                tdata = truthcodec.encode_compact(t.element, t.xi, t.eta, {}, plan.truth_dtype)
                 m.update(truth_render_s=max(t1 - t0 - m["render_s"], 0.0), truth_encode_s=clock() - t1,
                          truth_bytes=len(tdata))
     finally:

@@ -39,7 +39,7 @@ from glsim.io.hashes import sha256_bytes, sha256_file
 from glsim.errors import GlsimError
 from glsim.io import images as io
 from glsim.io import outdir
-from glsim.io import truth as truthio
+from glsim.io import geometryfile, truth as truthio
 from glsim.workflows.library import manifest as mf
 from glsim.workflows.library.spec import TRUTH_DIR, Plan, mesh_key
 from glsim.workflows.library.worker import WriteError, make_task, render_task
@@ -181,9 +181,9 @@ def _write_setup(out: Path, plan: Plan, fingerprint: str) -> dict:
                                  "or render the images one by one with truth (glsim render --truth)")
             steps = sorted({j.step for j in plan.jobs if j.variant == v.id} | set(plan.steps))
             steps = [s for s in steps if s < mesh.n_steps]
-            arrays = truthio.geometry_arrays(mesh.nodes, mesh.quads, {s: mesh.displacements[s] for s in steps},
+            arrays = geometryfile.geometry_arrays(mesh.nodes, mesh.quads, {s: mesh.displacements[s] for s in steps},
                                              mesh.element_labels)
-            data = truthio.geometry_bytes(arrays)
+            data = geometryfile.geometry_bytes(arrays)
             sha = sha256_bytes(data)
             rel = f"{mf.GEOMETRY_DIR}/{sha[:16]}.npz"
             _write_if_changed(out / rel, data)

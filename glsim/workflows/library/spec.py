@@ -556,7 +556,7 @@ def truth_keys(scene: Scene, mesh, cameras, steps, dtype: str, cache: dict | Non
     and the truth format's and this key's versions. Noise, lighting, optics, the speckle
     pattern and the output format do not enter: variants differing only in those share one
     truth file. ``cache``: mesh digests by ``id(mesh)``, kept between calls."""
-    from glsim.io import truth as truthio
+    from glsim.io import truthcodec
 
     cache = {} if cache is None else cache
     if id(mesh) not in cache:       # the mesh is kept with its digest, so its id stays its own
@@ -566,11 +566,11 @@ def truth_keys(scene: Scene, mesh, cameras, steps, dtype: str, cache: dict | Non
     sp = {k: v for k, v in d["speckle"].items() if k not in PATTERN_KEYS}
     sp["image"] = str(scene.resolve(sp["image"])) if sp["image"] else ""
     r = scene.render
-    base = {"version": [truthio.FORMAT, truthio.VERSION, KEY_VERSION], "dtype": dtype, "mesh": cache[id(mesh)][1],
+    base = {"version": [truthcodec.FORMAT, truthcodec.VERSION, KEY_VERSION], "dtype": dtype, "mesh": cache[id(mesh)][1],
             "specimen": d["specimen"], "specimen_dir": d["base_dir"], "speckle": sp,
-            "camera0": truthio.camera_dict(scene.cameras[0]),
+            "camera0": truthcodec.camera_dict(scene.cameras[0]),
             "render": [r.mode, r.precision, r.backend, r.samples_per_pixel, r.subsamples]}
-    return {(c, s): hashlib.sha256(json.dumps({**base, "step": s, "camera": truthio.camera_dict(scene.camera(c))},
+    return {(c, s): hashlib.sha256(json.dumps({**base, "step": s, "camera": truthcodec.camera_dict(scene.camera(c))},
                                               sort_keys=True).encode()).hexdigest()[:32]
             for s in steps for c in cameras}
 

@@ -26,7 +26,7 @@ from pathlib import Path
 import numpy as np
 
 from glsim.errors import GlsimError
-from glsim.io import truth as truthio
+from glsim.io import truth as truthio, truthcodec
 from glsim.render import Renderer
 
 _LOCAL = threading.local()
@@ -47,7 +47,7 @@ class CompactRenderer(Renderer):
 
     def _truth(self, size, deformed, raster, evaluate=None) -> CompactRaster:
         W, H = size
-        return CompactRaster(*truthio.compact(raster["element"].reshape(H, W), raster["xi"], raster["eta"]))
+        return CompactRaster(*truthcodec.compact(raster["element"].reshape(H, W), raster["xi"], raster["eta"]))
 
 
 def _scene(scene_json: str):
@@ -156,7 +156,7 @@ def render_task(task: dict) -> list[dict]:
                 for job, res in zip(jobs, results):
                     header, t = None, res.truth
                     if t is not None:
-                        header = truthio.image_header(res.camera, scene.cameras[0], r.reference.camera,
+                        header = truthcodec.image_header(res.camera, scene.cameras[0], r.reference.camera,
                                                       res.options.mode, job["step"],
                                                       truthio.relpath(out / task["geometry"], (out / job["truth"]).parent),
                                                       task["geometry_sha256"])

@@ -31,7 +31,7 @@ import numpy as np
 from glsim.io.hashes import sha256_bytes
 from glsim.errors import GlsimError
 from glsim.io import images as io
-from glsim.io import truth as truthio
+from glsim.io import truthcodec
 
 SLOTS = 2          # images in flight between a render thread and its writer
 ALIGN = 64         # bytes: each array's offset in a shared block
@@ -80,7 +80,7 @@ def encode_and_write(out: str, job: dict, image: np.ndarray, mask: np.ndarray, t
     t1 = time.perf_counter()
     files = []
     if truth is not None:
-        tdata = truthio.encode_compact(*truth, header, dtype)
+        tdata = truthcodec.encode_compact(*truth, header, dtype)
         rec["truth_bytes"], rec["truth_sha256"] = len(tdata), sha256_bytes(tdata)
         files.append((Path(out) / job["truth"], tdata))
     t2 = time.perf_counter()

@@ -1,0 +1,67 @@
+"""A library's geometry files (``geometry/{hash}.npz``): per distinct specimen the placed
+undeformed nodes, quads, element labels and the displacements of the rendered load steps —
+what, with a truth file's (element, ξ, η), gives every position."""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from glsim.io.truthcodec import TruthFileError
+
+
+# ---- geometry files -------------------------------------------------------------------------------
+
+def geometry_arrays(nodes, quads, displacements: dict[int, np.ndarray], element_labels=None) -> dict:
+    """The arrays of a geometry file: placed undeformed nodes (N, 3) mm, quads (M, 4), the
+    displacements (S, N, 3) of the load steps ``steps`` (S,), element labels (M,)."""
+    steps = sorted(displacements)
+    return {"nodes": np.asarray(nodes, np.float64), "quads": np.asarray(quads, np.int64),
+            "steps": np.asarray(steps, np.int64),
+            "displacements": np.stack([np.asarray(displacements[s], np.float64) for s in steps]) if steps
+            else np.zeros((0,) + np.shape(nodes)),
+            "element_labels": np.asarray(element_labels if element_labels is not None
+                                         else np.arange(len(quads)), np.int64)}
+
+
+def geometry_bytes(arrays: dict) -> bytes:
+    """A geometry file's bytes (an .npz, deflate level 1; deterministic: fixed zip timestamps)."""
+    import io as _io
+    import zipfile
+    buf = _io.BytesIO()
+    with zipfile.ZipFile(buf, "w", zipfile.ZIP_DEFLATED, compresslevel=1) as z:
+        for name, a in arrays.items():
+            item = _io.BytesIO()
+            np.lib.format.write_array(item, np.ascontiguousarray(a), allow_pickle=False)
+            info = zipfile.ZipInfo(name + ".npy", date_time=(1980, 1, 1, 0, 0, 0))
+            info.compress_type = zipfile.ZIP_DEFLATED
+            z.writestr(info, item.getvalue())
+    return buf.getvalue()
+
+
+@dataclass(frozen=True, eq=False)
+class Geometry:
+    nodes: np.ndarray
+    quads: np.ndarray
+    steps: tuple[int, ...]
+    displacements: np.ndarray
+    element_labels: np.ndarray
+
+    def deformed(self, step: int) -> np.ndarray:
+        if step not in self.steps:
+            raise TruthFileError(f"load step {step} is not in the geometry file (it holds steps "
+                                 f"{list(self.steps)}); ask for one of those")
+        return self.nodes + self.displacements[self.steps.index(step)]
+
+
+def read_geometry(path: str | Path) -> Geometry:
+    path = Path(path)
+    try:
+        with np.load(path, allow_pickle=False) as z:
+            a = {k: z[k] for k in ("nodes", "quads", "steps", "displacements", "element_labels")}
+    except (OSError, ValueError, KeyError) as exc:
+        raise TruthFileError(f"{path}: not a readable glsim geometry file ({exc}); re-run the library "
+                             "command on its directory to write it again") from None
+    return Geometry(a["nodes"], a["quads"], tuple(int(s) for s in a["steps"]), a["displacements"],
+                    a["element_labels"])
