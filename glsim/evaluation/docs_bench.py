@@ -202,3 +202,9 @@ def check_drivers(*reports: dict) -> str:
                          f"{sig(c['value'])} {'✓' if c['passed'] else '**✗**'}")
         lines.append(f"| {name} | {sig(row['bound'])} {row['unit']} | " + " | ".join(cells) + " |")
     return "\n".join(lines)
+
+
+def throughput(report: dict) -> str:
+    """README: stereo pairs/s one at a time and pipelined (bench/results/throughput.json)."""
+    from glsim.evaluation.throughput import table
+    return table(report)

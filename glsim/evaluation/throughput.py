@@ -147,12 +147,12 @@ def _summary(row: dict, pairs: int) -> dict:
     return out
 
 
-def markdown(report: dict) -> str:
+def table(report: dict) -> str:
+    """The results table, with the machine and the run's settings (README's generated region)."""
     from glsim.evaluation.report import machine_line
 
     W, H = report["size"]
-    lines = ["# glsim throughput benchmark: stereo pairs delivered as 8-bit images", "",
-             f"{machine_line(report['machine'])}; {report['date']}", "",
+    lines = [f"{machine_line(report['machine'])}; {report['date']}", "",
              "| mode | spp | pairs/s one at a time | pairs/s pipelined | images/s pipelined | pipelined / one "
              "at a time | host ms / image (one / pipelined) | same bytes | glsim / riley per image | "
              "largest passes (ms) and rest |",
@@ -170,12 +170,16 @@ def markdown(report: dict) -> str:
     lines += ["", f"Plate of issue 19 ({report['elements']} quad4, k1 = −0.1, Catmull–Rom cubic) at {W}×{H} px, "
               f"both cameras of the 30° rig; {report['pairs']} pairs per way and repetition, {report['reps']} "
               f"interleaved repetitions after one warm-up pair, medians; pipelined: `render_many` depth "
-              f"{report['depth']}. Peer: {riley}, camera 0 only.", "",
-              "Issue 27's goals apply to an NVIDIA H100/H200 through EGL at 1624×1234: "
-              + ", ".join(f"{m} {s} spp ≥ {g:,} pairs/s" for (m, s), g in GOALS.items())
-              + f"; host time ≤ {GOAL_HOST_MS:g} ms per image; riley-raster ≥ {GOAL_RILEY_EXACT_4:g}× slower "
-              "in exact 4 spp.", "", "How each column is measured: `glsim/evaluation/throughput.py`.", ""]
+              f"{report['depth']}. Peer: {riley}, camera 0 only."]
     return "\n".join(lines)
+
+
+def markdown(report: dict) -> str:
+    return "\n".join(["# glsim throughput benchmark: stereo pairs delivered as 8-bit images", "", table(report), "",
+                      "Issue 27's goals apply to an NVIDIA H100/H200 through EGL at 1624×1234: "
+                      + ", ".join(f"{m} {s} spp ≥ {g:,} pairs/s" for (m, s), g in GOALS.items())
+                      + f"; host time ≤ {GOAL_HOST_MS:g} ms per image; riley-raster ≥ {GOAL_RILEY_EXACT_4:g}× "
+                      "slower in exact 4 spp.", "", "How each column is measured: `glsim/evaluation/throughput.py`.", ""])
 
 
 def write(report: dict, out) -> str:
