@@ -124,6 +124,15 @@ def effects(eff: dict) -> str:
             f"({machine_line(eff['machine'])}, {eff['date'][:10]}).")
 
 
+def effects_camera(eff: dict) -> str:
+    """docs/camera.md: the camera-effect rows (lens PSF, vignetting, fill factor, fixed pattern)."""
+    from glsim.evaluation.effects import camera_table
+    if not eff.get("camera"):
+        return "(no camera rows in this results file: run `glsim bench effects --only camera`)"
+    run = eff.get("camera_run", eff)
+    return camera_table(eff["camera"]) + f"\n\n{machine_line(run['machine'])}, {run['date'][:10]}."
+
+
 def effects_dof(eff: dict) -> str:
     """docs/effects.md: every GL depth-of-field scheme against the oracle's exact 2-D gather."""
     from glsim.evaluation.effects import dof_table
