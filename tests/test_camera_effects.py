@@ -376,3 +376,27 @@ def test_render_writes_the_flat_field_on_request(tmp_path):
                                                        .astype(np.float32))
     write_sequence(scene.replace(vignetting={"flat_field": False}), str(tmp_path / "plain"), steps=[0], backend="cpu")
     assert not (tmp_path / "plain" / "c_flatfield.tif").exists()
+
+
+@pytest.mark.gl
+def test_gl_measured_psf_is_not_flipped(gl_ctx, tmp_path):
+    """An asymmetric measured PSF (a comet to the right and down): GL's 2-D pass against the
+    oracle's convolution of the same GL input, within the 2-D bound of :func:`_bounds` — a
+    kernel applied flipped would miss by the image's contrast."""
+    import tifffile
+    from glsim.effects import prepare
+
+    a = np.zeros((7, 7), np.float32)
+    a[3, 3], a[3, 4], a[4, 5], a[5, 6] = 4.0, 2.0, 1.0, 0.5
+    a[3, 2] = 5.0 * 0.3          # keeps the centroid within ½ px of the middle pixel
+    tifffile.imwrite(tmp_path / "comet.tif", a)
+    base = plate_scene(size=(96, 72), fx=300.0, base_dir=str(tmp_path))
+    scene = base.replace(psf={"kind": "image", "image": "comet.tif"})
+    with Renderer(base, "gl", ctx=gl_ctx) as r0, Renderer(scene, "gl", ctx=gl_ctx) as r:
+        plain, img = r0.render(0, 1).image, r.render(0, 1).image
+    fx = prepare(scene, np.zeros((1, 3)), np.zeros((0, 4), np.int64), scene.cameras[0], 0, 1, np.empty(0),
+                 normals=False)
+    want = camera_stages(plain.astype(np.float64), fx, [])
+    flipped = psf.apply(plain, dataclasses.replace(fx.psf, kernel=fx.psf.kernel[::-1, ::-1])).astype(np.float32)
+    d = np.abs(img - want).max()
+    assert d <= _bounds(fx, plain) and np.abs(flipped - want).max() > 100 * _bounds(fx, plain), d
