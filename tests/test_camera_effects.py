@@ -166,13 +166,19 @@ def test_fill_factor_coverage_of_a_sub_pixel_edge(backend, fill, request):
 
 
 def test_full_fill_factor_changes_nothing():
-    """fill_factor = 1: the same sample grid bit for bit, and no APERTURE define."""
+    """fill_factor = 1, or one sample per pixel (at its centre whatever f): the same image bit for
+    bit, and no APERTURE define; mode fast takes a fill factor at 1 spp (the preview's drags)."""
     base = plate_scene(size=(64, 48), samples_per_pixel=4)
     with Renderer(base, "cpu") as r0, Renderer(base.replace(sensor={"fill_factor": 1.0}), "cpu") as r1:
         assert r0.render(0, 1).image.tobytes() == r1.render(0, 1).image.tobytes()
+        one = base.replace(render={"samples_per_pixel": 1})
+        with Renderer(one.replace(sensor={"fill_factor": 0.3}), "cpu") as r2:
+            assert r2.render(0, 1).image.tobytes() == r0.render(0, 1, samples_per_pixel=1).image.tobytes()
+            assert r2.render(0, 1, mode="fast").stages
     cam = base.cameras[0]
-    fx = Effects(aperture=1.0)
-    assert "APERTURE" not in plan(base.render, False, True, fx, cam, cam).define_dict
+    assert "APERTURE" not in plan(base.render, False, True, Effects(aperture=1.0), cam, cam).define_dict
+    assert "APERTURE" not in plan(one.render, False, True, Effects(aperture=0.5), cam, cam).define_dict
+    assert "APERTURE" in plan(base.render, False, True, Effects(aperture=0.5), cam, cam).define_dict
 
 
 def test_fixed_pattern_is_fixed_per_camera_and_has_its_sigma():
@@ -327,7 +333,8 @@ def test_tables_load_from_a_scene_file():
     ({"psf": {"kind": "airy", "f_number": 8.0}}, "psf.pixel_pitch", "> 0"),
     ({"psf": {"kind": "gaussian", "sigma": 1.0, "f_number": 8.0}}, "psf.f_number", "not used"),
     ({"vignetting": {"flat_field": True}}, "vignetting.natural", "neither"),
-    ({"sensor": {"fill_factor": 0.5}, "render": {"mode": "fast"}}, "sensor.fill_factor", "fast"),
+    ({"sensor": {"fill_factor": 0.5}, "render": {"mode": "fast", "samples_per_pixel": 4}}, "sensor.fill_factor",
+     "fast"),
 ])
 def test_camera_tables_refuse_with_key_and_fix(tables, key, words):
     d = {"cameras": [{"size": [64, 48], "fx": 100.0, "fy": 100.0, "cx": 31.5, "cy": 23.5}], **tables}

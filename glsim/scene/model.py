@@ -593,7 +593,8 @@ class Scene:
                   "give each camera a unique name")
         self._check_sizes()
         self._check_motion()
-        check(self.sensor is None or self.sensor.fill_factor == 1 or self.render.mode != "fast", "sensor.fill_factor",
+        check(self.sensor is None or self.sensor.fill_factor == 1 or self.render.mode != "fast"
+              or self.render.samples_per_pixel == 1, "sensor.fill_factor",
               f"{self.sensor and self.sensor.fill_factor} needs samples placed inside each pixel, which mode 'fast' "
               "(the rasterizer's fixed sample grid) cannot do", "use render.mode = 'exact' or 'q4', or fill_factor = 1")
         files = {"speckle.image": self.speckle.image} if self.speckle.image else {}

@@ -510,7 +510,8 @@ class GLBackend:
         """Cached per camera model, supersampling, ``kind`` and ``aperture`` (shaders/rays.frag):
         (W·s)×(H·s) undistorted rays, "bits" as float64 pairs (RGBA32UI), "split" as float32 hi + lo
         made in float64, "float" in float32 (RGBA32F); ``aperture`` < 1 (√ of the sensor's fill
-        factor) scales the samples' offsets from their pixel centres."""
+        factor) scales the samples' offsets from their pixel centres (at s = 1: the centres)."""
+        aperture = aperture if s > 1 else 1.0
         key = _ray_key(cam, s, kind, aperture)
         if key not in self._rays:
             W, H = cam.size

@@ -63,7 +63,7 @@ def deform_defines(opts, truth: bool, fp64: bool, fx=None) -> dict:
     if fx is not None and fx.blur:
         d["DEPTH_OUT"] = None
         d["DEPTH_LOCATION"] = 1 + 2 * truth + ("TRUTH_LO" in d)
-    if fx is not None and fx.aperture != 1.0:
+    if fx is not None and fx.aperture != 1.0 and opts.supersampling > 1:   # (one sample: the pixel centre)
         d["APERTURE"] = aperture_literal(fx.aperture, "FP64" in d)
     return d
 
