@@ -10,7 +10,8 @@ in fast mode the element triangles with a depth test; in exact and q4 the candid
 (candidates.comp), their depth layers (classify.frag) and full-screen programs that each run
 only on their layer (with ``subsamples = "newton"``, subsamples.frag at W×H first finishes the
 pixels it can); for s > 1 the box filter down to W×H (of the pixels not finished); the depth-of-field blur
-(separable Gaussian or disk); the noise pass; then one read-back.
+(separable Gaussian or disk); vignetting, the lens PSF and fixed-pattern noise
+(:mod:`glsim.backends.gl.sensor_passes`); the noise pass; then one read-back.
 """
 from __future__ import annotations
 
