@@ -407,3 +407,14 @@ def test_gl_measured_psf_is_not_flipped(gl_ctx, tmp_path):
     flipped = psf.apply(plain, dataclasses.replace(fx.psf, kernel=fx.psf.kernel[::-1, ::-1])).astype(np.float32)
     d = np.abs(img - want).max()
     assert d <= _bounds(fx, plain) and np.abs(flipped - want).max() > 100 * _bounds(fx, plain), d
+
+
+def test_render_refuses_a_bad_measured_psf_before_writing(tmp_path):
+    import tifffile
+    from glsim.workflows.sequence import write_sequence
+
+    tifffile.imwrite(tmp_path / "psf.tif", np.ones((4, 5), np.float32))
+    scene = plate_scene(size=(32, 24), base_dir=str(tmp_path)).replace(psf={"kind": "image", "image": "psf.tif"})
+    with pytest.raises(SceneError) as e:
+        write_sequence(scene, str(tmp_path / "out"), steps=[0], backend="cpu")
+    assert e.value.key == "psf.image" and not (tmp_path / "out" / "scene.json").exists()

@@ -123,12 +123,16 @@ def _write(scene: Scene, out: Path, steps, cameras, truth: bool, progress, truth
 
 
 def _check_effect_inputs(scene: Scene, cams) -> None:
-    """Read the files the effects need at render time (the noise variance table)."""
+    """Read the files the effects need at render time (the noise variance table, the PSF kernel:
+    a measured PSF's checks)."""
     nz = scene.noise
     if nz is not None and nz.model == "heteroscedastic":
         from glsim.effects import noise as noisemod
         for bits in sorted({c.bit_depth for c in cams}):
             noisemod.load_variance_table(scene.resolve(nz.variance_file), bits)
+    if scene.psf is not None:
+        from glsim.effects.psf import make_kernel
+        make_kernel(scene.psf, Path(scene.base_dir))
 
 
 # --- the output directory ----------------------------------------------------------------------

@@ -36,7 +36,7 @@ def pinned_speckle(reference, folder: str | Path, name: str) -> Speckle:
     return Speckle(image=str(path), camera=reference.camera)
 
 
-FILE_KEYS = (("speckle", "image"), ("noise", "variance_file"))
+FILE_KEYS = (("speckle", "image"), ("noise", "variance_file"), ("psf", "image"))
 
 
 def scene_toml(scene: Scene, directory: str | Path) -> str:
