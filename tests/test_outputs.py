@@ -6,6 +6,7 @@ scene is resumed; an image and its truth appear together or not at all; a refere
 does not cover the specimen is reported with the numbers."""
 from __future__ import annotations
 
+import json
 import os
 import subprocess
 import sys
@@ -239,3 +240,16 @@ def test_a_reference_image_smaller_than_the_specimen_is_refused(tmp_path, capsys
     with warnings.catch_warnings():
         warnings.simplefilter("error", RenderWarning)
         write_sequence(load_scene(big), tmp_path / "ok", steps=[0])
+
+
+def test_a_render_directory_of_an_earlier_release_resumes(tmp_path, capsys):
+    """scene.json of a scene without the tables added since (sensor, psf, vignetting, exposure)
+    is what the first release wrote: those tables are left out while absent, not written as null."""
+    scene_file = write_scene(tmp_path / "in")
+    out = tmp_path / "out"
+    assert _render(scene_file, out, "--steps", "0") == 0
+    written = json.loads((out / "scene.json").read_text())
+    assert not {"sensor", "psf", "vignetting", "exposure"} & set(written)
+    assert {"lighting", "optics", "noise"} <= set(written)        # the first release's optional tables, as then
+    capsys.readouterr()
+    assert _render(scene_file, out, "--steps", "0") == 0 and "resumed: kept 1 images" in capsys.readouterr().out

@@ -22,6 +22,7 @@ from glsim.scene.mesh import UNITS_TO_MM
 from glsim.scene.tables import Vec3, build, reject_unknown
 
 MODES = ("fast", "q4", "exact")
+LATER_TABLES = ("sensor", "psf", "vignetting", "exposure")   # Scene.to_dict leaves them out while absent
 INTERPOLATIONS = ("linear", "cubic", "bspline3", "bspline5", "procedural")
 BACKENDS = ("gl", "cpu")
 PRECISIONS = ("fp32", "fp64")
@@ -668,8 +669,12 @@ class Scene:
         return dataclasses.replace(self, **changes)
 
     def to_dict(self) -> dict:
-        """The resolved scene (every default filled) as plain JSON-able data."""
-        return _plain(dataclasses.asdict(self))
+        """The resolved scene (every default filled) as plain JSON-able data. Tables added since
+        the first release (:data:`LATER_TABLES`) are left out while absent, so the scene.json of
+        a scene that does not use them — what a render directory is resumed by — and the
+        fingerprints made from it stay as they were."""
+        d = _plain(dataclasses.asdict(self))
+        return {k: v for k, v in d.items() if not (k in LATER_TABLES and v is None)}
 
     def to_json(self) -> str:
         return json.dumps(self.to_dict(), indent=2)
