@@ -27,7 +27,8 @@ from glsim.evaluation.docs_accuracy import (accuracy_facts, accuracy_table, effe
                                             effects_dof_facts, peer, peer_rows)
 from glsim.evaluation.docs_bench import (check_drivers, fe_bulge_centre, fe_bulge_centre_5mm, library, preview,
                                          preview_overhead, quadratic_fast, quadratic_rows, quadratic_tables,
-                                         scaling_goals, scaling_host, scaling_oracle, scaling_passes, scaling_table)
+                                         scaling_goals, scaling_host, scaling_oracle, scaling_passes, scaling_table,
+                                         throughput)
 from glsim.evaluation.docs_calib import (calibration, calibration_accuracy, calibration_corner_facts,
                                          calibration_detection, calibration_estimator_facts, calibration_estimators,
                                          calibration_resolution, calibration_spread_facts, calibration_study,
@@ -59,7 +60,7 @@ GENERATORS = {"check-drivers": check_drivers, "preview": preview, "accuracy-tabl
               "preview-overhead": preview_overhead, "fe-bulge-centre": fe_bulge_centre,
               "fe-bulge-centre-5mm": fe_bulge_centre_5mm, "sweep-subsets": sweep_subsets,
               "quadratic-tables": quadratic_tables, "quadratic-rows": quadratic_rows, "quadratic-fast": quadratic_fast,
-              "peer-rows": peer_rows, "camera-table": effects_camera}
+              "peer-rows": peer_rows, "camera-table": effects_camera, "throughput": throughput}
 
 
 # ---- regions ---------------------------------------------------------------------------------

@@ -287,37 +287,60 @@ class GLBackend:
         return Frame(image, raster or (lambda: None), report, tuple(stages), curved, view.camera, opts.mode)
 
     def _deform(self, view: ViewSpec, opts, s: int, truth: bool, fx, patches, warn: bool = True):
-        """The deformation pass into the cached target; returns its color textures, what
-        finishes the raster (if ``truth``; its reads queued) and what reports the view's
-        problems (its flags copied on the GPU; nothing if not ``warn``)."""
-        ctx = self.ctx
+        """The deformation pass into the cached target, as :func:`~glsim.backends.gl.plan.plan`
+        lays it out; returns its color textures, what finishes the raster (if ``truth``; its
+        reads queued) and what reports the view's problems (its flags copied on the GPU; nothing
+        if not ``warn``)."""
         W, H = view.camera.size
-        cam, ref_cam = view.camera, view.ref_camera
-        p = plan(opts, truth, self.fp64, fx, cam, ref_cam, patches.pieces if patches is not None else None)
-        defines = p.define_dict
-        fp64 = "FP64" in defines
-        pinhole_ref, ref_local, camera_local, ray_kind = p.ref is not None, p.ref == "REF_LOCAL", p.camera_local, p.rays
+        p = plan(opts, truth, self.fp64, fx, view.camera, view.ref_camera,
+                 patches.pieces if patches is not None else None)
         geo = self._buffers(view)
+        camera_uniforms, setup = self._deform_bindings(view, opts, s, fx, patches, p, geo)
+        several = overflowed = False
+        if opts.mode != "fast":   # pass 1: element records, covers, the candidate lists
+            grow = 0.5 - 0.5 / s
+            if p.camera_local:
+                geo.view_pass(view, opts.mode, True, lambda prog: camera_uniforms(prog, True), grow, local=True)
+            else:
+                geo.view_pass(view, opts.mode, "FP64" in p.define_dict, camera_uniforms, grow=grow)
+            geo.candidates_pass(W, H, s)
+            several, overflowed = geo.list_flags(W, H)
+        pixels = self._newton_pixels(view, opts, p, geo, setup) if p.subsamples else None
+        color = self._deform_samples(view, opts, s, truth, p, geo, setup, several, overflowed)
+        if pixels is not None:  # the pixels not done by Newton: the box filter of their samples
+            geo.bind_lists(W, H)
+            self._downsample(color[0], color[-1] if "DEPTH_OUT" in p.define_dict else None, W, H, s, into=pixels)
+            color = pixels
+        check_error(self.ctx, f"deformation pass ({opts.mode})")
+        self.ctx.memory_barrier()  # shader storage writes visible to the read-backs
+        report = self._queue_report(view, s, geo, warn)
+        return color, (self._queue_raster(view, opts.mode, color, p, patches) if truth else None), report
+
+    def _deform_bindings(self, view: ViewSpec, opts, s: int, fx, patches, p, geo):
+        """What the deformation programs read: ``camera_uniforms(prog, double)`` (the view
+        camera's model) and ``setup(prog)`` (every buffer, texture and uniform of deform.frag
+        and its vertex shaders). Every uniform is set on every use: programs are shared per
+        context, so a value left by another renderer (a quadratic mesh's sag) must not carry over."""
+        cam, ref_cam = view.camera, view.ref_camera
+        W, H = cam.size
+        fp64 = "FP64" in p.define_dict
         patch_buffers = self._patch_buffers(patches, opts.mode, fp64) if patches is not None else ()
-
-        def camera_uniforms(p, double: bool = fp64):
-            self._set(p, "u_intr", cam.intrinsics, double)
-            self._set(p, "u_dist", cam.distortion.coeffs, double)
-            self._set(p, "u_valid_r2", [cam.distortion.valid_radius() ** 2], double)
-            # every uniform set on every use: programs are shared per context, so a value left by
-            # another renderer (a quadratic mesh's sag) must not carry over
-            self._set(p, "u_extra_sag", [patches.extra_sag_px if patches is not None else 0.0], double)
-
         dropped = self._dropped_counter()
         # the step's world-frame corner normals (uploaded once per step; rotated in deform.frag)
         normals = geo.normals(view, fx.lighting.normals == "flat") if fx.lighting is not None else None
 
+        def camera_uniforms(prog, double: bool = fp64):
+            self._set(prog, "u_intr", cam.intrinsics, double)
+            self._set(prog, "u_dist", cam.distortion.coeffs, double)
+            self._set(prog, "u_valid_r2", [cam.distortion.valid_radius() ** 2], double)
+            self._set(prog, "u_extra_sag", [patches.extra_sag_px if patches is not None else 0.0], double)
+
         def setup(prog):
-            """Bind and set everything deform.frag (and its vertex shader) reads."""
             geo.bind(view, fp64)
-            if pinhole_ref:
-                (geo.ref_local_buffer if ref_local else geo.ref_pinhole_buffer)(ref_cam.intrinsics) \
-                    .bind_to_storage_buffer(storage("REF_LOCAL" if ref_local else "REF_PINHOLE"))
+            if p.ref is not None:
+                local = p.ref == "REF_LOCAL"
+                (geo.ref_local_buffer if local else geo.ref_pinhole_buffer)(ref_cam.intrinsics) \
+                    .bind_to_storage_buffer(storage(p.ref))
             geo.set_uniforms(prog, view, fp64)
             camera_uniforms(prog)
             self._set(prog, "u_ref_intr", ref_cam.intrinsics, fp64)
@@ -342,51 +365,54 @@ class GLBackend:
                 if prog.get("u_ref", None) is not None:
                     prog["u_ref"].value = 0
             if prog.get("u_rays", None) is not None:
-                self._ray_map(cam, s, ray_kind, fx.aperture).use(1)
+                self._ray_map(cam, s, p.rays, fx.aperture).use(1)
                 prog["u_rays"].value = 1
 
-        if opts.mode != "fast":
-            # element records, covers and tight rectangles of this view (view.comp), then pass 1:
-            # per pixel, the elements whose tight rectangle meets its samples (candidates.comp)
-            if camera_local:
-                geo.view_pass(view, opts.mode, True, lambda p: camera_uniforms(p, True), 0.5 - 0.5 / s, local=True)
-            else:
-                geo.view_pass(view, opts.mode, fp64, camera_uniforms, grow=0.5 - 0.5 / s)
-            geo.candidates_pass(W, H, s)
-            multiple, overflowed = geo.list_flags(W, H)
-        pixel_loop = p.subsamples
+        return camera_uniforms, setup
 
-        def fullscreen(frag: str, target, layer: float, extra: dict, textures=None, uniforms=None):
-            """One full-screen program of pass 2 (lists.vert at window depth ``layer``) into ``target``."""
-            prog = self.programs.program("lists.vert", frag, defines={**defines, **extra})
-            setup(prog)   # (may make the ray map, which binds its own framebuffer)
-            geo.bind_lists(W, H, prog)
-            for unit, (name, tex) in enumerate((textures or {}).items(), start=4):
-                tex.use(unit)
-                prog[name].value = unit
-            for name, value in {**(uniforms or {}), "u_layer": layer}.items():
-                prog[name].value = value
-            target.use()
-            self._vao(prog).render(ctx.TRIANGLES, vertices=3)
+    def _list_program(self, view: ViewSpec, frag: str, defines: dict, setup, geo, target, layer: float,
+                      textures=None, uniforms=None) -> None:
+        """One full-screen program of pass 2 (lists.vert at window depth ``layer``, early depth
+        tests) into ``target``."""
+        W, H = view.camera.size
+        prog = self.programs.program("lists.vert", frag, defines={**defines, "EARLY_TESTS": None})
+        setup(prog)   # (may make the ray map, which binds its own framebuffer)
+        geo.bind_lists(W, H, prog)
+        for unit, (name, tex) in enumerate((textures or {}).items(), start=4):
+            tex.use(unit)
+            prog[name].value = unit
+        for name, value in {**(uniforms or {}), "u_layer": layer}.items():
+            prog[name].value = value
+        target.use()
+        self._vao(prog).render(self.ctx.TRIANGLES, vertices=3)
 
-        if pixel_loop:  # pass 2a at W×H: pixels done from their centre by Newton (subsamples.frag)
-            pixel_fbo, pixel_color, _, pixel_grey, pixel_depth = self._target(W, H, False, False,
-                                                                               "DEPTH_OUT" in defines)
-            pixel_fbo.clear(0.0, 0.0, 0.0, 0.0, depth=1.0)
-            pixel_grey.clear(opts.background, 0.0, 0.0, 0.0)
-            ctx.enable(ctx.DEPTH_TEST)
-            geo.classify_pass(pixel_depth, W, H, 1)
-            ctx.depth_func, pixel_fbo.depth_mask = "==", False
-            fullscreen("subsamples.frag", pixel_fbo, LAYERS["deform.frag"], {"EARLY_TESTS": None},
-                       {"u_centre_rays": self._ray_map(cam, 1, ray_kind)},
-                       {"u_background": float(opts.background)})
-            ctx.depth_func, pixel_fbo.depth_mask = "<", True
-            ctx.memory_barrier()   # its LIST_DONE marks seen by the passes below
-        fbo, color, _, grey_only, depth_only = self._target(W * s, H * s, truth, "TRUTH_LO" in defines,
-                                                              "DEPTH_OUT" in defines)
-        # the grey target starts at the background; truth and depth targets at zero
+    def _newton_pixels(self, view: ViewSpec, opts, p, geo, setup):
+        """Pass 2a at W×H: the single-candidate pixels done from their centre by Newton
+        (subsamples.frag); returns the W×H color textures the box filter then completes."""
+        ctx, (W, H) = self.ctx, view.camera.size
+        fbo, color, _, grey, depth = self._target(W, H, False, False, "DEPTH_OUT" in p.define_dict)
         fbo.clear(0.0, 0.0, 0.0, 0.0, depth=1.0)
-        grey_only.clear(opts.background, 0.0, 0.0, 0.0)
+        grey.clear(opts.background, 0.0, 0.0, 0.0)
+        ctx.enable(ctx.DEPTH_TEST)
+        geo.classify_pass(depth, W, H, 1)
+        ctx.depth_func, fbo.depth_mask = "==", False
+        self._list_program(view, "subsamples.frag", p.define_dict, setup, geo, fbo, LAYERS["deform.frag"],
+                           {"u_centre_rays": self._ray_map(view.camera, 1, p.rays)},
+                           {"u_background": float(opts.background)})
+        ctx.depth_func, fbo.depth_mask = "<", True
+        ctx.memory_barrier()   # its LIST_DONE marks seen by the passes below
+        return color
+
+    def _deform_samples(self, view: ViewSpec, opts, s: int, truth: bool, p, geo, setup, several: bool,
+                        overflowed: bool):
+        """Pass 2 at s×s samples per pixel into the cached target (grey from the background,
+        truth and depth from zero): fast mode's element triangles, else the full-screen programs
+        on their layers (one candidate, then several) and the overflow fallback's covers."""
+        ctx, (W, H) = self.ctx, view.camera.size
+        defines = p.define_dict
+        fbo, color, _, grey, depth = self._target(W * s, H * s, truth, "TRUTH_LO" in defines, "DEPTH_OUT" in defines)
+        fbo.clear(0.0, 0.0, 0.0, 0.0, depth=1.0)
+        grey.clear(opts.background, 0.0, 0.0, 0.0)
         fbo.use()
         fbo.viewport = (0, 0, W * s, H * s)
         ctx.disable(ctx.CULL_FACE)
@@ -396,12 +422,12 @@ class GLBackend:
             fbo.use()
             ctx.enable(ctx.DEPTH_TEST)
             geo.draw(prog)
-        else:  # pass 2, full screen, each program on its layer: one candidate, then several
+        else:
             ctx.enable(ctx.DEPTH_TEST)
-            geo.classify_pass(depth_only, W, H, s)
+            geo.classify_pass(depth, W, H, s)
             ctx.depth_func, fbo.depth_mask = "==", False
-            for frag in ("deform.frag", "resolve.frag") if multiple else ("deform.frag",):
-                fullscreen(frag, fbo, LAYERS[frag], {"EARLY_TESTS": None})
+            for frag in ("deform.frag", "resolve.frag") if several else ("deform.frag",):
+                self._list_program(view, frag, defines, setup, geo, fbo, LAYERS[frag])
             ctx.depth_func, fbo.depth_mask = "<", True
             if overflowed:  # pixels with more candidates than the lists hold: the cover rectangles
                 prog = self.programs.program("exact.vert", "deform.frag", defines={**defines, "FALLBACK": None})
@@ -411,39 +437,45 @@ class GLBackend:
                 ctx.enable(ctx.DEPTH_TEST)
                 geo.draw(prog)
         ctx.disable(ctx.DEPTH_TEST)
-        if pixel_loop:  # the pixels not done in pass 2a: the box filter of their samples
-            geo.bind_lists(W, H)
-            self._downsample(color[0], color[-1] if "DEPTH_OUT" in defines else None, W, H, s, into=pixel_color)
-            color = pixel_color
-        check_error(ctx, f"deformation pass ({opts.mode})")
-        ctx.memory_barrier()  # shader storage writes visible to the read-backs
+        return color
+
+    def _queue_report(self, view: ViewSpec, s: int, geo, warn: bool):
+        """Copy the view's problem flags and dropped count on the GPU (read when the frame is
+        collected), clear them for the next view; returns what warns about them."""
         flags, size = geo.status()
+        dropped = self._dropped_counter()
         status = read_buffer(self._pack, [(flags, size), (dropped, 4)]) if warn else None
         geo.clear_status()     # (after the copy above: the GL orders them)
         dropped.write(bytes(4))
+        cam = view.camera
 
         def report():
             if status is not None:
                 b = status.fetch(self._pack).tobytes()
                 warn_problems(cam, geo.problems(view, b[:size]), view.mesh_geo.labels, stacklevel=5)
                 warn_dropped(cam, int(np.frombuffer(b[size:], np.uint32)[0]), s)
+        return report
 
-        if not truth:
-            return color, None, report
-        reads = [read_texture(self._pack, t, np.float32) for t in color[1:4 if "TRUTH_LO" in defines else 3]]
+    def _queue_raster(self, view: ViewSpec, mode: str, color, p, patches):
+        """Queue the truth targets' reads; returns what makes the raster from them: float32 hi
+        (+ lo with TRUTH_LO: (ξ, η) to 2^-48) widened to float64, polished where the shader
+        computed in float32 (the patches' (ξ, η) are polished by the caller, glsim.render)."""
+        W, H = view.camera.size
+        lo = "TRUTH_LO" in p.define_dict
+        reads = [read_texture(self._pack, t, np.float32) for t in color[1:4 if lo else 3]]
 
         def raster() -> dict:
-            m, x, *lo = (r.fetch(self._pack).reshape(H * W, -1) for r in reads)   # float32, each widened once
+            m, x, *low = (r.fetch(self._pack).reshape(H * W, -1) for r in reads)   # each widened once
             out = {"element": np.rint(x[:, 0]).astype(np.int64) - 1, "xi": m[:, 2].astype(np.float64),
                    "eta": m[:, 3].astype(np.float64), "ref_uv": m[:, :2].astype(np.float64) + x[:, 1:3]}
-            if lo:  # float64 in the shader: hi + lo is (ξ, η) to 2^-48
-                out["xi"] += lo[0][:, 0]
-                out["eta"] += lo[0][:, 1]
+            if low:
+                out["xi"] += low[0][:, 0]
+                out["eta"] += low[0][:, 1]
                 return out
-            if patches is not None:   # the patches' (ξ, η): polished by the caller (glsim.render)
+            if patches is not None:
                 return out
-            return self._float64_truth(view, opts.mode, out, fp64)
-        return color, raster, report
+            return self._float64_truth(view, mode, out, "FP64" in p.define_dict)
+        return raster
 
     def _patch_buffers(self, patches, mode: str, fp64: bool):
         """Bindings PATCH_NODES (the patches' local control points at this step) and PATCH_REF (their reference
