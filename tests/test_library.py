@@ -312,7 +312,7 @@ def test_every_truth_key_ingredient_changes_the_key(monkeypatch):
     assert {j.truth for j in expand({**spec, "truth_dtype": "float32"}, ".").jobs}.isdisjoint(keys.values())
     v = plan.variants[0]
     before = truth_keys(v.scene, plan.meshes[next(iter(plan.meshes))], ["cam0"], [0], "float64")
-    monkeypatch.setattr(T, "VERSION", C.VERSION + 1)
+    monkeypatch.setattr(C, "VERSION", C.VERSION + 1)
     assert truth_keys(v.scene, plan.meshes[next(iter(plan.meshes))], ["cam0"], [0], "float64") != before
 
 

@@ -173,8 +173,8 @@ def bench_main(argv: list[str]) -> int:
     eff = sub.add_parser("effects", help="time per image of each optical effect, GL and CPU")
     eff.add_argument("--size", nargs=2, type=int, metavar=("W", "H"), help="image size (default 1624 1234)")
     eff.add_argument("--reps", type=int, default=5, help="timed renders per camera (default 5; CPU at most 2)")
-    eff.add_argument("--only", choices=("camera",), help="run only the camera-effect rows and merge them into the "
-                     "effects.json there (its other rows kept)")
+    eff.add_argument("--only", choices=effects.ONLY, help="run only the camera-effect or the motion rows and merge "
+                     "them into the effects.json there (its other rows kept)")
     lib = sub.add_parser("library", help="library images/s: render only vs end to end, workers 1…N, memory")
     lib.add_argument("--size", nargs=2, type=int, metavar=("W", "H"), help="image size (default 1624 1234)")
     lib.add_argument("--images", type=int, default=100, help="images per run (default 100; the full run needs ≥ 100)")
@@ -293,7 +293,8 @@ def bench_main(argv: list[str]) -> int:
             return 0
         if args.command == "effects" and args.only:
             old = out / "effects.json"
-            print(effects.write(effects.camera_only(size, json.loads(old.read_text()) if old.is_file() else None), out))
+            previous = json.loads(old.read_text()) if old.is_file() else None
+            print(effects.write(effects.rows_only(args.only, size, previous), out))
             return 0
         if args.command == "effects":
             print(effects.write(effects.effects(size, args.reps), out))

@@ -15,7 +15,8 @@ and CPU, with their max |GL − oracle| over the image.
 Camera (``camera`` rows, docs/camera.md): the same pair with each of a Gaussian and an Airy lens
 PSF, vignetting, a fill factor of 0.5 (at 4 samples per pixel) and fixed-pattern noise alone, GL
 and CPU, each against the same render without it, with their max |GL − oracle|;
-``glsim bench effects --only camera`` runs these rows alone and merges them into the results there.
+``glsim bench effects --only camera`` (or ``--only motion``) runs those rows alone and merges them
+into the results there.
 
 Depth of field (``dof`` rows): every GL scheme (``optics.scheme``: separable, hybrid, gather,
 expansion; the disk kernel's 2-D gather) on the bulge pair (depth of field only) and on the
@@ -243,23 +244,27 @@ def camera_table(rows: list[dict]) -> str:
     return "\n".join(lines)
 
 
-def camera_only(size: tuple[int, int], previous: dict | None) -> dict:
-    """The camera-effect rows alone at ``size``, merged into ``previous`` (a report of the same size,
-    whose other rows are kept) or a report of their own."""
+ONLY = ("camera", "motion")   # row groups `glsim bench effects --only` runs alone
+
+
+def rows_only(kind: str, size: tuple[int, int], previous: dict | None) -> dict:
+    """The ``kind`` rows (ONLY) alone at ``size``, merged into ``previous`` (a report of the same
+    size, whose other rows are kept) or a report of their own."""
     from glsim.evaluation.report import machine_info
     from glsim.backends.gl.context import create_context, info
 
+    make = {"camera": camera_rows, "motion": motion_rows}[kind]
     ctx = create_context()
     try:
         machine = machine_info(info(ctx))
-        rows = camera_rows(bulge_scene(size=size, steps=1), ctx)
+        rows = make(bulge_scene(size=size, steps=1), ctx)
     finally:
         ctx.release()
     date = datetime.datetime.now().astimezone().isoformat(timespec="seconds")
     if previous is not None and previous.get("size") == list(size):
-        return {**previous, "camera": rows, "camera_run": {"machine": machine, "date": date}}
+        return {**previous, kind: rows, f"{kind}_run": {"machine": machine, "date": date}}
     return {"machine": machine, "date": date, "size": list(size), "records": [],
-            "scene": f"bulge_scene(size={tuple(size)}, steps=1), both cameras, step 1", "camera": rows}
+            "scene": f"bulge_scene(size={tuple(size)}, steps=1), both cameras, step 1", kind: rows}
 
 
 def motion_table(report: dict) -> str:
