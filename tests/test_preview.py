@@ -151,6 +151,22 @@ def test_rig_controls_turn_and_move_the_cameras(fresh):
     assert pv.scene.cameras == pv.model.base.cameras
 
 
+def test_camera_effect_toggles_switch_their_table_and_render(fresh):
+    """Keys 4–7: the lens PSF, vignetting, fixed-pattern noise ([sensor]) and motion over the
+    exposure, each switching exactly its table (the scene's, or a default) and rendering with it."""
+    pv = fresh
+    pv.refine()
+    plain = pv.camera_image(0).copy()
+    for name, table in (("psf", "psf"), ("vignetting", "vignetting"), ("fpn", "sensor"), ("motion", "exposure")):
+        before = pv.scene
+        assert pv.set(name, True), pv.messages
+        assert sections(before, pv.scene) == {table} and getattr(pv.scene, table) is not None, name
+        pv.refine()
+        assert pv.state_summary()[name] and not np.array_equal(pv.camera_image(0), plain), name
+        assert pv.set(name, False)
+        assert getattr(pv.scene, table) is None, name
+
+
 def test_pose_change_keeps_the_speckle_and_renders_like_the_saved_scene(fresh, tmp_path):
     pv = fresh
     pv.refine()

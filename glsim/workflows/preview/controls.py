@@ -11,6 +11,7 @@ import numpy as np
 
 from glsim.errors import SceneError
 from glsim.scene import MODES, Light, Scene, demo_effects
+from glsim.scene.model import Exposure, Psf, Sensor, Vignetting
 from glsim.scene.camera import Camera, rodrigues
 from glsim.scene.tables import as_tuple
 
@@ -120,6 +121,10 @@ class Params:
     lighting: bool = False
     dof: bool = False
     noise: bool = False
+    psf: bool = False
+    vignetting: bool = False
+    fpn: bool = False         # [sensor]: fixed-pattern noise (and the scene's fill factor)
+    motion: bool = False      # [exposure]: motion over the exposure
     stereo_angle: float = 0.0
     distance: float = 0.0
     target_x: float = 0.0
@@ -161,13 +166,21 @@ class Model:
         self.optics = scene.optics or dataclasses.replace(
             defaults.optics, focal_length=self.base_focal, focus_distance=self.rig.distance)
         self.noise = scene.noise or defaults.noise
+        # the camera effects a toggle switches on where the scene has none (docs/camera.md,
+        # docs/motion.md): a 1 px Gaussian PSF, natural vignetting, 1 % PRNU and 1 DN DSNU, a
+        # 0.2 s exposure of 4 samples around the step (steps 1 s apart)
+        self.camera_effects = {"psf": scene.psf or Psf(kind="gaussian", sigma=1.0),
+                               "vignetting": scene.vignetting or Vignetting(natural=True),
+                               "fpn": scene.sensor or Sensor(prnu=1.0, dsnu=1.0),
+                               "motion": scene.exposure or Exposure(time=0.2, samples=4)}
 
     def params(self) -> Params:
         s, o, lit = self.base, self.optics, self.lighting
         light = lit.lights[0]
         return Params(
             mode=s.render.mode, lighting=s.lighting is not None, dof=s.optics is not None,
-            noise=s.noise is not None, stereo_angle=self.rig.angle, distance=self.rig.distance,
+            noise=s.noise is not None, psf=s.psf is not None, vignetting=s.vignetting is not None,
+            fpn=s.sensor is not None, motion=s.exposure is not None, stereo_angle=self.rig.angle, distance=self.rig.distance,
             focal_length=self.base_focal, f_number=o.f_number, focus_distance=o.focus_distance,
             ambient=lit.ambient, light_intensity=light.intensity, light_x=light.position[0],
             light_y=light.position[1], light_z=light.position[2],
@@ -182,7 +195,11 @@ class Model:
                Control("mode", "accuracy mode", "choice", options=MODES),
                Control("lighting", "lighting", "toggle"),
                Control("dof", "depth of field", "toggle"),
-               Control("noise", "noise", "toggle")]
+               Control("noise", "noise", "toggle"),
+               Control("psf", "lens PSF", "toggle"),
+               Control("vignetting", "vignetting", "toggle"),
+               Control("fpn", "fixed-pattern noise", "toggle"),
+               Control("motion", "motion over the exposure", "toggle")]
         if len(self.base.cameras) >= 2:
             out.append(Control("stereo_angle", "stereo angle", "slider", max(0.0, r.angle - 30), min(120.0, r.angle + 30),
                                1.0, unit="°"))
@@ -235,8 +252,10 @@ class Model:
             speckle = dataclasses.replace(speckle, dot_diameter_px=p.speckle_size,
                                           edge_px=min(speckle.edge_px, p.speckle_size), seed=p.speckle_seed)
         render = s.render if p.mode == s.render.mode else dataclasses.replace(s.render, mode=p.mode)
+        on = {k: v if getattr(p, k) else None for k, v in self.camera_effects.items()}
         return dataclasses.replace(s, cameras=cams, lighting=lighting, optics=optics, noise=noise,
-                                   speckle=speckle, render=render)
+                                   speckle=speckle, render=render, psf=on["psf"], vignetting=on["vignetting"],
+                                   sensor=on["fpn"], exposure=on["motion"])
 
 
 def moved_light(light: Light, position, intensity: float, target: np.ndarray) -> Light:

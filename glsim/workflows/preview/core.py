@@ -486,7 +486,8 @@ class Preview(Panes, Events):
         """The live state in a few words (the window's frame log, tests)."""
         p = self.p
         return {"camera": p.camera, "mode": self.scene.render.mode, "lighting": p.lighting, "dof": p.dof,
-                "noise": p.noise, "overlays": ",".join(k for k, on in p.overlays.items() if on) or "-"}
+                "noise": p.noise, "psf": p.psf, "vignetting": p.vignetting, "fpn": p.fpn, "motion": p.motion,
+                "overlays": ",".join(k for k, on in p.overlays.items() if on) or "-"}
 
     # ---- saving ------------------------------------------------------------------------------
     def save(self, path: str | Path) -> Path:

@@ -12,7 +12,8 @@ from glsim.workflows.preview import overlays as ov
 KEYS = {            # key → (action, argument)
     "ArrowRight": ("add", ("step", 1)), "ArrowLeft": ("add", ("step", -1)), " ": ("press", "play"),
     "c": ("cycle", "camera"), "m": ("cycle", "mode"), "1": ("toggle", "lighting"), "2": ("toggle", "dof"),
-    "3": ("toggle", "noise"), "d": ("toggle", "overlay:displacement"), "v": ("cycle", "component"),
+    "3": ("toggle", "noise"), "4": ("toggle", "psf"), "5": ("toggle", "vignetting"), "6": ("toggle", "fpn"),
+    "7": ("toggle", "motion"), "d": ("toggle", "overlay:displacement"), "v": ("cycle", "component"),
     "e": ("toggle", "overlay:edges"), "o": ("toggle", "overlay:overlap"), "f": ("toggle", "overlay:coc"),
     "k": ("toggle", "overlay:clipped"), "z": ("toggle", "overlay:speckle"), "g": ("toggle", "overlay:range"),
     "[": ("add", ("stereo_angle", -1)), "]": ("add", ("stereo_angle", 1)), "-": ("add", ("distance", -1)),

@@ -122,10 +122,12 @@ class Panes:
         line(f"step {p.step}/{self.model.n_steps - 1}   mode {self.scene.render.mode}   "
              f"{'playing' if p.playing else ''}  {'preview (fast)' if q == 'fast' else 'full quality'}" +
              (f" {t * 1e3:.0f} ms" if self.show_timings else ""))
-        fx = [n for n, on in (("lighting", self.scene.lighting), ("DOF", self.scene.optics), ("noise", self.scene.noise)) if on]
+        sc = self.scene
+        fx = [n for n, on in (("lighting", sc.lighting), ("DOF", sc.optics), ("noise", sc.noise), ("PSF", sc.psf),
+                              ("vignetting", sc.vignetting), ("FPN", sc.sensor), ("motion", sc.exposure)) if on]
         line("effects: " + (", ".join(fx) or "none"), draw.GREY)
         if self.show_help:
-            for k in ("keys: <- -> step, space play, c camera, m mode, 1 2 3 effects",
+            for k in ("keys: <- -> step, space play, c camera, m mode, 1-7 effects",
                       "d disp. (v component), e edges, o overlap, f CoC, k clipped",
                       "z speckle, g range, [ ] stereo angle, - = distance, , . focal",
                       "n N f-number, w save TOML, p screenshot, r reset view, q quit"):
