@@ -1,7 +1,7 @@
 // Pass 1 of the exact and q4 modes: per element (one invocation each) over the pixels of its
 // cover's box, list the element at every pixel where its tight rectangle meets the pixel's
 // samples (the square of half-width u_half around its centre). An element whose box is too
-// large sets `big` and is listed by its cover triangles instead (exact.vert BIG_ONLY +
+// large sets LIST_BIG and is listed by its cover triangles instead (exact.vert BIG_ONLY +
 // candidates.frag). A pixel with more than CANDIDATES entries is left to the fallback.
 #define LIST_WRITER
 #include "candidates.glsl"
@@ -19,7 +19,7 @@ void main() {
     if (e >= u_count) return;
     ivec2 a, b;
     if (!cover_box(e, u_size, a, b)) {
-        big = 1u;
+        LIST_BIG = 1u;
         return;
     }
     for (int y = a.y; y <= b.y; ++y)

@@ -13,17 +13,23 @@ layout(r32ui, binding = IMAGE_CAND_LIST) uniform coherent uimage2DArray u_cand_l
 layout(std430, binding = BINDING_TIGHT) readonly buffer Tight { vec4 tight[]; };
 
 #ifdef LIST_WRITER
-// pass 1 (candidates.comp, candidates.frag): which passes pass 2 needs (reset by the backend): a
-// pixel with more than one candidate, one with more than CANDIDATES; and whether candidates.comp
-// left an element's box to the cover triangles
-layout(std430, binding = BINDING_LIST_FLAGS) buffer ListFlags { uint multiple; uint overflowed; uint big; };
+// pass 1 (candidates.comp, candidates.frag): which draws the view needs, as the instance counts
+// of three indirect draw commands of 20 bytes each (written by the backend before pass 1, so no
+// draw waits for the host to read them): [0] candidates.frag over the covers of the elements
+// whose box candidates.comp left to their triangles, [1] the fallback over the cover rectangles
+// (a pixel with more than CANDIDATES), [2] resolve.frag's full-screen triangle (a pixel with
+// more than one)
+layout(std430, binding = BINDING_LIST_FLAGS) buffer ListFlags { uint draws[15]; };
+#define LIST_BIG draws[1]
+#define LIST_OVERFLOWED draws[6]
+#define LIST_MULTIPLE draws[11]
 
 // Add element e to pixel pix's list.
 void list_candidate(ivec2 pix, int e) {
     uint n = imageAtomicAdd(u_cand_count, pix, 1u);
     if (n < uint(CANDIDATES)) imageStore(u_cand_list, ivec3(pix, int(n)), uvec4(uint(e)));
-    else overflowed = 1u;
-    if (n == 1u) multiple = 1u;
+    else LIST_OVERFLOWED = 1u;
+    if (n == 1u) LIST_MULTIPLE = 1u;
 }
 #endif
 

@@ -143,14 +143,16 @@ def test_glsl_invert_closed_matches_the_oracle(gl_ctx):
 @pytest.mark.gl
 def test_programs_compiled_only_with_what_the_scene_asks_for(gl_ctx):
     """The GL program's #defines are exactly the scene's choices: mode, interpolation,
-    supersampling and precision (and EARLY_TESTS, which every full-screen pass 2 program has);
-    a scene without truth maps compiles no truth outputs."""
+    supersampling and precision (and EARLY_TESTS, which every full-screen pass 2 program has;
+    the overflow fallback's program adds FALLBACK); a scene without truth maps compiles no
+    truth outputs."""
     scene = bulge_scene(size=(203, 154), steps=1, mode="q4", interpolation="cubic", samples_per_pixel=4)
     with Renderer(scene, "gl", ctx=gl_ctx) as r:
         r.render(0, 1)
         compiled = r.backend.programs.compiled
     deform = [d for files, d in compiled if "deform.frag" in files]
-    assert deform == [{"MODE_Q4": None, "INTERP_CUBIC": None, "SS": 2, "FP64": None, "EARLY_TESTS": None}]
+    scene_defines = {"MODE_Q4": None, "INTERP_CUBIC": None, "SS": 2, "FP64": None}
+    assert deform == [{**scene_defines, "EARLY_TESTS": None}, {**scene_defines, "FALLBACK": None}]
     assert [d for files, d in compiled if "downsample.frag" in files] == [{"SS": 2}]
 
 

@@ -31,7 +31,7 @@ from glsim.backends.contract import Capabilities, Raster, Request
 from glsim.stages.view import warn_dropped, warn_problems
 from glsim.backends.gl.bindings import storage
 from glsim.backends.gl.context import check_error, create_context
-from glsim.backends.gl.geometry import LAYERS, GeometryBuffers
+from glsim.backends.gl.geometry import DRAW_FALLBACK, DRAW_RESOLVE, LAYERS, GeometryBuffers
 from glsim.backends.gl import timing
 from glsim.backends.gl.plan import BLUR_PASSES, aperture_literal, newton_subsamples, plan
 from glsim.backends.gl.programs import ProgramCache
@@ -296,7 +296,6 @@ class GLBackend:
                  patches.pieces if patches is not None else None)
         geo = self._buffers(view)
         camera_uniforms, setup = self._deform_bindings(view, opts, s, fx, patches, p, geo)
-        several = overflowed = False
         if opts.mode != "fast":   # pass 1: element records, covers, the candidate lists
             grow = 0.5 - 0.5 / s
             if p.camera_local:
@@ -304,9 +303,8 @@ class GLBackend:
             else:
                 geo.view_pass(view, opts.mode, "FP64" in p.define_dict, camera_uniforms, grow=grow)
             geo.candidates_pass(W, H, s)
-            several, overflowed = geo.list_flags(W, H)
         pixels = self._newton_pixels(view, opts, p, geo, setup) if p.subsamples else None
-        color = self._deform_samples(view, opts, s, truth, p, geo, setup, several, overflowed)
+        color = self._deform_samples(view, opts, s, truth, p, geo, setup)
         if pixels is not None:  # the pixels not done by Newton: the box filter of their samples
             geo.bind_lists(W, H)
             self._downsample(color[0], color[-1] if "DEPTH_OUT" in p.define_dict else None, W, H, s, into=pixels)
@@ -371,9 +369,10 @@ class GLBackend:
         return camera_uniforms, setup
 
     def _list_program(self, view: ViewSpec, frag: str, defines: dict, setup, geo, target, layer: float,
-                      textures=None, uniforms=None) -> None:
+                      textures=None, uniforms=None, indirect: int | None = None) -> None:
         """One full-screen program of pass 2 (lists.vert at window depth ``layer``, early depth
-        tests) into ``target``."""
+        tests) into ``target``; ``indirect``: drawn by that command of pass 1's draws (only where
+        pass 1 found work for it)."""
         W, H = view.camera.size
         prog = self.programs.program("lists.vert", frag, defines={**defines, "EARLY_TESTS": None})
         setup(prog)   # (may make the ray map, which binds its own framebuffer)
@@ -384,7 +383,10 @@ class GLBackend:
         for name, value in {**(uniforms or {}), "u_layer": layer}.items():
             prog[name].value = value
         target.use()
-        self._vao(prog).render(self.ctx.TRIANGLES, vertices=3)
+        if indirect is None:
+            self._vao(prog).render(self.ctx.TRIANGLES, vertices=3)
+        else:
+            self._vao(prog).render_indirect(geo.draws(W, H), self.ctx.TRIANGLES, count=1, first=indirect)
 
     def _newton_pixels(self, view: ViewSpec, opts, p, geo, setup):
         """Pass 2a at W×H: the single-candidate pixels done from their centre by Newton
@@ -403,11 +405,11 @@ class GLBackend:
         ctx.memory_barrier()   # its LIST_DONE marks seen by the passes below
         return color
 
-    def _deform_samples(self, view: ViewSpec, opts, s: int, truth: bool, p, geo, setup, several: bool,
-                        overflowed: bool):
+    def _deform_samples(self, view: ViewSpec, opts, s: int, truth: bool, p, geo, setup):
         """Pass 2 at s×s samples per pixel into the cached target (grey from the background,
         truth and depth from zero): fast mode's element triangles, else the full-screen programs
-        on their layers (one candidate, then several) and the overflow fallback's covers."""
+        on their layers (one candidate, then several) and the overflow fallback's covers — those
+        two drawn by pass 1's indirect commands, so nothing waits for the host to decide."""
         ctx, (W, H) = self.ctx, view.camera.size
         defines = p.define_dict
         fbo, color, _, grey, depth = self._target(W * s, H * s, truth, "TRUTH_LO" in defines, "DEPTH_OUT" in defines)
@@ -426,16 +428,17 @@ class GLBackend:
             ctx.enable(ctx.DEPTH_TEST)
             geo.classify_pass(depth, W, H, s)
             ctx.depth_func, fbo.depth_mask = "==", False
-            for frag in ("deform.frag", "resolve.frag") if several else ("deform.frag",):
-                self._list_program(view, frag, defines, setup, geo, fbo, LAYERS[frag])
+            self._list_program(view, "deform.frag", defines, setup, geo, fbo, LAYERS["deform.frag"])
+            self._list_program(view, "resolve.frag", defines, setup, geo, fbo, LAYERS["resolve.frag"],
+                               indirect=DRAW_RESOLVE)
             ctx.depth_func, fbo.depth_mask = "<", True
-            if overflowed:  # pixels with more candidates than the lists hold: the cover rectangles
-                prog = self.programs.program("exact.vert", "deform.frag", defines={**defines, "FALLBACK": None})
-                setup(prog)
-                fbo.use()
-                geo.bind_lists(W, H, prog)
-                ctx.enable(ctx.DEPTH_TEST)
-                geo.draw(prog)
+            # pixels with more candidates than the lists hold: the cover rectangles
+            prog = self.programs.program("exact.vert", "deform.frag", defines={**defines, "FALLBACK": None})
+            setup(prog)
+            fbo.use()
+            geo.bind_lists(W, H, prog)
+            ctx.enable(ctx.DEPTH_TEST)
+            geo.draw(prog, (geo.draws(W, H), DRAW_FALLBACK))
         ctx.disable(ctx.DEPTH_TEST)
         return color
 

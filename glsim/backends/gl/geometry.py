@@ -47,6 +47,9 @@ def unpack_bits(words: bytes, M: int) -> np.ndarray:
     return np.unpackbits(np.frombuffer(words, np.uint8), bitorder="little")[:M].astype(bool)
 
 
+DRAW_BIG, DRAW_FALLBACK, DRAW_RESOLVE = 0, 1, 2   # the list flags' indirect draw commands (candidates.glsl)
+
+
 class GeometryBuffers:
     """The GL buffers of one :class:`~glsim.stages.geometry.MeshGeometry` on one context."""
 
@@ -239,8 +242,19 @@ class GeometryBuffers:
             count = ctx.texture((W, H), 1, dtype="u4")
             lists = ctx.texture_array((W, H, CANDIDATES), 1, dtype="u4")
             self._bufs[key] = (count, lists, ctx.framebuffer(color_attachments=[count]), ctx.empty_framebuffer((W, H)),
-                               ctx.buffer(bytes(12)))
+                               ctx.buffer(self._draw_commands()))
         return self._bufs[key]
+
+    def _draw_commands(self) -> bytes:
+        """The list flags' indirect draw commands before pass 1 (candidates.glsl): each draw's
+        vertex count, its instance count 0 (pass 1 sets it to 1 where the draw is needed).
+        moderngl's ``render_indirect`` reads command ``first`` at byte 20·first, indexed or not."""
+        n = 6 * self.M
+        return np.array([n, 0, 0, 0, 0, n, 0, 0, 0, 0, 3, 0, 0, 0, 0], np.uint32).tobytes()
+
+    def draws(self, W: int, H: int):
+        """The indirect draw commands pass 1 completed for a W×H view (see DRAW_*)."""
+        return self._lists(W, H)[4]
 
     def candidates_pass(self, W: int, H: int, s: int) -> None:
         """Pass 1: list, per pixel, the elements whose tight rectangle meets its s×s samples:
@@ -249,7 +263,7 @@ class GeometryBuffers:
         those elements' cover rectangles."""
         count, lists, clear, empty, flags = self._lists(W, H)
         clear.clear(0.0, 0.0, 0.0, 0.0)
-        flags.write(bytes(12))
+        flags.write(self._draw_commands())
         flags.bind_to_storage_buffer(storage("LIST_FLAGS"))
         self.bind_lists(W, H)
         self._bufs["cover"].bind_to_storage_buffer(storage("COVER"))
@@ -259,14 +273,14 @@ class GeometryBuffers:
         prog["u_half"].value = 0.5 - 0.5 / s
         self._per_element(prog)
         self.ctx.memory_barrier()
-        if np.frombuffer(flags.read(size=4, offset=8), np.uint32)[0]:
-            prog = self.programs.program("exact.vert", "candidates.frag", defines={"BIG_ONLY": None})
-            prog["u_size"].value = (float(W), float(H))
-            prog["u_half"].value = 0.5 - 0.5 / s
-            empty.use()
-            empty.viewport = (0, 0, W, H)
-            self.draw(prog)
-            self.ctx.memory_barrier()
+        # the elements candidates.comp left to their cover triangles: drawn only if there are any
+        prog = self.programs.program("exact.vert", "candidates.frag", defines={"BIG_ONLY": None})
+        prog["u_size"].value = (float(W), float(H))
+        prog["u_half"].value = 0.5 - 0.5 / s
+        empty.use()
+        empty.viewport = (0, 0, W, H)
+        self.draw(prog, (flags, DRAW_BIG))
+        self.ctx.memory_barrier()
 
     def classify_pass(self, depth_only, W: int, H: int, s: int) -> None:
         """Pass 1b: each sample's depth set to the layer of its pixel's candidate count
@@ -293,13 +307,19 @@ class GeometryBuffers:
 
     def list_flags(self, W: int, H: int) -> tuple[bool, bool]:
         """Whether some pixel has more than one candidate, and whether one has more than the
-        lists hold (then the fallback draws it)."""
-        multiple, overflowed = np.frombuffer(self._lists(W, H)[4].read(size=8), np.uint32)
-        return bool(multiple), bool(overflowed)
+        lists hold (then the fallback draws it): the last view's draws, read back (waits for the
+        GPU; for tests and diagnostics — rendering never reads them)."""
+        words = np.frombuffer(self.draws(W, H).read(), np.uint32).reshape(3, 5)[:, 1]
+        return bool(words[DRAW_RESOLVE]), bool(words[DRAW_FALLBACK])
 
-    def draw(self, prog) -> None:
-        """All elements' triangles (attribute-less vertices, the index buffer made once)."""
-        self._vao(prog, indexed=True).render(self.ctx.TRIANGLES, vertices=6 * self.M)
+    def draw(self, prog, indirect: tuple | None = None) -> None:
+        """All elements' triangles (attribute-less vertices, the index buffer made once);
+        ``indirect`` (buffer, command): as many times as that command's instance count."""
+        vao = self._vao(prog, indexed=True)
+        if indirect is None:
+            vao.render(self.ctx.TRIANGLES, vertices=6 * self.M)
+        else:
+            vao.render_indirect(indirect[0], self.ctx.TRIANGLES, count=1, first=indirect[1])
 
     def _vao(self, prog, indexed: bool):
         """A program's attribute-less vertex array (with the index buffer if ``indexed``), made once."""

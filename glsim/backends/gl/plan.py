@@ -3,10 +3,10 @@ the driver offers (float64), into the deformation program's #defines, the choice
 and the sequence of passes — a pure function, tested without GL; GLBackend executes the plan.
 
 Passes are named by the shader file that ends their program (as ``pass_times`` names them).
-Some run only when the view needs them, known after the candidate lists are built (``when``):
-``several`` (pixels with two or more candidates), ``overflow`` (a list overflowed), ``big``
-(covers over 192 px on a side), ``uncached`` (the camera's ray map, made once per camera and
-supersampling).
+Some run only when the view needs them (``when``): ``several`` (pixels with two or more
+candidates), ``overflow`` (a list overflowed) and ``big`` (covers over 192 px on a side) are
+indirect draws whose instance counts the candidate pass sets on the GPU (0: nothing drawn);
+``uncached``: the camera's ray map, made once per camera and supersampling.
 """
 from __future__ import annotations
 
