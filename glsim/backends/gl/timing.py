@@ -88,7 +88,9 @@ def pass_times(ctx, name_of):
             return out
         return inner
 
-    calls = [(moderngl.VertexArray, "render", lambda vao: vao.program), (moderngl.ComputeShader, "run", lambda c: c)]
+    calls = [(moderngl.VertexArray, "render", lambda vao: vao.program),
+             (moderngl.VertexArray, "render_indirect", lambda vao: vao.program),   # (drawn where pass 1 said)
+             (moderngl.ComputeShader, "run", lambda c: c)]
     saved = [(cls, name, getattr(cls, name)) for cls, name, _ in calls]
     for cls, name, program_of in calls:
         setattr(cls, name, timed(getattr(cls, name), program_of))
