@@ -317,8 +317,9 @@ class GLBackend:
     def _deform_bindings(self, view: ViewSpec, opts, s: int, fx, patches, p, geo):
         """What the deformation programs read: ``camera_uniforms(prog, double)`` (the view
         camera's model) and ``setup(prog)`` (every buffer, texture and uniform of deform.frag
-        and its vertex shaders). Every uniform is set on every use: programs are shared per
-        context, so a value left by another renderer (a quadratic mesh's sag) must not carry over."""
+        and its vertex shaders). The values are made once per view; every uniform is written on
+        every use: programs are shared per context, so a value left by another renderer (a
+        quadratic mesh's sag) must not carry over."""
         cam, ref_cam = view.camera, view.ref_camera
         W, H = cam.size
         fp64 = "FP64" in p.define_dict
@@ -326,12 +327,21 @@ class GLBackend:
         dropped = self._dropped_counter()
         # the step's world-frame corner normals (uploaded once per step; rotated in deform.frag)
         normals = geo.normals(view, fx.lighting.normals == "flat") if fx.lighting is not None else None
+        cam_values = {"u_intr": cam.intrinsics, "u_dist": cam.distortion.coeffs,
+                      "u_valid_r2": [cam.distortion.valid_radius() ** 2],
+                      "u_extra_sag": [patches.extra_sag_px if patches is not None else 0.0]}
+        ref_values = {"u_ref_intr": ref_cam.intrinsics, "u_ref_dist": ref_cam.distortion.coeffs,
+                      "u_ref_valid_r2": [ref_cam.distortion.valid_radius() ** 2]}
+        typed = {double: {k: np.asarray(v, "f8" if double else "f4").ravel()
+                          for k, v in {**cam_values, **ref_values}.items()} for double in {fp64, p.camera_local}}
+        scalars = {"u_size": (float(W), float(H)), "u_far": float(view.far),
+                   "u_ref_size": tuple(float(x) for x in ref_cam.size)}
+        lights = {k: np.ascontiguousarray(v).tobytes() for k, v in _light_uniforms(fx).items()} \
+            if fx.lighting is not None else {}
 
         def camera_uniforms(prog, double: bool = fp64):
-            self._set(prog, "u_intr", cam.intrinsics, double)
-            self._set(prog, "u_dist", cam.distortion.coeffs, double)
-            self._set(prog, "u_valid_r2", [cam.distortion.valid_radius() ** 2], double)
-            self._set(prog, "u_extra_sag", [patches.extra_sag_px if patches is not None else 0.0], double)
+            for name in cam_values:
+                self._set(prog, name, typed[double][name], double)
 
         def setup(prog):
             geo.bind(view, fp64)
@@ -341,20 +351,18 @@ class GLBackend:
                     .bind_to_storage_buffer(storage(p.ref))
             geo.set_uniforms(prog, view, fp64)
             camera_uniforms(prog)
-            self._set(prog, "u_ref_intr", ref_cam.intrinsics, fp64)
-            self._set(prog, "u_ref_dist", ref_cam.distortion.coeffs, fp64)
-            self._set(prog, "u_ref_valid_r2", [ref_cam.distortion.valid_radius() ** 2], fp64)
-            for name, value in (("u_size", (float(W), float(H))), ("u_far", float(view.far)),
-                                ("u_ref_size", tuple(float(x) for x in ref_cam.size))):
+            for name in ref_values:
+                self._set(prog, name, typed[fp64][name], fp64)
+            for name, value in scalars.items():
                 if prog.get(name, None) is not None:
                     prog[name].value = value
             dropped.bind_to_storage_buffer(storage("DROPPED"))
             for name, buf in zip(("PATCH_NODES", "PATCH_REF"), patch_buffers):
                 buf.bind_to_storage_buffer(storage(name))
             if fx.lighting is not None:
-                for name, value in _light_uniforms(fx).items():
+                for name, data in lights.items():
                     if prog.get(name, None) is not None:
-                        prog[name].write(np.ascontiguousarray(value).tobytes())
+                        prog[name].write(data)
                 normals.bind_to_storage_buffer(storage("NORMALS"))
             if opts.interpolation == "procedural":
                 self._bind_dots(prog)

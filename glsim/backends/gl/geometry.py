@@ -60,6 +60,7 @@ class GeometryBuffers:
         self.M = len(geo.quads)
         self._bufs: dict = {}
         self._vaos: dict = {}       # (id(program), indexed) → (program, attribute-less vertex array)
+        self._view_uniforms: tuple = (None, None, {}, {})   # the last view's uniform bytes (set_uniforms)
         self._steps: OrderedDict = OrderedDict()
         self.uploads = {"mesh": 0, "step": 0}   # what was uploaded (tests)
         self.view_passes = 0
@@ -178,17 +179,20 @@ class GeometryBuffers:
             buf.bind_to_storage_buffer(storage(name))
 
     def set_uniforms(self, prog, view: ViewSpec, fp64: bool) -> None:
-        """The view's transform and the constants of view.glsl."""
-        _, _, has = self._step_buffers(view, fp64)
-        dt = "f8" if fp64 else "f4"
-        values = {"u_rot": view.rotation.ravel(), "u_trans": view.translation, "u_near": [NEAR_MM],
-                  "u_grazing_cos": [GRAZING_COS]}
-        r = ray_radius(view.camera)
-        values["u_ray_r"] = [r if np.isfinite(r) else -1.0]
-        for name, v in values.items():
+        """The view's transform and the constants of view.glsl (their bytes made once per view)."""
+        if self._view_uniforms[0] is not view or self._view_uniforms[1] != fp64:
+            _, _, has = self._step_buffers(view, fp64)
+            dt = "f8" if fp64 else "f4"
+            r = ray_radius(view.camera)
+            values = {"u_rot": view.rotation.ravel(), "u_trans": view.translation, "u_near": [NEAR_MM],
+                      "u_grazing_cos": [GRAZING_COS], "u_ray_r": [r if np.isfinite(r) else -1.0]}
+            self._view_uniforms = (view, fp64, {k: np.asarray(v, dtype=dt).tobytes() for k, v in values.items()},
+                                   {"u_excluded": int(has), "u_flag_words": _bitset_words(self.M), "u_count": self.M})
+        _, _, data, ints = self._view_uniforms
+        for name, b in data.items():
             if prog.get(name, None) is not None:
-                prog[name].write(np.asarray(v, dtype=dt).tobytes())
-        for name, v in (("u_excluded", int(has)), ("u_flag_words", _bitset_words(self.M)), ("u_count", self.M)):
+                prog[name].write(b)
+        for name, v in ints.items():
             if prog.get(name, None) is not None:
                 prog[name].value = v
 
