@@ -1,0 +1,179 @@
+"""The GL backend's image passes: full-screen fragment programs over a texture — box filter,
+depth-of-field blur, camera effects, noise, quantisation — drawn into scratch textures reused
+across frames (:class:`ImagePasses`, a part of :class:`glsim.backends.gl.backend.GLBackend`).
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from glsim.effects import noise
+from glsim.effects.dof import blur_scheme, kernel_radius, shader_uniforms
+from glsim.backends.gl.context import check_error
+from glsim.backends.gl.plan import BLUR_PASSES
+from glsim.backends.gl.readback import read_texture
+
+
+class ImagePasses:
+    """Full-screen passes of a GL backend. Expects of the backend: ``ctx``, ``programs``,
+    ``fp64``, ``_pack`` (pack buffers), ``_unbind()``, and the reuse tables ``_scratch`` (free
+    scratch textures by shape), ``_lent`` (those a frame holds), ``_fbos`` and ``_vaos``."""
+
+    def fullscreen_pass(self, frag: str, defines: dict, inputs: dict, uniforms: dict, size: tuple[int, int],
+                        components: tuple[int, ...] = (1,), into=None, dtype: str = "f4", scratch: list | None = None):
+        """Run a full-screen fragment pass into a new R32F texture of ``size`` (W, H); the
+        caller releases it. ``inputs`` maps sampler names to textures or float arrays (H, W)
+        (arrays are uploaded for the pass and released after it). ``components``: one texture
+        per fragment output with that many components (then a tuple is returned), of moderngl
+        ``dtype``. ``into``: an existing texture to draw into instead (pixels the shader
+        discards keep their values); it is returned. ``scratch``: a frame's list of textures
+        on loan: the outputs are taken from the backend's reused ones and added to it
+        (:meth:`_recycle` gives them back), not made and released."""
+        ctx = self.ctx
+        W, H = size
+        prog = self.programs.program("fullscreen.vert", frag, defines=defines)
+        uploaded = []
+        for unit, (name, tex) in enumerate(inputs.items()):
+            if isinstance(tex, np.ndarray):
+                a = np.ascontiguousarray(tex, np.float32)
+                tex = ctx.texture(a.shape[::-1], 1, a.tobytes(), dtype="f4")
+                tex.filter = (ctx.NEAREST, ctx.NEAREST)
+                uploaded.append(tex)
+            if name in prog:
+                tex.use(unit)
+                prog[name].value = unit
+        for name, value in uniforms.items():
+            if name in prog:
+                prog[name].value = value
+        if into is not None:
+            outs, fbo = (into,), self._framebuffer_into(into)
+        elif scratch is not None:
+            outs, fbo = self._borrow((W, H), tuple(components), dtype)
+            scratch.extend(outs)
+        else:
+            outs = tuple(ctx.texture((W, H), n, dtype=dtype) for n in components)
+            fbo = ctx.framebuffer(color_attachments=list(outs))
+            uploaded.append(fbo)
+        fbo.use()
+        fbo.viewport = (0, 0, W, H)
+        self._vao(prog).render(ctx.TRIANGLES, vertices=3)
+        check_error(ctx, f"pass {frag} {sorted(defines)}")
+        self._unbind()
+        for obj in uploaded:
+            obj.release()
+        return outs[0] if len(outs) == 1 else outs
+
+    def _vao(self, prog):
+        """The attribute-less vertex array of a program (made once per program)."""
+        if id(prog) not in self._vaos:
+            self._vaos[id(prog)] = (prog, self.ctx.vertex_array(prog, []))
+        return self._vaos[id(prog)][1]
+
+    def _framebuffer_into(self, tex):
+        """A framebuffer drawing into one of this backend's own textures (made once per texture)."""
+        if id(tex) not in self._fbos:
+            self._fbos[id(tex)] = (tex, self.ctx.framebuffer(color_attachments=[tex]))
+        return self._fbos[id(tex)][1]
+
+    def _borrow(self, size: tuple[int, int], components: tuple[int, ...], dtype: str):
+        """Scratch textures of one shape with their framebuffer, reused across frames."""
+        free = self._scratch.setdefault((size, components, dtype), [])
+        if free:
+            entry = free.pop()
+        else:
+            outs = tuple(self.ctx.texture(size, n, dtype=dtype) for n in components)
+            entry = (outs, self.ctx.framebuffer(color_attachments=list(outs)))
+        for t in entry[0]:
+            self._lent[id(t)] = entry
+        return entry
+
+    def _recycle(self, textures: list) -> None:
+        """Give a frame's scratch textures back (the GL orders their next use after the reads
+        queued from them)."""
+        for t in textures:
+            entry = self._lent.pop(id(t), None)
+            if entry is not None and all(id(o) not in self._lent for o in entry[0]):
+                outs = entry[0]
+                self._scratch[(outs[0].size, tuple(o.components for o in outs), outs[0].dtype)].append(entry)
+
+    def blur_passes(self, grey, depth, optics, sigma_max: float, size: tuple[int, int], temps: list, stages: list):
+        """The depth-of-field passes of ``optics.scheme`` (glsim.effects.dof.blur_scheme) on the
+        grey texture (or (H, W) array) with its depth; new textures go to ``temps``, pass names
+        to ``stages``. Returns the blurred grey texture."""
+        scheme = blur_scheme(optics)
+        kernel = "disk" if scheme == "disk" else "gaussian"
+        uniforms = shader_uniforms(optics)
+        # + 1: a pixel's float32 depth may lie an ulp beyond the corners' float64 range
+        radius = int(kernel_radius(sigma_max, kernel)) + 1
+
+        def run(name, inputs, components=(1,)):
+            # FP64: sigma and window in double from double uniforms, bit for bit numpy's
+            defines = {name: None, "MAX_RADIUS": radius, **({"FP64": None} if self.fp64 else {})}
+            out = self.fullscreen_pass("blur.frag", defines, {**inputs, "u_depth": depth}, uniforms, size, components,
+                                       scratch=temps)
+            stages.append(name.lower())
+            return out
+
+        first, *second = BLUR_PASSES[scheme]   # (glsim.backends.gl.plan)
+        if not second:
+            return run(first, {"u_src": grey})
+        if scheme == "expansion":
+            moments, rows = run(first, {"u_src": grey}, (4, 4))
+            return run(second[0], {"u_image": grey, "u_moments": moments, "u_rows": rows})
+        h = run(first, {"u_src": grey})
+        return run(second[0], {"u_src": h, "u_image": grey} if scheme == "hybrid" else {"u_src": h})
+
+    @staticmethod
+    def read(tex) -> np.ndarray:
+        """An R32F texture as a float32 (H, W) array (read straight into it: no second copy)."""
+        W, H = tex.size
+        out = np.empty((H, W), np.float32)
+        tex.read_into(out)
+        return out
+
+    def _downsample(self, samples, depth, W: int, H: int, s: int, into=None, scratch: list | None = None):
+        """Box filter over s×s samples: grey, and the mean depth of covered samples if given.
+        ``into``: the (grey, depth) textures to draw into, skipping the pixels subsamples.frag
+        finished (their candidate count is LIST_DONE; the lists bound as images); else scratch
+        textures added to ``scratch``."""
+        skip = {} if into is None else {"SKIP_DONE": None}
+        into = into if into is not None else (None, None)
+        grey = self.fullscreen_pass("downsample.frag", {"SS": s, **skip}, {"u_samples": samples}, {}, (W, H),
+                                    into=into[0], scratch=scratch)
+        if depth is None:
+            return grey, None
+        return grey, self.fullscreen_pass("downsample.frag", {"SS": s, "COVERED_MEAN": None, **skip},
+                                          {"u_samples": depth}, {}, (W, H), into=into[-1], scratch=scratch)
+
+    def quantize_pass(self, grey, bit_depth: int) -> np.ndarray:
+        """shaders/quantize.frag on an R32F texture or (H, W) array: the image as
+        :func:`glsim.io.images.quantize` gives it (uint8, or uint16 for 10–16 bits), read back
+        in that type. Needs float64 (``self.fp64``)."""
+        temps: list = []
+        out = read_texture(self._pack, self._quantized(grey, bit_depth, temps), np.uint8 if bit_depth == 8 else np.uint16)
+        self._recycle(temps)
+        return out.fetch(self._pack)
+
+    def _quantized(self, grey, bit_depth: int, scratch: list):
+        """The texture of :meth:`quantize_pass` (R8UI / R16UI, on loan in ``scratch``)."""
+        H, W = grey.shape if isinstance(grey, np.ndarray) else grey.size[::-1]
+        return self.fullscreen_pass("quantize.frag", {"FP64": None}, {"u_src": grey},
+                                    {"u_top": float((1 << bit_depth) - 1)}, (W, H),
+                                    dtype="u1" if bit_depth == 8 else "u2", scratch=scratch)
+
+    def noise_pass(self, grey, params, bit_depth: int, seed: int, table=None, scratch: list | None = None):
+        """noise.frag on an R32F texture or (H, W) array: grey + σ(grey)·z, the same field as
+        :func:`glsim.effects.noise.add_noise` (``scratch``: as for :meth:`fullscreen_pass`)."""
+        inputs = {"u_src": grey}
+        if params.model == "heteroscedastic":
+            inputs["u_variance"] = noise.variance_texture(table, bit_depth)
+        H, W = grey.shape if isinstance(grey, np.ndarray) else grey.size[::-1]
+        uniforms = {**noise.shader_uniforms(params, bit_depth), "u_seed": int(seed), "u_width": W}
+        return self.fullscreen_pass("noise.frag", noise.shader_defines(params), inputs, uniforms, (W, H),
+                                    scratch=scratch)
+
+    def camera_passes(self, grey, fx, size: tuple[int, int], scratch: list, stages: list):
+        """Vignetting, lens PSF and fixed-pattern noise where ``fx`` asks for them
+        (:func:`glsim.backends.gl.sensor_passes.camera_passes`)."""
+        from glsim.backends.gl.sensor_passes import camera_passes
+
+        return camera_passes(self, grey, fx, size, scratch, stages)
