@@ -10,7 +10,7 @@ from _figure import diverging
 
 from glsim.render import Renderer
 from glsim.scene import bulge_scene
-from glsim.scene.model import Psf, Sensor, Vignetting
+from glsim.scene import Psf, Sensor, Vignetting
 
 out = sys.argv[1] if len(sys.argv) > 1 else "effect_camera.png"
 scene = bulge_scene(size=(406, 308), steps=1)

@@ -7,7 +7,7 @@ import warnings
 import pytest
 
 from glsim.errors import GlsimError
-from glsim.scene import model, scene_from_dict, tables
+from glsim.scene import model, optional, scene_from_dict, tables
 from glsim.scene.camera import Camera, Distortion
 from glsim.workflows.library import expand
 from glsim.workflows.library.spec import TOP_KEYS
@@ -17,8 +17,9 @@ st = hypothesis.strategies
 
 _NAMES = set(tables.SECTIONS) | set(TOP_KEYS)
 for _cls in (Camera, Distortion, model.Speckle, model.Plate, model.Bulge, model.MeshFile, model.Specimen,
-             model.Render, model.Output, model.Light, model.Lighting, model.Optics, model.Noise, tables.Stereo,
-             tables.LookAt, tables.Pose):
+             model.Render, model.Output, optional.Light, optional.Lighting, optional.Optics, optional.Noise,
+             optional.Sensor, optional.Psf, optional.Vignetting, optional.Exposure, tables.Stereo, tables.LookAt,
+             tables.Pose):
     _NAMES |= {f.name for f in dataclasses.fields(_cls)}
 KEYS = st.sampled_from(sorted(_NAMES)) | st.text(max_size=4)
 LEAVES = (st.none() | st.booleans() | st.integers(-2 ** 70, 2 ** 70) | st.floats() | st.text(max_size=6)

@@ -31,7 +31,7 @@ from glsim.errors import check
 from glsim.io.truth import Truth
 from glsim.scene.bilinear import bilinear
 from glsim.scene.camera import Camera, project_camera_frame, rodrigues, to_camera
-from glsim.scene.model import Exposure
+from glsim.scene.optional import Exposure
 
 
 @dataclass(frozen=True, eq=False)

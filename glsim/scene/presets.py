@@ -7,7 +7,8 @@ import math
 import numpy as np
 
 from glsim.scene.camera import Camera, Distortion, look_at
-from glsim.scene.model import Bulge, Light, Lighting, Noise, Optics, Render, Scene, Specimen
+from glsim.scene.model import Bulge, Render, Scene, Specimen
+from glsim.scene.optional import Light, Lighting, Noise, Optics
 from glsim.scene.tables import as_tuple
 
 def stereo_rig(size=(1624, 1234), fx=6818.0, distance=600.0, stereo_angle=30.0,

@@ -11,7 +11,7 @@ import numpy as np
 
 from glsim.errors import SceneError
 from glsim.scene import MODES, Light, Scene, demo_effects
-from glsim.scene.model import Exposure, Psf, Sensor, Vignetting
+from glsim.scene import Exposure, Psf, Sensor, Vignetting
 from glsim.scene.camera import Camera, rodrigues
 from glsim.scene.tables import as_tuple
 
