@@ -212,8 +212,6 @@ def markdown(r: dict) -> str:
 
 def summary(r: dict) -> str:
     """The tables and their notes (also the generated region of docs/library.md)."""
-    if "libraries" not in r:
-        return _summary_v1(r)
     c, m = r["config"], r["machine"]
     libs = r["libraries"]
     lines = [f"Bulge stereo pair, {c['width']}×{c['height']}, {c['mode']} mode, {c['samples_per_pixel']} spp, GL; two "
@@ -265,53 +263,6 @@ def _measured(r: dict, goal: str) -> str:
         n = libs["noise"]
         return f" ({n['images']} images, {n['truth_keys']} truth files: ÷ {n['images'] / n['truth_keys']:.3g})"
     return ""
-
-
-GOALS_V1 = {"images_only_at_least_80pct_of_render_only": "images only end to end ≥ 80 % of the render-only rate",
-            "truth_at_least_60pct_of_render_only": "with truth ≥ 60 %",
-            "truth_at_most_8MB_per_image": "truth ≤ 8 MB per 1624×1234 image"}
-
-
-def _summary_v1(r: dict) -> str:
-    """:func:`summary` of results written before the stereo library was added (a writer thread, a
-    truth file per image): bench/results/library.json until the benchmark is re-run at full size."""
-    c, m = r["config"], r["machine"]
-    ro, ei, et = r["render_only"], r["end_to_end_images"], r["end_to_end_truth"]
-    lines = [f"Bulge stereo pair, {c['width']}×{c['height']}, {c['mode']} mode, {c['samples_per_pixel']} spp, GL; "
-             f"{c['images']} images ({c['variants']} variants of noise σ × 2 cameras × 4 load steps). "
-             f"{m['cpu']}, {m['cores']} cores, {m['gl']['renderer']}; {r['date']}.", "",
-             "| run | workers | images/s | s/image | × render-only | MB/s | truth MB/image |",
-             "|---|---|---|---|---|---|---|",
-             f"| render only (no encoding, no files) | 1 | {ro['images_per_s']:.3g} | {ro['seconds_per_image']:.3g} | 1 | – | – |",
-             f"| end to end, images only | 1 | {ei['images_per_s']:.3g} | {ei['seconds_per_image']:.3g} | "
-             f"{ei['ratio_to_render_only']:.2f} | {ei['mb_per_s']:.3g} | – |",
-             f"| end to end, images + compact truth | 1 | {et['images_per_s']:.3g} | {et['seconds_per_image']:.3g} | "
-             f"{et['ratio_to_render_only']:.2f} | {et['mb_per_s']:.3g} | {et['truth_mb_per_image']:.3g} |"]
-    for w in r["workers"][1:]:
-        lines.append(f"| end to end, images + compact truth | {w['workers']} | {w['images_per_s']:.3g} | "
-                     f"{1 / w['images_per_s']:.3g} | {w['images_per_s'] / ro['images_per_s']:.2f} | "
-                     f"{w['mb_per_s']:.3g} | {et['truth_mb_per_image']:.3g} |")
-    pi, pt = ei["per_image"], et["per_image"]
-    mem = r["memory"]
-    tm = et.get("memory") or {}
-    lines += ["", f"Per image, 1 worker (s): images only — render {pi['render_s']:.3g}, encode {pi['encode_s']:.3g}, "
-              f"write {pi['write_s']:.3g}; with truth — render incl. GL truth read-back {pt['render_s']:.3g}, "
-              f"truth encode {pt['truth_s']:.3g}, image encode {pt['encode_s']:.3g}, write {pt['write_s']:.3g}.",
-              f"Memory: the render loop's resident set {mem['render_loop_rss_first_mb']:.0f} MB after the first image, "
-              f"{mem['render_loop_rss_last_mb']:.0f} MB after the last (max {mem['render_loop_rss_max_mb']:.0f}); "
-              f"peak of any process {r['peak_rss_mb']:.0f} MB."
-              + (f" With truth, 1 worker: at most {tm['rss_mb_first_quarter_max']:.0f} MB in the first quarter of the "
-                 f"run, {tm['rss_mb_last_quarter_max']:.0f} MB in the last." if tm else ""), "",
-              "Goals: " + "; ".join(f"{GOALS_V1.get(k, k)}: {'met' if v else 'not met'}{_measured_v1(r, k)}"
-                                    for k, v in r["goals"].items()) + "."]
-    return "\n".join(lines) + "\n"
-
-
-def _measured_v1(r: dict, goal: str) -> str:
-    """The measured ratio behind a rate goal, to 5 decimals (a goal missed or met by a hair says so)."""
-    key = {"images_only_at_least_80pct_of_render_only": "end_to_end_images",
-           "truth_at_least_60pct_of_render_only": "end_to_end_truth"}.get(goal)
-    return f" ({r[key]['ratio_to_render_only']:.5f})" if key else ""
 
 
 def write(report: dict, out: Path) -> str:

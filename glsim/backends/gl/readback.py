@@ -19,13 +19,11 @@ class PackBuffers:
     def __init__(self, ctx):
         self.ctx = ctx
         self._free: dict[int, list] = {}
-        self.made = 0            # buffers created (a steady stream stops creating them)
 
     def take(self, nbytes: int):
         free = self._free.get(nbytes)
         if free:
             return free.pop()
-        self.made += 1
         return self.ctx.buffer(reserve=nbytes)
 
     def give(self, buf) -> None:

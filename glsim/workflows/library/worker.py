@@ -150,9 +150,8 @@ def render_task(task: dict) -> list[dict]:
     try:
         try:
             jobs = task["jobs"]   # pipelined, each image quantised as the camera writes it (on the GPU)
-            stream = contextlib.closing(r.render_many({"camera": j["camera"], "step": j["step"],
-                                                       "truth": j["render_truth"], "quantize": True} for j in jobs))
-            with stream as results:
+            with contextlib.closing(r.render_many({"camera": j["camera"], "step": j["step"], "truth": j["render_truth"],
+                                                   "quantize": True} for j in jobs)) as results:
                 for job, res in zip(jobs, results):
                     header, t = None, res.truth
                     if t is not None:
