@@ -117,6 +117,7 @@ class Renderer:
         self._geometry: MeshGeometry | None = None
         self._closed = False
         self._seen: dict[tuple, bool] = {}   # (camera, step) → seen (Renderer._specimen)
+        self._jobs: dict[tuple, tuple] = {}   # (camera, truth, options) → (scene, Render, Camera) (_job_setup)
         self._ref_coeffs: dict[str, np.ndarray] = {}   # float64 interpolant coefficients (the Jacobian's gradient)
         if self._gl_max:   # the reference image is one texture
             H, W = self.reference.image.shape
@@ -302,11 +303,29 @@ class Renderer:
             while pending and not self._closed:
                 self.backend.collect(pending.popleft().token)
 
-    def _submit(self, camera, step: int, truth: bool, quantize: bool, options: dict) -> "_Submitted":
-        t0 = time.perf_counter()
+    def _job_setup(self, camera, truth: bool, options: dict) -> tuple[Render, Camera]:
+        """A job's render options and camera, its size checked (:meth:`check_size`); kept per
+        scene, camera, truth and options, so a stream of like jobs checks each once."""
+        try:
+            key = (camera, truth, tuple(sorted(options.items())))
+            hash(key)
+        except TypeError:   # (an unhashable option value: the scene's own check rejects it)
+            key = None
+        hit = self._jobs.get(key) if key is not None else None
+        if hit is not None and hit[0] is self.scene:
+            return hit[1], hit[2]
         opts = self.scene.replace(render=options).render if options else self.scene.render
         self.check_size(camera, truth, opts)
         cam = self.scene.camera(camera)
+        if key is not None:
+            if len(self._jobs) >= SEEN_KEPT:
+                self._jobs.pop(next(iter(self._jobs)))
+            self._jobs[key] = (self.scene, opts, cam)
+        return opts, cam
+
+    def _submit(self, camera, step: int, truth: bool, quantize: bool, options: dict) -> "_Submitted":
+        t0 = time.perf_counter()
+        opts, cam = self._job_setup(camera, truth, options)
         view = self.geometry.view(cam, step)
         deformed = view.step_geo.deformed
         depths = view.corner_depths() if self.scene.optics is not None else np.empty(0)

@@ -177,9 +177,9 @@ def bench_main(argv: list[str]) -> int:
                      "them into the effects.json there (its other rows kept)")
     lib = sub.add_parser("library", help="library images/s: render only vs end to end, workers 1…N, memory")
     lib.add_argument("--size", nargs=2, type=int, metavar=("W", "H"), help="image size (default 1624 1234)")
-    lib.add_argument("--images", type=int, default=100, help="images per run (default 100; the full run needs ≥ 100)")
+    lib.add_argument("--images", type=int, default=200, help="images per run (default 200; the full run needs ≥ 200)")
     lib.add_argument("--max-workers", type=int, default=None, help="largest worker count (default: one per core)")
-    lib.set_defaults(reps=1)
+    lib.add_argument("--reps", type=int, default=2, help="interleaved repetitions of the 1-worker runs (default 2)")
     from glsim.evaluation import preview_bench as pb
     pre = sub.add_parser("preview", help="frame times of the interactive preview (dragging, refinement)")
     pre.add_argument("--size", nargs=2, type=int, metavar=("W", "H"), help="camera size (default 1624 1234)")
@@ -247,12 +247,12 @@ def bench_main(argv: list[str]) -> int:
         out = results_dir(args.out, size == accuracy.FULL_SIZE and not quick, args.command)
         if args.command == "library":
             from glsim.evaluation import library_bench
-            if args.images < 1 or (args.max_workers is not None and args.max_workers < 1):
-                parser.error("--images and --max-workers must be ≥ 1")
+            if args.images < 1 or args.reps < 1 or (args.max_workers is not None and args.max_workers < 1):
+                parser.error("--images, --reps and --max-workers must be ≥ 1")
             size = tuple(args.size) if args.size else library_bench.FULL_SIZE
             full = size == library_bench.FULL_SIZE and args.images >= library_bench.FULL_IMAGES
             out = results_dir(args.out, full, "library")
-            print(library_bench.write(library_bench.bench(size, args.images, args.max_workers), out))
+            print(library_bench.write(library_bench.bench(size, args.images, args.max_workers, args.reps), out))
             return 0
         if args.command == "preview":
             size = tuple(args.size) if args.size else pb.FULL_SIZE

@@ -10,9 +10,11 @@ read-back is mapped). Each repetition renders PAIRS stereo pairs each way for ev
 (interleaved), after one warm-up pair; per row the median over repetitions.
 
 - **pairs/s**: stereo pairs (cameras 0 and 1) delivered to numpy per wall second.
-- **host ms / image**: wall time less the time spent inside moderngl calls (and so the driver:
-  submissions and waits, :func:`glsim.backends.gl.timing.driver_time`) — the Python and numpy
-  work per image. On llvmpipe the driver also runs the shaders.
+- **host ms / image**: the rendering thread's CPU time outside moderngl calls (and so outside
+  the driver: submissions, waits, on llvmpipe the shaders themselves), less what counting
+  them costs (:func:`glsim.backends.gl.timing.driver_time`) — the Python and numpy work per
+  image. The JSON also keeps the wall time outside the driver (``*_host_wall_ms``): on
+  llvmpipe it adds the waits for a core that the driver's render threads hold.
 - **same bytes**: the pipelined images equal the one-at-a-time ones bit for bit (checked on
   every repetition).
 - **glsim / riley**: glsim's pipelined seconds per image (a pair's time / 2) over
@@ -100,18 +102,21 @@ def throughput(size=FULL_SIZE, reps: int = REPS, pairs: int = PAIRS, spps=SPPS, 
                 riley, riley_name = _riley(tuple(size), spp, elements)
                 list(r.render_many(_jobs(1, mode, spp)))           # warm-up: programs, targets, ray maps
                 row = {"mode": mode, "spp": spp, "single_s": [], "pipelined_s": [], "single_host_ms": [],
-                       "pipelined_host_ms": [], "riley_s": [], "riley": riley_name, "same_bytes": True}
+                       "pipelined_host_ms": [], "single_host_wall_ms": [], "pipelined_host_wall_ms": [],
+                       "riley_s": [], "riley": riley_name, "same_bytes": True}
                 if riley is not None:
                     riley()
                 for _ in range(reps):
                     for way in ("single", "pipelined"):
                         with driver_time() as d:
-                            t = time.perf_counter()
+                            t, c = time.perf_counter(), time.thread_time()
                             out = ([r.render(**j) for j in jobs] if way == "single"
                                    else list(r.render_many(jobs, depth=DEPTH)))
-                            wall = time.perf_counter() - t
+                            wall, cpu = time.perf_counter() - t, time.thread_time() - c
+                        host_wall, host_cpu = d.host_seconds(wall, cpu)
                         row[f"{way}_s"].append(wall)
-                        row[f"{way}_host_ms"].append((wall - d.seconds) / len(jobs) * 1e3)
+                        row[f"{way}_host_ms"].append(host_cpu / len(jobs) * 1e3)
+                        row[f"{way}_host_wall_ms"].append(host_wall / len(jobs) * 1e3)
                         if way == "single":
                             single = [x.image for x in out]
                         else:
@@ -139,6 +144,7 @@ def _summary(row: dict, pairs: int) -> dict:
         out[f"{way}_pairs_per_s"] = pairs / s
         out[f"{way}_images_per_s"] = 2 * pairs / s
         out[f"{way}_host_ms"] = statistics.median(row[f"{way}_host_ms"])
+        out[f"{way}_host_wall_ms"] = statistics.median(row[f"{way}_host_wall_ms"])
         out[f"{way}_s_all"] = row[f"{way}_s"]
     out["riley_s"] = statistics.median(row["riley_s"]) if row["riley_s"] else None
     out["riley_s_all"] = row["riley_s"]

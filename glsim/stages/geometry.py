@@ -17,6 +17,7 @@ from __future__ import annotations
 
 from collections import OrderedDict
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 
@@ -75,8 +76,9 @@ class MeshGeometry:
 
     def view(self, cam: Camera, step: int, state=None, deformed: np.ndarray | None = None) -> "ViewSpec":
         """The :class:`ViewSpec` of ``cam`` at ``step`` (or at its ``state``, see :meth:`step`):
-        O(1) once the step is known."""
-        return ViewSpec(cam, self.ref_camera, self, self.step(step, state, deformed))
+        O(1) once the step is known; the same object while the step stays cached, so what a
+        backend derives from a view is made once."""
+        return self.step(step, state, deformed).view_of(cam, self.ref_camera)
 
 
 class StepGeometry:
@@ -94,6 +96,14 @@ class StepGeometry:
         self.centre = used.mean(axis=0)
         self.radius = float(np.sqrt(((used - self.centre) ** 2).sum(axis=1).max()))
         self._shape = None
+        self._views: dict[int, ViewSpec] = {}
+
+    def view_of(self, cam: Camera, ref_camera: Camera) -> "ViewSpec":
+        """This step's :class:`ViewSpec` for ``cam`` (kept per camera object)."""
+        v = self._views.get(id(cam))
+        if v is None or v.camera is not cam or v.ref_camera is not ref_camera:
+            v = self._views[id(cam)] = ViewSpec(cam, ref_camera, self.mesh_geo, self)
+        return v
 
     def shape(self) -> dict[str, np.ndarray]:
         """Zero-area, tiny and folded elements (:func:`glsim.stages.view.shape_problems`), from
@@ -118,6 +128,11 @@ class _Corners:
         return self.nodes[self.quads[sl]]
 
 
+def _frozen(a: np.ndarray) -> np.ndarray:
+    a.setflags(write=False)
+    return a
+
+
 @dataclass(frozen=True, eq=False)
 class ViewSpec:
     """One camera's view of one step as the GPU path takes it: O(1) data.
@@ -131,16 +146,16 @@ class ViewSpec:
     mesh_geo: MeshGeometry
     step_geo: StepGeometry
 
-    @property
+    @cached_property
     def rotation(self) -> np.ndarray:
-        return self.camera.rotation
+        return _frozen(self.camera.rotation)
 
-    @property
+    @cached_property
     def translation(self) -> np.ndarray:
         """The camera-frame position of the local origin, R·origin + t (float64)."""
-        return self.camera.rotation @ self.mesh_geo.origin + self.camera.translation
+        return _frozen(self.camera.rotation @ self.mesh_geo.origin + self.camera.translation)
 
-    @property
+    @cached_property
     def far(self) -> float:
         zc = float(self.rotation[2] @ self.step_geo.centre + self.translation[2])
         return max(zc + self.step_geo.radius, NEAR_MM) * 1.5

@@ -35,8 +35,10 @@ from glsim.backends.gl.plan import aperture_literal, newton_subsamples, plan
 from glsim.backends.gl.imagepasses import ImagePasses
 from glsim.backends.gl.programs import ProgramCache
 from glsim.backends.gl.readback import PackBuffers, Pending, read_buffer, read_texture
+from glsim.backends.gl.uniforms import Uniforms
 
 
+VIEWS_KEPT = 8     # views whose uniform values a backend keeps (both cameras of a few steps)
 _DTYPES = {"f4": np.float32, "u1": np.uint8, "u2": np.uint16}   # moderngl texture dtype → numpy
 
 
@@ -116,6 +118,7 @@ class GLBackend(ImagePasses):
         self._vaos: dict[int, tuple] = {}       # id(program) → (program, attribute-less vertex array)
         self._ray_host: dict[tuple, np.ndarray] = {}   # the float64 ray maps' bits on the host (truth polish)
         self._dropped = None                    # deform.frag's count of samples mapping outside the reference
+        self._uniforms: dict[tuple, tuple] = {}  # the last views' uniform values (_view_uniforms)
 
     # ---- resources -------------------------------------------------------------------------
     def _reference_texture(self, method: str):
@@ -185,6 +188,7 @@ class GLBackend(ImagePasses):
         self._lent.clear()
         self._vaos.clear()
         self._ray_host.clear()
+        self._uniforms.clear()
         self._dropped = None
         self._curved.clear()
         self._targets.clear()
@@ -209,15 +213,6 @@ class GLBackend(ImagePasses):
         return timing.pass_times(self.ctx, self.programs.name_of)
 
     # ---- rendering -------------------------------------------------------------------------
-    @staticmethod
-    def _set(prog, name: str, values, fp64: bool) -> None:
-        """Set a real uniform array; the driver may keep only its leading elements that the
-        program reads (array_length), and those are written."""
-        u = prog.get(name, None)
-        if u is not None:
-            a = np.asarray(values, dtype="f8" if fp64 else "f4").ravel()
-            u.write(a[:max(1, getattr(u, "array_length", a.size))].tobytes())
-
     def _buffers(self, view: ViewSpec) -> GeometryBuffers:
         """The mesh's GL buffers (made when a renderer's mesh is first drawn on this backend)."""
         if self.geometry is None or self.geometry.geo is not view.mesh_geo:
@@ -294,13 +289,13 @@ class GLBackend(ImagePasses):
         p = plan(opts, truth, self.fp64, fx, view.camera, view.ref_camera,
                  patches.pieces if patches is not None else None)
         geo = self._buffers(view)
-        camera_uniforms, setup = self._deform_bindings(view, opts, s, fx, patches, p, geo)
+        uniforms, setup = self._deform_bindings(view, opts, s, fx, patches, p, geo)
         if opts.mode != "fast":   # pass 1: element records, covers, the candidate lists
             grow = 0.5 - 0.5 / s
             if p.camera_local:
-                geo.view_pass(view, opts.mode, True, lambda prog: camera_uniforms(prog, True), grow, local=True)
+                geo.view_pass(view, opts.mode, True, uniforms, grow, local=True)
             else:
-                geo.view_pass(view, opts.mode, "FP64" in p.define_dict, camera_uniforms, grow=grow)
+                geo.view_pass(view, opts.mode, "FP64" in p.define_dict, uniforms, grow=grow)
             geo.candidates_pass(W, H, s)
         pixels = self._newton_pixels(view, opts, p, geo, setup) if p.subsamples else None
         color = self._deform_samples(view, opts, s, truth, p, geo, setup)
@@ -314,66 +309,65 @@ class GLBackend(ImagePasses):
         return color, (self._queue_raster(view, opts.mode, color, p, patches) if truth else None), report
 
     def _deform_bindings(self, view: ViewSpec, opts, s: int, fx, patches, p, geo):
-        """What the deformation programs read: ``camera_uniforms(prog, double)`` (the view
-        camera's model) and ``setup(prog)`` (every buffer, texture and uniform of deform.frag
-        and its vertex shaders). The values are made once per view; every uniform is written on
-        every use: programs are shared per context, so a value left by another renderer (a
-        quadratic mesh's sag) must not carry over."""
-        cam, ref_cam = view.camera, view.ref_camera
-        W, H = cam.size
+        """What the deformation programs read: ``uniforms`` (a
+        :class:`~glsim.backends.gl.uniforms.Uniforms`: the view's transform and constants, the
+        camera and reference models, the sizes) and ``setup(prog)`` (every buffer, texture and
+        uniform of deform.frag and its vertex shaders). The values are made once per view;
+        every uniform is written on every use: programs are shared per context, so a value left
+        by another renderer (a quadratic mesh's sag) must not carry over."""
+        cam = view.camera
         fp64 = "FP64" in p.define_dict
         patch_buffers = self._patch_buffers(patches, opts.mode, fp64) if patches is not None else ()
         dropped = self._dropped_counter()
-        # the step's world-frame corner normals (uploaded once per step; rotated in deform.frag)
-        normals = geo.normals(view, fx.lighting.normals == "flat") if fx.lighting is not None else None
-        cam_values = {"u_intr": cam.intrinsics, "u_dist": cam.distortion.coeffs,
-                      "u_valid_r2": [cam.distortion.valid_radius() ** 2],
-                      "u_extra_sag": [patches.extra_sag_px if patches is not None else 0.0]}
-        ref_values = {"u_ref_intr": ref_cam.intrinsics, "u_ref_dist": ref_cam.distortion.coeffs,
-                      "u_ref_valid_r2": [ref_cam.distortion.valid_radius() ** 2]}
-        typed = {double: {k: np.asarray(v, "f8" if double else "f4").ravel()
-                          for k, v in {**cam_values, **ref_values}.items()} for double in {fp64, p.camera_local}}
-        scalars = {"u_size": (float(W), float(H)), "u_far": float(view.far),
-                   "u_ref_size": tuple(float(x) for x in ref_cam.size)}
-        lights = {k: np.ascontiguousarray(v).tobytes() for k, v in _light_uniforms(fx).items()} \
-            if fx.lighting is not None else {}
-
-        def camera_uniforms(prog, double: bool = fp64):
-            for name in cam_values:
-                self._set(prog, name, typed[double][name], double)
+        uniforms = self._view_uniforms(view, geo, fp64, patches.extra_sag_px if patches is not None else 0.0)
+        lighting = None
+        if fx.lighting is not None:  # the step's world-frame corner normals (once per step; rotated in deform.frag)
+            normals = geo.normals(view, fx.lighting.normals == "flat")
+            lighting = Uniforms(_light_uniforms(fx))
+        ref_storage = None
+        if p.ref is not None:
+            local = p.ref == "REF_LOCAL"
+            ref_storage = (geo.ref_local_buffer if local else geo.ref_pinhole_buffer)(view.ref_camera.intrinsics)
+        textures = self._dots_or_reference(opts.interpolation)
+        rays = self._ray_map(cam, s, p.rays, fx.aperture) if p.rays is not None else None
 
         def setup(prog):
             geo.bind(view, fp64)
-            if p.ref is not None:
-                local = p.ref == "REF_LOCAL"
-                (geo.ref_local_buffer if local else geo.ref_pinhole_buffer)(ref_cam.intrinsics) \
-                    .bind_to_storage_buffer(storage(p.ref))
-            geo.set_uniforms(prog, view, fp64)
-            camera_uniforms(prog)
-            for name in ref_values:
-                self._set(prog, name, typed[fp64][name], fp64)
-            for name, value in scalars.items():
-                if prog.get(name, None) is not None:
-                    prog[name].value = value
+            if ref_storage is not None:
+                ref_storage.bind_to_storage_buffer(storage(p.ref))
+            uniforms.write(prog)
             dropped.bind_to_storage_buffer(storage("DROPPED"))
             for name, buf in zip(("PATCH_NODES", "PATCH_REF"), patch_buffers):
                 buf.bind_to_storage_buffer(storage(name))
-            if fx.lighting is not None:
-                for name, data in lights.items():
-                    if prog.get(name, None) is not None:
-                        prog[name].write(data)
+            if lighting is not None:
+                lighting.write(prog)
                 normals.bind_to_storage_buffer(storage("NORMALS"))
-            if opts.interpolation == "procedural":
-                self._bind_dots(prog)
-            else:
-                self._reference_texture(opts.interpolation).use(0)
-                if prog.get("u_ref", None) is not None:
-                    prog["u_ref"].value = 0
-            if prog.get("u_rays", None) is not None:
-                self._ray_map(cam, s, p.rays, fx.aperture).use(1)
+            textures(prog)
+            if rays is not None and prog.get("u_rays", None) is not None:
+                rays.use(1)
                 prog["u_rays"].value = 1
 
-        return camera_uniforms, setup
+        return uniforms, setup
+
+    def _view_uniforms(self, view: ViewSpec, geo, fp64: bool, sag: float) -> Uniforms:
+        """The uniforms of ``view`` every deformation program and view.comp read: the view's
+        transform and constants (:meth:`GeometryBuffers.view_values`), the camera and
+        reference models, the sizes, the far plane and ``sag`` (px); made once per view
+        (the last VIEWS_KEPT kept)."""
+        key = (id(view), id(geo), fp64, sag)
+        hit = self._uniforms.get(key)
+        if hit is not None and hit[0] is view and hit[1] is geo:
+            return hit[2]
+        cam, ref = view.camera, view.ref_camera
+        u = Uniforms({**geo.view_values(view, fp64), "u_intr": cam.intrinsics, "u_dist": cam.distortion.coeffs,
+                      "u_valid_r2": cam.distortion.valid_radius() ** 2, "u_extra_sag": sag,
+                      "u_ref_intr": ref.intrinsics, "u_ref_dist": ref.distortion.coeffs,
+                      "u_ref_valid_r2": ref.distortion.valid_radius() ** 2, "u_size": cam.size,
+                      "u_far": view.far, "u_ref_size": ref.size})
+        if len(self._uniforms) >= VIEWS_KEPT:
+            self._uniforms.pop(next(iter(self._uniforms)))
+        self._uniforms[key] = (view, geo, u)
+        return u
 
     def _list_program(self, view: ViewSpec, frag: str, defines: dict, setup, geo, target, layer: float,
                       textures=None, uniforms=None, indirect: int | None = None) -> None:
@@ -523,6 +517,19 @@ class GLBackend(ImagePasses):
         out["element"] = raster["element"]
         return out
 
+    def _dots_or_reference(self, method: str) -> Callable:
+        """What binds the speckle a program samples: procedural.glsl's dots, or ``method``'s
+        reference texture on unit 0."""
+        if method == "procedural":
+            return self._bind_dots
+        tex = self._reference_texture(method)
+
+        def bind(prog):
+            tex.use(0)
+            if prog.get("u_ref", None) is not None:
+                prog["u_ref"].value = 0
+        return bind
+
     def _bind_dots(self, prog) -> None:
         """Bind procedural.glsl's storage buffers (made once) and set its uniforms."""
         if self._dot_buffers is None:
@@ -541,13 +548,11 @@ class GLBackend(ImagePasses):
                         "u_grid_cell": grid.cell, "u_grid_dims": grid.dims, "u_dot_edge": dots.edge_px,
                         "u_dot_black": dots.black, "u_dot_white": dots.white}
             self._dot_buffers = (self.ctx.buffer(dot_data.tobytes() or bytes(12)),
-                                 self.ctx.buffer(cell_data.tobytes()), uniforms)
+                                 self.ctx.buffer(cell_data.tobytes()), Uniforms(uniforms))
         dot_buf, cell_buf, uniforms = self._dot_buffers
         dot_buf.bind_to_storage_buffer(storage("DOTS"))
         cell_buf.bind_to_storage_buffer(storage("DOT_CELLS"))
-        for name, value in uniforms.items():
-            if name in prog:
-                prog[name].value = value
+        uniforms.write(prog)
 
     def _ray_map(self, cam, s: int, kind: str, aperture: float = 1.0):
         """Cached per camera model, supersampling, ``kind`` and ``aperture`` (shaders/rays.frag):
@@ -563,9 +568,8 @@ class GLBackend(ImagePasses):
                        **({"RAY_BITS": None} if kind == "bits" else {"RAY_SPLIT": None} if kind == "split" else {}),
                        **({"APERTURE": aperture_literal(aperture, fp64)} if aperture != 1.0 else {})}
             prog = self.programs.program("fullscreen.vert", "rays.frag", defines=defines)
-            self._set(prog, "u_intr", cam.intrinsics, fp64)
-            self._set(prog, "u_dist", cam.distortion.coeffs, fp64)
-            self._set(prog, "u_valid_r2", [cam.distortion.valid_radius() ** 2], fp64)
+            Uniforms({"u_intr": cam.intrinsics, "u_dist": cam.distortion.coeffs,
+                      "u_valid_r2": cam.distortion.valid_radius() ** 2}).write(prog)
             out = self.ctx.texture((W * s, H * s), 4, dtype="u4" if kind == "bits" else "f4")
             out.filter = (self.ctx.NEAREST, self.ctx.NEAREST)   # (an integer texture must not filter)
             fbo = self.ctx.framebuffer(color_attachments=[out])

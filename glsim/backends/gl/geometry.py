@@ -60,7 +60,6 @@ class GeometryBuffers:
         self.M = len(geo.quads)
         self._bufs: dict = {}
         self._vaos: dict = {}       # (id(program), indexed) → (program, attribute-less vertex array)
-        self._view_uniforms: tuple = (None, None, {}, {})   # the last view's uniform bytes (set_uniforms)
         self._steps: OrderedDict = OrderedDict()
         self.uploads = {"mesh": 0, "step": 0}   # what was uploaded (tests)
         self.view_passes = 0
@@ -178,39 +177,27 @@ class GeometryBuffers:
                           ("EXCLUDED", bits)):
             buf.bind_to_storage_buffer(storage(name))
 
-    def set_uniforms(self, prog, view: ViewSpec, fp64: bool) -> None:
-        """The view's transform and the constants of view.glsl (their bytes made once per view)."""
-        if self._view_uniforms[0] is not view or self._view_uniforms[1] != fp64:
-            _, _, has = self._step_buffers(view, fp64)
-            dt = "f8" if fp64 else "f4"
-            r = ray_radius(view.camera)
-            values = {"u_rot": view.rotation.ravel(), "u_trans": view.translation, "u_near": [NEAR_MM],
-                      "u_grazing_cos": [GRAZING_COS], "u_ray_r": [r if np.isfinite(r) else -1.0]}
-            self._view_uniforms = (view, fp64, {k: np.asarray(v, dtype=dt).tobytes() for k, v in values.items()},
-                                   {"u_excluded": int(has), "u_flag_words": _bitset_words(self.M), "u_count": self.M})
-        _, _, data, ints = self._view_uniforms
-        for name, b in data.items():
-            if prog.get(name, None) is not None:
-                prog[name].write(b)
-        for name, v in ints.items():
-            if prog.get(name, None) is not None:
-                prog[name].value = v
+    def view_values(self, view: ViewSpec, fp64: bool) -> dict:
+        """The view's transform and the constants of view.glsl (uniform name → value)."""
+        _, _, has = self._step_buffers(view, fp64)
+        r = ray_radius(view.camera)
+        return {"u_rot": view.rotation.ravel(), "u_trans": view.translation, "u_near": NEAR_MM,
+                "u_grazing_cos": GRAZING_COS, "u_ray_r": r if np.isfinite(r) else -1.0,
+                "u_excluded": int(has), "u_flag_words": _bitset_words(self.M), "u_count": self.M}
 
     # ---- the per-view pass -----------------------------------------------------------------
-    def view_pass(self, view: ViewSpec, mode: str, fp64: bool, camera_uniforms, grow: float = 0.0,
+    def view_pass(self, view: ViewSpec, mode: str, fp64: bool, uniforms, grow: float = 0.0,
                   local: bool = False) -> None:
         """view.comp: element records (binding ELEMENTS), cover rectangles (COVER, grown by
         ``grow`` px for pass 1 at pixel resolution) and tight rectangles (TIGHT); with
         ``local`` (exact, float64) also the float32 records of deform.frag's CAMERA_LOCAL
-        (LOCAL)."""
+        (LOCAL). ``uniforms`` (:class:`~glsim.backends.gl.uniforms.Uniforms`): the view's
+        (:meth:`view_values`) and its camera's model."""
         defines = {f"MODE_{mode.upper()}": None, **({"FP64": None} if fp64 else {}),
                    **({"RECORD_LOCAL": None} if local else {})}
         prog = self.programs.compute("view.comp", defines)
         self.bind(view, fp64)
-        self.set_uniforms(prog, view, fp64)
-        camera_uniforms(prog)
-        if prog.get("u_size", None) is not None:
-            prog["u_size"].value = tuple(float(x) for x in view.camera.size)
+        uniforms.write(prog)
         if prog.get("u_cover_grow", None) is not None:
             prog["u_cover_grow"].write(np.asarray([grow], "f8" if fp64 else "f4").tobytes())
         size = 8 if fp64 else 4

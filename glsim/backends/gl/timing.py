@@ -20,25 +20,33 @@ import time
 
 
 class DriverTime:
+    """What :func:`driver_time` counted: ``seconds`` (wall) and ``cpu_seconds`` (this thread's
+    CPU, :func:`time.thread_time`) inside moderngl calls, ``calls`` of them, and ``overhead``:
+    the host CPU seconds the counting itself costs per call (measured when the block starts),
+    which :meth:`host_seconds` takes off."""
     seconds = 0.0
+    cpu_seconds = 0.0
     calls = 0
+    overhead = 0.0
+
+    def host_seconds(self, wall: float, cpu: float) -> tuple[float, float]:
+        """(wall, CPU) seconds of the host's own work in a block that took ``wall`` seconds and
+        ``cpu`` of this thread's CPU seconds: the wall time outside the driver (on llvmpipe
+        including the waits for a core its render threads hold) and the CPU time outside it."""
+        counting = self.calls * self.overhead
+        return wall - self.seconds - counting, cpu - self.cpu_seconds - counting
 
 
 def _classes():
     import moderngl
 
     return [getattr(moderngl, n) for n in ("Context", "Buffer", "Texture", "TextureArray", "Framebuffer",
-                                              "VertexArray", "Program", "ComputeShader", "Renderbuffer")
+                                              "VertexArray", "Program", "ComputeShader", "Renderbuffer", "Uniform")
             if hasattr(moderngl, n)]
 
 
-@contextlib.contextmanager
-def driver_time():
-    """Patch moderngl's public methods for the block's duration to add their time to the
-    yielded counter (calls nested in others count once)."""
-    t = DriverTime()
+def _counter(t: DriverTime):
     depth = [0]
-    saved = []
 
     def wrap(fn):
         @functools.wraps(fn)
@@ -46,21 +54,57 @@ def driver_time():
             if depth[0]:
                 return fn(*args, **kwargs)
             depth[0] += 1
-            t0 = time.perf_counter()
+            t0, c0 = time.perf_counter(), time.thread_time()
             try:
                 return fn(*args, **kwargs)
             finally:
                 t.seconds += time.perf_counter() - t0
+                t.cpu_seconds += time.thread_time() - c0
                 t.calls += 1
                 depth[0] -= 1
         return inner
+    return wrap
 
+
+def _overhead(n: int = 2000) -> float:
+    """Host CPU seconds per call that counting adds outside the counted interval (the
+    wrapper's own Python), from ``n`` calls of a no-op counted and not."""
+    def noop():
+        return None
+    probe = DriverTime()
+    counted = _counter(probe)(noop)
+    c0 = time.thread_time()
+    for _ in range(n):
+        noop()
+    c1 = time.thread_time()
+    for _ in range(n):
+        counted()
+    c2 = time.thread_time()
+    return max(0.0, ((c2 - c1) - probe.cpu_seconds - (c1 - c0)) / n)
+
+
+@contextlib.contextmanager
+def driver_time():
+    """Patch moderngl's public methods and properties (state such as ``viewport`` and
+    ``depth_func``, a uniform's ``value``: their setters call the driver, which may flush its
+    queue there) for the block's duration to add their time to the yielded counter (calls
+    nested in others count once)."""
+    t = DriverTime()
+    t.overhead = _overhead()
+    wrap = _counter(t)
+    saved = []
     for cls in _classes():
         for name, value in list(vars(cls).items()):
-            if name.startswith("_") or not callable(value) or isinstance(value, (staticmethod, classmethod, type)):
+            if name.startswith("_"):
+                continue
+            if isinstance(value, property):
+                wrapped = property(value.fget and wrap(value.fget), value.fset and wrap(value.fset), value.fdel)
+            elif callable(value) and not isinstance(value, (staticmethod, classmethod, type)):
+                wrapped = wrap(value)
+            else:
                 continue
             saved.append((cls, name, value))
-            setattr(cls, name, wrap(value))
+            setattr(cls, name, wrapped)
     try:
         yield t
     finally:
