@@ -118,6 +118,7 @@ class ProgramCache:
         self._own = bool(self.dirs)
         self._programs: dict = {} if self._own else _shared(ctx)
         self._asked: set = set()
+        self._found: dict = {}
         self.compiled: list[tuple[tuple[str, ...], dict]] = []
 
     def _build(self, stages: dict[str, str], defines: dict, make):
@@ -137,10 +138,16 @@ class ProgramCache:
         return self._programs[key]
 
     def program(self, vertex: str, fragment: str, defines: dict | None = None, geometry: str | None = None):
-        """A vertex + fragment program, with a geometry shader between them if ``geometry``."""
+        """A vertex + fragment program, with a geometry shader between them if ``geometry``
+        (found again by the defines in the caller's order without sorting them)."""
+        key = (vertex, fragment, geometry, tuple(defines.items()) if defines else ())
+        prog = self._found.get(key)
+        if prog is not None:
+            return prog
         stages = {"vertex_shader": vertex, **({"geometry_shader": geometry} if geometry else {}),
                   "fragment_shader": fragment}
-        return self._build(stages, dict(defines or {}), self.ctx.program)
+        prog = self._found[key] = self._build(stages, dict(defines or {}), self.ctx.program)
+        return prog
 
     def compute(self, name: str, defines: dict | None = None):
         """A compute shader."""
@@ -161,6 +168,7 @@ class ProgramCache:
                 prog.release()
             self._programs.clear()
         self._asked.clear()
+        self._found.clear()
 
 
 def _shared(ctx) -> dict:
