@@ -84,3 +84,44 @@ def test_a_stream_stopped_early_collects_what_it_queued(gl_ctx):
 def test_depth_below_one_is_refused():
     with Renderer(_scene("exact", 1), "cpu") as r, pytest.raises(SceneError, match="depth"):
         list(r.render_many([("c", 0)], depth=0))
+
+
+@pytest.mark.parametrize("backend", BACKENDS)
+def test_a_renderer_given_a_new_scene_renders_its_cameras_and_options(backend, ctx_for):
+    """A library worker swaps a renderer's scene between variants (same mesh and reference):
+    the options and cameras a stream keeps per job are the new scene's, not the old one's."""
+    first = _scene("exact", 1)
+    moved = first.replace(render={"mode": "q4"}, noise={"sigma": 3.0})
+    moved = dataclasses.replace(moved, cameras=(moved.cameras[0], dataclasses.replace(moved.cameras[1], fx=1100.0)))
+    jobs = [("d", 1), {"camera": "c", "step": 0, "quantize": True}]
+    with Renderer(first, backend, ctx=ctx_for(backend)) as r:
+        before = list(r.render_many(jobs))
+        r.scene = moved
+        after = list(r.render_many(jobs))
+    with Renderer(moved, backend, ctx=ctx_for(backend)) as fresh:
+        for a, b in zip(after, fresh.render_many(jobs)):
+            _same(a, b)
+            assert a.options.mode == "q4" and a.camera == b.camera
+    assert after[0].camera.fx == 1100.0 and before[0].image.tobytes() != after[0].image.tobytes()
+
+
+@pytest.mark.gl
+def test_driver_time_counts_calls_properties_and_takes_off_its_own_cost(gl_ctx):
+    """driver_time adds moderngl's methods and property setters to the driver's time, and the
+    host time it reports is the block's time less those calls and what counting them cost."""
+    import time
+
+    from glsim.backends.gl.timing import driver_time
+
+    fbo = gl_ctx.simple_framebuffer((8, 8))
+    with driver_time() as d:
+        t, c = time.perf_counter(), time.thread_time()
+        for _ in range(50):
+            fbo.viewport = (0, 0, 8, 8)   # a property setter
+            fbo.clear(0.0)                # a method
+        wall, cpu = time.perf_counter() - t, time.thread_time() - c
+    fbo.release()
+    assert d.calls == 100 and 0 < d.overhead < 1e-4 and d.seconds > 0
+    host_wall, host_cpu = d.host_seconds(wall, cpu)
+    assert host_wall == pytest.approx(wall - d.seconds - 100 * d.overhead)
+    assert host_cpu == pytest.approx(cpu - d.cpu_seconds - 100 * d.overhead)
