@@ -240,3 +240,36 @@ def test_renderers_on_one_context_share_their_programs(gl_ctx):
         again = b.render(0, 1, mode="exact").image
         assert len(_shared(gl_ctx)) == built and b.backend.programs.compiled
     assert np.array_equal(first, again)
+
+
+@pytest.mark.gl
+def test_uniform_values_are_written_in_each_programs_own_types(gl_ctx):
+    """One Uniforms table written to two programs that declare the same names with other types
+    (vec2 / ivec2 / dvec2, an array the driver keeps in part) reads back as moderngl's own
+    ``.value`` setter leaves them; names a program lacks are ignored."""
+    from glsim.backends.gl.uniforms import Uniforms
+
+    def program(decl, use):
+        return gl_ctx.program(
+            vertex_shader="#version 450 core\n" + decl + "\nout vec4 v;\nvoid main() { v = " + use
+                          + "; gl_Position = vec4(0.0); }",
+            fragment_shader="#version 450 core\nin vec4 v; out vec4 c; void main() { c = v; }")
+
+    a = program("uniform vec2 u_size; uniform float u_k[4]; uniform int u_n;",
+                "vec4(u_size, u_k[1], float(u_n))")
+    b = program("uniform ivec2 u_size; uniform dvec2 u_far;",
+                "vec4(vec2(u_size), vec2(u_far))")
+    values = {"u_size": (406, 308), "u_k": [0.1, 0.2, 0.3, 0.4], "u_n": 7, "u_far": (1.0 / 3.0, 2.5),
+              "u_absent": 1.0}
+    table = Uniforms(values)
+    for _ in range(2):                  # the second write uses the bytes made by the first
+        table.write(a)
+        table.write(b)
+        got = {(p, n): p[n].value for p, n in ((a, "u_size"), (a, "u_k"), (a, "u_n"), (b, "u_size"), (b, "u_far"))}
+        a["u_size"].value, a["u_k"].value, a["u_n"].value = (406.0, 308.0), [0.1, 0.2], 7
+        b["u_size"].value, b["u_far"].value = (406, 308), (1.0 / 3.0, 2.5)
+        want = {(p, n): p[n].value for p, n in got}
+        assert got == want
+        assert got[(b, "u_far")] == (1.0 / 3.0, 2.5)           # doubles stay doubles
+    a.release()
+    b.release()
