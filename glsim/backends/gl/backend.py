@@ -289,7 +289,7 @@ class GLBackend(ImagePasses):
         p = plan(opts, truth, self.fp64, fx, view.camera, view.ref_camera,
                  patches.pieces if patches is not None else None)
         geo = self._buffers(view)
-        uniforms, setup = self._deform_bindings(view, opts, s, fx, patches, p, geo)
+        uniforms, bind, setup = self._deform_bindings(view, opts, s, fx, patches, p, geo)
         if opts.mode != "fast":   # pass 1: element records, covers, the candidate lists
             grow = 0.5 - 0.5 / s
             if p.camera_local:
@@ -297,6 +297,7 @@ class GLBackend(ImagePasses):
             else:
                 geo.view_pass(view, opts.mode, "FP64" in p.define_dict, uniforms, grow=grow)
             geo.candidates_pass(W, H, s)
+        bind()
         pixels = self._newton_pixels(view, opts, p, geo, setup) if p.subsamples else None
         color = self._deform_samples(view, opts, s, truth, p, geo, setup)
         if pixels is not None:  # the pixels not done by Newton: the box filter of their samples
@@ -311,10 +312,12 @@ class GLBackend(ImagePasses):
     def _deform_bindings(self, view: ViewSpec, opts, s: int, fx, patches, p, geo):
         """What the deformation programs read: ``uniforms`` (a
         :class:`~glsim.backends.gl.uniforms.Uniforms`: the view's transform and constants, the
-        camera and reference models, the sizes) and ``setup(prog)`` (every buffer, texture and
-        uniform of deform.frag and its vertex shaders). The values are made once per view;
-        every uniform is written on every use: programs are shared per context, so a value left
-        by another renderer (a quadratic mesh's sag) must not carry over."""
+        camera and reference models, the sizes), ``bind()`` (the storage buffers of pass 2,
+        bound once before it: pass 1 may bind the float64 nodes at the same points) and
+        ``setup(prog)`` (the textures and uniforms of deform.frag and its vertex shaders). The
+        values are made once per view; every uniform is written on every use: programs are
+        shared per context, so a value left by another renderer (a quadratic mesh's sag) must
+        not carry over."""
         cam = view.camera
         fp64 = "FP64" in p.define_dict
         patch_buffers = self._patch_buffers(patches, opts.mode, fp64) if patches is not None else ()
@@ -331,23 +334,26 @@ class GLBackend(ImagePasses):
         textures = self._dots_or_reference(opts.interpolation)
         rays = self._ray_map(cam, s, p.rays, fx.aperture) if p.rays is not None else None
 
-        def setup(prog):
+        def bind():
             geo.bind(view, fp64)
             if ref_storage is not None:
                 ref_storage.bind_to_storage_buffer(storage(p.ref))
-            uniforms.write(prog)
             dropped.bind_to_storage_buffer(storage("DROPPED"))
             for name, buf in zip(("PATCH_NODES", "PATCH_REF"), patch_buffers):
                 buf.bind_to_storage_buffer(storage(name))
             if lighting is not None:
-                lighting.write(prog)
                 normals.bind_to_storage_buffer(storage("NORMALS"))
+
+        def setup(prog):
+            uniforms.write(prog)
+            if lighting is not None:
+                lighting.write(prog)
             textures(prog)
             if rays is not None and prog.get("u_rays", None) is not None:
                 rays.use(1)
                 prog["u_rays"].value = 1
 
-        return uniforms, setup
+        return uniforms, bind, setup
 
     def _view_uniforms(self, view: ViewSpec, geo, fp64: bool, sag: float) -> Uniforms:
         """The uniforms of ``view`` every deformation program and view.comp read: the view's
@@ -376,7 +382,7 @@ class GLBackend(ImagePasses):
         pass 1 found work for it)."""
         W, H = view.camera.size
         prog = self.programs.program("lists.vert", frag, defines={**defines, "EARLY_TESTS": None})
-        setup(prog)   # (may make the ray map, which binds its own framebuffer)
+        setup(prog)
         geo.bind_lists(W, H, prog)
         for unit, (name, tex) in enumerate((textures or {}).items(), start=4):
             tex.use(unit)
@@ -421,8 +427,7 @@ class GLBackend(ImagePasses):
         ctx.disable(ctx.CULL_FACE)
         if opts.mode == "fast":  # the element triangles, projected in the vertex stage
             prog = self.programs.program("deform.vert", "deform.frag", defines=defines, geometry="fast.geom")
-            setup(prog)   # (may make the ray map, which binds its own framebuffer)
-            fbo.use()
+            setup(prog)
             ctx.enable(ctx.DEPTH_TEST)
             geo.draw(prog)
         else:
@@ -436,7 +441,6 @@ class GLBackend(ImagePasses):
             # pixels with more candidates than the lists hold: the cover rectangles
             prog = self.programs.program("exact.vert", "deform.frag", defines={**defines, "FALLBACK": None})
             setup(prog)
-            fbo.use()
             geo.bind_lists(W, H, prog)
             ctx.enable(ctx.DEPTH_TEST)
             geo.draw(prog, (geo.draws(W, H), DRAW_FALLBACK))

@@ -24,6 +24,7 @@ from glsim.stages.view import GRAZING_COS, NEAR_MM, ray_radius
 
 _CORNERS = np.array([0, 1, 2, 0, 2, 3], np.uint32)  # two triangles per element, as the oracle's fast mode
 _GROUP = 64          # view.comp's and candidates.comp's local size
+_VIEW_BINDINGS = tuple(storage(n) for n in ("QUADS", "NODES", "REF_UV", "REF_XR", "FLAGS", "EXCLUDED"))  # (bind)
 CANDIDATES = 8       # candidates.glsl: elements listed per pixel before it overflows
 # classify.frag's window depths: the full-screen pass 2 program run on each (lists.vert)
 LAYERS = {"deform.frag": 0.25, "resolve.frag": 0.5}
@@ -173,9 +174,8 @@ class GeometryBuffers:
         """Upload what this view needs (at most once per renderer / step) and bind it."""
         quads, ref_uv, ref_xr, flags = self._mesh_buffers(fp64)
         nodes, bits, _ = self._step_buffers(view, fp64)
-        for name, buf in (("QUADS", quads), ("NODES", nodes), ("REF_UV", ref_uv), ("REF_XR", ref_xr), ("FLAGS", flags),
-                          ("EXCLUDED", bits)):
-            buf.bind_to_storage_buffer(storage(name))
+        for point, buf in zip(_VIEW_BINDINGS, (quads, nodes, ref_uv, ref_xr, flags, bits)):
+            buf.bind_to_storage_buffer(point)
 
     def view_values(self, view: ViewSpec, fp64: bool) -> dict:
         """The view's transform and the constants of view.glsl (uniform name → value)."""
