@@ -407,12 +407,12 @@ def test_kill_and_resume_gives_the_bytes_of_an_uninterrupted_run(reference_libra
         p.wait()
         if (lib / mf.MANIFEST).exists():                  # the manifest always loads
             mf.read_manifest(lib)
-        for f in lib.rglob("*.tif"):                       # no truncated image under a final name
+        for f in _final_images(lib):                       # no truncated image under a final name
             assert io.read_image(f).shape == (48, 64)
     # Ctrl-C while work is certainly left: 8 images removed (resume re-renders them), and the signal sent
     # once the run holds the output's lock, before it renders — a signal racing the run's own exit (when
     # the kills left little to do) would meet Python's finalisation, which restores SIGINT's default
-    for f in sorted(lib.rglob("*.tif"))[:8]:
+    for f in _final_images(lib)[:8]:
         f.unlink()
     p = subprocess.Popen(GLSIM + ["library", str(spec), "-o", str(lib), "--workers", "1", "-q"],
                          stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
@@ -428,6 +428,12 @@ def test_kill_and_resume_gives_the_bytes_of_an_uninterrupted_run(reference_libra
     assert r.returncode == 0, r.stderr
     assert _files(lib) == _files(ref)
     assert not [p for p in lib.rglob("*") if ".part" in p.name]
+
+
+def _final_images(lib: Path) -> list[Path]:
+    """The images under their final names: not the temporaries (``.NAME.XXXX.part.tif``) that a
+    writer process killed with its parent may still be removing when the parent's wait returns."""
+    return sorted(f for f in lib.rglob("*.tif") if ".part" not in f.name)
 
 
 def _text(path: Path) -> str:
