@@ -25,6 +25,7 @@ from glsim.scene.camera import Camera, project_camera_frame, to_camera
 from glsim.stages.view import NEAR_MM, View, check_reference, make_view, shape_problems
 
 STEPS_KEPT = 2  # load steps whose deformed nodes stay cached (and uploaded)
+VIEWS_KEPT = 8  # views kept per step (StepGeometry.view_of)
 
 
 class MeshGeometry:
@@ -99,9 +100,12 @@ class StepGeometry:
         self._views: dict[int, ViewSpec] = {}
 
     def view_of(self, cam: Camera, ref_camera: Camera) -> "ViewSpec":
-        """This step's :class:`ViewSpec` for ``cam`` (kept per camera object)."""
+        """This step's :class:`ViewSpec` for ``cam`` (kept per camera object, the last
+        VIEWS_KEPT: a preview drag makes a new camera every frame)."""
         v = self._views.get(id(cam))
         if v is None or v.camera is not cam or v.ref_camera is not ref_camera:
+            if len(self._views) >= VIEWS_KEPT:
+                self._views.pop(next(iter(self._views)))
             v = self._views[id(cam)] = ViewSpec(cam, ref_camera, self.mesh_geo, self)
         return v
 

@@ -121,37 +121,37 @@ class ProgramCache:
         self._found: dict = {}
         self.compiled: list[tuple[tuple[str, ...], dict]] = []
 
-    def _build(self, stages: dict[str, str], defines: dict, make):
-        key = (tuple(stages.items()), tuple(sorted(defines.items())))
+    def _build(self, stages: tuple[tuple[str, str], ...], defines: dict, make):
+        """The program of ``stages`` ((stage, file) pairs) and ``defines``, compiled on first
+        request; found again by the defines in the caller's order (no sorting) after that."""
+        found = self._found.get((stages, tuple(defines.items())))
+        if found is not None:
+            return found
+        key = (stages, tuple(sorted(defines.items())))
         if key not in self._programs:
-            sources = {stage: assemble(f, defines, self.dirs) for stage, f in stages.items()}
+            sources = {stage: assemble(f, defines, self.dirs) for stage, f in stages}
             try:
                 prog = make(**{s: src.text for s, src in sources.items()})
             except Exception as exc:
-                files = ", ".join(stages.values())
+                files = ", ".join(f for _, f in stages)
                 raise ShaderError(f"GLSL program ({files}) failed to build with defines "
                                   f"{defines}:\n{translate_log(str(exc), sources)}") from None
             self._programs[key] = prog
         if key not in self._asked:
             self._asked.add(key)
-            self.compiled.append((tuple(stages.values()), defines))
-        return self._programs[key]
+            self.compiled.append((tuple(f for _, f in stages), dict(defines)))
+        prog = self._found[(stages, tuple(defines.items()))] = self._programs[key]
+        return prog
 
     def program(self, vertex: str, fragment: str, defines: dict | None = None, geometry: str | None = None):
-        """A vertex + fragment program, with a geometry shader between them if ``geometry``
-        (found again by the defines in the caller's order without sorting them)."""
-        key = (vertex, fragment, geometry, tuple(defines.items()) if defines else ())
-        prog = self._found.get(key)
-        if prog is not None:
-            return prog
-        stages = {"vertex_shader": vertex, **({"geometry_shader": geometry} if geometry else {}),
-                  "fragment_shader": fragment}
-        prog = self._found[key] = self._build(stages, dict(defines or {}), self.ctx.program)
-        return prog
+        """A vertex + fragment program, with a geometry shader between them if ``geometry``."""
+        stages = (("vertex_shader", vertex), *((("geometry_shader", geometry),) if geometry else ()),
+                  ("fragment_shader", fragment))
+        return self._build(stages, defines or {}, self.ctx.program)
 
     def compute(self, name: str, defines: dict | None = None):
         """A compute shader."""
-        return self._build({"source": name}, dict(defines or {}),
+        return self._build((("source", name),), defines or {},
                            lambda source: self.ctx.compute_shader(source))
 
     def name_of(self, prog) -> str:

@@ -66,9 +66,11 @@ def _counter(t: DriverTime):
     return wrap
 
 
+@functools.cache
 def _overhead(n: int = 2000) -> float:
     """Host CPU seconds per call that counting adds outside the counted interval (the
-    wrapper's own Python), from ``n`` calls of a no-op counted and not."""
+    wrapper's own Python), from ``n`` calls of a no-op counted and not (measured once per
+    process)."""
     def noop():
         return None
     probe = DriverTime()
