@@ -774,3 +774,11 @@ def test_reduced_benchmark_writes_its_tables(tmp_path):
     assert (noise["images"], noise["truth_keys"], stereo["truth_keys"]) == (16, 8, 12)   # stereo: camera 1's per variant
     assert all(x["truth_files"] == noise["truth_keys"] for x in noise["runs"] if x["truth"])
     assert "images/s" in (out / "library.md").read_text() and "(reduced run)" in (out / "library.md").read_text()
+
+
+@pytest.mark.parametrize("flag", ["--reps", "--images", "--max-workers"])
+def test_benchmark_counts_below_one_are_refused_by_name(tmp_path, flag):
+    r = subprocess.run(GLSIM + ["bench", "library", flag, "0", "--out", str(tmp_path / "bench")],
+                       capture_output=True, text=True)
+    assert r.returncode == 2 and flag in r.stderr and "must be ≥ 1" in r.stderr and "Traceback" not in r.stderr
+    assert not (tmp_path / "bench").exists()
