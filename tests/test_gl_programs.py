@@ -273,3 +273,34 @@ def test_uniform_values_are_written_in_each_programs_own_types(gl_ctx):
         assert got[(b, "u_far")] == (1.0 / 3.0, 2.5)           # doubles stay doubles
     a.release()
     b.release()
+
+
+@pytest.mark.gl
+def test_set_uniform_writes_only_changes_and_keeps_the_two_ways_apart(gl_ctx):
+    """set_uniform calls the driver only when the value differs from its last write to that
+    program (the program keeps the value, read back from GL); a name set through a Uniforms
+    table in the same program, or the reverse, is refused rather than left stale."""
+    from glsim.backends.gl.timing import driver_time
+    from glsim.backends.gl.uniforms import Uniforms, set_uniform
+
+    prog = gl_ctx.program(
+        vertex_shader="#version 450 core\nuniform float u_layer; uniform ivec2 u_size; uniform int u_unit;\n"
+                      "out vec4 v;\nvoid main() { v = vec4(u_layer, vec2(u_size), float(u_unit)); "
+                      "gl_Position = vec4(0.0); }",
+        fragment_shader="#version 450 core\nin vec4 v; out vec4 c; void main() { c = v; }")
+    set_uniform(prog, "u_layer", 0.25)
+    set_uniform(prog, "u_size", (406, 308))
+    with driver_time() as d:
+        set_uniform(prog, "u_layer", 0.25)
+        set_uniform(prog, "u_size", (406, 308))
+    assert d.calls == 0
+    with driver_time() as d:
+        set_uniform(prog, "u_layer", 0.75)
+    assert d.calls == 1 and prog["u_layer"].value == 0.75 and prog["u_size"].value == (406, 308)
+    with pytest.raises(RuntimeError, match="u_layer"):
+        Uniforms({"u_layer": 0.5}).write(prog)
+    Uniforms({"u_unit": 3}).write(prog)
+    with pytest.raises(RuntimeError, match="u_unit"):
+        set_uniform(prog, "u_unit", 3)
+    assert prog["u_unit"].value == 3 and prog["u_layer"].value == 0.75
+    prog.release()

@@ -35,7 +35,7 @@ from glsim.backends.gl.plan import aperture_literal, newton_subsamples, plan
 from glsim.backends.gl.imagepasses import ImagePasses
 from glsim.backends.gl.programs import ProgramCache
 from glsim.backends.gl.readback import PackBuffers, Pending, read_buffer, read_texture
-from glsim.backends.gl.uniforms import Uniforms
+from glsim.backends.gl.uniforms import Uniforms, set_uniform
 
 
 VIEWS_KEPT = 8     # views whose uniform values a backend keeps (both cameras of a few steps)
@@ -45,7 +45,12 @@ _DTYPES = {"f4": np.float32, "u1": np.uint8, "u2": np.uint16}   # moderngl textu
 def _ray_key(cam, s: int, kind: str, aperture: float = 1.0) -> tuple:
     """The ray map cache's key: the camera model, supersampling, kind and the samples' aperture
     (√ fill factor) (GLBackend._ray_map)."""
-    return cam.size, tuple(cam.intrinsics), tuple(cam.distortion.coeffs), s, kind, aperture
+    return cam.size, _intrinsics(cam), cam.distortion, s, kind, aperture
+
+
+def _intrinsics(cam) -> tuple:
+    """``cam.intrinsics`` as a tuple of floats (a cache key), made without numpy."""
+    return cam.fx, cam.fy, cam.skew, cam.cx, cam.cy
 
 
 def pack_pairs(c: np.ndarray) -> np.ndarray:
@@ -330,7 +335,7 @@ class GLBackend(ImagePasses):
         ref_storage = None
         if p.ref is not None:
             local = p.ref == "REF_LOCAL"
-            ref_storage = (geo.ref_local_buffer if local else geo.ref_pinhole_buffer)(view.ref_camera.intrinsics)
+            ref_storage = (geo.ref_local_buffer if local else geo.ref_pinhole_buffer)(_intrinsics(view.ref_camera))
         textures = self._dots_or_reference(opts.interpolation)
         rays = self._ray_map(cam, s, p.rays, fx.aperture) if p.rays is not None else None
 
@@ -351,7 +356,7 @@ class GLBackend(ImagePasses):
             textures(prog)
             if rays is not None and prog.get("u_rays", None) is not None:
                 rays.use(1)
-                prog["u_rays"].value = 1
+                set_uniform(prog, "u_rays", 1)
 
         return uniforms, bind, setup
 
@@ -386,9 +391,9 @@ class GLBackend(ImagePasses):
         geo.bind_lists(W, H, prog)
         for unit, (name, tex) in enumerate((textures or {}).items(), start=4):
             tex.use(unit)
-            prog[name].value = unit
+            set_uniform(prog, name, unit)
         for name, value in {**(uniforms or {}), "u_layer": layer}.items():
-            prog[name].value = value
+            set_uniform(prog, name, value)
         target.use()
         if indirect is None:
             self._vao(prog).render(self.ctx.TRIANGLES, vertices=3)
@@ -460,7 +465,9 @@ class GLBackend(ImagePasses):
         def report():
             if status is not None:
                 b = status.fetch(self._pack).tobytes()
-                warn_problems(cam, geo.problems(view, b[:size]), view.mesh_geo.labels, stacklevel=5)
+                problems = geo.problems(view, b[:size])
+                if problems:
+                    warn_problems(cam, problems, view.mesh_geo.labels, stacklevel=5)
                 warn_dropped(cam, int(np.frombuffer(b[size:], np.uint32)[0]), s)
         return report
 
@@ -531,7 +538,7 @@ class GLBackend(ImagePasses):
         def bind(prog):
             tex.use(0)
             if prog.get("u_ref", None) is not None:
-                prog["u_ref"].value = 0
+                set_uniform(prog, "u_ref", 0)
         return bind
 
     def _bind_dots(self, prog) -> None:

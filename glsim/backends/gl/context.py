@@ -53,11 +53,12 @@ def gl_context() -> Iterator:
         ctx.release()
 
 
-def check_error(ctx, where: str) -> None:
-    """Raise if the GL error flag is set (ctx.error reads and clears it)."""
+def check_error(ctx, where) -> None:
+    """Raise if the GL error flag is set (ctx.error reads and clears it); ``where``: what ran,
+    a string or what makes it (called only on an error)."""
     err = ctx.error
     if err != "GL_NO_ERROR":
-        raise RuntimeError(f"OpenGL error {err} after {where}")
+        raise RuntimeError(f"OpenGL error {err} after {where() if callable(where) else where}")
 
 
 def info(ctx, probe: bool = False) -> dict:

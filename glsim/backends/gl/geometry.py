@@ -8,17 +8,20 @@ step's zero-area/tiny/folded bitset; per view, written by ``view.comp``: 0 the e
 deform.frag reads, 9 the cover rectangles exact.vert draws. Node data exist in float64 for
 FP64 programs and float32 for the others, each made when first needed.
 
-The CPU work per view does not depend on the element count: uniforms, a dispatch, a draw with
-an index buffer made once, and a 16-byte read of the "any problem" markers (the bitsets are
-read, and cleared, only when an element has a problem to name).
+The CPU work per view hardly depends on the element count: uniforms, a dispatch, a draw with
+an index buffer made once, and the problem flags (16 bytes of "any problem" markers and two
+bits per element) copied on the GPU, fetched with the image and cleared; the bitsets are decoded
+only when a marker is set.
 """
 from __future__ import annotations
 
+import functools
 from collections import OrderedDict
 
 import numpy as np
 
 from glsim.backends.gl.bindings import image, storage
+from glsim.backends.gl.uniforms import set_uniform
 from glsim.stages.geometry import STEPS_KEPT, MeshGeometry, ViewSpec
 from glsim.stages.view import GRAZING_COS, NEAR_MM, ray_radius
 
@@ -89,12 +92,12 @@ class GeometryBuffers:
         Xr, _ = self.geo.reference()
         return np.asarray(Xr, np.float64).reshape(-1, 3)[np.asarray(self.geo.quads)]
 
-    def ref_local_buffer(self, intrinsics: np.ndarray):
+    def ref_local_buffer(self, intrinsics: tuple):
         """Per element, 20 float32 (binding REF_LOCAL, deform.frag): its undeformed corners in
         the reference camera's frame relative to their centre X̄ (4 × 3, mm), X̄ (3), 0, and the
         reference pixel of X̄ as float32 hi (2) + lo (2) — all from float64, so that a float32
         shader projects X̄ + Δ as ū + J Δ-exact differences, not 600 mm positions (made once)."""
-        key = ("ref_local", tuple(np.asarray(intrinsics, float)))
+        key = ("ref_local", tuple(intrinsics))
         if key not in self._bufs:
             R = self._reference_corners()
             c = R.mean(axis=1)
@@ -109,12 +112,12 @@ class GeometryBuffers:
             self._bufs[key] = self.ctx.buffer(np.ascontiguousarray(rec).tobytes())
         return self._bufs[key]
 
-    def ref_pinhole_buffer(self, intrinsics: np.ndarray):
+    def ref_pinhole_buffer(self, intrinsics: tuple):
         """Per element, 12 float64 (binding REF_PINHOLE, deform.frag): its undeformed corners
         in a pinhole reference camera's frame as (fx X + skew Y + cx Z, fy Y + cy Z, Z) (px·mm,
         px·mm, mm), so that the reference pixel of a point is their bilinear blend divided by
         its third component (made once)."""
-        key = ("ref_pinhole", tuple(np.asarray(intrinsics, float)))
+        key = ("ref_pinhole", tuple(intrinsics))
         if key not in self._bufs:
             R = self._reference_corners()
             fx, fy, skew, cx, cy = np.asarray(intrinsics, np.float64)
@@ -199,7 +202,7 @@ class GeometryBuffers:
         self.bind(view, fp64)
         uniforms.write(prog)
         if prog.get("u_cover_grow", None) is not None:
-            prog["u_cover_grow"].write(np.asarray([grow], "f8" if fp64 else "f4").tobytes())
+            set_uniform(prog, "u_cover_grow", float(grow))
         size = 8 if fp64 else 4
         elem = self._buffer(("elem", fp64), lambda: self.ctx.buffer(reserve=max(1, self.M * 12 * size)))
         cover = self._buffer("cover", lambda: self.ctx.buffer(reserve=max(1, self.M * 4 * 8)))
@@ -233,9 +236,10 @@ class GeometryBuffers:
             count = ctx.texture((W, H), 1, dtype="u4")
             lists = ctx.texture_array((W, H, CANDIDATES), 1, dtype="u4")
             self._bufs[key] = (count, lists, ctx.framebuffer(color_attachments=[count]), ctx.empty_framebuffer((W, H)),
-                               ctx.buffer(self._draw_commands()))
+                               ctx.buffer(self._draw_commands))
         return self._bufs[key]
 
+    @functools.cached_property
     def _draw_commands(self) -> bytes:
         """The list flags' indirect draw commands before pass 1 (candidates.glsl): each draw's
         vertex count, its instance count 0 (pass 1 sets it to 1 where the draw is needed).
@@ -254,20 +258,20 @@ class GeometryBuffers:
         those elements' cover rectangles."""
         count, lists, clear, empty, flags = self._lists(W, H)
         clear.clear(0.0, 0.0, 0.0, 0.0)
-        flags.write(self._draw_commands())
+        flags.write(self._draw_commands)
         flags.bind_to_storage_buffer(storage("LIST_FLAGS"))
         self.bind_lists(W, H)
         self._bufs["cover"].bind_to_storage_buffer(storage("COVER"))
         prog = self.programs.compute("candidates.comp")
-        prog["u_count"].value = self.M
-        prog["u_size"].value = (W, H)
-        prog["u_half"].value = 0.5 - 0.5 / s
+        set_uniform(prog, "u_count", self.M)
+        set_uniform(prog, "u_size", (W, H))
+        set_uniform(prog, "u_half", 0.5 - 0.5 / s)
         self._per_element(prog)
         self.ctx.memory_barrier()
         # the elements candidates.comp left to their cover triangles: drawn only if there are any
         prog = self.programs.program("exact.vert", "candidates.frag", defines={"BIG_ONLY": None})
-        prog["u_size"].value = (float(W), float(H))
-        prog["u_half"].value = 0.5 - 0.5 / s
+        set_uniform(prog, "u_size", (float(W), float(H)))
+        set_uniform(prog, "u_half", 0.5 - 0.5 / s)
         empty.use()
         empty.viewport = (0, 0, W, H)
         self.draw(prog, (flags, DRAW_BIG))
@@ -279,7 +283,7 @@ class GeometryBuffers:
         per pixel, cleared to 1; depth test on)."""
         prog = self.programs.program("lists.vert", "classify.frag", defines={
             "SS": s, "LAYER_SINGLE": LAYERS["deform.frag"], "LAYER_MULTIPLE": LAYERS["resolve.frag"]})
-        prog["u_layer"].value = 0.0
+        set_uniform(prog, "u_layer", 0.0)
         self.bind_lists(W, H)
         depth_only.use()
         self._vao(prog, indexed=False).render(self.ctx.TRIANGLES, vertices=3)
@@ -294,7 +298,7 @@ class GeometryBuffers:
             for unit, (name, tex) in enumerate((("u_count_tex", count), ("u_list_tex", lists)), start=2):
                 if prog.get(name, None) is not None:
                     tex.use(unit)
-                    prog[name].value = unit
+                    set_uniform(prog, name, unit)
 
     def list_flags(self, W: int, H: int) -> tuple[bool, bool]:
         """Whether some pixel has more than one candidate, and whether one has more than the
@@ -333,9 +337,9 @@ class GeometryBuffers:
     def problems(self, view: ViewSpec, status: bytes) -> dict:
         """This view's element problems: the step's shape problems and what the GPU marked
         (grazing, does not project) in ``status`` (the bytes of :meth:`status` after its passes),
-        as sorted index arrays."""
+        as sorted index arrays; only the problems some element has."""
         any_ = np.frombuffer(status[:16], np.uint32)
-        out = {k: v for k, v in view.step_geo.shape().items() if k != "excluded"}
+        out = {k: v for k, v in view.step_geo.shape().items() if k != "excluded" and len(v)}
         words = _bitset_words(self.M)
         for k, name in enumerate(("grazing", "unprojectable")):
             if any_[k]:

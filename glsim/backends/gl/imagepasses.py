@@ -11,6 +11,7 @@ from glsim.effects.dof import blur_scheme, kernel_radius, shader_uniforms
 from glsim.backends.gl.context import check_error
 from glsim.backends.gl.plan import BLUR_PASSES
 from glsim.backends.gl.readback import read_texture
+from glsim.backends.gl.uniforms import set_uniform
 
 
 class ImagePasses:
@@ -40,10 +41,10 @@ class ImagePasses:
                 uploaded.append(tex)
             if name in prog:
                 tex.use(unit)
-                prog[name].value = unit
+                set_uniform(prog, name, unit)
         for name, value in uniforms.items():
             if name in prog:
-                prog[name].value = value
+                set_uniform(prog, name, value)
         if into is not None:
             outs, fbo = (into,), self._framebuffer_into(into)
         elif scratch is not None:
@@ -56,8 +57,9 @@ class ImagePasses:
         fbo.use()
         fbo.viewport = (0, 0, W, H)
         self._vao(prog).render(ctx.TRIANGLES, vertices=3)
-        check_error(ctx, f"pass {frag} {sorted(defines)}")
-        self._unbind()
+        check_error(ctx, lambda: f"pass {frag} {sorted(defines)}")
+        if into is None and scratch is None:   # (a framebuffer of its own, released below)
+            self._unbind()
         for obj in uploaded:
             obj.release()
         return outs[0] if len(outs) == 1 else outs

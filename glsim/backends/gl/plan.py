@@ -12,8 +12,6 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-import numpy as np
-
 from glsim.effects.dof import blur_scheme
 
 
@@ -99,7 +97,7 @@ def plan(opts, truth: bool, fp64_driver: bool, fx, camera, ref_camera, pieces: i
     fp64 = "FP64" in d
     # exact with a pinhole reference camera (a distorted one keeps the direct projection): float32
     # projects relative to each element's centre, float64 from per-element blends
-    pinhole_ref = opts.mode == "exact" and pieces is None and not np.any(ref_camera.distortion.coeffs)
+    pinhole_ref = opts.mode == "exact" and pieces is None and ref_camera.distortion.is_zero
     ref = ("REF_PINHOLE" if fp64 else "REF_LOCAL") if pinhole_ref else None
     if ref:
         d[ref] = None
@@ -108,7 +106,7 @@ def plan(opts, truth: bool, fp64_driver: bool, fx, camera, ref_camera, pieces: i
     camera_local = ref == "REF_LOCAL" and fp64_driver
     if camera_local:
         d["CAMERA_LOCAL"] = None
-    if opts.mode == "exact" and pieces is None and not np.any(camera.distortion.coeffs):
+    if opts.mode == "exact" and pieces is None and camera.distortion.is_zero:
         d["PIXEL_TIES"] = None   # ties decided at the exact pixel point (bilinear.glsl)
     rays = ("bits" if fp64 else "split" if camera_local else "float") if opts.mode == "exact" else None
     sub = newton_subsamples(opts, s, pieces is not None)

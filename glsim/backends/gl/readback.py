@@ -8,6 +8,7 @@ steady stream of frames allocates nothing.
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -56,7 +57,7 @@ def read_texture(pool: PackBuffers, tex, dtype) -> Pending:
     W, H = tex.size
     shape = (H, W) if tex.components == 1 else (H, W, tex.components)
     dtype = np.dtype(dtype)
-    buf = pool.take(int(np.prod(shape)) * dtype.itemsize)
+    buf = pool.take(math.prod(shape) * dtype.itemsize)
     tex.read_into(buf)
     return Pending(buf, shape, dtype)
 

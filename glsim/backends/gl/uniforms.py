@@ -5,6 +5,12 @@ driver keeps only the leading elements of an array that the program reads (``arr
 :class:`Uniforms` holds the values (numbers or arrays, row-major) and makes the bytes for
 each program the first time it is written there, so a frame's setup of a program it has set
 up before is one driver call per uniform: no lookups, conversions or packing.
+
+:func:`set_uniform` sets one uniform that keeps its value across frames (a sampler's unit, a
+pass's layer, a size) only when it changes: a program keeps its uniforms' values, and every
+glsim write of such a name goes through it, so what it last wrote (kept in the program's
+``extra``, as programs are shared per context) is what the program holds. A name is set by
+one of the two ways in a program, never both (checked when either first sets it).
 """
 from __future__ import annotations
 
@@ -36,6 +42,42 @@ class Uniforms:
                 u = prog.get(name, None)
                 if u is not None and hasattr(u, "fmt"):
                     writes.append((u.write, _bytes(u, value)))
+            _written(prog, "values", self.values)
             made = self._made[id(prog)] = (prog, writes)
         for write, data in made[1]:
             write(data)
+
+
+def _state(prog) -> dict:
+    """glsim's record in ``prog.extra``: "set" (name → the value :func:`set_uniform` last
+    wrote) and "values" (the names :class:`Uniforms` write)."""
+    if prog.extra is None:
+        prog.extra = {"set": {}, "values": set()}
+    return prog.extra
+
+
+def _written(prog, way: str, names) -> None:
+    """Record that ``names`` are written ``way`` ("set" or "values") in ``prog``; a name written
+    the other way too is a programming error (its recorded value would go stale)."""
+    state = _state(prog)
+    other = state["values" if way == "set" else "set"]
+    clash = [n for n in names if n in other]
+    if clash:
+        raise RuntimeError(f"uniforms {clash} are set both through Uniforms and set_uniform in one program")
+    if way == "values":
+        state["values"].update(names)
+
+
+def set_uniform(prog, name: str, value) -> None:
+    """``prog[name].value = value`` unless glsim's last write of ``name`` there was ``value``
+    (a number or a tuple of numbers; other values are always written)."""
+    simple = isinstance(value, (int, float, tuple))
+    state = prog.extra
+    if simple and state is not None and state["set"].get(name, _UNSET) == value:
+        return
+    _written(prog, "set", (name,))
+    prog[name].value = value
+    prog.extra["set"][name] = value if simple else _UNSET
+
+
+_UNSET = object()
