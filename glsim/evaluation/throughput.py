@@ -15,6 +15,8 @@ read-back is mapped). Each repetition renders PAIRS stereo pairs each way for ev
   them costs (:func:`glsim.backends.gl.timing.driver_time`) — the Python and numpy work per
   image. The JSON also keeps the wall time outside the driver (``*_host_wall_ms``): on
   llvmpipe it adds the waits for a core that the driver's render threads hold.
+- **GL calls / image**: moderngl calls per image (pipelined; calls made inside another count
+  once) — the driver work the host issues, independent of the machine's speed.
 - **same bytes**: the pipelined images equal the one-at-a-time ones bit for bit (checked on
   every repetition).
 - **glsim / riley**: glsim's pipelined seconds per image (a pair's time / 2) over
@@ -103,6 +105,7 @@ def throughput(size=FULL_SIZE, reps: int = REPS, pairs: int = PAIRS, spps=SPPS, 
                 list(r.render_many(_jobs(1, mode, spp)))           # warm-up: programs, targets, ray maps
                 row = {"mode": mode, "spp": spp, "single_s": [], "pipelined_s": [], "single_host_ms": [],
                        "pipelined_host_ms": [], "single_host_wall_ms": [], "pipelined_host_wall_ms": [],
+                       "single_calls": [], "pipelined_calls": [],
                        "riley_s": [], "riley": riley_name, "same_bytes": True}
                 if riley is not None:
                     riley()
@@ -117,6 +120,7 @@ def throughput(size=FULL_SIZE, reps: int = REPS, pairs: int = PAIRS, spps=SPPS, 
                         row[f"{way}_s"].append(wall)
                         row[f"{way}_host_ms"].append(host_cpu / len(jobs) * 1e3)
                         row[f"{way}_host_wall_ms"].append(host_wall / len(jobs) * 1e3)
+                        row[f"{way}_calls"].append(d.calls / len(jobs))
                         if way == "single":
                             single = [x.image for x in out]
                         else:
@@ -145,6 +149,7 @@ def _summary(row: dict, pairs: int) -> dict:
         out[f"{way}_images_per_s"] = 2 * pairs / s
         out[f"{way}_host_ms"] = statistics.median(row[f"{way}_host_ms"])
         out[f"{way}_host_wall_ms"] = statistics.median(row[f"{way}_host_wall_ms"])
+        out[f"{way}_calls"] = statistics.median(row[f"{way}_calls"])
         out[f"{way}_s_all"] = row[f"{way}_s"]
     out["riley_s"] = statistics.median(row["riley_s"]) if row["riley_s"] else None
     out["riley_s_all"] = row["riley_s"]
@@ -160,9 +165,9 @@ def table(report: dict) -> str:
     W, H = report["size"]
     lines = [f"{machine_line(report['machine'])}; {report['date']}", "",
              "| mode | spp | pairs/s one at a time | pairs/s pipelined | images/s pipelined | pipelined / one "
-             "at a time | host ms / image (one / pipelined) | same bytes | glsim / riley per image | "
+             "at a time | host ms / image (one / pipelined) | GL calls / image | same bytes | glsim / riley per image | "
              "largest passes (ms) and rest |",
-             "|---|---|---|---|---|---|---|---|---|---|"]
+             "|---|---|---|---|---|---|---|---|---|---|---|"]
     for r in report["rows"]:
         passes = sorted(r["passes"].items(), key=lambda kv: -kv[1])
         rest = r["passes_wall_s"] - sum(r["passes"].values())
@@ -170,7 +175,8 @@ def table(report: dict) -> str:
         ratio = num(r["glsim_over_riley"], ".3g") if r["glsim_over_riley"] is not None else "—"
         lines.append(f"| {r['mode']} | {r['spp']} | {r['single_pairs_per_s']:.3g} | {r['pipelined_pairs_per_s']:.3g} | "
                      f"{r['pipelined_images_per_s']:.3g} | {r['pipelined_pairs_per_s'] / r['single_pairs_per_s']:.2f} | "
-                     f"{r['single_host_ms']:.2g} / {r['pipelined_host_ms']:.2g} | {'yes' if r['same_bytes'] else 'NO'} | "
+                     f"{r['single_host_ms']:.2g} / {r['pipelined_host_ms']:.2g} | {_calls(r)} | "
+                     f"{'yes' if r['same_bytes'] else 'NO'} | "
                      f"{ratio} | {shown} |")
     riley = next((r["riley"] for r in report["rows"]), "—")
     lines += ["", f"Plate of issue 19 ({report['elements']} quad4, k1 = −0.1, Catmull–Rom cubic) at {W}×{H} px, "
@@ -178,6 +184,11 @@ def table(report: dict) -> str:
               f"interleaved repetitions after one warm-up pair, medians; pipelined: `render_many` depth "
               f"{report['depth']}. Peer: {riley}, camera 0 only."]
     return "\n".join(lines)
+
+
+def _calls(row: dict) -> str:
+    """The pipelined GL calls per image ("—" in results made before they were counted)."""
+    return f"{row['pipelined_calls']:.0f}" if "pipelined_calls" in row else "—"
 
 
 def markdown(report: dict) -> str:

@@ -58,8 +58,8 @@ class ImagePasses:
         fbo.viewport = (0, 0, W, H)
         self._vao(prog).render(ctx.TRIANGLES, vertices=3)
         check_error(ctx, lambda: f"pass {frag} {sorted(defines)}")
-        if into is None and scratch is None:   # (a framebuffer of its own, released below)
-            self._unbind()
+        self._unbind()   # (before releasing a framebuffer of its own; on llvmpipe it also hands the
+        #                  queued pass to the render threads now, which a stream of frames gains from)
         for obj in uploaded:
             obj.release()
         return outs[0] if len(outs) == 1 else outs
