@@ -12,7 +12,7 @@ demo: venv
 	$(BIN)/glsim demo
 
 test: venv x11 readme-check
-	$(BIN)/python -m pytest -q -ra
+	$(BIN)/python -m pytest -q -ra --durations=25
 
 # every measured figure in README.md and docs/ equals what its bench/results file gives
 readme-check: venv

@@ -763,7 +763,7 @@ def test_dask_cluster_with_a_worker_killed_gives_the_same_library(reference_libr
 def test_reduced_benchmark_writes_its_tables(tmp_path):
     out = tmp_path / "bench"
     r = subprocess.run(GLSIM + ["bench", "library", "--size", "64", "48", "--images", "16", "--max-workers", "2",
-                                "--out", str(out)], capture_output=True, text=True)
+                                "--reps", "1", "--out", str(out)], capture_output=True, text=True)
     assert r.returncode == 0, r.stderr
     import json
     res = json.loads((out / "library.json").read_text())
