@@ -28,6 +28,17 @@ BYTES_PER_SAMPLE = 64         # memory estimate of a render: per sub-sample (GL 
 TRUTH_BYTES_PER_PIXEL = 128   # … and per pixel of truth maps; refused above the machine's memory
 
 
+def keep(cache: dict, key, value, most: int):
+    """``cache[key] = value``, first dropping the oldest entries (insertion order) so that the
+    cache holds at most ``most``: the bound on every cache kept per view, step or job. Returns
+    ``value``."""
+    if key not in cache:
+        while len(cache) >= most:
+            cache.pop(next(iter(cache)))
+    cache[key] = value
+    return value
+
+
 def refuse_count(key: str, count: int, limit: int, what: str, fix: str) -> None:
     """SceneError if ``count`` of ``what`` exceeds ``limit``."""
     if count > limit:

@@ -26,7 +26,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from glsim.errors import SceneError
-from glsim.limits import check_gl_target, check_image_size, check_memory
+from glsim.limits import check_gl_target, check_image_size, check_memory, keep
 from glsim.scene import quadratic as qd
 from glsim.scene.bilinear import bilinear
 from glsim.scene.camera import Camera, to_camera
@@ -318,9 +318,7 @@ class Renderer:
         self.check_size(camera, truth, opts)
         cam = self.scene.camera(camera)
         if key is not None:
-            if len(self._jobs) >= SEEN_KEPT:
-                self._jobs.pop(next(iter(self._jobs)))
-            self._jobs[key] = (self.scene, opts, cam)
+            keep(self._jobs, key, (self.scene, opts, cam), SEEN_KEPT)
         return opts, cam
 
     def _submit(self, camera, step: int, truth: bool, quantize: bool, options: dict) -> "_Submitted":
@@ -357,9 +355,7 @@ class Renderer:
         if key is None or not self._seen.get(key):
             seen = warn_unseen(cam, deformed, quads, stacklevel=6)
             if key is not None:
-                if len(self._seen) >= SEEN_KEPT:
-                    self._seen.pop(next(iter(self._seen)))
-                self._seen[key] = seen
+                keep(self._seen, key, seen, SEEN_KEPT)
         return lambda: coverage(cam, deformed, quads)
 
     def _fast_to_patches(self, raster: dict) -> dict:

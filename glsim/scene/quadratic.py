@@ -30,6 +30,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from glsim.limits import keep
+
 CENTRE_Q8 = -1
 CENTRE_T6 = -2
 NODE_XI = np.array([-1.0, 1.0, 1.0, -1.0, 0.0, 1.0, 0.0, -1.0, 0.0])
@@ -275,9 +277,7 @@ class PiecesMesh:
         """The pieces' nodes (K, 3) mm at load step ``step``."""
         if step not in self._steps:
             base = self.source.deformed(step)          # validates step
-            self._steps[step] = self.nodes + self.at_grid(base - self.source.nodes)
-            while len(self._steps) > self.STEPS_CACHED:
-                self._steps.pop(next(iter(self._steps)))
+            keep(self._steps, step, self.nodes + self.at_grid(base - self.source.nodes), self.STEPS_CACHED)
         return self._steps[step]
 
 

@@ -21,11 +21,12 @@ from functools import cached_property
 
 import numpy as np
 
+from glsim.limits import keep
 from glsim.scene.camera import Camera, project_camera_frame, to_camera
 from glsim.stages.view import NEAR_MM, View, check_reference, make_view, shape_problems
 
 STEPS_KEPT = 2  # load steps whose deformed nodes stay cached (and uploaded)
-VIEWS_KEPT = 8  # views kept per step (StepGeometry.view_of)
+VIEWS_KEPT = 8  # views kept per step (StepGeometry.view_of), and views whose uniforms a GL backend keeps
 
 
 class MeshGeometry:
@@ -104,9 +105,7 @@ class StepGeometry:
         VIEWS_KEPT: a preview drag makes a new camera every frame)."""
         v = self._views.get(id(cam))
         if v is None or v.camera is not cam or v.ref_camera is not ref_camera:
-            if len(self._views) >= VIEWS_KEPT:
-                self._views.pop(next(iter(self._views)))
-            v = self._views[id(cam)] = ViewSpec(cam, ref_camera, self.mesh_geo, self)
+            v = keep(self._views, id(cam), ViewSpec(cam, ref_camera, self.mesh_geo, self), VIEWS_KEPT)
         return v
 
     def shape(self) -> dict[str, np.ndarray]:

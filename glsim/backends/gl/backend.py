@@ -20,10 +20,11 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
+from glsim.limits import keep
 from glsim.stages import interp
 from glsim.effects import Effects
 from glsim.stages import truth
-from glsim.stages.geometry import ViewSpec
+from glsim.stages.geometry import VIEWS_KEPT, ViewSpec
 from glsim.stages.quadview import patch_data, pieces_to_patches
 from glsim.backends.contract import Capabilities, Raster, Request
 from glsim.stages.view import warn_dropped, warn_problems
@@ -38,7 +39,6 @@ from glsim.backends.gl.readback import PackBuffers, Pending, read_buffer, read_t
 from glsim.backends.gl.uniforms import Uniforms, set_uniform
 
 
-VIEWS_KEPT = 8     # views whose uniform values a backend keeps (both cameras of a few steps)
 _DTYPES = {"f4": np.float32, "u1": np.uint8, "u2": np.uint16}   # moderngl texture dtype → numpy
 
 
@@ -375,9 +375,7 @@ class GLBackend(ImagePasses):
                       "u_ref_intr": ref.intrinsics, "u_ref_dist": ref.distortion.coeffs,
                       "u_ref_valid_r2": ref.distortion.valid_radius() ** 2, "u_size": cam.size,
                       "u_far": view.far, "u_ref_size": ref.size})
-        if len(self._uniforms) >= VIEWS_KEPT:
-            self._uniforms.pop(next(iter(self._uniforms)))
-        self._uniforms[key] = (view, geo, u)
+        keep(self._uniforms, key, (view, geo, u), VIEWS_KEPT)
         return u
 
     def _list_program(self, view: ViewSpec, frag: str, defines: dict, setup, geo, target, layer: float,

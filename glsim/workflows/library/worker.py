@@ -26,6 +26,7 @@ from pathlib import Path
 import numpy as np
 
 from glsim.errors import GlsimError
+from glsim.limits import keep
 from glsim.io import truth as truthio, truthcodec
 from glsim.render import Renderer
 
@@ -133,9 +134,7 @@ def _coverage(res) -> np.ndarray:
     masks = _LOCAL.__dict__.setdefault("masks", {})
     key = (_LOCAL.key, repr(res.camera), res.step)
     if key not in masks:
-        if len(masks) >= MASKS:
-            masks.pop(next(iter(masks)))
-        masks[key] = res.coverage
+        keep(masks, key, res.coverage, MASKS)
     return masks[key]
 
 
