@@ -776,6 +776,32 @@ def test_reduced_benchmark_writes_its_tables(tmp_path):
     assert "images/s" in (out / "library.md").read_text() and "(reduced run)" in (out / "library.md").read_text()
 
 
+def test_writer_sigterm_in_a_finalizer_is_kept_for_the_loop_not_printed(monkeypatch):
+    """The writer process's SIGTERM handler raises SystemExit(143) in ordinary code; inside a
+    ``__del__`` (where Python would print it with a traceback and drop it) it keeps the status,
+    which the loop raises before its next message."""
+    from glsim.workflows.library import writer
+
+    monkeypatch.setattr(writer, "_stopped", [])
+    with pytest.raises(SystemExit) as stop:
+        writer._stop(signal.SIGTERM, sys._getframe())
+    assert stop.value.code == 143 and writer._stopped == []
+
+    class Pipe:
+        def __del__(self):
+            writer._stop(signal.SIGTERM, sys._getframe())
+
+    Pipe()   # collected at once: its __del__ takes the signal
+    assert writer._stopped == [143]
+
+    # the loop, in a process of its own (it takes over the signals): the kept status ends it
+    # before it waits for a message that would never come
+    code = ("import os; from multiprocessing.connection import Pipe; from glsim.workflows.library import writer; "
+            "writer._stopped.append(143); a, b = Pipe(); writer.serve(a, b, os.getppid())")
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60)
+    assert r.returncode == 143 and "Traceback" not in r.stderr, r.stderr
+
+
 @pytest.mark.parametrize("flag", ["--reps", "--images", "--max-workers"])
 def test_benchmark_counts_below_one_are_refused_by_name(tmp_path, flag):
     r = subprocess.run(GLSIM + ["bench", "library", flag, "0", "--out", str(tmp_path / "bench")],

@@ -211,8 +211,18 @@ class ProcessWriter:
         self.replies.close()
 
 
+_stopped: list[int] = []   # the writer process's exit status, when a SIGTERM came in a finalizer
+
+
 def _stop(signum, frame):
-    raise SystemExit(128 + signum)     # a write in progress removes its temporaries (atomic_paths)
+    """SIGTERM in the writer process: SystemExit, so that a write in progress removes its
+    temporaries (atomic_paths). Raised inside a finalizer (``__del__``, such as a pipe's being
+    collected), Python would print it as "Exception ignored" with a traceback and go on: there
+    the status is kept and the loop raises it before its next message."""
+    if frame is not None and frame.f_code.co_name == "__del__":
+        _stopped.append(128 + signum)
+        return
+    raise SystemExit(128 + signum)
 
 
 def serve(conn, replies, parent: int) -> None:
@@ -228,7 +238,7 @@ def serve(conn, replies, parent: int) -> None:
     die_with_parent(parent)
     blocks: dict[int, tuple] = {}                      # slot → (serial, mmap)
     try:
-        while (msg := conn.recv()) is not None:
+        while not _stopped and (msg := conn.recv()) is not None:
             slot, (serial, fd, size), layout, args = msg
             if blocks.get(slot, (None,))[0] != serial:
                 if slot in blocks:
@@ -247,6 +257,8 @@ def serve(conn, replies, parent: int) -> None:
                 reply = ("error", slot, _portable(exc))
             del a, truth
             replies.send(reply)
+        if _stopped:
+            raise SystemExit(_stopped[0])
     except (EOFError, OSError):         # the parent died, or closed its end
         pass
     finally:   # nothing in progress now: a SIGTERM during the interpreter's shutdown ends it quietly
