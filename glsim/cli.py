@@ -7,7 +7,7 @@ import time
 import warnings
 from pathlib import Path
 
-from glsim.errors import GlsimError
+from glsim.errors import GlsimError, interrupted
 from glsim.limits import parse_steps
 from glsim.scene import BACKENDS, MODES, bulge_scene, demo_effects, load_scene
 
@@ -242,7 +242,9 @@ def main(argv: list[str] | None = None) -> int:
     except GlsimError as exc:
         print(f"glsim: error: {exc}", file=sys.stderr)
         return 2
-    except KeyboardInterrupt:
+    except BaseException as exc:
+        if not interrupted(exc):
+            raise
         print("glsim: interrupted (no partial files were left; run the same command again to resume)",
               file=sys.stderr)
         return 130

@@ -19,6 +19,20 @@ class SceneError(GlsimError, ValueError):
         super().__init__(msg)
 
 
+def interrupted(exc: BaseException) -> bool:
+    """Whether ``exc`` is a KeyboardInterrupt (Ctrl-C, or a SIGTERM the command turns into one)
+    or was raised while one was propagating: clean-up code that fails on the way out of an
+    interrupt (a zip file closed in the middle of a member) must end the command as the
+    interrupt, not as a traceback."""
+    seen = set()
+    while exc is not None and id(exc) not in seen:
+        if isinstance(exc, KeyboardInterrupt):
+            return True
+        seen.add(id(exc))
+        exc = exc.__context__
+    return False
+
+
 def check(ok: bool, key: str, problem: str, fix: str) -> None:
     """Raise :class:`SceneError` (``key``, ``problem``, ``fix``) unless ``ok``: the scene's and the
     calibration targets' value checks."""

@@ -808,3 +808,26 @@ def test_benchmark_counts_below_one_are_refused_by_name(tmp_path, flag):
                        capture_output=True, text=True)
     assert r.returncode == 2 and flag in r.stderr and "must be ≥ 1" in r.stderr and "Traceback" not in r.stderr
     assert not (tmp_path / "bench").exists()
+
+
+@pytest.mark.parametrize("interrupt", [True, False])
+def test_a_clean_up_failing_inside_an_interrupt_ends_as_the_interrupt(tmp_path, monkeypatch, capsys, interrupt):
+    """Ctrl-C can land inside library code whose own clean-up then fails (zipfile, closing a
+    member it was opening: seen in CI): the command still ends as interrupted, 130 and one line;
+    the same error without an interrupt behind it is not hidden."""
+    from glsim.workflows.library import cli as libcli, runner
+
+    def run(*args, **kwargs):
+        try:
+            if interrupt:
+                raise KeyboardInterrupt
+        finally:
+            raise ValueError("Can't close the ZIP file while there is an open writing handle on it")
+    monkeypatch.setattr(runner, "run", run)
+    argv = [str(_spec(tmp_path)), "-o", str(tmp_path / "lib"), "-q"]
+    if interrupt:
+        assert libcli.main(argv) == 130
+        assert "interrupted — no partial files were left" in capsys.readouterr().err
+    else:
+        with pytest.raises(ValueError, match="ZIP"):
+            libcli.main(argv)

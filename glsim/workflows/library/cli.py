@@ -13,7 +13,7 @@ import sys
 from pathlib import Path
 
 from glsim.io.hashes import sha256_bytes
-from glsim.errors import GlsimError
+from glsim.errors import GlsimError, interrupted
 
 
 def parser() -> argparse.ArgumentParser:
@@ -207,7 +207,9 @@ def main(argv: list[str] | None = None) -> int:
     except GlsimError as exc:
         print(f"glsim library: error: {exc}", file=sys.stderr)
         return 2
-    except KeyboardInterrupt:
+    except BaseException as exc:
+        if not interrupted(exc):
+            raise
         print("glsim library: interrupted — no partial files were left; run the same command again to resume",
               file=sys.stderr)
         return 130
