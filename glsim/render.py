@@ -117,7 +117,7 @@ class Renderer:
         self._geometry: MeshGeometry | None = None
         self._closed = False
         self._seen: dict[tuple, bool] = {}   # (camera, step) → seen (Renderer._specimen)
-        self._jobs: dict[tuple, tuple] = {}   # (camera, truth, options) → (scene, Render, Camera) (_job_setup)
+        self._jobs: dict[tuple, tuple] = {}   # (camera, truth, options) → (scene, Render, Camera, index) (_job_setup)
         self._ref_coeffs: dict[str, np.ndarray] = {}   # float64 interpolant coefficients (the Jacobian's gradient)
         if self._gl_max:   # the reference image is one texture
             H, W = self.reference.image.shape
@@ -287,7 +287,7 @@ class Renderer:
         pending: collections.deque = collections.deque()
         try:
             for job in jobs:
-                args = dict(job) if isinstance(job, Mapping) else dict(zip(("camera", "step"), job))
+                args = dict(job) if isinstance(job, (dict, Mapping)) else dict(zip(("camera", "step"), job))
                 if self.scene.exposure is not None or args.get("jacobian") or args.get("rig"):
                     while pending:   # (in order) then several renders per image (glsim.effects.motion), or a
                         yield self._finish(pending.popleft())    # Jacobian from a second raster
@@ -303,9 +303,10 @@ class Renderer:
             while pending and not self._closed:
                 self.backend.collect(pending.popleft().token)
 
-    def _job_setup(self, camera, truth: bool, options: dict) -> tuple[Render, Camera]:
-        """A job's render options and camera, its size checked (:meth:`check_size`); kept per
-        scene, camera, truth and options, so a stream of like jobs checks each once."""
+    def _job_setup(self, camera, truth: bool, options: dict) -> tuple[Render, Camera, int]:
+        """A job's render options, camera and the camera's index in the scene, its size checked
+        (:meth:`check_size`); kept per scene, camera, truth and options, so a stream of like
+        jobs checks each once."""
         try:
             key = (camera, truth, tuple(sorted(options.items())))
             hash(key)
@@ -313,21 +314,22 @@ class Renderer:
             key = None
         hit = self._jobs.get(key) if key is not None else None
         if hit is not None and hit[0] is self.scene:
-            return hit[1], hit[2]
+            return hit[1:]
         opts = self.scene.replace(render=options).render if options else self.scene.render
         self.check_size(camera, truth, opts)
         cam = self.scene.camera(camera)
+        index = self.scene.cameras.index(cam)
         if key is not None:
-            keep(self._jobs, key, (self.scene, opts, cam), SEEN_KEPT)
-        return opts, cam
+            keep(self._jobs, key, (self.scene, opts, cam, index), SEEN_KEPT)
+        return opts, cam, index
 
     def _submit(self, camera, step: int, truth: bool, quantize: bool, options: dict) -> "_Submitted":
         t0 = time.perf_counter()
-        opts, cam = self._job_setup(camera, truth, options)
+        opts, cam, index = self._job_setup(camera, truth, options)
         view = self.geometry.view(cam, step)
         deformed = view.step_geo.deformed
         depths = view.corner_depths() if self.scene.optics is not None else np.empty(0)
-        fx = prepare_effects(self.scene, deformed, self.drawn_mesh.quads, cam, self.scene.cameras.index(cam), step,
+        fx = prepare_effects(self.scene, deformed, self.drawn_mesh.quads, cam, index, step,
                              depths, normals=not self.backend.capabilities.device_geometry)
         curved = Curved(self.mesh, self.pieces, step) if self.mesh.is_quadratic and opts.mode != "fast" else None
         token = self.backend.submit(Request(view, opts, truth, fx, curved, cam.bit_depth if quantize else None))

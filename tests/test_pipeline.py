@@ -125,3 +125,36 @@ def test_driver_time_counts_calls_properties_and_takes_off_its_own_cost(gl_ctx):
     host_wall, host_cpu = d.host_seconds(wall, cpu)
     assert host_wall == pytest.approx(wall - d.seconds - 100 * d.overhead)
     assert host_cpu == pytest.approx(cpu - d.cpu_seconds - 100 * d.overhead)
+
+
+@pytest.mark.gl
+def test_host_opcodes_count_python_work_and_leave_out_moderngl(gl_ctx):
+    """host_opcodes counts the bytecode of the Python functions a block calls (a loop of n
+    more iterations: n times its body's instructions more), none of moderngl's wrappers, and
+    puts back the tracer it found."""
+    import sys
+
+    from glsim.backends.gl.timing import host_opcodes
+
+    def work(n: int) -> int:
+        total = 0
+        for i in range(n):
+            total += i
+        return total
+
+    before = sys.gettrace()
+    with host_opcodes() as a:
+        work(100)
+    with host_opcodes() as b:
+        work(300)
+    per_iteration, rest = divmod(b[0] - a[0], 200)
+    assert rest == 0 and per_iteration >= 3 and a[0] > 100 * per_iteration
+    with host_opcodes() as empty:   # (the context manager's own exit)
+        pass
+    fbo = gl_ctx.simple_framebuffer((8, 8))
+    with host_opcodes() as c:
+        for _ in range(20):
+            fbo.viewport = (0, 0, 8, 8)
+            fbo.clear(0.0)
+    fbo.release()
+    assert c[0] == empty[0] and sys.gettrace() is before

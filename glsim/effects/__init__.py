@@ -5,6 +5,7 @@ lighting, blur or noise code and compile no such shader.
 """
 from __future__ import annotations
 
+import functools
 import math
 import typing
 from dataclasses import dataclass
@@ -110,7 +111,13 @@ def prepare(scene: Scene, nodes_def: np.ndarray, quads: np.ndarray, cam: Camera,
         from glsim.effects.psf import make_kernel
 
         out["psf"] = make_kernel(scene.psf, Path(scene.base_dir))
-    return Effects(**out)
+    return Effects(**out) if len(out) > 1 else _no_effects(cam.bit_depth)
+
+
+@functools.lru_cache(maxsize=None)
+def _no_effects(bit_depth: int) -> Effects:
+    """The Effects of a scene that names none (made once per bit depth: they are immutable)."""
+    return Effects(bit_depth=bit_depth)
 
 
 def _light_dict(light) -> dict:

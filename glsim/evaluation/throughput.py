@@ -17,6 +17,9 @@ read-back is mapped). Each repetition renders PAIRS stereo pairs each way for ev
   llvmpipe it adds the waits for a core that the driver's render threads hold.
 - **GL calls / image**: moderngl calls per image (pipelined; calls made inside another count
   once) — the driver work the host issues, independent of the machine's speed.
+- **host opcodes / image**: Python bytecode instructions executed per image outside moderngl
+  (:func:`glsim.backends.gl.timing.host_opcodes`; one pair, pipelined, after the repetitions):
+  the host work of the host ms column as a count that a loaded or slower machine does not change.
 - **same bytes**: the pipelined images equal the one-at-a-time ones bit for bit (checked on
   every repetition).
 - **glsim / riley**: glsim's pipelined seconds per image (a pair's time / 2) over
@@ -90,7 +93,7 @@ def _riley(size: tuple[int, int], spp: int, elements: int):
 def throughput(size=FULL_SIZE, reps: int = REPS, pairs: int = PAIRS, spps=SPPS, elements: int = ELEMENTS,
                log=print) -> dict:
     """Measure every row (see the module text); returns the report."""
-    from glsim.backends.gl.timing import driver_time
+    from glsim.backends.gl.timing import driver_time, host_opcodes
     from glsim.evaluation.report import gl_info, machine_info
     from glsim.render import Renderer
 
@@ -134,6 +137,9 @@ def throughput(size=FULL_SIZE, reps: int = REPS, pairs: int = PAIRS, spps=SPPS, 
                     list(r.render_many(_jobs(1, mode, spp)))
                     row["passes_wall_s"] = time.perf_counter() - t
                 row["passes"] = dict(p)
+                with host_opcodes() as n:
+                    list(r.render_many(_jobs(1, mode, spp)))
+                row["host_opcodes"] = n[0] / 2
                 rows.append(_summary(row, pairs))
                 log(f"throughput: {mode} {spp} spp: {rows[-1]['pipelined_pairs_per_s']:.3g} pairs/s pipelined")
     return {"size": list(size), "elements": elements, "pairs": pairs, "reps": reps, "depth": DEPTH,
@@ -142,7 +148,7 @@ def throughput(size=FULL_SIZE, reps: int = REPS, pairs: int = PAIRS, spps=SPPS, 
 
 
 def _summary(row: dict, pairs: int) -> dict:
-    out = {k: row[k] for k in ("mode", "spp", "riley", "same_bytes", "passes", "passes_wall_s")}
+    out = {k: row[k] for k in ("mode", "spp", "riley", "same_bytes", "passes", "passes_wall_s", "host_opcodes")}
     for way in ("single", "pipelined"):
         s = statistics.median(row[f"{way}_s"])
         out[f"{way}_pairs_per_s"] = pairs / s
@@ -165,9 +171,9 @@ def table(report: dict) -> str:
     W, H = report["size"]
     lines = [f"{machine_line(report['machine'])}; {report['date']}", "",
              "| mode | spp | pairs/s one at a time | pairs/s pipelined | images/s pipelined | pipelined / one "
-             "at a time | host ms / image (one / pipelined) | GL calls / image | same bytes | glsim / riley per image | "
-             "largest passes (ms) and rest |",
-             "|---|---|---|---|---|---|---|---|---|---|---|"]
+             "at a time | host ms / image (one / pipelined) | host opcodes / image | GL calls / image | same bytes | "
+             "glsim / riley per image | largest passes (ms) and rest |",
+             "|---|---|---|---|---|---|---|---|---|---|---|---|"]
     for r in report["rows"]:
         passes = sorted(r["passes"].items(), key=lambda kv: -kv[1])
         rest = r["passes_wall_s"] - sum(r["passes"].values())
@@ -175,7 +181,7 @@ def table(report: dict) -> str:
         ratio = num(r["glsim_over_riley"], ".3g") if r["glsim_over_riley"] is not None else "—"
         lines.append(f"| {r['mode']} | {r['spp']} | {r['single_pairs_per_s']:.3g} | {r['pipelined_pairs_per_s']:.3g} | "
                      f"{r['pipelined_images_per_s']:.3g} | {r['pipelined_pairs_per_s'] / r['single_pairs_per_s']:.2f} | "
-                     f"{r['single_host_ms']:.2g} / {r['pipelined_host_ms']:.2g} | {_calls(r)} | "
+                     f"{r['single_host_ms']:.2g} / {r['pipelined_host_ms']:.2g} | {_opcodes(r)} | {_calls(r)} | "
                      f"{'yes' if r['same_bytes'] else 'NO'} | "
                      f"{ratio} | {shown} |")
     riley = next((r["riley"] for r in report["rows"]), "—")
@@ -184,6 +190,11 @@ def table(report: dict) -> str:
               f"interleaved repetitions after one warm-up pair, medians; pipelined: `render_many` depth "
               f"{report['depth']}. Peer: {riley}, camera 0 only."]
     return "\n".join(lines)
+
+
+def _opcodes(row: dict) -> str:
+    """The host's Python opcodes per image ("—" in results made before they were counted)."""
+    return f"{row['host_opcodes']:,.0f}" if row.get("host_opcodes") is not None else "—"
 
 
 def _calls(row: dict) -> str:

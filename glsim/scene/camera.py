@@ -238,7 +238,7 @@ class Distortion:
         """The 12-vector in OpenCV order."""
         return np.array([getattr(self, n) for n in _DISTORTION_NAMES])
 
-    @property
+    @functools.cached_property
     def is_zero(self) -> bool:
         return not any(getattr(self, n) for n in _DISTORTION_NAMES)
 

@@ -15,6 +15,7 @@ pixels it can); for s > 1 the box filter down to W×H (of the pixels not finishe
 """
 from __future__ import annotations
 
+import functools
 from collections.abc import Callable
 from dataclasses import dataclass, replace
 
@@ -179,7 +180,7 @@ class GLBackend(ImagePasses):
         for tex, fbo in self._fbos.values():
             fbo.release()
         entries = [e for free in self._scratch.values() for e in free] + list(self._lent.values())
-        for textures, fbo in {id(e): e for e in entries}.values():
+        for textures, fbo, _ in {id(e): e for e in entries}.values():
             fbo.release()
             for t in textures:
                 t.release()
@@ -226,7 +227,7 @@ class GLBackend(ImagePasses):
             self.geometry = GeometryBuffers(self.ctx, self.programs, view.mesh_geo)
         return self.geometry
 
-    @property
+    @functools.cached_property
     def capabilities(self) -> Capabilities:
         return Capabilities(device_geometry=True, float64=self.fp64, passes=True)
 
@@ -570,7 +571,8 @@ class GLBackend(ImagePasses):
         factor) scales the samples' offsets from their pixel centres (at s = 1: the centres)."""
         aperture = aperture if s > 1 else 1.0
         key = _ray_key(cam, s, kind, aperture)
-        if key not in self._rays:
+        out = self._rays.get(key)
+        if out is None:
             W, H = cam.size
             fp64 = kind != "float"
             defines = {"SS": s, **({"FP64": None} if fp64 else {}),
@@ -591,7 +593,7 @@ class GLBackend(ImagePasses):
             vao.release()
             fbo.release()
             self._rays[key] = out
-        return self._rays[key]
+        return out
 
     def _dropped_counter(self):
         """deform.frag's count of samples mapping outside the reference (zero at each frame's start)."""

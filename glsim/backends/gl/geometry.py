@@ -32,6 +32,7 @@ CANDIDATES = 8       # candidates.glsl: elements listed per pixel before it over
 # classify.frag's window depths: the full-screen pass 2 program run on each (lists.vert)
 LAYERS = {"deform.frag": 0.25, "resolve.frag": 0.5}
 _MAX_GROUPS = 65535  # per dispatch dimension
+_CAND_COUNT, _CAND_LIST, _TIGHT = image("CAND_COUNT"), image("CAND_LIST"), storage("TIGHT")
 
 
 def _bitset_words(M: int) -> int:
@@ -51,6 +52,7 @@ def unpack_bits(words: bytes, M: int) -> np.ndarray:
     return np.unpackbits(np.frombuffer(words, np.uint8), bitorder="little")[:M].astype(bool)
 
 
+_NOTHING_MARKED = bytes(16)   # the status header when no element was marked
 DRAW_BIG, DRAW_FALLBACK, DRAW_RESOLVE = 0, 1, 2   # the list flags' indirect draw commands (candidates.glsl)
 
 
@@ -62,7 +64,9 @@ class GeometryBuffers:
         self.programs = programs
         self.geo = geo
         self.M = len(geo.quads)
+        self.words = _bitset_words(self.M)   # uint32 words of one problem bitset
         self._bufs: dict = {}
+        self._mesh: dict = {}       # fp64 → what _mesh_buffers returns (its buffers are in _bufs)
         self._vaos: dict = {}       # (id(program), indexed) → (program, attribute-less vertex array)
         self._steps: OrderedDict = OrderedDict()
         self.uploads = {"mesh": 0, "step": 0}   # what was uploaded (tests)
@@ -75,6 +79,13 @@ class GeometryBuffers:
         return self._bufs[key]
 
     def _mesh_buffers(self, fp64: bool):
+        """(quads, ref_uv, ref_xr, flags): the mesh's buffers in float64 or float32, made once."""
+        hit = self._mesh.get(fp64)
+        if hit is None:
+            hit = self._mesh[fp64] = self._make_mesh_buffers(fp64)
+        return hit
+
+    def _make_mesh_buffers(self, fp64: bool):
         geo, ctx = self.geo, self.ctx
         dt = np.float64 if fp64 else np.float32
         quads = self._buffer("quads", lambda: ctx.buffer(np.ascontiguousarray(geo.quads, np.int32).tobytes()))
@@ -83,8 +94,7 @@ class GeometryBuffers:
             self._bufs["ref_uv", fp64] = ctx.buffer(np.ascontiguousarray(ref_uv, dt).tobytes())
             self._bufs["ref_xr", fp64] = ctx.buffer(np.ascontiguousarray(Xr, dt).tobytes())
             self.uploads["mesh"] += 1
-        words = _bitset_words(self.M)
-        flags = self._buffer("flags", lambda: ctx.buffer(bytes(16 + 8 * words)))
+        flags = self._buffer("flags", lambda: ctx.buffer(bytes(16 + 8 * self.words)))
         return quads, self._bufs["ref_uv", fp64], self._bufs["ref_xr", fp64], flags
 
     def _reference_corners(self) -> np.ndarray:
@@ -186,7 +196,7 @@ class GeometryBuffers:
         r = ray_radius(view.camera)
         return {"u_rot": view.rotation.ravel(), "u_trans": view.translation, "u_near": NEAR_MM,
                 "u_grazing_cos": GRAZING_COS, "u_ray_r": r if np.isfinite(r) else -1.0,
-                "u_excluded": int(has), "u_flag_words": _bitset_words(self.M), "u_count": self.M}
+                "u_excluded": int(has), "u_flag_words": self.words, "u_count": self.M}
 
     # ---- the per-view pass -----------------------------------------------------------------
     def view_pass(self, view: ViewSpec, mode: str, fp64: bool, uniforms, grow: float = 0.0,
@@ -228,16 +238,17 @@ class GeometryBuffers:
         """Per-pixel candidate count (r32ui) and list (CANDIDATES layers), a framebuffer to clear
         the counts and an attachment-less one for pass 1, and the list flags (candidates.glsl)."""
         key = ("lists", W, H)
-        if key not in self._bufs:
+        hit = self._bufs.get(key)
+        if hit is None:
             for k in [k for k in self._bufs if isinstance(k, tuple) and k[0] == "lists"]:
                 for obj in self._bufs.pop(k):
                     obj.release()
             ctx = self.ctx
             count = ctx.texture((W, H), 1, dtype="u4")
             lists = ctx.texture_array((W, H, CANDIDATES), 1, dtype="u4")
-            self._bufs[key] = (count, lists, ctx.framebuffer(color_attachments=[count]), ctx.empty_framebuffer((W, H)),
-                               ctx.buffer(self._draw_commands))
-        return self._bufs[key]
+            hit = self._bufs[key] = (count, lists, ctx.framebuffer(color_attachments=[count]),
+                                     ctx.empty_framebuffer((W, H)), ctx.buffer(self._draw_commands))
+        return hit
 
     @functools.cached_property
     def _draw_commands(self) -> bytes:
@@ -290,12 +301,12 @@ class GeometryBuffers:
 
     def bind_lists(self, W: int, H: int, prog=None) -> None:
         """The lists as images (pass 1) and, for ``prog`` (pass 2), as textures on units 2, 3."""
-        count, lists, *_ = self._lists(W, H)
-        count.bind_to_image(image("CAND_COUNT"), read=True, write=True)
-        lists.bind_to_image(image("CAND_LIST"), read=True, write=True)
-        self._bufs["tight"].bind_to_storage_buffer(storage("TIGHT"))
+        count, lists = self._lists(W, H)[:2]
+        count.bind_to_image(_CAND_COUNT, read=True, write=True)
+        lists.bind_to_image(_CAND_LIST, read=True, write=True)
+        self._bufs["tight"].bind_to_storage_buffer(_TIGHT)
         if prog is not None:
-            for unit, (name, tex) in enumerate((("u_count_tex", count), ("u_list_tex", lists)), start=2):
+            for unit, name, tex in ((2, "u_count_tex", count), (3, "u_list_tex", lists)):
                 if prog.get(name, None) is not None:
                     tex.use(unit)
                     set_uniform(prog, name, unit)
@@ -327,7 +338,7 @@ class GeometryBuffers:
     def status(self) -> tuple[object, int]:
         """The problem flags' buffer and its size in bytes: a 16-byte header (whether anything was
         marked grazing / unprojectable) and one bitset per kind."""
-        return self._bufs["flags"], 16 + 8 * _bitset_words(self.M)
+        return self._bufs["flags"], 16 + 8 * self.words
 
     def clear_status(self) -> None:
         """Clear the problem flags for the next view (after :meth:`status` was copied)."""
@@ -338,9 +349,10 @@ class GeometryBuffers:
         """This view's element problems: the step's shape problems and what the GPU marked
         (grazing, does not project) in ``status`` (the bytes of :meth:`status` after its passes),
         as sorted index arrays; only the problems some element has."""
-        any_ = np.frombuffer(status[:16], np.uint32)
         out = {k: v for k, v in view.step_geo.shape().items() if k != "excluded" and len(v)}
-        words = _bitset_words(self.M)
+        if status[:16] == _NOTHING_MARKED:
+            return out
+        any_, words = np.frombuffer(status[:16], np.uint32), self.words
         for k, name in enumerate(("grazing", "unprojectable")):
             if any_[k]:
                 out[name] = np.flatnonzero(unpack_bits(status[16 + 4 * words * k:16 + 4 * words * (k + 1)], self.M))
@@ -358,4 +370,5 @@ class GeometryBuffers:
             for b in entry[1:3]:
                 b.release()
         self._bufs.clear()
+        self._mesh.clear()
         self._steps.clear()

@@ -11,6 +11,7 @@ from glsim.effects.dof import blur_scheme, kernel_radius, shader_uniforms
 from glsim.backends.gl.context import check_error
 from glsim.backends.gl.plan import BLUR_PASSES
 from glsim.backends.gl.readback import read_texture
+from glsim.backends.gl.sensor_passes import camera_passes
 from glsim.backends.gl.uniforms import set_uniform
 
 
@@ -39,16 +40,16 @@ class ImagePasses:
                 tex = ctx.texture(a.shape[::-1], 1, a.tobytes(), dtype="f4")
                 tex.filter = (ctx.NEAREST, ctx.NEAREST)
                 uploaded.append(tex)
-            if name in prog:
+            if prog.get(name, None) is not None:
                 tex.use(unit)
                 set_uniform(prog, name, unit)
         for name, value in uniforms.items():
-            if name in prog:
+            if prog.get(name, None) is not None:
                 set_uniform(prog, name, value)
         if into is not None:
             outs, fbo = (into,), self._framebuffer_into(into)
         elif scratch is not None:
-            outs, fbo = self._borrow((W, H), tuple(components), dtype)
+            outs, fbo, _ = self._borrow((W, H), tuple(components), dtype)
             scratch.extend(outs)
         else:
             outs = tuple(ctx.texture((W, H), n, dtype=dtype) for n in components)
@@ -77,13 +78,15 @@ class ImagePasses:
         return self._fbos[id(tex)][1]
 
     def _borrow(self, size: tuple[int, int], components: tuple[int, ...], dtype: str):
-        """Scratch textures of one shape with their framebuffer, reused across frames."""
-        free = self._scratch.setdefault((size, components, dtype), [])
+        """Scratch textures of one shape with their framebuffer, reused across frames:
+        (textures, framebuffer, their key in ``_scratch``)."""
+        key = (size, components, dtype)
+        free = self._scratch.setdefault(key, [])
         if free:
             entry = free.pop()
         else:
             outs = tuple(self.ctx.texture(size, n, dtype=dtype) for n in components)
-            entry = (outs, self.ctx.framebuffer(color_attachments=list(outs)))
+            entry = (outs, self.ctx.framebuffer(color_attachments=list(outs)), key)
         for t in entry[0]:
             self._lent[id(t)] = entry
         return entry
@@ -94,8 +97,7 @@ class ImagePasses:
         for t in textures:
             entry = self._lent.pop(id(t), None)
             if entry is not None and all(id(o) not in self._lent for o in entry[0]):
-                outs = entry[0]
-                self._scratch[(outs[0].size, tuple(o.components for o in outs), outs[0].dtype)].append(entry)
+                self._scratch[entry[2]].append(entry)
 
     def blur_passes(self, grey, depth, optics, sigma_max: float, size: tuple[int, int], temps: list, stages: list):
         """The depth-of-field passes of ``optics.scheme`` (glsim.effects.dof.blur_scheme) on the
@@ -176,6 +178,4 @@ class ImagePasses:
     def camera_passes(self, grey, fx, size: tuple[int, int], scratch: list, stages: list):
         """Vignetting, lens PSF and fixed-pattern noise where ``fx`` asks for them
         (:func:`glsim.backends.gl.sensor_passes.camera_passes`)."""
-        from glsim.backends.gl.sensor_passes import camera_passes
-
         return camera_passes(self, grey, fx, size, scratch, stages)

@@ -10,9 +10,14 @@ indirect draws whose instance counts the candidate pass sets on the GPU (0: noth
 """
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
+from types import MappingProxyType
+from typing import Mapping, NamedTuple
 
 from glsim.effects.dof import blur_scheme
+
+PLANS_KEPT = 64   # plans kept by :func:`plan` (one per kind of render; a library makes a few)
 
 
 @dataclass(frozen=True)
@@ -38,12 +43,44 @@ class Plan:
     subsamples: bool
     passes: tuple[Pass, ...]
 
-    @property
-    def define_dict(self) -> dict:
-        return dict(self.defines)
+    @functools.cached_property
+    def define_dict(self) -> Mapping[str, object]:
+        """``defines`` as a read-only mapping (made once)."""
+        return MappingProxyType(dict(self.defines))
 
 
-def deform_defines(opts, truth: bool, fp64: bool, fx=None) -> dict:
+class EffectsShape(NamedTuple):
+    """What of a render's effects (:class:`glsim.effects.Effects`) its plan depends on:
+    ``lights`` how many (None: unlit), ``multiplicative`` how they combine, ``blur`` and its
+    ``scheme`` (:func:`~glsim.effects.dof.blur_scheme`), ``aperture`` √(fill factor), whether
+    there are ``vignette``, ``fixed_pattern`` and ``noise``, and ``psf``: "separable", "2d" or
+    None. Small and hashable, so that plans are made once per shape (:func:`plan`)."""
+    lights: int | None = None
+    multiplicative: bool = False
+    blur: bool = False
+    scheme: str | None = None
+    aperture: float = 1.0
+    vignette: bool = False
+    psf: str | None = None
+    fixed_pattern: bool = False
+    noise: bool = False
+
+    @classmethod
+    def of(cls, fx) -> "EffectsShape":
+        """The shape of ``fx`` (an Effects or None: no effects)."""
+        if fx is None:
+            return _NO_EFFECTS
+        lit, blur = fx.lighting, fx.blur
+        return cls(None if lit is None else len(lit.lights), lit is not None and lit.combine == "multiplicative",
+                   blur, blur_scheme(fx.optics) if blur else None, fx.aperture, fx.vignette is not None,
+                   None if fx.psf is None else "separable" if fx.psf.taps is not None else "2d",
+                   fx.fixed_pattern, fx.noise is not None)
+
+
+_NO_EFFECTS = EffectsShape()
+
+
+def deform_defines(opts, truth: bool, fp64: bool, fx: EffectsShape = _NO_EFFECTS) -> dict:
     """The #defines of the deformation program that follow from the options and effects alone."""
     d = {f"MODE_{opts.mode.upper()}": None, f"INTERP_{opts.interpolation.upper()}": None,
          "SS": opts.supersampling}
@@ -53,15 +90,15 @@ def deform_defines(opts, truth: bool, fp64: bool, fx=None) -> dict:
         d["TRUTH"] = None
         if "FP64" in d:  # (xi, eta) are float64 in the shader: write their low float32 halves too
             d["TRUTH_LO"] = None
-    if fx is not None and fx.lighting is not None:
+    if fx.lights is not None:
         d["LIGHTING"] = None
-        d["MAX_LIGHTS"] = max(1, len(fx.lighting.lights))
-        if fx.lighting.combine == "multiplicative":
+        d["MAX_LIGHTS"] = max(1, fx.lights)
+        if fx.multiplicative:
             d["LIGHT_MULTIPLICATIVE"] = None
-    if fx is not None and fx.blur:
+    if fx.blur:
         d["DEPTH_OUT"] = None
         d["DEPTH_LOCATION"] = 1 + 2 * truth + ("TRUTH_LO" in d)
-    if fx is not None and fx.aperture != 1.0 and opts.supersampling > 1:   # (one sample: the pixel centre)
+    if fx.aperture != 1.0 and opts.supersampling > 1:   # (one sample: the pixel centre)
         d["APERTURE"] = aperture_literal(fx.aperture, "FP64" in d)
     return d
 
@@ -89,7 +126,17 @@ def plan(opts, truth: bool, fp64_driver: bool, fx, camera, ref_camera, pieces: i
     raster is asked for, ``fp64_driver`` whether the driver has GL_ARB_gpu_shader_fp64, ``fx`` the
     effects (or None), the view's and the reference's cameras, ``pieces`` the pieces per side of
     curved elements (exact, q4) or None. With truth at s > 1 the executor runs the plan of the
-    same render at 1 spp for it."""
+    same render at 1 spp for it. Made once per distinct argument (:func:`_plan` sees only what
+    a plan depends on, so a kept plan cannot go stale)."""
+    return _plan(opts, truth, fp64_driver, EffectsShape.of(fx), camera.distortion.is_zero,
+                 ref_camera.distortion.is_zero, pieces)
+
+
+@functools.lru_cache(maxsize=PLANS_KEPT)
+def _plan(opts, truth: bool, fp64_driver: bool, fx: EffectsShape, pinhole: bool, ref_pinhole: bool,
+          pieces: int | None) -> Plan:
+    """:func:`plan` over its dependencies: ``pinhole`` / ``ref_pinhole`` whether the view's /
+    the reference camera's distortion is zero."""
     s = opts.supersampling
     d = deform_defines(opts, truth and s == 1, fp64_driver, fx)
     if pieces is not None:
@@ -97,7 +144,7 @@ def plan(opts, truth: bool, fp64_driver: bool, fx, camera, ref_camera, pieces: i
     fp64 = "FP64" in d
     # exact with a pinhole reference camera (a distorted one keeps the direct projection): float32
     # projects relative to each element's centre, float64 from per-element blends
-    pinhole_ref = opts.mode == "exact" and pieces is None and ref_camera.distortion.is_zero
+    pinhole_ref = opts.mode == "exact" and pieces is None and ref_pinhole
     ref = ("REF_PINHOLE" if fp64 else "REF_LOCAL") if pinhole_ref else None
     if ref:
         d[ref] = None
@@ -106,11 +153,11 @@ def plan(opts, truth: bool, fp64_driver: bool, fx, camera, ref_camera, pieces: i
     camera_local = ref == "REF_LOCAL" and fp64_driver
     if camera_local:
         d["CAMERA_LOCAL"] = None
-    if opts.mode == "exact" and pieces is None and camera.distortion.is_zero:
+    if opts.mode == "exact" and pieces is None and pinhole:
         d["PIXEL_TIES"] = None   # ties decided at the exact pixel point (bilinear.glsl)
     rays = ("bits" if fp64 else "split" if camera_local else "float") if opts.mode == "exact" else None
     sub = newton_subsamples(opts, s, pieces is not None)
-    blur = fx is not None and fx.blur
+    blur = fx.blur
     passes: list[Pass] = []
     if opts.mode == "fast":
         passes.append(Pass("deform.frag"))   # deform.vert, fast.geom: the element triangles
@@ -125,14 +172,14 @@ def plan(opts, truth: bool, fp64_driver: bool, fx, camera, ref_camera, pieces: i
     if s > 1:
         passes += [Pass("downsample.frag")] * (1 + blur)   # grey, and the covered samples' mean depth
     if blur:
-        passes += [Pass("blur.frag", "", name) for name in BLUR_PASSES[blur_scheme(fx.optics)]]
-    if fx is not None and fx.vignette is not None:
+        passes += [Pass("blur.frag", "", name) for name in BLUR_PASSES[fx.scheme]]
+    if fx.vignette:
         passes.append(Pass("vignette.frag"))
-    if fx is not None and fx.psf is not None:
-        passes += [Pass("psf.frag", "", v) for v in (("PSF_ROWS", "PSF_COLUMNS") if fx.psf.taps is not None
+    if fx.psf is not None:
+        passes += [Pass("psf.frag", "", v) for v in (("PSF_ROWS", "PSF_COLUMNS") if fx.psf == "separable"
                                                        else ("PSF_2D",))]
-    if fx is not None and fx.fixed_pattern:
+    if fx.fixed_pattern:
         passes.append(Pass("fpn.frag"))
-    if fx is not None and fx.noise is not None:
+    if fx.noise:
         passes.append(Pass("noise.frag"))
     return Plan(tuple(sorted(d.items())), rays, ref, camera_local, sub, tuple(passes))

@@ -135,7 +135,7 @@ class ProgramCache:
             except Exception as exc:
                 files = ", ".join(f for _, f in stages)
                 raise ShaderError(f"GLSL program ({files}) failed to build with defines "
-                                  f"{defines}:\n{translate_log(str(exc), sources)}") from None
+                                  f"{dict(defines)}:\n{translate_log(str(exc), sources)}") from None
             self._programs[key] = prog
         if key not in self._asked:
             self._asked.add(key)

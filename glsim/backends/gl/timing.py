@@ -7,6 +7,10 @@ block's wall time is the host's own work, Python and numpy: the "CPU side" of a 
 scaling benchmark reports (``glsim bench scaling``). On llvmpipe the driver also executes the
 shaders; on a GPU most of that time is the wait for the read-back.
 
+``with host_opcodes() as n: ...`` counts the Python bytecode instructions the thread executes
+in the block outside moderngl (``n[0]`` when it ends): the same host work as a number that does
+not depend on the machine's speed or on what else runs on it.
+
 ``with pass_times(ctx, name_of) as p: ...`` times each draw and dispatch in the block on its
 own (``p``: pass name → seconds, summed over its calls), with the driver finished before
 and after each, so that no pass hides behind another: a breakdown of one render, not its
@@ -112,6 +116,35 @@ def driver_time():
     finally:
         for cls, name, value in saved:
             setattr(cls, name, value)
+
+
+@contextlib.contextmanager
+def host_opcodes():
+    """Count the bytecode instructions this thread executes in the block, in every Python frame
+    but moderngl's (its wrappers are driver calls here, as for :func:`driver_time`); yields a
+    one-item list that holds the count when the block ends. Traces every instruction
+    (``sys.settrace`` with opcode events): tens of times slower, for a few frames only."""
+    import sys
+
+    count = [0]
+
+    def local(frame, event, arg):
+        if event == "opcode":
+            count[0] += 1
+        return local
+
+    def calls(frame, event, arg):
+        if "moderngl" in frame.f_code.co_filename:
+            return None
+        frame.f_trace_opcodes = True
+        return local
+
+    before = sys.gettrace()
+    sys.settrace(calls)
+    try:
+        yield count
+    finally:
+        sys.settrace(before)
 
 
 @contextlib.contextmanager
