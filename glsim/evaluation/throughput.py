@@ -10,11 +10,14 @@ read-back is mapped). Each repetition renders PAIRS stereo pairs each way for ev
 (interleaved), after one warm-up pair; per row the median over repetitions.
 
 - **pairs/s**: stereo pairs (cameras 0 and 1) delivered to numpy per wall second.
-- **host ms / image**: the rendering thread's CPU time outside moderngl calls (and so outside
-  the driver: submissions, waits, on llvmpipe the shaders themselves), less what counting
-  them costs (:func:`glsim.backends.gl.timing.driver_time`) — the Python and numpy work per
-  image. The JSON also keeps the wall time outside the driver (``*_host_wall_ms``): on
-  llvmpipe it adds the waits for a core that the driver's render threads hold.
+- **host ms / image**: one at a time, pipelined, and pipelined with each pair a load step not
+  rendered before (the plate moved by STEP_MM: what a library over a time series does; the
+  step's geometry, shape checks and uploads are made then). The rendering thread's CPU time
+  outside moderngl calls (and so outside the driver: submissions, waits, on llvmpipe the
+  shaders themselves), less what counting them costs
+  (:func:`glsim.backends.gl.timing.driver_time`) — the Python and numpy work per image. The
+  JSON also keeps the wall time outside the driver (``*_host_wall_ms``): on llvmpipe it adds
+  the waits for a core that the driver's render threads hold.
 - **GL calls / image**: moderngl calls per image (pipelined; calls made inside another count
   once) — the driver work the host issues, independent of the machine's speed.
 - **host opcodes / image**: Python bytecode instructions executed per image outside moderngl
@@ -54,10 +57,12 @@ DEPTH = 2
 GOALS = {("exact", 1): 300, ("exact", 4): 150, ("fast", 1): 1000}
 GOAL_HOST_MS = 1.0
 GOAL_RILEY_EXACT_4 = 10.0     # riley-raster on all cores at least this many times slower (exact, 4 spp)
+STEP_MM = 0.001               # the plate's translation per load step (new-step pairs)
 
 
-def _scene(size: tuple[int, int], elements: int):
-    """The scaling plate seen by both cameras of the stereo rig."""
+def _scene(size: tuple[int, int], elements: int, steps: int = 0):
+    """The scaling plate seen by both cameras of the stereo rig, with ``steps`` load steps
+    after step 0 (rigid translations by STEP_MM along x each)."""
     import dataclasses
 
     from glsim.evaluation.scaling import K1, plate_scene
@@ -67,12 +72,16 @@ def _scene(size: tuple[int, int], elements: int):
     scene = plate_scene(size, elements)
     cam0 = scene.cameras[0]
     cam1 = stereo_rig(size=size, fx=cam0.fx, distortion=Distortion(k1=K1))[1]
-    return dataclasses.replace(scene, cameras=(cam0, cam1))
+    plate = dataclasses.replace(scene.specimen.plate, translations=tuple((STEP_MM * i, 0.0, 0.0)
+                                                                          for i in range(1, steps + 1)))
+    return dataclasses.replace(scene, cameras=(cam0, cam1),
+                               specimen=dataclasses.replace(scene.specimen, plate=plate))
 
 
-def _jobs(pairs: int, mode: str, spp: int) -> list[dict]:
-    return [{"camera": c, "step": 0, "quantize": True, "mode": mode, "samples_per_pixel": spp}
-            for _ in range(pairs) for c in (0, 1)]
+def _jobs(pairs: int, mode: str, spp: int, steps=None) -> list[dict]:
+    """Stereo pairs of step 0, or one pair of each of ``steps``."""
+    return [{"camera": c, "step": s, "quantize": True, "mode": mode, "samples_per_pixel": spp}
+            for s in (steps if steps is not None else [0] * pairs) for c in (0, 1)]
 
 
 def _riley(size: tuple[int, int], spp: int, elements: int):
@@ -97,7 +106,8 @@ def throughput(size=FULL_SIZE, reps: int = REPS, pairs: int = PAIRS, spps=SPPS, 
     from glsim.evaluation.report import gl_info, machine_info
     from glsim.render import Renderer
 
-    scene = _scene(tuple(size), elements)
+    scene = _scene(tuple(size), elements, len(MODES) * len(spps) * reps * pairs)
+    fresh = iter(range(1, len(MODES) * len(spps) * reps * pairs + 1))   # each load step rendered once
     rows = []
     with Renderer(scene, "gl") as r:
         machine, elements = machine_info(gl_info(r)), len(r.mesh.quads)
@@ -108,22 +118,26 @@ def throughput(size=FULL_SIZE, reps: int = REPS, pairs: int = PAIRS, spps=SPPS, 
                 list(r.render_many(_jobs(1, mode, spp)))           # warm-up: programs, targets, ray maps
                 row = {"mode": mode, "spp": spp, "single_s": [], "pipelined_s": [], "single_host_ms": [],
                        "pipelined_host_ms": [], "single_host_wall_ms": [], "pipelined_host_wall_ms": [],
-                       "single_calls": [], "pipelined_calls": [],
+                       "single_calls": [], "pipelined_calls": [], "fresh_s": [], "fresh_host_ms": [],
                        "riley_s": [], "riley": riley_name, "same_bytes": True}
                 if riley is not None:
                     riley()
                 for _ in range(reps):
-                    for way in ("single", "pipelined"):
+                    for way in ("single", "pipelined", "fresh"):
+                        todo = (jobs if way != "fresh"
+                                else _jobs(pairs, mode, spp, [next(fresh) for _ in range(pairs)]))
                         with driver_time() as d:
                             t, c = time.perf_counter(), time.thread_time()
-                            out = ([r.render(**j) for j in jobs] if way == "single"
-                                   else list(r.render_many(jobs, depth=DEPTH)))
+                            out = ([r.render(**j) for j in todo] if way == "single"
+                                   else list(r.render_many(todo, depth=DEPTH)))
                             wall, cpu = time.perf_counter() - t, time.thread_time() - c
                         host_wall, host_cpu = d.host_seconds(wall, cpu)
                         row[f"{way}_s"].append(wall)
-                        row[f"{way}_host_ms"].append(host_cpu / len(jobs) * 1e3)
-                        row[f"{way}_host_wall_ms"].append(host_wall / len(jobs) * 1e3)
-                        row[f"{way}_calls"].append(d.calls / len(jobs))
+                        row[f"{way}_host_ms"].append(host_cpu / len(todo) * 1e3)
+                        if way == "fresh":
+                            continue
+                        row[f"{way}_host_wall_ms"].append(host_wall / len(todo) * 1e3)
+                        row[f"{way}_calls"].append(d.calls / len(todo))
                         if way == "single":
                             single = [x.image for x in out]
                         else:
@@ -157,6 +171,8 @@ def _summary(row: dict, pairs: int) -> dict:
         out[f"{way}_host_wall_ms"] = statistics.median(row[f"{way}_host_wall_ms"])
         out[f"{way}_calls"] = statistics.median(row[f"{way}_calls"])
         out[f"{way}_s_all"] = row[f"{way}_s"]
+    out["fresh_pairs_per_s"] = pairs / statistics.median(row["fresh_s"])
+    out["fresh_host_ms"] = statistics.median(row["fresh_host_ms"])
     out["riley_s"] = statistics.median(row["riley_s"]) if row["riley_s"] else None
     out["riley_s_all"] = row["riley_s"]
     per_image = 1.0 / out["pipelined_images_per_s"]
@@ -171,8 +187,8 @@ def table(report: dict) -> str:
     W, H = report["size"]
     lines = [f"{machine_line(report['machine'])}; {report['date']}", "",
              "| mode | spp | pairs/s one at a time | pairs/s pipelined | images/s pipelined | pipelined / one "
-             "at a time | host ms / image (one / pipelined) | host opcodes / image | GL calls / image | same bytes | "
-             "glsim / riley per image | largest passes (ms) and rest |",
+             "at a time | host ms / image (one / pipelined / new step) | host opcodes / image | GL calls / image | "
+             "same bytes | glsim / riley per image | largest passes (ms) and rest |",
              "|---|---|---|---|---|---|---|---|---|---|---|---|"]
     for r in report["rows"]:
         passes = sorted(r["passes"].items(), key=lambda kv: -kv[1])
@@ -181,15 +197,22 @@ def table(report: dict) -> str:
         ratio = num(r["glsim_over_riley"], ".3g") if r["glsim_over_riley"] is not None else "—"
         lines.append(f"| {r['mode']} | {r['spp']} | {r['single_pairs_per_s']:.3g} | {r['pipelined_pairs_per_s']:.3g} | "
                      f"{r['pipelined_images_per_s']:.3g} | {r['pipelined_pairs_per_s'] / r['single_pairs_per_s']:.2f} | "
-                     f"{r['single_host_ms']:.2g} / {r['pipelined_host_ms']:.2g} | {_opcodes(r)} | {_calls(r)} | "
+                     f"{r['single_host_ms']:.2g} / {r['pipelined_host_ms']:.2g} / {_fresh(r)} | "
+                     f"{_opcodes(r)} | {_calls(r)} | "
                      f"{'yes' if r['same_bytes'] else 'NO'} | "
                      f"{ratio} | {shown} |")
     riley = next((r["riley"] for r in report["rows"]), "—")
     lines += ["", f"Plate of issue 19 ({report['elements']} quad4, k1 = −0.1, Catmull–Rom cubic) at {W}×{H} px, "
               f"both cameras of the 30° rig; {report['pairs']} pairs per way and repetition, {report['reps']} "
               f"interleaved repetitions after one warm-up pair, medians; pipelined: `render_many` depth "
-              f"{report['depth']}. Peer: {riley}, camera 0 only."]
+              f"{report['depth']}; new step: as pipelined, each pair a load step not rendered before. "
+              f"Peer: {riley}, camera 0 only."]
     return "\n".join(lines)
+
+
+def _fresh(row: dict) -> str:
+    """The host ms per image when each pair is a new load step ("—" in results made before)."""
+    return f"{row['fresh_host_ms']:.2g}" if row.get("fresh_host_ms") is not None else "—"
 
 
 def _opcodes(row: dict) -> str:

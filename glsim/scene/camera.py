@@ -233,18 +233,23 @@ class Distortion:
             raise SceneError("distortion", f"needs 4, 5, 8 or 12 coefficients, got {len(values)}", fix)
         return cls(*values)
 
+    @functools.cached_property
+    def values(self) -> tuple[float, ...]:
+        """The 12 coefficients in OpenCV order as a tuple (made once)."""
+        return tuple(getattr(self, n) for n in _DISTORTION_NAMES)
+
     @property
     def coeffs(self) -> np.ndarray:
-        """The 12-vector in OpenCV order."""
-        return np.array([getattr(self, n) for n in _DISTORTION_NAMES])
+        """The 12-vector in OpenCV order (a new array each time)."""
+        return np.array(self.values)
 
     @functools.cached_property
     def is_zero(self) -> bool:
-        return not any(getattr(self, n) for n in _DISTORTION_NAMES)
+        return not any(self.values)
 
     def valid_radius(self) -> float:
         """See :func:`valid_radius`."""
-        return valid_radius(self.coeffs)
+        return _valid_radius_cached(self.values)
 
 
 _IDENTITY = ((1.0, 0.0, 0.0), (0.0, 1.0, 0.0), (0.0, 0.0, 1.0))

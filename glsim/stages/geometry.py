@@ -128,7 +128,7 @@ class _Corners:
         return len(self.quads)
 
     def __getitem__(self, sl) -> np.ndarray:
-        return self.nodes[self.quads[sl]]
+        return np.take(self.nodes, self.quads[sl], axis=0)   # (nodes[quads[sl]], several times faster)
 
 
 def _frozen(a: np.ndarray) -> np.ndarray:

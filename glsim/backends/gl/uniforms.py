@@ -60,6 +60,8 @@ def _written(prog, way: str, names) -> None:
     """Record that ``names`` are written ``way`` ("set" or "values") in ``prog``; a name written
     the other way too is a programming error (its recorded value would go stale)."""
     state = _state(prog)
+    if way == "values" and state["values"].issuperset(names):
+        return   # (each was checked when first recorded; set_uniform refuses them since)
     other = state["values" if way == "set" else "set"]
     clash = [n for n in names if n in other]
     if clash:
