@@ -237,7 +237,9 @@ def test_library_files_ground_truth_and_resume(ci_library, gl_ctx):
 
 @pytest.fixture(scope="module")
 def ci_detections(ci_library):
-    return cal.detect_library(ci_library, 41)
+    """Every pair's detections, found by two worker processes (``glsim calib run --processes 2``'s
+    path; the tests below check them against the truth, test_detection_cache the one-process path)."""
+    return cal.detect_library(ci_library, 41, processes=2)
 
 
 @pytest.mark.gl
