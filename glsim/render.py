@@ -287,7 +287,7 @@ class Renderer:
         pending: collections.deque = collections.deque()
         try:
             for job in jobs:
-                args = dict(job) if isinstance(job, (dict, Mapping)) else dict(zip(("camera", "step"), job))
+                args = dict(job) if isinstance(job, Mapping) else dict(zip(("camera", "step"), job))
                 if self.scene.exposure is not None or args.get("jacobian") or args.get("rig"):
                     while pending:   # (in order) then several renders per image (glsim.effects.motion), or a
                         yield self._finish(pending.popleft())    # Jacobian from a second raster

@@ -197,8 +197,8 @@ def table(report: dict) -> str:
         ratio = num(r["glsim_over_riley"], ".3g") if r["glsim_over_riley"] is not None else "—"
         lines.append(f"| {r['mode']} | {r['spp']} | {r['single_pairs_per_s']:.3g} | {r['pipelined_pairs_per_s']:.3g} | "
                      f"{r['pipelined_images_per_s']:.3g} | {r['pipelined_pairs_per_s'] / r['single_pairs_per_s']:.2f} | "
-                     f"{r['single_host_ms']:.2g} / {r['pipelined_host_ms']:.2g} / {_fresh(r)} | "
-                     f"{_opcodes(r)} | {_calls(r)} | "
+                     f"{r['single_host_ms']:.2g} / {r['pipelined_host_ms']:.2g} / {_cell(r, 'fresh_host_ms', '.2g')} | "
+                     f"{_cell(r, 'host_opcodes', ',.0f')} | {_cell(r, 'pipelined_calls', '.0f')} | "
                      f"{'yes' if r['same_bytes'] else 'NO'} | "
                      f"{ratio} | {shown} |")
     riley = next((r["riley"] for r in report["rows"]), "—")
@@ -210,19 +210,10 @@ def table(report: dict) -> str:
     return "\n".join(lines)
 
 
-def _fresh(row: dict) -> str:
-    """The host ms per image when each pair is a new load step ("—" in results made before)."""
-    return f"{row['fresh_host_ms']:.2g}" if row.get("fresh_host_ms") is not None else "—"
-
-
-def _opcodes(row: dict) -> str:
-    """The host's Python opcodes per image ("—" in results made before they were counted)."""
-    return f"{row['host_opcodes']:,.0f}" if row.get("host_opcodes") is not None else "—"
-
-
-def _calls(row: dict) -> str:
-    """The pipelined GL calls per image ("—" in results made before they were counted)."""
-    return f"{row['pipelined_calls']:.0f}" if "pipelined_calls" in row else "—"
+def _cell(row: dict, key: str, fmt: str) -> str:
+    """``row[key]`` formatted, or "—" in results made before it was measured."""
+    value = row.get(key)
+    return "—" if value is None else format(value, fmt)
 
 
 def markdown(report: dict) -> str:

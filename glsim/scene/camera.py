@@ -316,9 +316,14 @@ class Camera:
         return np.array([[self.fx, self.skew, self.cx], [0.0, self.fy, self.cy], [0.0, 0.0, 1.0]])
 
     @property
+    def intrinsic_values(self) -> tuple[float, ...]:
+        """``(fx, fy, skew, cx, cy)`` (px) as a tuple: a cache key, made without numpy."""
+        return self.fx, self.fy, self.skew, self.cx, self.cy
+
+    @property
     def intrinsics(self) -> np.ndarray:
         """``[fx, fy, skew, cx, cy]`` (px), the ``intr`` argument of the pure functions."""
-        return np.array([self.fx, self.fy, self.skew, self.cx, self.cy])
+        return np.array(self.intrinsic_values)
 
     @property
     def rotation(self) -> np.ndarray:

@@ -95,7 +95,7 @@ def ray_radius(cam: Camera) -> float:
     """An upper bound of |xn| (normalized undistorted radius) over the rays of every sample of
     ``cam``'s image: the valid radius, or 1 % beyond the largest ray of the image border where
     that is smaller (the undistorted radius grows with the distorted one). May be inf."""
-    return _ray_radius(tuple(cam.size), (cam.fx, cam.fy, cam.skew, cam.cx, cam.cy), cam.distortion.values)
+    return _ray_radius(tuple(cam.size), cam.intrinsic_values, cam.distortion.values)
 
 
 def _oriented_rect(uv: np.ndarray, a: np.ndarray, pad: np.ndarray) -> np.ndarray:

@@ -46,12 +46,7 @@ _DTYPES = {"f4": np.float32, "u1": np.uint8, "u2": np.uint16}   # moderngl textu
 def _ray_key(cam, s: int, kind: str, aperture: float = 1.0) -> tuple:
     """The ray map cache's key: the camera model, supersampling, kind and the samples' aperture
     (√ fill factor) (GLBackend._ray_map)."""
-    return cam.size, _intrinsics(cam), cam.distortion, s, kind, aperture
-
-
-def _intrinsics(cam) -> tuple:
-    """``cam.intrinsics`` as a tuple of floats (a cache key), made without numpy."""
-    return cam.fx, cam.fy, cam.skew, cam.cx, cam.cy
+    return cam.size, cam.intrinsic_values, cam.distortion, s, kind, aperture
 
 
 def pack_pairs(c: np.ndarray) -> np.ndarray:
@@ -336,7 +331,7 @@ class GLBackend(ImagePasses):
         ref_storage = None
         if p.ref is not None:
             local = p.ref == "REF_LOCAL"
-            ref_storage = (geo.ref_local_buffer if local else geo.ref_pinhole_buffer)(_intrinsics(view.ref_camera))
+            ref_storage = (geo.ref_local_buffer if local else geo.ref_pinhole_buffer)(view.ref_camera.intrinsic_values)
         textures = self._dots_or_reference(opts.interpolation)
         rays = self._ray_map(cam, s, p.rays, fx.aperture) if p.rays is not None else None
 

@@ -73,7 +73,7 @@ def _written(prog, way: str, names) -> None:
 def set_uniform(prog, name: str, value) -> None:
     """``prog[name].value = value`` unless glsim's last write of ``name`` there was ``value``
     (a number or a tuple of numbers; other values are always written)."""
-    simple = type(value) in _SIMPLE or isinstance(value, (int, float, tuple))
+    simple = isinstance(value, (int, float, tuple))
     state = prog.extra
     if simple and state is not None and state["set"].get(name, _UNSET) == value:
         return
@@ -82,5 +82,4 @@ def set_uniform(prog, name: str, value) -> None:
     prog.extra["set"][name] = value if simple else _UNSET
 
 
-_SIMPLE = frozenset((int, float, tuple))
 _UNSET = object()
