@@ -570,6 +570,46 @@ def test_a_worker_killed_while_tasks_are_handed_out_is_replaced(reference_librar
     assert _files(tmp_path / "lib") == _files(ref)
 
 
+def test_a_worker_death_inside_submit_is_replaced(reference_library, tmp_path, monkeypatch):
+    """CPython 3.11 race: submit passes its broken check, the pool's thread marks the pool broken and
+    closes its call queue, and spawning a worker then raises OSError("handle is closed"). Simulated
+    here at the second submit, after a real worker death; the runner restarts the pool as for
+    BrokenProcessPool."""
+    from concurrent.futures import ProcessPoolExecutor
+    spec, ref = reference_library
+    submit, calls = ProcessPoolExecutor.submit, []
+
+    def submit_losing_the_race(self, fn, *args, **kwargs):
+        calls.append(1)
+        if len(calls) == 2:
+            proc = next(iter(self._processes.values()))
+            os.kill(proc.pid, signal.SIGKILL)
+            deadline = time.time() + 30
+            while not self._broken and time.time() < deadline:
+                time.sleep(0.01)
+            raise OSError("handle is closed")
+        return submit(self, fn, *args, **kwargs)
+
+    monkeypatch.setattr(ProcessPoolExecutor, "submit", submit_losing_the_race)
+    s = run(load_plan(spec), tmp_path / "lib", workers=2)
+    assert s.pool_restarts == 1 and s.written == 16 and not s.failed
+    assert _files(tmp_path / "lib") == _files(ref)
+
+
+def test_an_os_error_in_submit_of_a_sound_pool_is_not_taken_for_a_death(reference_library, tmp_path, monkeypatch):
+    """An OSError while the pool is not broken (no processes left to spawn, say) is not retried: it is
+    named, with the fix."""
+    from concurrent.futures import ProcessPoolExecutor
+    spec, _ = reference_library
+
+    def submit_failing(self, fn, *args, **kwargs):
+        raise OSError(24, "Too many open files")
+
+    monkeypatch.setattr(ProcessPoolExecutor, "submit", submit_failing)
+    with pytest.raises(GlsimError, match="could not start a worker process .*Too many open files.* fewer --workers"):
+        run(load_plan(spec), tmp_path / "lib", workers=2)
+
+
 def test_examples_expand(tmp_path):
     root = Path(__file__).resolve().parents[1] / "examples"
     noise = load_plan(root / "library_noise.toml")

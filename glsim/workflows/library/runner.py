@@ -385,6 +385,13 @@ def _run_pool(tasks, workers: int, on_done, summary: Summary, fn=render_task):
                     futures[ex.submit(worker_result, t, fn)] = t
             except BrokenProcessPool:  # a worker died while the tasks were being handed out
                 broken = True
+            except OSError as exc:
+                # The same death, landing inside submit: CPython 3.11 marks the pool broken, then closes
+                # the queue a new worker is spawned with ("handle is closed"). Any other OSError is real.
+                if not getattr(ex, "_broken", False):
+                    raise LibraryError(f"could not start a worker process ({exc}) — run the same command "
+                                       "again with fewer --workers to resume") from exc
+                broken = True
             while futures:
                 done, _ = wait(list(futures), return_when=FIRST_COMPLETED)
                 for f in done:
