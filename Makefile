@@ -11,8 +11,8 @@ X11_PKGS := xvfb xdotool x11-apps chromium glslang-tools
 demo: venv
 	$(BIN)/glsim demo
 
-# two pytest workers: half the tests wait on subprocesses, servers or a browser, so two overlap well
-# even on two cores (about 6 instead of 10 minutes on a 2-core VM)
+# two pytest workers: many tests wait on subprocesses, servers or a browser, so two overlap well
+# even on two cores
 test: venv x11 readme-check
 	$(BIN)/python -m pytest -q -ra -n 2 --durations=25
 
