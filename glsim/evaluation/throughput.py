@@ -106,8 +106,9 @@ def throughput(size=FULL_SIZE, reps: int = REPS, pairs: int = PAIRS, spps=SPPS, 
     from glsim.evaluation.report import gl_info, machine_info
     from glsim.render import Renderer
 
-    scene = _scene(tuple(size), elements, len(MODES) * len(spps) * reps * pairs)
-    fresh = iter(range(1, len(MODES) * len(spps) * reps * pairs + 1))   # each load step rendered once
+    steps = len(MODES) * len(spps) * reps * pairs      # the new-step pairs': each load step rendered once
+    scene = _scene(tuple(size), elements, steps)
+    fresh = iter(range(1, steps + 1))
     rows = []
     with Renderer(scene, "gl") as r:
         machine, elements = machine_info(gl_info(r)), len(r.mesh.quads)
