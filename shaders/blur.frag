@@ -17,11 +17,11 @@
 // more is cut to MAX_RADIUS.
 #include "dof.glsl"
 
-uniform sampler2D u_src;      // R32F grey (BLUR_VERTICAL, BLUR_HYBRID: BLUR_HORIZONTAL's output)
-uniform sampler2D u_depth;    // R32F camera-frame depth Z (mm) per pixel, 0 = no surface
-uniform sampler2D u_image;    // BLUR_HYBRID, BLUR_COLUMNS: the unblurred grey
-uniform sampler2D u_moments;  // BLUR_COLUMNS: BLUR_ROWS's moments M0..M3
-uniform sampler2D u_rows;     // BLUR_COLUMNS: BLUR_ROWS's (remainder factor, c, R, grey) per pixel
+layout(binding = SAMPLER_SRC) uniform sampler2D u_src;      // R32F grey (BLUR_VERTICAL, BLUR_HYBRID: BLUR_HORIZONTAL's output)
+layout(binding = SAMPLER_DEPTH) uniform sampler2D u_depth;    // R32F camera-frame depth Z (mm) per pixel, 0 = no surface
+layout(binding = SAMPLER_IMAGE) uniform sampler2D u_image;    // BLUR_HYBRID, BLUR_COLUMNS: the unblurred grey
+layout(binding = SAMPLER_MOMENTS) uniform sampler2D u_moments;  // BLUR_COLUMNS: BLUR_ROWS's moments M0..M3
+layout(binding = SAMPLER_ROWS) uniform sampler2D u_rows;     // BLUR_COLUMNS: BLUR_ROWS's (remainder factor, c, R, grey) per pixel
 uniform float u_expansion_tol;
 
 #ifdef BLUR_ROWS

@@ -92,7 +92,7 @@ layout(std430, binding = BINDING_DROPPED) buffer Dropped { uint dropped_samples;
 
 #if defined(MODE_EXACT)
 #include "raymap.glsl"
-uniform RAY_SAMPLER u_rays;   // rays.frag: per-sample undistorted normalized coordinates
+layout(binding = SAMPLER_RAYS) uniform RAY_SAMPLER u_rays;   // rays.frag: per-sample undistorted normalized coordinates
 uniform real u_ref_intr[5];
 uniform real u_ref_dist[12];
 uniform real u_ref_valid_r2;

@@ -4,7 +4,7 @@
 #ifdef SKIP_DONE
 #include "candidates.glsl"
 #endif
-uniform sampler2D u_samples;
+layout(binding = SAMPLER_SAMPLES) uniform sampler2D u_samples;
 
 out float out_grey;
 

@@ -3,7 +3,7 @@
 // camera's seed on streams 2 (and 3) and 4 (and 5): the same maps at every load step.
 #include "noise.glsl"
 
-uniform sampler2D u_src;
+layout(binding = SAMPLER_SRC) uniform sampler2D u_src;
 uniform uint u_seed;
 uniform int u_width;
 uniform float u_prnu;   // relative gain sigma (prnu % / 100)

@@ -16,7 +16,7 @@
 // glsim.backends.gl.backend.pack_pairs): texel (i, j) holds the coefficients at padded columns
 // i, i + 1 of row j (r, g) and of row j + 1 (b, a), the last column and row repeated, so one
 // fetch reads four taps (the same values and sums as four single fetches).
-uniform sampler2D u_ref;
+layout(binding = SAMPLER_REF) uniform sampler2D u_ref;
 
 // ref_weights(t, w): per-axis weights at fractional offset t in [0, 1); tap k multiplies
 // the coefficient at floor(x) + REF_FIRST + k.

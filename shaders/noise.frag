@@ -2,7 +2,7 @@
 // the flat pixel index v * W + u and the image's seed. Not clipped (quantisation clips).
 #include "noise.glsl"
 
-uniform sampler2D u_src;
+layout(binding = SAMPLER_SRC) uniform sampler2D u_src;
 uniform uint u_seed;
 uniform int u_width;
 

@@ -53,7 +53,7 @@ float standard_normal(uint index, uint seed) { return standard_normal(index, see
 uniform float u_noise_sigma;  // full-scale units (sigma % of 2^bits levels, over 2^bits - 1)
 float noise_sigma(float I) { return u_noise_sigma; }
 #elif defined(NOISE_HETEROSCEDASTIC)
-uniform sampler2D u_variance;  // R32F: variance (DN^2) at DN n in texel (n % width, n / width)
+layout(binding = SAMPLER_VARIANCE) uniform sampler2D u_variance;  // R32F: variance (DN^2) at DN n in texel (n % width, n / width)
 uniform float u_dn_max;        // 2^bits - 1
 float variance_at(int n) {
     int w = textureSize(u_variance, 0).x;

@@ -4,9 +4,9 @@
 // texture of (2 RADIUS + 1)^2 texels (texel (i, j): offset (i - RADIUS, j - RADIUS)).
 #define TAPS (2 * RADIUS + 1)
 
-uniform sampler2D u_src;
+layout(binding = SAMPLER_SRC) uniform sampler2D u_src;
 #ifdef PSF_2D
-uniform sampler2D u_kernel;
+layout(binding = SAMPLER_KERNEL) uniform sampler2D u_kernel;
 #else
 uniform float u_taps[TAPS];
 #endif

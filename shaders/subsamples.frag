@@ -21,7 +21,7 @@
 #define SUBSAMPLE_STEPS 3
 #define OTHER_ROOT_RANGE 3.0
 
-uniform RAY_SAMPLER u_centre_rays;   // rays.frag at 1 spp
+layout(binding = SAMPLER_CENTRE_RAYS) uniform RAY_SAMPLER u_centre_rays;   // rays.frag at 1 spp
 uniform float u_background;
 
 void main() {

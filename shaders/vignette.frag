@@ -1,6 +1,6 @@
 // Vignetting (glsim/effects/vignetting.py): the irradiance times the camera's gain, per pixel.
-uniform sampler2D u_src;
-uniform sampler2D u_gain;   // R32F (H, W): the float64 gain rounded to float32
+layout(binding = SAMPLER_SRC) uniform sampler2D u_src;
+layout(binding = SAMPLER_GAIN) uniform sampler2D u_gain;   // R32F (H, W): the float64 gain rounded to float32
 
 out float out_grey;
 

@@ -332,7 +332,7 @@ def _plate_depth(shape):
 @pytest.mark.gl
 def test_gl_coc_and_sigma_match_numpy(gl_ctx, tmp_path):
     (tmp_path / "dof_check.frag").write_text(
-        '#include "dof.glsl"\nuniform sampler2D u_depth;\nout float out_val;\n'
+        '#include "dof.glsl"\nlayout(binding = SAMPLER_DEPTH) uniform sampler2D u_depth;\nout float out_val;\n'
         'void main() {\n    float Z = texelFetch(u_depth, ivec2(gl_FragCoord.xy), 0).r;\n'
         '#ifdef SIGMA\n    out_val = blur_sigma(Z);\n#else\n    out_val = coc_px(max(Z, 40.0));\n#endif\n}\n')
     backend = _backend(gl_ctx, (tmp_path,))

@@ -304,3 +304,60 @@ def test_set_uniform_writes_only_changes_and_keeps_the_two_ways_apart(gl_ctx):
         set_uniform(prog, "u_unit", 3)
     assert prog["u_unit"].value == 3 and prog["u_layer"].value == 0.75
     prog.release()
+
+
+_SAMPLER_DECL = r"^\s*(layout\(binding = SAMPLER_(\w+)\) )?uniform (?:u?sampler\w+|RAY_SAMPLER) (u_\w+);"
+
+
+def test_every_packaged_sampler_has_its_fixed_unit():
+    """Each sampler the packaged shaders declare is bound by layout to the unit of its name in
+    glsim.backends.gl.bindings.SAMPLERS (so no frame sets it); the units are distinct and below
+    16, GL 4.5's least number of texture units per shader stage."""
+    import re
+    from importlib import resources
+
+    from glsim.backends.gl.bindings import SAMPLERS, defines
+
+    found = {}
+    for f in resources.files("glsim.shaders").iterdir():
+        for m in re.finditer(_SAMPLER_DECL, f.read_text(), re.M):
+            assert m.group(1) and m.group(2) == m.group(3)[2:].upper(), f"{f.name}: {m.group(0).strip()}"
+            found[m.group(3)] = f.name
+    assert set(found) == set(SAMPLERS)
+    assert len(set(SAMPLERS.values())) == len(SAMPLERS) and max(SAMPLERS.values()) < 16
+    assert all(f"#define SAMPLER_{n[2:].upper()} {u}" in defines() for n, u in SAMPLERS.items())
+
+
+@pytest.mark.gl
+@pytest.mark.parametrize("mode", ["fast", "exact"])
+def test_linked_samplers_read_their_table_units(gl_ctx, mode):
+    """After a render at 4 spp, quantised on the GPU, every sampler of every program the context
+    built holds its table unit as the driver linked it (GL 4.2 layout bindings; the effects'
+    passes are checked against the oracle by their own tests, which a wrong unit would fail)."""
+    from glsim.backends.gl.bindings import SAMPLERS
+    from glsim.backends.gl.programs import _shared
+
+    scene = bulge_scene(size=(96, 72), steps=1)
+    with Renderer(scene, "gl", ctx=gl_ctx) as r:
+        r.render(0, 1, mode=mode, samples_per_pixel=4, quantize=True)
+    seen = 0
+    for prog in _shared(gl_ctx).values():
+        for name, unit in SAMPLERS.items():
+            u = prog.get(name, None)
+            if u is not None:
+                assert u.value == unit, (name, u.value)
+                seen += 1
+    assert seen >= (3 if mode == "fast" else 6)   # u_ref, u_samples, u_src (+ rays, lists)
+
+
+@pytest.mark.gl
+def test_a_table_sampler_without_its_layout_is_refused(gl_ctx, tmp_path):
+    """A shader that declares a table sampler without its binding would read unit 0 while the
+    frame binds its texture elsewhere: building it is refused, naming the declaration to write."""
+    (tmp_path / "bad.frag").write_text("uniform sampler2D u_src;\nout float out_grey;\n"
+                                       "void main() { out_grey = texelFetch(u_src, ivec2(0), 0).r; }\n")
+    cache = ProgramCache(gl_ctx, dirs=(tmp_path,))
+    with pytest.raises(ShaderError, match=r"sampler u_src reads texture unit 0, not its unit 5; declare it as "
+                                          r"layout\(binding = SAMPLER_SRC\)"):
+        cache.program("fullscreen.vert", "bad.frag")
+    cache.release()

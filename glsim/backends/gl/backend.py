@@ -29,7 +29,7 @@ from glsim.stages.geometry import VIEWS_KEPT, ViewSpec
 from glsim.stages.quadview import patch_data, pieces_to_patches
 from glsim.backends.contract import Capabilities, Raster, Request
 from glsim.stages.view import warn_dropped, warn_problems
-from glsim.backends.gl.bindings import storage
+from glsim.backends.gl.bindings import sampler, storage
 from glsim.backends.gl.context import check_error, create_context
 from glsim.backends.gl.geometry import DRAW_FALLBACK, DRAW_RESOLVE, LAYERS, GeometryBuffers
 from glsim.backends.gl import timing
@@ -40,6 +40,7 @@ from glsim.backends.gl.readback import PackBuffers, Pending, read_buffer, read_t
 from glsim.backends.gl.uniforms import Uniforms, set_uniform
 
 
+_REF_UNIT, _RAYS_UNIT = sampler("u_ref"), sampler("u_rays")
 _DTYPES = {"f4": np.float32, "u1": np.uint8, "u2": np.uint16}   # moderngl texture dtype → numpy
 
 
@@ -350,9 +351,8 @@ class GLBackend(ImagePasses):
             if lighting is not None:
                 lighting.write(prog)
             textures(prog)
-            if rays is not None and prog.get("u_rays", None) is not None:
-                rays.use(1)
-                set_uniform(prog, "u_rays", 1)
+            if rays is not None:
+                rays.use(_RAYS_UNIT)
 
         return uniforms, bind, setup
 
@@ -382,10 +382,9 @@ class GLBackend(ImagePasses):
         W, H = view.camera.size
         prog = self.programs.program("lists.vert", frag, defines={**defines, "EARLY_TESTS": None})
         setup(prog)
-        geo.bind_lists(W, H, prog)
-        for unit, (name, tex) in enumerate((textures or {}).items(), start=4):
-            tex.use(unit)
-            set_uniform(prog, name, unit)
+        geo.bind_lists(W, H, textures=True)
+        for name, tex in (textures or {}).items():
+            tex.use(sampler(name))
         for name, value in {**(uniforms or {}), "u_layer": layer}.items():
             set_uniform(prog, name, value)
         target.use()
@@ -440,7 +439,7 @@ class GLBackend(ImagePasses):
             # pixels with more candidates than the lists hold: the cover rectangles
             prog = self.programs.program("exact.vert", "deform.frag", defines={**defines, "FALLBACK": None})
             setup(prog)
-            geo.bind_lists(W, H, prog)
+            geo.bind_lists(W, H, textures=True)
             ctx.enable(ctx.DEPTH_TEST)
             geo.draw(prog, (geo.draws(W, H), DRAW_FALLBACK))
         ctx.disable(ctx.DEPTH_TEST)
@@ -530,9 +529,7 @@ class GLBackend(ImagePasses):
         tex = self._reference_texture(method)
 
         def bind(prog):
-            tex.use(0)
-            if prog.get("u_ref", None) is not None:
-                set_uniform(prog, "u_ref", 0)
+            tex.use(_REF_UNIT)
         return bind
 
     def _bind_dots(self, prog) -> None:

@@ -1,7 +1,10 @@
-"""Every shader storage buffer and image binding of the renderer's programs, in one table: the
-shaders read them as ``#define BINDING_<NAME> n`` (prepended by glsim.backends.gl.programs), the
-Python side binds by name (:func:`storage`, :func:`image`). Numbers stay below 24 (GL 4.3
-guarantees 8 storage bindings; Mesa has 80, NVIDIA 96)."""
+"""Every shader storage buffer, image and texture binding of the renderer's programs, in one
+table: the shaders read them as ``#define BINDING_<NAME> n``, ``IMAGE_<NAME> n`` and
+``SAMPLER_<NAME> n`` (prepended by glsim.backends.gl.programs; a sampler is declared
+``layout(binding = SAMPLER_SRC) uniform sampler2D u_src;``), the Python side binds by name
+(:func:`storage`, :func:`image`, :func:`sampler`). A sampler's unit is fixed in the program, so
+no frame sets it. Numbers stay below 24 (GL 4.3 guarantees 8 storage bindings; Mesa has 80,
+NVIDIA 96); texture units below 16, GL 4.5's least number per shader stage."""
 from __future__ import annotations
 
 STORAGE = {
@@ -26,6 +29,22 @@ STORAGE = {
     "PATCH_NODES": 18,  # quadratic patches: the step's control points
 }
 IMAGES = {"CAND_COUNT": 0, "CAND_LIST": 1}
+SAMPLERS = {           # by the sampler's uniform name (SAMPLER_<name without u_, upper case>)
+    "u_ref": 0,        # the reference speckle image (interp.glsl)
+    "u_rays": 1,       # the ray map at the pass's samples (rays.frag)
+    "u_count_tex": 2,  # candidate counts (candidates.glsl, pass 2)
+    "u_list_tex": 3,   # candidate lists (candidates.glsl, pass 2)
+    "u_centre_rays": 4,  # the ray map at pixel centres (subsamples.frag)
+    "u_src": 5,        # an image pass's input grey
+    "u_gain": 6,       # vignetting gain
+    "u_depth": 7,      # depth per pixel (blur)
+    "u_image": 8,      # the unblurred grey (blur)
+    "u_moments": 9,    # blur moments
+    "u_rows": 10,      # blur rows' records
+    "u_variance": 11,  # noise variance table
+    "u_samples": 12,   # the s×s samples (box filter)
+    "u_kernel": 13,    # a PSF kernel
+}
 
 
 def storage(name: str) -> int:
@@ -36,7 +55,16 @@ def image(name: str) -> int:
     return IMAGES[name]
 
 
+def sampler(name: str) -> int:
+    """The texture unit of sampler uniform ``name``."""
+    unit = SAMPLERS.get(name)
+    if unit is None:
+        raise KeyError(f"sampler {name!r} has no texture unit: add it to glsim.backends.gl.bindings.SAMPLERS")
+    return unit
+
+
 def defines() -> str:
     """The table as #define lines for the shaders."""
     return "\n".join([f"#define BINDING_{k} {v}" for k, v in STORAGE.items()] +
-                     [f"#define IMAGE_{k} {v}" for k, v in IMAGES.items()])
+                     [f"#define IMAGE_{k} {v}" for k, v in IMAGES.items()] +
+                     [f"#define SAMPLER_{k[2:].upper()} {v}" for k, v in SAMPLERS.items()])

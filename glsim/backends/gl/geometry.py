@@ -20,7 +20,7 @@ from collections import OrderedDict
 
 import numpy as np
 
-from glsim.backends.gl.bindings import image, storage
+from glsim.backends.gl.bindings import image, sampler, storage
 from glsim.backends.gl.uniforms import set_uniform
 from glsim.stages.geometry import STEPS_KEPT, MeshGeometry, ViewSpec
 from glsim.stages.view import GRAZING_COS, NEAR_MM, ray_radius
@@ -33,6 +33,7 @@ CANDIDATES = 8       # candidates.glsl: elements listed per pixel before it over
 LAYERS = {"deform.frag": 0.25, "resolve.frag": 0.5}
 _MAX_GROUPS = 65535  # per dispatch dimension
 _CAND_COUNT, _CAND_LIST, _TIGHT = image("CAND_COUNT"), image("CAND_LIST"), storage("TIGHT")
+_COUNT_UNIT, _LIST_UNIT = sampler("u_count_tex"), sampler("u_list_tex")
 
 
 def _bitset_words(M: int) -> int:
@@ -299,17 +300,16 @@ class GeometryBuffers:
         depth_only.use()
         self._vao(prog, indexed=False).render(self.ctx.TRIANGLES, vertices=3)
 
-    def bind_lists(self, W: int, H: int, prog=None) -> None:
-        """The lists as images (pass 1) and, for ``prog`` (pass 2), as textures on units 2, 3."""
+    def bind_lists(self, W: int, H: int, textures: bool = False) -> None:
+        """The lists as images (pass 1) and, with ``textures`` (pass 2), as the textures
+        u_count_tex and u_list_tex."""
         count, lists = self._lists(W, H)[:2]
         count.bind_to_image(_CAND_COUNT, read=True, write=True)
         lists.bind_to_image(_CAND_LIST, read=True, write=True)
         self._bufs["tight"].bind_to_storage_buffer(_TIGHT)
-        if prog is not None:
-            for unit, name, tex in ((2, "u_count_tex", count), (3, "u_list_tex", lists)):
-                if prog.get(name, None) is not None:
-                    tex.use(unit)
-                    set_uniform(prog, name, unit)
+        if textures:
+            count.use(_COUNT_UNIT)
+            lists.use(_LIST_UNIT)
 
     def list_flags(self, W: int, H: int) -> tuple[bool, bool]:
         """Whether some pixel has more than one candidate, and whether one has more than the

@@ -8,6 +8,7 @@ import numpy as np
 
 from glsim.effects import noise
 from glsim.effects.dof import blur_scheme, kernel_radius, shader_uniforms
+from glsim.backends.gl.bindings import sampler
 from glsim.backends.gl.context import check_error
 from glsim.backends.gl.plan import BLUR_PASSES
 from glsim.backends.gl.readback import read_texture
@@ -24,7 +25,8 @@ class ImagePasses:
                         components: tuple[int, ...] = (1,), into=None, dtype: str = "f4", scratch: list | None = None):
         """Run a full-screen fragment pass into a new R32F texture of ``size`` (W, H); the
         caller releases it. ``inputs`` maps sampler names to textures or float arrays (H, W)
-        (arrays are uploaded for the pass and released after it). ``components``: one texture
+        (arrays are uploaded for the pass and released after it), each bound to its sampler's
+        unit (glsim.backends.gl.bindings.SAMPLERS). ``components``: one texture
         per fragment output with that many components (then a tuple is returned), of moderngl
         ``dtype``. ``into``: an existing texture to draw into instead (pixels the shader
         discards keep their values); it is returned. ``scratch``: a frame's list of textures
@@ -34,15 +36,13 @@ class ImagePasses:
         W, H = size
         prog = self.programs.program("fullscreen.vert", frag, defines=defines)
         uploaded = []
-        for unit, (name, tex) in enumerate(inputs.items()):
+        for name, tex in inputs.items():
             if isinstance(tex, np.ndarray):
                 a = np.ascontiguousarray(tex, np.float32)
                 tex = ctx.texture(a.shape[::-1], 1, a.tobytes(), dtype="f4")
                 tex.filter = (ctx.NEAREST, ctx.NEAREST)
                 uploaded.append(tex)
-            if prog.get(name, None) is not None:
-                tex.use(unit)
-                set_uniform(prog, name, unit)
+            tex.use(sampler(name))
         for name, value in uniforms.items():
             if prog.get(name, None) is not None:
                 set_uniform(prog, name, value)

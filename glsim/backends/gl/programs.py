@@ -136,6 +136,7 @@ class ProgramCache:
                 files = ", ".join(f for _, f in stages)
                 raise ShaderError(f"GLSL program ({files}) failed to build with defines "
                                   f"{dict(defines)}:\n{translate_log(str(exc), sources)}") from None
+            _check_samplers(prog, stages)
             self._programs[key] = prog
         if key not in self._asked:
             self._asked.add(key)
@@ -169,6 +170,17 @@ class ProgramCache:
             self._programs.clear()
         self._asked.clear()
         self._found.clear()
+
+
+def _check_samplers(prog, stages) -> None:
+    """Every sampler of ``prog`` named in the binding table reads its fixed unit (frames bind
+    the textures there and never set the uniform)."""
+    for name, unit in bindings.SAMPLERS.items():
+        u = prog.get(name, None)
+        if u is not None and u.value != unit:
+            files = ", ".join(f for _, f in stages)
+            raise ShaderError(f"GLSL program ({files}): sampler {name} reads texture unit {u.value}, not its unit "
+                              f"{unit}; declare it as layout(binding = SAMPLER_{name[2:].upper()}) uniform … {name};")
 
 
 def _shared(ctx) -> dict:

@@ -6,8 +6,8 @@ driver keeps only the leading elements of an array that the program reads (``arr
 each program the first time it is written there, so a frame's setup of a program it has set
 up before is one driver call per uniform: no lookups, conversions or packing.
 
-:func:`set_uniform` sets one uniform that keeps its value across frames (a sampler's unit, a
-pass's layer, a size) only when it changes: a program keeps its uniforms' values, and every
+:func:`set_uniform` sets one uniform that keeps its value across frames (a pass's layer, a
+size) only when it changes: a program keeps its uniforms' values, and every
 glsim write of such a name goes through it, so what it last wrote (kept in the program's
 ``extra``, as programs are shared per context) is what the program holds. A name is set by
 one of the two ways in a program, never both (checked when either first sets it).
