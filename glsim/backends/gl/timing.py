@@ -26,8 +26,10 @@ import time
 class DriverTime:
     """What :func:`driver_time` counted: ``seconds`` (wall) and ``cpu_seconds`` (this thread's
     CPU, :func:`time.thread_time`) inside moderngl calls, ``calls`` of them, and ``overhead``:
-    the host CPU seconds the counting itself costs per call (measured when the block starts),
-    which :meth:`host_seconds` takes off."""
+    the host CPU seconds the counting itself costs per call (measured on a no-op when the block
+    starts), which :meth:`host_seconds` takes off. Beside real driver calls the counting can
+    cost more than on the no-op, so the host seconds are an upper bound (the throughput
+    benchmark measures the difference)."""
     seconds = 0.0
     cpu_seconds = 0.0
     calls = 0
