@@ -119,6 +119,6 @@ def test_bench_throughput_quick(tmp_path):
     assert [(r["mode"], r["spp"]) for r in rows] == [(m, s) for m in ("fast", "q4", "exact") for s in (1, 4)]
     assert all(r["same_bytes"] for r in rows)
     assert all(r["pipelined_pairs_per_s"] > 0 and r["single_pairs_per_s"] > 0 and r["passes"] for r in rows)
-    assert all(r["pipelined_host_low_ms"] >= 0 and r["fresh_host_ms"] > 0 for r in rows)   # (timings: not tested)
+    assert all(r["fresh_host_ms"] > 0 for r in rows) and report["counting"]["reps"] >= 1   # (timings: not tested)
     text = (tmp_path / "throughput.md").read_text()
     assert text.startswith("# glsim throughput benchmark") and report["machine"]["gl"]["renderer"] in text

@@ -17,15 +17,15 @@ read-back is mapped). Each repetition renders PAIRS stereo pairs each way for ev
   shaders themselves), less what counting them costs
   (:func:`glsim.backends.gl.timing.driver_time`) — the Python and numpy work per image. The
   JSON also keeps the wall time outside the driver (``*_host_wall_ms``): on llvmpipe it adds
-  the waits for a core that the driver's render threads hold. Counting costs two CPU-clock
-  reads (system calls) per moderngl call; what it adds outside the counted spans is measured on
-  a no-op and taken off, but beside real driver calls it can cost more, so these figures are
-  upper bounds. The JSON keeps what counting cost per image in the pipelined stream
-  (``counting_ms``: counted less uncounted CPU time) beside the no-op estimate taken off
-  (``counting_noop_ms``). **lower bound**: the same pipelined jobs, uncounted (the thread's
-  whole CPU time per image, timed in the same repetitions), less the counted run's driver CPU
-  time, which includes the counting's own share inside the spans: the host's work lies
-  between the two.
+  the waits for a core that the driver's render threads hold. Counting reads the thread's CPU
+  clock (a system call) twice per moderngl call; the host figures take off what it adds outside
+  the counted spans as measured on a no-op. **counting**: what it costs per GL call in all,
+  in place — the CPU time of a pipelined exact stream on the plate at COUNTING_SIZE counted
+  less uncounted, over COUNTING_REPS interleaved repetitions (a small plate, so that the
+  driver's own time varies less than the difference; at full size the thread's CPU time per
+  image varies by more than the counting costs) — beside the same on the no-op. Where it
+  costs more in place, the host figures likely hold some of the excess: read them as upper
+  bounds.
 - **GL calls / image**: moderngl calls per image (pipelined; calls made inside another count
   once) — the driver work the host issues, independent of the machine's speed.
 - **host opcodes / image**: Python bytecode instructions executed per image outside moderngl
@@ -66,6 +66,9 @@ GOALS = {("exact", 1): 300, ("exact", 4): 150, ("fast", 1): 1000}
 GOAL_HOST_MS = 1.0
 GOAL_RILEY_EXACT_4 = 10.0     # riley-raster on all cores at least this many times slower (exact, 4 spp)
 STEP_MM = 0.001               # the plate's translation per load step (new-step pairs)
+COUNTING_SIZE = (96, 72)      # the counting-cost measurement: plate size (px), elements, repetitions
+COUNTING_ELEMENTS = 200
+COUNTING_REPS = 15
 
 
 def _scene(size: tuple[int, int], elements: int, steps: int = 0):
@@ -108,7 +111,7 @@ def _riley(size: tuple[int, int], spp: int, elements: int):
 
 
 def throughput(size=FULL_SIZE, reps: int = REPS, pairs: int = PAIRS, spps=SPPS, elements: int = ELEMENTS,
-               log=print) -> dict:
+               log=print, counting_reps: int = COUNTING_REPS) -> dict:
     """Measure every row (see the module text); returns the report."""
     from glsim.backends.gl.timing import driver_time, host_opcodes
     from glsim.evaluation.report import gl_info, machine_info
@@ -128,19 +131,13 @@ def throughput(size=FULL_SIZE, reps: int = REPS, pairs: int = PAIRS, spps=SPPS, 
                 row = {"mode": mode, "spp": spp, "single_s": [], "pipelined_s": [], "single_host_ms": [],
                        "pipelined_host_ms": [], "single_host_wall_ms": [], "pipelined_host_wall_ms": [],
                        "single_calls": [], "pipelined_calls": [], "fresh_s": [], "fresh_host_ms": [],
-                       "pipelined_driver_ms": [], "pipelined_cpu_ms": [], "counting_noop_ms": [],
-                       "uncounted_ms": [], "riley_s": [], "riley": riley_name, "same_bytes": True}
+                       "riley_s": [], "riley": riley_name, "same_bytes": True}
                 if riley is not None:
                     riley()
                 for _ in range(reps):
-                    for way in ("single", "pipelined", "uncounted", "fresh"):
+                    for way in ("single", "pipelined", "fresh"):
                         todo = (_jobs(pairs, mode, spp, [next(fresh) for _ in range(pairs)]) if way == "fresh"
                                 else jobs)
-                        if way == "uncounted":     # the thread's whole CPU time: the lower bound's
-                            c = time.thread_time()
-                            list(r.render_many(todo, depth=DEPTH))
-                            row["uncounted_ms"].append((time.thread_time() - c) / len(todo) * 1e3)
-                            continue
                         with driver_time() as d:
                             t, c = time.perf_counter(), time.thread_time()
                             out = ([r.render(**j) for j in todo] if way == "single"
@@ -151,10 +148,6 @@ def throughput(size=FULL_SIZE, reps: int = REPS, pairs: int = PAIRS, spps=SPPS, 
                         row[f"{way}_host_ms"].append(host_cpu / len(todo) * 1e3)
                         if way == "fresh":
                             continue
-                        if way == "pipelined":
-                            row["pipelined_driver_ms"].append(d.cpu_seconds / len(todo) * 1e3)
-                            row["pipelined_cpu_ms"].append(cpu / len(todo) * 1e3)
-                            row["counting_noop_ms"].append(d.calls * d.overhead / len(todo) * 1e3)
                         row[f"{way}_host_wall_ms"].append(host_wall / len(todo) * 1e3)
                         row[f"{way}_calls"].append(d.calls / len(todo))
                         if way == "single":
@@ -175,9 +168,35 @@ def throughput(size=FULL_SIZE, reps: int = REPS, pairs: int = PAIRS, spps=SPPS, 
                 row["host_opcodes"] = n[0] / 2
                 rows.append(_summary(row, pairs))
                 log(f"throughput: {mode} {spp} spp: {rows[-1]['pipelined_pairs_per_s']:.3g} pairs/s pipelined")
+    counting = _counting_cost(counting_reps)
     return {"size": list(size), "elements": elements, "pairs": pairs, "reps": reps, "depth": DEPTH,
-            "machine": machine, "date": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
+            "counting": counting, "machine": machine, "date": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
             "rows": rows}
+
+
+def _counting_cost(reps: int) -> dict:
+    """What :func:`~glsim.backends.gl.timing.driver_time` costs per GL call in all: in place
+    (a pipelined exact stream of PAIRS pairs on the plate at COUNTING_SIZE, counted and
+    uncounted in turn ``reps`` times, the median of the CPU time's difference per call) and on
+    a no-op (:func:`~glsim.backends.gl.timing.noop_cost`)."""
+    from glsim.backends.gl.timing import driver_time, noop_cost
+    from glsim.render import Renderer
+
+    jobs = _jobs(PAIRS, "exact", 1)
+    extra = []
+    with Renderer(_scene(COUNTING_SIZE, COUNTING_ELEMENTS), "gl") as r:
+        list(r.render_many(jobs))
+        for _ in range(reps):
+            c = time.thread_time()
+            list(r.render_many(jobs, depth=DEPTH))
+            uncounted = time.thread_time() - c
+            with driver_time() as d:
+                c = time.thread_time()
+                list(r.render_many(jobs, depth=DEPTH))
+                counted = time.thread_time() - c
+            extra.append((counted - uncounted) / d.calls * 1e6)
+    return {"size": list(COUNTING_SIZE), "elements": COUNTING_ELEMENTS, "reps": reps,
+            "in_place_us": statistics.median(extra), "noop_us": noop_cost()[1] * 1e6, "in_place_all_us": extra}
 
 
 def _summary(row: dict, pairs: int) -> dict:
@@ -192,10 +211,6 @@ def _summary(row: dict, pairs: int) -> dict:
         out[f"{way}_s_all"] = row[f"{way}_s"]
     out["fresh_pairs_per_s"] = pairs / statistics.median(row["fresh_s"])
     out["fresh_host_ms"] = statistics.median(row["fresh_host_ms"])
-    uncounted = statistics.median(row["uncounted_ms"])
-    out["pipelined_host_low_ms"] = max(0.0, uncounted - statistics.median(row["pipelined_driver_ms"]))
-    out["counting_ms"] = statistics.median(row["pipelined_cpu_ms"]) - uncounted
-    out["counting_noop_ms"] = statistics.median(row["counting_noop_ms"])
     out["riley_s"] = statistics.median(row["riley_s"]) if row["riley_s"] else None
     out["riley_s_all"] = row["riley_s"]
     per_image = 1.0 / out["pipelined_images_per_s"]
@@ -210,9 +225,9 @@ def table(report: dict) -> str:
     W, H = report["size"]
     lines = [f"{machine_line(report['machine'])}; {report['date']}", "",
              "| mode | spp | pairs/s one at a time | pairs/s pipelined | images/s pipelined | pipelined / one "
-             "at a time | host ms / image (one / pipelined / new step) | pipelined host ms, lower bound | host opcodes / image | GL calls / image | "
+             "at a time | host ms / image (one / pipelined / new step) | host opcodes / image | GL calls / image | "
              "same bytes | glsim / riley per image | largest passes (ms) and rest |",
-             "|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
+             "|---|---|---|---|---|---|---|---|---|---|---|---|"]
     for r in report["rows"]:
         passes = sorted(r["passes"].items(), key=lambda kv: -kv[1])
         rest = r["passes_wall_s"] - sum(r["passes"].values())
@@ -221,7 +236,6 @@ def table(report: dict) -> str:
         lines.append(f"| {r['mode']} | {r['spp']} | {r['single_pairs_per_s']:.3g} | {r['pipelined_pairs_per_s']:.3g} | "
                      f"{r['pipelined_images_per_s']:.3g} | {r['pipelined_pairs_per_s'] / r['single_pairs_per_s']:.2f} | "
                      f"{r['single_host_ms']:.2g} / {r['pipelined_host_ms']:.2g} / {_cell(r, 'fresh_host_ms', '.2g')} | "
-                     f"{_cell(r, 'pipelined_host_low_ms', '.2g')} | "
                      f"{_cell(r, 'host_opcodes', ',.0f')} | {_cell(r, 'pipelined_calls', '.0f')} | "
                      f"{'yes' if r['same_bytes'] else 'NO'} | "
                      f"{ratio} | {shown} |")
@@ -229,10 +243,14 @@ def table(report: dict) -> str:
     lines += ["", f"Plate of issue 19 ({report['elements']} quad4, k1 = −0.1, Catmull–Rom cubic) at {W}×{H} px, "
               f"both cameras of the 30° rig; {report['pairs']} pairs per way and repetition, {report['reps']} "
               f"interleaved repetitions after one warm-up pair, medians; pipelined: `render_many` depth "
-              f"{report['depth']}; new step: as pipelined, each pair a load step not rendered before; host ms "
-              f"count the driver's calls (upper bounds), the lower bound is the uncounted thread time less "
-              f"the driver's. "
+              f"{report['depth']}; new step: as pipelined, each pair a load step not rendered before. "
               f"Peer: {riley}, camera 0 only."]
+    c = report.get("counting")
+    if c:
+        lines += ["", f"Counting the driver's calls costs {c['in_place_us']:.2g} µs per GL call in place (exact, "
+                  f"{c['size'][0]}×{c['size'][1]} px, median of {c['reps']} repetitions) and {c['noop_us']:.2g} µs "
+                  f"on a no-op, whose share outside the counted spans the host figures take off: where the first "
+                  f"is larger, read the host ms as upper bounds."]
     return "\n".join(lines)
 
 

@@ -73,10 +73,10 @@ def _counter(t: DriverTime):
 
 
 @functools.cache
-def _overhead(n: int = 2000) -> float:
-    """Host CPU seconds per call that counting adds outside the counted interval (the
-    wrapper's own Python), from ``n`` calls of a no-op counted and not (measured once per
-    process)."""
+def noop_cost(n: int = 2000) -> tuple[float, float]:
+    """CPU seconds per call that counting adds to a no-op: (outside the counted interval — the
+    wrapper's own Python, which :meth:`DriverTime.host_seconds` takes off — and in all), from
+    ``n`` calls of a no-op counted and not (measured once per process)."""
     def noop():
         return None
     probe = DriverTime()
@@ -88,7 +88,8 @@ def _overhead(n: int = 2000) -> float:
     for _ in range(n):
         counted()
     c2 = time.thread_time()
-    return max(0.0, ((c2 - c1) - probe.cpu_seconds - (c1 - c0)) / n)
+    total = max(0.0, ((c2 - c1) - (c1 - c0)) / n)
+    return max(0.0, total - probe.cpu_seconds / n), total
 
 
 @contextlib.contextmanager
@@ -98,7 +99,7 @@ def driver_time():
     queue there) for the block's duration to add their time to the yielded counter (calls
     nested in others count once)."""
     t = DriverTime()
-    t.overhead = _overhead()
+    t.overhead = noop_cost()[0]
     wrap = _counter(t)
     saved = []
     for cls in _classes():

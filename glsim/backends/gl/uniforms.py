@@ -41,11 +41,11 @@ class Uniforms:
             for name, value in self.values.items():
                 u = prog.get(name, None)
                 if u is not None and hasattr(u, "fmt"):
-                    writes.append((u.write, _bytes(u, value)))
+                    writes.append((u, _bytes(u, value)))
             _written(prog, "values", self.values)
             made = self._made[id(prog)] = (prog, writes)
-        for write, data in made[1]:
-            write(data)
+        for u, data in made[1]:
+            u.write(data)   # (looked up each time: glsim.backends.gl.timing counts it as a GL call)
 
 
 def _state(prog) -> dict:
