@@ -57,14 +57,16 @@ def image(name: str) -> int:
 
 def sampler(name: str) -> int:
     """The texture unit of sampler uniform ``name``."""
-    unit = SAMPLERS.get(name)
-    if unit is None:
-        raise KeyError(f"sampler {name!r} has no texture unit: add it to glsim.backends.gl.bindings.SAMPLERS")
-    return unit
+    return SAMPLERS[name]
+
+
+def sampler_define(name: str) -> str:
+    """The macro the shaders declare sampler uniform ``name``'s binding with (u_src → SAMPLER_SRC)."""
+    return f"SAMPLER_{name[2:].upper()}"
 
 
 def defines() -> str:
     """The table as #define lines for the shaders."""
     return "\n".join([f"#define BINDING_{k} {v}" for k, v in STORAGE.items()] +
                      [f"#define IMAGE_{k} {v}" for k, v in IMAGES.items()] +
-                     [f"#define SAMPLER_{k[2:].upper()} {v}" for k, v in SAMPLERS.items()])
+                     [f"#define {sampler_define(k)} {v}" for k, v in SAMPLERS.items()])

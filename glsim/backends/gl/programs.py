@@ -180,7 +180,7 @@ def _check_samplers(prog, stages) -> None:
         if u is not None and u.value != unit:
             files = ", ".join(f for _, f in stages)
             raise ShaderError(f"GLSL program ({files}): sampler {name} reads texture unit {u.value}, not its unit "
-                              f"{unit}; declare it as layout(binding = SAMPLER_{name[2:].upper()}) uniform … {name};")
+                              f"{unit}; declare it as layout(binding = {bindings.sampler_define(name)}) uniform … {name};")
 
 
 def _shared(ctx) -> dict:
