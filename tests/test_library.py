@@ -570,11 +570,15 @@ def test_a_worker_killed_while_tasks_are_handed_out_is_replaced(reference_librar
     assert _files(tmp_path / "lib") == _files(ref)
 
 
-def test_a_worker_death_inside_submit_is_replaced(reference_library, tmp_path, monkeypatch):
+@pytest.mark.parametrize("spawn_error", [OSError("handle is closed"), ValueError("bad value(s) in fds_to_keep"),
+                                         RuntimeError("cannot schedule new futures after shutdown")],
+                         ids=["handle-closed", "fds-to-keep", "shut-down"])
+def test_a_worker_death_inside_submit_is_replaced(reference_library, tmp_path, monkeypatch, spawn_error):
     """CPython 3.11 race: submit passes its broken check, the pool's thread marks the pool broken and
-    closes its call queue, and spawning a worker then raises OSError("handle is closed"). Simulated
-    here at the second submit, after a real worker death; the runner restarts the pool as for
-    BrokenProcessPool."""
+    shuts it, and submit then fails: OSError("handle is closed"), ValueError("bad value(s) in
+    fds_to_keep") (the queue's descriptor closed under the spawn; seen in CI), or RuntimeError (its
+    shutdown check, just after the broken one). Simulated here at the second submit, after a real
+    worker death; the runner restarts the pool as for BrokenProcessPool."""
     from concurrent.futures import ProcessPoolExecutor
     spec, ref = reference_library
     submit, calls = ProcessPoolExecutor.submit, []
@@ -587,7 +591,7 @@ def test_a_worker_death_inside_submit_is_replaced(reference_library, tmp_path, m
             deadline = time.time() + 30
             while not self._broken and time.time() < deadline:
                 time.sleep(0.01)
-            raise OSError("handle is closed")
+            raise spawn_error
         return submit(self, fn, *args, **kwargs)
 
     monkeypatch.setattr(ProcessPoolExecutor, "submit", submit_losing_the_race)

@@ -385,12 +385,17 @@ def _run_pool(tasks, workers: int, on_done, summary: Summary, fn=render_task):
                     futures[ex.submit(worker_result, t, fn)] = t
             except BrokenProcessPool:  # a worker died while the tasks were being handed out
                 broken = True
-            except OSError as exc:
-                # The same death, landing inside submit: CPython 3.11 marks the pool broken, then closes
-                # the queue a new worker is spawned with ("handle is closed"). Any other OSError is real.
+            except Exception as exc:
+                # The same death, landing inside submit (CPython 3.11): submit passed its broken check,
+                # then the pool's thread marked the pool broken and shut it, closing the queue a new
+                # worker is spawned with: OSError("handle is closed"), ValueError("bad value(s) in
+                # fds_to_keep") from the spawn, or RuntimeError (shut down). Only a pool marked broken
+                # is taken for a death; an OSError of a sound one is named, anything else is a bug.
                 if not getattr(ex, "_broken", False):
-                    raise LibraryError(f"could not start a worker process ({exc}) — run the same command "
-                                       "again with fewer --workers to resume") from exc
+                    if isinstance(exc, OSError):
+                        raise LibraryError(f"could not start a worker process ({exc}) — run the same command "
+                                           "again with fewer --workers to resume") from exc
+                    raise
                 broken = True
             while futures:
                 done, _ = wait(list(futures), return_when=FIRST_COMPLETED)
