@@ -124,12 +124,22 @@ def driver_time():
 @contextlib.contextmanager
 def host_opcodes():
     """Count the bytecode instructions this thread executes in the block, in every Python frame
-    but moderngl's (its wrappers are driver calls here, as for :func:`driver_time`); yields a
-    one-item list that holds the count when the block ends. Traces every instruction
-    (``sys.settrace`` with opcode events): tens of times slower, for a few frames only."""
+    started or resumed in it but moderngl's (its wrappers are driver calls here, as for
+    :func:`driver_time`); yields a one-item list that holds the count when the block ends.
+    Sees every instruction: tens of times slower, for a few frames only. Python 3.11:
+    ``sys.settrace`` opcode events; 3.12 on: ``sys.monitoring`` INSTRUCTION events (there the
+    opcode events of ``settrace`` miss a process's first block, on 3.13 every block). The
+    counts are comparable within one Python version only."""
     import sys
 
     count = [0]
+    with (_instructions if sys.version_info >= (3, 12) else _opcodes)(count):
+        yield count
+
+
+@contextlib.contextmanager
+def _opcodes(count: list):
+    import sys
 
     def local(frame, event, arg):
         if event == "opcode":
@@ -145,9 +155,44 @@ def host_opcodes():
     before = sys.gettrace()
     sys.settrace(calls)
     try:
-        yield count
+        yield
     finally:
         sys.settrace(before)
+
+
+@contextlib.contextmanager
+def _instructions(count: list):
+    import sys
+
+    mon = sys.monitoring
+    events = mon.events
+    tool = next((t for t in range(6) if mon.get_tool(t) is None), None)
+    if tool is None:
+        raise RuntimeError("host_opcodes: all six sys.monitoring tool ids are taken")
+    seen: set = set()
+
+    def start(code, offset):
+        if code not in seen and "moderngl" not in code.co_filename:
+            seen.add(code)
+            mon.set_local_events(tool, code, events.INSTRUCTION)
+
+    def step(code, offset):
+        count[0] += 1
+
+    mon.use_tool_id(tool, "glsim host_opcodes")
+    try:
+        mon.register_callback(tool, events.INSTRUCTION, step)
+        mon.register_callback(tool, events.PY_START, start)
+        mon.register_callback(tool, events.PY_RESUME, start)
+        mon.set_events(tool, events.PY_START | events.PY_RESUME)
+        yield
+    finally:
+        mon.set_events(tool, 0)
+        for code in seen:
+            mon.set_local_events(tool, code, 0)
+        for event in (events.INSTRUCTION, events.PY_START, events.PY_RESUME):
+            mon.register_callback(tool, event, None)
+        mon.free_tool_id(tool)
 
 
 @contextlib.contextmanager
