@@ -1,0 +1,67 @@
+#!/bin/bash
+# What a session lent an NVIDIA GPU runs (15 minutes of device time in all: prepare here first).
+#
+#   here, from the project root:  bash bench/gpu-session.sh kit
+#     The offline kit (../shared/gpu-kit/make-kit.sh → .gpukit), plus the wheels of what glsim
+#     and its GL tests import beyond the kit's list and a bare device's Python 3.12 (numpy, scipy,
+#     OpenCV, pytest), at the versions .venv tests with. Then, where a Python 3.12 is here ($PY312,
+#     default python3.12), the kit is installed as run.sh installs it into a bare Python 3.12 and
+#     the GL tier is collected with it: an import the kit lacks fails here, not on the device's
+#     clock.
+#
+#   on the device (carry .gpukit), two calls in a row (a warm machine is given back when idle):
+#     bash .gpukit/run.sh "$OUT" info tests quick      → $OUT/r.tgz
+#     bash bench/gpu-session.sh run "$OUT"             → $OUT/gpu/
+#     The second runs `glsim check` and the full throughput benchmark with the kit installed the
+#     same way; commit its results beside the llvmpipe ones: bench/results/check-<gpu>.json and
+#     bench/results/throughput-<gpu>.{json,md}. QUICK=1: the benchmark's --quick (a dry run on
+#     llvmpipe, with the kit's Python 3.12 first on PATH).
+set -uo pipefail
+EXTRA="rich markdown-it-py mdurl pygments hypothesis sortedcontainers imageio pillow tifffile h5py certifi glfw
+       matplotlib contourpy cycler fonttools kiwisolver pyparsing python-dateutil six"
+PLAT="--platform manylinux_2_28_x86_64 --platform manylinux_2_17_x86_64 --platform manylinux2014_x86_64 --platform manylinux1_x86_64 --platform manylinux_2_34_x86_64 --platform any"
+K=$PWD/.gpukit
+PY312=${PY312:-python3.12}
+
+install_kit() {  # $1: target folder; as .gpukit/run.sh installs it
+  python3 -m pip install -q --no-index --no-deps --no-compile --no-cache-dir --upgrade --target "$1" "$K"/whl/*.whl 2>&1 | grep -v WARNING | tail -3 || true
+  export PYTHONPATH=$1:$K/site PYTHONUNBUFFERED=1 PATH=$1/bin:$PATH
+}
+
+case ${1:-} in
+kit)
+  set -e
+  test -x .venv/bin/python || { echo "run 'make venv' first: the extra wheels take .venv's versions" >&2; exit 2; }
+  bash ../shared/gpu-kit/make-kit.sh
+  pins=$(.venv/bin/python -c "import sys; from importlib.metadata import version
+print(' '.join(f'{n}=={version(n)}' for n in sys.argv[1:]))" $EXTRA)
+  python3 -m pip download -q --no-deps --only-binary=:all: --python-version 3.12 --implementation cp $PLAT -d "$K/whl" $pins 2>&1 | grep -v WARNING || true
+  ls "$K"/whl
+  if "$PY312" -c pass 2> /dev/null; then
+    B=$PWD/build/gpukit-check; rm -rf "$B"; "$PY312" -m venv "$B/venv"
+    "$B/venv/bin/python" -m pip install -q numpy scipy opencv-python-headless pytest pytest-xdist pytest-timeout 2>&1 | grep -v WARNING || true
+    export PATH=$B/venv/bin:$PATH
+    install_kit "$B/site"
+    cd "$K/src"
+    python3 -m pytest -q --collect-only -m "gl and not slow" -p no:cacheprovider > "$B/collect.log" 2>&1 \
+      || { grep -E "Error|error" "$B/collect.log" | sort | uniq -c | head -20; echo "the kit is incomplete: $B/collect.log" >&2; exit 1; }
+    tail -1 "$B/collect.log"
+  else
+    echo "no Python 3.12 here (PY312=$PY312): the kit's completeness was not checked"
+  fi
+  ;;
+run)
+  O=${2:?output folder}; G=$O/gpu; mkdir -p "$G"
+  install_kit "$(mktemp -d)"
+  if ! timeout 60 glsim info > "$G/info.txt" 2>&1; then
+    export __EGL_VENDOR_LIBRARY_FILENAMES=/usr/local/nvidia/share/glvnd/egl_vendor.d/10_nvidia.json
+    timeout 60 glsim info > "$G/info.txt" 2>&1
+  fi
+  gpu=$(nvidia-smi --query-gpu=name --format=csv,noheader 2>/dev/null | head -1 | tr 'A-Z ' 'a-z-' | tr -cd 'a-z0-9-')
+  gpu=${gpu:-unknown-gpu}
+  echo "== check ($gpu)"; timeout 150 glsim check --json "$G/check-$gpu.json" > "$G/check.log" 2>&1; echo "rc=$?"; tail -3 "$G/check.log"
+  echo "== throughput"; timeout 330 glsim bench throughput ${QUICK:+--quick} --out "$G/throughput-$gpu" > "$G/throughput.log" 2>&1; echo "rc=$?"; tail -3 "$G/throughput.log"
+  ;;
+*)
+  sed -n '2,16p' "$0"; exit 2 ;;
+esac
