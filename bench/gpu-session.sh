@@ -13,8 +13,9 @@
 #     bash .gpukit/run.sh "$OUT" info tests quick      → $OUT/r.tgz
 #     bash bench/gpu-session.sh run "$OUT"             → $OUT/gpu/
 #     The second runs `glsim check` and the full throughput benchmark with the kit installed the
-#     same way; commit its results beside the llvmpipe ones: bench/results/check-<gpu>.json and
-#     bench/results/throughput-<gpu>.{json,md}. QUICK=1: the benchmark's --quick (a dry run on
+#     same way; commit its results beside the llvmpipe ones: bench/results/check-<gpu>.json (add
+#     it to the sources of README's "check-drivers" region, then `glsim docs`: a column of that
+#     table) and bench/results/throughput-<gpu>.{json,md}. QUICK=1: the benchmark's --quick (a dry run on
 #     llvmpipe, with the kit's Python 3.12 first on PATH).
 set -uo pipefail
 # Beyond the kit: what glsim and the GL tests import that a bare Python 3.12 lacks, but matplotlib
