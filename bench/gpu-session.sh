@@ -41,7 +41,7 @@ kit)
   pins=$(.venv/bin/python -c "import sys; from importlib.metadata import version
 print(' '.join(f'{n}=={version(n)}' for n in sys.argv[1:]))" $EXTRA)
   python3 -m pip download -q --no-deps --only-binary=:all: --python-version 3.12 --implementation cp $PLAT -d "$K/whl" $pins 2>&1 | grep -v WARNING || true
-  tree=$(git ls-files -z | xargs -0 du -cb | tail -1 | cut -f1)
+  tree=$(git ls-files -z | du -cb --files0-from=- | tail -1 | cut -f1)
   mib=$(( ($(du -sb "$K" | cut -f1) + tree) / 1048576 ))
   echo "kit and working tree: $mib MiB"
   test "$mib" -lt 64 || { echo "over the 64 MiB a device call carries" >&2; exit 1; }

@@ -34,7 +34,7 @@ void list_candidate(ivec2 pix, int e) {
 #endif
 
 #ifdef CANDIDATE_TEXTURES
-// pass 2 reads the lists as textures (units 2 and 3)
+// pass 2 reads the lists as textures (their units: glsim.backends.gl.bindings.SAMPLERS)
 layout(binding = SAMPLER_COUNT_TEX) uniform usampler2D u_count_tex;
 layout(binding = SAMPLER_LIST_TEX) uniform usampler2DArray u_list_tex;
 uint candidate_count(ivec2 pix) { return texelFetch(u_count_tex, pix, 0).x; }

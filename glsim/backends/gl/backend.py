@@ -523,7 +523,7 @@ class GLBackend(ImagePasses):
 
     def _dots_or_reference(self, method: str) -> Callable:
         """What binds the speckle a program samples: procedural.glsl's dots, or ``method``'s
-        reference texture on unit 0."""
+        reference texture on u_ref's unit."""
         if method == "procedural":
             return self._bind_dots
         tex = self._reference_texture(method)
