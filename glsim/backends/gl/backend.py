@@ -37,6 +37,7 @@ from glsim.backends.gl.plan import aperture_literal, newton_subsamples, plan
 from glsim.backends.gl.imagepasses import ImagePasses
 from glsim.backends.gl.programs import ProgramCache
 from glsim.backends.gl.readback import PackBuffers, Pending, read_buffer, read_texture
+from glsim.backends.gl.replay import Frames
 from glsim.backends.gl.uniforms import Uniforms, set_uniform
 
 
@@ -72,6 +73,15 @@ def _light_uniforms(fx) -> dict:
             "u_light_cos_cutoff": pad(L.cos_cutoff, 1), "u_light_cos_inner": pad(L.cos_inner, 1),
             "u_ambient": np.float32(lit.ambient), "u_kr": np.float32(lit.diffuse),
             "u_ks": np.float32(lit.specular), "u_shininess": np.float32(lit.shininess)}
+
+
+@functools.lru_cache(maxsize=16)
+def _one_sample(opts):
+    """``opts`` at 1 sample per pixel (the truth pass of s > 1), the same object each time."""
+    return replace(opts, samples_per_pixel=1)
+
+
+_NO_EFFECTS = Effects()
 
 
 @dataclass(frozen=True, eq=False)
@@ -121,6 +131,7 @@ class GLBackend(ImagePasses):
         self._ray_host: dict[tuple, np.ndarray] = {}   # the float64 ray maps' bits on the host (truth polish)
         self._dropped = None                    # deform.frag's count of samples mapping outside the reference
         self._uniforms: dict[tuple, tuple] = {}  # the last views' uniform values (_view_uniforms)
+        self.frames = Frames()                  # deformation passes recorded for replay
 
     # ---- resources -------------------------------------------------------------------------
     def _reference_texture(self, method: str):
@@ -191,6 +202,7 @@ class GLBackend(ImagePasses):
         self._vaos.clear()
         self._ray_host.clear()
         self._uniforms.clear()
+        self.frames.clear()
         self._dropped = None
         self._curved.clear()
         self._targets.clear()
@@ -278,20 +290,36 @@ class GLBackend(ImagePasses):
         image = read_texture(self._pack, grey, _DTYPES[grey.dtype])
         self._recycle(temps)
         if truth and s > 1:
-            _, raster, _ = self._deform(view, replace(opts, samples_per_pixel=1), 1, True, Effects(), patches,
-                                        warn=False)
+            _, raster, _ = self._deform(view, _one_sample(opts), 1, True, _NO_EFFECTS, patches, warn=False)
         return Frame(image, raster or (lambda: None), report, tuple(stages), curved, view.camera, opts.mode)
 
     def _deform(self, view: ViewSpec, opts, s: int, truth: bool, fx, patches, warn: bool = True):
         """The deformation pass into the cached target, as :func:`~glsim.backends.gl.plan.plan`
-        lays it out; returns its color textures, what finishes the raster (if ``truth``; its
-        reads queued) and what reports the view's problems (its flags copied on the GPU; nothing
-        if not ``warn``)."""
-        W, H = view.camera.size
+        lays it out (replayed where this view was rendered so before:
+        :mod:`glsim.backends.gl.replay`); returns its color textures, what finishes the raster
+        (if ``truth``; its reads queued) and what reports the view's problems (its flags copied
+        on the GPU; nothing if not ``warn``)."""
         p = plan(opts, truth, self.fp64, fx, view.camera, view.ref_camera,
                  patches.pieces if patches is not None else None)
         geo = self._buffers(view)
-        uniforms, bind, setup = self._deform_bindings(view, opts, s, fx, patches, p, geo)
+        lit = None if fx.lighting is None else (fx.lighting.normals == "flat", _light_uniforms(fx))
+        key = (id(view), id(opts), s, truth, id(p), id(patches), fx.aperture,
+               lit and (lit[0], *(v.tobytes() for v in lit[1].values())))
+        color = self.frames.run(key, (view, opts, p, patches),
+                                lambda: self._deform_passes(view, opts, s, truth, p, geo, patches, lit, fx.aperture))
+        if opts.mode != "fast":
+            geo.view_passes += 1
+        check_error(self.ctx, f"deformation pass ({opts.mode})")
+        self.ctx.memory_barrier()  # shader storage writes visible to the read-backs
+        report = self._queue_report(view, s, geo, warn)
+        return color, (self._queue_raster(view, opts.mode, color, p, patches) if truth else None), report
+
+    def _deform_passes(self, view: ViewSpec, opts, s: int, truth: bool, p, geo, patches, lit, aperture: float):
+        """The deformation pass's GL commands (what a replay repeats: everything they depend on
+        is an argument — ``lit``: (flat normals, the lights' uniforms) or None; ``aperture``:
+        √ fill factor — or cached with the objects they name); returns the color textures."""
+        W, H = view.camera.size
+        uniforms, bind, setup = self._deform_bindings(view, opts, s, lit, aperture, patches, p, geo)
         if opts.mode != "fast":   # pass 1: element records, covers, the candidate lists
             grow = 0.5 - 0.5 / s
             if p.camera_local:
@@ -306,12 +334,9 @@ class GLBackend(ImagePasses):
             geo.bind_lists(W, H)
             self._downsample(color[0], color[-1] if "DEPTH_OUT" in p.define_dict else None, W, H, s, into=pixels)
             color = pixels
-        check_error(self.ctx, f"deformation pass ({opts.mode})")
-        self.ctx.memory_barrier()  # shader storage writes visible to the read-backs
-        report = self._queue_report(view, s, geo, warn)
-        return color, (self._queue_raster(view, opts.mode, color, p, patches) if truth else None), report
+        return color
 
-    def _deform_bindings(self, view: ViewSpec, opts, s: int, fx, patches, p, geo):
+    def _deform_bindings(self, view: ViewSpec, opts, s: int, lit, aperture: float, patches, p, geo):
         """What the deformation programs read: ``uniforms`` (a
         :class:`~glsim.backends.gl.uniforms.Uniforms`: the view's transform and constants, the
         camera and reference models, the sizes), ``bind()`` (the storage buffers of pass 2,
@@ -326,15 +351,15 @@ class GLBackend(ImagePasses):
         dropped = self._dropped_counter()
         uniforms = self._view_uniforms(view, geo, fp64, patches.extra_sag_px if patches is not None else 0.0)
         lighting = None
-        if fx.lighting is not None:  # the step's world-frame corner normals (once per step; rotated in deform.frag)
-            normals = geo.normals(view, fx.lighting.normals == "flat")
-            lighting = Uniforms(_light_uniforms(fx))
+        if lit is not None:  # the step's world-frame corner normals (once per step; rotated in deform.frag)
+            normals = geo.normals(view, lit[0])
+            lighting = Uniforms(lit[1])
         ref_storage = None
         if p.ref is not None:
             local = p.ref == "REF_LOCAL"
             ref_storage = (geo.ref_local_buffer if local else geo.ref_pinhole_buffer)(view.ref_camera.intrinsic_values)
         textures = self._dots_or_reference(opts.interpolation)
-        rays = self._ray_map(cam, s, p.rays, fx.aperture) if p.rays is not None else None
+        rays = self._ray_map(cam, s, p.rays, aperture) if p.rays is not None else None
 
         def bind():
             geo.bind(view, fp64)

@@ -70,6 +70,7 @@ class GeometryBuffers:
         self._mesh: dict = {}       # fp64 → what _mesh_buffers returns (its buffers are in _bufs)
         self._vaos: dict = {}       # (id(program), indexed) → (program, attribute-less vertex array)
         self._steps: OrderedDict = OrderedDict()
+        self._normals: OrderedDict = OrderedDict()   # (step, flat) → (StepGeometry, buffer)
         self.uploads = {"mesh": 0, "step": 0}   # what was uploaded (tests)
         self.view_passes = 0
 
@@ -167,21 +168,26 @@ class GeometryBuffers:
     def normals(self, view: ViewSpec, flat: bool):
         """The step's unit corner normals in the world frame (the lighting's: per element for
         ``flat``, else per node, area-weighted; float32, 12 per element), computed and uploaded
-        once per step (binding NORMALS when lit); deform.frag rotates them into the camera's frame."""
-        key = ("normals", view.step_geo.index, flat)
-        entry = self._bufs.get(key)
+        once per step (binding NORMALS when lit; the last STEPS_KEPT steps' kept, as their
+        nodes are); deform.frag rotates them into the camera's frame."""
+        key = (view.step_geo.index, flat)
+        entry = self._normals.get(key)
         if entry is None or entry[0] is not view.step_geo:
             from glsim.effects import lighting as shade
 
-            for k in [k for k in self._bufs if isinstance(k, tuple) and k[0] == "normals"]:
-                self._bufs.pop(k)[1].release()
+            if entry is not None:
+                self._normals.pop(key)[1].release()
             nodes, quads = view.step_geo.deformed, self.geo.quads
             if flat:
                 n = np.repeat(shade.element_normals(nodes, quads)[:, None], 4, axis=1)
             else:
                 n = shade.vertex_normals(nodes, quads)[quads]
-            entry = self._bufs[key] = (view.step_geo, self.ctx.buffer(np.ascontiguousarray(n, np.float32).tobytes()))
+            entry = self._normals[key] = (view.step_geo, self.ctx.buffer(np.ascontiguousarray(n, np.float32).tobytes()))
             self.uploads["step"] += 1
+            while len(self._normals) > 2 * STEPS_KEPT:
+                self._normals.popitem(last=False)[1][1].release()
+        else:
+            self._normals.move_to_end(key)
         return entry[1]
 
     def bind(self, view: ViewSpec, fp64: bool) -> None:
@@ -225,7 +231,6 @@ class GeometryBuffers:
         tight.bind_to_storage_buffer(storage("TIGHT"))
         self._per_element(prog)
         self.ctx.memory_barrier()
-        self.view_passes += 1
 
     def _per_element(self, prog) -> None:
         """Dispatch compute ``prog`` with one invocation per element (groups of _GROUP, in 2-D
@@ -369,6 +374,9 @@ class GeometryBuffers:
         for entry in self._steps.values():
             for b in entry[1:3]:
                 b.release()
+        for _, b in self._normals.values():
+            b.release()
+        self._normals.clear()
         self._bufs.clear()
         self._mesh.clear()
         self._steps.clear()

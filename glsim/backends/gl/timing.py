@@ -93,32 +93,41 @@ def noop_cost(n: int = 2000) -> tuple[float, float]:
 
 
 @contextlib.contextmanager
-def driver_time():
-    """Patch moderngl's public methods and properties (state such as ``viewport`` and
-    ``depth_func``, a uniform's ``value``: their setters call the driver, which may flush its
-    queue there) for the block's duration to add their time to the yielded counter (calls
-    nested in others count once)."""
-    t = DriverTime()
-    t.overhead = noop_cost()[0]
-    wrap = _counter(t)
+def patched(wrap):
+    """Replace moderngl's public methods and property accessors (state such as ``viewport`` and
+    ``depth_func``, a uniform's ``value``: their setters call the driver) by ``wrap(fn, cls,
+    name, kind)`` (``kind``: "call", "get" or "set") for the block's duration."""
     saved = []
     for cls in _classes():
         for name, value in list(vars(cls).items()):
             if name.startswith("_"):
                 continue
             if isinstance(value, property):
-                wrapped = property(value.fget and wrap(value.fget), value.fset and wrap(value.fset), value.fdel)
+                wrapped = property(value.fget and wrap(value.fget, cls, name, "get"),
+                                   value.fset and wrap(value.fset, cls, name, "set"), value.fdel)
             elif callable(value) and not isinstance(value, (staticmethod, classmethod, type)):
-                wrapped = wrap(value)
+                wrapped = wrap(value, cls, name, "call")
             else:
                 continue
             saved.append((cls, name, value))
             setattr(cls, name, wrapped)
     try:
-        yield t
+        yield
     finally:
-        for cls, name, value in saved:
+        for cls, name, value in reversed(saved):
             setattr(cls, name, value)
+
+
+@contextlib.contextmanager
+def driver_time():
+    """Count moderngl's public methods and properties (:func:`patched`; they call the driver,
+    which may flush its queue there) for the block's duration: their time is added to the
+    yielded counter (calls nested in others count once)."""
+    t = DriverTime()
+    t.overhead = noop_cost()[0]
+    count = _counter(t)
+    with patched(lambda fn, cls, name, kind: count(fn)):
+        yield t
 
 
 @contextlib.contextmanager

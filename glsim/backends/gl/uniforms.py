@@ -16,6 +16,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from glsim.backends.gl.replay import replayed
+
 _SCALARS = {"f": "<f4", "d": "<f8", "i": "<i4", "I": "<u4", "?": "<i4"}   # moderngl Uniform.fmt → dtype
 
 
@@ -70,6 +72,7 @@ def _written(prog, way: str, names) -> None:
         state["values"].update(names)
 
 
+@replayed
 def set_uniform(prog, name: str, value) -> None:
     """``prog[name].value = value`` unless glsim's last write of ``name`` there was ``value``
     (a number or a tuple of numbers; other values are always written)."""

@@ -1,0 +1,207 @@
+"""Deformation passes recorded once and replayed: a view rendered again issues the GL commands
+it issued before, without the Python that decided them.
+
+For one view, options, plan, supersampling, truth flag, lights and aperture, the deformation
+pass (:meth:`GLBackend._deform`) issues the same commands every time: the same programs,
+buffers, targets, uniform values and draws, in the same order. :class:`Frames` records them
+on the second render of such a key (the first makes what the key needs: programs, buffers,
+targets, ray maps) and replays them on the renders after it, so the images and truth are
+the same bit for bit.
+
+A recording (:func:`recording`) keeps this thread's moderngl calls that change GL state
+(RECORDED) and glsim's calls marked :func:`replayed`, which must run again as calls (a
+uniform written only where it changes, an error check); the calls nested in either are
+theirs. Anything else — a GL object made, released or read, an error read — abandons it and
+the pass runs as it would have. A record is dropped when an object it names has been
+released since (an evicted cache entry): the next render records again. Replays look their
+methods up on the object each time, so :mod:`glsim.backends.gl.timing`'s counting and pass
+timing see them as they see the recorded calls.
+"""
+from __future__ import annotations
+
+import collections
+import contextlib
+import functools
+import operator
+import threading
+import weakref
+
+import numpy as np
+
+from glsim.limits import keep
+
+RECORDED = {   # moderngl class → its calls (methods, property setters) that change GL state
+    "Buffer": {"bind_to_storage_buffer", "write"},
+    "Texture": {"use", "bind_to_image"},
+    "TextureArray": {"use", "bind_to_image"},
+    "Framebuffer": {"use", "clear", "viewport", "depth_mask"},
+    "Context": {"memory_barrier", "enable", "disable", "depth_func", "detect_framebuffer"},
+    "Uniform": {"write"},
+    "ComputeShader": {"run"},
+    "VertexArray": {"render", "render_indirect"},
+}
+_LOOKUPS = {("Program", "get"), ("ComputeShader", "get")}   # the host's own tables: not GL calls
+_RELEASABLE = {"Buffer", "Texture", "TextureArray", "Framebuffer", "Renderbuffer", "VertexArray",
+               "ComputeShader", "Program"}
+_MGLO = operator.attrgetter("mglo")
+_CALL = getattr(operator, "call", lambda f: f())   # (operator.call: Python 3.11 on)
+MAX_FAILURES = 2   # abandoned recordings of a key before it is left to run as it is
+FRAMES_KEPT = 64   # keys kept (a view of each camera and step in a library's kinds of render)
+_lock = threading.Lock()   # one recording at a time (it patches moderngl's classes)
+_active = None             # the Recording in progress
+_INVALID: list = []        # moderngl.InvalidObject (imported by the first recording)
+
+
+class Recording:
+    """The calls of one recording: ``ops`` (callables, in order), ``objects`` (the GL objects
+    they name), ``ok`` (False: abandoned)."""
+
+    def __init__(self):
+        self.ops: list = []
+        self.objects: dict[int, object] = {}
+        self.ok = True
+        self.depth = 0
+        self.thread = threading.get_ident()
+
+    def add(self, op, *objects) -> None:
+        self.ops.append(op)
+        for o in objects:
+            if type(o).__name__ in _RELEASABLE:
+                self.objects[id(o)] = o
+
+    def call(self, fn, obj, args: tuple, kwargs: dict):
+        """Run ``fn(obj, *args, **kwargs)``; calls nested in it are not recorded."""
+        self.depth += 1
+        try:
+            return fn(obj, *args, **kwargs)
+        except BaseException:
+            self.ok = False
+            raise
+        finally:
+            self.depth -= 1
+
+
+def replayed(fn):
+    """Mark a glsim function whose calls a recording keeps as calls (with their arguments, run
+    again on replay) rather than as the GL calls they make."""
+    @functools.wraps(fn)
+    def inner(*args):
+        rec = _active
+        if rec is None or rec.depth or rec.thread != threading.get_ident():
+            return fn(*args)
+        rec.add(functools.partial(fn, *args), *args)
+        return rec.call(lambda _, *a: fn(*a), None, args, {})
+    return inner
+
+
+def _frozen(value):
+    """A recorded argument that cannot change before the replay (arrays and buffers as bytes)."""
+    return value.tobytes() if isinstance(value, (np.ndarray, bytearray, memoryview)) else value
+
+
+def _recorder(rec: Recording):
+    def wrap(fn, cls, name, kind):
+        state = kind == "get" or (cls.__name__, name) in _LOOKUPS
+        kept = not state and name in RECORDED.get(cls.__name__, ())
+
+        @functools.wraps(fn)
+        def inner(obj, *args, **kwargs):
+            if rec.depth or rec.thread != threading.get_ident():
+                return fn(obj, *args, **kwargs)
+            if kept:
+                args, kwargs = tuple(map(_frozen, args)), {k: _frozen(v) for k, v in kwargs.items()}
+                op = (functools.partial(setattr, obj, name, *args) if kind == "set"
+                      else functools.partial(operator.methodcaller(name, *args, **kwargs), obj))
+                rec.add(op, obj, *args, *kwargs.values())
+            elif not state or (cls.__name__, name) == ("Context", "error"):
+                rec.ok = False   # makes, frees or reads a GL object, or reads the error flag
+            return rec.call(fn, obj, args, kwargs)
+        return inner
+    return wrap
+
+
+@contextlib.contextmanager
+def recording():
+    """Record this thread's GL calls in the block (the yielded :class:`Recording`; ``ok`` is
+    False if it was abandoned, or if another recording was in progress)."""
+    global _active
+    from glsim.backends.gl.timing import patched
+
+    if not _INVALID:
+        from moderngl import InvalidObject
+        _INVALID.append(InvalidObject)
+    rec = Recording()
+    if not _lock.acquire(blocking=False):
+        rec.ok = False
+        yield rec
+        return
+    try:
+        with patched(_recorder(rec)):
+            _active = rec
+            try:
+                yield rec
+            finally:
+                _active = None
+    finally:
+        _lock.release()
+
+
+def _weak(obj):
+    """What gives ``obj`` back while it lives (a weak reference where it takes one)."""
+    try:
+        return weakref.ref(obj)
+    except TypeError:
+        return lambda: obj
+
+
+class _Record:
+    __slots__ = ("refs", "ops", "objects", "result", "failures")
+
+    def __init__(self, refs: tuple, failures: int = 0, rec: Recording | None = None, result=None):
+        self.refs = tuple(map(_weak, refs))   # (a record does not keep a view's arrays alive)
+        self.failures, self.result = failures, result
+        self.ops = tuple(rec.ops) if rec is not None else None
+        self.objects = tuple(rec.objects.values()) if rec is not None else ()
+
+    def live(self) -> bool:
+        """Recorded, and no object it names released since (moderngl's release swaps an
+        object's ``mglo`` for an InvalidObject)."""
+        return self.ops is not None and _INVALID[0] not in map(type, map(_MGLO, self.objects))
+
+
+class Frames:
+    """Recorded deformation passes by key (:meth:`run`); ``replays`` and ``recordings`` count
+    what it did."""
+
+    def __init__(self, most: int = FRAMES_KEPT):
+        self.most = most
+        self._kept: dict = {}
+        self.replays = 0
+        self.recordings = 0
+
+    def run(self, key, refs: tuple, make):
+        """``make()``'s result: replayed if ``key`` was recorded with the same objects ``refs``
+        (compared by identity; the key holds their ids) and :meth:`_Record.live`; else made, and
+        recorded if the key was made before (unless MAX_FAILURES recordings of it were
+        abandoned)."""
+        hit = self._kept.get(key)
+        if hit is None or not all(map(operator.is_, map(_CALL, hit.refs), refs)):
+            keep(self._kept, key, _Record(refs), self.most)
+            return make()
+        if hit.live():
+            collections.deque(map(_CALL, hit.ops), maxlen=0)   # (each op in turn, looped in C)
+            self.replays += 1
+            return hit.result
+        if hit.failures >= MAX_FAILURES:
+            return make()
+        with recording() as rec:
+            result = make()
+        if rec.ok:
+            self.recordings += 1
+            keep(self._kept, key, _Record(refs, hit.failures, rec, result), self.most)
+        else:
+            hit.ops, hit.objects, hit.failures = None, (), hit.failures + 1
+        return result
+
+    def clear(self) -> None:
+        self._kept.clear()

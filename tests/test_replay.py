@@ -1,0 +1,128 @@
+"""Deformation passes recorded once and replayed (glsim.backends.gl.replay): the same images and
+truth, bit for bit, as the passes made by the Python that decides them, whatever ran in between;
+a record naming a released object is made again; what a recording keeps and abandons."""
+import dataclasses
+
+import pytest
+
+from glsim.render import Renderer
+from glsim.scene import Lighting
+from tests._plates import plate_scene
+from tests.test_pipeline import _same
+
+pytestmark = pytest.mark.gl
+
+# kinds that share programs whose uniforms differ (candidates.comp's u_half at 1 and 4 spp),
+# lit and unlit, with truth and without, Newton's sub-samples (a full-screen pass inside)
+KINDS = [{"mode": "exact", "samples_per_pixel": 1, "truth": True}, {"mode": "exact", "samples_per_pixel": 4},
+         {"mode": "q4", "samples_per_pixel": 4, "truth": True}, {"mode": "fast", "samples_per_pixel": 1},
+         {"mode": "exact", "samples_per_pixel": 4, "subsamples": "newton"}]
+
+
+def _made(r: Renderer) -> Renderer:
+    """``r`` with replays turned off: every pass made by its Python."""
+    r.backend.frames.run = lambda key, refs, make: make()
+    return r
+
+
+def _jobs(cameras=("c", "d")):
+    return [{"camera": c, "step": step, **kind} for _ in range(3) for kind in KINDS for c in cameras
+            for step in (0, 1)]
+
+
+@pytest.mark.parametrize("lit", [False, True])
+def test_replayed_passes_give_the_bytes_of_made_ones(gl_ctx, lit):
+    scene = plate_scene((96, 72), fx=1200.0, second={"name": "d", "t": (-4.0, 0.0, 0.0)},
+                        lighting=Lighting() if lit else None)
+    with Renderer(scene, "gl", ctx=gl_ctx) as r, _made(Renderer(scene, "gl", ctx=gl_ctx)) as ref:
+        for a, b in zip(r.render_many(_jobs()), ref.render_many(_jobs())):
+            _same(a, b)
+        frames = r.backend.frames
+        # each key (kind, camera, step; and q4's s = 1 truth pass) made, recorded, then replayed
+        keys = (len(KINDS) + 1) * 2 * 2
+        assert frames.recordings == frames.replays == keys
+        assert ref.backend.frames.replays == 0
+
+
+def test_a_record_naming_a_released_object_is_made_again(gl_ctx):
+    """Cameras of two sizes: each view's candidate lists are released when the other size is
+    drawn (one size kept), so a record of one is not live after the other's render."""
+    scene = plate_scene((96, 72), fx=1200.0, second={"name": "d", "size": (80, 64), "t": (-4.0, 0.0, 0.0)})
+    jobs = [{"camera": c, "mode": "exact"} for c in ("c", "c", "c", "d", "c", "c", "c")]
+    with Renderer(scene, "gl", ctx=gl_ctx) as r, _made(Renderer(scene, "gl", ctx=gl_ctx)) as ref:
+        out = [r.render(**j) for j in jobs]
+        for a, b in zip(out, (ref.render(**j) for j in jobs)):
+            _same(a, b)
+        frames = r.backend.frames
+        # c: made, recorded, replayed; d; c: the record is dead and its lists made again (a
+        # recording that makes an object is abandoned); c: recorded again; c: replayed
+        assert (frames.recordings, frames.replays) == (2, 2)
+
+
+def test_a_recording_keeps_state_calls_and_abandons_one_that_makes_or_reads(gl_ctx):
+    from glsim.backends.gl.context import check_error
+    from glsim.backends.gl.replay import recording
+
+    buf = gl_ctx.buffer(bytes(16))
+    fbo = gl_ctx.simple_framebuffer((4, 4))
+    with recording() as rec:
+        buf.bind_to_storage_buffer(5)
+        fbo.viewport = (0, 0, 2, 2)           # a property setter
+        check_error(gl_ctx, "test")           # glsim's own call: kept as one call
+        _ = fbo.size                          # a getter: nothing to repeat
+    assert rec.ok and len(rec.ops) == 3 and set(rec.objects.values()) == {buf, fbo}
+    fbo.viewport = (0, 0, 4, 4)
+    for op in rec.ops:
+        op()
+    assert fbo.viewport == (0, 0, 2, 2)
+    for makes_or_reads in (lambda: gl_ctx.buffer(bytes(4)).release(), lambda: buf.read(), lambda: gl_ctx.error):
+        with recording() as rec:
+            buf.bind_to_storage_buffer(5)
+            makes_or_reads()
+        assert not rec.ok
+    buf.release()
+    fbo.release()
+
+
+def test_a_replay_issues_the_made_pass_calls_where_patches_see_them(gl_ctx):
+    """A replay looks its methods up when it runs: a patch of moderngl's classes (as driver_time
+    and pass_times make) sees the same state-changing calls, in number and kind, as in the
+    render that recorded them, and pass timing names the replayed passes."""
+    import collections
+    import functools
+
+    from glsim.backends.gl.timing import patched
+
+    def counting(seen):
+        def wrap(fn, cls, name, kind):
+            @functools.wraps(fn)
+            def inner(*a, **k):
+                if kind != "get" and name != "get":     # (reads: a replay has no need of them)
+                    seen[cls.__name__, name] += 1
+                return fn(*a, **k)
+            return inner
+        return wrap
+
+    scene = plate_scene((96, 72), fx=1200.0, second={"name": "d", "t": (-4.0, 0.0, 0.0)})
+    with Renderer(scene, "gl", ctx=gl_ctx) as r:
+        r.render("c", 0, mode="exact", samples_per_pixel=4)
+        seen = [collections.Counter(), collections.Counter()]
+        for counter in seen:                    # recorded, then replayed
+            with patched(counting(counter)):
+                r.render("c", 0, mode="exact", samples_per_pixel=4)
+        with r.backend.pass_times() as p:
+            r.render("c", 0, mode="exact", samples_per_pixel=4)
+        assert r.backend.frames.replays == 2 and r.backend.frames.recordings == 1
+    assert seen[0] == seen[1] and sum(seen[1].values()) > 50
+    assert {"view.comp", "candidates.comp", "classify.frag", "deform.frag", "downsample.frag"} <= set(p)
+
+
+def test_a_renderer_given_new_lights_replays_none_of_the_old(gl_ctx):
+    """The lights' values are part of a record's key: the same view under other lights is made."""
+    scene = plate_scene((96, 72), fx=1200.0, lighting=Lighting())
+    brighter = dataclasses.replace(scene, lighting=dataclasses.replace(scene.lighting, ambient=0.5))
+    with Renderer(scene, "gl", ctx=gl_ctx) as r, _made(Renderer(brighter, "gl", ctx=gl_ctx)) as ref:
+        for _ in range(3):
+            r.render("c", 0)
+        r.scene = brighter
+        _same(r.render("c", 0), ref.render("c", 0))
