@@ -118,6 +118,7 @@ class Renderer:
         self._closed = False
         self._seen: dict[tuple, bool] = {}   # (camera, step) → seen (Renderer._specimen)
         self._jobs: dict[tuple, tuple] = {}   # (camera, truth, options) → (scene, Render, Camera, index) (_job_setup)
+        self._equal: dict[tuple, object] = {}  # (Render or Camera, its repr) → the first such object (_first_equal)
         self._ref_coeffs: dict[str, np.ndarray] = {}   # float64 interpolant coefficients (the Jacobian's gradient)
         if self._gl_max:   # the reference image is one texture
             H, W = self.reference.image.shape
@@ -315,13 +316,23 @@ class Renderer:
         hit = self._jobs.get(key) if key is not None else None
         if hit is not None and hit[0] is self.scene:
             return hit[1:]
-        opts = self.scene.replace(render=options).render if options else self.scene.render
+        opts = self._first_equal(self.scene.replace(render=options).render if options else self.scene.render)
         self.check_size(camera, truth, opts)
         cam = self.scene.camera(camera)
         index = self.scene.cameras.index(cam)
+        cam = self._first_equal(cam)
         if key is not None:
             keep(self._jobs, key, (self.scene, opts, cam, index), SEEN_KEPT)
         return opts, cam, index
+
+    def _first_equal(self, value):
+        """The first object met equal to ``value`` to the bit (the same repr: 0.0 is not −0.0),
+        so that what is kept per camera or options object (a camera's views, their uniforms and
+        replayed passes) carries over a new scene that leaves them as they were (a library's
+        next variant); the last SEEN_KEPT kept."""
+        key = (value, repr(value))
+        hit = self._equal.get(key)
+        return hit if hit is not None else keep(self._equal, key, value, SEEN_KEPT)
 
     def _submit(self, camera, step: int, truth: bool, quantize: bool, options: dict) -> "_Submitted":
         t0 = time.perf_counter()

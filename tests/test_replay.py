@@ -10,8 +10,6 @@ from glsim.scene import Lighting
 from tests._plates import plate_scene
 from tests.test_pipeline import _same
 
-pytestmark = pytest.mark.gl
-
 # kinds that share programs whose uniforms differ (candidates.comp's u_half at 1 and 4 spp),
 # lit and unlit, with truth and without, Newton's sub-samples (a full-screen pass inside)
 KINDS = [{"mode": "exact", "samples_per_pixel": 1, "truth": True}, {"mode": "exact", "samples_per_pixel": 4},
@@ -30,6 +28,7 @@ def _jobs(cameras=("c", "d")):
             for step in (0, 1)]
 
 
+@pytest.mark.gl
 @pytest.mark.parametrize("lit", [False, True])
 def test_replayed_passes_give_the_bytes_of_made_ones(gl_ctx, lit):
     scene = plate_scene((96, 72), fx=1200.0, second={"name": "d", "t": (-4.0, 0.0, 0.0)},
@@ -44,6 +43,7 @@ def test_replayed_passes_give_the_bytes_of_made_ones(gl_ctx, lit):
         assert ref.backend.frames.replays == 0
 
 
+@pytest.mark.gl
 def test_a_record_naming_a_released_object_is_made_again(gl_ctx):
     """Cameras of two sizes: each view's candidate lists are released when the other size is
     drawn (one size kept), so a record of one is not live after the other's render."""
@@ -59,6 +59,7 @@ def test_a_record_naming_a_released_object_is_made_again(gl_ctx):
         assert (frames.recordings, frames.replays) == (2, 2)
 
 
+@pytest.mark.gl
 def test_a_recording_keeps_state_calls_and_abandons_one_that_makes_or_reads(gl_ctx):
     from glsim.backends.gl.context import check_error
     from glsim.backends.gl.replay import recording
@@ -84,6 +85,7 @@ def test_a_recording_keeps_state_calls_and_abandons_one_that_makes_or_reads(gl_c
     fbo.release()
 
 
+@pytest.mark.gl
 def test_a_replay_issues_the_made_pass_calls_where_patches_see_them(gl_ctx):
     """A replay looks its methods up when it runs: a patch of moderngl's classes (as driver_time
     and pass_times make) sees the same state-changing calls, in number and kind, as in the
@@ -117,6 +119,7 @@ def test_a_replay_issues_the_made_pass_calls_where_patches_see_them(gl_ctx):
     assert {"view.comp", "candidates.comp", "classify.frag", "deform.frag", "downsample.frag"} <= set(p)
 
 
+@pytest.mark.gl
 def test_a_renderer_given_new_lights_replays_none_of_the_old(gl_ctx):
     """The lights' values are part of a record's key: the same view under other lights is made."""
     scene = plate_scene((96, 72), fx=1200.0, lighting=Lighting())
@@ -126,3 +129,37 @@ def test_a_renderer_given_new_lights_replays_none_of_the_old(gl_ctx):
             r.render("c", 0)
         r.scene = brighter
         _same(r.render("c", 0), ref.render("c", 0))
+
+
+@pytest.mark.gl
+def test_a_library_variant_with_equal_cameras_and_options_replays_them(gl_ctx):
+    """A library worker gives its renderer each variant's scene, resolved anew (equal cameras and
+    options, new objects): the renderer meets them as the objects it met first, so the views
+    carry over and their passes replay; the images are those of each variant made alone."""
+    import copy
+
+    from glsim.scene import Noise
+
+    base = dataclasses.replace(plate_scene((96, 72), fx=1200.0, second={"name": "d", "t": (-4.0, 0.0, 0.0)}),
+                               noise=Noise(sigma=1.0))
+    jobs = [{"camera": c, "step": s, "truth": True, "quantize": True} for c in ("c", "d") for s in (0, 1)]
+    with Renderer(base, "gl", ctx=gl_ctx) as r:
+        for k in range(4):
+            variant = copy.deepcopy(dataclasses.replace(base, noise=Noise(sigma=1.0 + k)))
+            r.scene = variant
+            with _made(Renderer(variant, "gl", ctx=gl_ctx)) as alone:
+                for a, b in zip(r.render_many(jobs), alone.render_many(jobs)):
+                    _same(a, b)
+        # variant 0 made, 1 recorded, 2 and 3 replayed
+        assert (r.backend.frames.recordings, r.backend.frames.replays) == (len(jobs), 2 * len(jobs))
+
+
+def test_objects_equal_but_for_a_zero_sign_are_not_taken_for_each_other():
+    """0.0 == −0.0, but a sign can reach a result's bits: only objects with the same repr are one."""
+    import copy
+
+    scene = plate_scene((96, 72), fx=1200.0, t=(0.0, 0.0, 0.0))
+    signed = dataclasses.replace(scene.cameras[0], t=(-0.0, 0.0, 0.0))
+    with Renderer(scene, "cpu") as r:
+        assert r._first_equal(signed) is signed and r._first_equal(scene.cameras[0]) is scene.cameras[0]
+        assert r._first_equal(copy.deepcopy(scene.cameras[0])) is scene.cameras[0]
