@@ -80,7 +80,11 @@ def test_a_recording_keeps_state_calls_and_abandons_one_that_makes_or_reads(gl_c
         with recording() as rec:
             buf.bind_to_storage_buffer(5)
             makes_or_reads()
-        assert not rec.ok
+        assert not rec.ok and not rec.busy
+    with recording() as outer:           # one recording at a time: the other is busy, not abandoned
+        with recording() as other:
+            buf.bind_to_storage_buffer(5)
+    assert outer.ok and len(outer.ops) == 1 and other.busy and not other.ok
     buf.release()
     fbo.release()
 

@@ -14,7 +14,8 @@ first warm-up pair makes what they need, the second records them); the new-step 
 - **pairs/s**: stereo pairs (cameras 0 and 1) delivered to numpy per wall second.
 - **host ms / image**: one at a time, pipelined, and pipelined with each pair a load step not
   rendered before (the plate moved by STEP_MM: what a library over a time series does; the
-  step's geometry, shape checks and uploads are made then). The rendering thread's CPU time
+  step's geometry, shape checks and uploads are made then; on a second renderer on the same
+  context, after one such pair of warm-up, so that the first keeps step 0's views cached). The rendering thread's CPU time
   outside moderngl calls (and so outside the driver: submissions, waits, on llvmpipe the
   shaders themselves), less what counting them costs
   (:func:`glsim.backends.gl.timing.driver_time`) — the Python and numpy work per image. The
@@ -31,8 +32,9 @@ first warm-up pair makes what they need, the second records them); the new-step 
 - **GL calls / image**: moderngl calls per image (pipelined; calls made inside another count
   once) — the driver work the host issues, independent of the machine's speed.
 - **host opcodes / image**: Python bytecode instructions executed per image outside moderngl
-  (:func:`glsim.backends.gl.timing.host_opcodes`; one pair, pipelined, after the repetitions):
-  the host work of the host ms column as a count that a loaded or slower machine does not change.
+  (:func:`glsim.backends.gl.timing.host_opcodes`; one pair, pipelined, after the repetitions;
+  and one pair of new steps): the host work of the host ms column as a count that a loaded or
+  slower machine does not change.
 - **same bytes**: the pipelined images equal the one-at-a-time ones bit for bit (checked on
   every repetition).
 - **glsim / riley**: glsim's pipelined seconds per image (a pair's time / 2) over
@@ -119,11 +121,13 @@ def throughput(size=FULL_SIZE, reps: int = REPS, pairs: int = PAIRS, spps=SPPS, 
     from glsim.evaluation.report import gl_info, machine_info
     from glsim.render import Renderer
 
-    steps = len(MODES) * len(spps) * reps * pairs      # the new-step pairs': each load step rendered once
+    steps = len(MODES) * len(spps) * (reps * pairs + 2)   # the new-step pairs': each load step rendered once
     scene = _scene(tuple(size), elements, steps)
     fresh = iter(range(1, steps + 1))
     rows = []
-    with Renderer(scene, "gl") as r:
+    # new steps on a second renderer (same context and programs), so that they do not evict
+    # step 0's views from the first one's caches (STEPS_KEPT)
+    with Renderer(scene, "gl") as r, Renderer(scene, "gl", ctx=r.backend.ctx) as new:
         machine, elements = machine_info(gl_info(r)), len(r.mesh.quads)
         for mode in MODES:
             for spp in spps:
@@ -131,6 +135,7 @@ def throughput(size=FULL_SIZE, reps: int = REPS, pairs: int = PAIRS, spps=SPPS, 
                 riley, riley_name = _riley(tuple(size), spp, elements)
                 for _ in range(2):   # warm-up: programs, targets, ray maps; then the passes recorded
                     list(r.render_many(_jobs(1, mode, spp)))
+                list(new.render_many(_jobs(1, mode, spp, [next(fresh)])))
                 row = {"mode": mode, "spp": spp, "single_s": [], "pipelined_s": [], "single_host_ms": [],
                        "pipelined_host_ms": [], "single_host_wall_ms": [], "pipelined_host_wall_ms": [],
                        "single_calls": [], "pipelined_calls": [], "fresh_s": [], "fresh_host_ms": [],
@@ -144,7 +149,7 @@ def throughput(size=FULL_SIZE, reps: int = REPS, pairs: int = PAIRS, spps=SPPS, 
                         with driver_time() as d:
                             t, c = time.perf_counter(), time.thread_time()
                             out = ([r.render(**j) for j in todo] if way == "single"
-                                   else list(r.render_many(todo, depth=DEPTH)))
+                                   else list((new if way == "fresh" else r).render_many(todo, depth=DEPTH)))
                             wall, cpu = time.perf_counter() - t, time.thread_time() - c
                         host_wall, host_cpu = d.host_seconds(wall, cpu)
                         row[f"{way}_s"].append(wall)
@@ -169,6 +174,9 @@ def throughput(size=FULL_SIZE, reps: int = REPS, pairs: int = PAIRS, spps=SPPS, 
                 with host_opcodes() as n:
                     list(r.render_many(_jobs(1, mode, spp)))
                 row["host_opcodes"] = n[0] / 2
+                with host_opcodes() as n:
+                    list(new.render_many(_jobs(1, mode, spp, [next(fresh)])))
+                row["fresh_host_opcodes"] = n[0] / 2
                 rows.append(_summary(row, pairs))
                 log(f"throughput: {mode} {spp} spp: {rows[-1]['pipelined_pairs_per_s']:.3g} pairs/s pipelined")
     counting = _counting_cost(counting_reps)
@@ -203,7 +211,8 @@ def _counting_cost(reps: int) -> dict:
 
 
 def _summary(row: dict, pairs: int) -> dict:
-    out = {k: row[k] for k in ("mode", "spp", "riley", "same_bytes", "passes", "passes_wall_s", "host_opcodes")}
+    out = {k: row[k] for k in ("mode", "spp", "riley", "same_bytes", "passes", "passes_wall_s", "host_opcodes",
+                               "fresh_host_opcodes")}
     for way in ("single", "pipelined"):
         s = statistics.median(row[f"{way}_s"])
         out[f"{way}_pairs_per_s"] = pairs / s
@@ -228,7 +237,8 @@ def table(report: dict) -> str:
     W, H = report["size"]
     lines = [f"{machine_line(report['machine'])}; {report['date']}", "",
              "| mode | spp | pairs/s one at a time | pairs/s pipelined | images/s pipelined | pipelined / one "
-             "at a time | host ms / image (one / pipelined / new step) | host opcodes / image | GL calls / image | "
+             "at a time | host ms / image (one / pipelined / new step) | host opcodes / image (pipelined / new step) | "
+             "GL calls / image | "
              "same bytes | glsim / riley per image | largest passes (ms) and rest |",
              "|---|---|---|---|---|---|---|---|---|---|---|---|"]
     for r in report["rows"]:
@@ -239,7 +249,8 @@ def table(report: dict) -> str:
         lines.append(f"| {r['mode']} | {r['spp']} | {r['single_pairs_per_s']:.3g} | {r['pipelined_pairs_per_s']:.3g} | "
                      f"{r['pipelined_images_per_s']:.3g} | {r['pipelined_pairs_per_s'] / r['single_pairs_per_s']:.2f} | "
                      f"{r['single_host_ms']:.2g} / {r['pipelined_host_ms']:.2g} / {_cell(r, 'fresh_host_ms', '.2g')} | "
-                     f"{_cell(r, 'host_opcodes', ',.0f')} | {_cell(r, 'pipelined_calls', '.0f')} | "
+                     f"{_cell(r, 'host_opcodes', ',.0f')} / {_cell(r, 'fresh_host_opcodes', ',.0f')} | "
+                     f"{_cell(r, 'pipelined_calls', '.0f')} | "
                      f"{'yes' if r['same_bytes'] else 'NO'} | "
                      f"{ratio} | {shown} |")
     riley = next((r["riley"] for r in report["rows"]), "—")

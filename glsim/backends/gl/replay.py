@@ -54,12 +54,13 @@ _INVALID: list = []        # moderngl.InvalidObject (imported by the first recor
 
 class Recording:
     """The calls of one recording: ``ops`` (callables, in order), ``objects`` (the GL objects
-    they name), ``ok`` (False: abandoned)."""
+    they name), ``ok`` (False: abandoned, or ``busy``: another thread was recording)."""
 
     def __init__(self):
         self.ops: list = []
         self.objects: dict[int, object] = {}
         self.ok = True
+        self.busy = False
         self.depth = 0
         self.thread = threading.get_ident()
 
@@ -132,7 +133,7 @@ def recording():
         _INVALID.append(InvalidObject)
     rec = Recording()
     if not _lock.acquire(blocking=False):
-        rec.ok = False
+        rec.ok, rec.busy = False, True
         yield rec
         return
     try:
@@ -183,7 +184,7 @@ class Frames:
         """``make()``'s result: replayed if ``key`` was recorded with the same objects ``refs``
         (compared by identity; the key holds their ids) and :meth:`_Record.live`; else made, and
         recorded if the key was made before (unless MAX_FAILURES recordings of it were
-        abandoned)."""
+        abandoned; a thread's recordings wait for another's to end by not recording)."""
         hit = self._kept.get(key)
         if hit is None or not all(map(operator.is_, map(_CALL, hit.refs), refs)):
             keep(self._kept, key, _Record(refs), self.most)
@@ -199,8 +200,8 @@ class Frames:
         if rec.ok:
             self.recordings += 1
             keep(self._kept, key, _Record(refs, hit.failures, rec, result), self.most)
-        else:
-            hit.ops, hit.objects, hit.failures = None, (), hit.failures + 1
+        else:   # (a thread that found another recording tries again next time)
+            hit.ops, hit.objects, hit.failures = None, (), hit.failures + (not rec.busy)
         return result
 
     def clear(self) -> None:
