@@ -2,9 +2,11 @@
 
 The same name can be a ``vec2`` in one program and an ``ivec2`` or ``dvec2`` in another, and a
 driver keeps only the leading elements of an array that the program reads (``array_length``).
-:class:`Uniforms` holds the values (numbers or arrays, row-major) and makes the bytes for
-each program the first time it is written there, so a frame's setup of a program it has set
-up before is one driver call per uniform: no lookups, conversions or packing.
+:class:`Uniforms` holds the values (numbers or arrays, row-major) and makes each value's
+bytes once per type (the programs that read a name as the same type share them); which of its
+names a program has is found once per program and set of names, for every view after. A
+frame's setup of a program it has set up before is one driver call per uniform: no lookups,
+conversions or packing.
 
 :func:`set_uniform` sets one uniform that keeps its value across frames (a pass's layer, a
 size) only when it changes: a program keeps its uniforms' values, and every
@@ -34,27 +36,44 @@ class Uniforms:
 
     def __init__(self, values: dict):
         self.values = values
+        self._names = tuple(values)
         self._made: dict[int, tuple] = {}
+        self._data: dict[tuple, bytes] = {}   # (name, fmt, array_length) → bytes, shared by programs
 
     def write(self, prog) -> None:
         made = self._made.get(id(prog))
         if made is None or made[0] is not prog:
-            writes = []
-            for name, value in self.values.items():
-                u = prog.get(name, None)
-                if u is not None and hasattr(u, "fmt"):
-                    writes.append((u, _bytes(u, value)))
-            _written(prog, "values", self.values)
+            writes = [(u, self._encoded(name, u)) for name, u in _layout(prog, self._names)]
             made = self._made[id(prog)] = (prog, writes)
         for u, data in made[1]:
             u.write(data)   # (looked up each time: glsim.backends.gl.timing counts it as a GL call)
 
+    def _encoded(self, name: str, uniform) -> bytes:
+        """``name``'s value as ``uniform``'s type (made once per type and length)."""
+        key = (name, uniform.fmt, uniform.array_length)
+        data = self._data.get(key)
+        if data is None:
+            data = self._data[key] = _bytes(uniform, self.values[name])
+        return data
+
+
+def _layout(prog, names: tuple) -> list:
+    """The uniforms of ``names`` that ``prog`` has, as (name, Uniform) in order: found once per
+    program and set of names (a view's values are written to programs seen for other views)."""
+    layouts = _state(prog)["layouts"]
+    hit = layouts.get(names)
+    if hit is None:
+        found = ((n, prog.get(n, None)) for n in names)
+        hit = layouts[names] = [(n, u) for n, u in found if u is not None and hasattr(u, "fmt")]
+        _written(prog, "values", names)
+    return hit
+
 
 def _state(prog) -> dict:
     """glsim's record in ``prog.extra``: "set" (name → the value :func:`set_uniform` last
-    wrote) and "values" (the names :class:`Uniforms` write)."""
+    wrote), "values" (the names :class:`Uniforms` write) and "layouts" (:func:`_layout`)."""
     if prog.extra is None:
-        prog.extra = {"set": {}, "values": set()}
+        prog.extra = {"set": {}, "values": set(), "layouts": {}}
     return prog.extra
 
 
