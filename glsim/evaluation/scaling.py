@@ -127,9 +127,7 @@ def measure(size: tuple[int, int], n: int, reps: int) -> dict:
             renderer.render(0, 0, mode=mode)
             rows[mode]["passes_wall_s"] = time.perf_counter() - t
         rows[mode]["passes"] = p
-    geo = renderer.backend.geometry
-    gl_bytes = sum(b.size for k, b in geo._bufs.items() if not isinstance(b, tuple))
-    gl_bytes += sum(b.size for entry in geo._steps.values() for b in entry[1:3])
+    gl_bytes = renderer.backend.geometry.buffer_bytes()
     out = {"size": list(size), "elements": M, "setup_s": setup, "gl_buffer_mb": gl_bytes / 2 ** 20,
            "machine": machine_info(gl_info(renderer)), "renderers": {}}
     renderer.close()

@@ -15,8 +15,8 @@ first warm-up pair makes what they need, the second records them); the new-step 
 - **host ms / image**: one at a time, pipelined, and pipelined with each pair a load step not
   rendered before (the plate moved by STEP_MM: what a library over a time series does; the
   step's geometry, shape checks and uploads are made then; on a second renderer on the same
-  context, after one such pair of warm-up, so that the first keeps step 0's views cached). The rendering thread's CPU time
-  outside moderngl calls (and so outside the driver: submissions, waits, on llvmpipe the
+  context, after one such pair of warm-up, so that the first keeps step 0's views cached).
+  The rendering thread's CPU time outside moderngl calls (and so outside the driver: submissions, waits, on llvmpipe the
   shaders themselves), less what counting them costs
   (:func:`glsim.backends.gl.timing.driver_time`) — the Python and numpy work per image. The
   JSON also keeps the wall time outside the driver (``*_host_wall_ms``): on llvmpipe it adds

@@ -57,6 +57,13 @@ _NOTHING_MARKED = bytes(16)   # the status header when no element was marked
 DRAW_BIG, DRAW_FALLBACK, DRAW_RESOLVE = 0, 1, 2   # the list flags' indirect draw commands (candidates.glsl)
 
 
+def _release(value) -> None:
+    """Release the GL object ``value``, or those in the tuple ``value`` (other items ignored)."""
+    for obj in (value if isinstance(value, tuple) else (value,)):
+        if hasattr(obj, "release"):
+            obj.release()
+
+
 class GeometryBuffers:
     """The GL buffers of one :class:`~glsim.stages.geometry.MeshGeometry` on one context."""
 
@@ -69,8 +76,8 @@ class GeometryBuffers:
         self._bufs: dict = {}
         self._mesh: dict = {}       # fp64 → what _mesh_buffers returns (its buffers are in _bufs)
         self._vaos: dict = {}       # (id(program), indexed) → (program, attribute-less vertex array)
-        self._steps: OrderedDict = OrderedDict()
-        self._normals: OrderedDict = OrderedDict()   # (step, flat) → (StepGeometry, buffer)
+        self._steps: OrderedDict = OrderedDict()     # (step, fp64) → (StepGeometry, (nodes, bits, any)) (_per_step)
+        self._normals: OrderedDict = OrderedDict()   # (step, flat) → (StepGeometry, buffer) (_per_step)
         self.uploads = {"mesh": 0, "step": 0}   # what was uploaded (tests)
         self.view_passes = 0
 
@@ -145,50 +152,47 @@ class GeometryBuffers:
             return self.ctx.buffer(idx.tobytes())
         return self._buffer("index", make)
 
-    def _step_buffers(self, view: ViewSpec, fp64: bool):
-        key = (view.step_geo.index, fp64)
-        if key in self._steps and self._steps[key][0] is view.step_geo:
-            self._steps.move_to_end(key)
-            return self._steps[key][1:]
-        if key in self._steps:
-            for b in self._steps.pop(key)[1:3]:
-                b.release()
-        sg = view.step_geo
-        nodes = self.ctx.buffer(np.ascontiguousarray(sg.local, np.float64 if fp64 else np.float32).tobytes())
-        excluded = sg.shape()["excluded"]
-        has = bool(excluded.any())
-        bits = self.ctx.buffer(pack_bits(excluded).tobytes() if has else bytes(4))
-        self._steps[key] = (sg, nodes, bits, has)
+    def _per_step(self, cache: OrderedDict, key, step_geo, make):
+        """``cache[key]`` made for ``step_geo`` (by ``make()``: an upload) unless it was made for
+        it already; the last 2·STEPS_KEPT kept, the GL buffers of those dropped released."""
+        hit = cache.get(key)
+        if hit is not None and hit[0] is step_geo:
+            cache.move_to_end(key)
+            return hit[1]
+        if hit is not None:
+            _release(cache.pop(key)[1])
+        value = make()
+        cache[key] = (step_geo, value)
         self.uploads["step"] += 1
-        while len(self._steps) > 2 * STEPS_KEPT:
-            for b in self._steps.popitem(last=False)[1][1:3]:
-                b.release()
-        return nodes, bits, has
+        while len(cache) > 2 * STEPS_KEPT:
+            _release(cache.popitem(last=False)[1][1])
+        return value
+
+    def _step_buffers(self, view: ViewSpec, fp64: bool):
+        """The step's nodes (float64 or float32) and excluded-element bits, and whether any is."""
+        def make():
+            sg = view.step_geo
+            nodes = self.ctx.buffer(np.ascontiguousarray(sg.local, np.float64 if fp64 else np.float32).tobytes())
+            excluded = sg.shape()["excluded"]
+            has = bool(excluded.any())
+            return nodes, self.ctx.buffer(pack_bits(excluded).tobytes() if has else bytes(4)), has
+        return self._per_step(self._steps, (view.step_geo.index, fp64), view.step_geo, make)
 
     def normals(self, view: ViewSpec, flat: bool):
         """The step's unit corner normals in the world frame (the lighting's: per element for
         ``flat``, else per node, area-weighted; float32, 12 per element), computed and uploaded
-        once per step (binding NORMALS when lit; the last STEPS_KEPT steps' kept, as their
-        nodes are); deform.frag rotates them into the camera's frame."""
-        key = (view.step_geo.index, flat)
-        entry = self._normals.get(key)
-        if entry is None or entry[0] is not view.step_geo:
+        once per step (binding NORMALS when lit; kept as the step's nodes are); deform.frag
+        rotates them into the camera's frame."""
+        def make():
             from glsim.effects import lighting as shade
 
-            if entry is not None:
-                self._normals.pop(key)[1].release()
             nodes, quads = view.step_geo.deformed, self.geo.quads
             if flat:
                 n = np.repeat(shade.element_normals(nodes, quads)[:, None], 4, axis=1)
             else:
                 n = shade.vertex_normals(nodes, quads)[quads]
-            entry = self._normals[key] = (view.step_geo, self.ctx.buffer(np.ascontiguousarray(n, np.float32).tobytes()))
-            self.uploads["step"] += 1
-            while len(self._normals) > 2 * STEPS_KEPT:
-                self._normals.popitem(last=False)[1][1].release()
-        else:
-            self._normals.move_to_end(key)
-        return entry[1]
+            return self.ctx.buffer(np.ascontiguousarray(n, np.float32).tobytes())
+        return self._per_step(self._normals, (view.step_geo.index, flat), view.step_geo, make)
 
     def bind(self, view: ViewSpec, fp64: bool) -> None:
         """Upload what this view needs (at most once per renderer / step) and bind it."""
@@ -363,19 +367,22 @@ class GeometryBuffers:
                 out[name] = np.flatnonzero(unpack_bits(status[16 + 4 * words * k:16 + 4 * words * (k + 1)], self.M))
         return out
 
+    def buffer_bytes(self) -> int:
+        """The bytes of the storage buffers held: the mesh's, the kept steps' nodes, bits and
+        normals (not the candidate lists' textures)."""
+        held = [b for b in self._bufs.values() if not isinstance(b, tuple)]
+        held += [b for _, (nodes, bits, _) in self._steps.values() for b in (nodes, bits)]
+        held += [b for _, b in self._normals.values()]
+        return sum(b.size for b in held)
+
     def release(self) -> None:
         for _, vao in self._vaos.values():
             vao.release()
         self._vaos.clear()
         for b in self._bufs.values():
-            for obj in (b if isinstance(b, tuple) else (b,)):
-                if hasattr(obj, "release"):
-                    obj.release()
-        for entry in self._steps.values():
-            for b in entry[1:3]:
-                b.release()
-        for _, b in self._normals.values():
-            b.release()
+            _release(b)
+        for _, value in (*self._steps.values(), *self._normals.values()):
+            _release(value)
         self._normals.clear()
         self._bufs.clear()
         self._mesh.clear()
