@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from glsim.backends.gl.plan import Pass, plan
-from glsim.effects import prepare as prepare_effects
+from glsim.effects import Effects, prepare as prepare_effects
 from glsim.io.fe import specimen_mesh
 from glsim.render import Renderer
 from glsim.scene import Render, bulge_scene, demo_effects
@@ -61,6 +61,9 @@ def test_effects_add_their_passes_only():
     assert Pass("subsamples.frag") in p.passes
     bare = plan(Render(mode="exact"), False, True, None, PIN, PIN)
     assert not {"LIGHTING", "DEPTH_OUT"} & set(bare.define_dict) and "noise.frag" not in shaders(bare)
+    # passes on the pixels before quantisation (which then leaves the replayed pass: backend._deform)
+    assert p.image_effects and not bare.image_effects
+    assert not plan(Render(mode="fast", samples_per_pixel=4), False, True, Effects(aperture=0.5), PIN, PIN).image_effects
 
 
 @pytest.mark.gl

@@ -11,10 +11,12 @@ from tests._plates import plate_scene
 from tests.test_pipeline import _same
 
 # kinds that share programs whose uniforms differ (candidates.comp's u_half at 1 and 4 spp),
-# lit and unlit, with truth and without, Newton's sub-samples (a full-screen pass inside)
+# with truth and without, quantised on the GPU (inside the record) or not, Newton's sub-samples
+# (a full-screen pass inside); the test runs them lit and unlit
 KINDS = [{"mode": "exact", "samples_per_pixel": 1, "truth": True}, {"mode": "exact", "samples_per_pixel": 4},
-         {"mode": "q4", "samples_per_pixel": 4, "truth": True}, {"mode": "fast", "samples_per_pixel": 1},
-         {"mode": "exact", "samples_per_pixel": 4, "subsamples": "newton"}]
+         {"mode": "q4", "samples_per_pixel": 4, "truth": True, "quantize": True},
+         {"mode": "fast", "samples_per_pixel": 1, "quantize": True},
+         {"mode": "exact", "samples_per_pixel": 4, "subsamples": "newton", "quantize": True}]
 
 
 def _made(r: Renderer) -> Renderer:
@@ -111,16 +113,18 @@ def test_a_replay_issues_the_made_pass_calls_where_patches_see_them(gl_ctx):
 
     scene = plate_scene((96, 72), fx=1200.0, second={"name": "d", "t": (-4.0, 0.0, 0.0)})
     with Renderer(scene, "gl", ctx=gl_ctx) as r:
-        r.render("c", 0, mode="exact", samples_per_pixel=4)
+        kind = {"mode": "exact", "samples_per_pixel": 4, "quantize": True}
+        r.render("c", 0, **kind)
         seen = [collections.Counter(), collections.Counter()]
         for counter in seen:                    # recorded, then replayed
             with patched(counting(counter)):
-                r.render("c", 0, mode="exact", samples_per_pixel=4)
+                r.render("c", 0, **kind)
         with r.backend.pass_times() as p:
-            r.render("c", 0, mode="exact", samples_per_pixel=4)
+            r.render("c", 0, **kind)
         assert r.backend.frames.replays == 2 and r.backend.frames.recordings == 1
     assert seen[0] == seen[1] and sum(seen[1].values()) > 50
-    assert {"view.comp", "candidates.comp", "classify.frag", "deform.frag", "downsample.frag"} <= set(p)
+    assert {"view.comp", "candidates.comp", "classify.frag", "deform.frag", "downsample.frag",
+            "quantize.frag"} <= set(p)
 
 
 @pytest.mark.gl

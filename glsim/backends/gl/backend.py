@@ -33,7 +33,7 @@ from glsim.backends.gl.bindings import sampler, storage
 from glsim.backends.gl.context import check_error, create_context
 from glsim.backends.gl.geometry import DRAW_FALLBACK, DRAW_RESOLVE, LAYERS, GeometryBuffers
 from glsim.backends.gl import timing
-from glsim.backends.gl.plan import aperture_literal, newton_subsamples, plan
+from glsim.backends.gl.plan import aperture_literal, plan
 from glsim.backends.gl.imagepasses import ImagePasses
 from glsim.backends.gl.programs import ProgramCache
 from glsim.backends.gl.readback import PackBuffers, Pending, read_buffer, read_texture
@@ -126,6 +126,7 @@ class GLBackend(ImagePasses):
         self._pack = PackBuffers(self.ctx)
         self._scratch: dict[tuple, list] = {}   # free (textures, framebuffer) of full-screen passes by shape
         self._lent: dict[int, tuple] = {}       # id(texture) → its scratch entry while a frame uses it
+        self._outputs: dict[tuple, object] = {}  # the pixel passes' textures by size and role (_output)
         self._fbos: dict[int, tuple] = {}       # id(texture) → (texture, framebuffer) drawing into it
         self._vaos: dict[int, tuple] = {}       # id(program) → (program, attribute-less vertex array)
         self._ray_host: dict[tuple, np.ndarray] = {}   # the float64 ray maps' bits on the host (truth polish)
@@ -178,7 +179,8 @@ class GLBackend(ImagePasses):
             for t in color:
                 t.release()
             depth.release()
-        for tex in (*self._textures.values(), *self._rays.values(), *(self._dot_buffers or ())[:2]):
+        for tex in (*self._textures.values(), *self._rays.values(), *self._outputs.values(),
+                    *(self._dot_buffers or ())[:2]):
             tex.release()
         self._dot_buffers = None
         for buf in self._patch_cache.values():
@@ -197,6 +199,7 @@ class GLBackend(ImagePasses):
             if obj is not None:
                 obj.release()
         self._fbos.clear()
+        self._outputs.clear()
         self._scratch.clear()
         self._lent.clear()
         self._vaos.clear()
@@ -271,48 +274,70 @@ class GLBackend(ImagePasses):
                      curved=None) -> Frame:
         s = opts.supersampling
         W, H = view.camera.size
-        color, raster, report = self._deform(view, opts, s, truth and s == 1, fx, patches)
+        p = plan(opts, truth and s == 1, self.fp64, fx, view.camera, view.ref_camera,
+                 patches.pieces if patches is not None else None)
+        color, grey, depth, raster, report = self._deform(view, opts, p, s, truth and s == 1, fx, patches, quantize)
         stages = ["raster", "interpolate"] + (["light"] if fx.lighting is not None else [])   # one pass
-        grey, depth, temps = color[0], (color[-1] if fx.blur else None), []
-        if newton_subsamples(opts, s, patches is not None):
+        if p.subsamples:
             stages.append("subsamples")
         elif s > 1:
-            grey, depth = self._downsample(grey, depth, W, H, s, scratch=temps)
             stages.append("downsample")
+        temps: list = []
         if fx.blur:
             grey = self.blur_passes(grey, depth, fx.optics, fx.sigma_max, (W, H), temps, stages)
         grey = self.camera_passes(grey, fx, (W, H), temps, stages)
         if fx.noise is not None:
             grey = self.noise_pass(grey, fx.noise, fx.bit_depth, fx.noise_seed, fx.variance, scratch=temps)
             stages.append("noise")
-        if quantize:
-            grey = self._quantized(grey, quantize, temps)
+        if quantize and p.image_effects:
+            grey = self._quantized(grey, quantize)
         image = read_texture(self._pack, grey, _DTYPES[grey.dtype])
         self._recycle(temps)
         if truth and s > 1:
-            _, raster, _ = self._deform(view, _one_sample(opts), 1, True, _NO_EFFECTS, patches, warn=False)
+            one = _one_sample(opts)
+            p1 = plan(one, True, self.fp64, _NO_EFFECTS, view.camera, view.ref_camera,
+                      patches.pieces if patches is not None else None)
+            raster = self._deform(view, one, p1, 1, True, _NO_EFFECTS, patches, warn=False)[3]
         return Frame(image, raster or (lambda: None), report, tuple(stages), curved, view.camera, opts.mode)
 
-    def _deform(self, view: ViewSpec, opts, s: int, truth: bool, fx, patches, warn: bool = True):
-        """The deformation pass into the cached target, as :func:`~glsim.backends.gl.plan.plan`
-        lays it out (replayed where this view was rendered so before:
-        :mod:`glsim.backends.gl.replay`); returns its color textures, what finishes the raster
-        (if ``truth``; its reads queued) and what reports the view's problems (its flags copied
-        on the GPU; nothing if not ``warn``)."""
-        p = plan(opts, truth, self.fp64, fx, view.camera, view.ref_camera,
-                 patches.pieces if patches is not None else None)
+    def _deform(self, view: ViewSpec, opts, p, s: int, truth: bool, fx, patches, quantize: int | None = None,
+                warn: bool = True):
+        """The deformation pass of plan ``p`` into the cached target, then the pixels' box filter
+        (s > 1, no Newton sub-samples) and, if no image effects come between, the quantisation
+        to ``quantize`` bits, into cached textures (replayed where this view was rendered so
+        before: :mod:`glsim.backends.gl.replay`). Returns the color textures, the grey and depth
+        textures at pixel size (depth if blurred), what finishes the raster (if ``truth``; its
+        reads queued) and what reports the view's problems (its flags copied on the GPU;
+        nothing if not ``warn``)."""
         geo = self._buffers(view)
         lit = None if fx.lighting is None else (fx.lighting.normals == "flat", _light_uniforms(fx))
-        key = (id(view), id(opts), s, truth, id(p), id(patches), fx.aperture,
+        quantize = None if p.image_effects else quantize
+        key = (id(view), id(opts), s, truth, id(p), id(patches), fx.aperture, quantize,
                lit and (lit[0], *(v.tobytes() for v in lit[1].values())))
-        color = self.frames.run(key, (view, opts, p, patches),
-                                lambda: self._deform_passes(view, opts, s, truth, p, geo, patches, lit, fx.aperture))
+
+        def make():
+            color = self._deform_passes(view, opts, s, truth, p, geo, patches, lit, fx.aperture)
+            return color, self._pixel_passes(color, view.camera.size, s, p, quantize)
+
+        color, (grey, depth) = self.frames.run(key, (view, opts, p, patches), make)
         if opts.mode != "fast":
             geo.view_passes += 1
         check_error(self.ctx, f"deformation pass ({opts.mode})")
         self.ctx.memory_barrier()  # shader storage writes visible to the read-backs
         report = self._queue_report(view, s, geo, warn)
-        return color, (self._queue_raster(view, opts.mode, color, p, patches) if truth else None), report
+        raster = self._queue_raster(view, opts.mode, color, p, patches) if truth else None
+        return color, grey, depth, raster, report
+
+    def _pixel_passes(self, color, size: tuple[int, int], s: int, p, quantize: int | None):
+        """The grey and depth (if DEPTH_OUT) textures at pixel size from the deformation pass's
+        ``color``: box-filtered at s > 1 unless Newton sub-samples did it, then quantised to
+        ``quantize`` bits if given."""
+        grey, depth = color[0], (color[-1] if "DEPTH_OUT" in p.define_dict else None)
+        if s > 1 and not p.subsamples:
+            grey, depth = self._downsample(grey, depth, *size, s)
+        if quantize:
+            grey = self._quantized(grey, quantize)
+        return grey, depth
 
     def _deform_passes(self, view: ViewSpec, opts, s: int, truth: bool, p, geo, patches, lit, aperture: float):
         """The deformation pass's GL commands (what a replay repeats: everything they depend on

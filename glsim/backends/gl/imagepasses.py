@@ -19,7 +19,8 @@ from glsim.backends.gl.uniforms import set_uniform
 class ImagePasses:
     """Full-screen passes of a GL backend. Expects of the backend: ``ctx``, ``programs``,
     ``fp64``, ``_pack`` (pack buffers), ``_unbind()``, and the reuse tables ``_scratch`` (free
-    scratch textures by shape), ``_lent`` (those a frame holds), ``_fbos`` and ``_vaos``."""
+    scratch textures by shape), ``_lent`` (those a frame holds), ``_outputs``, ``_fbos`` and
+    ``_vaos``."""
 
     def fullscreen_pass(self, frag: str, defines: dict, inputs: dict, uniforms: dict, size: tuple[int, int],
                         components: tuple[int, ...] = (1,), into=None, dtype: str = "f4", scratch: list | None = None):
@@ -134,35 +135,45 @@ class ImagePasses:
         tex.read_into(out)
         return out
 
-    def _downsample(self, samples, depth, W: int, H: int, s: int, into=None, scratch: list | None = None):
+    def _downsample(self, samples, depth, W: int, H: int, s: int, into=None):
         """Box filter over s×s samples: grey, and the mean depth of covered samples if given.
         ``into``: the (grey, depth) textures to draw into, skipping the pixels subsamples.frag
-        finished (their candidate count is LIST_DONE; the lists bound as images); else scratch
-        textures added to ``scratch``."""
+        finished (their candidate count is LIST_DONE; the lists bound as images); else the
+        backend's own (:meth:`_output`)."""
         skip = {} if into is None else {"SKIP_DONE": None}
-        into = into if into is not None else (None, None)
         grey = self.fullscreen_pass("downsample.frag", {"SS": s, **skip}, {"u_samples": samples}, {}, (W, H),
-                                    into=into[0], scratch=scratch)
+                                    into=self._output((W, H), "grey") if into is None else into[0])
         if depth is None:
             return grey, None
         return grey, self.fullscreen_pass("downsample.frag", {"SS": s, "COVERED_MEAN": None, **skip},
-                                          {"u_samples": depth}, {}, (W, H), into=into[-1], scratch=scratch)
+                                          {"u_samples": depth}, {}, (W, H),
+                                          into=self._output((W, H), "depth") if into is None else into[-1])
+
+    def _output(self, size: tuple[int, int], role: str, dtype: str = "f4"):
+        """This backend's one-component texture of ``size`` for the pixel passes' ``role``
+        ("grey", "depth": the box filter's; "quantized"), made once: a view's passes draw into
+        the same objects every frame (so they can be replayed: :mod:`glsim.backends.gl.replay`);
+        the GL orders a frame's draw after the reads queued from the last."""
+        key = (size, role, dtype)
+        tex = self._outputs.get(key)
+        if tex is None:
+            tex = self._outputs[key] = self.ctx.texture(size, 1, dtype=dtype)
+        return tex
 
     def quantize_pass(self, grey, bit_depth: int) -> np.ndarray:
         """shaders/quantize.frag on an R32F texture or (H, W) array: the image as
         :func:`glsim.io.images.quantize` gives it (uint8, or uint16 for 10–16 bits), read back
         in that type. Needs float64 (``self.fp64``)."""
-        temps: list = []
-        out = read_texture(self._pack, self._quantized(grey, bit_depth, temps), np.uint8 if bit_depth == 8 else np.uint16)
-        self._recycle(temps)
-        return out.fetch(self._pack)
+        out = self._quantized(grey, bit_depth)
+        return read_texture(self._pack, out, np.uint8 if bit_depth == 8 else np.uint16).fetch(self._pack)
 
-    def _quantized(self, grey, bit_depth: int, scratch: list):
-        """The texture of :meth:`quantize_pass` (R8UI / R16UI, on loan in ``scratch``)."""
+    def _quantized(self, grey, bit_depth: int):
+        """The texture of :meth:`quantize_pass` (R8UI / R16UI, :meth:`_output`'s)."""
         H, W = grey.shape if isinstance(grey, np.ndarray) else grey.size[::-1]
+        dtype = "u1" if bit_depth == 8 else "u2"
         return self.fullscreen_pass("quantize.frag", {"FP64": None}, {"u_src": grey},
                                     {"u_top": float((1 << bit_depth) - 1)}, (W, H),
-                                    dtype="u1" if bit_depth == 8 else "u2", scratch=scratch)
+                                    into=self._output((W, H), "quantized", dtype))
 
     def noise_pass(self, grey, params, bit_depth: int, seed: int, table=None, scratch: list | None = None):
         """noise.frag on an R32F texture or (H, W) array: grey + σ(grey)·z, the same field as

@@ -48,6 +48,12 @@ class Plan:
         """``defines`` as a read-only mapping (made once)."""
         return MappingProxyType(dict(self.defines))
 
+    @functools.cached_property
+    def image_effects(self) -> bool:
+        """Whether full-screen passes work on the pixels between their integration (the
+        deformation pass, the box filter) and quantisation: blur, camera effects, noise."""
+        return any(p.shader not in PIXEL_PASSES for p in self.passes)
+
 
 class EffectsShape(NamedTuple):
     """What of a render's effects (:class:`glsim.effects.Effects`) its plan depends on:
@@ -114,6 +120,10 @@ def newton_subsamples(opts, s: int, quadratic: bool) -> bool:
     pixel centre (shaders/subsamples.frag, which then replaces the box filter)."""
     return opts.subsamples == "newton" and opts.mode == "exact" and s > 1 and not quadratic
 
+
+# the passes that integrate the pixels (the deformation pass's, the box filter)
+PIXEL_PASSES = {"rays.frag", "view.comp", "candidates.comp", "candidates.frag", "classify.frag", "subsamples.frag",
+                "deform.frag", "resolve.frag", "downsample.frag"}
 
 # the depth-of-field passes of each scheme (glsim.effects.dof.blur_scheme), in order
 BLUR_PASSES = {"disk": ("BLUR_DISK",), "gather": ("BLUR_GATHER",), "expansion": ("BLUR_ROWS", "BLUR_COLUMNS"),
