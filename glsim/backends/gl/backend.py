@@ -132,6 +132,7 @@ class GLBackend(ImagePasses):
         self._ray_host: dict[tuple, np.ndarray] = {}   # the float64 ray maps' bits on the host (truth polish)
         self._dropped = None                    # deform.frag's count of samples mapping outside the reference
         self._uniforms: dict[tuple, tuple] = {}  # the last views' uniform values (_view_uniforms)
+        self._camera_values: dict[tuple, tuple] = {}   # and their cameras' (_camera_uniforms)
         self.frames = Frames()                  # deformation passes recorded for replay
 
     # ---- resources -------------------------------------------------------------------------
@@ -205,6 +206,7 @@ class GLBackend(ImagePasses):
         self._vaos.clear()
         self._ray_host.clear()
         self._uniforms.clear()
+        self._camera_values.clear()
         self.frames.clear()
         self._dropped = None
         self._curved.clear()
@@ -408,20 +410,31 @@ class GLBackend(ImagePasses):
 
     def _view_uniforms(self, view: ViewSpec, geo, fp64: bool, sag: float) -> Uniforms:
         """The uniforms of ``view`` every deformation program and view.comp read: the view's
-        transform and constants (:meth:`GeometryBuffers.view_values`), the camera and
-        reference models, the sizes, the far plane and ``sag`` (px); made once per view
-        (the last VIEWS_KEPT kept)."""
+        transform (:meth:`GeometryBuffers.view_values`) and the far plane, made once per view
+        (the last VIEWS_KEPT kept), over :meth:`_camera_uniforms`."""
         key = (id(view), id(geo), fp64, sag)
         hit = self._uniforms.get(key)
         if hit is not None and hit[0] is view and hit[1] is geo:
             return hit[2]
-        cam, ref = view.camera, view.ref_camera
-        u = Uniforms({**geo.view_values(view, fp64), "u_intr": cam.intrinsics, "u_dist": cam.distortion.coeffs,
+        base = self._camera_uniforms(view.camera, view.ref_camera, geo, sag)
+        u = Uniforms({**geo.view_values(view, fp64), "u_far": view.far}, base)
+        keep(self._uniforms, key, (view, geo, u), VIEWS_KEPT)
+        return u
+
+    def _camera_uniforms(self, cam, ref, geo, sag: float) -> Uniforms:
+        """What the views of ``cam`` share (their bytes made once for all of its steps): the
+        camera and reference models, the sizes, view.glsl's constants for the mesh
+        (:meth:`GeometryBuffers.camera_values`) and ``sag`` (px); the last VIEWS_KEPT kept."""
+        key = (id(cam), id(ref), id(geo), sag)
+        hit = self._camera_values.get(key)
+        if hit is not None and hit[0] is cam and hit[1] is geo and hit[2] is ref:
+            return hit[3]
+        u = Uniforms({**geo.camera_values(cam), "u_intr": cam.intrinsics, "u_dist": cam.distortion.coeffs,
                       "u_valid_r2": cam.distortion.valid_radius() ** 2, "u_extra_sag": sag,
                       "u_ref_intr": ref.intrinsics, "u_ref_dist": ref.distortion.coeffs,
                       "u_ref_valid_r2": ref.distortion.valid_radius() ** 2, "u_size": cam.size,
-                      "u_far": view.far, "u_ref_size": ref.size})
-        keep(self._uniforms, key, (view, geo, u), VIEWS_KEPT)
+                      "u_ref_size": ref.size})
+        keep(self._camera_values, key, (cam, geo, ref, u), VIEWS_KEPT)
         return u
 
     def _list_program(self, view: ViewSpec, frag: str, defines: dict, setup, geo, target, layer: float,

@@ -202,12 +202,16 @@ class GeometryBuffers:
             buf.bind_to_storage_buffer(point)
 
     def view_values(self, view: ViewSpec, fp64: bool) -> dict:
-        """The view's transform and the constants of view.glsl (uniform name → value)."""
+        """The view's transform and whether its step excludes elements (uniform name → value);
+        the rest of view.glsl's are :meth:`camera_values`."""
         _, _, has = self._step_buffers(view, fp64)
-        r = ray_radius(view.camera)
-        return {"u_rot": view.rotation.ravel(), "u_trans": view.translation, "u_near": NEAR_MM,
-                "u_grazing_cos": GRAZING_COS, "u_ray_r": r if np.isfinite(r) else -1.0,
-                "u_excluded": int(has), "u_flag_words": self.words, "u_count": self.M}
+        return {"u_rot": view.rotation.ravel(), "u_trans": view.translation, "u_excluded": int(has)}
+
+    def camera_values(self, camera) -> dict:
+        """view.glsl's constants for this mesh seen by ``camera`` (uniform name → value)."""
+        r = ray_radius(camera)
+        return {"u_near": NEAR_MM, "u_grazing_cos": GRAZING_COS, "u_ray_r": r if np.isfinite(r) else -1.0,
+                "u_flag_words": self.words, "u_count": self.M}
 
     # ---- the per-view pass -----------------------------------------------------------------
     def view_pass(self, view: ViewSpec, mode: str, fp64: bool, uniforms, grow: float = 0.0,
@@ -216,7 +220,7 @@ class GeometryBuffers:
         ``grow`` px for pass 1 at pixel resolution) and tight rectangles (TIGHT); with
         ``local`` (exact, float64) also the float32 records of deform.frag's CAMERA_LOCAL
         (LOCAL). ``uniforms`` (:class:`~glsim.backends.gl.uniforms.Uniforms`): the view's
-        (:meth:`view_values`) and its camera's model."""
+        (:meth:`view_values`, :meth:`camera_values`) and its camera's model."""
         defines = {f"MODE_{mode.upper()}": None, **({"FP64": None} if fp64 else {}),
                    **({"RECORD_LOCAL": None} if local else {})}
         prog = self.programs.compute("view.comp", defines)
