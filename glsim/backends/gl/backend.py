@@ -17,7 +17,8 @@ from __future__ import annotations
 
 import functools
 from collections.abc import Callable
-from dataclasses import dataclass, replace
+from dataclasses import replace
+from typing import NamedTuple
 
 import numpy as np
 
@@ -84,10 +85,10 @@ def _one_sample(opts):
 _NO_EFFECTS = Effects()
 
 
-@dataclass(frozen=True, eq=False)
-class Frame:
+class Frame(NamedTuple):
     """A request submitted to the GPU with its read-backs queued (:meth:`GLBackend.submit`);
-    :meth:`GLBackend.collect` fetches them."""
+    :meth:`GLBackend.collect` fetches them (a tuple: made per image, in fewer steps than a
+    frozen dataclass)."""
     image: Pending
     raster: Callable[[], dict | None]       # the truth raster, fetched and finished (None: not asked)
     report: Callable[[], None]              # the view's warnings, from its fetched problem flags

@@ -9,7 +9,7 @@ steady stream of frames allocates nothing.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 
@@ -37,9 +37,9 @@ class PackBuffers:
         self._free.clear()
 
 
-@dataclass(frozen=True, eq=False)
-class Pending:
-    """A read queued into ``buffer``: an array of ``shape`` and ``dtype`` once fetched."""
+class Pending(NamedTuple):
+    """A read queued into ``buffer``: an array of ``shape`` and ``dtype`` once fetched (a tuple:
+    made per read, in fewer steps than a frozen dataclass)."""
     buffer: object
     shape: tuple[int, ...]
     dtype: np.dtype
