@@ -277,8 +277,8 @@ class GLBackend(ImagePasses):
                      curved=None) -> Frame:
         s = opts.supersampling
         W, H = view.camera.size
-        p = plan(opts, truth and s == 1, self.fp64, fx, view.camera, view.ref_camera,
-                 patches.pieces if patches is not None else None)
+        pieces = patches.pieces if patches is not None else None
+        p = plan(opts, truth and s == 1, self.fp64, fx, view.camera, view.ref_camera, pieces)
         color, grey, depth, raster, report = self._deform(view, opts, p, s, truth and s == 1, fx, patches, quantize)
         stages = ["raster", "interpolate"] + (["light"] if fx.lighting is not None else [])   # one pass
         if p.subsamples:
@@ -298,8 +298,7 @@ class GLBackend(ImagePasses):
         self._recycle(temps)
         if truth and s > 1:
             one = _one_sample(opts)
-            p1 = plan(one, True, self.fp64, _NO_EFFECTS, view.camera, view.ref_camera,
-                      patches.pieces if patches is not None else None)
+            p1 = plan(one, True, self.fp64, _NO_EFFECTS, view.camera, view.ref_camera, pieces)
             raster = self._deform(view, one, p1, 1, True, _NO_EFFECTS, patches, warn=False)[3]
         return Frame(image, raster or (lambda: None), report, tuple(stages), curved, view.camera, opts.mode)
 

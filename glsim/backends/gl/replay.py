@@ -1,12 +1,13 @@
 """Deformation passes recorded once and replayed: a view rendered again issues the GL commands
 it issued before, without the Python that decided them.
 
-For one view, options, plan, supersampling, truth flag, lights and aperture, the deformation
-pass (:meth:`GLBackend._deform`) issues the same commands every time: the same programs,
-buffers, targets, uniform values and draws, in the same order. :class:`Frames` records them
-on the second render of such a key (the first makes what the key needs: programs, buffers,
-targets, ray maps) and replays them on the renders after it, so the images and truth are
-the same bit for bit.
+For one view, options, plan, supersampling, truth flag, lights, aperture and bit depth, the
+deformation pass with the box filter and (where no image effect comes between) the GPU
+quantisation (:meth:`GLBackend._deform`) issues the same commands every time: the same
+programs, buffers, targets, uniform values and draws, in the same order. :class:`Frames`
+records them on the second render of such a key (the first makes what the key needs:
+programs, buffers, targets, ray maps) and replays them on the renders after it, so the images
+and truth are the same bit for bit.
 
 A recording (:func:`recording`) keeps this thread's moderngl calls that change GL state
 (RECORDED) and glsim's calls marked :func:`replayed`, which must run again as calls (a

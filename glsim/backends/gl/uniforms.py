@@ -100,7 +100,7 @@ def _written(prog, way: str, names) -> None:
 def set_uniform(prog, name: str, value) -> None:
     """``prog[name].value = value`` unless glsim's last write of ``name`` there was ``value``
     (a number or a tuple of numbers; other values are always written)."""
-    simple = isinstance(value, (int, float, tuple))
+    simple = isinstance(value, _SIMPLE)
     state = prog.extra
     if simple and state is not None and state["set"].get(name, _UNSET) == value:
         return
@@ -110,3 +110,4 @@ def set_uniform(prog, name: str, value) -> None:
 
 
 _UNSET = object()
+_SIMPLE = (int, float, tuple)   # values set_uniform compares with the last written
