@@ -21,7 +21,7 @@ KINDS = [{"mode": "exact", "samples_per_pixel": 1, "truth": True}, {"mode": "exa
 
 def _made(r: Renderer) -> Renderer:
     """``r`` with replays turned off: every pass made by its Python."""
-    r.backend.frames.run = lambda key, refs, make: make()
+    r.backend.frames.run = lambda key, refs, make, view=None: make()
     return r
 
 
@@ -40,9 +40,10 @@ def test_replayed_passes_give_the_bytes_of_made_ones(gl_ctx, lit):
         for a, b in zip(r.render_many(_jobs()), ref.render_many(_jobs())):
             _same(a, b)
         frames = r.backend.frames
-        # each key (kind, camera, step; and q4's s = 1 truth pass) made, recorded, then replayed
-        keys = (len(KINDS) + 1) * 2 * 2
-        assert frames.recordings == frames.replays == keys
+        # each key (kind and camera; and q4's s = 1 truth pass) drawn 6 times: made (step 0),
+        # recorded (step 1), then replayed for both steps
+        keys = (len(KINDS) + 1) * 2
+        assert (frames.recordings, frames.replays) == (keys, 4 * keys)
 
 
 @pytest.mark.gl
@@ -87,6 +88,22 @@ def test_a_recording_keeps_state_calls_and_abandons_one_that_makes_or_reads(gl_c
         with recording() as other:
             buf.bind_to_storage_buffer(5)
     assert outer.ok and len(outer.ops) == 1 and other.busy and not other.ok
+    # a view-dependent call: one call in what every view replays, its GL calls in the recorded
+    # view's; one that makes an object leaves the recorded view's unusable, not the recording
+    from glsim.backends.gl.replay import replayed
+
+    @replayed(view=True)
+    def bind_view(make: bool):
+        (gl_ctx.buffer(bytes(4)) if make else buf).bind_to_storage_buffer(6)
+        buf.bind_to_storage_buffer(7)
+
+    for make in (False, True):
+        with recording() as rec:
+            fbo.viewport = (0, 0, 2, 2)
+            bind_view(make)
+        assert rec.ok and len(rec.ops) == 2 and rec.ops[1].func.__name__ == "bind_view"
+        assert rec.inline is None if make else (len(rec.inline) == 3 and set(rec.inline_objects.values()) == {buf, fbo})
+        assert set(rec.objects.values()) == {fbo}
     buf.release()
     fbo.release()
 
@@ -158,8 +175,8 @@ def test_a_library_variant_with_equal_cameras_and_options_replays_them(gl_ctx):
             with _made(Renderer(variant, "gl", ctx=gl_ctx)) as alone:
                 for a, b in zip(r.render_many(jobs), alone.render_many(jobs)):
                     _same(a, b)
-        # variant 0 made, 1 recorded, 2 and 3 replayed
-        assert (r.backend.frames.recordings, r.backend.frames.replays) == (len(jobs), 2 * len(jobs))
+        # per camera: variant 0's step 0 made, its step 1 recorded; every other render replayed
+        assert (r.backend.frames.recordings, r.backend.frames.replays) == (2, 3 * len(jobs))
 
 
 def test_objects_equal_but_for_a_zero_sign_are_not_taken_for_each_other():
@@ -171,3 +188,46 @@ def test_objects_equal_but_for_a_zero_sign_are_not_taken_for_each_other():
     with Renderer(scene, "cpu") as r:
         assert r._first_equal(signed) is signed and r._first_equal(scene.cameras[0]) is scene.cameras[0]
         assert r._first_equal(copy.deepcopy(scene.cameras[0])) is scene.cameras[0]
+
+
+@pytest.mark.gl
+def test_a_time_series_new_steps_replay_the_pass_of_the_first_ones(gl_ctx):
+    """A record serves every view of its camera: each load step of a series drawn once (a
+    library over time), lit, with an element that collapses at one step (excluded: its bits and
+    flag differ from the other steps') — from the third step on the passes are replays, and the
+    images, truth and warnings are those of passes made for each step."""
+    import warnings
+
+    import numpy as np
+
+    from glsim.scene.mesh import Mesh
+    from tests.test_render import custom_mesh_scene, grid_nodes
+
+    nodes, quads = grid_nodes(8, 6, 20.0, 15.0, 300.0)
+    steps = [np.zeros_like(nodes)]
+    for k in range(1, 6):
+        u = np.zeros_like(nodes)
+        u[:, 0], u[:, 1] = 0.3 * k, -0.1 * k * nodes[:, 0] / 10.0
+        if k == 3:   # element 0 collapses onto its first node (zero area: excluded)
+            u[quads[0]] = u[quads[0, 0]] + nodes[quads[0, 0]] - nodes[quads[0]]
+        steps.append(u)
+    scene, _ = custom_mesh_scene(nodes, quads, size=(96, 72), fx=1200.0)
+    scene = dataclasses.replace(scene, lighting=Lighting())
+    mesh = Mesh(nodes=nodes, quads=quads, node_labels=np.arange(1, len(nodes) + 1),
+                element_labels=np.arange(101, 101 + len(quads)), displacements=tuple(steps))
+    kinds = [{"mode": "exact", "truth": True}, {"mode": "q4", "samples_per_pixel": 4, "quantize": True},
+             {"mode": "fast", "quantize": True}]
+    jobs = [{"camera": "c", "step": k, **kind} for k in range(6) for kind in kinds]
+
+    def run(r):
+        with warnings.catch_warnings(record=True) as seen:
+            warnings.simplefilter("always")
+            out = list(r.render_many(jobs))
+        return out, sorted(str(w.message) for w in seen)
+
+    with Renderer(scene, "gl", ctx=gl_ctx, mesh=mesh) as r, _made(Renderer(scene, "gl", ctx=gl_ctx, mesh=mesh)) as ref:
+        (got, warned), (want, warned_ref) = run(r), run(ref)
+        assert (r.backend.frames.recordings, r.backend.frames.replays) == (len(kinds), 4 * len(kinds))
+    for a, b in zip(got, want):
+        _same(a, b)
+    assert warned == warned_ref and any("zero area" in w for w in warned)

@@ -9,13 +9,14 @@ exact at 1, 4 and 16 samples per pixel, each image quantised to uint8 on the GPU
 read-back is mapped). Each repetition renders PAIRS stereo pairs each way for every row in turn
 (interleaved), after two warm-up pairs; per row the median over repetitions. These pairs are the
 same views again, so their deformation passes are replayed (:mod:`glsim.backends.gl.replay`: the
-first warm-up pair makes what they need, the second records them); the new-step pairs are not.
+first warm-up pair makes what they need, the second records them); the new-step pairs replay
+their camera's record with their own step's buffers and view's uniforms.
 
 - **pairs/s**: stereo pairs (cameras 0 and 1) delivered to numpy per wall second.
 - **host ms / image**: one at a time, pipelined, and pipelined with each pair a load step not
   rendered before (the plate moved by STEP_MM: what a library over a time series does; the
   step's geometry, shape checks and uploads are made then; on a second renderer on the same
-  context, after one such pair of warm-up, so that the first keeps step 0's views cached).
+  context, so that the first keeps step 0's views cached, after two such pairs of warm-up).
   The rendering thread's CPU time outside moderngl calls (and so outside the driver: submissions, waits, on llvmpipe the
   shaders themselves), less what counting them costs
   (:func:`glsim.backends.gl.timing.driver_time`) — the Python and numpy work per image. The
@@ -121,7 +122,7 @@ def throughput(size=FULL_SIZE, reps: int = REPS, pairs: int = PAIRS, spps=SPPS, 
     from glsim.evaluation.report import gl_info, machine_info
     from glsim.render import Renderer
 
-    steps = len(MODES) * len(spps) * (reps * pairs + 2)   # the new-step pairs': each load step rendered once
+    steps = len(MODES) * len(spps) * (reps * pairs + 3)   # the new-step pairs': each load step rendered once
     scene = _scene(tuple(size), elements, steps)
     fresh = iter(range(1, steps + 1))
     rows = []
@@ -135,7 +136,7 @@ def throughput(size=FULL_SIZE, reps: int = REPS, pairs: int = PAIRS, spps=SPPS, 
                 riley, riley_name = _riley(tuple(size), spp, elements)
                 for _ in range(2):   # warm-up: programs, targets, ray maps; then the passes recorded
                     list(r.render_many(_jobs(1, mode, spp)))
-                list(new.render_many(_jobs(1, mode, spp, [next(fresh)])))
+                    list(new.render_many(_jobs(1, mode, spp, [next(fresh)])))
                 row = {"mode": mode, "spp": spp, "single_s": [], "pipelined_s": [], "single_host_ms": [],
                        "pipelined_host_ms": [], "single_host_wall_ms": [], "pipelined_host_wall_ms": [],
                        "single_calls": [], "pipelined_calls": [], "fresh_s": [], "fresh_host_ms": [],
@@ -181,6 +182,7 @@ def throughput(size=FULL_SIZE, reps: int = REPS, pairs: int = PAIRS, spps=SPPS, 
                 log(f"throughput: {mode} {spp} spp: {rows[-1]['pipelined_pairs_per_s']:.3g} pairs/s pipelined")
     counting = _counting_cost(counting_reps)
     return {"size": list(size), "elements": elements, "pairs": pairs, "reps": reps, "depth": DEPTH, "warmup": 2,
+            "records": "per camera",
             "counting": counting, "machine": machine, "date": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
             "rows": rows}
 
@@ -260,7 +262,9 @@ def table(report: dict) -> str:
               f"interleaved repetitions after {warmup} warm-up pair{'s' if warmup > 1 else ''}, medians; pipelined: `render_many` "
               f"depth {report['depth']}; new step: as pipelined, each pair a load step not rendered before. "
               + ("One at a time and pipelined render the same views again: their deformation passes are "
-                 "replayed (`glsim.backends.gl.replay`), those of new steps made. " if warmup > 1 else "")
+                 "replayed (`glsim.backends.gl.replay`), those of new steps "
+                 + ("replayed from their camera's record with their own buffers and uniforms. "
+                    if report.get("records") == "per camera" else "made. ") if warmup > 1 else "")
               + f"Peer: {riley}, camera 0 only."]
     c = report.get("counting")
     if c:

@@ -32,7 +32,7 @@ from glsim.backends.contract import Capabilities, Raster, Request
 from glsim.stages.view import warn_dropped, warn_problems
 from glsim.backends.gl.bindings import sampler, storage
 from glsim.backends.gl.context import check_error, create_context
-from glsim.backends.gl.geometry import DRAW_FALLBACK, DRAW_RESOLVE, LAYERS, GeometryBuffers
+from glsim.backends.gl.geometry import DRAW_FALLBACK, DRAW_RESOLVE, LAYERS, GeometryBuffers, ViewSlot
 from glsim.backends.gl import timing
 from glsim.backends.gl.plan import aperture_literal, plan
 from glsim.backends.gl.imagepasses import ImagePasses
@@ -135,6 +135,7 @@ class GLBackend(ImagePasses):
         self._uniforms: dict[tuple, tuple] = {}  # the last views' uniform values (_view_uniforms)
         self._camera_values: dict[tuple, tuple] = {}   # and their cameras' (_camera_uniforms)
         self.frames = Frames()                  # deformation passes recorded for replay
+        self._slot = ViewSlot(self._view_uniforms)   # the view a deformation pass draws (_deform)
 
     # ---- resources -------------------------------------------------------------------------
     def _reference_texture(self, method: str):
@@ -306,22 +307,26 @@ class GLBackend(ImagePasses):
                 warn: bool = True):
         """The deformation pass of plan ``p`` into the cached target, then the pixels' box filter
         (s > 1, no Newton sub-samples) and, if no image effects come between, the quantisation
-        to ``quantize`` bits, into cached textures (replayed where this view was rendered so
-        before: :mod:`glsim.backends.gl.replay`). Returns the color textures, the grey and depth
-        textures at pixel size (depth if blurred), what finishes the raster (if ``truth``; its
-        reads queued) and what reports the view's problems (its flags copied on the GPU;
-        nothing if not ``warn``)."""
+        to ``quantize`` bits, into cached textures (replayed where a view of this camera — of a
+        curved mesh, this view — was rendered so before: :mod:`glsim.backends.gl.replay`; what
+        differs between the views of a camera goes through the :class:`ViewSlot`). Returns the
+        color textures, the grey and depth textures at pixel size (depth if blurred), what
+        finishes the raster (if ``truth``; its reads queued) and what reports the view's problems
+        (its flags copied on the GPU; nothing if not ``warn``)."""
         geo = self._buffers(view)
+        self._slot.set(view, geo, "FP64" in p.define_dict, patches.extra_sag_px if patches is not None else 0.0)
         lit = None if fx.lighting is None else (fx.lighting.normals == "flat", _light_uniforms(fx))
         quantize = None if p.image_effects else quantize
-        key = (id(view), id(opts), s, truth, id(p), id(patches), fx.aperture, quantize,
+        # one record per camera; per view for a curved mesh (its patches' buffers are per step)
+        refs = (view.camera, view.ref_camera, geo, opts, p) if patches is None else (view, patches, opts, p)
+        key = (*map(id, refs), s, truth, fx.aperture, quantize,
                lit and (lit[0], *(v.tobytes() for v in lit[1].values())))
 
         def make():
             color = self._deform_passes(view, opts, s, truth, p, geo, patches, lit, fx.aperture)
             return color, self._pixel_passes(color, view.camera.size, s, p, quantize)
 
-        color, (grey, depth) = self.frames.run(key, (view, opts, p, patches), make)
+        color, (grey, depth) = self.frames.run(key, refs, make, view)
         if opts.mode != "fast":
             geo.view_passes += 1
         check_error(self.ctx, f"deformation pass ({opts.mode})")
@@ -344,15 +349,16 @@ class GLBackend(ImagePasses):
     def _deform_passes(self, view: ViewSpec, opts, s: int, truth: bool, p, geo, patches, lit, aperture: float):
         """The deformation pass's GL commands (what a replay repeats: everything they depend on
         is an argument — ``lit``: (flat normals, the lights' uniforms) or None; ``aperture``:
-        √ fill factor — or cached with the objects they name); returns the color textures."""
+        √ fill factor —, cached with the objects they name, or the view's own in ``self._slot``);
+        returns the color textures."""
         W, H = view.camera.size
-        uniforms, bind, setup = self._deform_bindings(view, opts, s, lit, aperture, patches, p, geo)
+        bind, setup = self._deform_bindings(view, opts, s, lit, aperture, patches, p, geo)
         if opts.mode != "fast":   # pass 1: element records, covers, the candidate lists
             grow = 0.5 - 0.5 / s
             if p.camera_local:
-                geo.view_pass(view, opts.mode, True, uniforms, grow, local=True)
+                geo.view_pass(self._slot, opts.mode, True, grow, local=True)
             else:
-                geo.view_pass(view, opts.mode, "FP64" in p.define_dict, uniforms, grow=grow)
+                geo.view_pass(self._slot, opts.mode, "FP64" in p.define_dict, grow=grow)
             geo.candidates_pass(W, H, s)
         bind()
         pixels = self._newton_pixels(view, opts, p, geo, setup) if p.subsamples else None
@@ -364,23 +370,18 @@ class GLBackend(ImagePasses):
         return color
 
     def _deform_bindings(self, view: ViewSpec, opts, s: int, lit, aperture: float, patches, p, geo):
-        """What the deformation programs read: ``uniforms`` (a
-        :class:`~glsim.backends.gl.uniforms.Uniforms`: the view's transform and constants, the
-        camera and reference models, the sizes), ``bind()`` (the storage buffers of pass 2,
-        bound once before it: pass 1 may bind the float64 nodes at the same points) and
-        ``setup(prog)`` (the textures and uniforms of deform.frag and its vertex shaders). The
-        values are made once per view; every uniform is written on every use: programs are
-        shared per context, so a value left by another renderer (a quadratic mesh's sag) must
-        not carry over."""
-        cam = view.camera
+        """What the deformation programs read: ``bind()`` (the storage buffers of pass 2, bound
+        once before it: pass 1 may bind the float64 nodes at the same points) and
+        ``setup(prog)`` (the textures and uniforms of deform.frag and its vertex shaders: the
+        view's and its camera's, ``self._slot``'s). The values are made once per view and
+        camera; every uniform is written on every use: programs are shared per context, so a
+        value left by another renderer (a quadratic mesh's sag) must not carry over."""
+        cam, slot = view.camera, self._slot
         fp64 = "FP64" in p.define_dict
         patch_buffers = self._patch_buffers(patches, opts.mode, fp64) if patches is not None else ()
         dropped = self._dropped_counter()
-        uniforms = self._view_uniforms(view, geo, fp64, patches.extra_sag_px if patches is not None else 0.0)
-        lighting = None
-        if lit is not None:  # the step's world-frame corner normals (once per step; rotated in deform.frag)
-            normals = geo.normals(view, lit[0])
-            lighting = Uniforms(lit[1])
+        # lit: the step's world-frame corner normals (once per step; rotated in deform.frag)
+        lighting = Uniforms(lit[1]) if lit is not None else None
         ref_storage = None
         if p.ref is not None:
             local = p.ref == "REF_LOCAL"
@@ -389,37 +390,36 @@ class GLBackend(ImagePasses):
         rays = self._ray_map(cam, s, p.rays, aperture) if p.rays is not None else None
 
         def bind():
-            geo.bind(view, fp64)
+            slot.bind(fp64)
             if ref_storage is not None:
                 ref_storage.bind_to_storage_buffer(storage(p.ref))
             dropped.bind_to_storage_buffer(storage("DROPPED"))
             for name, buf in zip(("PATCH_NODES", "PATCH_REF"), patch_buffers):
                 buf.bind_to_storage_buffer(storage(name))
             if lighting is not None:
-                normals.bind_to_storage_buffer(storage("NORMALS"))
+                slot.bind_normals(lit[0])
 
         def setup(prog):
-            uniforms.write(prog)
+            slot.write_uniforms(prog)
             if lighting is not None:
                 lighting.write(prog)
             textures(prog)
             if rays is not None:
                 rays.use(_RAYS_UNIT)
 
-        return uniforms, bind, setup
+        return bind, setup
 
-    def _view_uniforms(self, view: ViewSpec, geo, fp64: bool, sag: float) -> Uniforms:
-        """The uniforms of ``view`` every deformation program and view.comp read: the view's
-        transform (:meth:`GeometryBuffers.view_values`) and the far plane, made once per view
-        (the last VIEWS_KEPT kept), over :meth:`_camera_uniforms`."""
-        key = (id(view), id(geo), fp64, sag)
+    def _view_uniforms(self, view: ViewSpec, geo, fp64: bool, sag: float) -> tuple[Uniforms, Uniforms]:
+        """The uniforms every deformation program and view.comp read: its camera's
+        (:meth:`_camera_uniforms`) and the view's own, its transform
+        (:meth:`GeometryBuffers.view_values`) and far plane, made once per view (the last
+        VIEWS_KEPT kept)."""
+        key = (id(view), id(geo), fp64)
         hit = self._uniforms.get(key)
-        if hit is not None and hit[0] is view and hit[1] is geo:
-            return hit[2]
-        base = self._camera_uniforms(view.camera, view.ref_camera, geo, sag)
-        u = Uniforms({**geo.view_values(view, fp64), "u_far": view.far}, base)
-        keep(self._uniforms, key, (view, geo, u), VIEWS_KEPT)
-        return u
+        if hit is None or hit[0] is not view or hit[1] is not geo:
+            hit = keep(self._uniforms, key, (view, geo, Uniforms({**geo.view_values(view, fp64), "u_far": view.far})),
+                       VIEWS_KEPT)
+        return self._camera_uniforms(view.camera, view.ref_camera, geo, sag), hit[2]
 
     def _camera_uniforms(self, cam, ref, geo, sag: float) -> Uniforms:
         """What the views of ``cam`` share (their bytes made once for all of its steps): the

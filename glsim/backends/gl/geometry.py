@@ -21,13 +21,15 @@ from collections import OrderedDict
 import numpy as np
 
 from glsim.backends.gl.bindings import image, sampler, storage
+from glsim.backends.gl.replay import replayed
 from glsim.backends.gl.uniforms import set_uniform
 from glsim.stages.geometry import STEPS_KEPT, MeshGeometry, ViewSpec
 from glsim.stages.view import GRAZING_COS, NEAR_MM, ray_radius
 
 _CORNERS = np.array([0, 1, 2, 0, 2, 3], np.uint32)  # two triangles per element, as the oracle's fast mode
 _GROUP = 64          # view.comp's and candidates.comp's local size
-_VIEW_BINDINGS = tuple(storage(n) for n in ("QUADS", "NODES", "REF_UV", "REF_XR", "FLAGS", "EXCLUDED"))  # (bind)
+_MESH_BINDINGS = tuple(storage(n) for n in ("QUADS", "REF_UV", "REF_XR", "FLAGS"))   # (bind_mesh)
+_STEP_BINDINGS = tuple(storage(n) for n in ("NODES", "EXCLUDED"))                     # (bind_step)
 CANDIDATES = 8       # candidates.glsl: elements listed per pixel before it overflows
 # classify.frag's window depths: the full-screen pass 2 program run on each (lists.vert)
 LAYERS = {"deform.frag": 0.25, "resolve.frag": 0.5}
@@ -55,6 +57,52 @@ def unpack_bits(words: bytes, M: int) -> np.ndarray:
 
 _NOTHING_MARKED = bytes(16)   # the status header when no element was marked
 DRAW_BIG, DRAW_FALLBACK, DRAW_RESOLVE = 0, 1, 2   # the list flags' indirect draw commands (candidates.glsl)
+
+
+class ViewSlot:
+    """The view a deformation pass draws, :meth:`set` before each pass: ``view``, the mesh's
+    ``geo`` (GeometryBuffers) and their uniforms — its camera's and its own (transform, far
+    plane, excluded flag), as :class:`~glsim.backends.gl.uniforms.Uniforms` made by
+    ``uniforms(view, geo, fp64, sag)`` when first written. What differs between the views of
+    one camera (a time series' steps) is bound and written by the methods marked
+    ``@replayed(view=True)``, which a recording keeps as calls (glsim.backends.gl.replay): a
+    pass recorded for one step of a camera replays for another with that step's buffers and
+    values."""
+
+    def __init__(self, uniforms):
+        self._uniforms_of = uniforms
+        self.view = self.geo = self._args = self._uniforms = None
+
+    def set(self, view: ViewSpec, geo, fp64: bool, sag: float) -> None:
+        self.view, self.geo, self._args, self._uniforms = view, geo, (fp64, sag), None
+
+    def _values(self):
+        if self._uniforms is None:
+            self._uniforms = self._uniforms_of(self.view, self.geo, *self._args)
+        return self._uniforms
+
+    def bind(self, fp64: bool) -> None:
+        """Bind the mesh's storage buffers and the view's step's (uploaded once per step)."""
+        self.geo.bind_mesh(fp64)
+        self.bind_step(fp64)
+
+    @replayed(view=True)
+    def bind_step(self, fp64: bool) -> None:
+        self.geo.bind_step(self.view, fp64)
+
+    @replayed(view=True)
+    def bind_normals(self, flat: bool) -> None:
+        """Bind the step's corner normals (NORMALS, lit passes; made once per step)."""
+        self.geo.normals(self.view, flat).bind_to_storage_buffer(storage("NORMALS"))
+
+    def write_uniforms(self, prog) -> None:
+        """Write the camera's uniforms and the view's own that ``prog`` has."""
+        self._values()[0].write(prog)
+        self.write_view(prog)
+
+    @replayed(view=True)
+    def write_view(self, prog) -> None:
+        self._values()[1].write(prog)
 
 
 def _release(value) -> None:
@@ -194,11 +242,14 @@ class GeometryBuffers:
             return self.ctx.buffer(np.ascontiguousarray(n, np.float32).tobytes())
         return self._per_step(self._normals, (view.step_geo.index, flat), view.step_geo, make)
 
-    def bind(self, view: ViewSpec, fp64: bool) -> None:
-        """Upload what this view needs (at most once per renderer / step) and bind it."""
-        quads, ref_uv, ref_xr, flags = self._mesh_buffers(fp64)
-        nodes, bits, _ = self._step_buffers(view, fp64)
-        for point, buf in zip(_VIEW_BINDINGS, (quads, nodes, ref_uv, ref_xr, flags, bits)):
+    def bind_mesh(self, fp64: bool) -> None:
+        """Bind the mesh's buffers (uploaded once per renderer)."""
+        for point, buf in zip(_MESH_BINDINGS, self._mesh_buffers(fp64)):
+            buf.bind_to_storage_buffer(point)
+
+    def bind_step(self, view: ViewSpec, fp64: bool) -> None:
+        """Bind the view's step's nodes and excluded-element bits (uploaded once per step)."""
+        for point, buf in zip(_STEP_BINDINGS, self._step_buffers(view, fp64)[:2]):
             buf.bind_to_storage_buffer(point)
 
     def view_values(self, view: ViewSpec, fp64: bool) -> dict:
@@ -214,18 +265,16 @@ class GeometryBuffers:
                 "u_flag_words": self.words, "u_count": self.M}
 
     # ---- the per-view pass -----------------------------------------------------------------
-    def view_pass(self, view: ViewSpec, mode: str, fp64: bool, uniforms, grow: float = 0.0,
-                  local: bool = False) -> None:
-        """view.comp: element records (binding ELEMENTS), cover rectangles (COVER, grown by
-        ``grow`` px for pass 1 at pixel resolution) and tight rectangles (TIGHT); with
-        ``local`` (exact, float64) also the float32 records of deform.frag's CAMERA_LOCAL
-        (LOCAL). ``uniforms`` (:class:`~glsim.backends.gl.uniforms.Uniforms`): the view's
-        (:meth:`view_values`, :meth:`camera_values`) and its camera's model."""
+    def view_pass(self, slot: ViewSlot, mode: str, fp64: bool, grow: float = 0.0, local: bool = False) -> None:
+        """view.comp on ``slot``'s view: element records (binding ELEMENTS), cover rectangles
+        (COVER, grown by ``grow`` px for pass 1 at pixel resolution) and tight rectangles
+        (TIGHT); with ``local`` (exact, float64) also the float32 records of deform.frag's
+        CAMERA_LOCAL (LOCAL)."""
         defines = {f"MODE_{mode.upper()}": None, **({"FP64": None} if fp64 else {}),
                    **({"RECORD_LOCAL": None} if local else {})}
         prog = self.programs.compute("view.comp", defines)
-        self.bind(view, fp64)
-        uniforms.write(prog)
+        slot.bind(fp64)
+        slot.write_uniforms(prog)
         if prog.get("u_cover_grow", None) is not None:
             set_uniform(prog, "u_cover_grow", float(grow))
         size = 8 if fp64 else 4

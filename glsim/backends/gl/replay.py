@@ -1,19 +1,23 @@
-"""Deformation passes recorded once and replayed: a view rendered again issues the GL commands
-it issued before, without the Python that decided them.
+"""Deformation passes recorded once and replayed: a camera's view rendered again, or another
+step's, issues the GL commands it issued before, without the Python that decided them.
 
-For one view, options, plan, supersampling, truth flag, lights, aperture and bit depth, the
+For one camera, options, plan, supersampling, truth flag, lights, aperture and bit depth, the
 deformation pass with the box filter and (where no image effect comes between) the GPU
-quantisation (:meth:`GLBackend._deform`) issues the same commands every time: the same
-programs, buffers, targets, uniform values and draws, in the same order. :class:`Frames`
-records them on the second render of such a key (the first makes what the key needs:
-programs, buffers, targets, ray maps) and replays them on the renders after it, so the images
-and truth are the same bit for bit.
+quantisation (:meth:`GLBackend._deform`) issues the same commands for every view: the same
+programs, targets, camera uniforms and draws, in the same order; only the step's buffers and
+the view's own uniforms differ, and those go through calls marked view-dependent
+(:class:`glsim.backends.gl.geometry.ViewSlot`). :class:`Frames` records a key's commands on
+its second render (the first makes what the key needs: programs, buffers, targets, ray maps)
+and replays them on the renders after it, so the images and truth are the same bit for bit.
 
 A recording (:func:`recording`) keeps this thread's moderngl calls that change GL state
 (RECORDED) and glsim's calls marked :func:`replayed`, which must run again as calls (a
-uniform written only where it changes, an error check); the calls nested in either are
-theirs. Anything else — a GL object made, released or read, an error read — abandons it and
-the pass runs as it would have. A record is dropped when an object it names has been
+uniform written only where it changes, an error check, what a view binds and writes); the
+calls nested in those are theirs. It keeps two lists: what any view replays (the
+view-dependent calls as calls) and what the recorded view replays (their GL calls in their
+place: no Python of theirs). Anything else — a GL object made, released or read, an error
+read — abandons the recording, and the pass runs as it would have; inside a view-dependent
+call (a new step's upload) it leaves only the recorded view's list unusable. A record is dropped when an object it names has been
 released since (an evicted cache entry): the next render records again. Replays look their
 methods up on the object each time, so :mod:`glsim.backends.gl.timing`'s counting and pass
 timing see them as they see the recorded calls.
@@ -54,22 +58,48 @@ _INVALID: list = []        # moderngl.InvalidObject (imported by the first recor
 
 
 class Recording:
-    """The calls of one recording: ``ops`` (callables, in order), ``objects`` (the GL objects
-    they name), ``ok`` (False: abandoned, or ``busy``: another thread was recording)."""
+    """The calls of one recording: ``ops`` (callables, in order: what any view of the recorded
+    kind replays), ``inline`` (the same with the GL calls of the view-dependent calls in place of
+    those calls: what the recorded view replays; None if one of them made or read an object),
+    ``objects`` and ``inline_objects`` (the GL objects each names), ``ok`` (False: abandoned, or
+    ``busy``: another thread was recording)."""
 
     def __init__(self):
         self.ops: list = []
+        self.inline: list | None = []
         self.objects: dict[int, object] = {}
+        self.inline_objects: dict[int, object] = {}
         self.ok = True
         self.busy = False
-        self.depth = 0
+        self.depth = 0   # inside a recorded call (its own calls not recorded)
+        self.view = 0    # inside a view-dependent call (its calls recorded in ``inline`` only)
         self.thread = threading.get_ident()
 
     def add(self, op, *objects) -> None:
-        self.ops.append(op)
+        """``op`` in ``inline`` and, outside a view-dependent call, in ``ops``."""
+        if not self.view:
+            self._add(self.ops, self.objects, op, objects)
+        if self.inline is not None:
+            self._add(self.inline, self.inline_objects, op, objects)
+
+    def add_call(self, op, *objects) -> None:
+        """A view-dependent call: ``op`` in ``ops`` (its own calls go to ``inline``)."""
+        self._add(self.ops, self.objects, op, objects)
+
+    @staticmethod
+    def _add(ops: list, named: dict, op, objects) -> None:
+        ops.append(op)
         for o in objects:
             if type(o).__name__ in _RELEASABLE:
-                self.objects[id(o)] = o
+                named[id(o)] = o
+
+    def lost(self) -> None:
+        """Something made, freed or read a GL object: outside a view-dependent call the
+        recording is abandoned; inside one, only ``inline``."""
+        if self.view:
+            self.inline = None
+        else:
+            self.ok = False
 
     def call(self, fn, obj, args: tuple, kwargs: dict):
         """Run ``fn(obj, *args, **kwargs)``; calls nested in it are not recorded."""
@@ -83,16 +113,35 @@ class Recording:
             self.depth -= 1
 
 
-def replayed(fn):
+def replayed(fn=None, *, view: bool = False):
     """Mark a glsim function whose calls a recording keeps as calls (with their arguments, run
-    again on replay) rather than as the GL calls they make."""
+    again on replay) rather than as the GL calls they make. ``view``: what it does depends on
+    the view being drawn (it reads it from its arguments' state when it runs): kept as a call
+    in what every view of the recorded kind replays, and as its GL calls in what the recorded
+    view replays (``Recording.inline``)."""
+    if fn is None:
+        return functools.partial(replayed, view=view)
+
     @functools.wraps(fn)
     def inner(*args):
         rec = _active
         if rec is None or rec.depth or rec.thread != threading.get_ident():
             return fn(*args)
-        rec.add(functools.partial(fn, *args), *args)
-        return rec.call(lambda _, *a: fn(*a), None, args, {})
+        op = functools.partial(fn, *args)
+        if not view:
+            rec.add(op, *args)
+            return rec.call(lambda _, *a: fn(*a), None, args, {})
+        if rec.view:   # (nested in another: its calls are that one's)
+            return fn(*args)
+        rec.add_call(op, *args)
+        rec.view += 1
+        try:
+            return fn(*args)
+        except BaseException:
+            rec.ok = False
+            raise
+        finally:
+            rec.view -= 1
     return inner
 
 
@@ -116,7 +165,7 @@ def _recorder(rec: Recording):
                       else functools.partial(operator.methodcaller(name, *args, **kwargs), obj))
                 rec.add(op, obj, *args, *kwargs.values())
             elif not state or (cls.__name__, name) == ("Context", "error"):
-                rec.ok = False   # makes, frees or reads a GL object, or reads the error flag
+                rec.lost()   # makes, frees or reads a GL object, or reads the error flag
             return rec.call(fn, obj, args, kwargs)
         return inner
     return wrap
@@ -157,18 +206,34 @@ def _weak(obj):
 
 
 class _Record:
-    __slots__ = ("refs", "ops", "objects", "result", "failures")
+    __slots__ = ("refs", "ops", "objects", "result", "failures", "view", "inline", "inline_objects")
 
-    def __init__(self, refs: tuple, failures: int = 0, rec: Recording | None = None, result=None):
+    def __init__(self, refs: tuple, failures: int = 0, rec: Recording | None = None, result=None, view=None):
         self.refs = tuple(map(_weak, refs))   # (a record does not keep a view's arrays alive)
         self.failures, self.result = failures, result
         self.ops = tuple(rec.ops) if rec is not None else None
         self.objects = tuple(rec.objects.values()) if rec is not None else ()
+        inline = rec is not None and rec.inline is not None and view is not None
+        self.view = _weak(view) if inline else None
+        self.inline = tuple(rec.inline) if inline else None
+        self.inline_objects = tuple(rec.inline_objects.values()) if inline else ()
 
     def live(self) -> bool:
         """Recorded, and no object it names released since (moderngl's release swaps an
         object's ``mglo`` for an InvalidObject)."""
-        return self.ops is not None and _INVALID[0] not in map(type, map(_MGLO, self.objects))
+        return self.ops is not None and _alive(self.objects)
+
+    def replay(self, view) -> None:
+        """The recorded calls: as made for ``view`` if it is the recorded view, else through
+        its view-dependent calls."""
+        if self.inline is not None and self.view() is view and _alive(self.inline_objects):
+            collections.deque(map(_CALL, self.inline), maxlen=0)   # (each op in turn, looped in C)
+        else:
+            collections.deque(map(_CALL, self.ops), maxlen=0)
+
+
+def _alive(objects: tuple) -> bool:
+    return _INVALID[0] not in map(type, map(_MGLO, objects))
 
 
 class Frames:
@@ -181,17 +246,18 @@ class Frames:
         self.replays = 0
         self.recordings = 0
 
-    def run(self, key, refs: tuple, make):
+    def run(self, key, refs: tuple, make, view=None):
         """``make()``'s result: replayed if ``key`` was recorded with the same objects ``refs``
         (compared by identity; the key holds their ids) and :meth:`_Record.live`; else made, and
         recorded if the key was made before (unless MAX_FAILURES recordings of it were
-        abandoned; a thread's recordings wait for another's to end by not recording)."""
+        abandoned; a thread's recordings wait for another's to end by not recording). ``view``:
+        the view drawn (:meth:`_Record.replay`)."""
         hit = self._kept.get(key)
         if hit is None or not all(map(operator.is_, map(_CALL, hit.refs), refs)):
             keep(self._kept, key, _Record(refs), self.most)
             return make()
         if hit.live():
-            collections.deque(map(_CALL, hit.ops), maxlen=0)   # (each op in turn, looped in C)
+            hit.replay(view)
             self.replays += 1
             return hit.result
         if hit.failures >= MAX_FAILURES:
@@ -200,7 +266,7 @@ class Frames:
             result = make()
         if rec.ok:
             self.recordings += 1
-            keep(self._kept, key, _Record(refs, hit.failures, rec, result), self.most)
+            keep(self._kept, key, _Record(refs, hit.failures, rec, result, view), self.most)
         else:   # (a thread that found another recording tries again next time)
             hit.ops, hit.objects, hit.failures = None, (), hit.failures + (not rec.busy)
         return result

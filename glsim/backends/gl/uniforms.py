@@ -32,20 +32,15 @@ def _bytes(uniform, value) -> bytes:
 
 
 class Uniforms:
-    """Values of uniforms by name; :meth:`write` sets those a program has (others are ignored),
-    after those of ``base`` (values shared by several objects, such as a camera's by its views:
-    their bytes made once for all)."""
+    """Values of uniforms by name; :meth:`write` sets those a program has (others are ignored)."""
 
-    def __init__(self, values: dict, base: "Uniforms | None" = None):
+    def __init__(self, values: dict):
         self.values = values
-        self.base = base
         self._names = tuple(values)
         self._made: dict[int, tuple] = {}
         self._data: dict[tuple, bytes] = {}   # (name, fmt, array_length) → bytes, shared by programs
 
     def write(self, prog) -> None:
-        if self.base is not None:
-            self.base.write(prog)
         made = self._made.get(id(prog))
         if made is None or made[0] is not prog:
             writes = [(u, self._encoded(name, u)) for name, u in _layout(prog, self._names)]
