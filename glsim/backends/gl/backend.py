@@ -380,7 +380,8 @@ class GLBackend(ImagePasses):
         fp64 = "FP64" in p.define_dict
         patch_buffers = self._patch_buffers(patches, opts.mode, fp64) if patches is not None else ()
         dropped = self._dropped_counter()
-        # lit: the step's world-frame corner normals (once per step; rotated in deform.frag)
+        # lit: the lights' uniforms; the step's world-frame corner normals are the slot's
+        # (uploaded once per step, rotated in deform.frag)
         lighting = Uniforms(lit[1]) if lit is not None else None
         ref_storage = None
         if p.ref is not None:

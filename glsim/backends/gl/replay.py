@@ -17,10 +17,11 @@ calls nested in those are theirs. It keeps two lists: what any view replays (the
 view-dependent calls as calls) and what the recorded view replays (their GL calls in their
 place: no Python of theirs). Anything else — a GL object made, released or read, an error
 read — abandons the recording, and the pass runs as it would have; inside a view-dependent
-call (a new step's upload) it leaves only the recorded view's list unusable. A record is dropped when an object it names has been
-released since (an evicted cache entry): the next render records again. Replays look their
-methods up on the object each time, so :mod:`glsim.backends.gl.timing`'s counting and pass
-timing see them as they see the recorded calls.
+call (a new step's upload) it leaves only the recorded view's list unusable. A record is
+dropped when an object it names has been released since (an evicted cache entry): the next
+render records again. Replays look their methods up on the object each time, so
+:mod:`glsim.backends.gl.timing`'s counting and pass timing see them as they see the recorded
+calls.
 """
 from __future__ import annotations
 
