@@ -231,3 +231,25 @@ def test_a_time_series_new_steps_replay_the_pass_of_the_first_ones(gl_ctx):
     for a, b in zip(got, want):
         _same(a, b)
     assert warned == warned_ref and any("zero area" in w for w in warned)
+
+
+@pytest.mark.gl
+def test_the_recorded_step_drawn_after_its_eviction_replays_through_the_view_calls(gl_ctx):
+    """The recorded view's own list names its step's buffers; once later steps have evicted
+    them (STEPS_KEPT), that step drawn again replays the camera's record through its
+    view-dependent calls (its geometry made and uploaded again), with the bytes of a made pass."""
+    from moderngl import InvalidObject
+
+    from glsim.stages.geometry import STEPS_KEPT
+
+    later = range(2, 2 * STEPS_KEPT + 3)   # enough steps to evict step 1's buffers
+    scene = plate_scene((96, 72), fx=1200.0, plate=dataclasses.replace(
+        plate_scene().specimen.plate, translations=tuple((0.2 * k, 0.0, 0.0) for k in range(1, later[-1] + 1))))
+    jobs = [("c", 1), ("c", 1)] + [("c", k) for k in later]
+    with Renderer(scene, "gl", ctx=gl_ctx) as r, _made(Renderer(scene, "gl", ctx=gl_ctx)) as ref:
+        for a, b in zip(r.render_many(jobs), ref.render_many(jobs)):
+            _same(a, b)
+        (record,) = r.backend.frames._kept.values()
+        assert record.inline is not None and any(type(o.mglo) is InvalidObject for o in record.inline_objects)
+        _same(r.render("c", 1), ref.render("c", 1))
+        assert r.backend.frames.replays == len(later) + 1
