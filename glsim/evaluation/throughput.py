@@ -182,7 +182,6 @@ def throughput(size=FULL_SIZE, reps: int = REPS, pairs: int = PAIRS, spps=SPPS, 
                 log(f"throughput: {mode} {spp} spp: {rows[-1]['pipelined_pairs_per_s']:.3g} pairs/s pipelined")
     counting = _counting_cost(counting_reps)
     return {"size": list(size), "elements": elements, "pairs": pairs, "reps": reps, "depth": DEPTH, "warmup": 2,
-            "records": "per camera",
             "counting": counting, "machine": machine, "date": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
             "rows": rows}
 
@@ -256,16 +255,13 @@ def table(report: dict) -> str:
                      f"{'yes' if r['same_bytes'] else 'NO'} | "
                      f"{ratio} | {shown} |")
     riley = next((r["riley"] for r in report["rows"]), "—")
-    warmup = report.get("warmup", 1)   # (results made before replays: one)
     lines += ["", f"Plate of issue 19 ({report['elements']} quad4, k1 = −0.1, Catmull–Rom cubic) at {W}×{H} px, "
               f"both cameras of the 30° rig; {report['pairs']} pairs per way and repetition, {report['reps']} "
-              f"interleaved repetitions after {warmup} warm-up pair{'s' if warmup > 1 else ''}, medians; pipelined: `render_many` "
+              f"interleaved repetitions after {report['warmup']} warm-up pairs, medians; pipelined: `render_many` "
               f"depth {report['depth']}; new step: as pipelined, each pair a load step not rendered before. "
-              + ("One at a time and pipelined render the same views again: their deformation passes are "
-                 "replayed (`glsim.backends.gl.replay`), those of new steps "
-                 + ("replayed from their camera's record with their own buffers and uniforms. "
-                    if report.get("records") == "per camera" else "made. ") if warmup > 1 else "")
-              + f"Peer: {riley}, camera 0 only."]
+              "One at a time and pipelined render the same views again: their deformation passes are "
+              "replayed (`glsim.backends.gl.replay`), those of new steps replayed from their camera's record "
+              f"with their own buffers and uniforms. Peer: {riley}, camera 0 only."]
     c = report.get("counting")
     if c:
         lines += ["", f"Counting the driver's calls costs {c['in_place_us']:.2g} µs per GL call in place (exact, "
