@@ -253,3 +253,34 @@ def test_the_recorded_step_drawn_after_its_eviction_replays_through_the_view_cal
         assert record.inline is not None and any(type(o.mglo) is InvalidObject for o in record.inline_objects)
         _same(r.render("c", 1), ref.render("c", 1))
         assert r.backend.frames.replays == len(later) + 1
+
+
+@pytest.mark.gl
+def test_a_curved_time_series_replays_each_cameras_record(gl_ctx):
+    """Quadratic (Q8) elements in exact and q4: the patches' control points at each step and
+    their sagitta per view are bound and written through the view-dependent calls, so the steps
+    of a series drawn once by two cameras replay each camera's record from the third step on,
+    with the images and truth of passes made for each step (the truth mapped to the patches)."""
+    import numpy as np
+
+    from glsim.evaluation.quadratic import W0, ZC, mesh as q8_mesh
+    from glsim.scene import Plate, Scene, Specimen
+    from glsim.scene.camera import Camera
+    from glsim.scene.mesh import Mesh
+
+    base = q8_mesh("quad8", 4, 3)
+    u = base.displacements[1]
+    mesh = Mesh(base.nodes, base.quads, base.node_labels, base.element_labels,
+                tuple(k / 4 * u for k in range(5)), patches=base.patches)
+    W, H = 96, 72
+    f = 0.8 * W * ZC / W0
+    cam = Camera(name="c", size=(W, H), fx=f, fy=f, cx=(W - 1) / 2 + 0.3, cy=(H - 1) / 2 - 0.4)
+    scene = Scene(cameras=(cam, dataclasses.replace(cam, name="d", t=(-1.5, 0.5, 0.0))),
+                  specimen=Specimen(plate=Plate(width=1, height=1, nx=1, ny=1)))
+    kinds = [{"mode": "exact", "truth": True}, {"mode": "q4", "samples_per_pixel": 4, "quantize": True}]
+    jobs = [{"camera": c, "step": k, **kind} for k in range(5) for kind in kinds for c in ("c", "d")]
+    with Renderer(scene, "gl", ctx=gl_ctx, mesh=mesh) as r, _made(Renderer(scene, "gl", ctx=gl_ctx, mesh=mesh)) as ref:
+        for a, b in zip(r.render_many(jobs), ref.render_many(jobs)):
+            _same(a, b)
+        keys = 2 * len(kinds)
+        assert (r.backend.frames.recordings, r.backend.frames.replays) == (keys, 3 * keys)

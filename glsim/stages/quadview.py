@@ -16,8 +16,10 @@ from dataclasses import dataclass
 import numpy as np
 
 from glsim.errors import RenderWarning
+from glsim.limits import keep
 from glsim.scene import quadratic as qd
 from glsim.scene.camera import Camera, pixel_to_normalized, project_camera_frame, to_camera, undistort
+from glsim.stages.geometry import VIEWS_KEPT
 from glsim.stages.view import NEAR_MM, _labels, check_reference, make_view
 
 QUAD_BOX_GRID = 9
@@ -186,8 +188,24 @@ def q4_image_bound(Pd: np.ndarray, cam: Camera, pieces: int) -> float:
 def patch_data(mesh, pieces, step: int, view, mode: str, cache: dict) -> PatchData:
     """The GL path's payload for drawing quadratic ``mesh`` (its linear ``pieces``, the view's
     elements) at ``step`` seen by ``view`` (a ViewSpec) in ``mode`` exact or q4: the step's patch
-    points (kept in ``cache`` per step, with a warning naming folded elements), the reference
-    data (once) and the chord bound."""
+    points (kept in ``cache`` per step, with a warning naming folded elements, each time), the
+    reference data (once) and the chord bound; made once per view and mode (the last
+    VIEWS_KEPT kept), so a view rendered again gets the same object."""
+    views = cache.setdefault("views", {})
+    hit = views.get((id(view), mode))
+    if hit is None or hit[0] is not view:
+        hit = keep(views, (id(view), mode), (view, *_patch_data(mesh, pieces, step, view, mode, cache)), VIEWS_KEPT)
+    _, data, folded = hit
+    if folded.size:
+        warnings.warn(f"camera {view.camera.name}: elements {_labels(folded, mesh.element_labels)} are "
+                      "folded (the surface normal reverses inside the element: a mid-side node too far from its "
+                      "edge's middle?); their pixels stay finite (the nearest root is drawn); check the mesh",
+                      RenderWarning, stacklevel=5)
+    return data
+
+
+def _patch_data(mesh, pieces, step: int, view, mode: str, cache: dict) -> tuple[PatchData, np.ndarray]:
+    """:func:`patch_data` made, and the folded elements' indices."""
     if "ref" not in cache:
         ref_cam = view.ref_camera
         xr = qd.patch_points(mesh.patches, to_camera(mesh.nodes, ref_cam))
@@ -197,11 +215,6 @@ def patch_data(mesh, pieces, step: int, view, mode: str, cache: dict) -> PatchDa
         P = qd.patch_points(mesh.patches, mesh.deformed(step))
         cache["step"] = (step, P - origin, chord_error_bound(P, pieces.n), np.flatnonzero(qd.folded(P)))
     _, local, chord_mm, folded = cache["step"]
-    if folded.size:
-        warnings.warn(f"camera {view.camera.name}: elements {_labels(folded, mesh.element_labels)} are "
-                      "folded (the surface normal reverses inside the element: a mid-side node too far from its "
-                      "edge's middle?); their pixels stay finite (the nearest root is drawn); check the mesh",
-                      RenderWarning, stacklevel=5)
     z_near = max(float(view.corner_depths().min()), NEAR_MM)
     f = float(max(view.camera.intrinsics[0], view.camera.intrinsics[1]))
     sag_px = chord_mm * f / z_near
@@ -209,7 +222,7 @@ def patch_data(mesh, pieces, step: int, view, mode: str, cache: dict) -> PatchDa
         sag_px = max(sag_px, q4_image_bound(to_camera(local + origin, view.camera), view.camera, pieces.n))
     xr, uv = cache["ref"]
     return PatchData(pieces=pieces.n, local=local, ref_xr=xr, ref_uv=uv, extra_sag_px=1.5 * sag_px,
-                     token=(id(cache), step))
+                     token=(id(cache), step)), folded
 
 
 def pieces_to_patches(raster: dict, mesh, pieces, step: int, cam: Camera, mode: str) -> dict:

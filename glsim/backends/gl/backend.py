@@ -135,7 +135,7 @@ class GLBackend(ImagePasses):
         self._uniforms: dict[tuple, tuple] = {}  # the last views' uniform values (_view_uniforms)
         self._camera_values: dict[tuple, tuple] = {}   # and their cameras' (_camera_uniforms)
         self.frames = Frames()                  # deformation passes recorded for replay
-        self._slot = ViewSlot(self._view_uniforms)   # the view a deformation pass draws (_deform)
+        self._slot = ViewSlot(self._view_uniforms, self._patch_buffers)   # the view a deformation pass draws (_deform)
 
     # ---- resources -------------------------------------------------------------------------
     def _reference_texture(self, method: str):
@@ -307,18 +307,17 @@ class GLBackend(ImagePasses):
                 warn: bool = True):
         """The deformation pass of plan ``p`` into the cached target, then the pixels' box filter
         (s > 1, no Newton sub-samples) and, if no image effects come between, the quantisation
-        to ``quantize`` bits, into cached textures (replayed where a view of this camera — of a
-        curved mesh, this view — was rendered so before: :mod:`glsim.backends.gl.replay`; what
-        differs between the views of a camera goes through the :class:`ViewSlot`). Returns the
+        to ``quantize`` bits, into cached textures (replayed where a view of this camera was
+        rendered so before: :mod:`glsim.backends.gl.replay`; what differs between the views of a
+        camera goes through the :class:`ViewSlot`). Returns the
         color textures, the grey and depth textures at pixel size (depth if blurred), what
         finishes the raster (if ``truth``; its reads queued) and what reports the view's problems
         (its flags copied on the GPU; nothing if not ``warn``)."""
         geo = self._buffers(view)
-        self._slot.set(view, geo, "FP64" in p.define_dict, patches.extra_sag_px if patches is not None else 0.0)
+        self._slot.set(view, geo, "FP64" in p.define_dict, patches)
         lit = None if fx.lighting is None else (fx.lighting.normals == "flat", _light_uniforms(fx))
         quantize = None if p.image_effects else quantize
-        # one record per camera; per view for a curved mesh (its patches' buffers are per step)
-        refs = (view.camera, view.ref_camera, geo, opts, p) if patches is None else (view, patches, opts, p)
+        refs = (view.camera, view.ref_camera, geo, opts, p)   # one record per camera
         key = (*map(id, refs), s, truth, fx.aperture, quantize,
                lit and (lit[0], *(v.tobytes() for v in lit[1].values())))
 
@@ -378,7 +377,6 @@ class GLBackend(ImagePasses):
         value left by another renderer (a quadratic mesh's sag) must not carry over."""
         cam, slot = view.camera, self._slot
         fp64 = "FP64" in p.define_dict
-        patch_buffers = self._patch_buffers(patches, opts.mode, fp64) if patches is not None else ()
         dropped = self._dropped_counter()
         # lit: the lights' uniforms; the step's world-frame corner normals are the slot's
         # (uploaded once per step, rotated in deform.frag)
@@ -395,8 +393,8 @@ class GLBackend(ImagePasses):
             if ref_storage is not None:
                 ref_storage.bind_to_storage_buffer(storage(p.ref))
             dropped.bind_to_storage_buffer(storage("DROPPED"))
-            for name, buf in zip(("PATCH_NODES", "PATCH_REF"), patch_buffers):
-                buf.bind_to_storage_buffer(storage(name))
+            if patches is not None:
+                slot.bind_patches(opts.mode)
             if lighting is not None:
                 slot.bind_normals(lit[0])
 
@@ -413,25 +411,25 @@ class GLBackend(ImagePasses):
     def _view_uniforms(self, view: ViewSpec, geo, fp64: bool, sag: float) -> tuple[Uniforms, Uniforms]:
         """The uniforms every deformation program and view.comp read: its camera's
         (:meth:`_camera_uniforms`) and the view's own, its transform
-        (:meth:`GeometryBuffers.view_values`) and far plane, made once per view (the last
-        VIEWS_KEPT kept)."""
-        key = (id(view), id(geo), fp64)
+        (:meth:`GeometryBuffers.view_values`), far plane and ``sag`` (px: a quadratic mesh's
+        pieces' chord error at this view, else 0), made once per view (the last VIEWS_KEPT kept)."""
+        key = (id(view), id(geo), fp64, sag)
         hit = self._uniforms.get(key)
         if hit is None or hit[0] is not view or hit[1] is not geo:
-            hit = keep(self._uniforms, key, (view, geo, Uniforms({**geo.view_values(view, fp64), "u_far": view.far})),
-                       VIEWS_KEPT)
-        return self._camera_uniforms(view.camera, view.ref_camera, geo, sag), hit[2]
+            values = {**geo.view_values(view, fp64), "u_far": view.far, "u_extra_sag": sag}
+            hit = keep(self._uniforms, key, (view, geo, Uniforms(values)), VIEWS_KEPT)
+        return self._camera_uniforms(view.camera, view.ref_camera, geo), hit[2]
 
-    def _camera_uniforms(self, cam, ref, geo, sag: float) -> Uniforms:
+    def _camera_uniforms(self, cam, ref, geo) -> Uniforms:
         """What the views of ``cam`` share (their bytes made once for all of its steps): the
-        camera and reference models, the sizes, view.glsl's constants for the mesh
-        (:meth:`GeometryBuffers.camera_values`) and ``sag`` (px); the last VIEWS_KEPT kept."""
-        key = (id(cam), id(ref), id(geo), sag)
+        camera and reference models, the sizes and view.glsl's constants for the mesh
+        (:meth:`GeometryBuffers.camera_values`); the last VIEWS_KEPT kept."""
+        key = (id(cam), id(ref), id(geo))
         hit = self._camera_values.get(key)
         if hit is not None and hit[0] is cam and hit[1] is geo and hit[2] is ref:
             return hit[3]
         u = Uniforms({**geo.camera_values(cam), "u_intr": cam.intrinsics, "u_dist": cam.distortion.coeffs,
-                      "u_valid_r2": cam.distortion.valid_radius() ** 2, "u_extra_sag": sag,
+                      "u_valid_r2": cam.distortion.valid_radius() ** 2,
                       "u_ref_intr": ref.intrinsics, "u_ref_dist": ref.distortion.coeffs,
                       "u_ref_valid_r2": ref.distortion.valid_radius() ** 2, "u_size": cam.size,
                       "u_ref_size": ref.size})

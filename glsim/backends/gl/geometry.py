@@ -61,24 +61,26 @@ DRAW_BIG, DRAW_FALLBACK, DRAW_RESOLVE = 0, 1, 2   # the list flags' indirect dra
 
 class ViewSlot:
     """The view a deformation pass draws, :meth:`set` before each pass: ``view``, the mesh's
-    ``geo`` (GeometryBuffers) and their uniforms — its camera's and its own (transform, far
-    plane, excluded flag), as :class:`~glsim.backends.gl.uniforms.Uniforms` made by
+    ``geo`` (GeometryBuffers), a quadratic mesh's ``patches`` (PatchData of the view, or None)
+    and their uniforms — its camera's and its own (transform, far plane, excluded flag, the
+    patches' sagitta), as :class:`~glsim.backends.gl.uniforms.Uniforms` made by
     ``uniforms(view, geo, fp64, sag)`` when first written. What differs between the views of
     one camera (a time series' steps) is bound and written by the methods marked
     ``@replayed(view=True)``, which a recording keeps as calls (glsim.backends.gl.replay): a
     pass recorded for one step of a camera replays for another with that step's buffers and
-    values."""
+    values. ``patch_buffers(patches, mode, fp64)`` gives the patches' storage buffers."""
 
-    def __init__(self, uniforms):
-        self._uniforms_of = uniforms
-        self.view = self.geo = self._args = self._uniforms = None
+    def __init__(self, uniforms, patch_buffers):
+        self._uniforms_of, self._patch_buffers = uniforms, patch_buffers
+        self.view = self.geo = self.patches = self._fp64 = self._uniforms = None
 
-    def set(self, view: ViewSpec, geo, fp64: bool, sag: float) -> None:
-        self.view, self.geo, self._args, self._uniforms = view, geo, (fp64, sag), None
+    def set(self, view: ViewSpec, geo, fp64: bool, patches=None) -> None:
+        self.view, self.geo, self.patches, self._fp64, self._uniforms = view, geo, patches, fp64, None
 
     def _values(self):
         if self._uniforms is None:
-            self._uniforms = self._uniforms_of(self.view, self.geo, *self._args)
+            sag = self.patches.extra_sag_px if self.patches is not None else 0.0
+            self._uniforms = self._uniforms_of(self.view, self.geo, self._fp64, sag)
         return self._uniforms
 
     def bind(self, fp64: bool) -> None:
@@ -89,6 +91,13 @@ class ViewSlot:
     @replayed(view=True)
     def bind_step(self, fp64: bool) -> None:
         self.geo.bind_step(self.view, fp64)
+
+    @replayed(view=True)
+    def bind_patches(self, mode: str) -> None:
+        """Bind the patches' control points at the view's step and their reference data for
+        ``mode`` (PATCH_NODES, PATCH_REF; uploaded once per step)."""
+        for name, buf in zip(("PATCH_NODES", "PATCH_REF"), self._patch_buffers(self.patches, mode, self._fp64)):
+            buf.bind_to_storage_buffer(storage(name))
 
     @replayed(view=True)
     def bind_normals(self, flat: bool) -> None:
