@@ -117,7 +117,7 @@ class Renderer:
         self.backend = make_backend(self.backend_name, self.reference, ctx)
         self._geometry: MeshGeometry | None = None
         self._closed = False
-        self._seen: dict[tuple, bool] = {}   # (camera, step) → seen (Renderer._specimen)
+        self._seen: dict[tuple, tuple] = {}   # (id(camera), step) → (camera, seen) (Renderer._specimen)
         self._jobs: dict[tuple, tuple] = {}   # (camera, truth, options) → (scene, Render, Camera, index) (_job_setup)
         self._equal: dict[tuple, object] = {}  # (Render or Camera, its repr) → the first such object (_first_equal)
         self._ref_coeffs: dict[str, np.ndarray] = {}   # float64 interpolant coefficients (the Jacobian's gradient)
@@ -360,16 +360,17 @@ class Renderer:
             tr = self._truth(cam.size, job.deformed, out.samples)
         return Result(image=image, camera=cam, step=step, backend=self.backend_name,
                       options=job.options, seconds=seconds, truth=tr, stages=out.stages,
-                      specimen=self._specimen(cam, job.deformed, self.drawn_mesh.quads, (cam, step)))
+                      specimen=self._specimen(cam, job.deformed, self.drawn_mesh.quads, step))
 
-    def _specimen(self, cam: Camera, deformed: np.ndarray, quads: np.ndarray, key=None) -> Callable[[], np.ndarray]:
+    def _specimen(self, cam: Camera, deformed: np.ndarray, quads: np.ndarray, step=None) -> Callable[[], np.ndarray]:
         """Warns when ``cam`` sees none of the specimen (RenderWarning, saying why); returns what
-        makes its pixel mask on demand. ``key`` (camera, step): a view found seen is not looked
-        at again (an unseen one warns each time)."""
-        if key is None or not self._seen.get(key):
+        makes its pixel mask on demand. ``step``: a view of this camera object found seen at
+        that step is not looked at again (an unseen one warns each time)."""
+        key = (id(cam), step)   # (the entry holds the camera: the id stays its own)
+        if step is None or not self._seen.get(key, (None, False))[1]:
             seen = warn_unseen(cam, deformed, quads, stacklevel=6)
-            if key is not None:
-                keep(self._seen, key, seen, SEEN_KEPT)
+            if step is not None:
+                keep(self._seen, key, (cam, seen), SEEN_KEPT)
         return lambda: coverage(cam, deformed, quads)
 
     def _fast_to_patches(self, raster: dict) -> dict:

@@ -2,9 +2,10 @@
 
 The same name can be a ``vec2`` in one program and an ``ivec2`` or ``dvec2`` in another, and a
 driver keeps only the leading elements of an array that the program reads (``array_length``).
-:class:`Uniforms` holds the values (numbers or arrays, row-major) and makes each value's
-bytes once per type (the programs that read a name as the same type share them); which of its
-names a program has is found once per program and set of names, for every view after. A
+:class:`Uniforms` holds the values (numbers or arrays, row-major) and makes their bytes once
+per layout (the programs that have the same of its names in the same types share them); which
+of its names a program has, and their types, is found once per program and set of names, for
+every view after. A
 frame's setup of a program it has set up before is one driver call per uniform: no lookups,
 conversions or packing.
 
@@ -23,12 +24,12 @@ from glsim.backends.gl.replay import replayed
 _SCALARS = {"f": "<f4", "d": "<f8", "i": "<i4", "I": "<u4", "?": "<i4"}   # moderngl Uniform.fmt → dtype
 
 
-def _bytes(uniform, value) -> bytes:
-    """``value`` as ``uniform``'s type: its leading array_length × components scalars."""
-    fmt = uniform.fmt
+def _bytes(fmt: str, length: int, value) -> bytes:
+    """``value`` as a uniform of moderngl type ``fmt`` and ``array_length`` ``length``: its
+    leading length × components scalars."""
     per = int(fmt[:-1] or 1)
     a = np.asarray(value, dtype=_SCALARS[fmt[-1]]).ravel()
-    return a[:per * max(1, uniform.array_length)].tobytes()
+    return a[:per * max(1, length)].tobytes()
 
 
 class Uniforms:
@@ -38,33 +39,30 @@ class Uniforms:
         self.values = values
         self._names = tuple(values)
         self._made: dict[int, tuple] = {}
-        self._data: dict[tuple, bytes] = {}   # (name, fmt, array_length) → bytes, shared by programs
+        self._data: dict[tuple, tuple] = {}   # a layout's types → their bytes, shared by programs
 
     def write(self, prog) -> None:
         made = self._made.get(id(prog))
         if made is None or made[0] is not prog:
-            writes = [(u, self._encoded(name, u)) for name, u in _layout(prog, self._names)]
-            made = self._made[id(prog)] = (prog, writes)
+            uniforms, types = _layout(prog, self._names)
+            data = self._data.get(types)
+            if data is None:
+                data = self._data[types] = tuple(_bytes(fmt, n, self.values[name]) for name, fmt, n in types)
+            made = self._made[id(prog)] = (prog, tuple(zip(uniforms, data)))
         for u, data in made[1]:
             u.write(data)   # (looked up each time: glsim.backends.gl.timing counts it as a GL call)
 
-    def _encoded(self, name: str, uniform) -> bytes:
-        """``name``'s value as ``uniform``'s type (made once per type and length)."""
-        key = (name, uniform.fmt, uniform.array_length)
-        data = self._data.get(key)
-        if data is None:
-            data = self._data[key] = _bytes(uniform, self.values[name])
-        return data
 
-
-def _layout(prog, names: tuple) -> list:
-    """The uniforms of ``names`` that ``prog`` has, as (name, Uniform) in order: found once per
-    program and set of names (a view's values are written to programs seen for other views)."""
+def _layout(prog, names: tuple) -> tuple[tuple, tuple]:
+    """The uniforms of ``names`` that ``prog`` has, in order, and their types (name, fmt,
+    array_length): found once per program and set of names (a view's values are written to
+    programs seen for other views; programs whose types agree share the values' bytes)."""
     layouts = _state(prog)["layouts"]
     hit = layouts.get(names)
     if hit is None:
-        found = ((n, prog.get(n, None)) for n in names)
-        hit = layouts[names] = [(n, u) for n, u in found if u is not None and hasattr(u, "fmt")]
+        found = [(n, prog.get(n, None)) for n in names]
+        found = [(n, u) for n, u in found if u is not None and hasattr(u, "fmt")]
+        hit = layouts[names] = (tuple(u for _, u in found), tuple((n, u.fmt, u.array_length) for n, u in found))
         _written(prog, "values", names)
     return hit
 
