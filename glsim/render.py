@@ -33,7 +33,7 @@ from glsim.scene.bilinear import bilinear
 from glsim.scene.camera import Camera, to_camera
 from glsim.effects import prepare as prepare_effects
 from glsim.effects import motion, noise as noisemod
-from glsim.stages.geometry import MeshGeometry
+from glsim.stages.geometry import MeshGeometry, StepGeometry
 from glsim.io.images import quantize as quantize_image, saturated_fraction
 from glsim.io.truth import Truth, pixel_positions
 from glsim.stages.quadview import fast_local_coords as quadratic_fast_coords
@@ -92,7 +92,7 @@ class _Submitted(NamedTuple):
     options: Render
     truth: bool
     quantize: bool
-    deformed: np.ndarray
+    step_geo: StepGeometry   # the step's deformed nodes and their box
     curved: bool
     seconds: float      # host time of the submit
 
@@ -345,7 +345,7 @@ class Renderer:
                              depths, normals=not self.backend.capabilities.device_geometry)
         curved = Curved(self.mesh, self.pieces, step) if self.mesh.is_quadratic and opts.mode != "fast" else None
         token = self.backend.submit(Request(view, opts, truth, fx, curved, cam.bit_depth if quantize else None))
-        return _Submitted(token, cam, step, opts, truth, quantize, deformed, curved is not None,
+        return _Submitted(token, cam, step, opts, truth, quantize, view.step_geo, curved is not None,
                           time.perf_counter() - t0)
 
     def _finish(self, job: "_Submitted") -> Result:
@@ -357,18 +357,21 @@ class Renderer:
         if job.truth and self.mesh.is_quadratic:   # the raster of the patches (fast: of the pieces, mapped here)
             tr = self._quadratic_truth(out.samples if job.curved else self._fast_to_patches(out.samples), step, cam)
         elif job.truth:
-            tr = self._truth(cam.size, job.deformed, out.samples)
+            tr = self._truth(cam.size, job.step_geo.deformed, out.samples)
         return Result(image=image, camera=cam, step=step, backend=self.backend_name,
                       options=job.options, seconds=seconds, truth=tr, stages=out.stages,
-                      specimen=self._specimen(cam, job.deformed, self.drawn_mesh.quads, step))
+                      specimen=self._specimen(cam, job.step_geo.deformed, self.drawn_mesh.quads, step,
+                                              job.step_geo.box))
 
-    def _specimen(self, cam: Camera, deformed: np.ndarray, quads: np.ndarray, step=None) -> Callable[[], np.ndarray]:
+    def _specimen(self, cam: Camera, deformed: np.ndarray, quads: np.ndarray, step=None,
+                  box=None) -> Callable[[], np.ndarray]:
         """Warns when ``cam`` sees none of the specimen (RenderWarning, saying why); returns what
         makes its pixel mask on demand. ``step``: a view of this camera object found seen at
-        that step is not looked at again (an unseen one warns each time)."""
+        that step is not looked at again (an unseen one warns each time); ``box``: the nodes'
+        extent, if known."""
         key = (id(cam), step)   # (the entry holds the camera: the id stays its own)
         if step is None or not self._seen.get(key, (None, False))[1]:
-            seen = warn_unseen(cam, deformed, quads, stacklevel=6)
+            seen = warn_unseen(cam, deformed, quads, stacklevel=6, box=box)
             if step is not None:
                 keep(self._seen, key, (cam, seen), SEEN_KEPT)
         return lambda: coverage(cam, deformed, quads)

@@ -244,9 +244,10 @@ MODES = ["fast", "q4", "exact"]
 
 def test_element_areas_and_extent_are_numpys_values_bit_for_bit():
     """element_areas, written per component for speed, gives the areas and orientations of
-    numpy's cross, norm and sum over the last axis bit for bit, and extent the min and max
-    over axis 0: random, zero-area, bow-tie and 8 m far-off elements."""
-    from glsim.stages.view import element_areas, extent
+    numpy's cross, norm and sum over the last axis bit for bit, as does mesh_element_areas
+    from the nodes and the elements' node indices (gathered per coordinate, in chunks), and
+    extent the min and max over axis 0: random, zero-area, bow-tie and 8 m far-off elements."""
+    from glsim.stages.view import element_areas, extent, mesh_element_areas
 
     rng = np.random.default_rng(11)
     for m, scale, offset in ((1, 1.0, 0.0), (7, 1e-6, 600.0), (5000, 3.0, 8000.0)):
@@ -258,6 +259,10 @@ def test_element_areas_and_extent_are_numpys_values_bit_for_bit():
         area, opposed = element_areas(X)
         assert np.array_equal(area, 0.5 * (np.linalg.norm(n1, axis=1) + np.linalg.norm(n2, axis=1)))
         assert np.array_equal(opposed, (n1 * n2).sum(axis=1) < 0)
+        nodes, quads = X.reshape(-1, 3)[::-1].copy(), np.arange(4 * m)[::-1].reshape(m, 4)   # nodes[quads] is X
+        for chunk in (3, 1 << 15):
+            got = mesh_element_areas(nodes, quads, chunk)
+            assert np.array_equal(got[0], area) and np.array_equal(got[1], opposed)
         lo, hi = extent(X.reshape(-1, 3))
         assert np.array_equal(lo, X.reshape(-1, 3).min(axis=0)) and np.array_equal(hi, X.reshape(-1, 3).max(axis=0))
 

@@ -23,7 +23,8 @@ import numpy as np
 
 from glsim.limits import keep
 from glsim.scene.camera import Camera, project_camera_frame, to_camera
-from glsim.stages.view import NEAR_MM, View, check_reference, make_view, shape_problems
+from glsim.stages.view import (NEAR_MM, View, check_reference, classify_shapes, extent, make_view,
+                               mesh_element_areas)
 
 STEPS_KEPT = 2  # load steps whose deformed nodes stay cached (and uploaded)
 VIEWS_KEPT = 8  # views kept per step (StepGeometry.view_of), and views whose uniforms a GL backend keeps
@@ -85,18 +86,21 @@ class MeshGeometry:
 
 class StepGeometry:
     """One load step (``index``; (step, τ) for a state during its exposure): deformed nodes
-    relative to the mesh's origin (float64, (N, 3)), their bounding sphere over the used nodes,
-    and the camera-independent shape problems."""
+    relative to the mesh's origin (float64, (N, 3)), every node's bounding ``box`` in world mm
+    (:func:`~glsim.stages.view.extent`), a bounding sphere of the used nodes (centred on their
+    box, in the local frame), and the camera-independent shape problems."""
 
     def __init__(self, mesh_geo: MeshGeometry, step: int, deformed: np.ndarray):
         self.mesh_geo = mesh_geo
         self.index = step
         self.deformed = deformed
         self.local = deformed - mesh_geo.origin
-        used = self.local if len(mesh_geo.used_nodes) == len(deformed) else self.local[mesh_geo.used_nodes]
-        self.used_local = used
-        self.centre = used.mean(axis=0)
-        self.radius = float(np.sqrt(((used - self.centre) ** 2).sum(axis=1).max()))
+        self.box = extent(deformed)
+        every = len(mesh_geo.used_nodes) == len(deformed)
+        self.used_local = self.local if every else self.local[mesh_geo.used_nodes]
+        lo, hi = self.box if every else extent(deformed[mesh_geo.used_nodes])
+        self.centre = 0.5 * (lo + hi) - mesh_geo.origin
+        self.radius = _farthest(self.used_local, self.centre)
         self._shape = None
         self._views: dict[int, ViewSpec] = {}
 
@@ -109,26 +113,19 @@ class StepGeometry:
         return v
 
     def shape(self) -> dict[str, np.ndarray]:
-        """Zero-area, tiny and folded elements (:func:`glsim.stages.view.shape_problems`), from
+        """Zero-area, tiny and folded elements (:func:`glsim.stages.view.classify_shapes`), from
         the local frame (rigid motions leave them unchanged); computed once per step."""
         if self._shape is None:
-            problems = shape_problems(_Corners(self.local, self.mesh_geo.quads))
+            problems = classify_shapes(*mesh_element_areas(self.local, self.mesh_geo.quads))
             self._shape = {k: (v if k == "excluded" else np.flatnonzero(v)) for k, v in problems.items()}
         return self._shape
 
 
-class _Corners:
-    """``local[quads]`` sliced lazily (len and slicing only), so chunked callers never hold
-    the whole (M, 4, 3) array."""
-
-    def __init__(self, nodes: np.ndarray, quads: np.ndarray):
-        self.nodes, self.quads = nodes, quads
-
-    def __len__(self) -> int:
-        return len(self.quads)
-
-    def __getitem__(self, sl) -> np.ndarray:
-        return np.take(self.nodes, self.quads[sl], axis=0)   # (nodes[quads[sl]], several times faster)
+def _farthest(points: np.ndarray, centre: np.ndarray) -> float:
+    """The largest distance of ``points`` (N, 3) from ``centre``, column by column (numpy's
+    arithmetic on rows of 3 loops over 3 at a time)."""
+    d2 = sum((points[:, k] - centre[k]) ** 2 for k in range(3))
+    return float(np.sqrt(d2.max()))
 
 
 def _frozen(a: np.ndarray) -> np.ndarray:

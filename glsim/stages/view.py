@@ -275,13 +275,31 @@ def make_view(cam: Camera, ref_cam: Camera, nodes_ref: np.ndarray, nodes_def: np
 
 # ---- warnings ---------------------------------------------------------------------------------
 def element_areas(X: np.ndarray):
-    """Areas (M,) of the two triangles (0, 1, 2) + (0, 2, 3) and whether their normals oppose
-    (a bow-tie or inverted element); invariant under rigid motions, so once per load step.
-    Written out per component on (M,) columns — numpy's cross, norm and sum over the last axis
-    of (M, 3) arrays loop over 3 at a time — in their order of operations, so the values are
-    theirs bit for bit."""
+    """Areas (M,) of the two triangles (0, 1, 2) + (0, 2, 3) of the elements with corners X
+    (M, 4, 3) and whether their normals oppose (a bow-tie or inverted element); invariant under
+    rigid motions, so once per load step (:func:`corner_areas`)."""
     X = np.asarray(X, np.float64)
-    x, y, z = X[:, :, 0].T, X[:, :, 1].T, X[:, :, 2].T   # (corner, element) each
+    return corner_areas(X[:, :, 0].T, X[:, :, 1].T, X[:, :, 2].T)
+
+
+def mesh_element_areas(nodes: np.ndarray, quads: np.ndarray, chunk: int = CHUNK_ELEMENTS):
+    """:func:`element_areas` of ``nodes[quads]`` (nodes (N, 3), quads (M, 4)) bit for bit,
+    gathered one coordinate at a time (numpy's gather and arithmetic on rows of 3 loop over 3
+    at a time) and ``chunk`` elements at a time (bounds memory)."""
+    cols = [np.ascontiguousarray(nodes[:, k], np.float64) for k in range(3)]
+    M = len(quads)
+    area, opposed = np.empty(M), np.empty(M, bool)
+    for s in range(0, M, chunk):
+        corners = np.ascontiguousarray(quads[s:s + chunk].T)   # (corner, element)
+        area[s:s + chunk], opposed[s:s + chunk] = corner_areas(*(c[corners] for c in cols))
+    return area, opposed
+
+
+def corner_areas(x: np.ndarray, y: np.ndarray, z: np.ndarray):
+    """:func:`element_areas` from the corners' coordinates, each (4, M) (corner, element):
+    written out per component on (M,) rows — numpy's cross, norm and sum over the last axis of
+    (M, 3) arrays loop over 3 at a time — in their order of operations, so the values are
+    theirs bit for bit."""
     ax, ay, az = x[1] - x[0], y[1] - y[0], z[1] - z[0]
     bx, by, bz = x[2] - x[0], y[2] - y[0], z[2] - z[0]
     cx, cy, cz = x[3] - x[0], y[3] - y[0], z[3] - z[0]
@@ -292,13 +310,19 @@ def element_areas(X: np.ndarray):
 
 
 def shape_problems(X: np.ndarray, chunk: int = CHUNK_ELEMENTS) -> dict[str, np.ndarray]:
-    """Zero-area, tiny and folded elements (bool (M,) each, exclusive in that order), relative
-    to the mesh's median element area, from the corners X (M, 4, 3) in any Cartesian frame;
-    ``excluded`` is their union (such elements are not also named as grazing)."""
+    """Zero-area, tiny and folded elements (:func:`classify_shapes`) from the corners X
+    (M, 4, 3) in any Cartesian frame."""
     M = len(X)
     area, opposed = np.empty(M), np.empty(M, bool)
     for s in range(0, M, chunk):
         area[s:s + chunk], opposed[s:s + chunk] = element_areas(X[s:s + chunk])
+    return classify_shapes(area, opposed)
+
+
+def classify_shapes(area: np.ndarray, opposed: np.ndarray) -> dict[str, np.ndarray]:
+    """Zero-area, tiny and folded elements (bool (M,) each, exclusive in that order), relative
+    to the mesh's median element area, from :func:`element_areas`' values; ``excluded`` is
+    their union (such elements are not also named as grazing)."""
     positive = area[area > 0]
     median = float(np.median(positive)) if positive.size else 0.0
     zero = area <= ZERO_AREA_REL * median
@@ -387,14 +411,14 @@ def extent(points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return np.array([c.min() for c in cols]), np.array([c.max() for c in cols])
 
 
-def warn_unseen(cam: Camera, nodes: np.ndarray, quads: np.ndarray, stacklevel: int = 3) -> bool:
+def warn_unseen(cam: Camera, nodes: np.ndarray, quads: np.ndarray, stacklevel: int = 3, box=None) -> bool:
     """Warn (RenderWarning) and return False when ``cam`` sees none of the specimen (nodes in
     world mm), saying why: behind it, or outside its field of view. Decided from the nodes' bounding box (8 corners, no
     per-element work) where that suffices — all behind the camera, or all in front with their
     rays (x/z, y/z; a box's rays lie in their rectangle) farther from the axis than any ray of the
     image (:func:`ray_radius`) — else from :func:`coverage`. A box that may be seen is not
-    looked at more closely."""
-    lo, hi = extent(nodes)
+    looked at more closely. ``box``: the nodes' :func:`extent`, if known."""
+    lo, hi = extent(nodes) if box is None else box
     box = to_camera(np.array(list(itertools.product(*zip(lo, hi)))), cam)   # the box's 8 corners
     z = box[:, 2]
     if (z <= 0).all():
