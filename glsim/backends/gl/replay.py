@@ -114,21 +114,22 @@ class Recording:
             self.depth -= 1
 
 
-def replayed(fn=None, *, view: bool = False):
+def replayed(fn=None, *, view: bool = False, again=None):
     """Mark a glsim function whose calls a recording keeps as calls (with their arguments, run
     again on replay) rather than as the GL calls they make. ``view``: what it does depends on
     the view being drawn (it reads it from its arguments' state when it runs): kept as a call
     in what every view of the recorded kind replays, and as its GL calls in what the recorded
-    view replays (``Recording.inline``)."""
+    view replays (``Recording.inline``). ``again(*args)``: what a replay runs for the call (a
+    callable doing what the call does, in fewer steps), instead of the call itself."""
     if fn is None:
-        return functools.partial(replayed, view=view)
+        return functools.partial(replayed, view=view, again=again)
 
     @functools.wraps(fn)
     def inner(*args):
         rec = _active
         if rec is None or rec.depth or rec.thread != threading.get_ident():
             return fn(*args)
-        op = functools.partial(fn, *args)
+        op = again(*args) if again is not None else functools.partial(fn, *args)
         if not view:
             rec.add(op, *args)
             return rec.call(lambda _, *a: fn(*a), None, args, {})

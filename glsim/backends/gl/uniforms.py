@@ -17,6 +17,8 @@ one of the two ways in a program, never both (checked when either first sets it)
 """
 from __future__ import annotations
 
+import functools
+
 import numpy as np
 
 from glsim.backends.gl.replay import replayed
@@ -89,7 +91,21 @@ def _written(prog, way: str, names) -> None:
         state["values"].update(names)
 
 
-@replayed
+def _set_again(prog, name: str, value):
+    """What a replay runs for ``set_uniform(prog, name, value)``: for a number or a tuple, the
+    comparison with the last write alone (the name's checks were made when it was recorded)."""
+    if not isinstance(value, _SIMPLE):
+        return functools.partial(set_uniform.__wrapped__, prog, name, value)
+    return functools.partial(_set_if_changed, prog, name, value)
+
+
+def _set_if_changed(prog, name: str, value) -> None:
+    if prog.extra["set"].get(name, _UNSET) != value:
+        prog[name].value = value
+        prog.extra["set"][name] = value
+
+
+@replayed(again=_set_again)
 def set_uniform(prog, name: str, value) -> None:
     """``prog[name].value = value`` unless glsim's last write of ``name`` there was ``value``
     (a number or a tuple of numbers; other values are always written)."""
