@@ -101,7 +101,7 @@ class StepGeometry:
         lo, hi = self.box if every else extent(deformed[mesh_geo.used_nodes])
         self.centre = 0.5 * (lo + hi) - mesh_geo.origin
         self.radius = _farthest(self.used_local, self.centre)
-        self._shape = None
+        self._shape = self._problems = None
         self._views: dict[int, ViewSpec] = {}
 
     def view_of(self, cam: Camera, ref_camera: Camera) -> "ViewSpec":
@@ -119,6 +119,13 @@ class StepGeometry:
             problems = classify_shapes(*mesh_element_areas(self.local, self.mesh_geo.quads))
             self._shape = {k: (v if k == "excluded" else np.flatnonzero(v)) for k, v in problems.items()}
         return self._shape
+
+    def problems(self) -> dict[str, np.ndarray]:
+        """The shape problems some element has (zero, tiny, folded: sorted indices; read only),
+        found once per step."""
+        if self._problems is None:
+            self._problems = {k: v for k, v in self.shape().items() if k != "excluded" and len(v)}
+        return self._problems
 
 
 def _farthest(points: np.ndarray, centre: np.ndarray) -> float:

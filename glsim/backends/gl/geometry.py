@@ -419,10 +419,12 @@ class GeometryBuffers:
     def problems(self, view: ViewSpec, status: bytes) -> dict:
         """This view's element problems: the step's shape problems and what the GPU marked
         (grazing, does not project) in ``status`` (the bytes of :meth:`status` after its passes),
-        as sorted index arrays; only the problems some element has."""
-        out = {k: v for k, v in view.step_geo.shape().items() if k != "excluded" and len(v)}
+        as sorted index arrays; only the problems some element has (read only: with nothing
+        marked, the step's own dict)."""
+        found = view.step_geo.problems()
         if status[:16] == _NOTHING_MARKED:
-            return out
+            return found
+        out = dict(found)
         any_, words = np.frombuffer(status[:16], np.uint32), self.words
         for k, name in enumerate(("grazing", "unprojectable")):
             if any_[k]:
