@@ -309,10 +309,10 @@ class GLBackend(ImagePasses):
         (s > 1, no Newton sub-samples) and, if no image effects come between, the quantisation
         to ``quantize`` bits, into cached textures (replayed where a view of this camera was
         rendered so before: :mod:`glsim.backends.gl.replay`; what differs between the views of a
-        camera goes through the :class:`ViewSlot`). Returns the
-        color textures, the grey and depth textures at pixel size (depth if blurred), what
-        finishes the raster (if ``truth``; its reads queued) and what reports the view's problems
-        (its flags copied on the GPU; nothing if not ``warn``)."""
+        camera goes through the :class:`ViewSlot`). Returns the color textures, the grey and
+        depth textures at pixel size (depth if blurred), what finishes the raster (if
+        ``truth``; its reads queued) and what reports the view's problems (its flags copied on
+        the GPU; nothing if not ``warn``)."""
         geo = self._buffers(view)
         self._slot.set(view, geo, "FP64" in p.define_dict, patches)
         lit = None if fx.lighting is None else (fx.lighting.normals == "flat", _light_uniforms(fx))

@@ -5,9 +5,8 @@ driver keeps only the leading elements of an array that the program reads (``arr
 :class:`Uniforms` holds the values (numbers or arrays, row-major) and makes their bytes once
 per layout (the programs that have the same of its names in the same types share them); which
 of its names a program has, and their types, is found once per program and set of names, for
-every view after. A
-frame's setup of a program it has set up before is one driver call per uniform: no lookups,
-conversions or packing.
+every view after. A frame's setup of a program it has set up before is one driver call per
+uniform: no lookups, conversions or packing.
 
 :func:`set_uniform` sets one uniform that keeps its value across frames (a pass's layer, a
 size) only when it changes: a program keeps its uniforms' values, and every
