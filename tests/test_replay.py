@@ -284,3 +284,4 @@ def test_a_curved_time_series_replays_each_cameras_record(gl_ctx):
             _same(a, b)
         keys = 2 * (len(kinds) + 1)   # (per camera; q4's truth is a pass at 1 spp of its own)
         assert (r.backend.frames.recordings, r.backend.frames.replays) == (keys, 3 * keys)
+

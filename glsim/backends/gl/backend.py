@@ -38,7 +38,7 @@ from glsim.backends.gl.plan import aperture_literal, plan
 from glsim.backends.gl.imagepasses import ImagePasses
 from glsim.backends.gl.programs import ProgramCache
 from glsim.backends.gl.readback import PackBuffers, Pending, read_buffer, read_texture
-from glsim.backends.gl.replay import Frames
+from glsim.backends.gl.replay import FRAMES_KEPT, Frames, still, weak_refs
 from glsim.backends.gl.uniforms import Uniforms, set_uniform
 
 
@@ -134,6 +134,7 @@ class GLBackend(ImagePasses):
         self._dropped = None                    # deform.frag's count of samples mapping outside the reference
         self._uniforms: dict[tuple, tuple] = {}  # the last views' uniform values (_view_uniforms)
         self._camera_values: dict[tuple, tuple] = {}   # and their cameras' (_camera_uniforms)
+        self._reports: dict[tuple, tuple] = {}  # the last views' problems and dropped counts (_queue_report)
         self.frames = Frames()                  # deformation passes recorded for replay
         self._slot = ViewSlot(self._view_uniforms, self._patch_buffers)   # the view a deformation pass draws (_deform)
 
@@ -330,7 +331,7 @@ class GLBackend(ImagePasses):
             geo.view_passes += 1
         check_error(self.ctx, f"deformation pass ({opts.mode})")
         self.ctx.memory_barrier()  # shader storage writes visible to the read-backs
-        report = self._queue_report(view, s, geo, warn)
+        report = self._queue_report(view, s, geo, warn, key, (*refs, view))
         raster = self._queue_raster(view, opts.mode, color, p, patches) if truth else None
         return color, grey, depth, raster, report
 
@@ -507,23 +508,35 @@ class GLBackend(ImagePasses):
         ctx.disable(ctx.DEPTH_TEST)
         return color
 
-    def _queue_report(self, view: ViewSpec, s: int, geo, warn: bool):
+    def _queue_report(self, view: ViewSpec, s: int, geo, warn: bool, key: tuple, refs: tuple):
         """Copy the view's problem flags and dropped count on the GPU (read when the frame is
-        collected), clear them for the next view; returns what warns about them."""
+        collected), clear them for the next view; returns what warns about them. A view
+        reported before under the same record ``key`` (of the objects ``refs``, the view's
+        among them) is not read again: the same commands on the same data mark the same flags
+        and count the same samples (the last FRAMES_KEPT kept, without keeping their objects
+        alive)."""
         flags, size = geo.status()
         dropped = self._dropped_counter()
-        status = read_buffer(self._pack, [(flags, size), (dropped, 4)]) if warn else None
+        known = self._reports.get((key, id(view))) if warn else None
+        if known is not None and not still(known[0], refs):
+            known = None
+        status = read_buffer(self._pack, [(flags, size), (dropped, 4)]) if warn and known is None else None
         geo.clear_status()     # (after the copy above: the GL orders them)
         dropped.write(bytes(4))
         cam = view.camera
 
         def report():
-            if status is not None:
+            if known is not None:
+                _, problems, count = known
+            elif status is not None:
                 b = status.fetch(self._pack).tobytes()
-                problems = geo.problems(view, b[:size])
-                if problems:
-                    warn_problems(cam, problems, view.mesh_geo.labels, stacklevel=5)
-                warn_dropped(cam, int(np.frombuffer(b[size:], np.uint32)[0]), s)
+                problems, count = geo.problems(view, b[:size]), int(np.frombuffer(b[size:], np.uint32)[0])
+                keep(self._reports, (key, id(view)), (weak_refs(refs), problems, count), FRAMES_KEPT)
+            else:
+                return
+            if problems:
+                warn_problems(cam, problems, view.mesh_geo.labels, stacklevel=5)
+            warn_dropped(cam, count, s)
         return report
 
     def _queue_raster(self, view: ViewSpec, mode: str, color, p, patches):

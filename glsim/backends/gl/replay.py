@@ -207,11 +207,21 @@ def _weak(obj):
         return lambda: obj
 
 
+def weak_refs(objects: tuple) -> tuple:
+    """What gives each of ``objects`` back while it lives (a weak reference where it takes one)."""
+    return tuple(map(_weak, objects))
+
+
+def still(refs: tuple, objects: tuple) -> bool:
+    """Whether ``refs`` (:func:`weak_refs`) give back ``objects``, each the same object."""
+    return all(map(operator.is_, map(_CALL, refs), objects))
+
+
 class _Record:
     __slots__ = ("refs", "ops", "objects", "result", "failures", "view", "inline", "inline_objects")
 
     def __init__(self, refs: tuple, failures: int = 0, rec: Recording | None = None, result=None, view=None):
-        self.refs = tuple(map(_weak, refs))   # (a record does not keep a view's arrays alive)
+        self.refs = weak_refs(refs)   # (a record does not keep a view's arrays alive)
         self.failures, self.result = failures, result
         self.ops = tuple(rec.ops) if rec is not None else None
         self.objects = tuple(rec.objects.values()) if rec is not None else ()
@@ -255,7 +265,7 @@ class Frames:
         abandoned; a thread's recordings wait for another's to end by not recording). ``view``:
         the view drawn (:meth:`_Record.replay`)."""
         hit = self._kept.get(key)
-        if hit is None or not all(map(operator.is_, map(_CALL, hit.refs), refs)):
+        if hit is None or not still(hit.refs, refs):
             keep(self._kept, key, _Record(refs), self.most)
             return make()
         if hit.live():
