@@ -210,6 +210,7 @@ class GLBackend(ImagePasses):
         self._ray_host.clear()
         self._uniforms.clear()
         self._camera_values.clear()
+        self._reports.clear()
         self.frames.clear()
         self._dropped = None
         self._curved.clear()
