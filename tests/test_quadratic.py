@@ -140,16 +140,18 @@ def scene():
 
 # --- closed forms --------------------------------------------------------------------------------
 
-def rays():
+def rays(points=None):
+    """Normalized ray coordinates (u, v) of every pixel centre, or of ``points`` (N, 2) px."""
     W, H = CAM.size
-    q = np.stack(np.meshgrid(np.arange(W, dtype=float), np.arange(H, dtype=float)), -1)
+    q = np.stack(np.meshgrid(np.arange(W, dtype=float), np.arange(H, dtype=float)), -1) if points is None else points
     return (q[..., 0] - CAM.cx) / CAM.fx, (q[..., 1] - CAM.cy) / CAM.fy
 
 
-def closed_form(a=A, c=C, deformed=True, d=D):
-    """Per pixel: the undeformed material point (x, y) and X_undeformed, X_deformed where the
-    pixel's ray meets the (deformed) surface X = (x, y, ZC + a x² + c y²) + u(x, y)."""
-    u, v = rays()
+def closed_form(a=A, c=C, deformed=True, d=D, points=None):
+    """Per pixel (or point of ``points``): the undeformed material point (x, y) and
+    X_undeformed, X_deformed where the ray meets the (deformed) surface
+    X = (x, y, ZC + a x² + c y²) + u(x, y)."""
+    u, v = rays(points)
     t = SHIFT if deformed else np.zeros(3)
     b_, d_ = (B, d) if deformed else (0.0, 0.0)
     a2, c2 = a + b_, c
@@ -672,11 +674,91 @@ def test_paraview_mesh_series_keeps_the_quadratic_cells(tmp_path):
         assert len(back.cells[0].data) == mesh.n_elements
 
 
-def test_point_truth_refuses_quadratic_meshes(tmp_path, monkeypatch):
-    from glsim.errors import GlsimError
+@pytest.mark.parametrize("kind", ["quad8", "quad9", "triangle6"])
+def test_point_truth_is_the_closed_form(kind, tmp_path, monkeypatch):
+    """`glsim compare`'s truth at any camera-0 pixel of the reference state: the ray met with
+    the curved undeformed patch (Newton) — the closed-form material point within 1e-9 mm, its
+    displacement at step 1 the analytic u(x, y); points off the footprint not valid."""
     from glsim.evaluation import compare
 
     monkeypatch.setattr(compare, "load_scene", lambda path: scene())
-    monkeypatch.setattr(compare, "specimen_mesh", lambda sc: surface_mesh("quad8"))
-    with pytest.raises(GlsimError, match="quadratic elements, and the point truth evaluates bilinear"):
-        compare.truth_at(tmp_path, np.zeros((1, 2)), 0)
+    monkeypatch.setattr(compare, "specimen_mesh", lambda sc: surface_mesh(kind))
+    pts = np.random.default_rng(7).uniform([0, 0], [CAM.size[0] - 1, CAM.size[1] - 1], (400, 2))
+    at, cam = compare.truth_at(tmp_path, pts, 1)
+    x, y, Xu, _ = closed_form(deformed=False, points=pts)
+    inside, near = footprint(x, y)
+    assert cam == CAM and at.step == 1 and inside.sum() > 200
+    np.testing.assert_array_equal(at.valid[~near], inside[~near])
+    ok = at.valid
+    np.testing.assert_allclose(at.X_undeformed[ok], Xu[ok], atol=1e-9, rtol=0)
+    u = np.column_stack([np.broadcast_to(SHIFT[:2], (ok.sum(), 2)),
+                         SHIFT[2] + B * x[ok] ** 2 + D * x[ok] * y[ok]])
+    np.testing.assert_allclose(at.displacement[ok], u, atol=1e-9, rtol=0)
+
+
+def test_point_truth_finds_points_beyond_the_control_points_projections():
+    """A trough z = ZC + 4x² seen from the origin: its silhouette (the ray tangent to it) at
+    x = √(ZC/4) = 10 mm lies inside the elements of 7.5 < x < 15, whose rays past the
+    projections of all their nodes still meet them. The candidate boxes hold the whole curved
+    surface (glsim.scene.quadratic.surface_box): such points are found, at the closed form —
+    the nearer of the ray's two roots in that element (with 2 × 2 Newton starts instead of
+    truth.PATCH_STARTS², 3 of these 50 get the farther one)."""
+    from glsim.io.truth import mesh_geometry, points_truth
+
+    a = 4.0
+    mesh = surface_mesh("quad8", c=0.0, d=0.0, deform=False)
+    mesh = Mesh(mesh.nodes * [1, 1, 0] + np.column_stack([0 * mesh.nodes[:, :2], ZC + a * mesh.nodes[:, 0] ** 2]),
+                mesh.quads, mesh.node_labels, mesh.element_labels, patches=mesh.patches)
+    outer = mesh.nodes[(mesh.nodes[:, 0] >= 7.5)]
+    beyond = (outer[:, 0] / outer[:, 2]).max() * CAM.fx + CAM.cx            # px: the nodes' last projection
+    silhouette = CAM.cx + CAM.fx / (2 * np.sqrt(a * ZC))                     # px: the tangent ray
+    assert beyond + 0.05 < silhouette
+    rng = np.random.default_rng(11)
+    pts = np.column_stack([rng.uniform(beyond, silhouette - 1e-4, 50), rng.uniform(28, 51, 50)])
+    at = points_truth(mesh_geometry(mesh), CAM, pts, 0)
+    x, y, Xu, _ = closed_form(a=a, c=0.0, deformed=False, points=pts)
+    assert at.valid.all() and (np.abs(y) < H0 / 2).all()
+    np.testing.assert_allclose(at.X_undeformed, Xu, atol=1e-9, rtol=0)
+
+
+def test_surface_box_holds_the_patch_and_is_tight():
+    """Σ|Nᵢ| ≤ LEBESGUE = 1.25² on the patch: random patches evaluated on a fine grid stay in
+    their surface_box; the control points ±1 with the signs of Nᵢ at (ξ, η) = (½, ½) reach
+    its edge (the bound cannot be smaller)."""
+    t = np.linspace(-1, 1, 41)
+    xi, eta = (g.ravel() for g in np.meshgrid(t, t))
+    P = np.random.default_rng(2).normal(size=(200, 9, 3))
+    lo, hi = qd.surface_box(P)
+    X = qd.evaluate(P[:, None], xi[None, :], eta[None, :])                 # (200, 1681, 3)
+    assert (X >= lo[:, None] - 1e-12).all() and (X <= hi[:, None] + 1e-12).all()
+    signs = np.sign(qd.shape_functions(0.5, 0.5))
+    worst = qd.evaluate(np.column_stack([signs, -signs, signs])[None], 0.5, 0.5)[0]
+    np.testing.assert_allclose(np.abs(worst), qd.LEBESGUE, rtol=1e-15)
+    np.testing.assert_allclose(qd.surface_box(np.column_stack([signs, -signs, signs])[None])[1][0], qd.LEBESGUE)
+
+
+def test_render_truth_files_give_quadratic_point_truth(tmp_path):
+    """End to end: a Q8 VTU rendered with truth (`glsim render --truth`'s files), then
+    ``truth.load(...).at`` at every pixel centre: the rendered step-0 maps (the oracle's boxes
+    and 2 × 2 starts per sample) and the point truth (surface boxes, 4 × 4 starts) find the
+    same pixels, elements and material points; the displacement is step 1's closed form."""
+    from glsim.io import truth as T
+    from glsim.scene import MeshFile
+    from glsim.workflows.sequence import write_sequence
+
+    nodes, at = lattice(4, 3)
+    meshio.write(tmp_path / "m.vtu", meshio.Mesh(nodes, [("quad8", q8_cells(4, 3, at))], point_data={"u": step1(nodes)}))
+    sc = Scene(cameras=(CAM,), specimen=Specimen(mesh=MeshFile(path=str(tmp_path / "m.vtu"), point_data=("u",))))
+    write_sequence(sc, tmp_path / "r", truth=True, backend="cpu")
+    ref = T.load(tmp_path / "r" / "c_0000_truth.npz").maps()
+    H, W = ref.mask.shape
+    v, u = np.mgrid[0:H, 0:W]
+    pts = np.column_stack([u.ravel(), v.ravel()]).astype(float)
+    got = T.load(tmp_path / "r" / "c_0001_truth.npz").at(pts)
+    valid = got.valid.reshape(H, W)
+    np.testing.assert_array_equal(valid, ref.mask)
+    np.testing.assert_array_equal(got.element.reshape(H, W)[valid], ref.element[valid])
+    np.testing.assert_allclose(got.X_undeformed.reshape(H, W, 3)[valid], ref.X_undeformed[valid], atol=1e-9, rtol=0)
+    x, y = (got.X_undeformed[got.valid, k] for k in (0, 1))
+    expect = np.column_stack([np.broadcast_to(SHIFT[:2], (len(x), 2)), SHIFT[2] + B * x ** 2 + D * x * y])
+    np.testing.assert_allclose(got.displacement[got.valid], expect, atol=1e-9, rtol=0)

@@ -24,7 +24,7 @@ import numpy as np
 
 from glsim.errors import GlsimError
 from glsim.io import images as io
-from glsim.io.truth import Geometry, points_truth
+from glsim.io.truth import mesh_geometry, points_truth
 from glsim.scene import load_scene
 from glsim.io.fe import specimen_mesh
 
@@ -96,12 +96,7 @@ def truth_at(truth_dir: str | Path, uv: np.ndarray, step: int):
     mesh = specimen_mesh(scene)
     if not 0 <= step < mesh.n_steps:
         raise GlsimError(f"--step {step}: {scene_json} has load steps 0…{mesh.n_steps - 1}")
-    if mesh.is_quadratic:
-        raise GlsimError(f"{scene_json}: the specimen has quadratic elements, and the point truth evaluates bilinear "
-                         "Q4 elements — compare against the rendered truth maps (render --truth) instead")
-    g = Geometry(mesh.nodes, mesh.quads, tuple(range(mesh.n_steps)), np.stack(mesh.displacements),
-                 mesh.element_labels)
-    return points_truth(g, scene.cameras[0], uv, step), scene.cameras[0]
+    return points_truth(mesh_geometry(mesh), scene.cameras[0], uv, step), scene.cameras[0]
 
 
 def compare(result: dict, truth, cam) -> dict:

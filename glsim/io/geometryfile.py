@@ -47,6 +47,7 @@ class Geometry:
     steps: tuple[int, ...]
     displacements: np.ndarray
     element_labels: np.ndarray
+    patches: np.ndarray | None = None   # a quadratic mesh's (M, 9) patches (glsim.scene.quadratic); not in files
 
     def deformed(self, step: int) -> np.ndarray:
         if step not in self.steps:

@@ -32,6 +32,7 @@ import numpy as np
 from glsim.errors import SceneError
 from glsim.io.images import EXTENSIONS
 from glsim.limits import check_image_size, not_a_file, parse_nested
+from glsim.scene import quadratic as qd
 from glsim.scene.bilinear import bilinear, intersect_ray_patch
 from glsim.io.cameras import camera_from_dict
 from glsim.scene.camera import Camera, pixel_to_normalized, project_camera_frame, to_camera, undistort
@@ -308,9 +309,6 @@ class MapTruth:
                                  "scene.json — keep the truth file inside the directory glsim render wrote")
         scene = load_scene(folder / "scene.json")
         mesh = specimen_mesh(scene)
-        if mesh.is_quadratic:
-            raise TruthFileError(f"{self.path}: the specimen has quadratic elements, and at() evaluates bilinear Q4 "
-                                 "elements — use the maps (maps()) instead")
         image = (self.path.parent / self.path.name[:-len("_truth.npz")]).relative_to(folder).as_posix()
         ext = EXTENSIONS[scene.output.format]
         step = next((s for s in range(mesh.n_steps) for c in scene.cameras if str(PurePosixPath(
@@ -318,9 +316,7 @@ class MapTruth:
         if step is None:
             raise TruthFileError(f"{self.path}: {folder / 'scene.json'} names no image {image}.{ext}; keep the truth "
                                  "file where glsim render wrote it, under its own name")
-        g = Geometry(mesh.nodes, mesh.quads, tuple(range(mesh.n_steps)), np.stack(mesh.displacements),
-                     mesh.element_labels)
-        return g, scene.cameras[0], step
+        return mesh_geometry(mesh), scene.cameras[0], step
 
     @property
     def step(self) -> int:
@@ -333,37 +329,85 @@ class MapTruth:
         return points_truth(g, cam0, points, own if step is None else step)
 
 
+def mesh_geometry(mesh) -> Geometry:
+    """A :class:`~glsim.scene.mesh.Mesh` with all its load steps as the :class:`Geometry` that
+    :func:`points_truth` reads (its patches too, for a quadratic mesh)."""
+    return Geometry(mesh.nodes, mesh.quads, tuple(range(mesh.n_steps)), np.stack(mesh.displacements),
+                    mesh.element_labels, mesh.patches)
+
+
+# Newton starts per patch for the point truth: from its PATCH_STARTS² sub-quads. Near a silhouette
+# inside a strongly curved element a ray meets it twice; 2 × 2 starts (the renderer's exact mode)
+# missed the nearer root on 3 % of a 0.09 px strip in tests/test_quadratic.py's trough, 4 × 4 on none.
+PATCH_STARTS = 4
+
+
 def points_truth(g: Geometry, cam0: Camera, points, step: int) -> PointTruth:
-    """See :meth:`CompactTruth.at`."""
+    """See :meth:`CompactTruth.at`; bilinear Q4 elements, or a quadratic mesh's patches
+    (``g.patches``: the ray met by Newton on the curved patch, :func:`glsim.scene.quadratic.intersect_ray`
+    from PATCH_STARTS² sub-quads)."""
     pts = np.asarray(points, np.float64).reshape(-1, 2)
     n = len(pts)
     xn, ray_ok = undistort(pixel_to_normalized(pts, cam0.intrinsics), cam0.distortion.coeffs)
-    P = to_camera(g.nodes, cam0)[g.quads]                            # (M, 4, 3) camera-0 frame
-    front = (P[..., 2] > 0).all(axis=1)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        proj = P[..., :2] / np.where(front[:, None], P[..., 2], 1.0)[..., None]
-    lo, hi = proj.min(axis=1), proj.max(axis=1)
-    pad = 1e-9 * (1.0 + np.abs(proj).max(axis=1))
-    lo, hi = lo - pad, hi + pad
-    lo[~front], hi[~front] = -np.inf, np.inf                         # crosses the camera plane: always a candidate
+    if g.patches is None:
+        P = to_camera(g.nodes, cam0)[g.quads]                        # (M, 4, 3) camera-0 frame
+        lo, hi = _quad_boxes(P)
+        intersect = intersect_ray_patch
+    else:
+        P = qd.patch_points(g.patches, to_camera(g.nodes, cam0))   # (M, 9, 3)
+        lo, hi = _patch_boxes(P)
+        intersect = lambda P, xn: qd.intersect_ray(P, xn, n=PATCH_STARTS)   # noqa: E731
     pe, pp = _candidates(lo, hi, xn, ray_ok)
     best_e = np.full(n, -1, np.int64)
     best_xi, best_eta = np.full(n, np.nan), np.full(n, np.nan)
     if len(pe):
-        xi, eta, z, ok = intersect_ray_patch(P[pe], xn[pp])
+        xi, eta, z, ok = intersect(P[pe], xn[pp])
         k = np.flatnonzero(ok)
         order = k[np.lexsort((pe[k], z[k], pp[k]))]                   # per point: nearest, then lowest index
         first = order[np.unique(pp[order], return_index=True)[1]]
         best_e[pp[first]] = pe[first]
         best_xi[pp[first]], best_eta[pp[first]] = xi[first], eta[first]
     valid = best_e >= 0
+    e, xi, eta = best_e[valid], best_xi[valid], best_eta[valid]
+    if g.patches is None:
+        at = lambda X: bilinear(X[g.quads[e]], xi, eta)   # noqa: E731
+    else:
+        at = lambda X: qd.evaluate(qd.patch_points(g.patches[e], X), xi, eta)   # noqa: E731
     Xu = np.full((n, 3), np.nan)
     Xd = np.full((n, 3), np.nan)
-    q = g.quads[best_e[valid]]
-    Xu[valid] = to_camera(bilinear(g.nodes[q], best_xi[valid], best_eta[valid]), cam0)
-    Xd[valid] = to_camera(bilinear(g.deformed(step)[q], best_xi[valid], best_eta[valid]), cam0)
+    Xu[valid] = to_camera(at(g.nodes), cam0)
+    Xd[valid] = to_camera(at(g.deformed(step)), cam0)
     return PointTruth(points=pts, valid=valid, element=best_e, xi=best_xi, eta=best_eta,
                       X_undeformed=Xu, X_deformed=Xd, step=step)
+
+
+def _quad_boxes(P: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Each Q4 element's box in normalized coordinates (lo, hi (M, 2)): its corners'
+    projections (a bilinear patch lies in its corners' hull), padded by 1e-9 relative; an
+    element crossing the camera plane gets an infinite one (always a candidate)."""
+    front = (P[..., 2] > 0).all(axis=1)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        proj = P[..., :2] / np.where(front[:, None], P[..., 2], 1.0)[..., None]
+    return _padded(proj.min(axis=1), proj.max(axis=1), np.abs(proj).max(axis=1), front)
+
+
+def _patch_boxes(P: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Each patch's box in normalized coordinates (lo, hi (M, 2)): the projections of the
+    corners of a 3-D box that holds its surface (:func:`glsim.scene.quadratic.surface_box`;
+    x/Z and y/Z over a box in front of the camera are extreme at its corners), padded as
+    :func:`_quad_boxes`; a box reaching the camera plane gives an infinite one."""
+    lo3, hi3 = qd.surface_box(P)
+    front = lo3[:, 2] > 0
+    z = np.where(front, 1.0, np.nan)[:, None] * np.stack([lo3[:, 2], hi3[:, 2]], 1)     # (M, 2)
+    proj = np.stack([np.concatenate([lo3[:, k:k + 1] / z, hi3[:, k:k + 1] / z], 1) for k in (0, 1)], -1)   # (M, 4, 2)
+    return _padded(proj.min(axis=1), proj.max(axis=1), np.abs(proj).max(axis=1), front)
+
+
+def _padded(lo, hi, size, front):
+    pad = 1e-9 * (1.0 + size)
+    lo, hi = lo - pad, hi + pad
+    lo[~front], hi[~front] = -np.inf, np.inf
+    return lo, hi
 
 
 def _candidates(lo, hi, xn, ok, cells: int = 64):

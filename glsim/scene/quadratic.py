@@ -91,6 +91,19 @@ def patch_points(patches: np.ndarray, X: np.ndarray) -> np.ndarray:
     return P
 
 
+LEBESGUE = 1.5625   # max over the patch of Σ|Nᵢ(ξ, η)|: (max Σ|L(t)| = 1.25, at t = ±½)²
+
+
+def surface_box(P: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """An axis-aligned box (lo, hi), each (..., D), that holds the whole surface of the patches
+    P (..., 9, D): X − c = Σ Nᵢ (Pᵢ − c) as Σ Nᵢ = 1, so each coordinate of X lies within
+    LEBESGUE × the control points' half-extent of their box's centre c (the shape functions
+    take negative values: the surface can leave the control points' box)."""
+    lo, hi = P.min(axis=-2), P.max(axis=-2)
+    c, half = 0.5 * (lo + hi), 0.5 * LEBESGUE * (hi - lo)
+    return c - half, c + half
+
+
 def to_parent(i, j, n: int, xi_s, eta_s):
     """(ξ, η) of the parent patch from the local (ξs, ηs) of its sub-quad (i, j) of n × n."""
     return -1 + (2 * np.asarray(i) + 1 + xi_s) / n, -1 + (2 * np.asarray(j) + 1 + eta_s) / n
