@@ -762,3 +762,67 @@ def test_render_truth_files_give_quadratic_point_truth(tmp_path):
     x, y = (got.X_undeformed[got.valid, k] for k in (0, 1))
     expect = np.column_stack([np.broadcast_to(SHIFT[:2], (len(x), 2)), SHIFT[2] + B * x ** 2 + D * x * y])
     np.testing.assert_allclose(got.displacement[got.valid], expect, atol=1e-9, rtol=0)
+
+
+@pytest.mark.parametrize("mode", ["exact", "q4", "fast"])
+def test_library_truth_of_a_quadratic_mesh(tmp_path, mode):
+    """A library of a Q8 VTU with truth: its geometry file holds the patches; each compact
+    truth file's maps are the renderer's (element, ξ, η, both positions bit for bit; the
+    reference point to 1e-9 px), and ``at()`` at the pixel centres is camera 0's step-0 truth
+    with the closed-form displacement of step 1."""
+    from glsim.io import truth as T
+    from glsim.scene import load_scene
+    from glsim.workflows.library import load_plan, run
+
+    nodes, at = lattice(4, 3)
+    meshio.write(tmp_path / "m.vtu", meshio.Mesh(nodes, [("quad8", q8_cells(4, 3, at))], point_data={"u": step1(nodes)}))
+    (tmp_path / "spec.toml").write_text(f"""seed = 1
+steps = [0, 1]
+[scene]
+[[scene.cameras]]
+name = "c"
+size = [{CAM.size[0]}, {CAM.size[1]}]
+fx = {CAM.fx}
+fy = {CAM.fy}
+cx = {CAM.cx}
+cy = {CAM.cy}
+[scene.specimen.mesh]
+path = "m.vtu"
+point_data = ["u"]
+[scene.render]
+mode = "{mode}"
+[vary]
+noise.sigma = [0.5]
+""")
+    lib = tmp_path / "lib"
+    assert run(load_plan(tmp_path / "spec.toml"), lib, workers=1).failed == []
+    (geometry,) = (lib / "geometry").iterdir()
+    with np.load(geometry) as z:
+        assert z["patches"].shape == (12, 9)
+    with Renderer(load_scene(lib / "v0000" / "scene.json")) as r:
+        full = {s: r.render("c", s, truth=True).truth for s in (0, 1)}
+    files = {s: T.load(_library_truth(lib, s)) for s in (0, 1)}
+    for s in (0, 1):
+        maps = files[s].maps()
+        for name in ("mask", "element", "xi", "eta", "X_undeformed", "X_deformed"):
+            np.testing.assert_array_equal(getattr(maps, name), getattr(full[s], name), err_msg=name)
+        np.testing.assert_allclose(maps.ref_uv, full[s].ref_uv, atol=1e-9, rtol=0, equal_nan=True)
+    H, W = full[0].mask.shape
+    v, u = np.mgrid[0:H, 0:W]
+    got = files[1].at(np.column_stack([u.ravel(), v.ravel()]).astype(float))
+    valid = got.valid.reshape(H, W)
+    if mode == "exact":    # the rendered maps are the ray's own material point only in exact mode
+        np.testing.assert_array_equal(valid, full[0].mask)
+        np.testing.assert_allclose(got.X_undeformed.reshape(H, W, 3)[valid], full[0].X_undeformed[valid], atol=1e-9)
+    x, y = (got.X_undeformed[got.valid, k] for k in (0, 1))
+    expect = np.column_stack([np.broadcast_to(SHIFT[:2], (len(x), 2)), SHIFT[2] + B * x ** 2 + D * x * y])
+    np.testing.assert_allclose(got.displacement[got.valid], expect, atol=1e-9, rtol=0)
+
+
+def _library_truth(lib, step: int):
+    """The truth file of the library's image c_{step}, as its manifest names it."""
+    import csv
+
+    with open(lib / "manifest.csv", newline="") as f:
+        row = next(r for r in csv.DictReader(f) if r["step"] == str(step))
+    return lib / row["truth_file"]

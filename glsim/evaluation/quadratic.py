@@ -132,7 +132,7 @@ def markdown(report: dict) -> str:
     from glsim.evaluation.report import machine_line
 
     W, H = report["size"]
-    out = [f"# Quadratic elements: mapping error and time against the closed form\n",
+    out = ["# Quadratic elements: mapping error and time against the closed form\n",
            f"{W}×{H} px, {report['date']}; {machine_line(report['machine'])}. Times without truth, "
            "medians; ratios to GL exact of the same mesh."]
     for m in report["meshes"]:

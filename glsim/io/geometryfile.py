@@ -1,6 +1,6 @@
 """A library's geometry files (``geometry/{hash}.npz``): per distinct specimen the placed
-undeformed nodes, quads, element labels and the displacements of the rendered load steps —
-what, with a truth file's (element, ξ, η), gives every position."""
+undeformed nodes, quads, element labels, the displacements of the rendered load steps and a
+quadratic mesh's patches — what, with a truth file's (element, ξ, η), gives every position."""
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -13,16 +13,20 @@ from glsim.io.truthcodec import TruthFileError
 
 # ---- geometry files -------------------------------------------------------------------------------
 
-def geometry_arrays(nodes, quads, displacements: dict[int, np.ndarray], element_labels=None) -> dict:
+def geometry_arrays(nodes, quads, displacements: dict[int, np.ndarray], element_labels=None, patches=None) -> dict:
     """The arrays of a geometry file: placed undeformed nodes (N, 3) mm, quads (M, 4), the
-    displacements (S, N, 3) of the load steps ``steps`` (S,), element labels (M,)."""
+    displacements (S, N, 3) of the load steps ``steps`` (S,), element labels (M,) and, for a
+    quadratic mesh only, its patches (M, 9) (:mod:`glsim.scene.quadratic`)."""
     steps = sorted(displacements)
-    return {"nodes": np.asarray(nodes, np.float64), "quads": np.asarray(quads, np.int64),
-            "steps": np.asarray(steps, np.int64),
-            "displacements": np.stack([np.asarray(displacements[s], np.float64) for s in steps]) if steps
-            else np.zeros((0,) + np.shape(nodes)),
-            "element_labels": np.asarray(element_labels if element_labels is not None
-                                         else np.arange(len(quads)), np.int64)}
+    arrays = {"nodes": np.asarray(nodes, np.float64), "quads": np.asarray(quads, np.int64),
+              "steps": np.asarray(steps, np.int64),
+              "displacements": np.stack([np.asarray(displacements[s], np.float64) for s in steps]) if steps
+              else np.zeros((0,) + np.shape(nodes)),
+              "element_labels": np.asarray(element_labels if element_labels is not None
+                                           else np.arange(len(quads)), np.int64)}
+    if patches is not None:
+        arrays["patches"] = np.asarray(patches, np.int64)
+    return arrays
 
 
 def geometry_bytes(arrays: dict) -> bytes:
@@ -47,7 +51,7 @@ class Geometry:
     steps: tuple[int, ...]
     displacements: np.ndarray
     element_labels: np.ndarray
-    patches: np.ndarray | None = None   # a quadratic mesh's (M, 9) patches (glsim.scene.quadratic); not in files
+    patches: np.ndarray | None = None   # a quadratic mesh's (M, 9) patches (glsim.scene.quadratic)
 
     def deformed(self, step: int) -> np.ndarray:
         if step not in self.steps:
@@ -61,8 +65,9 @@ def read_geometry(path: str | Path) -> Geometry:
     try:
         with np.load(path, allow_pickle=False) as z:
             a = {k: z[k] for k in ("nodes", "quads", "steps", "displacements", "element_labels")}
+            patches = z["patches"] if "patches" in z.files else None
     except (OSError, ValueError, KeyError) as exc:
         raise TruthFileError(f"{path}: not a readable glsim geometry file ({exc}); re-run the library "
                              "command on its directory to write it again") from None
     return Geometry(a["nodes"], a["quads"], tuple(int(s) for s in a["steps"]), a["displacements"],
-                    a["element_labels"])
+                    a["element_labels"], patches)

@@ -237,18 +237,17 @@ class CompactTruth:
             raise TruthFileError(f"{self.path}: element {e.max()} is not in its geometry file ({len(g.quads)} "
                                  f"elements){DAMAGED}")
         xi, eta = self.xi[mask], self.eta[mask]
-        q = g.quads[e]
+        shape, points = _elements(g, e)     # (the renderer's own evaluation, bit for bit)
         cam0, step = self.camera0, self.step
-        positions = pixel_positions(mask, lambda: (to_camera(bilinear(g.nodes[q], xi, eta), cam0),
-                                                   to_camera(bilinear(g.deformed(step)[q], xi, eta), cam0)))
+        positions = pixel_positions(mask, lambda: (to_camera(shape(points(g.nodes), xi, eta), cam0),
+                                                   to_camera(shape(points(g.deformed(step)), xi, eta), cam0)))
         ref = np.full((H, W, 2), np.nan)
         rc = self.reference_camera
-        Xr = to_camera(g.nodes, rc)[g.quads][e]
-        if self.mode == "q4":      # the paper's mapping: corners' reference points, bilinearly
-            corners, _ = project_camera_frame(Xr, rc)
-            ref[mask] = bilinear(corners, xi, eta)
+        Xr = points(to_camera(g.nodes, rc))
+        if self.mode == "q4":      # the paper's mapping: the nodes' reference points, by the shape functions
+            ref[mask] = shape(project_camera_frame(Xr, rc)[0], xi, eta)
         else:                      # the reference camera's projection of the material point
-            ref[mask] = project_camera_frame(bilinear(Xr, xi, eta), rc)[0]
+            ref[mask] = project_camera_frame(shape(Xr, xi, eta), rc)[0]
         return Truth(mask=mask, element=self.element, xi=self.xi, eta=self.eta, ref_uv=ref, positions=positions)
 
     def at(self, points, step: int | None = None) -> PointTruth:
@@ -368,17 +367,23 @@ def points_truth(g: Geometry, cam0: Camera, points, step: int) -> PointTruth:
         best_e[pp[first]] = pe[first]
         best_xi[pp[first]], best_eta[pp[first]] = xi[first], eta[first]
     valid = best_e >= 0
-    e, xi, eta = best_e[valid], best_xi[valid], best_eta[valid]
-    if g.patches is None:
-        at = lambda X: bilinear(X[g.quads[e]], xi, eta)   # noqa: E731
-    else:
-        at = lambda X: qd.evaluate(qd.patch_points(g.patches[e], X), xi, eta)   # noqa: E731
+    xi, eta = best_xi[valid], best_eta[valid]
+    shape, points = _elements(g, best_e[valid])
     Xu = np.full((n, 3), np.nan)
     Xd = np.full((n, 3), np.nan)
-    Xu[valid] = to_camera(at(g.nodes), cam0)
-    Xd[valid] = to_camera(at(g.deformed(step)), cam0)
+    Xu[valid] = to_camera(shape(points(g.nodes), xi, eta), cam0)
+    Xd[valid] = to_camera(shape(points(g.deformed(step)), xi, eta), cam0)
     return PointTruth(points=pts, valid=valid, element=best_e, xi=best_xi, eta=best_eta,
                       X_undeformed=Xu, X_deformed=Xd, step=step)
+
+
+def _elements(g: Geometry, e: np.ndarray):
+    """How positions on the elements ``e`` are evaluated: (shape, points) — ``shape(P, ξ, η)``
+    (bilinear, or a quadratic mesh's patches' shape functions) over ``points(X)``, the
+    elements' corners or control points from the per-node values X (N, D)."""
+    if g.patches is None:
+        return bilinear, lambda X: X[g.quads[e]]
+    return qd.evaluate, lambda X: qd.patch_points(g.patches[e], X)
 
 
 def _quad_boxes(P: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

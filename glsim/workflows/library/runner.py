@@ -174,15 +174,10 @@ def _write_setup(out: Path, plan: Plan, fingerprint: str) -> dict:
             geometry[key] = ("", "")           # only truth files refer to geometry
         elif key not in geometry:
             mesh = plan.meshes[key]
-            if mesh.is_quadratic:
-                from glsim.errors import SceneError
-                raise SceneError("specimen.mesh", "library truth of quadratic elements is not supported (its shared "
-                                 "geometry file holds bilinear Q4 elements)", "render the library without truth, "
-                                 "or render the images one by one with truth (glsim render --truth)")
             steps = sorted({j.step for j in plan.jobs if j.variant == v.id} | set(plan.steps))
             steps = [s for s in steps if s < mesh.n_steps]
             arrays = geometryfile.geometry_arrays(mesh.nodes, mesh.quads, {s: mesh.displacements[s] for s in steps},
-                                             mesh.element_labels)
+                                                  mesh.element_labels, mesh.patches)
             data = geometryfile.geometry_bytes(arrays)
             sha = sha256_bytes(data)
             rel = f"{mf.GEOMETRY_DIR}/{sha[:16]}.npz"
