@@ -218,6 +218,12 @@ def test_damaged_files_are_named_with_the_fix(tmp_path):
     (tmp_path / "other.truth").write_bytes(b"not a truth file at all")
     with pytest.raises(GlsimError, match="not a glsim compact truth file"):
         T.load(tmp_path / "other.truth")
+    arrays = dict(np.load(tmp_path / "g.npz"))
+    for name, bad in (("quads", arrays["quads"] + 1000), ("displacements", arrays["displacements"][:, :-1]),
+                      ("patches", np.zeros((len(arrays["quads"]), 8), np.int64))):
+        (tmp_path / "g.npz").write_bytes(G.geometry_bytes({**arrays, name: bad}))
+        with pytest.raises(GlsimError, match=f"g.npz: a damaged geometry file \\({name} .*--verify"):
+            T.load(path).maps()
     (tmp_path / "g.npz").unlink()
     with pytest.raises(GlsimError, match="geometry file .* is missing"):
         T.load(path).maps()

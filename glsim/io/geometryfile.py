@@ -69,5 +69,29 @@ def read_geometry(path: str | Path) -> Geometry:
     except (OSError, ValueError, KeyError) as exc:
         raise TruthFileError(f"{path}: not a readable glsim geometry file ({exc}); re-run the library "
                              "command on its directory to write it again") from None
+    problem = _inconsistent(a, patches)
+    if problem:
+        raise TruthFileError(f"{path}: a damaged geometry file ({problem}); run `glsim library DIR --verify`, "
+                             "then the library command again to write it")
     return Geometry(a["nodes"], a["quads"], tuple(int(s) for s in a["steps"]), a["displacements"],
                     a["element_labels"], patches)
+
+
+def _inconsistent(a: dict, patches) -> str:
+    """What in a geometry file's arrays does not fit together ("" if nothing): their shapes,
+    kinds and the node indices of the quads and patches (a patch's centre may be a derived-centre
+    code, < 0)."""
+    N, M = len(a["nodes"]), len(a["quads"])
+    shapes = {"nodes": (N, 3), "quads": (M, 4), "steps": (len(a["steps"]),),
+              "displacements": (len(a["steps"]), N, 3), "element_labels": (M,)}
+    if patches is not None:
+        shapes["patches"] = (M, 9)
+    arrays = {**a, "patches": patches}
+    for name, shape in shapes.items():
+        kind = "iu" if name in ("quads", "steps", "element_labels", "patches") else "f"
+        if arrays[name].shape != shape or arrays[name].dtype.kind not in kind:
+            return f"{name} is {arrays[name].dtype} {arrays[name].shape}, not {shape}"
+    for name, idx in (("quads", a["quads"]), ("patches", None if patches is None else patches[:, :8])):
+        if idx is not None and idx.size and (idx.min() < 0 or idx.max() >= N):
+            return f"{name} refer to nodes {idx.min()}…{idx.max()} of {N}"
+    return ""
