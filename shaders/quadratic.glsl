@@ -89,8 +89,9 @@ const int Q_SUB[16] = int[16](0, 4, 8, 7,  4, 1, 5, 8,  7, 8, 6, 3,  8, 5, 2, 6)
 
 // The patch point of piece e's share that maps to q under the patch's 2-D map (points pp) and
 // is nearest (patch depths z): Newton from the starts of glsim.scene.quadratic.starts — both
-// closed-form roots of each 2x2 sub-quad within Q_START_RANGE of it, or its centre where neither
-// is — so GL and the oracle search the same roots; a root counts for the piece whose share
+// closed-form roots of each 2x2 sub-quad within Q_START_RANGE of it, and always its centre (beside
+// a silhouette the chords can be crossed near the farther root only) — so GL and the oracle
+// search the same roots; a root counts for the piece whose share
 // (within Q_INSIDE) holds it. false where none.
 bool q9_invert_piece(int e, real2 pp[9], real z[9], real2 q, out real xi, out real eta, out real Z) {
     int pid, ci, cj;
@@ -107,7 +108,7 @@ bool q9_invert_piece(int e, real2 pp[9], real z[9], real2 q, out real xi, out re
         bool ok[2], usable[3];
         invert_closed(sub, q, xs, ys, ok);
         for (int k = 0; k < 2; ++k) usable[k] = ok[k] && abs(xs[k]) <= Q_START_RANGE && abs(ys[k]) <= Q_START_RANGE;
-        usable[2] = !usable[0] && !usable[1];
+        usable[2] = true;
         for (int k = 0; k < 3; ++k) {
             if (!usable[k]) continue;
             real sx = k < 2 ? xs[k] : 0.0, sy = k < 2 ? ys[k] : 0.0;

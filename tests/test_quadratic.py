@@ -701,14 +701,12 @@ def test_point_truth_finds_points_beyond_the_control_points_projections():
     x = √(ZC/4) = 10 mm lies inside the elements of 7.5 < x < 15, whose rays past the
     projections of all their nodes still meet them. The candidate boxes hold the whole curved
     surface (glsim.scene.quadratic.surface_box): such points are found, at the closed form —
-    the nearer of the ray's two roots in that element (with 2 × 2 Newton starts instead of
-    truth.PATCH_STARTS², 3 of these 50 get the farther one)."""
+    the nearer of the ray's two roots in that element (with the sub-quads' centres as Newton
+    starts only where their chords are not crossed, 3 of these 50 got the farther one)."""
     from glsim.io.truth import mesh_geometry, points_truth
 
     a = 4.0
-    mesh = surface_mesh("quad8", c=0.0, d=0.0, deform=False)
-    mesh = Mesh(mesh.nodes * [1, 1, 0] + np.column_stack([0 * mesh.nodes[:, :2], ZC + a * mesh.nodes[:, 0] ** 2]),
-                mesh.quads, mesh.node_labels, mesh.element_labels, patches=mesh.patches)
+    mesh = trough(a)
     outer = mesh.nodes[(mesh.nodes[:, 0] >= 7.5)]
     beyond = (outer[:, 0] / outer[:, 2]).max() * CAM.fx + CAM.cx            # px: the nodes' last projection
     silhouette = CAM.cx + CAM.fx / (2 * np.sqrt(a * ZC))                     # px: the tangent ray
@@ -719,6 +717,38 @@ def test_point_truth_finds_points_beyond_the_control_points_projections():
     x, y, Xu, _ = closed_form(a=a, c=0.0, deformed=False, points=pts)
     assert at.valid.all() and (np.abs(y) < H0 / 2).all()
     np.testing.assert_allclose(at.X_undeformed, Xu, atol=1e-9, rtol=0)
+
+
+def trough(a: float = 4.0):
+    """The Q8 mesh of the trough z = ZC + a x² (exact: z quadratic in ξ)."""
+    mesh = surface_mesh("quad8", c=0.0, d=0.0, deform=False)
+    nodes = mesh.nodes * [1, 1, 0] + np.column_stack([0 * mesh.nodes[:, :2], ZC + a * mesh.nodes[:, 0] ** 2])
+    return Mesh(nodes, mesh.quads, mesh.node_labels, mesh.element_labels, patches=mesh.patches)
+
+
+@pytest.mark.parametrize("backend", BACKENDS)
+def test_exact_mode_draws_the_nearer_surface_beside_a_silhouette(backend, ctx_for):
+    """The trough's silhouette 0.1 px right of pixel column 8's centres (a 16 px wide strip
+    of CAM's image, cx shifted), where each ray meets its element twice: the exact mode's
+    truth in that column is the nearer point, at the closed form (the oracle and GL drew the
+    farther one in rows 31, 40, 48 and 49 before their Newton starts included every sub-quad's
+    centre)."""
+    import dataclasses
+
+    a, shift = 4.0, 0.3 - 52             # CAM's column 60 + 0.3 px is this camera's column 8 + 0.3
+    cam = dataclasses.replace(CAM, size=(16, CAM.size[1]), cx=CAM.cx + shift)
+    assert abs(cam.cx + CAM.fx / (2 * np.sqrt(a * ZC)) - 8.1) < 1e-9
+    sc = Scene(cameras=(cam,), specimen=Specimen(plate=Plate(width=1, height=1, nx=1, ny=1)))
+    with Renderer(sc, backend, ctx=ctx_for(backend), mesh=trough(a)) as r, warnings.catch_warnings():
+        warnings.simplefilter("ignore", RenderWarning)
+        t = r.render(0, 0, truth=True, mode="exact").truth
+    W, H = cam.size
+    v, u = np.mgrid[0:H, 0:W].astype(float)
+    x, y, Xu, _ = closed_form(a=a, c=0.0, deformed=False, points=np.stack([u - shift, v], -1))
+    column = t.mask[:, 8] & (np.abs(y[:, 8]) < H0 / 2 - 0.1)
+    assert column.sum() > 30
+    err = np.abs(t.X_undeformed[:, 8][column] - Xu[:, 8][column]).max()
+    assert err <= 1e-9, err
 
 
 def test_surface_box_holds_the_patch_and_is_tight():
@@ -739,9 +769,10 @@ def test_surface_box_holds_the_patch_and_is_tight():
 
 def test_render_truth_files_give_quadratic_point_truth(tmp_path):
     """End to end: a Q8 VTU rendered with truth (`glsim render --truth`'s files), then
-    ``truth.load(...).at`` at every pixel centre: the rendered step-0 maps (the oracle's boxes
-    and 2 × 2 starts per sample) and the point truth (surface boxes, 4 × 4 starts) find the
-    same pixels, elements and material points; the displacement is step 1's closed form."""
+    ``truth.load(...).at`` at every pixel centre: the rendered step-0 maps (the oracle's pixel
+    boxes per element) and the point truth (boxes that hold each patch, candidates by a grid)
+    find the same pixels, elements and material points; the displacement is step 1's closed
+    form."""
     from glsim.io import truth as T
     from glsim.scene import MeshFile
     from glsim.workflows.sequence import write_sequence

@@ -335,16 +335,10 @@ def mesh_geometry(mesh) -> Geometry:
                     mesh.element_labels, mesh.patches)
 
 
-# Newton starts per patch for the point truth: from its PATCH_STARTS² sub-quads. Near a silhouette
-# inside a strongly curved element a ray meets it twice; 2 × 2 starts (the renderer's exact mode)
-# missed the nearer root on 3 % of a 0.09 px strip in tests/test_quadratic.py's trough, 4 × 4 on none.
-PATCH_STARTS = 4
-
-
 def points_truth(g: Geometry, cam0: Camera, points, step: int) -> PointTruth:
     """See :meth:`CompactTruth.at`; bilinear Q4 elements, or a quadratic mesh's patches
-    (``g.patches``: the ray met by Newton on the curved patch, :func:`glsim.scene.quadratic.intersect_ray`
-    from PATCH_STARTS² sub-quads)."""
+    (``g.patches``: the ray met by Newton on the curved patch, :func:`glsim.scene.quadratic.intersect_ray`,
+    as the oracle's exact mode)."""
     pts = np.asarray(points, np.float64).reshape(-1, 2)
     n = len(pts)
     xn, ray_ok = undistort(pixel_to_normalized(pts, cam0.intrinsics), cam0.distortion.coeffs)
@@ -355,7 +349,7 @@ def points_truth(g: Geometry, cam0: Camera, points, step: int) -> PointTruth:
     else:
         P = qd.patch_points(g.patches, to_camera(g.nodes, cam0))   # (M, 9, 3)
         lo, hi = _patch_boxes(P)
-        intersect = lambda P, xn: qd.intersect_ray(P, xn, n=PATCH_STARTS)   # noqa: E731
+        intersect = qd.intersect_ray
     pe, pp = _candidates(lo, hi, xn, ray_ok)
     best_e = np.full(n, -1, np.int64)
     best_xi, best_eta = np.full(n, np.nan), np.full(n, np.nan)

@@ -165,9 +165,11 @@ def patch_size(P: np.ndarray) -> np.ndarray:
 def starts(p2_sub: np.ndarray, q: np.ndarray, n: int = 2):
     """Newton starts from the n × n sub-quads: for each sub-quad the two roots of its inverse
     bilinear map (:func:`glsim.scene.bilinear.invert_closed`) where they are usable (real,
-    within START_RANGE of the sub-quad), and its centre where neither is (a ray grazing a
-    convex patch can meet it while missing the chord sub-quads: the roots are complex), as the
-    parent's (ξ, η). p2_sub (K, n·n, 4, 2), q (K, 2) → xi, eta, ok of shape (n·n·3, K)."""
+    within START_RANGE of the sub-quad), and always its centre: a ray grazing a convex patch
+    can meet it while missing the chord sub-quads (the roots are complex), and beside a
+    silhouette inside a curved patch, where the ray meets it twice, the chords can be crossed
+    near the farther root only (tests/test_quadratic.py's trough). As the parent's (ξ, η).
+    p2_sub (K, n·n, 4, 2), q (K, 2) → xi, eta, ok of shape (n·n·3, K)."""
     from glsim.scene.bilinear import invert_closed
 
     K = len(q)
@@ -176,7 +178,7 @@ def starts(p2_sub: np.ndarray, q: np.ndarray, n: int = 2):
         x, e, ok = invert_closed(p2_sub[:, k], q)
         ok = ok & (np.abs(x) <= START_RANGE) & (np.abs(e) <= START_RANGE)
         x, e, ok = np.concatenate([x, np.zeros((1, K))]), np.concatenate([e, np.zeros((1, K))]), \
-            np.concatenate([ok, ~ok.any(axis=0, keepdims=True)])
+            np.concatenate([ok, np.ones((1, K), bool)])
         px, pe = to_parent(k % n, k // n, n, x, e)
         xs.append(px)
         es.append(pe)
