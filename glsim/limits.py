@@ -18,6 +18,7 @@ MAX_IMAGE_SIDE = 16384        # px per side of a camera, a GL render target (W·
 #                               its own context's); files' headers are read before they are decoded
 MAX_IMAGE_PIXELS = 1 << 28    # px of a reference image (16384²)
 MAX_SAMPLES_PER_PIXEL = 256   # render.samples_per_pixel: 16 × 16 sub-samples
+MAX_PIECES = 16               # render.pieces: 256 linear pieces per quadratic element
 MAX_STEPS = 10_000            # load steps asked for (--steps, a library's steps) or built (specimen.bulge.steps)
 MAX_ELEMENTS = 4_000_000      # elements of a built-in specimen (plate nx·ny, bulge n_core and n_ring)
 MAX_VALUES = 1_000_000        # values of one library [vary] key (range, linspace, draw n), and variants

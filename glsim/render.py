@@ -7,8 +7,8 @@
 Both backends take the same scene and return the same :class:`Result`.
 
 Quadratic meshes (``Mesh.patches``, :mod:`glsim.scene.quadratic`): mode ``fast`` draws the
-mesh cut into QUADRATIC_FAST_PIECES × QUADRATIC_FAST_PIECES bilinear pieces per element with
-either backend (``Renderer.pieces``); ``exact`` and ``q4`` map every sample on the curved
+mesh cut into n × n bilinear pieces per element (``[render] pieces``, default 4) with either
+backend (``Renderer.pieces``); ``exact`` and ``q4`` map every sample on the curved
 patch: the CPU oracle with :func:`glsim.backends.cpu.rasterize_quadratic`, GL over the same
 pieces' covers and candidate lists with Newton on the patch's 9 nodes (shaders/quadratic.glsl).
 Truth always reports the element's own (ξ, η) (for T6 those of the collapsed patch).
@@ -46,7 +46,6 @@ from glsim.stages import interp, jacobian as jac
 from glsim.scene import Render, Scene
 
 SEEN_KEPT = 64              # (camera, step) views whose "seen" verdict is kept
-QUADRATIC_FAST_PIECES = 4   # fast mode: n × n linear pieces per quadratic element (docs/quadratic.md)
 
 
 @dataclass(frozen=True, eq=False)
@@ -100,18 +99,12 @@ class _Submitted(NamedTuple):
 class Renderer:
     """Renders one scene with one backend; holds the mesh, reference and backend resources."""
 
-    def __init__(self, scene: Scene, backend: str | None = None, ctx=None, mesh=None, reference=None,
-                 pieces: int | None = None):
+    def __init__(self, scene: Scene, backend: str | None = None, ctx=None, mesh=None, reference=None):
         """``mesh`` / ``reference`` replace the scene's specimen mesh and reference image
-        (e.g. a calibration target made in code); ``ctx`` shares a GL context; ``pieces``: for a
-        quadratic mesh, the linear pieces per element side (default QUADRATIC_FAST_PIECES):
-        the fast mode's accuracy (its error falls as 1/pieces², docs/quadratic.md)."""
+        (e.g. a calibration target made in code); ``ctx`` shares a GL context."""
         self.scene = scene
         self.mesh = mesh if mesh is not None else specimen_mesh(scene)
         self._pieces = None
-        self._n_pieces = QUADRATIC_FAST_PIECES if pieces is None else int(pieces)
-        if self._n_pieces < 1:
-            raise SceneError("pieces", f"{pieces!r} is not a positive integer", "give 1 or more (default 4)")
         self.reference = reference if reference is not None else make_reference(scene, self.drawn_mesh)
         self.backend_name = backend or scene.render.backend
         self.backend = make_backend(self.backend_name, self.reference, ctx)
@@ -155,7 +148,7 @@ class Renderer:
     def pieces(self) -> qd.Pieces | None:
         """For a quadratic mesh, its linear pieces (what the fast mode draws); None otherwise."""
         if self.mesh.is_quadratic and self._pieces is None:
-            self._pieces = qd.linearize(self.mesh, self._n_pieces)
+            self._pieces = qd.linearize(self.mesh, self.scene.render.pieces)
         return self._pieces
 
     @property
@@ -198,7 +191,7 @@ class Renderer:
             return self._moving(camera, step, truth, quantize, jacobian, options)
         if not jacobian:
             return self._finish(self._submit(camera, step, truth, quantize, options))
-        opts = self.scene.replace(render=options).render if options else self.scene.render
+        opts = self._options(options)
         jac.check_request(self.scene, opts, self.mesh.is_quadratic)
         one = opts.supersampling == 1   # the image's own pixel-centre raster is the samples'
         res = self._finish(self._submit(camera, step, truth or one, quantize, options))
@@ -214,7 +207,7 @@ class Renderer:
         if self.mesh.is_quadratic or jacobian:
             raise SceneError("jacobian" if jacobian else "exposure", "is not made with [exposure]" if jacobian else
                              "moves meshes of linear elements only", "remove [exposure], or give linear elements")
-        opts = scene.replace(render=options).render if options else scene.render
+        opts = self._options(options)
         self.check_size(camera, truth, opts)
         cam, ex = scene.camera(camera), scene.exposure
         line = scene.sensor.line_time if scene.sensor is not None else 0.0
@@ -317,7 +310,7 @@ class Renderer:
         hit = self._jobs.get(key) if key is not None else None
         if hit is not None and hit[0] is self.scene:
             return hit[1:]
-        opts = self._first_equal(self.scene.replace(render=options).render if options else self.scene.render)
+        opts = self._first_equal(self._options(options))
         self.check_size(camera, truth, opts)
         cam = self.scene.camera(camera)
         index = self.scene.cameras.index(cam)
@@ -325,6 +318,18 @@ class Renderer:
         if key is not None:
             keep(self._jobs, key, (self.scene, opts, cam, index), SEEN_KEPT)
         return opts, cam, index
+
+    def _options(self, options: dict) -> Render:
+        """The scene's [render] table with ``options`` (a render call's) applied; ``pieces`` is
+        the renderer's (its quadratic mesh is cut once), not changed per call."""
+        if not options:
+            return self.scene.render
+        opts = self.scene.replace(render=options).render
+        if opts.pieces != self.scene.render.pieces:
+            raise SceneError("render.pieces", f"{opts.pieces} differs from the renderer's {self.scene.render.pieces}: "
+                             "a renderer cuts its quadratic mesh once", "give pieces in the scene's [render] table "
+                             "(a Renderer of scene.replace(render={'pieces': n}))")
+        return opts
 
     def _first_equal(self, value):
         """The first object met equal to ``value`` to the bit (the same repr: 0.0 is not −0.0),

@@ -291,7 +291,8 @@ def test_every_truth_key_ingredient_changes_the_key(monkeypatch):
                "render.samples_per_pixel": (1, 4)}
     same = {"noise.sigma": (0.0, 2.0), "speckle.seed": (0, 5), "speckle.density": (0.5, 0.3),
             "speckle.dot_diameter_px": (4.0, 5.0), "output.format": ("tiff", "png"),
-            "render.interpolation": ("bspline3", "linear"), "render.background": (0.0, 0.2), "seed": (0, 1)}
+            "render.interpolation": ("bspline3", "linear"), "render.background": (0.0, 0.2), "seed": (0, 1),
+            "render.pieces": (4, 8)}   # (quadratic elements only: tests/test_quadratic.py)
     paths = list(changed) + list(same)
     vary = {p: [v[0]] * (len(paths) + 1) for p, v in {**changed, **same}.items()}
     for k, p in enumerate(paths):               # variant k + 1 changes path k only

@@ -109,7 +109,7 @@ def quadratic(size=FULL_SIZE) -> dict:
             m, rows = mesh(kind, nx, ny), []
             for backend in ("cpu", "gl"):
                 for n in pieces:
-                    with Renderer(scene, backend, mesh=m, pieces=n) as r:
+                    with Renderer(scene.replace(render={"pieces": n}), backend, mesh=m) as r:
                         rows.append({"backend": backend, "mode": "fast", "pieces": n,
                                      **measure(r, "fast", Xu, Xd, inner)})
                 with Renderer(scene, backend, mesh=m) as r:

@@ -16,7 +16,7 @@ import numpy as np
 
 from glsim.scene.camera import Camera
 from glsim.errors import SceneError, check
-from glsim.limits import (MAX_ELEMENTS, MAX_SAMPLES_PER_PIXEL, MAX_STEPS, check_gl_target, check_image_size,
+from glsim.limits import (MAX_ELEMENTS, MAX_PIECES, MAX_SAMPLES_PER_PIXEL, MAX_STEPS, check_gl_target, check_image_size,
                           refuse_count, require_file)
 from glsim.scene.mesh import UNITS_TO_MM
 from glsim.scene.tables import Vec3, build, reject_unknown
@@ -24,6 +24,7 @@ from glsim.scene.optional import Exposure, Lighting, Noise, Optics, Psf, Sensor,
 
 MODES = ("fast", "q4", "exact")
 LATER_TABLES = ("sensor", "psf", "vignetting", "exposure")   # Scene.to_dict leaves them out while absent
+LATER_KEYS = {"render": {"pieces": 4}}                        # ... and these keys while at their default
 INTERPOLATIONS = ("linear", "cubic", "bspline3", "bspline5", "procedural")
 BACKENDS = ("gl", "cpu")
 PRECISIONS = ("fp32", "fp64")
@@ -238,6 +239,9 @@ class Render:
     # or placed by Newton steps from its pixel centre's mapping ("newton", shaders/subsamples.frag;
     # the CPU oracle maps every sample)
     subsamples: str = "mapped"
+    # quadratic elements: the linear pieces per element side that the fast mode draws (its error
+    # falls as 1/pieces², docs/quadratic.md) and GL's covers and candidate lists are made of
+    pieces: int = LATER_KEYS["render"]["pieces"]
 
     def __post_init__(self):
         for key, allowed in (("backend", BACKENDS), ("mode", MODES), ("interpolation", INTERPOLATIONS),
@@ -253,6 +257,11 @@ class Render:
                      "use 1, 4, 9, 16, … (16 is usually plenty)")
         check(0.0 <= self.background <= 1.0, "render.background",
               f"must lie in [0, 1], got {self.background}", "a fraction of full scale")
+        n = self.pieces
+        check(isinstance(n, (int, np.integer)) and not isinstance(n, bool) and 1 <= n <= MAX_PIECES,
+              "render.pieces", f"must be an integer in 1…{MAX_PIECES}, got {n!r}",
+              "the fast mode's linear pieces per quadratic element side: its error falls as 1/pieces², "
+              "e.g. 4 (the default) or 8")
 
     @property
     def supersampling(self) -> int:
@@ -432,14 +441,22 @@ class Scene:
 
     def to_dict(self) -> dict:
         """The resolved scene (every default filled) as plain JSON-able data. Tables added since
-        the first release (:data:`LATER_TABLES`) are left out while absent, so the scene.json of
-        a scene that does not use them — what a render directory is resumed by — and the
-        fingerprints made from it stay as they were."""
+        the first release (:data:`LATER_TABLES`) are left out while absent, and keys added to
+        tables since (:data:`LATER_KEYS`) while at their default, so the scene.json of a scene
+        that does not use them — what a render directory is resumed by — and the fingerprints
+        made from it stay as they were."""
         d = _plain(dataclasses.asdict(self))
+        d.update({table: recorded(table, d[table]) for table in LATER_KEYS})
         return {k: v for k, v in d.items() if not (k in LATER_TABLES and v is None)}
 
     def to_json(self) -> str:
         return json.dumps(self.to_dict(), indent=2)
+
+
+def recorded(table: str, values: dict) -> dict:
+    """A table's values as records hold them: without its :data:`LATER_KEYS` at their default."""
+    later = LATER_KEYS.get(table, {})
+    return {k: v for k, v in values.items() if not (k in later and v == later[k])}
 
 
 def _plain(obj):

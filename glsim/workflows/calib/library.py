@@ -38,6 +38,7 @@ from glsim.scene.camera import Camera, Distortion, project, stereo_pose
 from glsim.errors import SceneError
 from glsim.render import Renderer
 from glsim.scene import Noise, Render, Scene
+from glsim.scene.model import recorded
 from glsim.workflows.calib import poses as posemod
 from glsim.workflows.calib.targets import Charuco, Chessboard, Defects, DotGrid, plate_mesh, reference
 
@@ -335,7 +336,7 @@ def write_library(rig, target, n_pairs: int, out_dir, seed: int = 0, backend: st
     all_poses = posemod.make_poses(cams, half, n_pairs, spec, seed)
     manifest = _json_ready({"format": FORMAT_VERSION, "seed": seed, "n_pairs": n_pairs,
                             "target": target_to_dict(target), "cameras": [camera_to_dict(c) for c in cams],
-                            "poses": dataclasses.asdict(spec), "render": dataclasses.asdict(opts),
+                            "poses": dataclasses.asdict(spec), "render": recorded("render", dataclasses.asdict(opts)),
                             "noise": _noise_record(noise),
                             "blur": None if fx["blur"] is None else dataclasses.asdict(fx["blur"]),
                             "lighting": None if fx["lighting"] is None else dataclasses.asdict(fx["lighting"])})

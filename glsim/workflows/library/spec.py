@@ -552,8 +552,9 @@ def truth_keys(scene: Scene, mesh, cameras, steps, dtype: str, cache: dict | Non
     labels, every step's displacements: the geometry file its header names), the step, the
     camera (intrinsics, distortion, pose, size, as the header holds it), camera 0, the specimen
     table and the speckle's placement (what the reference camera depends on: not its seed,
-    density or dot size), render mode, precision, backend, samples per pixel, the truth dtype,
-    and the truth format's and this key's versions. Noise, lighting, optics, the speckle
+    density or dot size), render mode, precision, backend, samples per pixel, a quadratic
+    mesh's pieces per element side, the truth dtype, and the truth format's and this key's
+    versions. Noise, lighting, optics, the speckle
     pattern and the output format do not enter: variants differing only in those share one
     truth file. ``cache``: mesh digests by ``id(mesh)``, kept between calls."""
     from glsim.io import truthcodec
@@ -569,7 +570,8 @@ def truth_keys(scene: Scene, mesh, cameras, steps, dtype: str, cache: dict | Non
     base = {"version": [truthcodec.FORMAT, truthcodec.VERSION, KEY_VERSION], "dtype": dtype, "mesh": cache[id(mesh)][1],
             "specimen": d["specimen"], "specimen_dir": d["base_dir"], "speckle": sp,
             "camera0": truthcodec.camera_dict(scene.cameras[0]),
-            "render": [r.mode, r.precision, r.backend, r.samples_per_pixel, r.subsamples]}
+            "render": [r.mode, r.precision, r.backend, r.samples_per_pixel, r.subsamples]
+            + ([r.pieces] if mesh.patches is not None else [])}
     return {(c, s): hashlib.sha256(json.dumps({**base, "step": s, "camera": truthcodec.camera_dict(scene.camera(c))},
                                               sort_keys=True).encode()).hexdigest()[:32]
             for s in steps for c in cameras}
