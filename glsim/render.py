@@ -147,8 +147,13 @@ class Renderer:
     @property
     def pieces(self) -> qd.Pieces | None:
         """For a quadratic mesh, its linear pieces (what the fast mode draws); None otherwise."""
-        if self.mesh.is_quadratic and self._pieces is None:
-            self._pieces = qd.linearize(self.mesh, self.scene.render.pieces)
+        if self.mesh.is_quadratic:
+            n = self.scene.render.pieces
+            if self._pieces is None:
+                self._pieces = qd.linearize(self.mesh, n)
+            elif self._pieces.n != n:   # (a scene swapped in with other pieces: its caches would not fit)
+                raise SceneError("render.pieces", f"{n} differs from the {self._pieces.n} this renderer cut its "
+                                 "quadratic mesh into", "make a Renderer for the scene with the other pieces")
         return self._pieces
 
     @property

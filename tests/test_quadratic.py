@@ -822,6 +822,7 @@ cy = {CAM.cy}
 path = "m.vtu"
 point_data = ["u"]
 [scene.render]
+backend = "cpu"
 mode = "{mode}"
 [vary]
 noise.sigma = [0.5]
@@ -897,3 +898,47 @@ def test_pieces_come_from_the_scene(tmp_path):
     mesh = surface_mesh("quad8")
     keys = [truth_keys(sc.replace(render={"pieces": n}), mesh, ["c"], [1], "float64") for n in (4, 8)]
     assert keys[0] != keys[1]
+
+
+def test_a_library_varying_pieces_renders_each_with_its_own(tmp_path):
+    """A library whose variants differ only in ``render.pieces`` (fast mode, one worker, which
+    reuses its renderer between variants that share mesh and reference): each variant's truth is
+    that of a renderer made for its own scene, and the two differ."""
+    from glsim.io import truth as T
+    from glsim.scene import load_scene
+    from glsim.workflows.library import load_plan, run
+
+    nodes, at = lattice(4, 3)
+    meshio.write(tmp_path / "m.vtu", meshio.Mesh(nodes, [("quad8", q8_cells(4, 3, at))], point_data={"u": step1(nodes)}))
+    (tmp_path / "spec.toml").write_text(f"""seed = 1
+steps = [1]
+[scene]
+[[scene.cameras]]
+name = "c"
+size = [{CAM.size[0]}, {CAM.size[1]}]
+fx = {CAM.fx}
+fy = {CAM.fy}
+cx = {CAM.cx}
+cy = {CAM.cy}
+[scene.specimen.mesh]
+path = "m.vtu"
+point_data = ["u"]
+[scene.render]
+backend = "cpu"
+mode = "fast"
+[vary]
+render.pieces = [2, 8]
+""")
+    lib = tmp_path / "lib"
+    assert run(load_plan(tmp_path / "spec.toml"), lib, workers=1).failed == []
+    import csv
+    with open(lib / "manifest.csv", newline="") as f:
+        rows = list(csv.DictReader(f))
+    xi = []
+    for row in rows:
+        with Renderer(load_scene(lib / row["variant"] / "scene.json")) as r:
+            full = r.render("c", 1, truth=True).truth
+        maps = T.load(lib / row["truth_file"]).maps()
+        np.testing.assert_array_equal(maps.xi, full.xi)
+        xi.append(maps.xi)
+    assert not np.array_equal(xi[0], xi[1], equal_nan=True)

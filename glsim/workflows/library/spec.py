@@ -578,11 +578,12 @@ def truth_keys(scene: Scene, mesh, cameras, steps, dtype: str, cache: dict | Non
 
 
 def reference_key(scene: Scene, backend: str) -> str:
-    """What a Renderer's mesh, reference image and backend depend on: variants with the same key
-    are rendered by one Renderer (one GL context, textures and programs)."""
+    """What a Renderer's mesh, reference image and backend depend on (a quadratic mesh's pieces
+    too): variants with the same key are rendered by one Renderer (one GL context, textures and
+    programs)."""
     d = scene.to_dict()
     return json.dumps({"specimen": d["specimen"], "speckle": d["speckle"], "camera0": d["cameras"][0],
-                       "base_dir": d["base_dir"], "backend": backend}, sort_keys=True)
+                       "base_dir": d["base_dir"], "backend": backend, "pieces": scene.render.pieces}, sort_keys=True)
 
 
 def load_plan(path: str | Path, sample: int | None = None) -> Plan:
