@@ -13,6 +13,8 @@ Each bound says where it comes from (``why``):
   "Conventions"), pixel for pixel;
 - mapping and truth on the bulge pair, in units of their bounds (glsim.evaluation.bounds, where
   each is derived): float64 in exact and q4, float32 vertex projection in fast;
+- the same on curved quadratic elements (the Q8 paraboloid of ``glsim bench quadratic``):
+  Newton on each patch in the shader, float64, exact and q4;
 - each optical effect on the bulge against the oracle: grey levels of 8 bit.
 """
 from __future__ import annotations
@@ -34,6 +36,7 @@ from glsim.scene.camera import Camera, distort, normalized_to_pixel, pixel_to_no
 
 SHIFTS = [0.0] + [s * m for m in (1e-7, 1e-6, 1e-5, 1e-4, 9e-4, 1 / 256, 1e-2) for s in (1, -1)]
 BULGE_SIZE = (406, 308)
+CURVED_SIZE = (160, 128)   # the Q8 paraboloid: 12 elements of about 36 px
 
 
 @dataclass(frozen=True)
@@ -52,9 +55,9 @@ class Context:
     ctx: object
     _pairs: dict = dataclasses.field(default_factory=dict)
 
-    def pair(self, name: str, scene: Scene) -> tuple[Renderer, Renderer]:
+    def pair(self, name: str, scene: Scene, mesh=None) -> tuple[Renderer, Renderer]:
         if name not in self._pairs:
-            self._pairs[name] = (Renderer(scene, "gl", ctx=self.ctx), Renderer(scene, "cpu"))
+            self._pairs[name] = (Renderer(scene, "gl", ctx=self.ctx, mesh=mesh), Renderer(scene, "cpu", mesh=mesh))
         return self._pairs[name]
 
     def close(self) -> None:
@@ -148,14 +151,21 @@ def _bulge(c: Context):
     return c.pair("bulge", bulge_scene(size=BULGE_SIZE, steps=1))
 
 
-def _mapping(mode: str, spp: int, what: str) -> Callable[[Context], float]:
-    """Over both cameras, GL against the oracle in the same mode: the largest |Δref_uv| (px) or
-    |ΔX_deformed| (mm) in units of its bound (glsim.evaluation.bounds: float64, or fast's per
-    pixel), or the pixels whose grey differs by more than 0.5 of 8 bit."""
+def _curved(c: Context):
+    from glsim.evaluation import quadratic
+
+    return c.pair("quad8", quadratic.paraboloid_scene(CURVED_SIZE), quadratic.mesh("quad8", 4, 3))
+
+
+def _mapping(mode: str, spp: int, what: str, pair=_bulge) -> Callable[[Context], float]:
+    """Over the cameras of ``pair``'s scene (the bulge's two by default) at step 1, GL against
+    the oracle in the same mode: the largest |Δref_uv| (px) or |ΔX_deformed| (mm) in units of
+    its bound (glsim.evaluation.bounds: float64, or fast's per pixel), or the pixels whose grey
+    differs by more than 0.5 of 8 bit."""
     def run(c: Context) -> float:
-        g, o = _bulge(c)
+        g, o = pair(c)
         worst = 0.0
-        for cam in (0, 1):
+        for cam in range(len(g.scene.cameras)):
             a = g.render(cam, 1, truth=True, mode=mode, samples_per_pixel=spp)
             b = o.render(cam, 1, truth=True, mode=mode, samples_per_pixel=spp)
             both = a.truth.mask & b.truth.mask
@@ -200,6 +210,9 @@ CHECKS = (
     Check("bulge q4 1 spp: reference point", 1, "× bound", FLOAT64, _mapping("q4", 1, "ref")),
     Check("bulge fast 1 spp: reference point", 1, "× bound", "glsim.evaluation.bounds.fast_bound: float32 vertex "
           "projection, fx·12·2^-24 px times the reference pixels per image pixel", _mapping("fast", 1, "ref")),
+    Check("quadratic Q8 exact 1 spp: reference point", 1, "× bound", FLOAT64, _mapping("exact", 1, "ref", _curved)),
+    Check("quadratic Q8 exact 1 spp: truth X", 1, "× bound", FLOAT64, _mapping("exact", 1, "X", _curved)),
+    Check("quadratic Q8 q4 1 spp: reference point", 1, "× bound", FLOAT64, _mapping("q4", 1, "ref", _curved)),
     Check("lighting, exact", 2, "px > 0.5 grey of 8 bit", "as tests/test_effects.py (element edges)", _effect("lighting")),
     Check("depth of field, exact", 0, "px > 0.5 grey of 8 bit", "as tests/test_effects.py", _effect("optics")),
     Check("noise, exact", 2, "px > 0.5 grey of 8 bit", "as tests/test_effects.py (element edges)", _effect("noise")),

@@ -55,6 +55,14 @@ def mesh(kind: str, nx: int, ny: int) -> Mesh:
                 (np.zeros_like(nodes), u), patches=p)
 
 
+def paraboloid_scene(size: tuple[int, int]) -> Scene:
+    """The camera before the paraboloid, ``size`` px (its mesh: :func:`mesh`, given to the Renderer)."""
+    W, H = size
+    f = 0.9 * min(W * ZC / W0, H * ZC / H0)
+    cam = Camera(name="c", size=(W, H), fx=f, fy=f, cx=(W - 1) / 2 + 0.3, cy=(H - 1) / 2 - 0.4)
+    return Scene(cameras=(cam,), specimen=Specimen(plate=Plate(width=1, height=1, nx=1, ny=1)))
+
+
 def closed_form(cam: Camera):
     W, H = cam.size
     q = np.stack(np.meshgrid(np.arange(W, dtype=float), np.arange(H, dtype=float)), -1)
@@ -98,10 +106,8 @@ def quadratic(size=FULL_SIZE) -> dict:
     from glsim.evaluation.report import gl_info, machine_info
 
     W, H = size
-    f = 0.9 * min(W * ZC / W0, H * ZC / H0)
-    cam = Camera(name="c", size=(W, H), fx=f, fy=f, cx=(W - 1) / 2 + 0.3, cy=(H - 1) / 2 - 0.4)
-    scene = Scene(cameras=(cam,), specimen=Specimen(plate=Plate(width=1, height=1, nx=1, ny=1)))
-    Xu, Xd, inner = closed_form(cam)
+    scene = paraboloid_scene(size)
+    Xu, Xd, inner = closed_form(scene.cameras[0])
     report = {"size": [W, H], "date": time.strftime("%Y-%m-%d"), "meshes": []}
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", RenderWarning)
@@ -119,7 +125,7 @@ def quadratic(size=FULL_SIZE) -> dict:
                         rows.append({"backend": backend, "mode": mode, "pieces": None,
                                      **measure(r, mode, Xu, Xd, inner, reps=1 if backend == "cpu" else 3)})
             report["meshes"].append({"kind": kind, "elements": len(m.patches), "grid": [nx, ny],
-                                     "element_px": f * W0 / nx / ZC, "rows": rows})
+                                     "element_px": scene.cameras[0].fx * W0 / nx / ZC, "rows": rows})
     return report
 
 
