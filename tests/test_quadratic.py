@@ -699,8 +699,9 @@ def test_point_truth_is_the_closed_form(kind, tmp_path, monkeypatch):
 def test_point_truth_finds_points_beyond_the_control_points_projections():
     """A trough z = ZC + 4x² seen from the origin: its silhouette (the ray tangent to it) at
     x = √(ZC/4) = 10 mm lies inside the elements of 7.5 < x < 15, whose rays past the
-    projections of all their nodes still meet them. The candidate boxes hold the whole curved
-    surface (glsim.scene.quadratic.surface_box): such points are found, at the closed form —
+    projections of all their nodes still meet them. The candidate boxes (the projected corners
+    of a 3-D box that holds the whole curved surface, glsim.scene.quadratic.surface_box) hold
+    them, where a box of the nodes' projections would not: they are found, at the closed form —
     the nearer of the ray's two roots in that element (with the sub-quads' centres as Newton
     starts only where their chords are not crossed, 3 of these 50 got the farther one)."""
     from glsim.io.truth import mesh_geometry, points_truth
