@@ -272,7 +272,7 @@ class Renderer:
         coeffs = self._ref_coeffs[method]
         mesh = self.mesh
         return jac.image_jacobian(cam, s, self.reference.camera, mesh.nodes, mesh.deformed(step), mesh.quads,
-                                  opts.mode, raster, lambda uv: interp.gradient(coeffs, uv, method), rig)
+                                  opts.mode, raster, lambda uv: interp.gradient(coeffs, uv, method), rig, mesh.patches)
 
     def render_many(self, jobs: Iterable, depth: int = 2) -> Iterator[Result]:
         """The Results of ``jobs`` in order, pipelined: request k + depth − 1 is submitted before

@@ -78,6 +78,66 @@ def test_oracle_matches_central_differences(mode, spp):
         assert checked > 100
 
 
+def _curved(**render):
+    """The Q8 and T6 meshes of tests/test_quadratic.py's paraboloid (before its camera, with
+    distortion), displaced at step 1 by a field that is not in the patches' space (so the
+    patches bend): the scene and the meshes."""
+    from test_quadratic import CAM, scene as qscene, surface_mesh
+
+    cam = dataclasses.replace(CAM, size=(48, 40), cx=23.3, cy=19.6, fx=600.0, fy=600.0,
+                              distortion=Distortion(k1=-0.2, p1=1e-3))
+    scene = qscene().replace(cameras=(cam,), render={"backend": "cpu", "interpolation": "cubic", **render})
+    meshes = []
+    for kind in ("quad8", "triangle6"):
+        m = surface_mesh(kind)
+        X = m.nodes
+        u = np.column_stack([0.02 * X[:, 0] + 0.01 * np.sin(X[:, 1]), 1.5e-3 * X[:, 1] ** 2, 0.3 * np.cos(X[:, 0] / 5)])
+        meshes.append(with_displacements(m, [u]))
+    return scene, meshes
+
+
+@pytest.mark.parametrize("mode", ["exact", "q4"])
+def test_quadratic_jacobian_matches_central_differences(mode):
+    """Q8 and T6 (derived centres: their derivatives spread over the nodes) and a mid-side node
+    among those checked: as test_oracle_matches_central_differences, the oracle's curved raster
+    (glsim.backends.cpu.rasterize_quadratic) re-rendered with one node moved ±DELTA."""
+    from glsim.backends.cpu import rasterize_quadratic
+    from glsim.stages.quadview import make_quad_view
+
+    scene, meshes = _curved(mode=mode)
+    for mesh in meshes:
+        with Renderer(scene, mesh=mesh) as r:
+            J = r.render(0, 1, jacobian=True).jacobian.tocsc()
+            ref, sampler = r.reference.camera, r.backend.sampler("cubic")
+            W, H = scene.cameras[0].size
+
+            def image(deformed):
+                view = make_quad_view(scene.cameras[0], ref, mesh.nodes, deformed, mesh.patches, warn=False, mode=mode)
+                raster = rasterize_quadratic(view, mode)
+                hit = raster["element"] >= 0
+                grey = np.zeros(hit.shape)
+                grey[hit] = sampler(raster["ref_uv"][hit])
+                return grey, raster["element"]
+
+            deformed = mesh.deformed(1)
+            used = np.unique(mesh.patches[:, :8])
+            mid = np.setdiff1d(used, mesh.patches[:, :4])               # mid-side nodes
+            picks = [mid[len(mid) // 2], *np.random.default_rng(2).choice(used, 3, replace=False)]
+            checked = 0
+            for node in picks:
+                for c in range(3):
+                    step = DELTA * (np.arange(3) == c) * (np.arange(mesh.n_nodes) == node)[:, None]
+                    (plus, ep), (minus, em) = image(deformed + step), image(deformed - step)
+                    fd = (plus - minus) / (2 * DELTA)
+                    col = J[:, 3 * node + c].toarray().ravel()
+                    same = (ep == em) & (ep >= 0)
+                    floor = 1e-3 * max(np.abs(col).max(), 1e-300)
+                    assert np.all(np.abs(fd - col)[same] <= 1e-4 * np.maximum(np.abs(col[same]), floor)), (node, c)
+                    assert not np.any(col[ep == -1]), "background pixels have no derivative"
+                    checked += np.count_nonzero(col[same])
+            assert checked > 100, checked
+
+
 RIG_STEPS = {"rx": 1e-7, "ry": 1e-7, "rz": 1e-7, "p1": 1e-6, "p2": 1e-6, "s1": 1e-6,
              "s3": 1e-6, "k2": 1e-2, "k5": 1e-2, "s2": 1e-2, "s4": 1e-2, "k3": 1.0, "k6": 1.0}   # else 1e-5
 
@@ -167,7 +227,7 @@ def test_effects_are_refused_by_name(change, key):
         r.render(0, 1, jacobian=True)
 
 
-def test_modes_interpolation_and_quadratic_meshes_are_refused_by_name():
+def test_modes_interpolation_and_supersampled_quadratic_meshes_are_refused_by_name():
     scene, mesh = _plate(backend="cpu")
     with Renderer(scene, mesh=mesh) as r:
         with pytest.raises(SceneError, match=r"^render\.mode: .*'fast'.* — set mode = \"exact\""):
@@ -177,8 +237,9 @@ def test_modes_interpolation_and_quadratic_meshes_are_refused_by_name():
         J = r.render(0, 1, jacobian=True).jacobian
     with Renderer(scene.replace(noise={"sigma": 1.0}), mesh=mesh) as r:   # the noise-free image's Jacobian
         assert abs(r.render(0, 1, jacobian=True).jacobian - J).max() == 0
-    with pytest.raises(SceneError, match=r"^specimen\.mesh: .*quadratic"):
-        jac.check_request(scene, scene.render, quadratic=True)
+    with pytest.raises(SceneError, match=r"^render\.samples_per_pixel: .*quadratic elements is made at 1 sample"):
+        jac.check_request(scene, dataclasses.replace(scene.render, samples_per_pixel=4), quadratic=True)
+    jac.check_request(scene, scene.render, quadratic=True)
 
 
 @pytest.mark.gl
@@ -192,6 +253,51 @@ def test_gl_matches_the_oracle(gl_ctx, mode, spp):
             out[backend], out[backend + " rig"] = res.jacobian, res.rig_jacobian
     assert abs(out["gl"] - out["cpu"]).max() <= 1e-3 * abs(out["cpu"]).max()
     assert abs(out["gl rig"] - out["cpu rig"]).max() <= 1e-3 * abs(out["cpu rig"]).max()
+
+
+@pytest.mark.gl
+@pytest.mark.parametrize("mode", ["exact", "q4"])
+def test_gl_matches_the_oracle_on_quadratic_elements(gl_ctx, mode):
+    """As test_gl_matches_the_oracle, on the Q8 and T6 meshes of _curved (GL's curved truth is
+    polished in float64, so its raster is the oracle's to Newton's tolerance)."""
+    scene, meshes = _curved(mode=mode)
+    for mesh in meshes:
+        out = {}
+        for backend in ("cpu", "gl"):
+            with Renderer(scene, backend, ctx=gl_ctx if backend == "gl" else None, mesh=mesh) as r:
+                res = r.render(0, 1, rig=True)
+                out[backend], out[backend + " rig"] = res.jacobian, res.rig_jacobian
+        assert abs(out["gl"] - out["cpu"]).max() <= 1e-3 * abs(out["cpu"]).max()
+        assert abs(out["gl rig"] - out["cpu rig"]).max() <= 1e-3 * abs(out["cpu rig"]).max()
+
+
+def test_quadratic_rig_jacobian_matches_central_differences():
+    """test_rig_jacobian_matches_central_differences on the Q8 mesh of _curved, exact mode: every
+    camera parameter, the curved raster re-rendered with the camera moved ±d."""
+    from glsim.backends.cpu import rasterize_quadratic
+    from glsim.stages.quadview import make_quad_view
+
+    scene, (mesh, _) = _curved(mode="exact", interpolation="bspline3")
+    cam = dataclasses.replace(scene.cameras[0], skew=0.7, R=rodrigues(np.array([0.02, -0.03, 0.01])),
+                              t=(1.0, -0.5, 3.0), distortion=Distortion(k1=-0.2, p1=1e-3, k4=0.05, s1=0.01))
+    with Renderer(scene.replace(cameras=(cam,)), mesh=mesh) as r:
+        J = r.render(0, 1, rig=True).rig_jacobian.toarray()
+        sampler, ref = r.backend.sampler("bspline3"), r.reference.camera
+
+        def image(c):
+            view = make_quad_view(c, ref, mesh.nodes, mesh.deformed(1), mesh.patches, warn=False)
+            raster = rasterize_quadratic(view, "exact")
+            hit = raster["element"] >= 0
+            grey = np.zeros(hit.shape)
+            grey[hit] = sampler(raster["ref_uv"][hit])
+            return grey, raster["element"]
+        for col, name in enumerate(jac.RIG_COLUMNS):
+            d = RIG_STEPS.get(name, 1e-5)
+            (plus, ep), (minus, em) = image(_moved(cam, name, d)), image(_moved(cam, name, -d))
+            same = (ep == em) & (ep >= 0)
+            fd = (plus - minus)[same] / (2 * d)
+            floor = 1e-3 * np.abs(J[:, col]).max()
+            assert floor > 0 and np.all(np.abs(fd - J[same, col]) <= 1e-4 * np.maximum(np.abs(J[same, col]), floor)), name
 
 
 PLATE_TOML = """

@@ -16,6 +16,9 @@ or N_k ∂π/∂X(X_k) (q4); then ∂g/∂X_k = ∇I · ∂r/∂(ξ, η) · ∂(
 camera's rotation: displacements are in the world frame). Coverage does not move with the
 nodes between samples, so background samples and the mask contribute nothing.
 
+Quadratic elements (1 sample per pixel): the same over a patch's 9 control points and their Q9
+shape functions; a derived centre (Q8, T6) passes its derivative to the 8 nodes with its weights.
+
 Columns are node-major: 3·node + c for the components (u_x, u_y, u_z) of ``mesh.nodes[node]``;
 rows are the pixels v·W + u. Grey levels (of full scale) per mm. The same per-sample quantities
 give the derivative with respect to the rendering camera's pose, intrinsics and distortion
@@ -31,6 +34,7 @@ from scipy import sparse
 from glsim.errors import SceneError
 from glsim.scene import Render, Scene
 from glsim.scene import bilinear as bl
+from glsim.scene import quadratic as qd
 from glsim.scene.camera import (Camera, distort, distort_jacobian, pixel_to_normalized, project_camera_frame, to_camera,
                                 undistort)
 
@@ -41,7 +45,8 @@ CHUNK = 1 << 18          # samples differentiated at once (bounds memory: ~100 d
 
 def check_request(scene: Scene, opts: Render, quadratic: bool) -> None:
     """SceneError naming what ``jacobian=True`` cannot differentiate: an effect table (every
-    optional table but [noise]), mode fast, procedural interpolation, quadratic elements."""
+    optional table but [noise]), mode fast, procedural interpolation, quadratic elements
+    supersampled."""
     for f in dataclasses.fields(scene):
         if f.default is None and getattr(scene, f.name) is not None and f.name not in UNREFUSED:
             raise SceneError(f.name, "the image Jacobian does not differentiate this effect",
@@ -54,9 +59,10 @@ def check_request(scene: Scene, opts: Render, quadratic: bool) -> None:
         raise SceneError("render.interpolation", "the image Jacobian needs the reference image's interpolant; "
                          "'procedural' evaluates the dots directly", "choose cubic, bspline3 or bspline5 "
                          "(or linear), or render without jacobian")
-    if quadratic:
-        raise SceneError("specimen.mesh", "the image Jacobian differentiates linear elements (Q4, T3, hex8/tet4 "
-                         "faces); this mesh has quadratic ones", "use a linear mesh or render without jacobian")
+    if quadratic and opts.samples_per_pixel > 1:
+        raise SceneError("render.samples_per_pixel", "the image Jacobian of quadratic elements is made at 1 sample "
+                         f"per pixel, not {opts.samples_per_pixel}", "set samples_per_pixel = 1, or render without "
+                         "jacobian")
 
 
 def sample_camera(cam: Camera, s: int) -> Camera:
@@ -82,8 +88,11 @@ def projection_jacobian(X: np.ndarray, cam: Camera) -> np.ndarray:
     return K2 @ distort_jacobian(xn, cam.distortion.coeffs) @ dpersp
 
 
-def _shape_derivatives(xi, eta):
-    """(N, ∂N/∂ξ, ∂N/∂η), each (n, 4), of the Q4 shape functions (FE corner order)."""
+def _shape_derivatives(xi, eta, nodes: int = 4):
+    """(N, ∂N/∂ξ, ∂N/∂η), each (n, nodes), of the Q4 shape functions (FE corner order) or, for
+    9 nodes, of the Q9 patch's (glsim.scene.quadratic)."""
+    if nodes == 9:
+        return (qd.shape_functions(xi, eta), *qd.shape_derivatives(xi, eta))
     N = bl.shape_functions(xi, eta)
     dxi = 0.25 * np.stack([-(1 - eta), 1 - eta, 1 + eta, -(1 + eta)], -1)
     deta = 0.25 * np.stack([-(1 - xi), -(1 + xi), 1 + xi, 1 - xi], -1)
@@ -118,7 +127,7 @@ def sensitivities(mode: str, w, Xd, xi, eta, ray, cam: Camera):
     −v · ∂F/∂X_k (n, 4, 3) per mm, for the deformed corners Xd (n, 4, 3) in the camera frame.
     Mode ``exact`` on the samples' rays ``ray`` (n, 2) (undistorted normalized), ``q4`` in
     camera ``cam``'s image."""
-    N, N_xi, N_eta = _shape_derivatives(xi, eta)
+    N, N_xi, N_eta = _shape_derivatives(xi, eta, Xd.shape[1])
     if mode == "exact":
         A = _ray_matrix(ray)
         v = _left_solve(w, A @ _tangents(N_xi, N_eta, Xd))
@@ -187,14 +196,15 @@ def rig_derivatives(mode: str, N, v, c, Xd, cam: Camera, s: int, q=None, ray=Non
 
 def reference_point(mode: str, Xr, ref_cam: Camera, xi, eta):
     """The reference point r (n, 2) px and ∂r/∂(ξ, η) (n, 2, 2), in float64 from (ξ, η):
-    ``exact`` projects the undeformed patch Xr (n, 4, 3, reference camera frame) at (ξ, η);
-    ``q4`` interpolates its corners' projections bilinearly."""
-    _, N_xi, N_eta = _shape_derivatives(xi, eta)
+    ``exact`` projects the undeformed patch Xr (n, 4 or 9, 3, reference camera frame) at (ξ, η);
+    ``q4`` interpolates its nodes' projections with the shape functions."""
+    N, N_xi, N_eta = _shape_derivatives(xi, eta, Xr.shape[1])
+    at = bl.bilinear if Xr.shape[1] == 4 else lambda P, x, y: np.einsum("nk,nkd->nd", N, P)   # noqa: E731
     if mode == "exact":
-        X = bl.bilinear(Xr, xi, eta)
+        X = at(Xr, xi, eta)
         return project_camera_frame(X, ref_cam)[0], projection_jacobian(X, ref_cam) @ _tangents(N_xi, N_eta, Xr)
     corners = project_camera_frame(Xr, ref_cam)[0]
-    return bl.bilinear(corners, xi, eta), _tangents(N_xi, N_eta, corners)
+    return at(corners, xi, eta), _tangents(N_xi, N_eta, corners)
 
 
 def sample_rays(cam: Camera, index: np.ndarray) -> np.ndarray:
@@ -204,12 +214,34 @@ def sample_rays(cam: Camera, index: np.ndarray) -> np.ndarray:
     return undistort(pixel_to_normalized(q, cam.intrinsics), cam.distortion.coeffs)[0]
 
 
+def _element_points(quads, patches, e, X):
+    """Per element of ``e``: its corners (n, 4, D), or a quadratic mesh's 9 control points (its
+    ``patches``; a derived centre from its nodes), from the per-node values X (N, D)."""
+    return X[quads[e]] if patches is None else qd.patch_points(patches[e], X)
+
+
+def _fold_centres(patches, e, c):
+    """The derivatives c (n, 9, 3) with respect to patches[e]'s control points as ones with
+    respect to nodes, and their node columns (n, 9): a derived centre's (Q8, T6) is spread over
+    the 8 nodes with its weights (glsim.scene.quadratic) and its own entry zeroed."""
+    rows = patches[e]
+    nodes = rows.copy()
+    c = c.copy()
+    for code, w in ((qd.CENTRE_Q8, qd._Q8_CENTRE), (qd.CENTRE_T6, qd._T6_CENTRE)):
+        k = np.flatnonzero(rows[:, 8] == code)
+        c[k, :8] += w[None, :, None] * c[k, 8:9]
+        c[k, 8] = 0.0
+        nodes[k, 8] = rows[k, 0]
+    return c, nodes
+
+
 def image_jacobian(cam: Camera, s: int, ref_cam: Camera, nodes: np.ndarray, deformed: np.ndarray,
-                   quads: np.ndarray, mode: str, raster: dict, grad, rig: bool = False):
+                   quads: np.ndarray, mode: str, raster: dict, grad, rig: bool = False, patches=None):
     """The image Jacobian (W·H × 3·nodes, CSR, grey levels per mm) of ``cam`` from ``raster``:
     flat ``element``, ``xi``, ``eta`` (float64) over the (W·s)·(H·s) samples of
     :func:`sample_camera` (element −1: background); the reference point is recomputed from them.
-    ``nodes``, ``deformed`` (N, 3) world mm; ``grad(uv)`` the reference interpolant's gradient
+    ``nodes``, ``deformed`` (N, 3) world mm; ``patches``: a quadratic mesh's (its (ξ, η) are the
+    patches'); ``grad(uv)`` the reference interpolant's gradient
     (grey per px). A pixel's row is the mean of its s² samples' derivatives. Returns it and, if
     ``rig``, the W·H × 23 CSR Jacobian with respect to ``cam``'s parameters (:func:`rig_derivatives`),
     else None."""
@@ -221,18 +253,18 @@ def image_jacobian(cam: Camera, s: int, ref_cam: Camera, nodes: np.ndarray, defo
     for k in range(0, len(hit), CHUNK):
         idx = hit[k:k + CHUNK]
         e, xi, eta = raster["element"][idx], raster["xi"][idx], raster["eta"][idx]
-        corners = quads[e]
-        Xd = to_camera(deformed[corners], scam)
-        Xr = to_camera(nodes[corners], ref_cam)
+        Xd = _element_points(quads, patches, e, to_camera(deformed, scam))
+        Xr = _element_points(quads, patches, e, to_camera(nodes, ref_cam))
         ray = sample_rays(scam, idx) if mode == "exact" else None
         r, dr = reference_point(mode, Xr, ref_cam, xi, eta)
         w = np.einsum("nc,ncl->nl", grad(r), dr)                                    # ∂g/∂(ξ, η)
         N, v, c = sensitivities(mode, w, Xd, xi, eta, ray, scam)
-        values = c @ R / (s * s)                                                    # per world mm
+        corners, cn = (quads[e], c) if patches is None else _fold_centres(patches, e, c)[::-1]
+        values = cn @ R / (s * s)                                                   # per world mm
         fi, fj = idx % (W * s), idx // (W * s)
         pixel = fj // s * W + fi // s
         cols = (3 * corners[..., None] + np.arange(3)).ravel()
-        parts.append(sparse.coo_matrix((values.ravel(), (np.repeat(pixel, 12), cols)),
+        parts.append(sparse.coo_matrix((values.ravel(), (np.repeat(pixel, 3 * corners.shape[1]), cols)),
                                        shape=(W * H, 3 * len(nodes))).tocsr())
         if rig:
             q = (np.column_stack([fi, fj]) + 0.5) / s - 0.5    # the samples in cam's pixels
