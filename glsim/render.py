@@ -197,7 +197,7 @@ class Renderer:
         if not jacobian:
             return self._finish(self._submit(camera, step, truth, quantize, options))
         opts = self._options(options)
-        jac.check_request(self.scene, opts, self.mesh.is_quadratic)
+        jac.check_request(self.scene, opts)
         one = opts.supersampling == 1   # the image's own pixel-centre raster is the samples'
         res = self._finish(self._submit(camera, step, truth or one, quantize, options))
         raster = {"element": res.truth.element.ravel(), "xi": res.truth.xi.ravel(),
@@ -265,7 +265,9 @@ class Renderer:
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore")
                 view = self.geometry.view(jac.sample_camera(cam, s), step)
-                raster = self.backend.render(Request(view, dataclasses.replace(opts, samples_per_pixel=1), True)).samples
+                curved = Curved(self.mesh, self.pieces, step) if self.mesh.is_quadratic else None
+                raster = self.backend.render(Request(view, dataclasses.replace(opts, samples_per_pixel=1), True,
+                                                     curved=curved)).samples
         method = opts.interpolation
         if method not in self._ref_coeffs:
             self._ref_coeffs[method] = interp.prepare(self.reference.image, method, np.float64)

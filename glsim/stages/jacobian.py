@@ -16,8 +16,8 @@ or N_k ∂π/∂X(X_k) (q4); then ∂g/∂X_k = ∇I · ∂r/∂(ξ, η) · ∂(
 camera's rotation: displacements are in the world frame). Coverage does not move with the
 nodes between samples, so background samples and the mask contribute nothing.
 
-Quadratic elements (1 sample per pixel): the same over a patch's 9 control points and their Q9
-shape functions; a derived centre (Q8, T6) passes its derivative to the 8 nodes with its weights.
+Quadratic elements: the same over a patch's 9 control points and their Q9 shape functions; a
+derived centre (Q8, T6) passes its derivative to the 8 nodes with its weights.
 
 Columns are node-major: 3·node + c for the components (u_x, u_y, u_z) of ``mesh.nodes[node]``;
 rows are the pixels v·W + u. Grey levels (of full scale) per mm. The same per-sample quantities
@@ -43,10 +43,9 @@ UNREFUSED = ("noise",)   # optional tables the Jacobian allows: it is of the noi
 CHUNK = 1 << 18          # samples differentiated at once (bounds memory: ~100 doubles each)
 
 
-def check_request(scene: Scene, opts: Render, quadratic: bool) -> None:
+def check_request(scene: Scene, opts: Render) -> None:
     """SceneError naming what ``jacobian=True`` cannot differentiate: an effect table (every
-    optional table but [noise]), mode fast, procedural interpolation, quadratic elements
-    supersampled."""
+    optional table but [noise]), mode fast, procedural interpolation."""
     for f in dataclasses.fields(scene):
         if f.default is None and getattr(scene, f.name) is not None and f.name not in UNREFUSED:
             raise SceneError(f.name, "the image Jacobian does not differentiate this effect",
@@ -59,10 +58,7 @@ def check_request(scene: Scene, opts: Render, quadratic: bool) -> None:
         raise SceneError("render.interpolation", "the image Jacobian needs the reference image's interpolant; "
                          "'procedural' evaluates the dots directly", "choose cubic, bspline3 or bspline5 "
                          "(or linear), or render without jacobian")
-    if quadratic and opts.samples_per_pixel > 1:
-        raise SceneError("render.samples_per_pixel", "the image Jacobian of quadratic elements is made at 1 sample "
-                         f"per pixel, not {opts.samples_per_pixel}", "set samples_per_pixel = 1, or render without "
-                         "jacobian")
+
 
 
 def sample_camera(cam: Camera, s: int) -> Camera:
