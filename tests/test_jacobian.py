@@ -263,11 +263,11 @@ def _gl_against_oracle(gl_ctx, scene, mesh):
 
 
 @pytest.mark.gl
-@pytest.mark.parametrize("mode", ["exact", "q4"])
-def test_gl_matches_the_oracle_on_quadratic_elements(gl_ctx, mode):
+@pytest.mark.parametrize("mode, spp", [("exact", 1), ("q4", 1), ("exact", 4)])
+def test_gl_matches_the_oracle_on_quadratic_elements(gl_ctx, mode, spp):
     """As test_gl_matches_the_oracle, on the Q8 and T6 meshes of _curved (GL's curved truth is
     polished in float64, so its raster is the oracle's to Newton's tolerance)."""
-    scene, meshes = _curved(mode=mode)
+    scene, meshes = _curved(mode=mode, samples_per_pixel=spp)
     for mesh in meshes:
         _gl_against_oracle(gl_ctx, scene, mesh)
 
