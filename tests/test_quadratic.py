@@ -805,31 +805,8 @@ def test_library_truth_of_a_quadratic_mesh(tmp_path, mode):
     with the closed-form displacement of step 1."""
     from glsim.io import truth as T
     from glsim.scene import load_scene
-    from glsim.workflows.library import load_plan, run
 
-    nodes, at = lattice(4, 3)
-    meshio.write(tmp_path / "m.vtu", meshio.Mesh(nodes, [("quad8", q8_cells(4, 3, at))], point_data={"u": step1(nodes)}))
-    (tmp_path / "spec.toml").write_text(f"""seed = 1
-steps = [0, 1]
-[scene]
-[[scene.cameras]]
-name = "c"
-size = [{CAM.size[0]}, {CAM.size[1]}]
-fx = {CAM.fx}
-fy = {CAM.fy}
-cx = {CAM.cx}
-cy = {CAM.cy}
-[scene.specimen.mesh]
-path = "m.vtu"
-point_data = ["u"]
-[scene.render]
-backend = "cpu"
-mode = "{mode}"
-[vary]
-noise.sigma = [0.5]
-""")
-    lib = tmp_path / "lib"
-    assert run(load_plan(tmp_path / "spec.toml"), lib, workers=1).failed == []
+    lib = _q8_library(tmp_path, [0, 1], mode, "noise.sigma = [0.5]")
     (geometry,) = (lib / "geometry").iterdir()
     with np.load(geometry) as z:
         assert z["patches"].shape == (12, 9)
@@ -851,6 +828,23 @@ noise.sigma = [0.5]
     x, y = (got.X_undeformed[got.valid, k] for k in (0, 1))
     expect = np.column_stack([np.broadcast_to(SHIFT[:2], (len(x), 2)), SHIFT[2] + B * x ** 2 + D * x * y])
     np.testing.assert_allclose(got.displacement[got.valid], expect, atol=1e-9, rtol=0)
+
+
+def _q8_library(tmp_path, steps: list, mode: str, vary: str):
+    """A library (one worker, CPU backend) of a Q8 VTU of the paraboloid seen by CAM at
+    ``steps`` in ``mode``, varying ``vary`` (a [vary] line); its directory, every job done."""
+    from glsim.workflows.library import load_plan, run
+
+    nodes, at = lattice(4, 3)
+    meshio.write(tmp_path / "m.vtu", meshio.Mesh(nodes, [("quad8", q8_cells(4, 3, at))], point_data={"u": step1(nodes)}))
+    cam = "\n".join(f"{k} = {getattr(CAM, k)}" for k in ("fx", "fy", "cx", "cy"))
+    (tmp_path / "spec.toml").write_text(
+        f'seed = 1\nsteps = {steps}\n[scene]\n[[scene.cameras]]\nname = "c"\nsize = {list(CAM.size)}\n{cam}\n'
+        f'[scene.specimen.mesh]\npath = "m.vtu"\npoint_data = ["u"]\n[scene.render]\nbackend = "cpu"\n'
+        f'mode = "{mode}"\n[vary]\n{vary}\n')
+    lib = tmp_path / "lib"
+    assert run(load_plan(tmp_path / "spec.toml"), lib, workers=1).failed == []
+    return lib
 
 
 def _library_truth(lib, step: int):
@@ -907,31 +901,8 @@ def test_a_library_varying_pieces_renders_each_with_its_own(tmp_path):
     that of a renderer made for its own scene, and the two differ."""
     from glsim.io import truth as T
     from glsim.scene import load_scene
-    from glsim.workflows.library import load_plan, run
 
-    nodes, at = lattice(4, 3)
-    meshio.write(tmp_path / "m.vtu", meshio.Mesh(nodes, [("quad8", q8_cells(4, 3, at))], point_data={"u": step1(nodes)}))
-    (tmp_path / "spec.toml").write_text(f"""seed = 1
-steps = [1]
-[scene]
-[[scene.cameras]]
-name = "c"
-size = [{CAM.size[0]}, {CAM.size[1]}]
-fx = {CAM.fx}
-fy = {CAM.fy}
-cx = {CAM.cx}
-cy = {CAM.cy}
-[scene.specimen.mesh]
-path = "m.vtu"
-point_data = ["u"]
-[scene.render]
-backend = "cpu"
-mode = "fast"
-[vary]
-render.pieces = [2, 8]
-""")
-    lib = tmp_path / "lib"
-    assert run(load_plan(tmp_path / "spec.toml"), lib, workers=1).failed == []
+    lib = _q8_library(tmp_path, [1], "fast", "render.pieces = [2, 8]")
     import csv
     with open(lib / "manifest.csv", newline="") as f:
         rows = list(csv.DictReader(f))

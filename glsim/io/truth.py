@@ -375,9 +375,7 @@ def _elements(g: Geometry, e: np.ndarray):
     """How positions on the elements ``e`` are evaluated: (shape, points) — ``shape(P, ξ, η)``
     (bilinear, or a quadratic mesh's patches' shape functions) over ``points(X)``, the
     elements' corners or control points from the per-node values X (N, D)."""
-    if g.patches is None:
-        return bilinear, lambda X: X[g.quads[e]]
-    return qd.evaluate, lambda X: qd.patch_points(g.patches[e], X)
+    return (bilinear if g.patches is None else qd.evaluate), lambda X: qd.element_points(g.quads, g.patches, e, X)
 
 
 def _quad_boxes(P: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -38,8 +38,9 @@ NODE_XI = np.array([-1.0, 1.0, 1.0, -1.0, 0.0, 1.0, 0.0, -1.0, 0.0])
 NODE_ETA = np.array([-1.0, -1.0, 1.0, 1.0, -1.0, 0.0, 1.0, 0.0, 0.0])
 MIDSIDE_OF_EDGE = (4, 5, 6, 7)   # edge k = (corner k, corner k+1) has mid-side node 4 + k
 REVERSED = np.array([1, 0, 3, 2, 4, 7, 6, 5, 8])   # ξ → −ξ: the mirrored patch (outward faces)
-_Q8_CENTRE = np.array([-0.25, -0.25, -0.25, -0.25, 0.5, 0.5, 0.5, 0.5])
-_T6_CENTRE = np.array([-0.125, -0.125, 0.0, 0.0, 0.25, 0.5, 0.0, 0.5])
+# a derived centre's weights over nodes 0..7 (x₈ = Σ wₖ xₖ), per centre code
+CENTRE_WEIGHTS = ((CENTRE_Q8, np.array([-0.25, -0.25, -0.25, -0.25, 0.5, 0.5, 0.5, 0.5])),
+                  (CENTRE_T6, np.array([-0.125, -0.125, 0.0, 0.0, 0.25, 0.5, 0.0, 0.5])))
 
 NEWTON_TOL = 1e-13        # stop once max(|Δξ|, |Δη|) ≤ this
 NEWTON_MAX_ITER = 30
@@ -84,11 +85,17 @@ def patch_points(patches: np.ndarray, X: np.ndarray) -> np.ndarray:
     patches = np.asarray(patches)
     P = X[np.maximum(patches, 0)]
     centre = patches[:, 8]
-    for code, w in ((CENTRE_Q8, _Q8_CENTRE), (CENTRE_T6, _T6_CENTRE)):
+    for code, w in CENTRE_WEIGHTS:
         rows = np.flatnonzero(centre == code)
         if rows.size:
             P[rows, 8] = np.einsum("k,mkd->md", w, P[rows, :8])
     return P
+
+
+def element_points(quads: np.ndarray, patches, e: np.ndarray, X: np.ndarray) -> np.ndarray:
+    """The elements ``e``'s corners (n, 4, D), or with ``patches`` (a quadratic mesh's) their 9
+    control points (:func:`patch_points`), from the per-node values X (N, D)."""
+    return X[quads[e]] if patches is None else patch_points(patches[e], X)
 
 
 LEBESGUE = 1.5625   # max over the patch of Σ|Nᵢ(ξ, η)|: (max Σ|L(t)| = 1.25, at t = ±½)²

@@ -210,25 +210,19 @@ def sample_rays(cam: Camera, index: np.ndarray) -> np.ndarray:
     return undistort(pixel_to_normalized(q, cam.intrinsics), cam.distortion.coeffs)[0]
 
 
-def _element_points(quads, patches, e, X):
-    """Per element of ``e``: its corners (n, 4, D), or a quadratic mesh's 9 control points (its
-    ``patches``; a derived centre from its nodes), from the per-node values X (N, D)."""
-    return X[quads[e]] if patches is None else qd.patch_points(patches[e], X)
-
-
 def _fold_centres(patches, e, c):
-    """The derivatives c (n, 9, 3) with respect to patches[e]'s control points as ones with
-    respect to nodes, and their node columns (n, 9): a derived centre's (Q8, T6) is spread over
-    the 8 nodes with its weights (glsim.scene.quadratic) and its own entry zeroed."""
+    """The node columns (n, 9) of the derivatives c (n, 9, 3) with respect to patches[e]'s
+    control points, and those derivatives as ones with respect to the nodes: a derived centre's (Q8, T6) is spread over
+    the 8 nodes with its weights (glsim.scene.quadratic.CENTRE_WEIGHTS) and its own entry zeroed."""
     rows = patches[e]
     nodes = rows.copy()
     c = c.copy()
-    for code, w in ((qd.CENTRE_Q8, qd._Q8_CENTRE), (qd.CENTRE_T6, qd._T6_CENTRE)):
+    for code, w in qd.CENTRE_WEIGHTS:
         k = np.flatnonzero(rows[:, 8] == code)
         c[k, :8] += w[None, :, None] * c[k, 8:9]
         c[k, 8] = 0.0
         nodes[k, 8] = rows[k, 0]
-    return c, nodes
+    return nodes, c
 
 
 def image_jacobian(cam: Camera, s: int, ref_cam: Camera, nodes: np.ndarray, deformed: np.ndarray,
@@ -249,13 +243,13 @@ def image_jacobian(cam: Camera, s: int, ref_cam: Camera, nodes: np.ndarray, defo
     for k in range(0, len(hit), CHUNK):
         idx = hit[k:k + CHUNK]
         e, xi, eta = raster["element"][idx], raster["xi"][idx], raster["eta"][idx]
-        Xd = _element_points(quads, patches, e, to_camera(deformed, scam))
-        Xr = _element_points(quads, patches, e, to_camera(nodes, ref_cam))
+        Xd = qd.element_points(quads, patches, e, to_camera(deformed, scam))
+        Xr = qd.element_points(quads, patches, e, to_camera(nodes, ref_cam))
         ray = sample_rays(scam, idx) if mode == "exact" else None
         r, dr = reference_point(mode, Xr, ref_cam, xi, eta)
         w = np.einsum("nc,ncl->nl", grad(r), dr)                                    # ∂g/∂(ξ, η)
         N, v, c = sensitivities(mode, w, Xd, xi, eta, ray, scam)
-        corners, cn = (quads[e], c) if patches is None else _fold_centres(patches, e, c)[::-1]
+        corners, cn = (quads[e], c) if patches is None else _fold_centres(patches, e, c)
         values = cn @ R / (s * s)                                                   # per world mm
         fi, fj = idx % (W * s), idx // (W * s)
         pixel = fj // s * W + fi // s
