@@ -114,24 +114,18 @@ class Renderer:
         self._jobs: dict[tuple, tuple] = {}   # (camera, truth, options) → (scene, Render, Camera, index) (_job_setup)
         self._equal: dict[tuple, object] = {}  # (Render or Camera, its repr) → the first such object (_first_equal)
         self._ref_coeffs: dict[str, np.ndarray] = {}   # float64 interpolant coefficients (the Jacobian's gradient)
-        if self._gl_max:   # the reference image is one texture
+        if limit := self.backend.capabilities.max_size:   # the reference image is one texture
             H, W = self.reference.image.shape
             check_image_size("speckle", W, H, "the reference image", "give a smaller image, or a smaller "
-                             "speckle.oversample", self._gl_max)
-
-    @functools.cached_property
-    def _gl_max(self) -> int | None:
-        """The GL context's largest texture and render-buffer side (px); None for the CPU oracle."""
-        info = getattr(self.backend, "ctx", None) and self.backend.ctx.info
-        return min(info["GL_MAX_TEXTURE_SIZE"], info["GL_MAX_RENDERBUFFER_SIZE"]) if info else None
+                             "speckle.oversample", limit)
 
     def check_size(self, camera: int | str, truth: bool = False, opts: Render | None = None) -> None:
-        """SceneError if rendering ``camera`` with ``opts`` (default: the scene's [render]) needs a GL
-        target over this context's limit or more memory than this process may use (:mod:`glsim.limits`)."""
+        """SceneError if rendering ``camera`` with ``opts`` (default: the scene's [render]) needs a device
+        target over the backend's limit (``capabilities.max_size``) or more memory than this process may use (:mod:`glsim.limits`)."""
         cam = self.scene.camera(camera)
         spp = (opts or self.scene.render).samples_per_pixel
-        if self._gl_max:
-            check_gl_target("render.samples_per_pixel", cam.size, spp, self._gl_max)
+        if limit := self.backend.capabilities.max_size:
+            check_gl_target("render.samples_per_pixel", cam.size, spp, limit)
         check_memory(f"cameras[{self.scene.cameras.index(cam)}].size", cam.size, spp, truth)
 
     def __enter__(self) -> "Renderer":

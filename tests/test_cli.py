@@ -112,7 +112,7 @@ def test_info_says_why_a_driver_without_float64_gets_float32():
 
     from glsim.backends.gl.context import info
 
-    ctx = SimpleNamespace(extensions=set(), info={"GL_VENDOR": "v", "GL_RENDERER": "r", "GL_VERSION": "4.5",
+    ctx = SimpleNamespace(extensions=set(), error="GL_NO_ERROR", info={"GL_VENDOR": "v", "GL_RENDERER": "r", "GL_VERSION": "4.5",
                                                   "GL_MAX_TEXTURE_SIZE": 16384, "GL_SHADING_LANGUAGE_VERSION": "4.50"})
     out = info(ctx)
     assert out["fp64"] is False and "fp64_rate" not in out

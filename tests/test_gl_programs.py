@@ -227,6 +227,31 @@ def test_this_machines_devices_are_listed():
 
 
 @pytest.mark.gl
+def test_a_driver_lacking_a_limit_moderngl_asks_for_renders(gl_ctx, monkeypatch):
+    """moderngl's ctx.info asks the driver for every limit it knows; Mesa's softpipe lacks one
+    and answers GL_INVALID_ENUM, which the first pass's error check blamed on the ray map.
+    Here ctx.info leaves that error as softpipe's does: the renderer reads the limits it needs
+    (its backend's capabilities.max_size) and renders, and `glsim info` reads them too."""
+    import moderngl
+
+    answer = moderngl.Context.info.fget
+
+    def lacking(ctx):
+        ctx.enable_direct(0x1234)   # no such capability: GL_INVALID_ENUM, as softpipe leaves
+        return answer(ctx)
+
+    monkeypatch.setattr(moderngl.Context, "info", property(lacking))
+    gl_ctx.info
+    assert gl_ctx.error == "GL_INVALID_ENUM"    # the simulated driver does leave the error
+    scene = bulge_scene(size=(96, 72), steps=1)
+    with Renderer(scene, "gl", ctx=gl_ctx) as r:
+        assert r.backend.capabilities.max_size == min(answer(gl_ctx)["GL_MAX_TEXTURE_SIZE"],
+                                                      answer(gl_ctx)["GL_MAX_RENDERBUFFER_SIZE"])
+        assert r.render(0, 1, mode="exact").image.any()
+    assert glctx.info(gl_ctx)["renderer"] and gl_ctx.error == "GL_NO_ERROR"
+
+
+@pytest.mark.gl
 def test_renderers_on_one_context_share_their_programs(gl_ctx):
     """A second Renderer on the same context compiles nothing (programs are cached per context
     and define set) and gives the same image; its own log still lists what it used."""

@@ -16,7 +16,7 @@ from glsim.effects import motion
 from glsim.io.images import write_truth
 from glsim.io.truth import load as load_truth
 from glsim.render import Renderer
-from glsim.scene import Exposure, Plate, Sensor, Speckle, scene_from_dict
+from glsim.scene import Plate, Speckle, scene_from_dict
 
 Z, FX, SIZE = 300.0, 500.0, (64, 48)
 PX_PER_MM = FX / Z

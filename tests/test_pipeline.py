@@ -128,6 +128,26 @@ def test_driver_time_counts_calls_properties_and_takes_off_its_own_cost(gl_ctx):
 
 
 @pytest.mark.gl
+def test_driver_time_does_not_count_a_garbage_collection(gl_ctx):
+    """moderngl objects freed by a collection inside the block are no driver calls (their
+    finalizers read moderngl's gc_mode, a plain attribute): a test or a bench whose collection
+    falls inside a counted block counted one call per object."""
+    import gc
+
+    from glsim.backends.gl.timing import driver_time
+
+    held = [gl_ctx.buffer(reserve=16) for _ in range(40)]
+    for b in held:
+        b.release()
+    cycle = [held]
+    cycle.append(cycle)          # freed only by the collector
+    del held, cycle
+    with driver_time() as d:
+        assert gc.collect() > 0
+    assert d.calls == 0
+
+
+@pytest.mark.gl
 def test_host_opcodes_count_python_work_and_leave_out_moderngl(gl_ctx):
     """host_opcodes counts the bytecode of the Python functions a block calls (a loop of n
     more iterations: n times its body's instructions more), none of moderngl's wrappers, and

@@ -261,8 +261,6 @@ def test_a_curved_time_series_replays_each_cameras_record(gl_ctx):
     their sagitta per view are bound and written through the view-dependent calls, so the steps
     of a series drawn once by two cameras replay each camera's record from the third step on,
     with the images and truth of passes made for each step (the truth mapped to the patches)."""
-    import numpy as np
-
     from glsim.evaluation.quadratic import W0, ZC, mesh as q8_mesh
     from glsim.scene import Plate, Scene, Specimen
     from glsim.scene.camera import Camera

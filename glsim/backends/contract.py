@@ -34,10 +34,13 @@ class Capabilities:
     the ViewSpec, so the renderer prepares no per-element numpy data for it; ``float64``: exact
     and q4 compute in float64 (GL: ``GL_ARB_gpu_shader_fp64``; precision = "fp64" falls back to
     float32 where False); ``passes``: GL passes that benches time one by one (``pass_times``) and
-    full-screen passes (``fullscreen_pass``)."""
+    full-screen passes (``fullscreen_pass``); ``max_size``: the largest texture and render-target
+    side the device takes (px; GL_MAX_TEXTURE_SIZE and GL_MAX_RENDERBUFFER_SIZE), None where there
+    is none."""
     device_geometry: bool
     float64: bool
     passes: bool
+    max_size: int | None = None
 
 
 @dataclass(frozen=True)

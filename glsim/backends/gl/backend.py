@@ -31,7 +31,7 @@ from glsim.stages.quadview import patch_data, pieces_to_patches
 from glsim.backends.contract import Capabilities, Raster, Request
 from glsim.stages.view import warn_dropped, warn_problems
 from glsim.backends.gl.bindings import sampler, storage
-from glsim.backends.gl.context import check_error, create_context
+from glsim.backends.gl.context import check_error, create_context, driver_info
 from glsim.backends.gl.geometry import DRAW_FALLBACK, DRAW_RESOLVE, LAYERS, GeometryBuffers, ViewSlot
 from glsim.backends.gl import timing
 from glsim.backends.gl.plan import aperture_literal, plan
@@ -246,7 +246,9 @@ class GLBackend(ImagePasses):
 
     @functools.cached_property
     def capabilities(self) -> Capabilities:
-        return Capabilities(device_geometry=True, float64=self.fp64, passes=True)
+        gl = driver_info(self.ctx)
+        return Capabilities(device_geometry=True, float64=self.fp64, passes=True,
+                            max_size=min(gl["GL_MAX_TEXTURE_SIZE"], gl["GL_MAX_RENDERBUFFER_SIZE"]))
 
     def render(self, request: Request) -> Raster:
         """One request (glsim.backends.contract): :meth:`submit`, then :meth:`collect`."""

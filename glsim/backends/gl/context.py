@@ -54,6 +54,15 @@ def gl_context() -> Iterator:
         ctx.release()
 
 
+def driver_info(ctx) -> dict:
+    """moderngl's ``ctx.info`` (vendor, renderer, version, limits), leaving the GL error flag
+    clear: it asks the driver for every limit it knows, and a driver that lacks one (Mesa's
+    softpipe) answers GL_INVALID_ENUM, which the next :func:`check_error` would blame on a pass."""
+    out = ctx.info
+    ctx.error   # reading the flag clears it
+    return out
+
+
 @replayed
 def check_error(ctx, where) -> None:
     """Raise if the GL error flag is set (ctx.error reads and clears it); ``where``: what ran,
@@ -68,13 +77,14 @@ def info(ctx, probe: bool = False) -> dict:
     arithmetic the exact and q4 modes get by default, with why (``probe``: also measure the
     float64 rate, :func:`float64_rate`, about 0.3 s on llvmpipe; `glsim info` does)."""
     fp64 = "GL_ARB_gpu_shader_fp64" in ctx.extensions
+    gl = driver_info(ctx)
     out = {
-        "vendor": ctx.info["GL_VENDOR"],
-        "renderer": ctx.info["GL_RENDERER"],
-        "version": ctx.info["GL_VERSION"],
-        "glsl": _glsl_version(ctx),
+        "vendor": gl["GL_VENDOR"],
+        "renderer": gl["GL_RENDERER"],
+        "version": gl["GL_VERSION"],
+        "glsl": _glsl_version(ctx, gl),
         "egl_devices": "; ".join(d.describe() for d in egl_devices()) or "unknown",
-        "max_texture_size": ctx.info["GL_MAX_TEXTURE_SIZE"],
+        "max_texture_size": gl["GL_MAX_TEXTURE_SIZE"],
         "fp64": fp64,
     }
     if not fp64:
@@ -135,10 +145,10 @@ def float64_rate(ctx, groups: int = 256, iterations: int = 8192, reps: int = 3) 
     return seconds["float"] / seconds["double"]
 
 
-def _glsl_version(ctx) -> str:
-    """GL_SHADING_LANGUAGE_VERSION (moderngl's ctx.info leaves it out): asked of the driver
-    through EGL, else derived from the context version (GLSL 4.50 for GL 4.5)."""
-    text = ctx.info.get("GL_SHADING_LANGUAGE_VERSION", "")
+def _glsl_version(ctx, gl: dict) -> str:
+    """GL_SHADING_LANGUAGE_VERSION (moderngl's ``ctx.info``, ``gl``, leaves it out): asked of the
+    driver through EGL, else derived from the context version (GLSL 4.50 for GL 4.5)."""
+    text = gl.get("GL_SHADING_LANGUAGE_VERSION", "")
     if not text:
         try:
             egl = ctypes.CDLL(ctypes.util.find_library("EGL"))
