@@ -31,7 +31,7 @@ from glsim.limits import check_gl_target, check_image_size, check_memory, keep
 from glsim.scene import quadratic as qd
 from glsim.scene.bilinear import bilinear
 from glsim.scene.camera import Camera, to_camera
-from glsim.effects import prepare as prepare_effects
+from glsim.effects import prepare as prepare_effects, spread as spread_rows
 from glsim.effects import motion, noise as noisemod
 from glsim.stages.geometry import MeshGeometry, StepGeometry
 from glsim.io.images import quantize as quantize_image, saturated_fraction
@@ -210,17 +210,16 @@ class Renderer:
         self.check_size(camera, truth, opts)
         cam, ex = scene.camera(camera), scene.exposure
         line = scene.sensor.line_time if scene.sensor is not None else 0.0
-        rows = [(motion.row_camera(cam, v), t) for v, t in enumerate(motion.row_offsets(cam.height, line))] \
-            if line > 0 else [(cam, 0.0)]
+        rows = list(enumerate(motion.row_offsets(cam.height, line))) if line > 0 else [(None, 0.0)]
         tl, taus = motion.timeline(ex, mesh, step), motion.sample_offsets(ex.time, ex.samples)
         images, truths = [], []
-        for c, t in rows:
-            frames = [self._frame(c, step, t + tau, tl, opts, truth and tau == 0) for tau in taus]
+        for row, t in rows:
+            frames = [self._frame(cam, step, t + tau, tl, opts, truth and tau == 0, row) for tau in taus]
             images.append(sum(out.image.astype(np.float64) for out, _ in frames) / len(taus))
             if truth:
                 out = next((out for (out, _), tau in zip(frames, taus) if tau == 0), None) or \
-                    self._frame(c, step, t, tl, opts, True)[0]
-                tr = self._truth(c.size, tl.at(t, mesh.deformed), out.samples)
+                    self._frame(cam, step, t, tl, opts, True, row)[0]
+                tr = self._truth(out.image.shape[::-1], tl.at(t, mesh.deformed), out.samples)
                 truths.append(motion.motion_range(tr, mesh, cam, tl, t, ex.time))
         (out, fx), image = frames[-1], np.concatenate(images).astype(np.float32)
         stages = tuple(out.stages)
@@ -233,22 +232,30 @@ class Renderer:
             stages += ("noise",)
         specimen = self._specimen(cam, tl.at(0.0, mesh.deformed), mesh.quads)   # (warns if unseen at mid-frame)
         if line > 0:   # each row's own state
-            specimen = lambda: np.concatenate([coverage(c, tl.at(t, mesh.deformed), mesh.quads) for c, t in rows])  # noqa: E731
+            specimen = lambda: np.concatenate([coverage(motion.row_band(cam, row)[0], tl.at(t, mesh.deformed),  # noqa: E731
+                                                        mesh.quads) for row, t in rows])
         return Result(image=quantize_image(image, cam.bit_depth) if quantize else image, camera=cam, step=step,
                       backend=self.backend_name, options=opts, seconds=time.perf_counter() - t0,
                       truth=motion.stack(truths) if truth else None, stages=stages, specimen=specimen)
 
-    def _frame(self, cam: Camera, step: int, tau: float, tl: "motion.Timeline", opts: Render, truth: bool):
+    def _frame(self, cam: Camera, step: int, tau: float, tl: "motion.Timeline", opts: Render, truth: bool,
+               row: int | None = None):
         """One sub-frame of :meth:`_moving`: the state τ s from ``step``'s time, rendered without
-        temporal and fixed-pattern noise; (Raster, the Effects)."""
-        mesh = self.drawn_mesh
+        temporal and fixed-pattern noise; (Raster, the Effects). ``row``: only that row of
+        ``cam`` (a rolling shutter's), rendered as the band of rows whose light the depth of
+        field and the PSF move into it (:func:`glsim.effects.spread`) and cut to it."""
+        mesh, state = self.drawn_mesh, None if tau == 0 else float(tau)
         nodes = tl.at(tau, mesh.deformed)
-        view = self.geometry.view(cam, step, None if tau == 0 else float(tau), nodes)
+        view = self.geometry.view(cam, step, state, nodes)
         depths = view.corner_depths() if self.scene.optics is not None else np.empty(0)
-        index = self.scene.cameras.index(self.scene.camera(cam.name))   # (a row camera has its camera's name)
+        index = self.scene.cameras.index(self.scene.camera(cam.name))   # (a band camera has its camera's name)
+        if row is not None:
+            cam, at = motion.row_band(cam, row, spread_rows(self.scene, depths))
+            view = self.geometry.view(cam, step, state, nodes)
         fx = prepare_effects(self.scene, nodes, mesh.quads, cam, index, step, depths,
                              normals=not self.backend.capabilities.device_geometry)
-        return self.backend.render(Request(view, opts, truth, dataclasses.replace(fx, noise=None, sensor=None))), fx
+        out = self.backend.render(Request(view, opts, truth, dataclasses.replace(fx, noise=None, sensor=None)))
+        return (out if row is None else motion.band_row(out, at, cam.width)), fx
 
     def _jacobian(self, cam: Camera, step: int, opts: Render, raster: dict | None, rig: bool):
         """The image Jacobian (glsim.stages.jacobian.image_jacobian) from the backend's float64

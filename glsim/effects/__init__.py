@@ -75,6 +75,25 @@ def max_blur(optics: Optics, depths: np.ndarray) -> float:
     return float(np.max(blur.blur_sigma(probe, optics)))
 
 
+def spread(scene: Scene, depths: np.ndarray) -> int:
+    """Rows (px) over which the scene's depth of field and lens PSF move light, at camera-frame
+    corner depths ``depths`` (mm): a pixel's value depends on the irradiance within this many
+    rows of it. Depth of field: each pixel's window, at most dof.kernel_radius of the largest
+    blur, + 1 (a pixel's float32 depth may lie an ulp beyond the corners' range, as the GL blur
+    allows for); then the PSF's kernel half-width over the blurred rows."""
+    rows = 0
+    if scene.optics is not None:
+        from glsim.effects import dof
+
+        sigma = max_blur(scene.optics, depths)
+        rows += int(dof.kernel_radius(sigma, scene.optics.kernel)) + 1 if sigma > 0 else 0
+    if scene.psf is not None:
+        from glsim.effects.psf import make_kernel
+
+        rows += make_kernel(scene.psf, Path(scene.base_dir)).kernel.shape[0] // 2
+    return rows
+
+
 def prepare(scene: Scene, nodes_def: np.ndarray, quads: np.ndarray, cam: Camera, camera_index: int,
             step: int, depths: np.ndarray, normals: bool = True) -> Effects:
     """The :class:`Effects` of ``scene`` for one camera and step (``depths``: element corner

@@ -8,7 +8,10 @@ irradiance over ``time`` T centred on t_k by the midpoint rule: ``samples`` S re
 at t_k), so row r averages the renders at τ_r + τ_i. Each row is rendered exactly, on its own:
 by a camera of one row whose principal point is moved up by r (cy − r), which has the same rays
 as row r of the full camera (distortion acts on normalised coordinates); no banding, H·S
-renders of one row each.
+renders of one row each. Depth of field and the lens PSF move light across rows: with either,
+row r is rendered as the band of rows within their reach (:func:`glsim.effects.spread`, clipped
+to the image) in row r's state, blurred as a whole frame is, and cut to row r; H·S renders of
+up to 2·spread + 1 rows.
 
 The state at τ (:class:`Timeline`) is affine in the load steps' nodes, so it is evaluated on
 nodes (to render) and on material points (truth) alike: a rigid motion of the step's state,
@@ -100,9 +103,21 @@ def row_offsets(height: int, line_time: float) -> np.ndarray:
     return (np.arange(height) - (height - 1) / 2) * line_time
 
 
-def row_camera(cam: Camera, row: int) -> Camera:
-    """A camera of one row whose pixels are row ``row`` of ``cam`` (same rays)."""
-    return dataclasses.replace(cam, size=(cam.width, 1), cy=cam.cy - row)
+def row_band(cam: Camera, row: int, spread: int = 0) -> tuple[Camera, int]:
+    """A camera of the rows of ``cam`` within ``spread`` of ``row`` (clipped to its image), whose
+    pixels are those rows of ``cam`` (same rays), and ``row``'s index in it. ``spread`` 0: the
+    row alone."""
+    top, bottom = max(0, row - spread), min(cam.height - 1, row + spread)
+    return dataclasses.replace(cam, size=(cam.width, bottom - top + 1), cy=cam.cy - top), row - top
+
+
+def band_row(raster, at: int, width: int):
+    """Row ``at`` of a backend's Raster of a band (:func:`row_band`): its image row and, if it
+    has them, its samples (flat over the band's pixels, row-major)."""
+    rows = slice(at * width, (at + 1) * width)
+    return dataclasses.replace(raster, image=raster.image[at:at + 1],
+                               samples=None if raster.samples is None else
+                               {k: v[rows] for k, v in raster.samples.items()})
 
 
 def motion_range(tr: Truth, mesh, cam: Camera, tl: Timeline, tau: float, duration: float) -> Truth:

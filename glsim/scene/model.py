@@ -383,15 +383,11 @@ class Scene:
             require_file(self.resolve(path), key, "check the path (relative paths start at the scene file's directory)")
 
     def _check_motion(self) -> None:
-        """A rolling shutter needs a motion to skew, and is not combined with depth of field."""
+        """A rolling shutter needs a motion to skew."""
         rolling = self.sensor is not None and self.sensor.line_time > 0
         check(not rolling or self.exposure is not None, "sensor.line_time",
               "delays each row, but the scene gives no motion to expose it at",
               "add an [exposure] table (velocity, or load steps to interpolate between), or remove line_time")
-        blur = [k for k in ("optics", "psf") if getattr(self, k) is not None]
-        check(not rolling or not blur, "sensor.line_time", f"is not modelled together with [{blur[0] if blur else ''}], "
-              "which spreads light across rows (each row is rendered on its own)",
-              f"remove [{blur[0] if blur else ''}] or line_time")
 
     def _check_sizes(self) -> None:
         """Image sizes against glsim's limits (:mod:`glsim.limits`), and a speckle dot camera 0 can show."""
