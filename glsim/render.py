@@ -203,15 +203,14 @@ class Renderer:
         """:meth:`render` with ``[exposure]`` (:mod:`glsim.effects.motion`): per row of a rolling
         shutter (else once) the mean of the sub-frames, then fixed-pattern and temporal noise."""
         t0, scene, mesh = time.perf_counter(), self.scene, self.drawn_mesh
-        if self.mesh.is_quadratic or jacobian:
-            raise SceneError("jacobian" if jacobian else "exposure", "is not made with [exposure]" if jacobian else
-                             "moves meshes of linear elements only", "remove [exposure], or give linear elements")
+        if jacobian:
+            raise SceneError("jacobian", "is not made with [exposure]", "remove [exposure], or render without jacobian")
         opts = self._options(options)
         self.check_size(camera, truth, opts)
         cam, ex = scene.camera(camera), scene.exposure
         line = scene.sensor.line_time if scene.sensor is not None else 0.0
         rows = list(enumerate(motion.row_offsets(cam.height, line))) if line > 0 else [(None, 0.0)]
-        tl, taus = motion.timeline(ex, mesh, step), motion.sample_offsets(ex.time, ex.samples)
+        tl, taus = motion.timeline(ex, self.mesh, step), motion.sample_offsets(ex.time, ex.samples)
         images, truths = [], []
         for row, t in rows:
             frames = [self._frame(cam, step, t + tau, tl, opts, truth and tau == 0, row) for tau in taus]
@@ -219,8 +218,10 @@ class Renderer:
             if truth:
                 out = next((out for (out, _), tau in zip(frames, taus) if tau == 0), None) or \
                     self._frame(cam, step, t, tl, opts, True, row)[0]
-                tr = self._truth(out.image.shape[::-1], tl.at(t, mesh.deformed), out.samples)
-                truths.append(motion.motion_range(tr, mesh, cam, tl, t, ex.time))
+                curved = self.mesh.is_quadratic and opts.mode != "fast"
+                raster = out.samples if curved or not self.mesh.is_quadratic else self._fast_to_patches(out.samples)
+                tr = self._truth(out.image.shape[::-1], tl.at(t, self.mesh.deformed), raster)
+                truths.append(self._motion_range(tr, cam, tl, t, ex.time))
         (out, fx), image = frames[-1], np.concatenate(images).astype(np.float32)
         stages = tuple(out.stages)
         if fx.fixed_pattern:   # as the backends do, on the whole image
@@ -246,6 +247,8 @@ class Renderer:
         field and the PSF move into it (:func:`glsim.effects.spread`) and cut to it."""
         mesh, state = self.drawn_mesh, None if tau == 0 else float(tau)
         nodes = tl.at(tau, mesh.deformed)
+        curved = Curved(self.mesh, self.pieces, step if state is None else (step, state), tl.at(tau, self.mesh.deformed)) \
+            if self.mesh.is_quadratic and opts.mode != "fast" else None
         view = self.geometry.view(cam, step, state, nodes)
         depths = view.corner_depths() if self.scene.optics is not None else np.empty(0)
         index = self.scene.cameras.index(self.scene.camera(cam.name))   # (a band camera has its camera's name)
@@ -254,7 +257,7 @@ class Renderer:
             view = self.geometry.view(cam, step, state, nodes)
         fx = prepare_effects(self.scene, nodes, mesh.quads, cam, index, step, depths,
                              normals=not self.backend.capabilities.device_geometry)
-        out = self.backend.render(Request(view, opts, truth, dataclasses.replace(fx, noise=None, sensor=None)))
+        out = self.backend.render(Request(view, opts, truth, dataclasses.replace(fx, noise=None, sensor=None), curved))
         return (out if row is None else motion.band_row(out, at, cam.width)), fx
 
     def _jacobian(self, cam: Camera, step: int, opts: Render, raster: dict | None, rig: bool):
@@ -368,7 +371,8 @@ class Renderer:
         seconds = job.seconds + time.perf_counter() - t0
         tr = None
         if job.truth and self.mesh.is_quadratic:   # the raster of the patches (fast: of the pieces, mapped here)
-            tr = self._quadratic_truth(out.samples if job.curved else self._fast_to_patches(out.samples), step, cam)
+            tr = self._truth(cam.size, self.mesh.deformed(step),
+                             out.samples if job.curved else self._fast_to_patches(out.samples))
         elif job.truth:
             tr = self._truth(cam.size, job.step_geo.deformed, out.samples)
         return Result(image=image, camera=cam, step=step, backend=self.backend_name,
@@ -406,23 +410,28 @@ class Renderer:
         r["element"][hit], r["xi"][hit], r["eta"][hit] = e, xi, eta
         return r
 
-    def _quadratic_truth(self, raster: dict, step: int, cam: Camera) -> Truth:
-        """Truth maps of a quadratic mesh from a raster of its patches (element, ξ, η, ref_uv):
-        positions by the patches' own shape functions."""
-        return self._truth(cam.size, self.mesh.deformed(step), raster, evaluate=self._patch_positions)
+    def _motion_range(self, tr: Truth, cam: Camera, tl: "motion.Timeline", tau: float, duration: float) -> Truth:
+        """``tr`` (rendered at τ s) with where its material points are at the exposure's start
+        and end (:func:`glsim.effects.motion.motion_range`)."""
+        return motion.motion_range(tr, self.mesh, cam, tl, tau, duration, self._positions)
 
-    def _patch_positions(self, nodes: np.ndarray, elements: np.ndarray, xi, eta) -> np.ndarray:
-        return qd.evaluate(qd.patch_points(self.mesh.patches[elements], nodes), xi, eta)
+    def _positions(self, nodes: np.ndarray, elements: np.ndarray, xi, eta) -> np.ndarray:
+        """Points (…, 3) mm at (ξ, η) of the FE mesh's ``elements`` with node positions ``nodes``:
+        by the patches' own shape functions for quadratic elements, else bilinear."""
+        if self.mesh.is_quadratic:
+            return qd.evaluate(qd.patch_points(self.mesh.patches[elements], nodes), xi, eta)
+        return bilinear(nodes[self.mesh.quads[elements]], xi, eta)
 
-    def _truth(self, size, deformed: np.ndarray, raster: dict, evaluate=None) -> Truth:
+    def _truth(self, size, deformed: np.ndarray, raster: dict) -> Truth:
+        """Truth maps from a raster of the FE mesh's elements (element, ξ, η, ref_uv; a quadratic
+        mesh's patches) over ``size`` (W, H) px, its nodes at ``deformed``."""
         W, H = size
         elem = raster["element"].reshape(H, W)
         mask = elem >= 0
         xi = np.where(mask, raster["xi"].reshape(H, W), np.nan)
         eta = np.where(mask, raster["eta"].reshape(H, W), np.nan)
         ref = np.where(mask[..., None], raster["ref_uv"].reshape(H, W, 2), np.nan)
-        cam1, nodes, quads = self.scene.cameras[0], self.mesh.nodes, self.mesh.quads
-        evaluate = evaluate or (lambda nodes, e, x, y: bilinear(nodes[quads[e]], x, y))
+        cam1, nodes, evaluate = self.scene.cameras[0], self.mesh.nodes, self._positions
         e, x, y = elem[mask], xi[mask], eta[mask]
         return Truth(mask=mask, element=elem, xi=xi, eta=eta, ref_uv=ref,
                      positions=pixel_positions(mask, lambda: (to_camera(evaluate(nodes, e, x, y), cam1),

@@ -180,6 +180,26 @@ def test_a_rolling_shutter_library_with_truth_is_refused(tmp_path, capsys):
     assert "sensor.line_time: a rolling shutter" in capsys.readouterr().err and not (tmp_path / "never").exists()
 
 
+def test_a_library_with_an_exposure_stores_the_mid_exposure_truth(tmp_path):
+    """[exposure] with a global shutter: the images are the renderer's, and a truth file holds
+    the mid-exposure state's (the load step's) element, ξ and η, its positions made from them as
+    the renderer's; the motion range (uv_start, uv_end) is not part of a library's truth files.
+    (The library's compact truth once met the motion range's code: an AttributeError.)"""
+    from glsim.scene import load_scene
+    spec = _spec(tmp_path, "steps = [2]\n" + SCENE + "[scene.exposure]\ntime = 0.001\nsamples = 2\n"
+                 "velocity = [20.0, 0.0, 0.0]\n[vary]\nnoise.sigma = [1.0]\n")
+    lib = tmp_path / "lib"
+    assert run(load_plan(spec), lib, workers=1).failed == []
+    with Renderer(load_scene(lib / "v0000" / "scene.json")) as r:
+        res = r.render("cam1", 2, truth=True)
+    io.write_image(tmp_path / "x.tif", res.image, 8)
+    assert (tmp_path / "x.tif").read_bytes() == (lib / "v0000" / "cam1_0002.tif").read_bytes()
+    maps = T.load(_truth_of(lib, "v0000/cam1_0002.tif")).maps()
+    for name in ("element", "xi", "eta", "X_undeformed", "X_deformed"):
+        np.testing.assert_array_equal(getattr(maps, name), getattr(res.truth, name), err_msg=name)
+    assert res.truth.uv_start is not None and maps.uv_start is None
+
+
 def test_missing_scene_file_and_directory_rules(tmp_path, reference_library):
     with pytest.raises(SpecError, match=r"scene: file .*nope.toml not found — check the path"):
         load_plan(_spec(tmp_path, "scene = 'nope.toml'\n"))

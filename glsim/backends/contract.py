@@ -43,13 +43,20 @@ class Capabilities:
     max_size: int | None = None
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class Curved:
     """Modes exact and q4 of a quadratic mesh: each sample is mapped on its curved patch. The
-    view's elements are ``pieces`` (the mesh's linear pieces); ``mesh`` is the quadratic mesh."""
+    view's elements are ``pieces`` (the mesh's linear pieces); ``mesh`` is the quadratic mesh;
+    ``state`` the load step drawn, or a hashable key of a state during its exposure
+    (:meth:`glsim.stages.geometry.MeshGeometry.step`) whose FE nodes are ``nodes``."""
     mesh: Mesh
     pieces: Pieces
-    step: int
+    state: int | tuple
+    nodes: np.ndarray | None = None
+
+    def deformed(self) -> np.ndarray:
+        """The quadratic mesh's nodes in this state (N, 3) world mm."""
+        return self.mesh.deformed(self.state) if self.nodes is None else self.nodes
 
 
 @dataclass(frozen=True)

@@ -339,8 +339,8 @@ class CPUBackend:
         v, opts, c = request.view, request.options, request.curved
         if c is not None:
             m = c.mesh
-            view = make_quad_view(v.camera, v.ref_camera, m.nodes, m.deformed(c.step), m.patches, m.element_labels,
-                                  pieces=c.pieces, pieces_def=c.pieces.mesh.deformed(c.step), mode=opts.mode)
+            view = make_quad_view(v.camera, v.ref_camera, m.nodes, c.deformed(), m.patches, m.element_labels,
+                                  pieces=c.pieces, pieces_def=v.step_geo.deformed, mode=opts.mode)
         else:
             mesh = v.mesh_geo.mesh
             view = make_view(v.camera, v.ref_camera, mesh.nodes, v.step_geo.deformed, mesh.quads, mesh.element_labels)

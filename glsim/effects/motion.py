@@ -32,7 +32,6 @@ import numpy as np
 
 from glsim.errors import check
 from glsim.io.truth import Truth
-from glsim.scene.bilinear import bilinear
 from glsim.scene.camera import Camera, project_camera_frame, rodrigues, to_camera
 from glsim.scene.optional import Exposure
 
@@ -82,13 +81,15 @@ def step_times(times: tuple, n_steps: int, step_time: float) -> np.ndarray:
 
 
 def timeline(exposure: Exposure, mesh, step: int) -> Timeline:
-    """The :class:`Timeline` of ``mesh`` (world mm) around ``step``."""
+    """The :class:`Timeline` of FE ``mesh`` (world mm) around ``step``; the default centre of a
+    rotation: the centroid of the nodes its elements use (a quadratic mesh's mid-side and
+    centre nodes too)."""
     times = step_times(mesh.step_times, mesh.n_steps, exposure.step_time)
     if not exposure.rigid:
         return Timeline(step, times)
     nodes = mesh.deformed(step)
-    centre = np.asarray(exposure.centre if exposure.centre is not None else nodes[np.unique(mesh.quads)].mean(axis=0),
-                        np.float64)
+    used = np.unique(mesh.patches[mesh.patches >= 0]) if mesh.is_quadratic else np.unique(mesh.quads)
+    centre = np.asarray(exposure.centre if exposure.centre is not None else nodes[used].mean(axis=0), np.float64)
     omega = None if exposure.angular_velocity is None else np.asarray(exposure.angular_velocity, np.float64)
     return Timeline(step, times, np.asarray(exposure.velocity or (0.0, 0.0, 0.0), np.float64), omega, centre)
 
@@ -120,16 +121,17 @@ def band_row(raster, at: int, width: int):
                                {k: v[rows] for k, v in raster.samples.items()})
 
 
-def motion_range(tr: Truth, mesh, cam: Camera, tl: Timeline, tau: float, duration: float) -> Truth:
-    """``tr`` (pixels of a row of ``cam``, or of ``cam`` itself, rendered at τ s; ``mesh``: the
-    drawn mesh) with, for an exposure of ``duration`` > 0 s, where each pixel's material point
-    is at τ ∓ duration/2 (``cam``'s px: ``uv_start``, ``uv_end``)."""
+def motion_range(tr: Truth, mesh, cam: Camera, tl: Timeline, tau: float, duration: float, evaluate) -> Truth:
+    """``tr`` (pixels of a row of ``cam``, or of ``cam`` itself, rendered at τ s; ``mesh``: the FE
+    mesh, whose elements ``tr`` names) with, for an exposure of ``duration`` > 0 s, where each
+    pixel's material point is at τ ∓ duration/2 (``cam``'s px: ``uv_start``, ``uv_end``);
+    ``evaluate(nodes, elements, ξ, η)``: the elements' points with those node positions."""
     if duration == 0:
         return tr
     e, xi, eta = tr.element[tr.mask], tr.xi[tr.mask], tr.eta[tr.mask]
     ends = []
     for t in (tau - duration / 2, tau + duration / 2):
-        X = tl.at(t, lambda k: bilinear(mesh.deformed(k)[mesh.quads[e]], xi, eta))
+        X = tl.at(t, lambda k: evaluate(mesh.deformed(k), e, xi, eta))
         uv = np.full(tr.mask.shape + (2,), np.nan)
         uv[tr.mask] = project_camera_frame(to_camera(X, cam), cam)[0]
         ends.append(uv)

@@ -185,16 +185,17 @@ def q4_image_bound(Pd: np.ndarray, cam: Camera, pieces: int) -> float:
     return float(dev) + chord_error_bound(np.pad(uv, ((0, 0), (0, 0), (0, 1))), pieces)
 
 
-def patch_data(mesh, pieces, step: int, view, mode: str, cache: dict) -> PatchData:
-    """The GL path's payload for drawing quadratic ``mesh`` (its linear ``pieces``, the view's
-    elements) at ``step`` seen by ``view`` (a ViewSpec) in ``mode`` exact or q4: the step's patch
-    points (kept in ``cache`` per step, with a warning naming folded elements, each time), the
+def patch_data(curved, view, mode: str, cache: dict) -> PatchData:
+    """The GL path's payload for drawing a :class:`~glsim.backends.contract.Curved` request's
+    quadratic mesh (its linear pieces, the view's elements) in its state, seen by ``view`` (a
+    ViewSpec) in ``mode`` exact or q4: the state's patch points (kept in ``cache`` per state,
+    with a warning naming folded elements, each time), the
     reference data (once) and the chord bound; made once per view and mode (the last
     VIEWS_KEPT kept), so a view rendered again gets the same object."""
-    views = cache.setdefault("views", {})
+    views, mesh = cache.setdefault("views", {}), curved.mesh
     hit = views.get((id(view), mode))
     if hit is None or hit[0] is not view:
-        hit = keep(views, (id(view), mode), (view, *_patch_data(mesh, pieces, step, view, mode, cache)), VIEWS_KEPT)
+        hit = keep(views, (id(view), mode), (view, *_patch_data(curved, view, mode, cache)), VIEWS_KEPT)
     _, data, folded = hit
     if folded.size:
         warnings.warn(f"camera {view.camera.name}: elements {_labels(folded, mesh.element_labels)} are "
@@ -204,16 +205,17 @@ def patch_data(mesh, pieces, step: int, view, mode: str, cache: dict) -> PatchDa
     return data
 
 
-def _patch_data(mesh, pieces, step: int, view, mode: str, cache: dict) -> tuple[PatchData, np.ndarray]:
+def _patch_data(curved, view, mode: str, cache: dict) -> tuple[PatchData, np.ndarray]:
     """:func:`patch_data` made, and the folded elements' indices."""
+    mesh, pieces, state = curved.mesh, curved.pieces, curved.state
     if "ref" not in cache:
         ref_cam = view.ref_camera
         xr = qd.patch_points(mesh.patches, to_camera(mesh.nodes, ref_cam))
         cache["ref"] = (xr, project_camera_frame(xr, ref_cam)[0])
     origin = view.mesh_geo.origin
-    if cache.get("step", (None,))[0] != step:
-        P = qd.patch_points(mesh.patches, mesh.deformed(step))
-        cache["step"] = (step, P - origin, chord_error_bound(P, pieces.n), np.flatnonzero(qd.folded(P)))
+    if cache.get("step", (None,))[0] != state:
+        P = qd.patch_points(mesh.patches, curved.deformed())
+        cache["step"] = (state, P - origin, chord_error_bound(P, pieces.n), np.flatnonzero(qd.folded(P)))
     _, local, chord_mm, folded = cache["step"]
     z_near = max(float(view.corner_depths().min()), NEAR_MM)
     f = float(max(view.camera.intrinsics[0], view.camera.intrinsics[1]))
@@ -222,20 +224,22 @@ def _patch_data(mesh, pieces, step: int, view, mode: str, cache: dict) -> tuple[
         sag_px = max(sag_px, q4_image_bound(to_camera(local + origin, view.camera), view.camera, pieces.n))
     xr, uv = cache["ref"]
     return PatchData(pieces=pieces.n, local=local, ref_xr=xr, ref_uv=uv, extra_sag_px=1.5 * sag_px,
-                     token=(id(cache), step)), folded
+                     token=(id(cache), state)), folded
 
 
-def pieces_to_patches(raster: dict, mesh, pieces, step: int, cam: Camera, mode: str) -> dict:
-    """An exact / q4 raster whose elements are ``pieces`` of quadratic ``mesh`` and whose (ξ, η)
-    are their patches' (the GL path's) → the patches: the piece's patch as element, (ξ, η)
+def pieces_to_patches(raster: dict, curved, cam: Camera, mode: str) -> dict:
+    """An exact / q4 raster whose elements are the pieces of a :class:`~glsim.backends.contract.Curved`
+    request's quadratic mesh and whose (ξ, η) are their patches' (the GL path's) → the patches:
+    the piece's patch as element, (ξ, η)
     polished in float64 by :func:`glsim.scene.quadratic.newton` (on the pixel's ray, or in the
     image for q4; kept where that does not converge)."""
     r = dict(raster)
     hit = np.flatnonzero(r["element"] >= 0)
-    e = pieces.parent[r["element"][hit]]
+    e = curved.pieces.parent[r["element"][hit]]
     W, _ = cam.size
     q = np.column_stack([hit % W, hit // W]).astype(np.float64)
-    P = qd.patch_points(mesh.patches[e], to_camera(mesh.deformed(step), cam)) if hit.size else np.zeros((0, 9, 3))
+    P = qd.patch_points(curved.mesh.patches[e], to_camera(curved.deformed(), cam)) if hit.size else \
+        np.zeros((0, 9, 3))
     if mode == "exact":
         xn, _ = undistort(pixel_to_normalized(q, cam.intrinsics), cam.distortion.coeffs)
         p2, target = P[..., :2] - xn[:, None, :] * P[..., 2:3], np.zeros_like(q)

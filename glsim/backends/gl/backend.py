@@ -262,7 +262,7 @@ class GLBackend(ImagePasses):
         v, opts, c = request.view, request.options, request.curved
         patches = None
         if c is not None:
-            patches = patch_data(c.mesh, c.pieces, c.step, v, opts.mode, self._curved.setdefault(id(c.mesh), {}))
+            patches = patch_data(c, v, opts.mode, self._curved.setdefault(id(c.mesh), {}))
         self._make_current()
         return self._render_view(v, opts, request.truth, request.effects, patches,
                                  request.quantize if self.fp64 else None, c)
@@ -275,7 +275,7 @@ class GLBackend(ImagePasses):
         frame.report()
         raster, c = frame.raster(), frame.curved
         if raster is not None and c is not None:
-            raster = pieces_to_patches(raster, c.mesh, c.pieces, c.step, frame.camera, frame.mode)
+            raster = pieces_to_patches(raster, c, frame.camera, frame.mode)
         return Raster(image, raster, frame.stages)
 
     def _render_view(self, view: ViewSpec, opts, truth: bool, fx, patches, quantize: int | None = None,

@@ -46,9 +46,14 @@ class CompactRenderer(Renderer):
     positions or reference coordinates is made (the truth file determines them), and the
     backend's full-size raster is dropped as soon as the covered pixels are gathered."""
 
-    def _truth(self, size, deformed, raster, evaluate=None) -> CompactRaster:
+    def _truth(self, size, deformed, raster) -> CompactRaster:
         W, H = size
         return CompactRaster(*truthcodec.compact(raster["element"].reshape(H, W), raster["xi"], raster["eta"]))
+
+    def _motion_range(self, tr, cam, tl, tau, duration) -> CompactRaster:
+        """A library's truth is the mid-exposure state's (a global shutter's: the load step's);
+        its files hold no motion range."""
+        return tr
 
 
 def _scene(scene_json: str):
