@@ -279,16 +279,25 @@ def test_non_finite_values_name_the_time(tmp_path):
     assert load_series(path, times=[1.0]).n_steps == 2
 
 
-@pytest.mark.parametrize("elem_type,nodes", [("TRI7", 7), ("HEX27", 27), ("TETRA14", 14), ("WEDGE15", 15),
+@pytest.mark.parametrize("elem_type,nodes", [("TRI7", 7), ("TETRA14", 14), ("HEX21", 21), ("WEDGE20", 20),
                                              ("QUAD", 5)])
 def test_unconfirmed_quadratic_elements_rejected_by_name(tmp_path, elem_type, nodes):
-    """QUAD8/9, TRI6, HEX20, TETRA10 are read (tests/test_quadratic.py); other node counts are
-    refused by name."""
+    """QUAD8/9, TRI6, TETRA10, HEX20, HEX27, WEDGE15 are read (tests/test_quadratic.py); other
+    node counts are refused by name."""
     xy = RNG.uniform(size=(nodes, 2))
     path = write_exodus(tmp_path / "q.e", xy, [("plate", elem_type, np.arange(1, nodes + 1)[None])], [0.0],
                         {"disp_x": np.zeros((1, nodes)), "disp_y": np.zeros((1, nodes))})
     with pytest.raises(SceneError, match=rf"q\.e: element block 'plate' \(id 10\) has {elem_type} elements "
                                          rf"\({nodes} nodes each\): these quadratic elements are not supported"):
+        load_series(path)
+
+
+def test_linear_wedges_are_refused_by_name(tmp_path):
+    xyz = RNG.uniform(size=(6, 3))
+    path = write_exodus(tmp_path / "w.e", xyz, [("solid", "WEDGE6", np.arange(1, 7)[None])], [0.0],
+                        {f"disp_{a}": np.zeros((1, 6)) for a in "xyz"})
+    with pytest.raises(SceneError, match=r"w\.e: element block 'solid' \(id 10\) has WEDGE6 elements \(6 nodes "
+                                         r"each\), which are not supported — use quad/triangle shells"):
         load_series(path)
 
 

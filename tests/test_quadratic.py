@@ -17,6 +17,7 @@ Tolerances (numbers measured when written are in docs/quadratic.md):
   where they agree (GL's fast reference point is float32), grey levels mean |Δ| ≤ 1e-4, at most 0.5 % of pixels beyond 1e-3.
 """
 import warnings
+from pathlib import Path
 
 import meshio
 import numpy as np
@@ -577,7 +578,6 @@ def test_abaqus_c3d20r_keyword(tmp_path):
 def test_exodus_quadratic_blocks(tmp_path):
     """Exodus II: QUAD8 written by meshio's Exodus writer (VTK order) and HEX20 in Exodus's own
     order (vertical mid-edge nodes 13–16 before the top face's 17–20, 1-based) read back."""
-    netCDF4 = pytest.importorskip("netCDF4")
     nodes, at = lattice(4, 3)
     cells = q8_cells(4, 3, at)
     u = step1(nodes)
@@ -599,21 +599,76 @@ def test_exodus_quadratic_blocks(tmp_path):
     # HEX20 in Exodus node order
     nodes, at = lattice(3, 2, nz=1)
     vtk = solid_cells("hexahedron20", 3, 2, at)
-    exo = vtk[:, np.r_[0:12, 16:20, 12:16]]
-    path = tmp_path / "h20.e"
+    mesh = load_series(write_exodus_block(tmp_path / "h20.e", nodes, "HEX20", vtk[:, np.r_[0:12, 16:20, 12:16]]))
+    assert mesh.is_quadratic and not qd.folded(qd.patch_points(mesh.patches, mesh.nodes)).any()
+    with Renderer(scene(), "cpu", mesh=mesh) as r, warnings.catch_warnings():
+        warnings.simplefilter("ignore", RenderWarning)
+        check_against_closed_form(r.render(0, 0, truth=True, mode="exact").truth, 1e-9, deformed=False)
+
+
+def write_exodus_block(path, nodes, elem_type: str, cells) -> Path:
+    """An Exodus II file of ``nodes`` and one block of ``cells`` (0-based, the file's order)."""
+    import netCDF4
     with netCDF4.Dataset(path, "w") as ds:
         ds.createDimension("num_nodes", len(nodes))
         ds.createDimension("num_dim", 3)
         ds.createDimension("num_el_blk", 1)
-        ds.createDimension("num_el_in_blk1", len(exo))
-        ds.createDimension("num_nod_per_el1", 20)
+        ds.createDimension("num_el_in_blk1", len(cells))
+        ds.createDimension("num_nod_per_el1", cells.shape[1])
         for k, axis in enumerate("xyz"):
             ds.createVariable(f"coord{axis}", "f8", ("num_nodes",))[:] = nodes[:, k]
         conn = ds.createVariable("connect1", "i4", ("num_el_in_blk1", "num_nod_per_el1"))
-        conn.elem_type = "HEX20"
-        conn[:] = exo + 1
-    mesh = load_series(path)
-    assert mesh.is_quadratic and not qd.folded(qd.patch_points(mesh.patches, mesh.nodes)).any()
+        conn.elem_type = elem_type
+        conn[:] = cells + 1
+    return path
+
+
+# SEACAS's side-node tables (nem_slice's ss_to_node_list, 1-based): HEX27 side k's corners and
+# its face-centre node; WEDGE15's and HEX27's mid-edge nodes follow from them
+HEX27_SIDES = {26: (1, 2, 6, 5), 25: (2, 3, 7, 6), 27: (3, 4, 8, 7), 24: (1, 5, 8, 4), 22: (1, 4, 3, 2), 23: (5, 6, 7, 8)}
+HEX_EDGES = [(1, 2), (2, 3), (3, 4), (4, 1), (1, 5), (2, 6), (3, 7), (4, 8), (5, 6), (6, 7), (7, 8), (8, 5)]   # nodes 9–20
+WEDGE_EDGES = [(1, 2), (2, 3), (3, 1), (1, 4), (2, 5), (3, 6), (4, 5), (5, 6), (6, 4)]                        # nodes 7–15
+
+
+def exodus_solid_cells(elem_type: str, nx: int, ny: int, at) -> np.ndarray:
+    """One layer of HEX27 or WEDGE15 cells on the lattice (the cells of :func:`solid_cells`) in
+    Exodus's node order, built from SEACAS's tables above, not from glsim's permutation."""
+    def mean(*points):
+        return tuple(sum(np.array(p) for p in points) // len(points))
+
+    out = []
+    for j in range(ny):
+        for i in range(nx):
+            o = np.array([2 * i, 2 * j, 0])
+            cube = [o + 2 * np.array(v) for v in ((0, 0, 0), (1, 0, 0), (1, 1, 0), (0, 1, 0),
+                                                   (0, 0, 1), (1, 0, 1), (1, 1, 1), (0, 1, 1))]
+            if elem_type == "HEX27":
+                pts = cube + [mean(cube[a - 1], cube[b - 1]) for a, b in HEX_EDGES] + [mean(*cube)]
+                pts += [mean(*(cube[n - 1] for n in HEX27_SIDES[k])) for k in range(22, 28)]
+                out.append([at(*p) for p in pts])
+            else:
+                for tri in ((0, 1, 2), (0, 2, 3)):
+                    c = [cube[t] for t in tri] + [cube[t + 4] for t in tri]
+                    out.append([at(*p) for p in c + [mean(c[a - 1], c[b - 1]) for a, b in WEDGE_EDGES]])
+    return np.array(out)
+
+
+@pytest.mark.parametrize("kind,elem_type", [("hexahedron27", "HEX27"), ("wedge15", "WEDGE15")])
+def test_exodus_hex27_and_wedge15_blocks(tmp_path, kind, elem_type):
+    """Exodus HEX27 (centroid 21, face centres 22–27 by side) and WEDGE15 (vertical mid-edge
+    nodes 10–12 before the top's) in Exodus's own order give the patches of the same cells in
+    VTK's order (test_solid_outer_faces_through_meshio), and the front face's closed form."""
+    from types import SimpleNamespace
+
+    from glsim.io.meshfiles import surface_from_cells
+
+    nodes, at = lattice(3, 2, nz=1)
+    mesh = load_series(write_exodus_block(tmp_path / "s.e", nodes, elem_type, exodus_solid_cells(elem_type, 3, 2, at)))
+    vtk = solid_cells(kind, 3, 2, at)
+    quads, labels, patches = surface_from_cells(tmp_path, SimpleNamespace(cells=[SimpleNamespace(type=kind, data=vtk)]),
+                                                nodes, [np.arange(1, len(vtk) + 1)])
+    assert mesh.is_quadratic and np.array_equal(mesh.patches, patches) and np.array_equal(mesh.quads, quads)
+    assert np.array_equal(mesh.element_labels, labels)
     with Renderer(scene(), "cpu", mesh=mesh) as r, warnings.catch_warnings():
         warnings.simplefilter("ignore", RenderWarning)
         check_against_closed_form(r.render(0, 0, truth=True, mode="exact").truth, 1e-9, deformed=False)

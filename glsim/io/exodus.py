@@ -10,12 +10,17 @@ dimensions ``num_nodes``, ``num_dim``, ``num_el_blk``, ``num_el_in_blk{i}``,
 
 Element types as solvers spell them: QUAD/QUAD4/SHELL/SHELL4, TRI/TRI3/TRISHELL3,
 HEX/HEX8, TETRA/TETRA4/TET4 and the quadratic QUAD8, QUAD9 (SHELL8/9), TRI6, TETRA10 (node
-orders as VTK's, so meshio's face tables apply) and HEX20, whose Exodus (PATRAN) order puts
+orders as VTK's, so meshio's face tables apply), HEX20, whose Exodus (PATRAN) order puts
 the four vertical mid-edge nodes before the top face's (nodes 13–16, 1-based) where VTK puts
-them last: it is permuted on reading. Other node counts (TRI7, HEX27, TETRA14, WEDGE15 …)
-are refused by name (their Exodus node order is not confirmed here; VTU, Gmsh or Abaqus
-files of them are read through meshio); bars, beams and spheres are ignored. Labels are the
-file's own node and element numbers.
+them last, and HEX27: HEX20's order, then the centroid (21) and the face centres 22 z−
+(side 5), 23 z+ (side 6), 24 x− (side 4), 25 x+ (side 2), 26 y− (side 1), 27 y+ (side 3) (SEACAS's
+side-node table, nem_slice's ss_to_node_list), where VTK has the faces' centres 20–25 in the
+order x−, x+, y−, y+, z−, z+ and the centroid last; WEDGE15, whose vertical mid-edge nodes
+(10–12) come before the top triangle's (13–15), where VTK puts them last (the same table). These
+three are permuted on reading. Other node counts (TRI7, TETRA14, WEDGE6 …) are refused by name
+(their Exodus node order is not confirmed here, or glsim reads no such solid; VTU, Gmsh or
+Abaqus files of them are read through meshio); bars, beams and spheres are ignored. Labels are
+the file's own node and element numbers.
 
 A classic netCDF file (CDF-1, CDF-2, CDF-5; not the HDF5-based netCDF-4) is checked before it is
 read: every variable, and every stored step of the record variables, must lie inside the file,
@@ -46,8 +51,13 @@ _QUADRATIC = {("QUAD", 8): "quad8", ("SHELL", 8): "quad8", ("QUADRILATERAL", 8):
               ("QUAD", 9): "quad9", ("SHELL", 9): "quad9", ("QUADRILATERAL", 9): "quad9",
               ("TRI", 6): "triangle6", ("TRIANGLE", 6): "triangle6", ("TRISHELL", 6): "triangle6",
               ("HEX", 20): "hexahedron20", ("HEXAHEDRON", 20): "hexahedron20",
+              ("HEX", 27): "hexahedron27", ("HEXAHEDRON", 27): "hexahedron27",
+              ("WEDGE", 15): "wedge15",
               ("TET", 10): "tetra10", ("TETRA", 10): "tetra10", ("TETRAHEDRON", 10): "tetra10"}
-EXODUS_TO_VTK = {"hexahedron20": np.r_[0:12, 16:20, 12:16]}
+# (VTK node i is Exodus node EXODUS_TO_VTK[kind][i], 0-based)
+EXODUS_TO_VTK = {"hexahedron20": np.r_[0:12, 16:20, 12:16],
+                 "hexahedron27": np.r_[0:12, 16:20, 12:16, 23, 24, 25, 26, 21, 22, 20],
+                 "wedge15": np.r_[0:9, 12:15, 9:12]}
 _IGNORED = ("BAR", "BEAM", "TRUSS", "EDGE", "SPHERE", "CIRCLE", "POINT", "NULL", "SUPERELEMENT")
 
 
@@ -92,6 +102,9 @@ def element_type(elem_type: str, nodes_per_element: int, where: str, block: str)
     if (family, nodes_per_element) in _QUADRATIC:
         return _QUADRATIC[family, nodes_per_element]
     if family in ("WEDGE", "PYRAMID"):
+        if nodes_per_element <= 6:   # WEDGE6, PYRAMID5: linear, but glsim extracts no faces of them
+            raise SceneError(where, f"{block} has {elem_type} elements ({nodes_per_element} nodes each), which are "
+                             "not supported", SOLID_FIX)
         raise SceneError(where, f"{block} has {elem_type} elements ({nodes_per_element} nodes each): " + QUADRATIC_FIX)
     if family in _LINEAR:
         kind, count = _LINEAR[family]

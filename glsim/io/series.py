@@ -31,8 +31,8 @@ __all__ = ["Series", "is_time_series"]
 
 LINEAR_CELLS = ("quad", "triangle", "hexahedron", "tetra")
 IGNORED_CELLS = ("line", "vertex", "line3")
-QUADRATIC_FIX = ("these quadratic elements are not supported: use QUAD8/QUAD9, TRI6, HEX20, TETRA10 (or, through "
-                 "meshio's VTU/Gmsh/Abaqus readers, hexahedron27 and wedge15), or a linear mesh")
+QUADRATIC_FIX = ("these quadratic elements are not supported: use QUAD8/QUAD9, TRI6, TETRA10, HEX20, HEX27 or "
+                 "WEDGE15 (meshio's names: quad8/quad9, triangle6, tetra10, hexahedron20/27), or a linear mesh")
 # Usual spellings of displacement components / vectors, tried in order when none is named.
 COMPONENT_PREFIXES = ("disp_", "displacement_", "displ", "disp", "u_", "u")
 VECTOR_NAMES = ("displacement", "displacements", "disp", "u")
@@ -358,9 +358,10 @@ def series_surface(s: Series):
         merged.setdefault(kind, []).append((conn, labels))
     if not merged:
         raise SceneError(str(s.path), "has no quad, triangle, hexahedron or tetra elements", SOLID_FIX)
-    blocks = [meshio.CellBlock(kind, np.concatenate([c for c, _ in parts])) for kind, parts in merged.items()]
+    # (meshio's CellBlock has no wedge15: the blocks as the two fields surface_from_cells reads)
+    blocks = [SimpleNamespace(type=kind, data=np.concatenate([c for c, _ in parts])) for kind, parts in merged.items()]
     labels = [np.concatenate([lab for _, lab in parts]) for parts in merged.values()]
 
-    return surface_from_cells(s.path, SimpleNamespace(cells=blocks), s.points, labels)  # all of meshio.Mesh it reads
+    return surface_from_cells(s.path, SimpleNamespace(cells=blocks), s.points, labels)
 
 
