@@ -191,12 +191,14 @@ class Renderer:
         if not jacobian:
             return self._finish(self._submit(camera, step, truth, quantize, options))
         opts = self._options(options)
-        jac.check_request(self.scene, opts)
+        jac.check_request(self.scene, opts, rig)
         one = opts.supersampling == 1   # the image's own pixel-centre raster is the samples'
         res = self._finish(self._submit(camera, step, truth or one, quantize, options))
         raster = {"element": res.truth.element.ravel(), "xi": res.truth.xi.ravel(),
                   "eta": res.truth.eta.ravel()} if one else None
-        J, J_rig = self._jacobian(res.camera, step, opts, raster, rig)
+        index = [c.name for c in self.scene.cameras].index(res.camera.name)
+        J, J_rig = (None if m is None else jac.camera_effects(m, self.scene, res.camera, index)
+                    for m in self._jacobian(res.camera, step, opts, raster, rig))
         return dataclasses.replace(res, truth=res.truth if truth else None, jacobian=J, rig_jacobian=J_rig)
 
     def _moving(self, camera, step: int, truth: bool, quantize: bool, jacobian: bool, options: dict) -> Result:

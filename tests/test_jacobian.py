@@ -9,6 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import scipy.sparse as sp
+from scipy.ndimage import minimum_filter
 
 from glsim import cli
 from glsim.backends.cpu import rasterize
@@ -224,13 +225,80 @@ def test_supersampled_pixels_average_their_samples():
 OPTICS = {"focal_length": 50.0, "f_number": 2.8, "focus_distance": 300.0, "pixel_pitch": 0.005}
 
 
-@pytest.mark.parametrize("change, key", [({"lighting": {}}, "lighting"), ({"optics": OPTICS}, "optics"),
-                                         ({"vignetting": {"natural": True}}, "vignetting")])
+@pytest.mark.parametrize("change, key", [({"lighting": {}}, "lighting"), ({"optics": OPTICS}, "optics")])
 def test_effects_are_refused_by_name(change, key):
     scene, mesh = _plate(backend="cpu")
     with Renderer(scene.replace(**change), mesh=mesh) as r, \
             pytest.raises(SceneError, match=rf"^{key}: .* — remove \[{key}\] or render without jacobian"):
         r.render(0, 1, jacobian=True)
+
+
+CAMERA_EFFECTS = {"vignetting": {"natural": True, "radial": [0.3, -0.1]}, "psf": {"kind": "gaussian", "sigma": 0.9},
+                  "sensor": {"prnu": 1.5, "dsnu": 2.0}}
+
+
+def _with_camera_effects(scene, grey64: np.ndarray) -> np.ndarray:
+    """The oracle's camera-effect stages in float64, in the pipeline's order, on a raster's grey
+    (W·H,): vignetting's gain, the PSF (scipy.ndimage), fixed-pattern noise (glsim.effects)."""
+    from glsim.effects import noise, psf
+    from glsim.effects.vignetting import flat_field
+
+    cam = scene.cameras[0]
+    image = grey64.reshape(cam.height, cam.width) * flat_field(cam, scene.vignetting)
+    image = psf.apply(image, psf.make_kernel(scene.psf))
+    return noise.fixed_pattern(image, scene.sensor.prnu, scene.sensor.dsnu, cam.bit_depth,
+                               noise.fixed_pattern_seed(scene.seed, 0)).ravel()
+
+
+def test_camera_effects_jacobian_matches_central_differences():
+    """Vignetting, a Gaussian PSF and fixed-pattern noise act on the image linearly, so its
+    Jacobian is the raster's through them (glsim.stages.jacobian.camera_effects): against
+    central differences of the float64 raster put through the oracle's own effect stages (the
+    rendered image's composition, checked), on every pixel whose PSF window (±4 px) holds only
+    pixels whose samples stay in one element in both renders; test_oracle_matches_central_differences's
+    criterion."""
+    scene, mesh = _plate(backend="cpu", mode="exact")
+    scene = scene.replace(**CAMERA_EFFECTS)
+    R = 4                                     # ceil(4σ): the Gaussian kernel's half-width
+    with Renderer(scene, mesh=mesh) as r:
+        res = r.render(0, 1, jacobian=True)
+        J = res.jacobian.tocsc()
+        deformed = mesh.deformed(1)
+        grey, _ = _image64(r, deformed)
+        assert np.abs(_with_camera_effects(scene, grey) - res.image.ravel()).max() <= 1e-6
+        checked = 0
+        for node in np.random.default_rng(3).choice(mesh.n_nodes, 5, replace=False):
+            for c in range(3):
+                (plus, ep), (minus, em) = (_image64(r, deformed + sign * DELTA * (np.arange(3) == c)
+                                                    * (np.arange(mesh.n_nodes) == node)[:, None]) for sign in (1, -1))
+                fd = (_with_camera_effects(scene, plus) - _with_camera_effects(scene, minus)) / (2 * DELTA)
+                col = J[:, 3 * node + c].toarray().ravel()
+                clean = minimum_filter(((ep == em) & (ep >= -1)).reshape(48, 64), size=2 * R + 1, mode="nearest").ravel()
+                floor = 1e-3 * np.abs(col).max()
+                assert np.all(np.abs(fd - col)[clean] <= 1e-4 * np.maximum(np.abs(col[clean]), floor))
+                checked += np.count_nonzero(col[clean])
+        assert checked > 100
+
+
+def test_the_psf_matrix_is_the_convolution():
+    """glsim.effects.psf.matrix (the Jacobian's PSF) against scipy.ndimage's convolution
+    (psf.apply), clamp to edge, for an asymmetric measured kernel: to rounding."""
+    from glsim.effects import psf
+
+    rng = np.random.default_rng(4)
+    kernel = rng.uniform(0, 1, (5, 5))
+    k = psf.Kernel(kernel / kernel.sum(), None)
+    image = rng.uniform(0, 1, (13, 17))
+    got = (psf.matrix(k, (17, 13)) @ image.ravel()).reshape(13, 17)
+    np.testing.assert_allclose(got, psf.apply(image, k), rtol=0, atol=1e-15)
+
+
+@pytest.mark.parametrize("change, rig, key", [({"sensor": {"fill_factor": 0.5}}, False, "sensor.fill_factor"),
+                                              ({"vignetting": {"natural": True}}, True, "vignetting")])
+def test_what_the_camera_effects_jacobian_leaves_out_is_refused_by_name(change, rig, key):
+    scene, mesh = _plate(backend="cpu")
+    with Renderer(scene.replace(**change), mesh=mesh) as r, pytest.raises(SceneError, match=rf"^{key}: .* — "):
+        r.render(0, 1, jacobian=True, rig=rig)
 
 
 def test_modes_and_interpolation_are_refused_by_name():
@@ -249,6 +317,13 @@ def test_modes_and_interpolation_are_refused_by_name():
 @pytest.mark.parametrize("mode, spp", [("exact", 1), ("q4", 1), ("exact", 4)])
 def test_gl_matches_the_oracle(gl_ctx, mode, spp):
     _gl_against_oracle(gl_ctx, *_plate(mode=mode, samples_per_pixel=spp))
+
+
+@pytest.mark.gl
+def test_gl_matches_the_oracle_through_camera_effects(gl_ctx):
+    """The PSF and fixed-pattern noise (the rig Jacobian refuses vignetting): as above."""
+    scene, mesh = _plate()
+    _gl_against_oracle(gl_ctx, scene.replace(psf=CAMERA_EFFECTS["psf"], sensor=CAMERA_EFFECTS["sensor"]), mesh)
 
 
 def _gl_against_oracle(gl_ctx, scene, mesh):

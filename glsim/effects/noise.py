@@ -148,16 +148,24 @@ def fixed_pattern_seed(scene_seed: int, camera_index: int) -> int:
         return int(pcg_hash(pcg_hash(np.uint32(s)) + np.uint32(c)))
 
 
+def prnu_gain(shape: tuple[int, int], prnu: float, seed: int) -> np.ndarray:
+    """The PRNU's gain per pixel, float64 (H, W): 1 + prnu/100 · z_p, z_p the standard normal map
+    of ``seed`` (:func:`fixed_pattern_seed`) on stream STREAM_PRNU; ``prnu`` in % of the signal."""
+    H, W = shape
+    index = np.arange(H * W, dtype=np.uint32).reshape(H, W)
+    return 1.0 + prnu / 100.0 * standard_normal(index, np.uint32(_seed_word(seed, "seed")), STREAM_PRNU)
+
+
 def fixed_pattern(image, prnu: float, dsnu: float, bit_depth: int, seed: int) -> np.ndarray:
-    """EMVA 1288 fixed-pattern noise, float64 (H, W): image · (1 + prnu/100 · z_p) + dsnu/(2^bits − 1) · z_d,
-    z_p and z_d standard normal maps of ``seed`` (:func:`fixed_pattern_seed`) on streams
-    STREAM_PRNU and STREAM_DSNU; ``prnu`` in % of the signal, ``dsnu`` in DN."""
+    """EMVA 1288 fixed-pattern noise, float64 (H, W): image · :func:`prnu_gain` + dsnu/(2^bits − 1) · z_d,
+    z_d the standard normal map of ``seed`` (:func:`fixed_pattern_seed`) on stream STREAM_DSNU;
+    ``dsnu`` in DN."""
     I = np.asarray(image, np.float64)
     H, W = I.shape
-    index = np.arange(H * W, dtype=np.uint32).reshape(H, W)
-    seed = np.uint32(_seed_word(seed, "seed"))
-    out = I * (1.0 + prnu / 100.0 * standard_normal(index, seed, STREAM_PRNU)) if prnu else I
+    out = I * prnu_gain(I.shape, prnu, seed) if prnu else I
     if dsnu:
+        index = np.arange(H * W, dtype=np.uint32).reshape(H, W)
+        seed = np.uint32(_seed_word(seed, "seed"))
         out = out + dsnu / ((1 << _check_bits(bit_depth)) - 1) * standard_normal(index, seed, STREAM_DSNU)
     return out
 

@@ -143,6 +143,24 @@ def make_kernel(psf, base: Path | None = None) -> Kernel:
     return _kernel_cached(psf.kind, psf.sigma, psf.wavelength_nm, psf.f_number, psf.pixel_pitch, path)
 
 
+def matrix(k: Kernel, size: tuple[int, int]):
+    """:func:`apply` as a scipy.sparse CSR matrix acting on row-major images of ``size`` (W, H):
+    ``(matrix(k, (W, H)) @ I.ravel()).reshape(H, W)`` is ``apply(I, k)`` to rounding (the image
+    Jacobian through the PSF). (2R + 1)² entries per row, fewer at the border, where clamped
+    taps add up."""
+    from scipy import sparse
+
+    W, H, R = *size, k.radius
+    y, x = np.divmod(np.arange(W * H), W)
+    rows, cols, vals = [], [], []
+    for (a, b), w in np.ndenumerate(k.kernel):   # a convolution: tap (a, b) reads pixel p − (a, b) + R
+        if w:
+            rows.append(y * W + x)
+            cols.append(np.clip(y - a + R, 0, H - 1) * W + np.clip(x - b + R, 0, W - 1))
+            vals.append(np.full(W * H, w))
+    return sparse.csr_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))), shape=(W * H,) * 2)
+
+
 def apply(image: np.ndarray, k: Kernel) -> np.ndarray:
     """The image (H, W) convolved with the kernel in float64, clamp to edge."""
     from scipy import ndimage
