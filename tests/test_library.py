@@ -90,6 +90,24 @@ def _manifest_rows(d: Path, drop=mf.TIME_COLUMNS):
         return [{k: v for k, v in row.items() if k not in drop} for row in csv.DictReader(f)]
 
 
+def _image_and_truth_are_the_renderers(lib: Path, variant: str, tmp_path: Path):
+    """Assert that the library's cam1 step-2 image of ``variant`` is what the renderer makes of
+    its scene.json (8-bit TIFF, bit for bit) and its truth file's maps the renderer's (element,
+    ξ, η, positions); the Result (with ``scene``) and the maps."""
+    from types import SimpleNamespace
+
+    from glsim.scene import load_scene
+    scene = load_scene(lib / variant / "scene.json")
+    with Renderer(scene) as r:
+        res = r.render("cam1", 2, truth=True)
+    io.write_image(tmp_path / "x.tif", res.image, 8)
+    assert (tmp_path / "x.tif").read_bytes() == (lib / variant / "cam1_0002.tif").read_bytes()
+    maps = T.load(_truth_of(lib, f"{variant}/cam1_0002.tif")).maps()
+    for name in ("element", "xi", "eta", "X_undeformed", "X_deformed"):
+        np.testing.assert_array_equal(getattr(maps, name), getattr(res.truth, name), err_msg=name)
+    return SimpleNamespace(scene=scene, truth=res.truth), maps
+
+
 def _truth_of(lib: Path, image: str) -> Path:
     """The truth file of ``image`` (relative to the library), as its manifest row names it."""
     return lib / next(r["truth_file"] for r in _manifest_rows(lib) if r["file"] == image)
@@ -185,18 +203,11 @@ def test_a_library_with_an_exposure_stores_the_mid_exposure_truth(tmp_path):
     the mid-exposure state's (the load step's) element, ξ and η, its positions made from them as
     the renderer's; the motion range (uv_start, uv_end) is not part of a library's truth files.
     (The library's compact truth once met the motion range's code: an AttributeError.)"""
-    from glsim.scene import load_scene
     spec = _spec(tmp_path, "steps = [2]\n" + SCENE + "[scene.exposure]\ntime = 0.001\nsamples = 2\n"
                  "velocity = [20.0, 0.0, 0.0]\n[vary]\nnoise.sigma = [1.0]\n")
     lib = tmp_path / "lib"
     assert run(load_plan(spec), lib, workers=1).failed == []
-    with Renderer(load_scene(lib / "v0000" / "scene.json")) as r:
-        res = r.render("cam1", 2, truth=True)
-    io.write_image(tmp_path / "x.tif", res.image, 8)
-    assert (tmp_path / "x.tif").read_bytes() == (lib / "v0000" / "cam1_0002.tif").read_bytes()
-    maps = T.load(_truth_of(lib, "v0000/cam1_0002.tif")).maps()
-    for name in ("element", "xi", "eta", "X_undeformed", "X_deformed"):
-        np.testing.assert_array_equal(getattr(maps, name), getattr(res.truth, name), err_msg=name)
+    res, maps = _image_and_truth_are_the_renderers(lib, "v0000", tmp_path)
     assert res.truth.uv_start is not None and maps.uv_start is None
 
 
@@ -234,16 +245,8 @@ def test_layout_manifest_images_and_truth(reference_library, tmp_path):
         assert sha256_file(lib / r["truth_file"]) == r["truth_sha256"]
         assert float(r["render_s"]) > 0
     # a variant's images are what glsim render writes for its scene.json, its truth the renderer's maps
-    from glsim.scene import load_scene
-    scene = load_scene(lib / "v0003" / "scene.json")
-    assert scene.noise.sigma == 2.0 and scene.speckle.seed == 39
-    with Renderer(scene) as r:
-        res = r.render("cam1", 2, truth=True)
-    io.write_image(tmp_path / "x.tif", res.image, 8)
-    assert (tmp_path / "x.tif").read_bytes() == (lib / "v0003" / "cam1_0002.tif").read_bytes()
-    maps = T.load(_truth_of(lib, "v0003/cam1_0002.tif")).maps()
-    for name in ("element", "xi", "eta", "X_undeformed", "X_deformed"):
-        np.testing.assert_array_equal(getattr(maps, name), getattr(res.truth, name), err_msg=name)
+    res, maps = _image_and_truth_are_the_renderers(lib, "v0003", tmp_path)
+    assert res.scene.noise.sigma == 2.0 and res.scene.speckle.seed == 39
     np.testing.assert_allclose(maps.ref_uv, res.truth.ref_uv, atol=1e-4, equal_nan=True)
     assert len(list((lib / "geometry").iterdir())) == 1                 # one specimen: one geometry file
 

@@ -79,36 +79,42 @@ def t6_cells(nx, ny, at):
     return np.array(cells)
 
 
+def lattice_cubes(nx, ny):
+    """The one layer's cubes: per cell (row-major), its 8 corners' lattice indices (i, j, k) in
+    VTK's (and Exodus's) order, front face (k = 0) first."""
+    for j in range(ny):
+        for i in range(nx):
+            o = np.array([2 * i, 2 * j, 0])
+            yield [o + 2 * np.array(v) for v in ((0, 0, 0), (1, 0, 0), (1, 1, 0), (0, 1, 0),
+                                                  (0, 0, 1), (1, 0, 1), (1, 1, 1), (0, 1, 1))]
+
+
 def solid_cells(kind, nx, ny, at):
     """Cells of one layer of solids (VTK node order) on the lattice, front face at k = 0."""
     def mid(p, q):
         return tuple((np.array(p) + np.array(q)) // 2)
 
     out = []
-    for j in range(ny):
-        for i in range(nx):
-            o = np.array([2 * i, 2 * j, 0])
-            cube = [o + 2 * np.array(v) for v in ((0, 0, 0), (1, 0, 0), (1, 1, 0), (0, 1, 0),
-                                                   (0, 0, 1), (1, 0, 1), (1, 1, 1), (0, 1, 1))]
-            if kind in ("hexahedron20", "hexahedron27"):
-                corners = cube
-                edges = [(0, 1), (1, 2), (2, 3), (3, 0), (4, 5), (5, 6), (6, 7), (7, 4), (0, 4), (1, 5), (2, 6), (3, 7)]
-                pts = corners + [mid(corners[a], corners[b]) for a, b in edges]
-                if kind == "hexahedron27":
-                    faces = [(0, 3, 7, 4), (1, 2, 6, 5), (0, 1, 5, 4), (3, 2, 6, 7), (0, 1, 2, 3), (4, 5, 6, 7)]
-                    pts += [tuple(sum(np.array(corners[f]) for f in face) // 4) for face in faces]
-                    pts += [tuple(sum(np.array(c) for c in corners) // 8)]
-                out.append([at(*p) for p in pts])
-            elif kind == "wedge15":
-                for tri in ((0, 1, 2), (0, 2, 3)):
-                    corners = [cube[t] for t in tri] + [cube[t + 4] for t in tri]
-                    edges = [(0, 1), (1, 2), (2, 0), (3, 4), (4, 5), (5, 3), (0, 3), (1, 4), (2, 5)]
-                    out.append([at(*p) for p in corners + [mid(corners[a], corners[b]) for a, b in edges]])
-            else:   # tetra10: the 6 Kuhn tetrahedra around the cube's diagonal 0–6
-                for path in ((1, 2), (3, 2), (1, 5), (4, 5), (3, 7), (4, 7)):
-                    corners = [cube[0], cube[path[0]], cube[path[1]], cube[6]]
-                    edges = [(0, 1), (1, 2), (2, 0), (0, 3), (1, 3), (2, 3)]
-                    out.append([at(*p) for p in corners + [mid(corners[a], corners[b]) for a, b in edges]])
+    for cube in lattice_cubes(nx, ny):
+        if kind in ("hexahedron20", "hexahedron27"):
+            corners = cube
+            edges = [(0, 1), (1, 2), (2, 3), (3, 0), (4, 5), (5, 6), (6, 7), (7, 4), (0, 4), (1, 5), (2, 6), (3, 7)]
+            pts = corners + [mid(corners[a], corners[b]) for a, b in edges]
+            if kind == "hexahedron27":
+                faces = [(0, 3, 7, 4), (1, 2, 6, 5), (0, 1, 5, 4), (3, 2, 6, 7), (0, 1, 2, 3), (4, 5, 6, 7)]
+                pts += [tuple(sum(np.array(corners[f]) for f in face) // 4) for face in faces]
+                pts += [tuple(sum(np.array(c) for c in corners) // 8)]
+            out.append([at(*p) for p in pts])
+        elif kind == "wedge15":
+            for tri in ((0, 1, 2), (0, 2, 3)):
+                corners = [cube[t] for t in tri] + [cube[t + 4] for t in tri]
+                edges = [(0, 1), (1, 2), (2, 0), (3, 4), (4, 5), (5, 3), (0, 3), (1, 4), (2, 5)]
+                out.append([at(*p) for p in corners + [mid(corners[a], corners[b]) for a, b in edges]])
+        else:   # tetra10: the 6 Kuhn tetrahedra around the cube's diagonal 0–6
+            for path in ((1, 2), (3, 2), (1, 5), (4, 5), (3, 7), (4, 7)):
+                corners = [cube[0], cube[path[0]], cube[path[1]], cube[6]]
+                edges = [(0, 1), (1, 2), (2, 0), (0, 3), (1, 3), (2, 3)]
+                out.append([at(*p) for p in corners + [mid(corners[a], corners[b]) for a, b in edges]])
     return np.array(out)
 
 
@@ -637,19 +643,15 @@ def exodus_solid_cells(elem_type: str, nx: int, ny: int, at) -> np.ndarray:
         return tuple(sum(np.array(p) for p in points) // len(points))
 
     out = []
-    for j in range(ny):
-        for i in range(nx):
-            o = np.array([2 * i, 2 * j, 0])
-            cube = [o + 2 * np.array(v) for v in ((0, 0, 0), (1, 0, 0), (1, 1, 0), (0, 1, 0),
-                                                   (0, 0, 1), (1, 0, 1), (1, 1, 1), (0, 1, 1))]
-            if elem_type == "HEX27":
-                pts = cube + [mean(cube[a - 1], cube[b - 1]) for a, b in HEX_EDGES] + [mean(*cube)]
-                pts += [mean(*(cube[n - 1] for n in HEX27_SIDES[k])) for k in range(22, 28)]
-                out.append([at(*p) for p in pts])
-            else:
-                for tri in ((0, 1, 2), (0, 2, 3)):
-                    c = [cube[t] for t in tri] + [cube[t + 4] for t in tri]
-                    out.append([at(*p) for p in c + [mean(c[a - 1], c[b - 1]) for a, b in WEDGE_EDGES]])
+    for cube in lattice_cubes(nx, ny):
+        if elem_type == "HEX27":
+            pts = cube + [mean(cube[a - 1], cube[b - 1]) for a, b in HEX_EDGES] + [mean(*cube)]
+            pts += [mean(*(cube[n - 1] for n in HEX27_SIDES[k])) for k in range(22, 28)]
+            out.append([at(*p) for p in pts])
+        else:
+            for tri in ((0, 1, 2), (0, 2, 3)):
+                c = [cube[t] for t in tri] + [cube[t + 4] for t in tri]
+                out.append([at(*p) for p in c + [mean(c[a - 1], c[b - 1]) for a, b in WEDGE_EDGES]])
     return np.array(out)
 
 
