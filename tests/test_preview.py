@@ -151,6 +151,28 @@ def test_rig_controls_turn_and_move_the_cameras(fresh):
     assert pv.scene.cameras == pv.model.base.cameras
 
 
+def test_camera_effect_values_change_their_table_only(fresh):
+    """The camera effects' sliders (PSF σ, vignetting a1, PRNU, DSNU, exposure time and
+    samples) change exactly their table while it is on, and are kept while it is off; a value
+    the table refuses (samples > 1 over no time) keeps the scene, naming the key."""
+    pv = fresh
+    for name in ("psf", "vignetting", "fpn", "motion"):
+        assert pv.set(name, True), pv.messages
+    expect = {"psf_sigma": ("psf", "sigma", 1.6), "vignetting_a1": ("vignetting", "radial", (0.2,)),
+              "prnu": ("sensor", "prnu", 2.5), "dsnu": ("sensor", "dsnu", 4.0),
+              "exposure_time": ("exposure", "time", 0.3), "exposure_samples": ("exposure", "samples", 6)}
+    for name, (table, key, want) in expect.items():
+        before = pv.scene
+        assert pv.set(name, want[0] if isinstance(want, tuple) else want), pv.messages
+        assert sections(before, pv.scene) == {table} and getattr(getattr(pv.scene, table), key) == want, name
+    before = pv.scene
+    assert not pv.set("exposure_time", 0.0) and pv.scene is before
+    assert "exposure.samples" in pv.messages[-1]
+    pv.set("psf", False)
+    pv.set("psf_sigma", 2.0)
+    assert pv.scene.psf is None and pv.set("psf", True) and pv.scene.psf.sigma == 2.0
+
+
 def test_camera_effect_toggles_switch_their_table_and_render(fresh):
     """Keys 4–7: the lens PSF, vignetting, fixed-pattern noise ([sensor]) and motion over the
     exposure, each switching exactly its table (the scene's, or a default) and rendering with it."""

@@ -140,6 +140,12 @@ class Params:
     light_y: float = 0.0
     light_z: float = 0.0
     noise_sigma: float = 0.0
+    psf_sigma: float = 1.0        # px, a Gaussian PSF's
+    vignetting_a1: float = 0.0    # the radial fall-off's first coefficient
+    prnu: float = 0.0             # %
+    dsnu: float = 0.0             # DN
+    exposure_time: float = 0.0    # s
+    exposure_samples: int = 1
     speckle_size: float = 5.0
     speckle_seed: int = 0
     overlays: dict = field(default_factory=lambda: {k: False for k in OVERLAYS})
@@ -184,7 +190,16 @@ class Model:
             focal_length=self.base_focal, f_number=o.f_number, focus_distance=o.focus_distance,
             ambient=lit.ambient, light_intensity=light.intensity, light_x=light.position[0],
             light_y=light.position[1], light_z=light.position[2],
-            noise_sigma=self.noise.sigma, speckle_size=s.speckle.dot_diameter_px, speckle_seed=s.speckle.seed)
+            noise_sigma=self.noise.sigma, speckle_size=s.speckle.dot_diameter_px, speckle_seed=s.speckle.seed,
+            **self._effect_values())
+
+    def _effect_values(self) -> dict:
+        """The camera effects' values the sliders start from: the scene's tables, else the defaults."""
+        fx = self.camera_effects
+        psf, vig, sensor, ex = fx["psf"], fx["vignetting"], fx["fpn"], fx["motion"]
+        return {"psf_sigma": psf.sigma if psf.kind == "gaussian" else 1.0,
+                "vignetting_a1": vig.radial[0] if vig.radial else 0.0, "prnu": sensor.prnu, "dsnu": sensor.dsnu,
+                "exposure_time": ex.time, "exposure_samples": ex.samples}
 
     def controls(self) -> list[Control]:
         r, d = self.rig, self.rig.distance
@@ -218,7 +233,15 @@ class Model:
                 Control("light_x", "light x", "slider", -d, d, d / 60, unit="mm"),
                 Control("light_y", "light y", "slider", -d, d, d / 60, unit="mm"),
                 Control("light_z", "light z", "slider", -d, 2 * d, d / 60, unit="mm"),
-                Control("noise_sigma", "noise σ", "slider", 0.0, 10.0, 0.1, unit="%"),
+                Control("noise_sigma", "noise σ", "slider", 0.0, 10.0, 0.1, unit="%")]
+        if self.camera_effects["psf"].kind == "gaussian":   # (an Airy or measured PSF has no σ)
+            out.append(Control("psf_sigma", "PSF σ", "slider", 0.2, 5.0, 0.05, unit="px"))
+        T = self.camera_effects["motion"].time or 0.2
+        out += [Control("vignetting_a1", "vignetting a1", "slider", -0.5, 0.5, 0.01),
+                Control("prnu", "PRNU", "slider", 0.0, 5.0, 0.1, unit="%"),
+                Control("dsnu", "DSNU", "slider", 0.0, 10.0, 0.2, unit="DN"),
+                Control("exposure_time", "exposure time", "slider", 0.0, 4 * T, T / 20, unit="s"),
+                Control("exposure_samples", "exposure samples", "int", 1, 32, 1),
                 Control("speckle_size", "speckle size", "slider", 2.0, 15.0, 0.25, unit="px"),
                 Control("speckle_seed", "speckle seed", "int", 0, 999, 1)]
         out += [Control(f"overlay:{k}", label, "toggle", scene=False) for k, label in (
@@ -252,7 +275,14 @@ class Model:
             speckle = dataclasses.replace(speckle, dot_diameter_px=p.speckle_size,
                                           edge_px=min(speckle.edge_px, p.speckle_size), seed=p.speckle_seed)
         render = s.render if p.mode == s.render.mode else dataclasses.replace(s.render, mode=p.mode)
-        on = {k: v if getattr(p, k) else None for k, v in self.camera_effects.items()}
+        fx = self.camera_effects
+        vig = fx["vignetting"]
+        values = {"psf": dataclasses.replace(fx["psf"], sigma=p.psf_sigma) if fx["psf"].kind == "gaussian" else fx["psf"],
+                  "vignetting": dataclasses.replace(vig, radial=(p.vignetting_a1, *vig.radial[1:]))
+                  if p.vignetting_a1 or vig.radial else vig,
+                  "fpn": dataclasses.replace(fx["fpn"], prnu=p.prnu, dsnu=p.dsnu),
+                  "motion": dataclasses.replace(fx["motion"], time=p.exposure_time, samples=p.exposure_samples)}
+        on = {k: v if getattr(p, k) else None for k, v in values.items()}
         return dataclasses.replace(s, cameras=cams, lighting=lighting, optics=optics, noise=noise,
                                    speckle=speckle, render=render, psf=on["psf"], vignetting=on["vignetting"],
                                    sensor=on["fpn"], exposure=on["motion"])
