@@ -31,7 +31,7 @@ from glsim.limits import check_gl_target, check_image_size, check_memory, keep
 from glsim.scene import quadratic as qd
 from glsim.scene.bilinear import bilinear
 from glsim.scene.camera import Camera, to_camera
-from glsim.effects import prepare as prepare_effects, spread as spread_rows
+from glsim.effects import prepare as prepare_effects, spread as spread_rows, through_camera_effects
 from glsim.effects import motion, noise as noisemod
 from glsim.stages.geometry import MeshGeometry, StepGeometry
 from glsim.io.images import quantize as quantize_image, saturated_fraction
@@ -197,7 +197,7 @@ class Renderer:
         raster = {"element": res.truth.element.ravel(), "xi": res.truth.xi.ravel(),
                   "eta": res.truth.eta.ravel()} if one else None
         index = [c.name for c in self.scene.cameras].index(res.camera.name)
-        J, J_rig = (None if m is None else jac.camera_effects(m, self.scene, res.camera, index)
+        J, J_rig = (None if m is None else through_camera_effects(m, self.scene, res.camera, index)
                     for m in self._jacobian(res.camera, step, opts, raster, rig))
         return dataclasses.replace(res, truth=res.truth if truth else None, jacobian=J, rig_jacobian=J_rig)
 

@@ -16,6 +16,7 @@ from glsim.backends.gl.plan import plan
 from glsim.effects import Effects
 from glsim.effects import noise, psf
 from glsim.effects.vignetting import flat_field
+from glsim.evaluation import bounds
 from glsim.errors import SceneError
 from glsim.render import Renderer
 from glsim.scene import Plate, Psf, Scene, Sensor, scene_from_dict
@@ -206,32 +207,6 @@ def test_fixed_pattern_is_fixed_per_camera_and_has_its_sigma():
 
 
 # ---- GL against the oracle -------------------------------------------------------------------------
-def _bounds(fx, base: np.ndarray) -> float:
-    """The largest |GL − oracle| the float32 arithmetic of the camera passes allows on the same
-    input image ``base`` (M = max |value| along the way; u = 2^-24; γ_n ≈ n·u for a sum of n
-    products, Higham §3.1):
-    vignette: the gain's rounding, the product's, the oracle's final rounding: 3u·M;
-    PSF: per pass the kernel's weights (u), the n products and sums (n·u) over Σ|w|·M = M, and
-    the oracle's final rounding: separable (n = 2R + 1, two passes) 2(n + 1)u·M + u·M; 2-D
-    (n = (2R + 1)²) (n + 1)u·M + u·M;
-    fixed pattern: GLSL's cos is only good to 2^-11 absolute (GLSL 4.50 §8.1), sqrt and our log to
-    a few ulps: |Δz| ≤ 5.77·2^-11 + 5.77·8u (|z| ≤ 5.77, the 24-bit bound); times the gain σ·M
-    and the offset σ, plus 4u·M for the roundings."""
-    M = float(np.abs(base).max()) * max(float(fx.vignette.max()) if fx.vignette is not None else 1.0, 1.0)
-    if fx.fixed_pattern:    # |z| ≤ 5.77
-        M = M * (1 + fx.sensor.prnu / 100 * 5.77) + fx.sensor.dsnu / ((1 << fx.bit_depth) - 1) * 5.77
-    bound = 0.0
-    if fx.vignette is not None:
-        bound += 3 * U * M
-    if fx.psf is not None:
-        n = 2 * fx.psf.radius + 1
-        bound += (2 * (n + 1) * U * M if fx.psf.taps is not None else (n * n + 1) * U * M) + U * M
-    if fx.fixed_pattern:
-        dz = 5.77 * 2.0 ** -11 + 5.77 * 8 * U
-        bound += fx.sensor.prnu / 100 * M * dz + fx.sensor.dsnu / ((1 << fx.bit_depth) - 1) * dz + 4 * U * M
-    return bound
-
-
 GL_CASES = {
     "psf_gaussian": {"psf": {"kind": "gaussian", "sigma": 1.2}},
     "psf_airy": {"psf": {"kind": "airy", **AIRY}},
@@ -247,7 +222,7 @@ GL_CASES = {
 def test_gl_camera_passes_match_the_oracle(case, gl_ctx):
     """GL's image with the effect against the oracle's camera stages applied (float64) to GL's
     own image without it — the same input, so only the passes' arithmetic differs — within
-    :func:`_bounds`; and the passes run are those of the plan."""
+    :func:`glsim.evaluation.bounds.camera_passes`; and the passes run are those of the plan."""
     base = plate_scene(size=(96, 72), fx=300.0, samples_per_pixel=4)
     scene = base.replace(**GL_CASES[case])
     with Renderer(base, "gl", ctx=gl_ctx) as r0, Renderer(scene, "gl", ctx=gl_ctx) as r:
@@ -261,7 +236,7 @@ def test_gl_camera_passes_match_the_oracle(case, gl_ctx):
     want = camera_stages(plain.astype(np.float64), fx, stages)
     assert list(res.stages[-len(stages):]) == stages
     d = np.abs(res.image.astype(np.float64) - want).max()
-    bound = _bounds(fx, plain)
+    bound = bounds.camera_passes(fx, plain)
     print(f"{case}: max |GL − oracle| {d:.3g} of full scale, bound {bound:.3g}")
     assert d <= bound and bound <= 0.5 / 255
 
@@ -388,7 +363,7 @@ def test_render_writes_the_flat_field_on_request(tmp_path):
 @pytest.mark.gl
 def test_gl_measured_psf_is_not_flipped(gl_ctx, tmp_path):
     """An asymmetric measured PSF (a comet to the right and down): GL's 2-D pass against the
-    oracle's convolution of the same GL input, within the 2-D bound of :func:`_bounds` — a
+    oracle's convolution of the same GL input, within the 2-D bound of :func:`glsim.evaluation.bounds.camera_passes` — a
     kernel applied flipped would miss by the image's contrast."""
     import tifffile
     from glsim.effects import prepare
@@ -406,7 +381,7 @@ def test_gl_measured_psf_is_not_flipped(gl_ctx, tmp_path):
     want = camera_stages(plain.astype(np.float64), fx, [])
     flipped = psf.apply(plain, dataclasses.replace(fx.psf, kernel=fx.psf.kernel[::-1, ::-1])).astype(np.float32)
     d = np.abs(img - want).max()
-    assert d <= _bounds(fx, plain) and np.abs(flipped - want).max() > 100 * _bounds(fx, plain), d
+    assert d <= bounds.camera_passes(fx, plain) and np.abs(flipped - want).max() > 100 * bounds.camera_passes(fx, plain), d
 
 
 def test_render_refuses_a_bad_measured_psf_before_writing(tmp_path):

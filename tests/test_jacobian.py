@@ -252,7 +252,7 @@ def _with_camera_effects(scene, grey64: np.ndarray) -> np.ndarray:
 
 def test_camera_effects_jacobian_matches_central_differences():
     """Vignetting, a Gaussian PSF and fixed-pattern noise act on the image linearly, so its
-    Jacobian is the raster's through them (glsim.stages.jacobian.camera_effects): against
+    Jacobian is the raster's through them (glsim.effects.through_camera_effects): against
     central differences of the float64 raster put through the oracle's own effect stages (the
     rendered image's composition, checked), on every pixel whose PSF window (±4 px) holds only
     pixels whose samples stay in one element in both renders; test_oracle_matches_central_differences's

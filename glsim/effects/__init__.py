@@ -13,6 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
+from glsim.errors import SceneError
 from glsim.scene.camera import Camera
 from glsim.scene import Lighting, Noise, Optics, Scene, Sensor
 
@@ -92,6 +93,41 @@ def spread(scene: Scene, depths: np.ndarray) -> int:
 
         rows += make_kernel(scene.psf, Path(scene.base_dir)).kernel.shape[0] // 2
     return rows
+
+
+def through_camera_effects(J, scene: Scene, cam: Camera, camera_index: int):
+    """An image Jacobian ``J`` (W·H × n, sparse; glsim.stages.jacobian) of the image before the
+    camera effects → of the image after those of them that act on it linearly and do not move
+    with the nodes, in the pipeline's order (docs/camera.md): vignetting's gain per pixel, the
+    lens PSF (a convolution, clamp to edge: :func:`glsim.effects.psf.matrix`), the PRNU's gain;
+    the DSNU adds an offset (no derivative). SceneError naming [psf] where the PSF's product
+    would need more memory than this process may use."""
+    from scipy import sparse
+
+    W, H = cam.size
+    if scene.vignetting is not None:
+        from glsim.effects.vignetting import flat_field
+
+        J = sparse.diags(flat_field(cam, scene.vignetting).ravel()) @ J
+    if scene.psf is not None:
+        from glsim.effects import psf
+        from glsim.limits import memory_budget
+
+        k = psf.make_kernel(scene.psf, Path(scene.base_dir))
+        taps = int(np.count_nonzero(k.kernel))
+        need, budget = 24 * taps * (W * H + J.nnz), memory_budget()   # (row, column, value) per entry
+        if need > budget:
+            raise SceneError("psf", f"the image Jacobian through its {2 * k.radius + 1} px kernel needs about "
+                             f"{need / 2**30:.3g} GiB, more than the {budget / 2**30:.3g} GiB this process may use",
+                             "render a smaller camera (a region of interest), give a narrower PSF, or render "
+                             "without jacobian")
+        J = psf.matrix(k, (W, H)) @ J
+    if scene.sensor is not None and scene.sensor.prnu > 0:
+        from glsim.effects import noise
+
+        gain = noise.prnu_gain((H, W), scene.sensor.prnu, noise.fixed_pattern_seed(scene.seed, camera_index))
+        J = sparse.diags(gain.ravel()) @ J
+    return sparse.csr_matrix(J)
 
 
 def prepare(scene: Scene, nodes_def: np.ndarray, quads: np.ndarray, cam: Camera, camera_index: int,

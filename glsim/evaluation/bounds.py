@@ -1,5 +1,6 @@
 """Bounds of the GL path's error against the CPU oracle, derived from the arithmetic of each
 mode (issue 25), for ``glsim check`` and the GL tests: the same bounds on llvmpipe and on a GPU.
+The camera passes' (vignetting, PSF, fixed pattern): :func:`camera_passes`.
 
 - **float64 (exact, q4, and their truth)**: unit roundoff 2^-53 = 1.1e-16 on coordinates below
   1e4 (px or mm) is 1.1e-12; the closed-form roots, two Newton polishes and the projections
@@ -49,3 +50,30 @@ def fast_bound(fx: float, field: np.ndarray, mask: np.ndarray) -> np.ndarray:
     point in px or a material point in mm; ``field`` the oracle's map of it, (H, W, k)) against
     the oracle's."""
     return fast_px(fx) * per_pixel(field, mask) + FLOAT64
+
+
+def camera_passes(fx, base: np.ndarray) -> float:
+    """The largest |GL − oracle| (full scale) the float32 arithmetic of the camera passes allows
+    on the same input image ``base`` with :class:`~glsim.effects.Effects` ``fx`` (M = max |value|
+    along the way; u = 2^-24; γ_n ≈ n·u for a sum of n products, Higham §3.1):
+    vignette: the gain's rounding, the product's, the oracle's final rounding: 3u·M;
+    PSF: per pass the kernel's weights (u), the n products and sums (n·u) over Σ|w|·M = M, and
+    the oracle's final rounding: separable (n = 2R + 1, two passes) 2(n + 1)u·M + u·M; 2-D
+    (n = (2R + 1)²) (n + 1)u·M + u·M;
+    fixed pattern: GLSL's cos is only good to 2^-11 absolute (GLSL 4.50 §8.1), sqrt and our log to
+    a few ulps: |Δz| ≤ 5.77·2^-11 + 5.77·8u (|z| ≤ 5.77, the 24-bit bound); times the gain σ·M
+    and the offset σ, plus 4u·M for the roundings."""
+    u = FLOAT32_ROUNDOFF
+    M = float(np.abs(base).max()) * max(float(fx.vignette.max()) if fx.vignette is not None else 1.0, 1.0)
+    if fx.fixed_pattern:    # |z| ≤ 5.77
+        M = M * (1 + fx.sensor.prnu / 100 * 5.77) + fx.sensor.dsnu / ((1 << fx.bit_depth) - 1) * 5.77
+    bound = 0.0
+    if fx.vignette is not None:
+        bound += 3 * u * M
+    if fx.psf is not None:
+        n = 2 * fx.psf.radius + 1
+        bound += (2 * (n + 1) * u * M if fx.psf.taps is not None else (n * n + 1) * u * M) + u * M
+    if fx.fixed_pattern:
+        dz = 5.77 * 2.0 ** -11 + 5.77 * 8 * u
+        bound += fx.sensor.prnu / 100 * M * dz + fx.sensor.dsnu / ((1 << fx.bit_depth) - 1) * dz + 4 * u * M
+    return bound

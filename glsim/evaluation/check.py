@@ -15,7 +15,9 @@ Each bound says where it comes from (``why``):
   each is derived): float64 in exact and q4, float32 vertex projection in fast;
 - the same on curved quadratic elements (the Q8 paraboloid of ``glsim bench quadratic``):
   Newton on each patch in the shader, float64, exact and q4;
-- each optical effect on the bulge against the oracle: grey levels of 8 bit.
+- each optical effect on the bulge against the oracle: grey levels of 8 bit;
+- the camera passes (vignetting, Gaussian and Airy PSFs, fixed-pattern noise) on GL's own image
+  against the oracle's stages on it, in units of their float32 bound.
 """
 from __future__ import annotations
 
@@ -194,7 +196,28 @@ def _effect(effect: str) -> Callable[[Context], float]:
     return run
 
 
+def _camera_passes(effects: dict) -> Callable[[Context], float]:
+    """GL's bulge image (camera 0, step 1, exact) with camera passes (``effects``: scene tables)
+    against the oracle's camera stages (glsim.backends.cpu.camera_stages, float64) applied to
+    GL's own image without them — the same input, so only the passes' arithmetic differs — in
+    units of :func:`glsim.evaluation.bounds.camera_passes`."""
+    def run(c: Context) -> float:
+        from glsim.backends.cpu import camera_stages
+        from glsim.effects import prepare
+
+        g0, _ = _bulge(c)
+        scene = g0.scene.replace(**effects)
+        g, _ = c.pair(f"camera passes {sorted(effects)} {effects.get('psf', {}).get('kind')}", scene)
+        plain, image = g0.render(0, 1).image, g.render(0, 1).image
+        fx = prepare(scene, np.zeros((1, 3)), np.zeros((0, 4), np.int64), scene.cameras[0], 0, 1, np.empty(0),
+                     normals=False)
+        want = camera_stages(plain.astype(np.float64), fx, [])
+        return float(np.abs(image.astype(np.float64) - want).max() / bounds.camera_passes(fx, plain))
+    return run
+
+
 FLOAT64 = "glsim.evaluation.bounds: float64, 1e-9 px or mm"
+CAMERA = "glsim.evaluation.bounds.camera_passes: float32 passes on GL's own image"
 CHECKS = (
     Check("float64 primitives", 0, "results differing in any bit", "split_double, pixel_to_normalized, "
           "pinhole_corners, edge functions, distort, normalized_to_pixel: the same operations as numpy's, "
@@ -216,6 +239,11 @@ CHECKS = (
     Check("lighting, exact", 2, "px > 0.5 grey of 8 bit", "as tests/test_effects.py (element edges)", _effect("lighting")),
     Check("depth of field, exact", 0, "px > 0.5 grey of 8 bit", "as tests/test_effects.py", _effect("optics")),
     Check("noise, exact", 2, "px > 0.5 grey of 8 bit", "as tests/test_effects.py (element edges)", _effect("noise")),
+    Check("camera passes: Gaussian PSF, vignetting, fixed pattern", 1, "× bound", CAMERA,
+          _camera_passes({"psf": {"kind": "gaussian", "sigma": 0.8}, "vignetting": {"natural": True, "radial": [0.3]},
+                          "sensor": {"prnu": 1.0, "dsnu": 2.0}})),
+    Check("camera passes: Airy PSF (2-D kernel)", 1, "× bound", CAMERA,
+          _camera_passes({"psf": {"kind": "airy", "wavelength_nm": 550.0, "f_number": 8.0, "pixel_pitch": 0.00345}})),
 )
 
 

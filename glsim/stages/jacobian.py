@@ -40,14 +40,14 @@ from glsim.scene.camera import (Camera, distort, distort_jacobian, pixel_to_norm
 
 MODES = ("exact", "q4")
 # optional tables the Jacobian allows: it is of the noise-free image, through the camera effects
-# that act on it linearly (camera_effects)
+# that act on it linearly (glsim.effects.through_camera_effects)
 UNREFUSED = ("noise", "vignetting", "psf", "sensor")
 CHUNK = 1 << 18          # samples differentiated at once (bounds memory: ~100 doubles each)
 
 
 def check_request(scene: Scene, opts: Render, rig: bool = False) -> None:
     """SceneError naming what ``jacobian=True`` cannot differentiate: an effect table (every
-    optional table but [noise] and the linear camera effects: :func:`camera_effects`), a fill
+    optional table but [noise] and the linear camera effects: :func:`glsim.effects.through_camera_effects`), a fill
     factor below 1, [vignetting] in the rig Jacobian, mode fast, procedural interpolation."""
     for f in dataclasses.fields(scene):
         if f.default is None and getattr(scene, f.name) is not None and f.name not in UNREFUSED:
@@ -69,41 +69,6 @@ def check_request(scene: Scene, opts: Render, rig: bool = False) -> None:
                          "'procedural' evaluates the dots directly", "choose cubic, bspline3 or bspline5 "
                          "(or linear), or render without jacobian")
 
-
-
-def camera_effects(J, scene: Scene, cam: Camera, camera_index: int):
-    """``J`` (W·H × n, sparse) of the image before the camera effects → of the image after those
-    of them that act on it linearly and do not move with the nodes, in the pipeline's order
-    (docs/camera.md): vignetting's gain per pixel, the lens PSF (a convolution, clamp to edge:
-    :func:`glsim.effects.psf.matrix`), the PRNU's gain; the DSNU adds an offset (no derivative).
-    SceneError naming [psf] where the PSF's product would need more memory than this process may
-    use."""
-    W, H = cam.size
-    if scene.vignetting is not None:
-        from glsim.effects.vignetting import flat_field
-
-        J = sparse.diags(flat_field(cam, scene.vignetting).ravel()) @ J
-    if scene.psf is not None:
-        from pathlib import Path
-
-        from glsim.effects import psf
-        from glsim.limits import memory_budget
-
-        k = psf.make_kernel(scene.psf, Path(scene.base_dir))
-        taps = int(np.count_nonzero(k.kernel))
-        need, budget = 24 * taps * (W * H + J.nnz), memory_budget()   # (row, column, value) per entry
-        if need > budget:
-            raise SceneError("psf", f"the image Jacobian through its {2 * k.radius + 1} px kernel needs about "
-                             f"{need / 2**30:.3g} GiB, more than the {budget / 2**30:.3g} GiB this process may use",
-                             "render a smaller camera (a region of interest), give a narrower PSF, or render "
-                             "without jacobian")
-        J = psf.matrix(k, (W, H)) @ J
-    if scene.sensor is not None and scene.sensor.prnu > 0:
-        from glsim.effects import noise
-
-        gain = noise.prnu_gain((H, W), scene.sensor.prnu, noise.fixed_pattern_seed(scene.seed, camera_index))
-        J = sparse.diags(gain.ravel()) @ J
-    return sparse.csr_matrix(J)
 
 
 def sample_camera(cam: Camera, s: int) -> Camera:
