@@ -25,6 +25,7 @@ from dataclasses import dataclass, field
 from typing import NamedTuple
 
 import numpy as np
+from scipy import sparse
 
 from glsim.errors import SceneError
 from glsim.limits import check_gl_target, check_image_size, check_memory, keep
@@ -187,7 +188,7 @@ class Renderer:
         ``rig``: that and ``Result.rig_jacobian``, with respect to the camera's pose and intrinsics."""
         jacobian = jacobian or rig
         if self.scene.exposure is not None:   # motion over the exposure, a rolling shutter
-            return self._moving(camera, step, truth, quantize, jacobian, options)
+            return self._moving(camera, step, truth, quantize, jacobian, rig, options)
         if not jacobian:
             return self._finish(self._submit(camera, step, truth, quantize, options))
         opts = self._options(options)
@@ -196,27 +197,43 @@ class Renderer:
         res = self._finish(self._submit(camera, step, truth or one, quantize, options))
         raster = {"element": res.truth.element.ravel(), "xi": res.truth.xi.ravel(),
                   "eta": res.truth.eta.ravel()} if one else None
-        index = [c.name for c in self.scene.cameras].index(res.camera.name)
-        J, J_rig = (None if m is None else through_camera_effects(m, self.scene, res.camera, index)
-                    for m in self._jacobian(res.camera, step, opts, raster, rig))
-        return dataclasses.replace(res, truth=res.truth if truth else None, jacobian=J, rig_jacobian=J_rig)
+        J, J_rig = self._jacobian(res.camera, step, opts, raster, rig)
+        return dataclasses.replace(res, truth=res.truth if truth else None,
+                                   **self._through_camera_effects(res.camera, J, J_rig))
 
-    def _moving(self, camera, step: int, truth: bool, quantize: bool, jacobian: bool, options: dict) -> Result:
+    def _through_camera_effects(self, cam: Camera, J, J_rig) -> dict:
+        """``jacobian`` and ``rig_jacobian`` of ``cam``'s image from the raster's: through the
+        camera effects that act on the image linearly (:func:`glsim.effects.through_camera_effects`)."""
+        index = [c.name for c in self.scene.cameras].index(cam.name)
+        return {"jacobian": through_camera_effects(J, self.scene, cam, index),
+                "rig_jacobian": None if J_rig is None else through_camera_effects(J_rig, self.scene, cam, index)}
+
+    def _moving(self, camera, step: int, truth: bool, quantize: bool, jacobian: bool, rig: bool,
+                options: dict) -> Result:
         """:meth:`render` with ``[exposure]`` (:mod:`glsim.effects.motion`): per row of a rolling
-        shutter (else once) the mean of the sub-frames, then fixed-pattern and temporal noise."""
+        shutter (else once) the mean of the sub-frames, then fixed-pattern and temporal noise;
+        ``jacobian``: the mean of the sub-frames' Jacobians, each chained through its state's
+        derivative with respect to the step's nodes (:meth:`glsim.effects.motion.Timeline.derivative`)."""
         t0, scene, mesh = time.perf_counter(), self.scene, self.drawn_mesh
-        if jacobian:
-            raise SceneError("jacobian", "is not made with [exposure]", "remove [exposure], or render without jacobian")
         opts = self._options(options)
+        if jacobian:
+            jac.check_request(scene, opts, rig)
         self.check_size(camera, truth, opts)
         cam, ex = scene.camera(camera), scene.exposure
         line = scene.sensor.line_time if scene.sensor is not None else 0.0
         rows = list(enumerate(motion.row_offsets(cam.height, line))) if line > 0 else [(None, 0.0)]
         tl, taus = motion.timeline(ex, self.mesh, step), motion.sample_offsets(ex.time, ex.samples)
-        images, truths = [], []
+        one = opts.supersampling == 1   # (a sub-frame's own raster is its samples')
+        images, truths, jacobians = [], [], []
         for row, t in rows:
-            frames = [self._frame(cam, step, t + tau, tl, opts, truth and tau == 0, row) for tau in taus]
+            frames = [self._frame(cam, step, t + tau, tl, opts, (truth and tau == 0) or (jacobian and one), row)
+                      for tau in taus]
             images.append(sum(out.image.astype(np.float64) for out, _ in frames) / len(taus))
+            if jacobian:
+                c = cam if row is None else motion.row_band(cam, row)[0]
+                Js, rigs = zip(*(self._jacobian(c, step, opts, out.samples if one else None, rig, tl, t + tau)
+                                 for (out, _), tau in zip(frames, taus)))
+                jacobians.append((sum(Js) / len(taus), sum(rigs) / len(taus) if rig else None))
             if truth:
                 out = next((out for (out, _), tau in zip(frames, taus) if tau == 0), None) or \
                     self._frame(cam, step, t, tl, opts, True, row)[0]
@@ -237,9 +254,14 @@ class Renderer:
         if line > 0:   # each row's own state
             specimen = lambda: np.concatenate([coverage(motion.row_band(cam, row)[0], tl.at(t, mesh.deformed),  # noqa: E731
                                                         mesh.quads) for row, t in rows])
+        derivatives = {}
+        if jacobian:
+            J = sparse.csr_matrix(sparse.vstack([j for j, _ in jacobians]))
+            J_rig = sparse.csr_matrix(sparse.vstack([r for _, r in jacobians])) if rig else None
+            derivatives = self._through_camera_effects(cam, J, J_rig)
         return Result(image=quantize_image(image, cam.bit_depth) if quantize else image, camera=cam, step=step,
                       backend=self.backend_name, options=opts, seconds=time.perf_counter() - t0,
-                      truth=motion.stack(truths) if truth else None, stages=stages, specimen=specimen)
+                      truth=motion.stack(truths) if truth else None, stages=stages, specimen=specimen, **derivatives)
 
     def _frame(self, cam: Camera, step: int, tau: float, tl: "motion.Timeline", opts: Render, truth: bool,
                row: int | None = None):
@@ -262,25 +284,34 @@ class Renderer:
         out = self.backend.render(Request(view, opts, truth, dataclasses.replace(fx, noise=None, sensor=None), curved))
         return (out if row is None else motion.band_row(out, at, cam.width)), fx
 
-    def _jacobian(self, cam: Camera, step: int, opts: Render, raster: dict | None, rig: bool):
+    def _jacobian(self, cam: Camera, step: int, opts: Render, raster: dict | None, rig: bool,
+                  tl: "motion.Timeline | None" = None, tau: float = 0.0):
         """The image Jacobian (glsim.stages.jacobian.image_jacobian) from the backend's float64
         raster of every sample: for s > 1 rendered as the pixels of the finer sample camera
-        (its warnings were the image's)."""
-        s = opts.supersampling
+        (its warnings were the image's). ``tl``: of the state τ s from the step's time
+        (:meth:`_moving`'s sub-frame), chained to the step's own displacements by the state's
+        derivative (:meth:`glsim.effects.motion.Timeline.derivative`)."""
+        s, mesh = opts.supersampling, self.mesh
+        state = None if tl is None or tau == 0 else float(tau)
+        deformed = mesh.deformed(step) if tl is None else tl.at(tau, mesh.deformed)
         if raster is None:
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore")
-                view = self.geometry.view(jac.sample_camera(cam, s), step)
-                curved = Curved(self.mesh, self.pieces, step) if self.mesh.is_quadratic else None
+                drawn = None if tl is None else tl.at(tau, self.drawn_mesh.deformed)
+                view = self.geometry.view(jac.sample_camera(cam, s), step, state, drawn)
+                curved = Curved(self.mesh, self.pieces, step if state is None else (step, state), deformed) \
+                    if self.mesh.is_quadratic else None
                 raster = self.backend.render(Request(view, dataclasses.replace(opts, samples_per_pixel=1), True,
                                                      curved=curved)).samples
         method = opts.interpolation
         if method not in self._ref_coeffs:
             self._ref_coeffs[method] = interp.prepare(self.reference.image, method, np.float64)
         coeffs = self._ref_coeffs[method]
-        mesh = self.mesh
-        return jac.image_jacobian(cam, s, self.reference.camera, mesh.nodes, mesh.deformed(step), mesh.quads,
-                                  opts.mode, raster, lambda uv: interp.gradient(coeffs, uv, method), rig, mesh.patches)
+        J, J_rig = jac.image_jacobian(cam, s, self.reference.camera, mesh.nodes, deformed, mesh.quads, opts.mode,
+                                      raster, lambda uv: interp.gradient(coeffs, uv, method), rig, mesh.patches)
+        if tl is not None:   # ∂g/∂u_k = ∂g/∂X(τ) · ∂X(τ)/∂X_k, per node
+            J = J @ sparse.kron(sparse.identity(mesh.n_nodes), tl.derivative(tau), format="csr")
+        return J, J_rig
 
     def render_many(self, jobs: Iterable, depth: int = 2) -> Iterator[Result]:
         """The Results of ``jobs`` in order, pipelined: request k + depth − 1 is submitted before

@@ -13,6 +13,7 @@ from scipy.ndimage import minimum_filter
 
 from glsim import cli
 from glsim.backends.cpu import rasterize
+from glsim.effects import motion
 from glsim.errors import SceneError
 from glsim.io.fe import specimen_mesh
 from glsim.render import Renderer
@@ -280,6 +281,87 @@ def test_camera_effects_jacobian_matches_central_differences():
         assert checked > 100
 
 
+def _exposure_image(r: Renderer, tl, taus, points, cam=None):
+    """The oracle's float64 image (W·H,) over an exposure: the mean of the sub-frames' rasters at
+    τ_i (``points(k)``: the nodes at load step k, ``tl``'s timeline), camera ``cam`` (default:
+    camera 0), and per pixel one element (−2 where a sub-frame's samples or two sub-frames differ)."""
+    cam = cam or r.scene.cameras[0]
+    W, H, s, opts = *cam.size, r.scene.render.supersampling, r.scene.render
+    grey, one = np.zeros(W * H), None
+    for tau in taus:
+        raster = rasterize(make_view(cam, r.reference.camera, r.mesh.nodes, tl.at(tau, points), r.mesh.quads,
+                                     warn=False), opts.mode, s)
+        hit = raster["element"] >= 0
+        g = np.full(hit.shape, opts.background)
+        g[hit] = r.backend.sampler(opts.interpolation)(raster["ref_uv"][hit])
+        grey += g.reshape(H, s, W, s).mean(axis=(1, 3)).ravel() / len(taus)
+        el = raster["element"].reshape(H, s, W, s).transpose(0, 2, 1, 3).reshape(W * H, s * s)
+        e = np.where((el == el[:, :1]).all(axis=1), el[:, 0], -2)
+        one = e if one is None else np.where(one == e, e, -2)
+    return grey, one
+
+
+EXPOSURES = {"rigid": {"time": 0.01, "samples": 3, "velocity": [40.0, -20.0, 10.0],
+                       "angular_velocity": [0.3, -0.2, 1.0], "centre": [1.0, -2.0, 600.0]},
+             "between steps": {"time": 0.8, "samples": 3, "step_time": 1.0}}
+
+
+@pytest.mark.parametrize("kind", sorted(EXPOSURES))
+def test_exposure_jacobian_matches_central_differences(kind):
+    """[exposure]: the image is the mean of sub-frames at states X(τ_i) (a rigid motion about a
+    given centre, or the interpolation between load steps 0–1–2 around step 1), so its Jacobian
+    is the mean of theirs, each chained by ∂X(τ)/∂X_1 (Timeline.derivative: R(ωτ), or step 1's
+    weight): against central differences of the float64 sub-frames' mean with step 1's node
+    moved ±δ, test_oracle_matches_central_differences's criterion (every sub-frame's samples in
+    one element in both renders); the rig Jacobian's pose and focal columns likewise."""
+    scene, mesh = _plate(backend="cpu", mode="exact")
+    u1 = mesh.displacements[1]
+    mesh = with_displacements(dataclasses.replace(mesh, displacements=(mesh.displacements[0],)),
+                              [u1, 1.6 * u1 + np.array([0.05, 0.0, 0.1])])
+    scene = scene.replace(exposure=EXPOSURES[kind])
+    with Renderer(scene, mesh=mesh) as r:
+        res = r.render(0, 1, rig=True)
+        J, J_rig = res.jacobian.tocsc(), res.rig_jacobian.toarray()
+        tl = motion.timeline(scene.exposure, mesh, 1)
+        taus = motion.sample_offsets(scene.exposure.time, scene.exposure.samples)
+        grey, _ = _exposure_image(r, tl, taus, mesh.deformed)
+        np.testing.assert_allclose(grey, res.image.ravel(), rtol=0, atol=1e-6)   # the rendered image's mean
+        checked = 0
+        for node in np.random.default_rng(5).choice(mesh.n_nodes, 4, replace=False):
+            for c in range(3):
+                def moved(sign):
+                    step = sign * DELTA * (np.arange(3) == c) * (np.arange(mesh.n_nodes) == node)[:, None]
+                    return _exposure_image(r, tl, taus, lambda k: mesh.deformed(k) + (step if k == 1 else 0))
+                (plus, ep), (minus, em) = moved(1), moved(-1)
+                col = J[:, 3 * node + c].toarray().ravel()
+                same = (ep == em) & (ep >= -1)
+                floor = 1e-3 * np.abs(col).max()
+                assert np.all(np.abs((plus - minus) / (2 * DELTA) - col)[same]
+                              <= 1e-4 * np.maximum(np.abs(col[same]), floor))
+                checked += np.count_nonzero(col[same])
+        assert checked > 100
+        for name in ("rz", "tx", "fx"):
+            d = RIG_STEPS.get(name, 1e-5)
+            (plus, ep), (minus, em) = (_exposure_image(r, tl, taus, mesh.deformed, _moved(scene.cameras[0], name, v))
+                                       for v in (d, -d))
+            same, col = (ep == em) & (ep >= -1), J_rig[:, jac.RIG_COLUMNS.index(name)]
+            floor = 1e-3 * np.abs(col).max()
+            assert np.all(np.abs((plus - minus)[same] / (2 * d) - col[same]) <= 1e-4 * np.maximum(np.abs(col[same]), floor))
+
+
+def test_rolling_shutter_jacobian_of_a_still_specimen_is_the_global_shutters():
+    """A rolling shutter's rows are rendered by one-row cameras with the rows' own states: with
+    the specimen still (velocity 0) each row's Jacobian is the global shutter's row, to rounding
+    (the one-row camera's rays are the full camera's), nodal and rig."""
+    scene, mesh = _plate(backend="cpu", mode="exact")
+    with Renderer(scene, mesh=mesh) as r:
+        still = r.render(0, 1, rig=True)
+    with Renderer(scene.replace(exposure={"velocity": [0.0, 0.0, 0.0]}, sensor={"line_time": 1e-4}), mesh=mesh) as r:
+        rolling = r.render(0, 1, rig=True)
+    for a, b in ((rolling.jacobian, still.jacobian), (rolling.rig_jacobian, still.rig_jacobian)):
+        assert abs(a - b).max() <= 1e-12 * abs(b).max() and b.nnz > 1000
+
+
 def test_the_psf_matrix_is_the_convolution():
     """glsim.effects.psf.matrix (the Jacobian's PSF) against scipy.ndimage's convolution
     (psf.apply), clamp to edge, for an asymmetric measured kernel: to rounding."""
@@ -294,7 +376,9 @@ def test_the_psf_matrix_is_the_convolution():
 
 
 @pytest.mark.parametrize("change, rig, key", [({"sensor": {"fill_factor": 0.5}}, False, "sensor.fill_factor"),
-                                              ({"vignetting": {"natural": True}}, True, "vignetting")])
+                                              ({"vignetting": {"natural": True}}, True, "vignetting"),
+                                              ({"psf": {"kind": "gaussian", "sigma": 0.9}, "sensor": {"line_time": 1e-5},
+                                                "exposure": {"velocity": [1.0, 0.0, 0.0]}}, False, "psf")])
 def test_what_the_camera_effects_jacobian_leaves_out_is_refused_by_name(change, rig, key):
     scene, mesh = _plate(backend="cpu")
     with Renderer(scene.replace(**change), mesh=mesh) as r, pytest.raises(SceneError, match=rf"^{key}: .* — "):
@@ -324,6 +408,15 @@ def test_gl_matches_the_oracle_through_camera_effects(gl_ctx):
     """The PSF and fixed-pattern noise (the rig Jacobian refuses vignetting): as above."""
     scene, mesh = _plate()
     _gl_against_oracle(gl_ctx, scene.replace(psf=CAMERA_EFFECTS["psf"], sensor=CAMERA_EFFECTS["sensor"]), mesh)
+
+
+@pytest.mark.gl
+@pytest.mark.parametrize("spp", [1, 4])
+def test_gl_matches_the_oracle_over_an_exposure(gl_ctx, spp):
+    """A rigid motion over the exposure (the sub-frames' rasters from GL; at 4 spp each
+    sub-frame's sample camera rendered in its state): as above."""
+    scene, mesh = _plate(samples_per_pixel=spp)
+    _gl_against_oracle(gl_ctx, scene.replace(exposure=EXPOSURES["rigid"]), mesh)
 
 
 def _gl_against_oracle(gl_ctx, scene, mesh):

@@ -59,14 +59,33 @@ class Timeline:
             if self.omega is not None:
                 X = (X - self.centre) @ rodrigues(self.omega * tau).T + self.centre
             return X + self.velocity * tau
+        (a, wa), *between = self._weights(tau).items()
+        if not between:
+            return points(a)
+        (b, wb), = between
+        return wa * points(a) + wb * points(b)
+
+    def _weights(self, tau: float) -> dict[int, float]:
+        """The load steps whose states the state at τ interpolates (no rigid motion), and their
+        weights: the one before it and the one after, or one held before the first and after the
+        last."""
         t, ts = self.times[self.step] + tau, self.times
         j = int(np.clip(np.searchsorted(ts, t, side="right") - 1, 0, max(len(ts) - 2, 0)))
         if len(ts) == 1 or t <= ts[j]:
-            return points(j)
+            return {j: 1.0}
         if t >= ts[j + 1]:
-            return points(j + 1)
+            return {j + 1: 1.0}
         w = (t - ts[j]) / (ts[j + 1] - ts[j])
-        return (1 - w) * points(j) + w * points(j + 1)
+        return {j: 1 - w, j + 1: w}
+
+    def derivative(self, tau: float) -> np.ndarray:
+        """∂X(τ)/∂X_k (3, 3): how the state's points at τ move with their positions at the step
+        k itself (its displacements; the other steps, the velocities and the rotation's centre
+        held): the rotation R(ωτ) of a rigid motion, the step's weight times I between steps
+        (0 where the state is another step's)."""
+        if tau == 0 or self.rigid:
+            return rodrigues(self.omega * tau) if self.rigid and self.omega is not None else np.eye(3)
+        return self._weights(tau).get(self.step, 0.0) * np.eye(3)
 
 
 def step_times(times: tuple, n_steps: int, step_time: float) -> np.ndarray:

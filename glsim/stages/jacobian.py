@@ -41,14 +41,15 @@ from glsim.scene.camera import (Camera, distort, distort_jacobian, pixel_to_norm
 MODES = ("exact", "q4")
 # optional tables the Jacobian allows: it is of the noise-free image, through the camera effects
 # that act on it linearly (glsim.effects.through_camera_effects)
-UNREFUSED = ("noise", "vignetting", "psf", "sensor")
+UNREFUSED = ("noise", "vignetting", "psf", "sensor", "exposure")
 CHUNK = 1 << 18          # samples differentiated at once (bounds memory: ~100 doubles each)
 
 
 def check_request(scene: Scene, opts: Render, rig: bool = False) -> None:
-    """SceneError naming what ``jacobian=True`` cannot differentiate: an effect table (every
-    optional table but [noise] and the linear camera effects: :func:`glsim.effects.through_camera_effects`), a fill
-    factor below 1, [vignetting] in the rig Jacobian, mode fast, procedural interpolation."""
+    """SceneError naming what ``jacobian=True`` cannot differentiate: [lighting], [optics] (every
+    optional table but [noise], [exposure] and the linear camera effects:
+    :func:`glsim.effects.through_camera_effects`), a fill factor below 1, [psf] with a rolling
+    shutter, [vignetting] in the rig Jacobian, mode fast, procedural interpolation."""
     for f in dataclasses.fields(scene):
         if f.default is None and getattr(scene, f.name) is not None and f.name not in UNREFUSED:
             raise SceneError(f.name, "the image Jacobian does not differentiate this effect",
@@ -57,6 +58,10 @@ def check_request(scene: Scene, opts: Render, rig: bool = False) -> None:
         raise SceneError("sensor.fill_factor", f"is {scene.sensor.fill_factor}: the image Jacobian's samples are "
                          "the pixel grid's, and a fill factor below 1 moves them", "set fill_factor = 1 or render "
                          "without jacobian")
+    if scene.psf is not None and scene.sensor is not None and scene.sensor.line_time > 0:
+        raise SceneError("psf", "with a rolling shutter (sensor.line_time) the image Jacobian is not made through the "
+                         "PSF (each row is blurred in its own state)", "remove [psf] or line_time, or render without "
+                         "jacobian")
     if rig and scene.vignetting is not None:
         raise SceneError("vignetting", "the rig Jacobian does not differentiate the vignetting gain (it varies with "
                          "the intrinsics and distortion)", "remove [vignetting], or render without rig")
