@@ -91,7 +91,7 @@ def spread(scene: Scene, depths: np.ndarray) -> int:
     if scene.psf is not None:
         from glsim.effects.psf import make_kernel
 
-        rows += make_kernel(scene.psf, Path(scene.base_dir)).kernel.shape[0] // 2
+        rows += make_kernel(scene.psf, Path(scene.base_dir)).radius
     return rows
 
 

@@ -24,7 +24,7 @@ from pathlib import Path
 
 from glsim.errors import GlsimError
 from glsim.evaluation.docs_accuracy import (accuracy_facts, accuracy_table, effects, effects_camera, effects_dof,
-                                            effects_dof_facts, peer, peer_rows)
+                                            effects_dof_facts, effects_motion, peer, peer_rows)
 from glsim.evaluation.docs_bench import (check_drivers, fe_bulge_centre, fe_bulge_centre_5mm, library, preview,
                                          preview_overhead, quadratic_fast, quadratic_rows, quadratic_tables,
                                          scaling_goals, scaling_host, scaling_oracle, scaling_passes, scaling_table,
@@ -40,7 +40,7 @@ from glsim.io import images as io
 
 FILES = ("README.md", "docs/calib.md", "docs/verify.md", "docs/library.md", "docs/preview.md", "docs/effects.md",
          "docs/scaling.md", "docs/scene.md", "docs/fe_bulge.md", "docs/hard_cases.md", "docs/rig_files.md",
-         "docs/quadratic.md", "docs/camera.md")
+         "docs/quadratic.md", "docs/camera.md", "docs/motion.md")
 REGION = re.compile(r"(<!-- generated: (?P<name>[\w-]+) from (?P<sources>[^>]+?) -->\n)(?P<body>.*?)(<!-- end generated -->)",
                     re.S)
 
@@ -60,7 +60,8 @@ GENERATORS = {"check-drivers": check_drivers, "preview": preview, "accuracy-tabl
               "preview-overhead": preview_overhead, "fe-bulge-centre": fe_bulge_centre,
               "fe-bulge-centre-5mm": fe_bulge_centre_5mm, "sweep-subsets": sweep_subsets,
               "quadratic-tables": quadratic_tables, "quadratic-rows": quadratic_rows, "quadratic-fast": quadratic_fast,
-              "peer-rows": peer_rows, "camera-table": effects_camera, "throughput": throughput}
+              "peer-rows": peer_rows, "camera-table": effects_camera, "motion-table": effects_motion,
+              "throughput": throughput}
 
 
 # ---- regions ---------------------------------------------------------------------------------

@@ -133,6 +133,15 @@ def effects_camera(eff: dict) -> str:
     return camera_table(eff["camera"]) + f"\n\n{machine_line(run['machine'])}, {run['date'][:10]}."
 
 
+def effects_motion(eff: dict) -> str:
+    """docs/motion.md: the motion rows (exposure, rolling shutter, rolling shutter with a PSF)."""
+    from glsim.evaluation.effects import motion_table
+    if not eff.get("motion"):
+        return "(no motion rows in this results file: run `glsim bench effects --only motion`)"
+    run = eff.get("motion_run", eff)
+    return motion_table(eff) + f"\n\n{machine_line(run['machine'])}, {run['date'][:10]}; {eff['size'][0]} × {eff['size'][1]} px."
+
+
 def effects_dof(eff: dict) -> str:
     """docs/effects.md: every GL depth-of-field scheme against the oracle's exact 2-D gather."""
     from glsim.evaluation.effects import dof_table

@@ -8,9 +8,10 @@ passes + read-back) over timed renders after one warm-up, the increment over the
 row and its share of the all-effects row.
 
 Motion (``motion`` rows, docs/motion.md): the same pair with ``[exposure]`` alone (4 samples
-over 0.2 s around step 1, the state interpolated between steps 0 and 1) and with a rolling
-shutter alone (``line_time`` 10 µs, a rigid 100 mm/s along x: each row rendered on its own), GL
-and CPU, with their max |GL − oracle| over the image.
+over 0.2 s around step 1, the state interpolated between steps 0 and 1), with a rolling
+shutter alone (``line_time`` 10 µs, a rigid 100 mm/s along x: each row rendered on its own) and
+with a rolling shutter and a Gaussian PSF (σ 0.5 px: each row rendered in a band of 5), GL and
+CPU, each against the still pair timed in the same run, with their max |GL − oracle|.
 
 Camera (``camera`` rows, docs/camera.md): the same pair with each of a Gaussian and an Airy lens
 PSF, vignetting, a fill factor of 0.5 (at 4 samples per pixel) and fixed-pattern noise alone, GL
@@ -172,26 +173,33 @@ def dof_rows(base: Scene, reps: int, width: int, ctx) -> list[dict]:
 
 
 MOTION = {"exposure": {"exposure": {"time": 0.2, "samples": 4}},
-          "rolling": {"exposure": {"velocity": [100.0, 0.0, 0.0]}, "sensor": {"line_time": 1e-5}}}
+          "rolling": {"exposure": {"velocity": [100.0, 0.0, 0.0]}, "sensor": {"line_time": 1e-5}},
+          "rolling, PSF": {"exposure": {"velocity": [100.0, 0.0, 0.0]}, "sensor": {"line_time": 1e-5},
+                           "psf": {"kind": "gaussian", "sigma": 0.5}}}   # each row a band of 2·2 + 1 rows
 MOTION_REPS = 1            # timed renders per camera of a motion row (the rolling shutter renders every row)
 
 
 def motion_rows(base: Scene, ctx) -> list[dict]:
     """The ``motion`` records: each of MOTION on ``base`` (no other effect), GL and CPU, seconds per
-    image (both cameras, step 1, after one warm-up) and the max |GL − oracle| (full scale)."""
-    rows = []
-    for name, sections in MOTION.items():
-        scene = base.replace(**sections)
+    image (both cameras, step 1; GL after one warm-up), the same for ``base`` itself in the same
+    run (``base_seconds``) and the max |GL − oracle| (full scale)."""
+    rows, still = [], {}
+    for name, sections in {"none": {}, **MOTION}.items():
+        scene = base.replace(**sections) if sections else base
         runs = {}
         for backend in ("gl", "cpu"):
             with Renderer(scene, backend, ctx=ctx if backend == "gl" else None) as r:
-                r.render(0, 1)   # warm-up
+                if backend == "gl":
+                    r.render(0, 1)   # warm-up: programs, textures, ray maps
                 runs[backend] = [r.render(c, 1) for _ in range(MOTION_REPS) for c in range(len(scene.cameras))]
+        if name == "none":
+            still = {b: statistics.median(x.seconds for x in done) for b, done in runs.items()}
+            continue
         diff = max(float(np.abs(g.image.astype(np.float64) - c.image).max()) for g, c in zip(runs["gl"], runs["cpu"]))
         for backend, done in runs.items():
             rows.append({"backend": backend, "effects": name, "reps": MOTION_REPS, "settings": sections,
                          "seconds": statistics.median(x.seconds for x in done), "seconds_all": [x.seconds for x in done],
-                         "stages": list(done[-1].stages), "max_gl_vs_cpu": diff})
+                         "base_seconds": still[backend], "stages": list(done[-1].stages), "max_gl_vs_cpu": diff})
             print(f"  {backend} {name}: {rows[-1]['seconds']:.3g} s", file=sys.stderr, flush=True)
     return rows
 
@@ -268,14 +276,16 @@ def rows_only(kind: str, size: tuple[int, int], previous: dict | None) -> dict:
 
 
 def motion_table(report: dict) -> str:
-    """The motion rows as a markdown table: time per image and over the effect-free row."""
+    """The motion rows as a markdown table: time per image and over the same run's still image
+    (older results without it: over the effect-free record)."""
     none = {r["backend"]: r["seconds"] for r in report["records"] if r["effects"] == "none"}
-    lines = ["| backend | motion | settings | time per image (s) | × no effect | max GL − oracle |",
-             "|---|---|---|---|---|---|"]
+    lines = ["| backend | motion | settings | time per image (s) | still (s) | × still | max GL − oracle |",
+             "|---|---|---|---|---|---|---|"]
     for r in report["motion"]:
         settings = "; ".join(f"[{k}] " + ", ".join(f"{n} = {v}" for n, v in t.items()) for k, t in r["settings"].items())
-        lines.append(f"| {r['backend']} | {r['effects']} | {settings} | {r['seconds']:.3g} | "
-                     f"{r['seconds'] / none[r['backend']]:.3g} | {sig(r['max_gl_vs_cpu'], trailing_zeros=False)} |")
+        base = r.get("base_seconds", none.get(r["backend"]))
+        lines.append(f"| {r['backend']} | {r['effects']} | {settings} | {r['seconds']:.3g} | {base:.3g} | "
+                     f"{r['seconds'] / base:.3g} | {sig(r['max_gl_vs_cpu'], trailing_zeros=False)} |")
     return "\n".join(lines)
 
 
@@ -346,10 +356,11 @@ def markdown(report: dict) -> str:
                      f"{min(r['seconds_all']):.3g}–{max(r['seconds_all']):.3g} | "
                      f"{r['added_seconds']:+.3g} | {r['share_of_all']:.0%} | {', '.join(r['stages'])} |")
     if report.get("motion"):
+        run = report.get("motion_run", report)
         lines += ["", "## Motion over the exposure and the rolling shutter (docs/motion.md)", "",
-                  "Same scene, no other effect; time: median `Result.seconds` per image (both cameras) after one "
-                  "warm-up; × no effect: over the effect-free row of the same backend; GL − oracle: the largest "
-                  "over both images, absolute, full scale.", "", motion_table(report)]
+                  f"Same scene, no other effect ({run['date']}); time: median `Result.seconds` per image (both "
+                  "cameras), GL after one warm-up; still: the same pair without motion, timed in the same run; "
+                  "GL − oracle: the largest over both images, absolute, full scale.", "", motion_table(report)]
     if report.get("camera"):
         run = report.get("camera_run", report)
         lines += ["", "## Lens PSF, vignetting, fill factor, fixed-pattern noise (docs/camera.md)", "",
