@@ -45,6 +45,7 @@ from glsim.io.fe import specimen_mesh
 from glsim.stages.reference import make_reference
 from glsim.stages import interp, jacobian as jac
 from glsim.scene import Render, Scene
+from glsim.scene.optional import row_offsets
 
 SEEN_KEPT = 64              # (camera, step) views whose "seen" verdict is kept
 
@@ -221,7 +222,7 @@ class Renderer:
         self.check_size(camera, truth, opts)
         cam, ex = scene.camera(camera), scene.exposure
         line = scene.sensor.line_time if scene.sensor is not None else 0.0
-        rows = list(enumerate(motion.row_offsets(cam.height, line))) if line > 0 else [(None, 0.0)]
+        rows = list(enumerate(row_offsets(cam.height, line))) if line > 0 else [(None, 0.0)]
         tl, taus = motion.timeline(ex, self.mesh, step), motion.sample_offsets(ex.time, ex.samples)
         one = opts.supersampling == 1   # (a sub-frame's own raster is its samples')
         images, truths, jacobians = [], [], []
@@ -261,7 +262,7 @@ class Renderer:
             derivatives = self._through_camera_effects(cam, J, J_rig)
         return Result(image=quantize_image(image, cam.bit_depth) if quantize else image, camera=cam, step=step,
                       backend=self.backend_name, options=opts, seconds=time.perf_counter() - t0,
-                      truth=motion.stack(truths) if truth else None, stages=stages, specimen=specimen, **derivatives)
+                      truth=self._stack(truths) if truth else None, stages=stages, specimen=specimen, **derivatives)
 
     def _frame(self, cam: Camera, step: int, tau: float, tl: "motion.Timeline", opts: Render, truth: bool,
                row: int | None = None):
@@ -442,6 +443,10 @@ class Renderer:
         r["xi"], r["eta"] = r["xi"].copy(), r["eta"].copy()
         r["element"][hit], r["xi"][hit], r["eta"][hit] = e, xi, eta
         return r
+
+    def _stack(self, rows: list[Truth]) -> Truth:
+        """A rolling shutter's rows' truths as one (:func:`glsim.effects.motion.stack`)."""
+        return motion.stack(rows)
 
     def _motion_range(self, tr: Truth, cam: Camera, tl: "motion.Timeline", tau: float, duration: float) -> Truth:
         """``tr`` (rendered at τ s) with where its material points are at the exposure's start

@@ -189,13 +189,37 @@ def test_every_bad_spec_is_refused_naming_variant_key_and_fix_and_nothing_is_wri
     assert not out.exists()
 
 
-def test_a_rolling_shutter_library_with_truth_is_refused(tmp_path, capsys):
-    """Its rows are exposed at their own times; a library truth file holds one state per step."""
+def test_a_rolling_shutter_library_with_truth_between_load_steps_is_refused(tmp_path, capsys):
+    """Its rows are exposed at their own times; a library truth file makes the rows' states from
+    a rigid motion only."""
     from glsim.cli import main
     spec = _spec(tmp_path, SCENE + "[scene.exposure]\ntime = 0.001\n[scene.sensor]\nline_time = 1e-6\n"
                  "[vary]\nnoise.sigma = [1.0]\n")
     assert main(["library", str(spec), "-o", str(tmp_path / "never")]) == 2
-    assert "sensor.line_time: a rolling shutter" in capsys.readouterr().err and not (tmp_path / "never").exists()
+    err = capsys.readouterr().err
+    assert "sensor.line_time: a rolling shutter" in err and "rigid motion" in err and not (tmp_path / "never").exists()
+
+
+def test_a_rolling_shutter_library_stores_each_rows_truth(tmp_path):
+    """A rolling shutter with a rigid motion (a rotation about a given centre and a velocity):
+    the images are the renderer's and the truth file's maps its rows' truth, bit for bit
+    (CompactTruth.maps makes each row's deformed positions in its own state from the header);
+    another line time is another truth file."""
+    motion = ("[scene.exposure]\nvelocity = [30.0, -10.0, 0.0]\nangular_velocity = [0.0, 0.0, 2.0]\n"
+              "centre = [0.0, 0.0, 500.0]\n[scene.sensor]\nline_time = {}\n")
+    spec = _spec(tmp_path, "steps = [2]\n" + SCENE + motion.format(2e-5) + "[vary]\nnoise.sigma = [1.0]\n")
+    lib = tmp_path / "lib"
+    assert run(load_plan(spec), lib, workers=1).failed == []
+    res, maps = _image_and_truth_are_the_renderers(lib, "v0000", tmp_path)
+    X = maps.X_deformed - maps.X_undeformed
+    rows = [r for r in range(48) if maps.mask[r].any()]
+    assert np.ptp([np.nanmean(X[r, :, 0]) for r in rows]) > 1e-3      # the rows' own states differ
+    other = load_plan(_spec(tmp_path, "steps = [2]\n" + SCENE + motion.format(4e-5) + "[vary]\nnoise.sigma = [1.0]\n",
+                            "other.toml"))
+    assert {j.truth for j in other.jobs}.isdisjoint({j.truth for j in load_plan(spec).jobs})
+
+
+
 
 
 def test_a_library_with_an_exposure_stores_the_mid_exposure_truth(tmp_path):

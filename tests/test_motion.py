@@ -17,6 +17,7 @@ from glsim.io.images import write_truth
 from glsim.io.truth import load as load_truth
 from glsim.render import Renderer
 from glsim.scene import Plate, Speckle, scene_from_dict
+from glsim.scene.optional import row_offsets
 
 Z, FX, SIZE = 300.0, 500.0, (64, 48)
 PX_PER_MM = FX / Z
@@ -99,7 +100,7 @@ def test_rolling_shutter_shears_a_translation(tmp_path):
     scene = edge_scene(tmp_path, ramp, exposure={"velocity": [v, 0, 0]}, sensor={"line_time": L})
     res = render(scene, truth=True)
     H = SIZE[1]
-    tau = motion.row_offsets(H, L)
+    tau = row_offsets(H, L)
     rows = np.flatnonzero(res.truth.mask.any(axis=1))
     assert len(rows) >= 20
     for r in rows:
@@ -152,7 +153,7 @@ def test_rolling_shutter_with_blur_is_each_rows_blurred_state(tmp_path):
     step translated by v·τ_r: the states are the same float64 nodes), blurred whole."""
     L, v = 1e-4, np.array([3.0, 0.0, 0.0])     # 0.5 px per row of translation
     scene = edge_scene(tmp_path, ramp, **BLUR)
-    tau = motion.row_offsets(SIZE[1], L)
+    tau = row_offsets(SIZE[1], L)
     res = render(scene.replace(exposure={"velocity": v.tolist()}, sensor={"line_time": L}))
     rows = [0, 8, 12, 24, 35, 40, 47]
     shifted = edge_scene(tmp_path, ramp, translations=tuple(tuple(v * tau[r]) for r in rows), **BLUR)
@@ -201,7 +202,7 @@ def assert_gl_within_its_sub_frames(scene, mesh=None, step=0):
             images[backend] = r.render(0, step).image
             cam = r.scene.cameras[0]
             line = r.scene.sensor.line_time if r.scene.sensor is not None else 0.0
-            rows = list(enumerate(motion.row_offsets(cam.height, line))) if line else [(None, 0.0)]
+            rows = list(enumerate(row_offsets(cam.height, line))) if line else [(None, 0.0)]
             tl = motion.timeline(r.scene.exposure, r.mesh, step)
             frames[backend] = [r._frame(cam, step, t + tau, tl, r.scene.render, False, row)[0].image
                                .astype(np.float64) for row, t in rows

@@ -33,7 +33,7 @@ import numpy as np
 from glsim.errors import check
 from glsim.io.truth import Truth
 from glsim.scene.camera import Camera, project_camera_frame, rodrigues, to_camera
-from glsim.scene.optional import Exposure
+from glsim.scene.optional import Exposure, rigid_state
 
 
 @dataclass(frozen=True, eq=False)
@@ -55,10 +55,7 @@ class Timeline:
         if tau == 0:
             return points(self.step)
         if self.rigid:
-            X = points(self.step)
-            if self.omega is not None:
-                X = (X - self.centre) @ rodrigues(self.omega * tau).T + self.centre
-            return X + self.velocity * tau
+            return rigid_state(points(self.step), tau, self.velocity, self.omega, self.centre)
         (a, wa), *between = self._weights(tau).items()
         if not between:
             return points(a)
@@ -113,14 +110,21 @@ def timeline(exposure: Exposure, mesh, step: int) -> Timeline:
     return Timeline(step, times, np.asarray(exposure.velocity or (0.0, 0.0, 0.0), np.float64), omega, centre)
 
 
+def rolling_truth(scene, mesh, step: int) -> dict | None:
+    """What a library's truth file keeps of a rolling shutter's rigid motion at ``step`` (FE
+    ``mesh``), so that :meth:`glsim.io.truth.CompactTruth.maps` makes each row's positions as the
+    renderer does: line_time (s), velocity (mm/s), angular_velocity (rad/s, or None) and the
+    rotation's centre as resolved (mm); None without a rolling shutter."""
+    if scene.sensor is None or scene.sensor.line_time <= 0:
+        return None
+    tl = timeline(scene.exposure, mesh, step)
+    return {"line_time": scene.sensor.line_time, "velocity": tl.velocity.tolist(),
+            "angular_velocity": None if tl.omega is None else tl.omega.tolist(), "centre": tl.centre.tolist()}
+
+
 def sample_offsets(duration: float, samples: int) -> np.ndarray:
     """The midpoint rule's instants over an exposure of ``duration`` s centred on 0: (samples,) s."""
     return duration * ((np.arange(samples) + 0.5) / samples - 0.5)
-
-
-def row_offsets(height: int, line_time: float) -> np.ndarray:
-    """Each row's exposure centre (H,) s from the step's time: the middle row at 0."""
-    return (np.arange(height) - (height - 1) / 2) * line_time
 
 
 def row_band(cam: Camera, row: int, spread: int = 0) -> tuple[Camera, int]:

@@ -36,6 +36,7 @@ from glsim.scene import quadratic as qd
 from glsim.scene.bilinear import bilinear, intersect_ray_patch
 from glsim.io.cameras import camera_from_dict
 from glsim.scene.camera import Camera, pixel_to_normalized, project_camera_frame, to_camera, undistort
+from glsim.scene.optional import rigid_state, row_offsets
 from glsim.io.truthcodec import (DTYPES, FORMAT, MAGIC, VERSION, TruthFileError, _runs,
                                  _unshuffle, _zstd, decode_local)
 from glsim.io.geometryfile import Geometry, read_geometry
@@ -239,8 +240,10 @@ class CompactTruth:
         xi, eta = self.xi[mask], self.eta[mask]
         shape, points = _elements(g, e)     # (the renderer's own evaluation, bit for bit)
         cam0, step = self.camera0, self.step
+        deformed = (lambda: shape(points(g.deformed(step)), xi, eta)) if "rolling" not in self.header else \
+            (lambda: self._rows_deformed(g, e, xi, eta))
         positions = pixel_positions(mask, lambda: (to_camera(shape(points(g.nodes), xi, eta), cam0),
-                                                   to_camera(shape(points(g.deformed(step)), xi, eta), cam0)))
+                                                   to_camera(deformed(), cam0)))
         ref = np.full((H, W, 2), np.nan)
         rc = self.reference_camera
         Xr = points(to_camera(g.nodes, rc))
@@ -250,12 +253,33 @@ class CompactTruth:
             ref[mask] = project_camera_frame(shape(Xr, xi, eta), rc)[0]
         return Truth(mask=mask, element=self.element, xi=self.xi, eta=self.eta, ref_uv=ref, positions=positions)
 
+    def _rows_deformed(self, g: Geometry, e: np.ndarray, xi: np.ndarray, eta: np.ndarray) -> np.ndarray:
+        """A rolling shutter's deformed points (n, 3) world mm: each row's in its own state, the
+        header's rigid motion ``rolling`` of the step's nodes at that row's time (as the
+        renderer's rows, bit for bit)."""
+        try:
+            m = self.header["rolling"]
+            v, c = (np.asarray(m[k], np.float64).reshape(3) for k in ("velocity", "centre"))
+            w = None if m["angular_velocity"] is None else np.asarray(m["angular_velocity"], np.float64).reshape(3)
+            taus = row_offsets(self.size[1], float(m["line_time"]))
+        except (KeyError, TypeError, ValueError) as exc:
+            raise TruthFileError(f"{self.path}: its header's rolling shutter is damaged ({exc}){DAMAGED}") from None
+        shape, nodes = _elements(g, e)[0], g.deformed(self.step)
+        rows = np.nonzero(self.mask)[0]
+        out = np.empty((len(e), 3))
+        for r in np.unique(rows):
+            sel = rows == r
+            out[sel] = shape(qd.element_points(g.quads, g.patches, e[sel], rigid_state(nodes, taus[r], v, w, c)),
+                             xi[sel], eta[sel])
+        return out
+
     def at(self, points, step: int | None = None) -> PointTruth:
         """Ground truth at ``points`` (N, 2) — pixel coordinates (u, v) of camera 0 in the
         reference (undeformed) state, as a DIC reports its subset centres: the material point
         there (camera 0's ray intersected exactly with the undeformed mesh, the nearest hit),
-        its position undeformed and at ``step`` (default: this image's step), camera 0's frame,
-        mm. Points whose ray misses the specimen are ``valid`` False and NaN."""
+        its position undeformed and at ``step`` (default: this image's step: a rolling shutter's
+        rows' own states are in :meth:`maps` only), camera 0's frame, mm. Points whose ray misses
+        the specimen are ``valid`` False and NaN."""
         return points_truth(self.geometry, self.camera0, points, self.step if step is None else step)
 
 

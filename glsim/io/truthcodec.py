@@ -166,9 +166,11 @@ def encode_compact(el: np.ndarray, xs: np.ndarray, es: np.ndarray, header: dict,
 
 
 def image_header(camera: Camera, camera0: Camera, reference_camera: Camera, mode: str, step: int,
-                 geometry: str, geometry_sha256: str) -> dict:
+                 geometry: str, geometry_sha256: str, rolling: dict | None = None) -> dict:
     """The metadata of one image's truth. ``geometry``: the geometry file's path relative to
-    the truth file's directory."""
+    the truth file's directory; ``rolling``: a rolling shutter's rigid motion (line_time,
+    velocity, angular_velocity, centre: :func:`glsim.effects.motion.rolling_truth`), from which
+    each row's deformed positions are made."""
     return {"camera": camera_dict(camera), "camera0": camera_dict(camera0),
             "reference_camera": camera_dict(reference_camera), "mode": mode, "step": int(step),
-            "geometry": geometry, "geometry_sha256": geometry_sha256}
+            "geometry": geometry, "geometry_sha256": geometry_sha256, **({"rolling": rolling} if rolling else {})}

@@ -251,3 +251,20 @@ class Exposure:
     def rigid(self) -> bool:
         """Whether the specimen moves rigidly (else between load steps)."""
         return self.velocity is not None or self.angular_velocity is not None
+
+
+def rigid_state(X: np.ndarray, tau: float, velocity: np.ndarray, omega: np.ndarray | None,
+                centre: np.ndarray) -> np.ndarray:
+    """Points X (…, 3) mm of a rigid motion τ s on (:class:`Exposure`, world frame):
+    c + R(ωτ)·(X − c) + v·τ, R the rotation by the vector ωτ (``omega`` None: none)."""
+    if omega is not None:
+        from glsim.scene.camera import rodrigues
+
+        X = (X - centre) @ rodrigues(omega * tau).T + centre
+    return X + velocity * tau
+
+
+def row_offsets(height: int, line_time: float) -> np.ndarray:
+    """A rolling shutter's rows' exposure centres (H,) s from the step's time (``line_time`` s
+    per row, :class:`Sensor`): the middle row at 0."""
+    return (np.arange(height) - (height - 1) / 2) * line_time

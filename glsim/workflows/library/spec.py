@@ -487,10 +487,11 @@ def expand(spec: dict, spec_dir: str | Path = ".", sample: int | None = None) ->
                 check_memory(f"cameras.{c}.size", scene.camera(c).size, scene.render.samples_per_pixel, truth)
         except SceneError as exc:
             raise SpecError(f"{where}: {exc}") from None
-        if truth and scene.sensor is not None and scene.sensor.line_time > 0:
+        if truth and scene.sensor is not None and scene.sensor.line_time > 0 and not scene.exposure.rigid:
             raise SpecError(f"{where}: sensor.line_time: a rolling shutter exposes each row at its own time, and "
-                            "a library's truth files hold one state per load step — write truth = false, or "
-                            "render the rolling shutter's truth with `glsim render --truth`")
+                            "a library's truth files make the rows' states from a rigid motion only (here they "
+                            "interpolate between load steps) — give exposure.velocity or angular_velocity, write "
+                            "truth = false, or render the rolling shutter's truth with `glsim render --truth`")
         ext = EXTENSIONS[scene.output.format]
         tkeys = truth_keys(scene, meshes[mkey], cams, vsteps, dtype, digests) if truth else {}
         for s in vsteps:
@@ -554,9 +555,10 @@ def truth_keys(scene: Scene, mesh, cameras, steps, dtype: str, cache: dict | Non
     table and the speckle's placement (what the reference camera depends on: not its seed,
     density or dot size), render mode, precision, backend, samples per pixel, a quadratic
     mesh's pieces per element side, the truth dtype, and the truth format's and this key's
-    versions. Noise, lighting, optics, the speckle
-    pattern and the output format do not enter: variants differing only in those share one
-    truth file. ``cache``: mesh digests by ``id(mesh)``, kept between calls."""
+    versions; with a rolling shutter its line time and the exposure's motion (each row's state).
+    Noise, lighting, optics, the speckle pattern and the output format do not enter: variants
+    differing only in those share one truth file. ``cache``: mesh digests by ``id(mesh)``, kept
+    between calls."""
     from glsim.io import truthcodec
 
     cache = {} if cache is None else cache
@@ -572,6 +574,9 @@ def truth_keys(scene: Scene, mesh, cameras, steps, dtype: str, cache: dict | Non
             "camera0": truthcodec.camera_dict(scene.cameras[0]),
             "render": [r.mode, r.precision, r.backend, r.samples_per_pixel, r.subsamples]
             + ([r.pieces] if mesh.patches is not None else [])}
+    if scene.sensor is not None and scene.sensor.line_time > 0:   # (other keys unchanged)
+        base["rolling"] = {"line_time": scene.sensor.line_time,
+                           **{k: d["exposure"].get(k) for k in ("velocity", "angular_velocity", "centre")}}
     return {(c, s): hashlib.sha256(json.dumps({**base, "step": s, "camera": truthcodec.camera_dict(scene.camera(c))},
                                               sort_keys=True).encode()).hexdigest()[:32]
             for s in steps for c in cameras}

@@ -25,6 +25,7 @@ from pathlib import Path
 
 import numpy as np
 
+from glsim.effects import motion
 from glsim.errors import GlsimError
 from glsim.limits import keep
 from glsim.io import truth as truthio, truthcodec
@@ -51,9 +52,15 @@ class CompactRenderer(Renderer):
         return CompactRaster(*truthcodec.compact(raster["element"].reshape(H, W), raster["xi"], raster["eta"]))
 
     def _motion_range(self, tr, cam, tl, tau, duration) -> CompactRaster:
-        """A library's truth is the mid-exposure state's (a global shutter's: the load step's);
-        its files hold no motion range."""
+        """A library's truth is the mid-exposure state's (a global shutter's: the load step's;
+        a rolling shutter's rows': glsim.io.truth.CompactTruth.maps); its files hold no motion
+        range."""
         return tr
+
+    def _stack(self, rows: list[CompactRaster]) -> CompactRaster:
+        """A rolling shutter's rows, top to bottom (their covered pixels in raster order)."""
+        return CompactRaster(np.concatenate([t.element for t in rows]), np.concatenate([t.xi for t in rows]),
+                             np.concatenate([t.eta for t in rows]))
 
 
 def _scene(scene_json: str):
@@ -162,7 +169,8 @@ def render_task(task: dict) -> list[dict]:
                         header = truthcodec.image_header(res.camera, scene.cameras[0], r.reference.camera,
                                                       res.options.mode, job["step"],
                                                       truthio.relpath(out / task["geometry"], (out / job["truth"]).parent),
-                                                      task["geometry_sha256"])
+                                                      task["geometry_sha256"], motion.rolling_truth(scene, r.mesh,
+                                                                                                    job["step"]))
                     writer.put(str(out), {**job, "bit_depth": res.camera.bit_depth}, res.image, _coverage(res),
                                None if t is None else (t.element, t.xi, t.eta), header, task["truth_dtype"], res.seconds)
         except BaseException:
