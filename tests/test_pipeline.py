@@ -106,6 +106,54 @@ def test_a_renderer_given_a_new_scene_renders_its_cameras_and_options(backend, c
 
 
 @pytest.mark.gl
+def test_no_pass_reads_what_it_did_not_write(gl_ctx, monkeypatch):
+    """A GPU's new textures and buffers hold whatever their memory held (llvmpipe's hold zeros):
+    every image and truth map is the same, bit for bit, when each texture and reserved buffer
+    glsim makes starts filled with 0x7F or 0xFF bytes (NaN floats, huge integers) — every mode,
+    1 and 4 samples per pixel (mapped and Newton subsamples), lighting, depth of field, noise and
+    the camera passes, two cameras and two steps."""
+    import moderngl
+
+    from glsim.scene import bulge_scene, demo_effects
+
+    plain = bulge_scene(size=(128, 96), steps=2)
+    scenes = (plain, demo_effects(plain).replace(psf={"kind": "gaussian", "sigma": 0.8},
+                                                 vignetting={"natural": True}, sensor={"prnu": 1.0, "dsnu": 2.0}))
+    options = [{"mode": m, "samples_per_pixel": s} for m in ("exact", "q4", "fast") for s in (1, 4)]
+    options.append({"mode": "exact", "samples_per_pixel": 4, "subsamples": "newton"})
+
+    def renders():
+        out = []
+        for scene in scenes:
+            with Renderer(scene, "gl", ctx=gl_ctx) as r:
+                for o in options:
+                    for cam, step in ((0, 1), (1, 1), (0, 2), (0, 1)):
+                        res = r.render(cam, step, truth=True, **o)
+                        out += [res.image, res.truth.element, res.truth.xi, res.truth.eta, res.truth.ref_uv]
+        return out
+
+    clean = renders()
+    made = {name: getattr(moderngl.Context, name) for name in ("texture", "texture_array", "buffer")}
+    for fill in (0x7F, 0xFF):
+        def filled(name):
+            def make(ctx, *args, **kw):
+                obj = made[name](ctx, *args, **kw)
+                at = 0 if name == "buffer" else 2          # (buffer(data, …); texture(size, components, data, …))
+                data = args[at] if len(args) > at else kw.get("data")
+                if data is None:
+                    obj.write(bytes([fill]) * (obj.size if name == "buffer" else
+                                               int(np.prod(obj.size if name == "texture" else obj.size))
+                                               * obj.components * int(obj.dtype[1:])))
+                return obj
+            return make
+        for name in made:
+            monkeypatch.setattr(moderngl.Context, name, filled(name))
+        for a, b in zip(clean, renders()):
+            np.testing.assert_array_equal(a, b)   # (NaN where the clean one has NaN)
+        monkeypatch.undo()
+
+
+@pytest.mark.gl
 def test_driver_time_counts_calls_properties_and_takes_off_its_own_cost(gl_ctx):
     """driver_time adds moderngl's methods and property setters to the driver's time, and the
     host time it reports is the block's time less those calls and what counting them cost."""
