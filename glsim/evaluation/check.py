@@ -15,7 +15,8 @@ Each bound says where it comes from (``why``):
   each is derived): float64 in exact and q4, float32 vertex projection in fast;
 - the same on curved quadratic elements (the Q8 paraboloid of ``glsim bench quadratic``):
   Newton on each patch in the shader, float64, exact and q4;
-- each optical effect on the bulge against the oracle: grey levels of 8 bit;
+- each optical effect on the bulge against the oracle: grey levels of 8 bit; the same for motion
+  over the exposure seen by a rolling shutter (one-row renders in their own states);
 - the camera passes (vignetting, Gaussian and Airy PSFs, fixed-pattern noise) on GL's own image
   against the oracle's stages on it, in units of their float32 bound.
 """
@@ -196,6 +197,18 @@ def _effect(effect: str) -> Callable[[Context], float]:
     return run
 
 
+def _motion(c: Context) -> float:
+    """Pixels whose grey differs by more than 0.5 of 8 bit, exact mode, camera 1 of the bulge
+    rotating and moving over a 2-sample exposure seen by a rolling shutter (its rows rendered
+    by one-row cameras, each in its own state)."""
+    scene = bulge_scene(size=BULGE_SIZE, steps=1).replace(
+        exposure={"time": 0.002, "samples": 2, "velocity": [300.0, 0.0, 0.0], "angular_velocity": [0.0, 0.0, 1.0]},
+        sensor={"line_time": 2e-5})
+    g, o = c.pair("motion", scene)
+    a, b = g.render(1, 1, mode="exact"), o.render(1, 1, mode="exact")
+    return float((np.abs(a.image.astype(np.float64) - b.image) * 255 > 0.5).sum())
+
+
 def _camera_passes(effects: dict) -> Callable[[Context], float]:
     """GL's bulge image (camera 0, step 1, exact) with camera passes (``effects``: scene tables)
     against the oracle's camera stages (glsim.backends.cpu.camera_stages, float64) applied to
@@ -239,6 +252,8 @@ CHECKS = (
     Check("lighting, exact", 2, "px > 0.5 grey of 8 bit", "as tests/test_effects.py (element edges)", _effect("lighting")),
     Check("depth of field, exact", 0, "px > 0.5 grey of 8 bit", "as tests/test_effects.py", _effect("optics")),
     Check("noise, exact", 2, "px > 0.5 grey of 8 bit", "as tests/test_effects.py (element edges)", _effect("noise")),
+    Check("motion: exposure and rolling shutter, exact", 0, "px > 0.5 grey of 8 bit", "the same sub-frames "
+          "as the oracle (docs/motion.md: |GL − oracle| ≤ the sub-frames' + 2^-24)", _motion),
     Check("camera passes: Gaussian PSF, vignetting, fixed pattern", 1, "× bound", CAMERA,
           _camera_passes({"psf": {"kind": "gaussian", "sigma": 0.8}, "vignetting": {"natural": True, "radial": [0.3]},
                           "sensor": {"prnu": 1.0, "dsnu": 2.0}})),
