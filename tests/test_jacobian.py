@@ -42,13 +42,15 @@ def _plate(**render):
     return scene, with_displacements(mesh, [u])
 
 
-def _image64(r: Renderer, deformed: np.ndarray):
-    """The oracle's float64 image (before its float32 cast) of ``deformed`` nodes at step 1, and
-    per pixel its samples' one element (−2 where they differ)."""
+def _image64(r: Renderer, deformed: np.ndarray, cam=None):
+    """The oracle's float64 image (before its float32 cast) of ``deformed`` nodes seen by ``cam``
+    (default: camera 0 at step 1), and per pixel its samples' one element (−2 where they differ)."""
     opts = r.scene.render
-    W, H = r.scene.cameras[0].size
+    W, H = (cam or r.scene.cameras[0]).size
     s = opts.supersampling
-    raster = rasterize(r.view(0, 1, deformed=deformed), opts.mode, s)
+    view = r.view(0, 1, deformed=deformed) if cam is None else \
+        make_view(cam, r.reference.camera, r.mesh.nodes, deformed, r.mesh.quads, warn=False)
+    raster = rasterize(view, opts.mode, s)
     hit = raster["element"] >= 0
     grey = np.full(hit.shape, opts.background)
     grey[hit] = r.backend.sampler(opts.interpolation)(raster["ref_uv"][hit])
@@ -281,23 +283,15 @@ def test_camera_effects_jacobian_matches_central_differences():
         assert checked > 100
 
 
-def _exposure_image(r: Renderer, tl, taus, points, cam=None):
-    """The oracle's float64 image (W·H,) over an exposure: the mean of the sub-frames' rasters at
-    τ_i (``points(k)``: the nodes at load step k, ``tl``'s timeline), camera ``cam`` (default:
-    camera 0), and per pixel one element (−2 where a sub-frame's samples or two sub-frames differ)."""
-    cam = cam or r.scene.cameras[0]
-    W, H, s, opts = *cam.size, r.scene.render.supersampling, r.scene.render
-    grey, one = np.zeros(W * H), None
+def _over_exposure(tl, taus, points, image):
+    """The mean of ``image(nodes)`` (a float64 image (W·H,) and per pixel its samples' one
+    element, −2 where they differ) over the sub-frames' states ``tl.at(τ_i, points)``
+    (``points(k)``: the nodes at load step k), and per pixel one element (−2 where a sub-frame's
+    samples or two sub-frames differ)."""
+    grey, one = 0.0, None
     for tau in taus:
-        raster = rasterize(make_view(cam, r.reference.camera, r.mesh.nodes, tl.at(tau, points), r.mesh.quads,
-                                     warn=False), opts.mode, s)
-        hit = raster["element"] >= 0
-        g = np.full(hit.shape, opts.background)
-        g[hit] = r.backend.sampler(opts.interpolation)(raster["ref_uv"][hit])
-        grey += g.reshape(H, s, W, s).mean(axis=(1, 3)).ravel() / len(taus)
-        el = raster["element"].reshape(H, s, W, s).transpose(0, 2, 1, 3).reshape(W * H, s * s)
-        e = np.where((el == el[:, :1]).all(axis=1), el[:, 0], -2)
-        one = e if one is None else np.where(one == e, e, -2)
+        g, e = image(tl.at(tau, points))
+        grey, one = grey + g / len(taus), e if one is None else np.where(one == e, e, -2)
     return grey, one
 
 
@@ -324,14 +318,15 @@ def test_exposure_jacobian_matches_central_differences(kind):
         J, J_rig = res.jacobian.tocsc(), res.rig_jacobian.toarray()
         tl = motion.timeline(scene.exposure, mesh, 1)
         taus = motion.sample_offsets(scene.exposure.time, scene.exposure.samples)
-        grey, _ = _exposure_image(r, tl, taus, mesh.deformed)
+        grey, _ = _over_exposure(tl, taus, mesh.deformed, functools.partial(_image64, r))
         np.testing.assert_allclose(grey, res.image.ravel(), rtol=0, atol=1e-6)   # the rendered image's mean
         checked = 0
         for node in np.random.default_rng(5).choice(mesh.n_nodes, 4, replace=False):
             for c in range(3):
                 def moved(sign):
                     step = sign * DELTA * (np.arange(3) == c) * (np.arange(mesh.n_nodes) == node)[:, None]
-                    return _exposure_image(r, tl, taus, lambda k: mesh.deformed(k) + (step if k == 1 else 0))
+                    return _over_exposure(tl, taus, lambda k: mesh.deformed(k) + (step if k == 1 else 0),
+                                          functools.partial(_image64, r))
                 (plus, ep), (minus, em) = moved(1), moved(-1)
                 col = J[:, 3 * node + c].toarray().ravel()
                 same = (ep == em) & (ep >= -1)
@@ -342,11 +337,40 @@ def test_exposure_jacobian_matches_central_differences(kind):
         assert checked > 100
         for name in ("rz", "tx", "fx"):
             d = RIG_STEPS.get(name, 1e-5)
-            (plus, ep), (minus, em) = (_exposure_image(r, tl, taus, mesh.deformed, _moved(scene.cameras[0], name, v))
-                                       for v in (d, -d))
+            (plus, ep), (minus, em) = (_over_exposure(tl, taus, mesh.deformed, functools.partial(
+                _image64, r, cam=_moved(scene.cameras[0], name, v))) for v in (d, -d))
             same, col = (ep == em) & (ep >= -1), J_rig[:, jac.RIG_COLUMNS.index(name)]
             floor = 1e-3 * np.abs(col).max()
             assert np.all(np.abs((plus - minus)[same] / (2 * d) - col[same]) <= 1e-4 * np.maximum(np.abs(col[same]), floor))
+
+
+def test_quadratic_exposure_jacobian_matches_central_differences():
+    """The Q8 mesh of _curved rotating about a given centre and moving over the exposure: its
+    Jacobian (each sub-frame on its state's curved patches, chained by R(ωτ)) against central
+    differences of the oracle's curved sub-frames' mean, a mid-side node among those moved;
+    test_oracle_matches_central_differences's criterion."""
+    scene, meshes = _curved(mode="exact")
+    mesh = meshes[0]
+    scene = scene.replace(exposure={"time": 0.01, "samples": 2, "velocity": [30.0, -10.0, 0.0],
+                                    "angular_velocity": [0.0, 0.0, 2.0], "centre": [0.0, 0.0, 400.0]})
+    with Renderer(scene, mesh=mesh) as r:
+        J = r.render(0, 1, jacobian=True).jacobian.tocsc()
+        tl = motion.timeline(scene.exposure, mesh, 1)
+        taus = motion.sample_offsets(scene.exposure.time, scene.exposure.samples)
+        image = functools.partial(_curved_image, r, scene.cameras[0], mesh, mode="exact")
+        mid = np.setdiff1d(np.unique(mesh.patches[:, :8]), mesh.patches[:, :4])
+        checked = 0
+        for node in (mid[len(mid) // 2], *np.random.default_rng(6).choice(np.unique(mesh.patches[:, :8]), 2, replace=False)):
+            for c in range(3):
+                step = DELTA * (np.arange(3) == c) * (np.arange(mesh.n_nodes) == node)[:, None]
+                (plus, ep), (minus, em) = (_over_exposure(tl, taus, lambda k, d=d: mesh.deformed(k) + (d if k == 1 else 0),
+                                                          lambda X: image(deformed=X)) for d in (step, -step))
+                col = J[:, 3 * node + c].toarray().ravel()
+                same = (ep == em) & (ep >= -1)
+                floor = 1e-3 * max(np.abs(col).max(), 1e-300)
+                assert np.all(np.abs((plus - minus) / (2 * DELTA) - col)[same] <= 1e-4 * np.maximum(np.abs(col[same]), floor))
+                checked += np.count_nonzero(col[same])
+        assert checked > 50
 
 
 def test_rolling_shutter_jacobian_of_a_still_specimen_is_the_global_shutters():
@@ -438,6 +462,16 @@ def test_gl_matches_the_oracle_on_quadratic_elements(gl_ctx, mode, spp):
     scene, meshes = _curved(mode=mode, samples_per_pixel=spp)
     for mesh in meshes:
         _gl_against_oracle(gl_ctx, scene, mesh)
+
+
+@pytest.mark.gl
+@pytest.mark.parametrize("spp", [1, 4])
+def test_gl_matches_the_oracle_on_quadratic_elements_over_an_exposure(gl_ctx, spp):
+    """The Q8 mesh of _curved moving rigidly over the exposure (each sub-frame's curved patches
+    in its own state; at 4 spp its sample camera rendered so): as test_gl_matches_the_oracle."""
+    scene, meshes = _curved(mode="exact", samples_per_pixel=spp)
+    _gl_against_oracle(gl_ctx, scene.replace(exposure={"time": 0.01, "samples": 2, "velocity": [30.0, -10.0, 0.0],
+                                                       "angular_velocity": [0.0, 0.0, 1.0]}), meshes[0])
 
 
 def test_quadratic_rig_jacobian_matches_central_differences():
