@@ -205,7 +205,7 @@ class Renderer:
     def _through_camera_effects(self, cam: Camera, J, J_rig) -> dict:
         """``jacobian`` and ``rig_jacobian`` of ``cam``'s image from the raster's: through the
         camera effects that act on the image linearly (:func:`glsim.effects.through_camera_effects`)."""
-        index = [c.name for c in self.scene.cameras].index(cam.name)
+        index = self.scene.cameras.index(self.scene.camera(cam.name))
         return {"jacobian": through_camera_effects(J, self.scene, cam, index),
                 "rig_jacobian": None if J_rig is None else through_camera_effects(J_rig, self.scene, cam, index)}
 
@@ -272,8 +272,7 @@ class Renderer:
         field and the PSF move into it (:func:`glsim.effects.spread`) and cut to it."""
         mesh, state = self.drawn_mesh, None if tau == 0 else float(tau)
         nodes = tl.at(tau, mesh.deformed)
-        curved = Curved(self.mesh, self.pieces, step if state is None else (step, state), tl.at(tau, self.mesh.deformed)) \
-            if self.mesh.is_quadratic and opts.mode != "fast" else None
+        curved = self._curved(opts, step, tl, tau)
         view = self.geometry.view(cam, step, state, nodes)
         depths = view.corner_depths() if self.scene.optics is not None else np.empty(0)
         index = self.scene.cameras.index(self.scene.camera(cam.name))   # (a band camera has its camera's name)
@@ -300,8 +299,7 @@ class Renderer:
                 warnings.simplefilter("ignore")
                 drawn = None if tl is None else tl.at(tau, self.drawn_mesh.deformed)
                 view = self.geometry.view(jac.sample_camera(cam, s), step, state, drawn)
-                curved = Curved(self.mesh, self.pieces, step if state is None else (step, state), deformed) \
-                    if self.mesh.is_quadratic else None
+                curved = self._curved(opts, step, tl, tau)
                 raster = self.backend.render(Request(view, dataclasses.replace(opts, samples_per_pixel=1), True,
                                                      curved=curved)).samples
         method = opts.interpolation
@@ -364,6 +362,16 @@ class Renderer:
             keep(self._jobs, key, (self.scene, opts, cam, index), SEEN_KEPT)
         return opts, cam, index
 
+    def _curved(self, opts: Render, step: int, tl: "motion.Timeline | None" = None, tau: float = 0.0) -> Curved | None:
+        """A quadratic mesh's curved patches as modes exact and q4 map on them (None otherwise)
+        at ``step``, or at its state τ s on (``tl``: :meth:`_moving`'s sub-frames), keyed as
+        :meth:`glsim.stages.geometry.MeshGeometry.step` keys it."""
+        if not self.mesh.is_quadratic or opts.mode == "fast":
+            return None
+        if tl is None or tau == 0:
+            return Curved(self.mesh, self.pieces, step)
+        return Curved(self.mesh, self.pieces, (step, float(tau)), tl.at(tau, self.mesh.deformed))
+
     def _options(self, options: dict) -> Render:
         """The scene's [render] table with ``options`` (a render call's) applied; ``pieces`` is
         the renderer's (its quadratic mesh is cut once), not changed per call."""
@@ -393,7 +401,7 @@ class Renderer:
         depths = view.corner_depths() if self.scene.optics is not None else np.empty(0)
         fx = prepare_effects(self.scene, deformed, self.drawn_mesh.quads, cam, index, step,
                              depths, normals=not self.backend.capabilities.device_geometry)
-        curved = Curved(self.mesh, self.pieces, step) if self.mesh.is_quadratic and opts.mode != "fast" else None
+        curved = self._curved(opts, step)
         token = self.backend.submit(Request(view, opts, truth, fx, curved, cam.bit_depth if quantize else None))
         return _Submitted(token, cam, step, opts, truth, quantize, view.step_geo, curved is not None,
                           time.perf_counter() - t0)

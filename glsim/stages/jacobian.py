@@ -76,7 +76,6 @@ def check_request(scene: Scene, opts: Render, rig: bool = False) -> None:
                          "(or linear), or render without jacobian")
 
 
-
 def sample_camera(cam: Camera, s: int) -> Camera:
     """The camera whose pixel centres are ``cam``'s s×s samples per pixel
     (:func:`glsim.scene.camera.pixel_grid`): size ×s, fx, fy, skew ×s, c' = s·(c + ½) − ½;

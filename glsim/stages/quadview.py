@@ -189,9 +189,9 @@ def patch_data(curved, view, mode: str, cache: dict) -> PatchData:
     """The GL path's payload for drawing a :class:`~glsim.backends.contract.Curved` request's
     quadratic mesh (its linear pieces, the view's elements) in its state, seen by ``view`` (a
     ViewSpec) in ``mode`` exact or q4: the state's patch points (kept in ``cache`` per state,
-    with a warning naming folded elements, each time), the
-    reference data (once) and the chord bound; made once per view and mode (the last
-    VIEWS_KEPT kept), so a view rendered again gets the same object."""
+    with a warning naming folded elements, each time), the reference data (once) and the chord
+    bound; made once per view and mode (the last VIEWS_KEPT kept), so a view rendered again
+    gets the same object."""
     views, mesh = cache.setdefault("views", {}), curved.mesh
     hit = views.get((id(view), mode))
     if hit is None or hit[0] is not view:
