@@ -217,9 +217,11 @@ def test_a_rolling_shutter_library_stores_each_rows_truth(tmp_path):
     other = load_plan(_spec(tmp_path, "steps = [2]\n" + SCENE + motion.format(4e-5) + "[vary]\nnoise.sigma = [1.0]\n",
                             "other.toml"))
     assert {j.truth for j in other.jobs}.isdisjoint({j.truth for j in load_plan(spec).jobs})
-
-
-
+    # a damaged rolling-shutter header is named, not a traceback
+    t = T.load(_truth_of(lib, "v0000/cam1_0002.tif"))
+    damaged = T.CompactTruth(t.path, {**t.header, "rolling": {"line_time": 2e-5}}, t._blobs, t.geometry)
+    with pytest.raises(C.TruthFileError, match=r"\.truth: its header.s rolling shutter is damaged .*--verify"):
+        damaged.maps().X_deformed
 
 
 def test_a_library_with_an_exposure_stores_the_mid_exposure_truth(tmp_path):
