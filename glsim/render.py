@@ -32,7 +32,8 @@ from glsim.limits import check_gl_target, check_image_size, check_memory, keep
 from glsim.scene import quadratic as qd
 from glsim.scene.bilinear import bilinear
 from glsim.scene.camera import Camera, to_camera
-from glsim.effects import prepare as prepare_effects, spread as spread_rows, through_camera_effects
+from glsim.effects import (prepare as prepare_effects, shading_terms, spread as spread_rows,
+                           through_camera_effects)
 from glsim.effects import motion, noise as noisemod
 from glsim.stages.geometry import MeshGeometry, StepGeometry
 from glsim.io.images import quantize as quantize_image, saturated_fraction
@@ -193,7 +194,7 @@ class Renderer:
         if not jacobian:
             return self._finish(self._submit(camera, step, truth, quantize, options))
         opts = self._options(options)
-        jac.check_request(self.scene, opts, rig)
+        jac.check_request(self.scene, opts, rig, self.mesh.is_quadratic)
         one = opts.supersampling == 1   # the image's own pixel-centre raster is the samples'
         res = self._finish(self._submit(camera, step, truth or one, quantize, options))
         raster = {"element": res.truth.element.ravel(), "xi": res.truth.xi.ravel(),
@@ -218,7 +219,7 @@ class Renderer:
         t0, scene, mesh = time.perf_counter(), self.scene, self.drawn_mesh
         opts = self._options(options)
         if jacobian:
-            jac.check_request(scene, opts, rig)
+            jac.check_request(scene, opts, rig, self.mesh.is_quadratic)
         self.check_size(camera, truth, opts)
         cam, ex = scene.camera(camera), scene.exposure
         line = scene.sensor.line_time if scene.sensor is not None else 0.0
@@ -306,8 +307,11 @@ class Renderer:
         if method not in self._ref_coeffs:
             self._ref_coeffs[method] = interp.prepare(self.reference.image, method, np.float64)
         coeffs = self._ref_coeffs[method]
+        shading = None if self.scene.lighting is None else \
+            shading_terms(self.scene, deformed, mesh.quads, cam, lambda uv: interp.sample(coeffs, uv, method))
         J, J_rig = jac.image_jacobian(cam, s, self.reference.camera, mesh.nodes, deformed, mesh.quads, opts.mode,
-                                      raster, lambda uv: interp.gradient(coeffs, uv, method), rig, mesh.patches)
+                                      raster, lambda uv: interp.gradient(coeffs, uv, method), rig, mesh.patches,
+                                      shading)
         if tl is not None:   # ∂g/∂u_k = ∂g/∂X(τ) · ∂X(τ)/∂X_k, per node
             J = J @ sparse.kron(sparse.identity(mesh.n_nodes), tl.derivative(tau), format="csr")
         return J, J_rig

@@ -44,7 +44,12 @@ def _plate(**render):
 
 def _image64(r: Renderer, deformed: np.ndarray, cam=None):
     """The oracle's float64 image (before its float32 cast) of ``deformed`` nodes seen by ``cam``
-    (default: camera 0 at step 1), and per pixel its samples' one element (−2 where they differ)."""
+    (default: camera 0 at step 1), and per pixel its samples' one element (−2 where they differ);
+    lit as the oracle lights each sample (glsim.backends.cpu._shade, the Effects of ``deformed``)
+    when the scene has [lighting]."""
+    from glsim.backends.cpu import _shade
+    from glsim.effects import prepare
+
     opts = r.scene.render
     W, H = (cam or r.scene.cameras[0]).size
     s = opts.supersampling
@@ -54,6 +59,9 @@ def _image64(r: Renderer, deformed: np.ndarray, cam=None):
     hit = raster["element"] >= 0
     grey = np.full(hit.shape, opts.background)
     grey[hit] = r.backend.sampler(opts.interpolation)(raster["ref_uv"][hit])
+    if r.scene.lighting is not None:
+        fx = prepare(r.scene, deformed, r.mesh.quads, view.camera, 0, 1, np.empty(0))
+        grey[hit] = _shade(view, raster, hit, grey[hit], fx)
     el = raster["element"].reshape(H, s, W, s).transpose(0, 2, 1, 3).reshape(H * W, s * s)
     one = np.where((el == el[:, :1]).all(axis=1), el[:, 0], -2)
     return grey.reshape(H, s, W, s).mean(axis=(1, 3)).ravel(), one
@@ -61,26 +69,33 @@ def _image64(r: Renderer, deformed: np.ndarray, cam=None):
 
 @pytest.mark.parametrize("mode, spp", [("exact", 1), ("q4", 1), ("exact", 4)])
 def test_oracle_matches_central_differences(mode, spp):
-    """Per pixel whose samples stay in one element in both renders: |FD − J| ≤ 1e-4 of the entry
-    (entries below 1e-3 of the column's largest count at that floor: FD's own rounding)."""
+    """_against_central_differences of the oracle's float64 renders."""
     scene, mesh = _plate(backend="cpu", mode=mode, samples_per_pixel=spp)
     with Renderer(scene, mesh=mesh) as r:
         J = r.render(0, 1, jacobian=True).jacobian.tocsc()
         assert J.shape == (64 * 48, 3 * mesh.n_nodes)
-        deformed = mesh.deformed(1)
-        checked = 0
-        for node in np.random.default_rng(1).choice(mesh.n_nodes, 5, replace=False):
-            for c in range(3):
-                (plus, ep), (minus, em) = (_image64(r, deformed + sign * DELTA * (np.arange(3) == c)
-                                                    * (np.arange(mesh.n_nodes) == node)[:, None]) for sign in (1, -1))
-                fd = (plus - minus) / (2 * DELTA)
-                col = J[:, 3 * node + c].toarray().ravel()
-                same = (ep == em) & (ep >= -1)
-                floor = 1e-3 * np.abs(col).max()
-                assert np.all(np.abs(fd - col)[same] <= 1e-4 * np.maximum(np.abs(col[same]), floor))
-                assert not np.any(col[ep == -1]), "background pixels have no derivative"
-                checked += np.count_nonzero(col[same])
-        assert checked > 100
+        _against_central_differences(J, mesh, lambda nodes: _image64(r, nodes), seed=1)
+
+
+def _against_central_differences(J, mesh, image, seed: int) -> None:
+    """J's columns of 5 random nodes (``seed``) against central differences of ``image(nodes)``
+    (the float64 image (W·H,) and per pixel its samples' one element, −2 where they differ) about
+    step 1: per pixel whose samples stay in one element in both renders, |FD − J| ≤ 1e-4 of the
+    entry (entries below 1e-3 of the column's largest count at that floor: FD's own rounding);
+    background pixels have no derivative; over 100 entries checked."""
+    deformed, checked = mesh.deformed(1), 0
+    for node in np.random.default_rng(seed).choice(mesh.n_nodes, 5, replace=False):
+        for c in range(3):
+            (plus, ep), (minus, em) = (image(deformed + sign * DELTA * (np.arange(3) == c)
+                                             * (np.arange(mesh.n_nodes) == node)[:, None]) for sign in (1, -1))
+            fd = (plus - minus) / (2 * DELTA)
+            col = J[:, 3 * node + c].toarray().ravel()
+            same = (ep == em) & (ep >= -1)
+            floor = 1e-3 * np.abs(col).max()
+            assert np.all(np.abs(fd - col)[same] <= 1e-4 * np.maximum(np.abs(col[same]), floor))
+            assert not np.any(col[ep == -1]), "background pixels have no derivative"
+            checked += np.count_nonzero(col[same])
+    assert checked > 100
 
 
 def _curved(**render):
@@ -228,12 +243,36 @@ def test_supersampled_pixels_average_their_samples():
 OPTICS = {"focal_length": 50.0, "f_number": 2.8, "focus_distance": 300.0, "pixel_pitch": 0.005}
 
 
-@pytest.mark.parametrize("change, key", [({"lighting": {}}, "lighting"), ({"optics": OPTICS}, "optics")])
-def test_effects_are_refused_by_name(change, key):
+def test_depth_of_field_is_refused_by_name():
     scene, mesh = _plate(backend="cpu")
-    with Renderer(scene.replace(**change), mesh=mesh) as r, \
-            pytest.raises(SceneError, match=rf"^{key}: .* — remove \[{key}\] or render without jacobian"):
+    with Renderer(scene.replace(optics=OPTICS), mesh=mesh) as r, \
+            pytest.raises(SceneError, match=r"^optics: .* — remove \[optics\] or render without jacobian"):
         r.render(0, 1, jacobian=True)
+
+
+# a point light with attenuation and a highlight on the plate, and a spotlight whose smooth edge
+# (cutoff 6°, edge 3°, ~100 mm away: radii 5–10 mm) crosses it
+LIGHTING = {"ambient": -0.02, "diffuse": 0.6, "specular": 0.4, "shininess": 6.0,
+            "lights": [{"position": [12.0, -8.0, 150.0], "intensity": 0.5, "attenuation": 2e-5},
+                       {"position": [-30.0, 20.0, 200.0], "direction": [30.0, -20.0, 100.0], "cutoff": 6.0,
+                        "edge": 3.0, "intensity": 0.4}]}
+
+
+@pytest.mark.parametrize("mode, spp, normals, combine", [("exact", 1, "smooth", "additive"),
+                                                          ("q4", 1, "flat", "multiplicative"),
+                                                          ("exact", 4, "smooth", "multiplicative")])
+def test_lit_jacobian_matches_central_differences(mode, spp, normals, combine):
+    """Phong lighting (docs/jacobian.md, "With lighting"): the lit grey moves with the sample's
+    point, its interpolated normal and, through the corner normals, with the nodes of the
+    elements around it (smooth normals: a node's 1-ring). Against central differences of the
+    oracle's lit float64 render (_image64) (checked to be the rendered image), the nodes moved including
+    ones whose only effect on some pixels is through the normals (_against_central_differences). Leaving out the normals' derivative fails it (checked)."""
+    scene, mesh = _plate(backend="cpu", mode=mode, samples_per_pixel=spp)
+    scene = scene.replace(lighting={**LIGHTING, "normals": normals, "combine": combine})
+    with Renderer(scene, mesh=mesh) as r:
+        res = r.render(0, 1, jacobian=True)
+        assert np.abs(_image64(r, mesh.deformed(1))[0] - res.image.ravel()).max() <= 1e-6
+        _against_central_differences(res.jacobian.tocsc(), mesh, lambda nodes: _image64(r, nodes), seed=5)
 
 
 CAMERA_EFFECTS = {"vignetting": {"natural": True, "radial": [0.3, -0.1]}, "psf": {"kind": "gaussian", "sigma": 0.9},
@@ -409,6 +448,17 @@ def test_what_the_camera_effects_jacobian_leaves_out_is_refused_by_name(change, 
         r.render(0, 1, jacobian=True, rig=rig)
 
 
+def test_lighting_with_the_rig_or_a_quadratic_mesh_is_refused_by_name():
+    scene, mesh = _plate(backend="cpu")
+    with Renderer(scene.replace(lighting=LIGHTING), mesh=mesh) as r, \
+            pytest.raises(SceneError, match=r"^lighting: .*rig.* — remove \[lighting\], or render without rig"):
+        r.render(0, 1, rig=True)
+    scene, meshes = _curved()
+    with Renderer(scene.replace(lighting=LIGHTING), mesh=meshes[0]) as r, \
+            pytest.raises(SceneError, match=r"^lighting: .*quadratic mesh.* — remove \[lighting\]"):
+        r.render(0, 1, jacobian=True)
+
+
 def test_modes_and_interpolation_are_refused_by_name():
     scene, mesh = _plate(backend="cpu")
     with Renderer(scene, mesh=mesh) as r:
@@ -443,15 +493,26 @@ def test_gl_matches_the_oracle_over_an_exposure(gl_ctx, spp):
     _gl_against_oracle(gl_ctx, scene.replace(exposure=EXPOSURES["rigid"]), mesh)
 
 
-def _gl_against_oracle(gl_ctx, scene, mesh):
-    """GL's nodal and rig Jacobians within 1e-3 of the oracle's largest entry."""
+def _gl_against_oracle(gl_ctx, scene, mesh, rig: bool = True):
+    """GL's nodal and (``rig``) rig Jacobians within 1e-3 of the oracle's largest entry."""
     out = {}
     for backend in ("cpu", "gl"):
         with Renderer(scene, backend, ctx=gl_ctx if backend == "gl" else None, mesh=mesh) as r:
-            res = r.render(0, 1, rig=True)
+            res = r.render(0, 1, jacobian=True, rig=rig)
             out[backend], out[backend + " rig"] = res.jacobian, res.rig_jacobian
     assert abs(out["gl"] - out["cpu"]).max() <= 1e-3 * abs(out["cpu"]).max()
-    assert abs(out["gl rig"] - out["cpu rig"]).max() <= 1e-3 * abs(out["cpu rig"]).max()
+    if rig:
+        assert abs(out["gl rig"] - out["cpu rig"]).max() <= 1e-3 * abs(out["cpu rig"]).max()
+
+
+@pytest.mark.gl
+@pytest.mark.parametrize("mode, spp", [("exact", 1), ("exact", 4)])
+def test_gl_matches_the_oracle_with_lighting(gl_ctx, mode, spp):
+    """Lit (smooth normals, multiplicative), over an exposure (each sub-frame's normals in its
+    state): as above, nodal only (the rig Jacobian refuses the lighting)."""
+    scene, mesh = _plate(mode=mode, samples_per_pixel=spp)
+    _gl_against_oracle(gl_ctx, scene.replace(lighting={**LIGHTING, "combine": "multiplicative"},
+                                             exposure=EXPOSURES["rigid"]), mesh, rig=False)
 
 
 @pytest.mark.gl

@@ -138,11 +138,7 @@ def prepare(scene: Scene, nodes_def: np.ndarray, quads: np.ndarray, cam: Camera,
     out: dict = {"bit_depth": cam.bit_depth}
     lit = scene.lighting
     if lit is not None:
-        from glsim.effects import lighting as shade
-
-        out.update(lighting=lit,
-                   lights=shade.lights_to_camera([_light_dict(li) for li in lit.lights], cam.rotation,
-                                                 cam.translation),
+        out.update(lighting=lit, lights=_camera_lights(lit, cam),
                    normals=corner_normals(nodes_def, quads, cam, lit.normals == "flat") if normals else None)
     if scene.optics is not None:
         out.update(optics=scene.optics, sigma_max=max_blur(scene.optics, depths))
@@ -173,6 +169,25 @@ def prepare(scene: Scene, nodes_def: np.ndarray, quads: np.ndarray, cam: Camera,
 def _no_effects(bit_depth: int) -> Effects:
     """The Effects of a scene that names none (made once per bit depth: they are immutable)."""
     return Effects(bit_depth=bit_depth)
+
+
+def shading_terms(scene: Scene, nodes: np.ndarray, quads: np.ndarray, cam: Camera, grey):
+    """What ``scene``'s lighting adds to ``cam``'s image Jacobian at the deformed ``nodes`` (N, 3,
+    world mm): :class:`glsim.effects.lighting.ShadingTerms` (``grey(uv)``: the reference
+    interpolant's values)."""
+    from glsim.effects import lighting as shade
+
+    lit, quads = scene.lighting, np.asarray(quads, np.intp)
+    flat = lit.normals == "flat"
+    source = np.repeat(np.arange(len(quads))[:, None], 4, axis=1) if flat else quads
+    return shade.ShadingTerms(lit, _camera_lights(lit, cam), corner_normals(nodes, quads, cam, flat), source,
+                              shade.normal_jacobian(nodes, quads, flat), grey)
+
+
+def _camera_lights(lit: Lighting, cam: Camera) -> "LightArrays":
+    from glsim.effects import lighting as shade
+
+    return shade.lights_to_camera([_light_dict(li) for li in lit.lights], cam.rotation, cam.translation)
 
 
 def _light_dict(light) -> dict:

@@ -239,3 +239,154 @@ def saturated_fraction(image) -> float:
     if image.size == 0:
         return 0.0
     return float(np.count_nonzero((image >= 1) | (image <= 0)) / image.size)
+
+
+# ---- derivatives (image Jacobians, glsim.stages.jacobian) ----------------------------------------
+
+def _dot(a, b):
+    return np.einsum("...d,...d->...", a, b)
+
+
+def _unit_derivative(u, length):
+    """∂(v/|v|)/∂v (..., 3, 3) = (I − u uᵀ)/|v| at the unit u = v/|v| of length ``length``
+    (zero where it is 0)."""
+    inv = np.divide(1.0, length, out=np.zeros_like(length), where=length > 0)
+    return (np.eye(3) - u[..., :, None] * u[..., None, :]) * inv[..., None, None]
+
+
+def phong_gradient(X, N, lights: LightArrays, ambient: float, k_r: float, k_s: float, shininess: float):
+    """:func:`phong` (I (n,)) and its derivatives with respect to the point X and the normal N
+    as given (not necessarily unit), each (n, 3), camera frame, per mm and per unit of N.
+    X, N: (n, 3). Exact wherever :func:`phong` is smooth: not where N·L = 0, R·V = 0, N·V = 0
+    (the flip), on a hard spot edge or at the smooth edge's ends (there the one-sided value the
+    branch taken gives). N = 0 gives I = ambient and zero derivatives."""
+    X = np.asarray(X, dtype=np.float64)
+    N = np.asarray(N, dtype=np.float64)
+    Nu, m = _normalize(N)
+    V, x = _normalize(-X)
+    flip = np.where(_dot(Nu, V) < 0, -1.0, 1.0)
+    Nf = Nu * flip[:, None]
+    dNf = _unit_derivative(Nu, m) * flip[:, None, None]              # ∂Nf/∂N (n, 3, 3)
+    dV = -_unit_derivative(V, x)                                      # ∂V/∂X
+    L, d = _normalize(lights.pos[None] - X[:, None])                  # (n, L, 3), (n, L)
+    dL = -_unit_derivative(L, d)                                      # ∂L/∂X (n, L, 3, 3)
+    Nl = Nf[:, None]
+    nl = _dot(Nl, L)
+    nv = _dot(Nf, V)[:, None]
+    RmV = 2.0 * nl[..., None] * Nl - L - V[:, None]
+    s = 0.5 * _dot(RmV, RmV)                                          # 1 − R·V
+    rv = 1.0 - s
+    lit = (nl > 0) & (s < 1)
+    spec = np.where(lit, np.exp(shininess * np.log1p(-np.where(lit, s, 0.0))), 0.0)
+    dspec = np.where(lit, shininess * spec / np.where(lit, rv, 1.0), 0.0)   # ∂spec/∂(R·V)
+    dnl_X = np.einsum("nd,nlde->nle", Nf, dL)                        # ∂(N·L)/∂X
+    # R·V = 2 (N·L)(N·V) − L·V
+    drv_X = (2.0 * nv[..., None] * dnl_X + 2.0 * nl[..., None] * np.einsum("nd,nde->ne", Nf, dV)[:, None]
+             - np.einsum("nld,nde->nle", L, dV) - np.einsum("nd,nlde->nle", V, dL))
+    drv_N = 2.0 * nv[..., None] * L + 2.0 * nl[..., None] * V[:, None]    # ∂(R·V)/∂Nf
+    is_spot = np.any(lights.dir != 0, axis=-1)
+    cos_theta = _dot(-L, lights.dir[None])
+    spot = np.where(is_spot, spot_factor(cos_theta, lights.cos_cutoff, lights.cos_inner), 1.0)
+    smooth = is_spot & (lights.cos_inner > lights.cos_cutoff)
+    width = np.where(smooth, lights.cos_inner - lights.cos_cutoff, 1.0)
+    t = (cos_theta - lights.cos_cutoff) / width
+    dspot = np.where(smooth & (t > 0) & (t < 1), 6.0 * t * (1.0 - t) / width, 0.0)   # ∂spot/∂cosθ
+    dcos_X = -np.einsum("ld,nlde->nle", lights.dir, dL)
+    k_d2 = 1.0 + lights.attenuation * d * d
+    att = lights.intensity / k_d2
+    datt_X = (2.0 * lights.intensity * lights.attenuation * d / (k_d2 * k_d2))[..., None] * L   # ∂d/∂X = −L
+    body = k_r * np.maximum(nl, 0.0) + k_s * spec
+    dbody_X = k_r * (nl > 0)[..., None] * dnl_X + k_s * dspec[..., None] * drv_X
+    dbody_N = k_r * (nl > 0)[..., None] * L + k_s * dspec[..., None] * drv_N
+    I = ambient + np.sum(spot * att * body, axis=-1)
+    dI_X = np.sum((dspot * att * body)[..., None] * dcos_X + (spot * body)[..., None] * datt_X
+                  + (spot * att)[..., None] * dbody_X, axis=1)
+    dI_N = np.einsum("nd,nde->ne", np.sum((spot * att)[..., None] * dbody_N, axis=1), dNf)
+    return I, dI_X, dI_N
+
+
+def _cross_matrix(a):
+    """[a]× (..., 3, 3): [a]× b = a × b."""
+    out = np.zeros(a.shape[:-1] + (3, 3))
+    out[..., 0, 1], out[..., 0, 2], out[..., 1, 2] = -a[..., 2], a[..., 1], -a[..., 0]
+    out[..., 1, 0], out[..., 2, 0], out[..., 2, 1] = a[..., 2], -a[..., 1], a[..., 0]
+    return out
+
+
+def _cross_derivatives(nodes, quads):
+    """The diagonals' cross product c = (x2 − x0) × (x3 − x1) of each element (M, 3), its norm
+    and ∂c/∂x_k (M, 4, 3, 3) for the 4 corners (c and ∂c zero where :func:`_diagonal_cross`
+    finds the element degenerate)."""
+    x = np.asarray(nodes, np.float64)[np.asarray(quads, np.intp)]
+    d1, d2 = x[:, 2] - x[:, 0], x[:, 3] - x[:, 1]
+    c, norm = _diagonal_cross(nodes, quads)
+    A, B = _cross_matrix(d1), _cross_matrix(d2)
+    return c, norm, np.stack([B, -A, -B, A], axis=1) * (norm > 0)[:, None, None, None]
+
+
+def normal_jacobian(nodes, quads, flat: bool):
+    """The derivative of the lighting's normals with respect to the node positions, world
+    frame, as scipy CSR: rows 3·i + a for component a of element i's normal
+    (:func:`element_normals`, ``flat``) or of node i's (:func:`vertex_normals`), columns
+    3·j + b for node j's position. Zero for zero-area elements and nodes without a normal."""
+    from scipy import sparse
+
+    quads = np.asarray(quads, np.intp)
+    M, n_nodes = len(quads), len(nodes)
+    c, norm, dc = _cross_derivatives(nodes, quads)
+    cols = (3 * quads[:, :, None] + np.arange(3)).reshape(M, 1, 12)      # (element, corner·b)
+    if flat:
+        u = c / np.where(norm > 0, norm, 1.0)[:, None]
+        block = np.einsum("mab,mkbc->makc", _unit_derivative(u, norm), dc)   # (M, 3, 4, 3)
+        rows = np.broadcast_to((3 * np.arange(M)[:, None] + np.arange(3))[:, :, None], (M, 3, 12))
+        return sparse.csr_matrix((block.reshape(M, 3, 12).ravel(), (rows.ravel(), np.broadcast_to(cols, (M, 3, 12)).ravel())),
+                                 shape=(3 * M, 3 * n_nodes))
+    acc = np.zeros((n_nodes, 3))
+    parts = []
+    for j in range(4):   # each element once per distinct node, as vertex_normals
+        first = np.ones(M, dtype=bool)
+        for i in range(j):
+            first &= quads[:, j] != quads[:, i]
+        np.add.at(acc, quads[first, j], 0.5 * c[first])
+        parts.append((quads[first, j], np.flatnonzero(first)))
+    n = vertex_normals(nodes, quads)
+    P = _unit_derivative(n, np.where(np.any(n != 0, axis=1), np.linalg.norm(acc, axis=1), 0.0))   # (N, 3, 3)
+    data, rows, col = [], [], []
+    for node, e in parts:
+        block = 0.5 * np.einsum("mab,mkbc->makc", P[node], dc[e]).reshape(len(e), 3, 12)
+        data.append(block.ravel())
+        rows.append(np.broadcast_to((3 * node[:, None] + np.arange(3))[:, :, None], block.shape).ravel())
+        col.append(np.broadcast_to(cols[e], block.shape).ravel())
+    J = sparse.coo_matrix((np.concatenate(data), (np.concatenate(rows), np.concatenate(col))),
+                          shape=(3 * n_nodes, 3 * n_nodes)).tocsr()
+    J.sum_duplicates()
+    return J
+
+
+@dataclass(frozen=True, eq=False)
+class ShadingTerms:
+    """What the lighting adds to an image Jacobian (:func:`glsim.stages.jacobian.image_jacobian`),
+    for one camera and state: the lit grey g' = combine(g, I(X, Ñ)) of a sample with reference
+    grey g, point X and interpolated normal Ñ = Σ N_k n_k (camera frame).
+
+    ``corners`` (M, 4, 3): the corner normals n_k in the camera frame (unit, as rendered);
+    ``source`` (M, 4): the row block of each corner's normal in ``D`` (its node's, smooth; its
+    element's, flat); ``D``: :func:`normal_jacobian` (world frame); ``grey(uv)``: the
+    reference interpolant's values (a multiplicative combination needs them)."""
+    lighting: Any
+    lights: LightArrays
+    corners: np.ndarray
+    source: np.ndarray
+    D: Any
+    grey: Any
+
+    def terms(self, r, X, N):
+        """(∂g'/∂g (n,), ∂g'/∂X (n, 3), ∂g'/∂Ñ (n, 3)) at reference points r (n, 2) px, points X
+        and interpolated normals Ñ (n, 3, camera frame)."""
+        lit = self.lighting
+        I, dX, dN = phong_gradient(X, N, self.lights, lit.ambient, lit.diffuse, lit.specular, lit.shininess)
+        if lit.combine == "additive":
+            return np.ones(len(I)), dX, dN
+        g = self.grey(r)[:, None]
+        return I, g * dX, g * dN
+

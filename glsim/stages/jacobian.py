@@ -42,15 +42,16 @@ MODES = ("exact", "q4")
 # optional tables the Jacobian allows: it is of the noise-free image, over the exposure (the
 # sub-frames' mean) and through the camera effects that act on it linearly
 # (glsim.effects.through_camera_effects)
-UNREFUSED = ("noise", "vignetting", "psf", "sensor", "exposure")
+UNREFUSED = ("noise", "vignetting", "psf", "sensor", "exposure", "lighting")
 CHUNK = 1 << 18          # samples differentiated at once (bounds memory: ~100 doubles each)
 
 
-def check_request(scene: Scene, opts: Render, rig: bool = False) -> None:
-    """SceneError naming what ``jacobian=True`` cannot differentiate: [lighting], [optics] (every
-    optional table but [noise], [exposure] and the linear camera effects:
+def check_request(scene: Scene, opts: Render, rig: bool = False, quadratic: bool = False) -> None:
+    """SceneError naming what ``jacobian=True`` cannot differentiate: [optics] (every optional
+    table but [noise], [exposure], [lighting] and the linear camera effects:
     :func:`glsim.effects.through_camera_effects`), a fill factor below 1, [psf] with a rolling
-    shutter, [vignetting] in the rig Jacobian, mode fast, procedural interpolation."""
+    shutter, [vignetting] or [lighting] in the rig Jacobian, [lighting] on a ``quadratic`` mesh,
+    mode fast, procedural interpolation."""
     for f in dataclasses.fields(scene):
         if f.default is None and getattr(scene, f.name) is not None and f.name not in UNREFUSED:
             raise SceneError(f.name, "the image Jacobian does not differentiate this effect",
@@ -66,6 +67,11 @@ def check_request(scene: Scene, opts: Render, rig: bool = False) -> None:
     if rig and scene.vignetting is not None:
         raise SceneError("vignetting", "the rig Jacobian does not differentiate the vignetting gain (it varies with "
                          "the intrinsics and distortion)", "remove [vignetting], or render without rig")
+    if scene.lighting is not None and (rig or quadratic):
+        raise SceneError("lighting", "the image Jacobian is not made with the lighting " + (
+            "with respect to the rig (the lights and the view direction move with the pose in the camera's frame)"
+            if rig else "of a quadratic mesh (its normals are interpolated over linear pieces)"),
+            "remove [lighting]" + (", or render without rig" if rig else ", or render without jacobian"))
     if opts.mode not in MODES:
         raise SceneError("render.mode", f"the image Jacobian differentiates modes {' and '.join(MODES)}, "
                          f"not {opts.mode!r} (its triangles interpolate the reference point linearly)",
@@ -241,20 +247,22 @@ def _fold_centres(patches, e, c):
 
 
 def image_jacobian(cam: Camera, s: int, ref_cam: Camera, nodes: np.ndarray, deformed: np.ndarray,
-                   quads: np.ndarray, mode: str, raster: dict, grad, rig: bool = False, patches=None):
+                   quads: np.ndarray, mode: str, raster: dict, grad, rig: bool = False, patches=None,
+                   shading=None):
     """The image Jacobian (W·H × 3·nodes, CSR, grey levels per mm) of ``cam`` from ``raster``:
     flat ``element``, ``xi``, ``eta`` (float64) over the (W·s)·(H·s) samples of
     :func:`sample_camera` (element −1: background); the reference point is recomputed from them.
     ``nodes``, ``deformed`` (N, 3) world mm; ``patches``: a quadratic mesh's (its (ξ, η) are the
     patches'); ``grad(uv)`` the reference interpolant's gradient
-    (grey per px). A pixel's row is the mean of its s² samples' derivatives. Returns it and, if
-    ``rig``, the W·H × 23 CSR Jacobian with respect to ``cam``'s parameters (:func:`rig_derivatives`),
-    else None."""
+    (grey per px). A pixel's row is the mean of its s² samples' derivatives. ``shading``: the
+    lighting's :class:`glsim.effects.lighting.ShadingTerms` (linear elements, not with ``rig``:
+    :func:`lit_sensitivities`). Returns it and, if ``rig``, the W·H × 23 CSR Jacobian with
+    respect to ``cam``'s parameters (:func:`rig_derivatives`), else None."""
     W, H = cam.size
     scam = sample_camera(cam, s)
     R = cam.rotation
     hit = np.flatnonzero(raster["element"] >= 0)
-    parts, rig_parts = [], []
+    parts, rig_parts, normal_parts = [], [], []
     for k in range(0, len(hit), CHUNK):
         idx = hit[k:k + CHUNK]
         e, xi, eta = raster["element"][idx], raster["xi"][idx], raster["eta"][idx]
@@ -263,11 +271,17 @@ def image_jacobian(cam: Camera, s: int, ref_cam: Camera, nodes: np.ndarray, defo
         ray = sample_rays(scam, idx) if mode == "exact" else None
         r, dr = reference_point(mode, Xr, ref_cam, xi, eta)
         w = np.einsum("nc,ncl->nl", grad(r), dr)                                    # ∂g/∂(ξ, η)
-        N, v, c = sensitivities(mode, w, Xd, xi, eta, ray, scam)
-        corners, cn = (quads[e], c) if patches is None else _fold_centres(patches, e, c)
-        values = cn @ R / (s * s)                                                   # per world mm
         fi, fj = idx % (W * s), idx // (W * s)
         pixel = fj // s * W + fi // s
+        if shading is None:
+            N, v, c = sensitivities(mode, w, Xd, xi, eta, ray, scam)
+        else:
+            N, v, c, dn = lit_sensitivities(mode, w, Xd, xi, eta, ray, scam, shading, e, r)
+            cols = (3 * shading.source[e][..., None] + np.arange(3)).ravel()
+            normal_parts.append(sparse.coo_matrix(((dn @ R).ravel() / (s * s), (np.repeat(pixel, 12), cols)),
+                                                  shape=(W * H, shading.D.shape[0])).tocsr())
+        corners, cn = (quads[e], c) if patches is None else _fold_centres(patches, e, c)
+        values = cn @ R / (s * s)                                                   # per world mm
         cols = (3 * corners[..., None] + np.arange(3)).ravel()
         parts.append(sparse.coo_matrix((values.ravel(), (np.repeat(pixel, 3 * corners.shape[1]), cols)),
                                        shape=(W * H, 3 * len(nodes))).tocsr())
@@ -276,7 +290,26 @@ def image_jacobian(cam: Camera, s: int, ref_cam: Camera, nodes: np.ndarray, defo
             values = rig_derivatives(mode, N, v, c, Xd, cam, s, q, ray) / (s * s)
             rig_parts.append(sparse.coo_matrix((values.ravel(), (np.repeat(pixel, 23), np.tile(np.arange(23), len(idx)))),
                                                shape=(W * H, 23)).tocsr())
-    return _total(parts, (W * H, 3 * len(nodes))), _total(rig_parts, (W * H, 23)) if rig else None
+    J = _total(parts, (W * H, 3 * len(nodes)))
+    if shading is not None:   # through the corner normals' own dependence on the nodes
+        J = J + _total(normal_parts, (W * H, shading.D.shape[0])) @ shading.D
+    return J, _total(rig_parts, (W * H, 23)) if rig else None
+
+
+def lit_sensitivities(mode: str, w, Xd, xi, eta, ray, cam: Camera, shading, e, r):
+    """:func:`sensitivities` of a lit sample's grey g' = combine(g, I(X, Ñ)) (docs/jacobian.md):
+    X = Σ N_k X_k and Ñ = Σ N_k n_k move with (ξ, η) and with the corners, so ∂g'/∂(ξ, η) =
+    ∂g'/∂g·w + ∂g'/∂X·∂X/∂(ξ, η) + ∂g'/∂Ñ·∂Ñ/∂(ξ, η) enters the implicit differentiation, and the
+    corners gain ∂g'/∂X·N_k. Also returns dn (n, 4, 3): ∂g'/∂n_k, camera frame, for the corner
+    normals n_k (``shading.corners[e]``) — their own derivatives are ``shading.D``'s."""
+    nk = shading.corners[e]
+    N, N_xi, N_eta = _shape_derivatives(xi, eta)
+    X, Nt = np.einsum("nk,nkd->nd", N, Xd), np.einsum("nk,nkd->nd", N, nk)
+    gg, gX, gN = shading.terms(r, X, Nt)
+    w = (gg[:, None] * w + np.einsum("nd,ndl->nl", gX, _tangents(N_xi, N_eta, Xd))
+         + np.einsum("nd,ndl->nl", gN, _tangents(N_xi, N_eta, nk)))
+    N, v, c = sensitivities(mode, w, Xd, xi, eta, ray, cam)
+    return N, v, c + N[..., None] * gX[:, None, :], N[..., None] * gN[:, None, :]
 
 
 def _total(parts: list, shape: tuple) -> sparse.csr_matrix:
