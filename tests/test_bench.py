@@ -124,3 +124,22 @@ def test_bench_throughput_quick(tmp_path):
     assert all(0 < r["host_opcodes"] < r["fresh_host_opcodes"] for r in rows)
     text = (tmp_path / "throughput.md").read_text()
     assert text.startswith("# glsim throughput benchmark") and report["machine"]["gl"]["renderer"] in text
+
+
+@pytest.mark.gl
+def test_bench_jacobian_quick(tmp_path):
+    """`glsim bench jacobian --quick`: every row of ROWS, the Jacobian's shape per row (the
+    lighting's holds the normals' 1-ring: more non-zeros than the plain render's; the linear
+    camera effects' the same pattern), the table in the markdown; aimed at bench/results it is refused."""
+    from glsim.evaluation import jacobian_bench as jbm
+
+    assert cli.bench_main(["jacobian", "--quick", "--out", str(cli.RESULTS)]) == 2
+    assert cli.bench_main(["jacobian", "--size", "96", "72", "--reps", "1", "--out", str(tmp_path)]) == 0
+    report = json.loads((tmp_path / "jacobian.json").read_text())
+    rows = {(r["backend"], r["spp"], r["adds"]): r for r in report["rows"]}
+    assert list(rows) == list(jbm.ROWS)
+    plain = rows["gl", 1, "—"]
+    assert rows["cpu", 1, "—"]["nnz"] == plain["nnz"] == rows["gl", 1, "vignetting, PRNU"]["nnz"] > 0
+    assert rows["gl", 1, "lighting"]["nnz"] > 2 * plain["nnz"]
+    assert all(r["render"] > 0 and r["jacobian"] > 0 for r in rows.values())   # (timings: not tested)
+    assert jbm.table(report) in (tmp_path / "jacobian.md").read_text()

@@ -278,7 +278,7 @@ def bench_main(argv: list[str]) -> int:
         if args.command == "jacobian":
             size = tuple(args.size) if args.size else jbm.QUICK_SIZE if quick else jbm.FULL_SIZE
             out = results_dir(args.out, size == jbm.FULL_SIZE and not quick, "jacobian")
-            print(jbm.write(jbm.bench(size, args.reps), out))
+            print(jbm.write(jbm.bench(size, args.reps, log=lambda m: print(m, file=sys.stderr, flush=True)), out))
             return 0
         if args.command == "throughput":
             if args.pairs < 1:

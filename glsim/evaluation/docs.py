@@ -27,7 +27,7 @@ from glsim.evaluation.docs_accuracy import (accuracy_facts, accuracy_table, effe
                                             effects_dof_facts, effects_motion, peer, peer_rows)
 from glsim.evaluation.docs_bench import (check_drivers, fe_bulge_centre, fe_bulge_centre_5mm, library, preview,
                                          preview_overhead, quadratic_fast, quadratic_rows, quadratic_tables,
-                                         scaling_goals, scaling_host, scaling_oracle, scaling_passes, scaling_table,
+                                         jacobian, scaling_goals, scaling_host, scaling_oracle, scaling_passes, scaling_table,
                                          throughput)
 from glsim.evaluation.docs_calib import (calibration, calibration_accuracy, calibration_corner_facts,
                                          calibration_detection, calibration_estimator_facts, calibration_estimators,
@@ -40,7 +40,7 @@ from glsim.io import images as io
 
 FILES = ("README.md", "docs/calib.md", "docs/verify.md", "docs/library.md", "docs/preview.md", "docs/effects.md",
          "docs/scaling.md", "docs/scene.md", "docs/fe_bulge.md", "docs/hard_cases.md", "docs/rig_files.md",
-         "docs/quadratic.md", "docs/camera.md", "docs/motion.md")
+         "docs/quadratic.md", "docs/camera.md", "docs/motion.md", "docs/jacobian.md")
 REGION = re.compile(r"(<!-- generated: (?P<name>[\w-]+) from (?P<sources>[^>]+?) -->\n)(?P<body>.*?)(<!-- end generated -->)",
                     re.S)
 
@@ -61,7 +61,7 @@ GENERATORS = {"check-drivers": check_drivers, "preview": preview, "accuracy-tabl
               "fe-bulge-centre-5mm": fe_bulge_centre_5mm, "sweep-subsets": sweep_subsets,
               "quadratic-tables": quadratic_tables, "quadratic-rows": quadratic_rows, "quadratic-fast": quadratic_fast,
               "peer-rows": peer_rows, "camera-table": effects_camera, "motion-table": effects_motion,
-              "throughput": throughput}
+              "throughput": throughput, "jacobian": jacobian}
 
 
 # ---- regions ---------------------------------------------------------------------------------

@@ -204,6 +204,13 @@ def check_drivers(*reports: dict) -> str:
     return "\n".join(lines)
 
 
+def jacobian(report: dict) -> str:
+    """docs/jacobian.md: the Jacobian's time against a render and finite differences
+    (bench/results/jacobian.json)."""
+    from glsim.evaluation.jacobian_bench import caption, table
+    return table(report) + "\n\n" + caption(report)
+
+
 def throughput(report: dict) -> str:
     """README: stereo pairs/s one at a time and pipelined (bench/results/throughput.json)."""
     from glsim.evaluation.throughput import table
