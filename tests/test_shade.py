@@ -1,5 +1,6 @@
 """Normals and the paper's Phong lighting (§2.2.1, eqs. 10–13): glsim/effects/lighting.py against
 analytic results, and shaders/shade.glsl against glsim/effects/lighting.py."""
+import dataclasses
 from pathlib import Path
 
 import numpy as np
@@ -204,7 +205,8 @@ def test_normal_jacobian_matches_central_differences():
 
 
 def test_phong_gradient_matches_central_differences():
-    """phong_gradient's I is phong's, and its ∂I/∂X, ∂I/∂N match central differences at 2000
+    """phong_gradient's I is phong's, and its ∂I/∂X, ∂I/∂N and ∂I/∂X through the view direction
+    (X and the lights moved together) match central differences at 2000
     random points 550–650 mm away with random normals (some facing away: flipped), lit by a
     point light with attenuation, a highlight (shininess 7) and a spotlight with a smooth edge
     over the points (each term non-zero somewhere, checked). Allowed: the differences' rounding,
@@ -219,9 +221,13 @@ def test_phong_gradient_matches_central_differences():
     X = np.column_stack([rng.uniform(-200, 200, n), rng.uniform(-30, 30, n), rng.uniform(550, 650, n)])
     N = rng.normal(size=(n, 3)) + [0, 0, -1]
     args = (lights, -0.04, 0.8, 0.5, 7.0)
-    I, dX, dN = shade.phong_gradient(X, N, *args)
+    I, dX, dN, dV = shade.phong_gradient(X, N, *args)
     np.testing.assert_array_equal(I, shade.phong(X, N, *args))
+    def view_only(p):   # X and the lights moved by the same δ = p − X: only the view direction changes
+        return shade.phong(p, N, dataclasses.replace(lights, pos=lights.pos + (p - X)[0]), *args[1:])
+
     for got, fd, tol in ((dX, _central(lambda p: shade.phong(p, N, *args), X, 1e-4), 1e-10),
+                         (dV, _central(view_only, X, 1e-4), 1e-10),
                          (dN, _central(lambda p: shade.phong(X, p, *args), N, 1e-6), 1e-9)):
         np.testing.assert_allclose(got, fd.T, rtol=0, atol=tol)
         assert np.abs(got).max() > 1e4 * tol

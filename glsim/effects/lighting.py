@@ -255,9 +255,10 @@ def _unit_derivative(u, length):
 
 
 def phong_gradient(X, N, lights: LightArrays, ambient: float, k_r: float, k_s: float, shininess: float):
-    """:func:`phong` (I (n,)) and its derivatives with respect to the point X and the normal N
-    as given (not necessarily unit), each (n, 3), camera frame, per mm and per unit of N.
-    X, N: (n, 3). Exact wherever :func:`phong` is smooth: not where N·L = 0, R·V = 0, N·V = 0
+    """:func:`phong` (I (n,)), its derivatives with respect to the point X and the normal N as
+    given (not necessarily unit), and the part of ∂I/∂X that comes through the view direction V
+    alone (moving the camera by −δ changes I by it · δ), each (n, 3), camera frame, per mm and
+    per unit of N. X, N: (n, 3). Exact wherever :func:`phong` is smooth: not where N·L = 0, R·V = 0, N·V = 0
     (the flip), on a hard spot edge or at the smooth edge's ends (there the one-sided value the
     branch taken gives). N = 0 gives I = ambient and zero derivatives."""
     X = np.asarray(X, dtype=np.float64)
@@ -302,7 +303,8 @@ def phong_gradient(X, N, lights: LightArrays, ambient: float, k_r: float, k_s: f
     dI_X = np.sum((dspot * att * body)[..., None] * dcos_X + (spot * body)[..., None] * datt_X
                   + (spot * att)[..., None] * dbody_X, axis=1)
     dI_N = np.einsum("nd,nde->ne", np.sum((spot * att)[..., None] * dbody_N, axis=1), dNf)
-    return I, dI_X, dI_N
+    dI_V = np.einsum("nd,nde->ne", np.sum((spot * att * k_s * dspec)[..., None] * (RmV + V[:, None]), axis=1), dV)
+    return I, dI_X, dI_N, dI_V
 
 
 def _cross_matrix(a):
@@ -381,12 +383,13 @@ class ShadingTerms:
     grey: Any
 
     def terms(self, r, X, N):
-        """(∂g'/∂g (n,), ∂g'/∂X (n, 3), ∂g'/∂Ñ (n, 3)) at reference points r (n, 2) px, points X
-        and interpolated normals Ñ (n, 3, camera frame)."""
+        """(∂g'/∂g (n,), ∂g'/∂X, ∂g'/∂Ñ, ∂g'/∂X through the view direction alone (each (n, 3):
+        :func:`phong_gradient`)) at reference points r (n, 2) px, points X and interpolated
+        normals Ñ (n, 3, camera frame)."""
         lit = self.lighting
-        I, dX, dN = phong_gradient(X, N, self.lights, lit.ambient, lit.diffuse, lit.specular, lit.shininess)
+        I, *dI = phong_gradient(X, N, self.lights, lit.ambient, lit.diffuse, lit.specular, lit.shininess)
         if lit.combine == "additive":
-            return np.ones(len(I)), dX, dN
+            return (np.ones(len(I)), *dI)
         g = self.grey(r)[:, None]
-        return I, g * dX, g * dN
+        return (I, *(g * d for d in dI))
 

@@ -50,7 +50,7 @@ def check_request(scene: Scene, opts: Render, rig: bool = False, quadratic: bool
     """SceneError naming what ``jacobian=True`` cannot differentiate: [optics] (every optional
     table but [noise], [exposure], [lighting] and the linear camera effects:
     :func:`glsim.effects.through_camera_effects`), a fill factor below 1, [psf] with a rolling
-    shutter, [vignetting] or [lighting] in the rig Jacobian, [lighting] on a ``quadratic`` mesh,
+    shutter, [vignetting] in the rig Jacobian, [lighting] on a ``quadratic`` mesh,
     mode fast, procedural interpolation."""
     for f in dataclasses.fields(scene):
         if f.default is None and getattr(scene, f.name) is not None and f.name not in UNREFUSED:
@@ -67,11 +67,9 @@ def check_request(scene: Scene, opts: Render, rig: bool = False, quadratic: bool
     if rig and scene.vignetting is not None:
         raise SceneError("vignetting", "the rig Jacobian does not differentiate the vignetting gain (it varies with "
                          "the intrinsics and distortion)", "remove [vignetting], or render without rig")
-    if scene.lighting is not None and (rig or quadratic):
-        raise SceneError("lighting", "the image Jacobian is not made with the lighting " + (
-            "with respect to the rig (the lights and the view direction move with the pose in the camera's frame)"
-            if rig else "of a quadratic mesh (its normals are interpolated over linear pieces)"),
-            "remove [lighting]" + (", or render without rig" if rig else ", or render without jacobian"))
+    if scene.lighting is not None and quadratic:
+        raise SceneError("lighting", "the image Jacobian is not made with the lighting of a quadratic mesh (its "
+                         "normals are interpolated over linear pieces)", "remove [lighting], or render without jacobian")
     if opts.mode not in MODES:
         raise SceneError("render.mode", f"the image Jacobian differentiates modes {' and '.join(MODES)}, "
                          f"not {opts.mode!r} (its triangles interpolate the reference point linearly)",
@@ -255,7 +253,7 @@ def image_jacobian(cam: Camera, s: int, ref_cam: Camera, nodes: np.ndarray, defo
     ``nodes``, ``deformed`` (N, 3) world mm; ``patches``: a quadratic mesh's (its (ξ, η) are the
     patches'); ``grad(uv)`` the reference interpolant's gradient
     (grey per px). A pixel's row is the mean of its s² samples' derivatives. ``shading``: the
-    lighting's :class:`glsim.effects.lighting.ShadingTerms` (linear elements, not with ``rig``:
+    lighting's :class:`glsim.effects.lighting.ShadingTerms` (linear elements:
     :func:`lit_sensitivities`). Returns it and, if ``rig``, the W·H × 23 CSR Jacobian with
     respect to ``cam``'s parameters (:func:`rig_derivatives`), else None."""
     W, H = cam.size
@@ -276,7 +274,7 @@ def image_jacobian(cam: Camera, s: int, ref_cam: Camera, nodes: np.ndarray, defo
         if shading is None:
             N, v, c = sensitivities(mode, w, Xd, xi, eta, ray, scam)
         else:
-            N, v, c, dn = lit_sensitivities(mode, w, Xd, xi, eta, ray, scam, shading, e, r)
+            N, v, c, dn, pose = lit_sensitivities(mode, w, Xd, xi, eta, ray, scam, shading, e, r)
             cols = (3 * shading.source[e][..., None] + np.arange(3)).ravel()
             normal_parts.append(sparse.coo_matrix(((dn @ R).ravel() / (s * s), (np.repeat(pixel, 12), cols)),
                                                   shape=(W * H, shading.D.shape[0])).tocsr())
@@ -287,7 +285,10 @@ def image_jacobian(cam: Camera, s: int, ref_cam: Camera, nodes: np.ndarray, defo
                                        shape=(W * H, 3 * len(nodes))).tocsr())
         if rig:
             q = (np.column_stack([fi, fj]) + 0.5) / s - 0.5    # the samples in cam's pixels
-            values = rig_derivatives(mode, N, v, c, Xd, cam, s, q, ray) / (s * s)
+            values = rig_derivatives(mode, N, v, c, Xd, cam, s, q, ray)
+            if shading is not None:
+                values[:, :6] += pose
+            values /= s * s
             rig_parts.append(sparse.coo_matrix((values.ravel(), (np.repeat(pixel, 23), np.tile(np.arange(23), len(idx)))),
                                                shape=(W * H, 23)).tocsr())
     J = _total(parts, (W * H, 3 * len(nodes)))
@@ -301,15 +302,22 @@ def lit_sensitivities(mode: str, w, Xd, xi, eta, ray, cam: Camera, shading, e, r
     X = Σ N_k X_k and Ñ = Σ N_k n_k move with (ξ, η) and with the corners, so ∂g'/∂(ξ, η) =
     ∂g'/∂g·w + ∂g'/∂X·∂X/∂(ξ, η) + ∂g'/∂Ñ·∂Ñ/∂(ξ, η) enters the implicit differentiation, and the
     corners gain ∂g'/∂X·N_k. Also returns dn (n, 4, 3): ∂g'/∂n_k, camera frame, for the corner
-    normals n_k (``shading.corners[e]``) — their own derivatives are ``shading.D``'s."""
+    normals n_k (``shading.corners[e]``) — their own derivatives are ``shading.D``'s — and what
+    the lighting adds to :func:`rig_derivatives`' pose columns (n, 6: ω, τ): a pose change moves
+    the corners, normals and lights alike, δY = ω × (Y − t) + τ, which leaves I unchanged but for
+    the view direction — its rotation about the camera changes nothing and its translation
+    τ' = τ − ω × t acts as the camera moved by −τ' — so ∂g'/∂X·δX of the corners' part (already
+    in c) is replaced by ∂g'/∂X|_V·τ'."""
     nk = shading.corners[e]
     N, N_xi, N_eta = _shape_derivatives(xi, eta)
     X, Nt = np.einsum("nk,nkd->nd", N, Xd), np.einsum("nk,nkd->nd", N, nk)
-    gg, gX, gN = shading.terms(r, X, Nt)
+    gg, gX, gN, gV = shading.terms(r, X, Nt)
     w = (gg[:, None] * w + np.einsum("nd,ndl->nl", gX, _tangents(N_xi, N_eta, Xd))
          + np.einsum("nd,ndl->nl", gN, _tangents(N_xi, N_eta, nk)))
     N, v, c = sensitivities(mode, w, Xd, xi, eta, ray, cam)
-    return N, v, c + N[..., None] * gX[:, None, :], N[..., None] * gN[:, None, :]
+    t = np.asarray(cam.t, np.float64)
+    pose = np.hstack([np.cross(t, gX - gV) - np.cross(X, gX), gV - gX])
+    return N, v, c + N[..., None] * gX[:, None, :], N[..., None] * gN[:, None, :], pose
 
 
 def _total(parts: list, shape: tuple) -> sparse.csr_matrix:
