@@ -194,7 +194,7 @@ class Renderer:
         if not jacobian:
             return self._finish(self._submit(camera, step, truth, quantize, options))
         opts = self._options(options)
-        jac.check_request(self.scene, opts, rig, self.mesh.is_quadratic)
+        jac.check_request(self.scene, opts, rig)
         one = opts.supersampling == 1   # the image's own pixel-centre raster is the samples'
         res = self._finish(self._submit(camera, step, truth or one, quantize, options))
         raster = {"element": res.truth.element.ravel(), "xi": res.truth.xi.ravel(),
@@ -219,7 +219,7 @@ class Renderer:
         t0, scene, mesh = time.perf_counter(), self.scene, self.drawn_mesh
         opts = self._options(options)
         if jacobian:
-            jac.check_request(scene, opts, rig, self.mesh.is_quadratic)
+            jac.check_request(scene, opts, rig)
         self.check_size(camera, truth, opts)
         cam, ex = scene.camera(camera), scene.exposure
         line = scene.sensor.line_time if scene.sensor is not None else 0.0
@@ -307,8 +307,11 @@ class Renderer:
         if method not in self._ref_coeffs:
             self._ref_coeffs[method] = interp.prepare(self.reference.image, method, np.float64)
         coeffs = self._ref_coeffs[method]
-        shading = None if self.scene.lighting is None else \
-            shading_terms(self.scene, deformed, mesh.quads, cam, lambda uv: interp.sample(coeffs, uv, method))
+        shading = None
+        if self.scene.lighting is not None:   # the drawn mesh's normals (a quadratic mesh's pieces')
+            nodes = self.drawn_mesh.deformed(step) if tl is None else tl.at(tau, self.drawn_mesh.deformed)
+            shading = shading_terms(self.scene, nodes, self.drawn_mesh.quads, cam,
+                                    lambda uv: interp.sample(coeffs, uv, method), self.pieces)
         J, J_rig = jac.image_jacobian(cam, s, self.reference.camera, mesh.nodes, deformed, mesh.quads, opts.mode,
                                       raster, lambda uv: interp.gradient(coeffs, uv, method), rig, mesh.patches,
                                       shading)

@@ -118,31 +118,46 @@ def _curved(**render):
 
 def _curved_image(r: Renderer, cam, mesh, deformed, mode: str):
     """The oracle's float64 image of quadratic ``mesh``'s ``deformed`` nodes seen by ``cam``
-    with ``r``'s reference and samples per pixel (glsim.backends.cpu.rasterize_quadratic), and
-    per pixel its samples' one element (−2 where they differ)."""
-    from glsim.backends.cpu import rasterize_quadratic
+    with ``r``'s reference and samples per pixel (glsim.backends.cpu.rasterize_quadratic), lit
+    when the scene is, and per pixel its samples' one element (−2 where they differ)."""
+    from glsim.backends.cpu import _shade, rasterize_quadratic
+    from glsim.effects import prepare
     from glsim.stages.quadview import make_quad_view
 
     s, (W, H) = r.scene.render.supersampling, cam.size
-    view = make_quad_view(cam, r.reference.camera, mesh.nodes, deformed, mesh.patches, warn=False, mode=mode)
+    lit = r.scene.lighting is not None
+    pieces_def = r.pieces.mesh.at_grid(deformed) if lit else None
+    view = make_quad_view(cam, r.reference.camera, mesh.nodes, deformed, mesh.patches, warn=False, mode=mode,
+                          pieces=r.pieces if lit else None, pieces_def=pieces_def)
     raster = rasterize_quadratic(view, mode, s)
     hit = raster["element"] >= 0
-    grey = np.zeros(hit.shape)
+    grey = np.full(hit.shape, r.scene.render.background)
     grey[hit] = r.backend.sampler(r.scene.render.interpolation)(raster["ref_uv"][hit])
+    if lit:   # the normals interpolated over the pieces, in their state (as the oracle renders)
+        grey[hit] = _shade(view, raster, hit, grey[hit], prepare(r.scene, pieces_def, r.pieces.mesh.quads, cam, 0, 1,
+                                                                np.empty(0)))
     el = raster["element"].reshape(H, s, W, s).transpose(0, 2, 1, 3).reshape(H * W, s * s)
     return grey.reshape(H, s, W, s).mean(axis=(1, 3)).ravel(), np.where((el == el[:, :1]).all(1), el[:, 0], -2)
 
 
-@pytest.mark.parametrize("mode, spp", [("exact", 1), ("q4", 1), ("exact", 4)])
-def test_quadratic_jacobian_matches_central_differences(mode, spp):
+@pytest.mark.parametrize("mode, spp, lit", [("exact", 1, False), ("q4", 1, False), ("exact", 4, False),
+                                           ("exact", 1, True), ("q4", 1, True)])
+def test_quadratic_jacobian_matches_central_differences(mode, spp, lit):
     """Q8 and T6 (derived centres: their derivatives spread over the nodes) and a mid-side node
     among those checked: as test_oracle_matches_central_differences, the oracle's curved raster
-    (glsim.backends.cpu.rasterize_quadratic) re-rendered with one node moved ±DELTA."""
-    scene, meshes = _curved(mode=mode, samples_per_pixel=spp)
+    (glsim.backends.cpu.rasterize_quadratic) re-rendered with one node moved ±DELTA; ``lit``:
+    with LIGHTING (smooth normals of the pieces, 3 per side, multiplicative; flat in q4), which
+    fails without the pieces' normals chained to the nodes (checked)."""
+    scene, meshes = _curved(mode=mode, samples_per_pixel=spp, pieces=3)
+    if lit:
+        scene = scene.replace(lighting={**LIGHTING, "combine": "multiplicative",
+                                        "normals": "flat" if mode == "q4" else "smooth"})
     for mesh in meshes:
         with Renderer(scene, mesh=mesh) as r:
-            J = r.render(0, 1, jacobian=True).jacobian.tocsc()
+            res = r.render(0, 1, jacobian=True)
+            J = res.jacobian.tocsc()
             image = functools.partial(_curved_image, r, scene.cameras[0], mesh, mode=mode)
+            assert np.abs(image(deformed=mesh.deformed(1))[0] - res.image.ravel()).max() <= 1e-6
 
             deformed = mesh.deformed(1)
             used = np.unique(mesh.patches[:, :8])
@@ -445,13 +460,6 @@ def test_what_the_camera_effects_jacobian_leaves_out_is_refused_by_name(change, 
         r.render(0, 1, jacobian=True, rig=rig)
 
 
-def test_lighting_on_a_quadratic_mesh_is_refused_by_name():
-    scene, meshes = _curved()
-    with Renderer(scene.replace(lighting=LIGHTING), mesh=meshes[0]) as r, \
-            pytest.raises(SceneError, match=r"^lighting: .*quadratic mesh.* — remove \[lighting\]"):
-        r.render(0, 1, jacobian=True)
-
-
 def test_modes_and_interpolation_are_refused_by_name():
     scene, mesh = _plate(backend="cpu")
     with Renderer(scene, mesh=mesh) as r:
@@ -515,6 +523,14 @@ def test_gl_matches_the_oracle_on_quadratic_elements(gl_ctx, mode, spp):
     scene, meshes = _curved(mode=mode, samples_per_pixel=spp)
     for mesh in meshes:
         _gl_against_oracle(gl_ctx, scene, mesh)
+
+
+@pytest.mark.gl
+@pytest.mark.parametrize("spp", [1, 4])
+def test_gl_matches_the_oracle_on_lit_quadratic_elements(gl_ctx, spp):
+    """The Q8 mesh of _curved lit (the pieces' smooth normals, multiplicative): as above."""
+    scene, meshes = _curved(mode="exact", samples_per_pixel=spp, pieces=3)
+    _gl_against_oracle(gl_ctx, scene.replace(lighting={**LIGHTING, "combine": "multiplicative"}), meshes[0])
 
 
 @pytest.mark.gl

@@ -190,14 +190,6 @@ def rasterize_quadratic(view, mode: str, s: int = 1, aperture: float = 1.0) -> d
     return _nearest(view.camera, view.ref_camera, box, s, mode == "exact", map_chunk, aperture)
 
 
-def piece_of(e, xi, eta, n: int):
-    """The linear piece (of n × n per patch, glsim.scene.quadratic.linearize's order) holding
-    patch e's (ξ, η), and the piece's own (ξs, ηs)."""
-    ci = np.clip(np.floor((xi + 1) * n / 2), 0, n - 1)
-    cj = np.clip(np.floor((eta + 1) * n / 2), 0, n - 1)
-    return (e * n * n + cj * n + ci).astype(np.int64), (xi + 1) * n - 2 * ci - 1, (eta + 1) * n - 2 * cj - 1
-
-
 def _shade(view, r: dict, hit: np.ndarray, grey: np.ndarray, fx) -> np.ndarray:
     """Phong lighting per sample (surface point and interpolated normal), combined with grey.
     For quadratic patches (a QuadView): the point on the curved patch, the normal interpolated
@@ -207,7 +199,7 @@ def _shade(view, r: dict, hit: np.ndarray, grey: np.ndarray, fx) -> np.ndarray:
     e, xi, eta = r["element"][hit], r["xi"][hit], r["eta"][hit]
     if hasattr(view, "Pd"):
         X = qd.evaluate(view.Pd[e], xi, eta)
-        piece, xs, ys = piece_of(e, xi, eta, view.pieces)
+        piece, xs, ys = qd.piece_of(e, xi, eta, view.pieces)
         N = bl.bilinear(fx.normals[piece], xs, ys)
     else:
         X = bl.bilinear(view.Xd[e], xi, eta)

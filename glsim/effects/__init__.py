@@ -171,17 +171,24 @@ def _no_effects(bit_depth: int) -> Effects:
     return Effects(bit_depth=bit_depth)
 
 
-def shading_terms(scene: Scene, nodes: np.ndarray, quads: np.ndarray, cam: Camera, grey):
+def shading_terms(scene: Scene, nodes: np.ndarray, quads: np.ndarray, cam: Camera, grey, pieces=None):
     """What ``scene``'s lighting adds to ``cam``'s image Jacobian at the deformed ``nodes`` (N, 3,
-    world mm): :class:`glsim.effects.lighting.ShadingTerms` (``grey(uv)``: the reference
-    interpolant's values)."""
+    world mm) of the drawn ``quads``: :class:`glsim.effects.lighting.ShadingTerms` (``grey(uv)``:
+    the reference interpolant's values). ``pieces``: a quadratic mesh's
+    :class:`~glsim.scene.quadratic.Pieces` (``nodes``, ``quads``: theirs), whose normals the
+    lighting interpolates."""
+    from scipy import sparse
+
     from glsim.effects import lighting as shade
 
     lit, quads = scene.lighting, np.asarray(quads, np.intp)
     flat = lit.normals == "flat"
     source = np.repeat(np.arange(len(quads))[:, None], 4, axis=1) if flat else quads
-    return shade.ShadingTerms(lit, _camera_lights(lit, cam), corner_normals(nodes, quads, cam, flat), source,
-                              shade.normal_jacobian(nodes, quads, flat), grey)
+    D = shade.normal_jacobian(nodes, quads, flat)
+    if pieces is not None:   # the pieces' nodes are weights of the mesh's
+        D = D @ sparse.kron(pieces.mesh.grid_matrix(), sparse.identity(3), format="csr")
+    return shade.ShadingTerms(lit, _camera_lights(lit, cam), corner_normals(nodes, quads, cam, flat), source, D, grey,
+                              0 if pieces is None else pieces.n)
 
 
 def _camera_lights(lit: Lighting, cam: Camera) -> "LightArrays":

@@ -371,16 +371,34 @@ class ShadingTerms:
     for one camera and state: the lit grey g' = combine(g, I(X, Ñ)) of a sample with reference
     grey g, point X and interpolated normal Ñ = Σ N_k n_k (camera frame).
 
-    ``corners`` (M, 4, 3): the corner normals n_k in the camera frame (unit, as rendered);
-    ``source`` (M, 4): the row block of each corner's normal in ``D`` (its node's, smooth; its
-    element's, flat); ``D``: :func:`normal_jacobian` (world frame); ``grey(uv)``: the
-    reference interpolant's values (a multiplicative combination needs them)."""
+    ``corners`` (M, 4, 3): the corner normals n_k in the camera frame (unit, as rendered) of
+    the elements, or of a quadratic mesh's linear pieces (``pieces`` per side; the normal is
+    interpolated over the piece holding the sample); ``source`` (M, 4): the row block of each
+    corner's normal in ``D`` (its node's, smooth; its element's, flat); ``D``: the normals'
+    derivative with respect to the mesh's nodes, world frame (:func:`normal_jacobian`, for
+    pieces chained through their nodes' weights); ``grey(uv)``: the reference interpolant's
+    values (a multiplicative combination needs them)."""
     lighting: Any
     lights: LightArrays
     corners: np.ndarray
     source: np.ndarray
     D: Any
     grey: Any
+    pieces: int = 0
+
+    def normals_at(self, e, xi, eta):
+        """The interpolated normal Ñ (n, 3, camera frame) at element e's (ξ, η), ∂Ñ/∂(ξ, η)
+        (n, 3, 2), and the ``source`` rows (n, 4) and weights (n, 4) of the corner normals it
+        blends."""
+        from glsim.scene import bilinear as bl
+        from glsim.scene.quadratic import piece_of
+
+        piece, xs, ys, scale = (e, xi, eta, 1.0) if not self.pieces else (*piece_of(e, xi, eta, self.pieces),
+                                                                          float(self.pieces))
+        nk, w = self.corners[piece], bl.shape_functions(xs, ys)
+        dxs, dys = bl.shape_derivatives(xs, ys)
+        dN = np.stack([np.einsum("nk,nkd->nd", dxs, nk), np.einsum("nk,nkd->nd", dys, nk)], -1) * scale
+        return np.einsum("nk,nkd->nd", w, nk), dN, self.source[piece], w
 
     def terms(self, r, X, N):
         """(∂g'/∂g (n,), ∂g'/∂X, ∂g'/∂Ñ, ∂g'/∂X through the view direction alone (each (n, 3):

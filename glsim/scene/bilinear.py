@@ -32,6 +32,13 @@ def shape_functions(xi, eta):
                             (1 + xi) * (1 + eta), (1 - xi) * (1 + eta)], axis=-1)
 
 
+def shape_derivatives(xi, eta):
+    """(∂N/∂ξ, ∂N/∂η), each (..., 4), of :func:`shape_functions`."""
+    xi, eta = np.broadcast_arrays(np.asarray(xi, dtype=np.float64), np.asarray(eta, dtype=np.float64))
+    return (0.25 * np.stack([-(1 - eta), 1 - eta, 1 + eta, -(1 + eta)], -1),
+            0.25 * np.stack([-(1 - xi), -(1 + xi), 1 + xi, 1 - xi], -1))
+
+
 def bilinear(p, xi, eta):
     """Forward map: corners p (..., 4, D) at (ξ, η) → (..., D)."""
     return np.einsum("...i,...id->...d", shape_functions(xi, eta), np.asarray(p, dtype=np.float64))

@@ -92,6 +92,19 @@ def patch_points(patches: np.ndarray, X: np.ndarray) -> np.ndarray:
     return P
 
 
+def fold_centres(rows: np.ndarray, c: np.ndarray):
+    """Per-control-point values c (n, 9, ...) of patches ``rows`` (n, 9) — derivatives, or the
+    weights of a linear map — as per-node ones: the node columns (n, 9) and the values with a
+    derived centre's (Q8, T6: CENTRE_WEIGHTS) spread over the 8 nodes and its own zeroed."""
+    nodes, c = np.array(rows), np.array(c, dtype=np.float64)
+    for code, w in CENTRE_WEIGHTS:
+        k = np.flatnonzero(rows[:, 8] == code)
+        c[k, :8] += w.reshape((1, 8) + (1,) * (c.ndim - 2)) * c[k, 8:9]
+        c[k, 8] = 0.0
+        nodes[k, 8] = rows[k, 0]
+    return nodes, c
+
+
 def element_points(quads: np.ndarray, patches, e: np.ndarray, X: np.ndarray) -> np.ndarray:
     """The elements ``e``'s corners (n, 4, D), or with ``patches`` (a quadratic mesh's) their 9
     control points (:func:`patch_points`), from the per-node values X (N, D)."""
@@ -114,6 +127,14 @@ def surface_box(P: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 def to_parent(i, j, n: int, xi_s, eta_s):
     """(ξ, η) of the parent patch from the local (ξs, ηs) of its sub-quad (i, j) of n × n."""
     return -1 + (2 * np.asarray(i) + 1 + xi_s) / n, -1 + (2 * np.asarray(j) + 1 + eta_s) / n
+
+
+def piece_of(e, xi, eta, n: int):
+    """The linear piece (of n × n per patch, :func:`linearize`'s order) holding patch e's
+    (ξ, η), and the piece's own (ξs, ηs) (the inverse of :func:`to_parent`)."""
+    ci = np.clip(np.floor((xi + 1) * n / 2), 0, n - 1)
+    cj = np.clip(np.floor((eta + 1) * n / 2), 0, n - 1)
+    return (e * n * n + cj * n + ci).astype(np.int64), (xi + 1) * n - 2 * ci - 1, (eta + 1) * n - 2 * cj - 1
 
 
 def sub_quads(P: np.ndarray, n: int = 2) -> np.ndarray:
@@ -294,6 +315,15 @@ class PiecesMesh:
     def at_grid(self, values: np.ndarray) -> np.ndarray:
         """Per-node values of the source mesh (N, D) → at the pieces' nodes (K, D)."""
         return np.einsum("ki,kid->kd", self._w, patch_points(self.source.patches, values)[self._src])
+
+    def grid_matrix(self):
+        """:meth:`at_grid` as a scipy CSR matrix (K × N): the pieces' nodes as weights of the
+        source mesh's nodes (derived centres spread: :func:`fold_centres`)."""
+        from scipy import sparse
+
+        cols, w = fold_centres(np.asarray(self.source.patches)[self._src], self._w)
+        rows = np.repeat(np.arange(len(cols)), cols.shape[1])
+        return sparse.csr_matrix((w.ravel(), (rows, cols.ravel())), shape=(len(cols), self.source.n_nodes))
 
     def deformed(self, step: int) -> np.ndarray:
         """The pieces' nodes (K, 3) mm at load step ``step``."""

@@ -46,12 +46,11 @@ UNREFUSED = ("noise", "vignetting", "psf", "sensor", "exposure", "lighting")
 CHUNK = 1 << 18          # samples differentiated at once (bounds memory: ~100 doubles each)
 
 
-def check_request(scene: Scene, opts: Render, rig: bool = False, quadratic: bool = False) -> None:
+def check_request(scene: Scene, opts: Render, rig: bool = False) -> None:
     """SceneError naming what ``jacobian=True`` cannot differentiate: [optics] (every optional
     table but [noise], [exposure], [lighting] and the linear camera effects:
     :func:`glsim.effects.through_camera_effects`), a fill factor below 1, [psf] with a rolling
-    shutter, [vignetting] in the rig Jacobian, [lighting] on a ``quadratic`` mesh,
-    mode fast, procedural interpolation."""
+    shutter, [vignetting] in the rig Jacobian, mode fast, procedural interpolation."""
     for f in dataclasses.fields(scene):
         if f.default is None and getattr(scene, f.name) is not None and f.name not in UNREFUSED:
             raise SceneError(f.name, "the image Jacobian does not differentiate this effect",
@@ -67,9 +66,6 @@ def check_request(scene: Scene, opts: Render, rig: bool = False, quadratic: bool
     if rig and scene.vignetting is not None:
         raise SceneError("vignetting", "the rig Jacobian does not differentiate the vignetting gain (it varies with "
                          "the intrinsics and distortion)", "remove [vignetting], or render without rig")
-    if scene.lighting is not None and quadratic:
-        raise SceneError("lighting", "the image Jacobian is not made with the lighting of a quadratic mesh (its "
-                         "normals are interpolated over linear pieces)", "remove [lighting], or render without jacobian")
     if opts.mode not in MODES:
         raise SceneError("render.mode", f"the image Jacobian differentiates modes {' and '.join(MODES)}, "
                          f"not {opts.mode!r} (its triangles interpolate the reference point linearly)",
@@ -108,10 +104,7 @@ def _shape_derivatives(xi, eta, nodes: int = 4):
     9 nodes, of the Q9 patch's (glsim.scene.quadratic)."""
     if nodes == 9:
         return (qd.shape_functions(xi, eta), *qd.shape_derivatives(xi, eta))
-    N = bl.shape_functions(xi, eta)
-    dxi = 0.25 * np.stack([-(1 - eta), 1 - eta, 1 + eta, -(1 + eta)], -1)
-    deta = 0.25 * np.stack([-(1 - xi), -(1 + xi), 1 + xi, 1 - xi], -1)
-    return N, dxi, deta
+    return (bl.shape_functions(xi, eta), *bl.shape_derivatives(xi, eta))
 
 
 def _tangents(N_xi, N_eta, P):
@@ -229,21 +222,6 @@ def sample_rays(cam: Camera, index: np.ndarray) -> np.ndarray:
     return undistort(pixel_to_normalized(q, cam.intrinsics), cam.distortion.coeffs)[0]
 
 
-def _fold_centres(patches, e, c):
-    """The node columns (n, 9) of the derivatives c (n, 9, 3) with respect to patches[e]'s
-    control points, and those derivatives as ones with respect to the nodes: a derived centre's (Q8, T6) is spread over
-    the 8 nodes with its weights (glsim.scene.quadratic.CENTRE_WEIGHTS) and its own entry zeroed."""
-    rows = patches[e]
-    nodes = rows.copy()
-    c = c.copy()
-    for code, w in qd.CENTRE_WEIGHTS:
-        k = np.flatnonzero(rows[:, 8] == code)
-        c[k, :8] += w[None, :, None] * c[k, 8:9]
-        c[k, 8] = 0.0
-        nodes[k, 8] = rows[k, 0]
-    return nodes, c
-
-
 def image_jacobian(cam: Camera, s: int, ref_cam: Camera, nodes: np.ndarray, deformed: np.ndarray,
                    quads: np.ndarray, mode: str, raster: dict, grad, rig: bool = False, patches=None,
                    shading=None):
@@ -253,8 +231,7 @@ def image_jacobian(cam: Camera, s: int, ref_cam: Camera, nodes: np.ndarray, defo
     ``nodes``, ``deformed`` (N, 3) world mm; ``patches``: a quadratic mesh's (its (ξ, η) are the
     patches'); ``grad(uv)`` the reference interpolant's gradient
     (grey per px). A pixel's row is the mean of its s² samples' derivatives. ``shading``: the
-    lighting's :class:`glsim.effects.lighting.ShadingTerms` (linear elements:
-    :func:`lit_sensitivities`). Returns it and, if ``rig``, the W·H × 23 CSR Jacobian with
+    lighting's :class:`glsim.effects.lighting.ShadingTerms` (:func:`lit_sensitivities`). Returns it and, if ``rig``, the W·H × 23 CSR Jacobian with
     respect to ``cam``'s parameters (:func:`rig_derivatives`), else None."""
     W, H = cam.size
     scam = sample_camera(cam, s)
@@ -274,11 +251,11 @@ def image_jacobian(cam: Camera, s: int, ref_cam: Camera, nodes: np.ndarray, defo
         if shading is None:
             N, v, c = sensitivities(mode, w, Xd, xi, eta, ray, scam)
         else:
-            N, v, c, dn, pose = lit_sensitivities(mode, w, Xd, xi, eta, ray, scam, shading, e, r)
-            cols = (3 * shading.source[e][..., None] + np.arange(3)).ravel()
+            N, v, c, dn, src, pose = lit_sensitivities(mode, w, Xd, xi, eta, ray, scam, shading, e, r)
+            cols = (3 * src[..., None] + np.arange(3)).ravel()
             normal_parts.append(sparse.coo_matrix(((dn @ R).ravel() / (s * s), (np.repeat(pixel, 12), cols)),
                                                   shape=(W * H, shading.D.shape[0])).tocsr())
-        corners, cn = (quads[e], c) if patches is None else _fold_centres(patches, e, c)
+        corners, cn = (quads[e], c) if patches is None else qd.fold_centres(patches[e], c)
         values = cn @ R / (s * s)                                                   # per world mm
         cols = (3 * corners[..., None] + np.arange(3)).ravel()
         parts.append(sparse.coo_matrix((values.ravel(), (np.repeat(pixel, 3 * corners.shape[1]), cols)),
@@ -299,25 +276,26 @@ def image_jacobian(cam: Camera, s: int, ref_cam: Camera, nodes: np.ndarray, defo
 
 def lit_sensitivities(mode: str, w, Xd, xi, eta, ray, cam: Camera, shading, e, r):
     """:func:`sensitivities` of a lit sample's grey g' = combine(g, I(X, Ñ)) (docs/jacobian.md):
-    X = Σ N_k X_k and Ñ = Σ N_k n_k move with (ξ, η) and with the corners, so ∂g'/∂(ξ, η) =
-    ∂g'/∂g·w + ∂g'/∂X·∂X/∂(ξ, η) + ∂g'/∂Ñ·∂Ñ/∂(ξ, η) enters the implicit differentiation, and the
-    corners gain ∂g'/∂X·N_k. Also returns dn (n, 4, 3): ∂g'/∂n_k, camera frame, for the corner
-    normals n_k (``shading.corners[e]``) — their own derivatives are ``shading.D``'s — and what
+    X = Σ N_k X_k (the element's corners or patch's control points Xd) and Ñ = Σ w_j n_j (the
+    corner normals of the element or of the linear piece holding the sample:
+    ``shading.normals_at``) move with (ξ, η) and with the nodes, so ∂g'/∂(ξ, η) = ∂g'/∂g·w +
+    ∂g'/∂X·∂X/∂(ξ, η) + ∂g'/∂Ñ·∂Ñ/∂(ξ, η) enters the implicit differentiation, and the corners
+    gain ∂g'/∂X·N_k. Also returns dn (n, 4, 3): ∂g'/∂n_j, camera frame, and src (n, 4): the
+    normals' rows in ``shading.D`` (their own derivatives), and what
     the lighting adds to :func:`rig_derivatives`' pose columns (n, 6: ω, τ): a pose change moves
     the corners, normals and lights alike, δY = ω × (Y − t) + τ, which leaves I unchanged but for
     the view direction — its rotation about the camera changes nothing and its translation
     τ' = τ − ω × t acts as the camera moved by −τ' — so ∂g'/∂X·δX of the corners' part (already
     in c) is replaced by ∂g'/∂X|_V·τ'."""
-    nk = shading.corners[e]
-    N, N_xi, N_eta = _shape_derivatives(xi, eta)
-    X, Nt = np.einsum("nk,nkd->nd", N, Xd), np.einsum("nk,nkd->nd", N, nk)
+    N, N_xi, N_eta = _shape_derivatives(xi, eta, Xd.shape[1])
+    X = np.einsum("nk,nkd->nd", N, Xd)
+    Nt, dNt, src, weights = shading.normals_at(e, xi, eta)
     gg, gX, gN, gV = shading.terms(r, X, Nt)
-    w = (gg[:, None] * w + np.einsum("nd,ndl->nl", gX, _tangents(N_xi, N_eta, Xd))
-         + np.einsum("nd,ndl->nl", gN, _tangents(N_xi, N_eta, nk)))
+    w = gg[:, None] * w + np.einsum("nd,ndl->nl", gX, _tangents(N_xi, N_eta, Xd)) + np.einsum("nd,ndl->nl", gN, dNt)
     N, v, c = sensitivities(mode, w, Xd, xi, eta, ray, cam)
     t = np.asarray(cam.t, np.float64)
     pose = np.hstack([np.cross(t, gX - gV) - np.cross(X, gX), gV - gX])
-    return N, v, c + N[..., None] * gX[:, None, :], N[..., None] * gN[:, None, :], pose
+    return N, v, c + N[..., None] * gX[:, None, :], weights[..., None] * gN[:, None, :], src, pose
 
 
 def _total(parts: list, shape: tuple) -> sparse.csr_matrix:
