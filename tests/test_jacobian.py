@@ -450,7 +450,8 @@ def test_the_psf_matrix_is_the_convolution():
     np.testing.assert_allclose(got, psf.apply(image, k), rtol=0, atol=1e-15)
 
 
-@pytest.mark.parametrize("change, rig, key", [({"sensor": {"fill_factor": 0.5}}, False, "sensor.fill_factor"),
+@pytest.mark.parametrize("change, rig, key", [({"sensor": {"fill_factor": 0.5}, "render": {"samples_per_pixel": 4}},
+                                               False, "sensor.fill_factor"),
                                               ({"vignetting": {"natural": True}}, True, "vignetting"),
                                               ({"psf": {"kind": "gaussian", "sigma": 0.9}, "sensor": {"line_time": 1e-5},
                                                 "exposure": {"velocity": [1.0, 0.0, 0.0]}}, False, "psf")])
@@ -458,6 +459,18 @@ def test_what_the_camera_effects_jacobian_leaves_out_is_refused_by_name(change, 
     scene, mesh = _plate(backend="cpu")
     with Renderer(scene.replace(**change), mesh=mesh) as r, pytest.raises(SceneError, match=rf"^{key}: .* — "):
         r.render(0, 1, jacobian=True, rig=rig)
+
+
+def test_a_fill_factor_at_one_sample_per_pixel_leaves_the_jacobian_unchanged():
+    """At 1 sample per pixel the sample is the pixel's centre whatever the fill factor
+    (glsim.scene.camera.pixel_grid), so image and Jacobian are those of a full pixel."""
+    scene, mesh = _plate(backend="cpu")
+    out = []
+    for ff in (1.0, 0.5):
+        with Renderer(scene.replace(sensor={"fill_factor": ff}), mesh=mesh) as r:
+            out.append(r.render(0, 1, jacobian=True))
+    assert np.array_equal(out[0].image, out[1].image) and abs(out[0].jacobian - out[1].jacobian).max() == 0
+    assert out[0].jacobian.nnz > 0
 
 
 def test_modes_and_interpolation_are_refused_by_name():

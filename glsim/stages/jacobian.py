@@ -49,15 +49,17 @@ CHUNK = 1 << 18          # samples differentiated at once (bounds memory: ~100 d
 def check_request(scene: Scene, opts: Render, rig: bool = False) -> None:
     """SceneError naming what ``jacobian=True`` cannot differentiate: [optics] (every optional
     table but [noise], [exposure], [lighting] and the linear camera effects:
-    :func:`glsim.effects.through_camera_effects`), a fill factor below 1, [psf] with a rolling
+    :func:`glsim.effects.through_camera_effects`), a fill factor below 1 with supersampling, [psf] with a rolling
     shutter, [vignetting] in the rig Jacobian, mode fast, procedural interpolation."""
     for f in dataclasses.fields(scene):
         if f.default is None and getattr(scene, f.name) is not None and f.name not in UNREFUSED:
             raise SceneError(f.name, "the image Jacobian does not differentiate this effect",
                              f"remove [{f.name}] or render without jacobian")
-    if scene.sensor is not None and scene.sensor.fill_factor < 1:
-        raise SceneError("sensor.fill_factor", f"is {scene.sensor.fill_factor}: the image Jacobian's samples are "
-                         "the pixel grid's, and a fill factor below 1 moves them", "set fill_factor = 1 or render "
+    if scene.sensor is not None and scene.sensor.fill_factor < 1 and opts.supersampling > 1:
+        raise SceneError("sensor.fill_factor", f"is {scene.sensor.fill_factor}: at {opts.samples_per_pixel} samples "
+                         "per pixel the image Jacobian's samples are a finer camera's pixel grid, and a fill factor "
+                         "below 1 moves them (at 1 sample per pixel it does not)", "set fill_factor = 1, or "
+                         "samples_per_pixel = 1, or render "
                          "without jacobian")
     if scene.psf is not None and scene.sensor is not None and scene.sensor.line_time > 0:
         raise SceneError("psf", "with a rolling shutter (sensor.line_time) the image Jacobian is not made through the "
