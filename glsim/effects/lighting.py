@@ -258,9 +258,9 @@ def phong_gradient(X, N, lights: LightArrays, ambient: float, k_r: float, k_s: f
     """:func:`phong` (I (n,)), its derivatives with respect to the point X and the normal N as
     given (not necessarily unit), and the part of ∂I/∂X that comes through the view direction V
     alone (moving the camera by −δ changes I by it · δ), each (n, 3), camera frame, per mm and
-    per unit of N. X, N: (n, 3). Exact wherever :func:`phong` is smooth: not where N·L = 0, R·V = 0, N·V = 0
-    (the flip), on a hard spot edge or at the smooth edge's ends (there the one-sided value the
-    branch taken gives). N = 0 gives I = ambient and zero derivatives."""
+    per unit of N. X, N: (n, 3). Exact wherever :func:`phong` is smooth: not where N·L = 0,
+    R·V = 0, N·V = 0 (the flip), on a hard spot edge or at the smooth edge's ends (there the
+    one-sided value the branch taken gives). N = 0 gives I = ambient and zero derivatives."""
     X = np.asarray(X, dtype=np.float64)
     N = np.asarray(N, dtype=np.float64)
     Nu, m = _normalize(N)
@@ -410,4 +410,3 @@ class ShadingTerms:
             return (np.ones(len(I)), *dI)
         g = self.grey(r)[:, None]
         return (I, *(g * d for d in dI))
-
