@@ -22,6 +22,7 @@ from glsim.io import truth as T
 from glsim.io import truthcodec as C
 from glsim.io.outdir import LOCK
 from glsim.render import Renderer
+from glsim.scene.camera import project_camera_frame
 from glsim.workflows.library import expand, load_plan, run, verify
 from glsim.workflows.library import manifest as mf
 from glsim.workflows.library.spec import SpecError
@@ -217,8 +218,18 @@ def test_a_rolling_shutter_library_stores_each_rows_truth(tmp_path):
     other = load_plan(_spec(tmp_path, "steps = [2]\n" + SCENE + motion.format(4e-5) + "[vary]\nnoise.sigma = [1.0]\n",
                             "other.toml"))
     assert {j.truth for j in other.jobs}.isdisjoint({j.truth for j in load_plan(spec).jobs})
-    # a damaged rolling-shutter header is named, not a traceback
+    # at(): a point's deformed position in the state of the row where this image sees it — the
+    # maps' at the pixel whose ray meets it (its undeformed position projected into camera 0)
     t = T.load(_truth_of(lib, "v0000/cam1_0002.tif"))
+    rows_seen, cols = np.nonzero(maps.mask)
+    pick = np.linspace(0, len(rows_seen) - 1, 40).astype(int)
+    cam0 = t.camera0
+    uv, _ = project_camera_frame(maps.X_undeformed[rows_seen[pick], cols[pick]], cam0)
+    pt = t.at(uv)
+    assert pt.valid.all() and len(np.unique(rows_seen[pick])) > 10
+    np.testing.assert_allclose(pt.X_deformed, maps.X_deformed[rows_seen[pick], cols[pick]], rtol=0, atol=1e-9)
+    assert np.abs(t.at(uv, step=2).X_deformed - pt.X_deformed).max() > 1e-3   # (the step's own state differs)
+    # a damaged rolling-shutter header is named, not a traceback
     damaged = T.CompactTruth(t.path, {**t.header, "rolling": {"line_time": 2e-5}}, t._blobs, t.geometry)
     with pytest.raises(C.TruthFileError, match=r"\.truth: its header.s rolling shutter is damaged .*--verify"):
         damaged.maps().X_deformed

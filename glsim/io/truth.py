@@ -116,6 +116,9 @@ class PointTruth:
         return self.X_deformed - self.X_undeformed
 
 
+ROW_ITERATIONS = 8   # a rolling shutter's row of a point (CompactTruth.at): fixed-point steps at most
+
+
 class CompactTruth:
     """One image's truth as read from a ``.truth`` file: ``element``, ``xi``, ``eta``,
     ``mask`` decoded on access; :meth:`maps` and :meth:`at` need the geometry file."""
@@ -253,17 +256,22 @@ class CompactTruth:
             ref[mask] = project_camera_frame(shape(Xr, xi, eta), rc)[0]
         return Truth(mask=mask, element=self.element, xi=self.xi, eta=self.eta, ref_uv=ref, positions=positions)
 
-    def _rows_deformed(self, g: Geometry, e: np.ndarray, xi: np.ndarray, eta: np.ndarray) -> np.ndarray:
-        """A rolling shutter's deformed points (n, 3) world mm: each row's in its own state, the
-        header's rigid motion ``rolling`` of the step's nodes at that row's time (as the
-        renderer's rows, bit for bit)."""
+    def _rolling(self):
+        """The header's rolling shutter: (velocity, angular velocity or None, centre, each row's
+        time (H,) s from the step's)."""
         try:
             m = self.header["rolling"]
             v, c = (np.asarray(m[k], np.float64).reshape(3) for k in ("velocity", "centre"))
             w = None if m["angular_velocity"] is None else np.asarray(m["angular_velocity"], np.float64).reshape(3)
-            taus = row_offsets(self.size[1], float(m["line_time"]))
+            return v, w, c, row_offsets(self.size[1], float(m["line_time"]))
         except (KeyError, TypeError, ValueError) as exc:
             raise TruthFileError(f"{self.path}: its header's rolling shutter is damaged ({exc}){DAMAGED}") from None
+
+    def _rows_deformed(self, g: Geometry, e: np.ndarray, xi: np.ndarray, eta: np.ndarray) -> np.ndarray:
+        """A rolling shutter's deformed points (n, 3) world mm: each row's in its own state, the
+        header's rigid motion ``rolling`` of the step's nodes at that row's time (as the
+        renderer's rows, bit for bit)."""
+        v, w, c, taus = self._rolling()
         shape, nodes = _elements(g, e)[0], g.deformed(self.step)
         rows = np.nonzero(self.mask)[0]
         out = np.empty((len(e), 3))
@@ -273,14 +281,37 @@ class CompactTruth:
                              xi[sel], eta[sel])
         return out
 
+    def _rows_at(self, pt: PointTruth) -> PointTruth:
+        """``pt`` (at the step's state) with each valid point's deformed position in the state of
+        the row of this image where it is seen: the row r nearest its projection, found by
+        fixed-point iteration (r → the point at row r's time → its row; at most ROW_ITERATIONS,
+        stopping when r repeats), rows outside the image clipped to its first or last."""
+        v, w, c, taus = self._rolling()
+        g, cam, cam0 = self.geometry, self.camera, self.camera0
+        shape, points = _elements(g, pt.element[pt.valid])
+        X = shape(points(g.deformed(self.step)), pt.xi[pt.valid], pt.eta[pt.valid])   # world, the step's state
+        row = np.full(len(X), (len(taus) - 1) // 2)
+        for _ in range(ROW_ITERATIONS):
+            moved = np.empty_like(X)
+            for r in np.unique(row):
+                moved[row == r] = rigid_state(X[row == r], taus[r], v, w, c)
+            new = np.clip(np.rint(project_camera_frame(to_camera(moved, cam), cam)[0][:, 1]), 0, len(taus) - 1)
+            if np.array_equal(new, row):
+                break
+            row = new.astype(np.int64)
+        Xd = pt.X_deformed.copy()
+        Xd[pt.valid] = to_camera(moved, cam0)
+        return dataclasses.replace(pt, X_deformed=Xd)
+
     def at(self, points, step: int | None = None) -> PointTruth:
         """Ground truth at ``points`` (N, 2) — pixel coordinates (u, v) of camera 0 in the
         reference (undeformed) state, as a DIC reports its subset centres: the material point
         there (camera 0's ray intersected exactly with the undeformed mesh, the nearest hit),
-        its position undeformed and at ``step`` (default: this image's step: a rolling shutter's
-        rows' own states are in :meth:`maps` only), camera 0's frame, mm. Points whose ray misses
-        the specimen are ``valid`` False and NaN."""
-        return points_truth(self.geometry, self.camera0, points, self.step if step is None else step)
+        its position undeformed and at ``step`` (default: this image's step; with a rolling
+        shutter, in the state of the row of this image where the point is seen), camera 0's
+        frame, mm. Points whose ray misses the specimen are ``valid`` False and NaN."""
+        pt = points_truth(self.geometry, self.camera0, points, self.step if step is None else step)
+        return self._rows_at(pt) if step is None and "rolling" in self.header else pt
 
 
 class MapTruth:
@@ -347,7 +378,8 @@ class MapTruth:
         return self._render[2]
 
     def at(self, points, step: int | None = None) -> PointTruth:
-        """As :meth:`CompactTruth.at`."""
+        """As :meth:`CompactTruth.at`, but with a rolling shutter at the step's state (the rows'
+        own states are in :meth:`maps`)."""
         g, cam0, own = self._render
         return points_truth(g, cam0, points, own if step is None else step)
 
