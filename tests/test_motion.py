@@ -116,6 +116,29 @@ def test_rolling_shutter_shears_a_translation(tmp_path):
     np.testing.assert_allclose(np.nanmax(disp[..., 0], axis=1), v * tau[rows], atol=1e-9)
 
 
+def test_a_rolling_shutter_renders_truth_at_points_in_each_rows_state(tmp_path):
+    """`glsim render --truth` of a rolling shutter with a rotation and a velocity: MapTruth.at of
+    the material points of pixels across the rows (their undeformed positions projected into
+    camera 0) gives their deformed positions in those rows' states — the maps at those pixels
+    (1e-9 mm) — as CompactTruth.at does from a library's header (tests/test_library.py);
+    at(step=…) the step's own state."""
+    from glsim.scene.camera import project_camera_frame
+    from glsim.workflows.sequence import write_sequence
+
+    scene = edge_scene(tmp_path, ramp, exposure={"velocity": [30.0, -10.0, 0.0], "angular_velocity": [0.0, 0.0, 2.0]},
+                       sensor={"line_time": 2e-5})
+    write_sequence(scene, tmp_path / "r", truth=True, backend="cpu")
+    t = load_truth(next((tmp_path / "r").glob("*_0000_truth.npz")))
+    maps = t.maps()
+    rows, cols = np.nonzero(maps.mask)
+    pick = np.linspace(0, len(rows) - 1, 40).astype(int)
+    uv, _ = project_camera_frame(maps.X_undeformed[rows[pick], cols[pick]], scene.cameras[0])
+    pt = t.at(uv)
+    assert pt.valid.all() and len(np.unique(rows[pick])) > 10
+    np.testing.assert_allclose(pt.X_deformed, maps.X_deformed[rows[pick], cols[pick]], rtol=0, atol=1e-9)
+    assert np.abs(t.at(uv, step=0).X_deformed - pt.X_deformed).max() > 1e-4
+
+
 BLUR = {"optics": {"focal_length": 25.0, "f_number": 8.0, "focus_distance": 270.0, "pixel_pitch": 0.01},
         "psf": {"kind": "gaussian", "sigma": 0.8}}   # at Z = 300 mm: σ 1.58 px (window 5 + 1), PSF 4 rows
 

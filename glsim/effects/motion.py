@@ -33,7 +33,7 @@ import numpy as np
 from glsim.errors import check
 from glsim.io.truth import Truth
 from glsim.scene.camera import Camera, project_camera_frame, rodrigues, to_camera
-from glsim.scene.optional import Exposure, rigid_state
+from glsim.scene.optional import Exposure, motion_centre, rigid_state
 
 
 @dataclass(frozen=True, eq=False)
@@ -103,11 +103,9 @@ def timeline(exposure: Exposure, mesh, step: int) -> Timeline:
     times = step_times(mesh.step_times, mesh.n_steps, exposure.step_time)
     if not exposure.rigid:
         return Timeline(step, times)
-    nodes = mesh.deformed(step)
-    used = np.unique(mesh.patches[mesh.patches >= 0]) if mesh.is_quadratic else np.unique(mesh.quads)
-    centre = np.asarray(exposure.centre if exposure.centre is not None else nodes[used].mean(axis=0), np.float64)
     omega = None if exposure.angular_velocity is None else np.asarray(exposure.angular_velocity, np.float64)
-    return Timeline(step, times, np.asarray(exposure.velocity or (0.0, 0.0, 0.0), np.float64), omega, centre)
+    return Timeline(step, times, np.asarray(exposure.velocity or (0.0, 0.0, 0.0), np.float64), omega,
+                    motion_centre(exposure, mesh, step))
 
 
 def rolling_truth(scene, mesh, step: int) -> dict | None:

@@ -36,7 +36,7 @@ from glsim.scene import quadratic as qd
 from glsim.scene.bilinear import bilinear, intersect_ray_patch
 from glsim.io.cameras import camera_from_dict
 from glsim.scene.camera import Camera, pixel_to_normalized, project_camera_frame, to_camera, undistort
-from glsim.scene.optional import rigid_state, row_offsets
+from glsim.scene.optional import motion_centre, rigid_state, row_offsets
 from glsim.io.truthcodec import (DTYPES, FORMAT, MAGIC, VERSION, TruthFileError, _runs,
                                  _unshuffle, _zstd, decode_local)
 from glsim.io.geometryfile import Geometry, read_geometry
@@ -281,27 +281,6 @@ class CompactTruth:
                              xi[sel], eta[sel])
         return out
 
-    def _rows_at(self, pt: PointTruth) -> PointTruth:
-        """``pt`` (at the step's state) with each valid point's deformed position in the state of
-        the row of this image where it is seen: the row r nearest its projection, found by
-        fixed-point iteration (r → the point at row r's time → its row; at most ROW_ITERATIONS,
-        stopping when r repeats), rows outside the image clipped to its first or last."""
-        v, w, c, taus = self._rolling()
-        g, cam, cam0 = self.geometry, self.camera, self.camera0
-        shape, points = _elements(g, pt.element[pt.valid])
-        X = shape(points(g.deformed(self.step)), pt.xi[pt.valid], pt.eta[pt.valid])   # world, the step's state
-        row = np.full(len(X), (len(taus) - 1) // 2)
-        for _ in range(ROW_ITERATIONS):
-            moved = np.empty_like(X)
-            for r in np.unique(row):
-                moved[row == r] = rigid_state(X[row == r], taus[r], v, w, c)
-            new = np.clip(np.rint(project_camera_frame(to_camera(moved, cam), cam)[0][:, 1]), 0, len(taus) - 1)
-            if np.array_equal(new, row):
-                break
-            row = new.astype(np.int64)
-        Xd = pt.X_deformed.copy()
-        Xd[pt.valid] = to_camera(moved, cam0)
-        return dataclasses.replace(pt, X_deformed=Xd)
 
     def at(self, points, step: int | None = None) -> PointTruth:
         """Ground truth at ``points`` (N, 2) — pixel coordinates (u, v) of camera 0 in the
@@ -311,7 +290,9 @@ class CompactTruth:
         shutter, in the state of the row of this image where the point is seen), camera 0's
         frame, mm. Points whose ray misses the specimen are ``valid`` False and NaN."""
         pt = points_truth(self.geometry, self.camera0, points, self.step if step is None else step)
-        return self._rows_at(pt) if step is None and "rolling" in self.header else pt
+        if step is not None or "rolling" not in self.header:
+            return pt
+        return rows_at(pt, self.geometry, self.camera, self.camera0, *self._rolling())
 
 
 class MapTruth:
@@ -352,8 +333,10 @@ class MapTruth:
                      uv_end=a.get("uv_end"))
 
     @cached_property
-    def _render(self) -> tuple[Geometry, Camera, int]:
-        """The render's geometry, camera 0 and this image's load step, from its scene.json."""
+    def _render(self) -> tuple[Geometry, Camera, int, Camera, tuple | None]:
+        """The render's geometry, camera 0, this image's load step and camera, and its rolling
+        shutter's rigid motion (velocity, angular velocity or None, centre, the rows' times) or
+        None, from its scene.json."""
         from glsim.scene import load_scene
         from glsim.io.fe import specimen_mesh
 
@@ -365,12 +348,18 @@ class MapTruth:
         mesh = specimen_mesh(scene)
         image = (self.path.parent / self.path.name[:-len("_truth.npz")]).relative_to(folder).as_posix()
         ext = EXTENSIONS[scene.output.format]
-        step = next((s for s in range(mesh.n_steps) for c in scene.cameras if str(PurePosixPath(
-            scene.output.pattern.format(camera=c.name, step=s, ext=ext)).with_suffix("")) == image), None)
+        step, cam = next(((s, c) for s in range(mesh.n_steps) for c in scene.cameras if str(PurePosixPath(
+            scene.output.pattern.format(camera=c.name, step=s, ext=ext)).with_suffix("")) == image), (None, None))
         if step is None:
             raise TruthFileError(f"{self.path}: {folder / 'scene.json'} names no image {image}.{ext}; keep the truth "
                                  "file where glsim render wrote it, under its own name")
-        return mesh_geometry(mesh), scene.cameras[0], step
+        ex, line = scene.exposure, scene.sensor.line_time if scene.sensor is not None else 0.0
+        rolling = None
+        if line > 0 and ex is not None and ex.rigid:
+            rolling = (np.asarray(ex.velocity or (0.0, 0.0, 0.0), np.float64),
+                       None if ex.angular_velocity is None else np.asarray(ex.angular_velocity, np.float64),
+                       motion_centre(ex, mesh, step), row_offsets(cam.height, line))
+        return mesh_geometry(mesh), scene.cameras[0], step, cam, rolling
 
     @property
     def step(self) -> int:
@@ -378,10 +367,35 @@ class MapTruth:
         return self._render[2]
 
     def at(self, points, step: int | None = None) -> PointTruth:
-        """As :meth:`CompactTruth.at`, but with a rolling shutter at the step's state (the rows'
-        own states are in :meth:`maps`)."""
-        g, cam0, own = self._render
-        return points_truth(g, cam0, points, own if step is None else step)
+        """As :meth:`CompactTruth.at` (a rolling shutter's rigid motion from the scene; one whose
+        states interpolate between load steps: the step's state)."""
+        g, cam0, own, cam, rolling = self._render
+        pt = points_truth(g, cam0, points, own if step is None else step)
+        return pt if step is not None or rolling is None else rows_at(pt, g, cam, cam0, *rolling)
+
+
+def rows_at(pt: PointTruth, g: Geometry, cam: Camera, cam0: Camera, velocity, omega, centre,
+            taus: np.ndarray) -> PointTruth:
+    """``pt`` (at its step's state) with each valid point's deformed position in the state of
+    the row of ``cam``'s rolling-shutter image where it is seen — a rigid motion
+    (:func:`~glsim.scene.optional.rigid_state`; the rows' times ``taus`` (H,) s): the row r nearest
+    its projection, found by fixed-point iteration (r → the point at row r's time → its row; at
+    most ROW_ITERATIONS, stopping when r repeats), rows outside the image clipped to its first or
+    last. Camera 0's frame, mm."""
+    shape, points = _elements(g, pt.element[pt.valid])
+    X = shape(points(g.deformed(pt.step)), pt.xi[pt.valid], pt.eta[pt.valid])   # world, the step's state
+    row = np.full(len(X), (len(taus) - 1) // 2)
+    for _ in range(ROW_ITERATIONS):
+        moved = np.empty_like(X)
+        for r in np.unique(row):
+            moved[row == r] = rigid_state(X[row == r], taus[r], velocity, omega, centre)
+        new = np.clip(np.rint(project_camera_frame(to_camera(moved, cam), cam)[0][:, 1]), 0, len(taus) - 1)
+        if np.array_equal(new, row):
+            break
+        row = new.astype(np.int64)
+    Xd = pt.X_deformed.copy()
+    Xd[pt.valid] = to_camera(moved, cam0)
+    return dataclasses.replace(pt, X_deformed=Xd)
 
 
 def mesh_geometry(mesh) -> Geometry:

@@ -264,6 +264,16 @@ def rigid_state(X: np.ndarray, tau: float, velocity: np.ndarray, omega: np.ndarr
     return X + velocity * tau
 
 
+def motion_centre(exposure: "Exposure", mesh, step: int) -> np.ndarray:
+    """The centre (3,) mm of ``exposure``'s rotation at ``step`` of FE ``mesh``: the given
+    ``centre``, else the centroid of the nodes its elements use at that step (a quadratic
+    mesh's mid-side and centre nodes too)."""
+    if exposure.centre is not None:
+        return np.asarray(exposure.centre, np.float64)
+    used = np.unique(mesh.patches[mesh.patches >= 0]) if mesh.is_quadratic else np.unique(mesh.quads)
+    return np.asarray(mesh.deformed(step)[used].mean(axis=0), np.float64)
+
+
 def row_offsets(height: int, line_time: float) -> np.ndarray:
     """A rolling shutter's rows' exposure centres (H,) s from the step's time (``line_time`` s
     per row, :class:`Sensor`): the middle row at 0."""
