@@ -32,9 +32,9 @@ from glsim.limits import check_gl_target, check_image_size, check_memory, keep
 from glsim.scene import quadratic as qd
 from glsim.scene.bilinear import bilinear
 from glsim.scene.camera import Camera, to_camera
-from glsim.effects import (prepare as prepare_effects, shading_terms, spread as spread_rows,
+from glsim.effects import (prepare as prepare_effects, shading_terms, spread as spread_rows, through_blur,
                            through_camera_effects)
-from glsim.effects import motion, noise as noisemod
+from glsim.effects import dof, motion, noise as noisemod
 from glsim.stages.geometry import MeshGeometry, StepGeometry
 from glsim.io.images import quantize as quantize_image, saturated_fraction
 from glsim.io.truth import Truth, pixel_positions
@@ -312,12 +312,32 @@ class Renderer:
             nodes = self.drawn_mesh.deformed(step) if tl is None else tl.at(tau, self.drawn_mesh.deformed)
             shading = shading_terms(self.scene, nodes, self.drawn_mesh.quads, cam,
                                     lambda uv: interp.sample(coeffs, uv, method), self.pieces)
-        J, J_rig = jac.image_jacobian(cam, s, self.reference.camera, mesh.nodes, deformed, mesh.quads, opts.mode,
-                                      raster, lambda uv: interp.gradient(coeffs, uv, method), rig, mesh.patches,
-                                      shading)
+        J, J_rig, depth = jac.image_jacobian(cam, s, self.reference.camera, mesh.nodes, deformed, mesh.quads,
+                                             opts.mode, raster, lambda uv: interp.gradient(coeffs, uv, method), rig,
+                                             mesh.patches, shading, self.scene.optics is not None)
+        if depth is not None:   # through the depth of field's blur, of this state's unblurred image
+            z, J_z = depth
+            W, H = cam.size
+            J = through_blur(J, J_z, self._unblurred(cam, step, opts, tl, tau), dof.pixel_depth(z, H, W, s),
+                             self.scene.optics)
         if tl is not None:   # ∂g/∂u_k = ∂g/∂X(τ) · ∂X(τ)/∂X_k, per node
             J = J @ sparse.kron(sparse.identity(mesh.n_nodes), tl.derivative(tau), format="csr")
         return J, J_rig
+
+    def _unblurred(self, cam: Camera, step: int, opts: Render, tl, tau: float) -> np.ndarray:
+        """``cam``'s image (H, W) float64 at ``step`` (or the state τ s from it on ``tl``) before
+        the depth of field: lit, supersampled, without the camera effects and noise."""
+        state = None if tl is None or tau == 0 else float(tau)
+        nodes = self.drawn_mesh.deformed(step) if tl is None else tl.at(tau, self.drawn_mesh.deformed)
+        view = self.geometry.view(cam, step, state, None if tl is None else nodes)
+        index = self.scene.cameras.index(self.scene.camera(cam.name))
+        fx = prepare_effects(self.scene, nodes, self.drawn_mesh.quads, cam, index, step, view.corner_depths(),
+                             normals=not self.backend.capabilities.device_geometry)
+        fx = dataclasses.replace(fx, optics=None, sigma_max=0.0, noise=None, sensor=None, vignette=None, psf=None)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            out = self.backend.render(Request(view, opts, False, fx, self._curved(opts, step, tl, tau)))
+        return out.image.astype(np.float64)
 
     def render_many(self, jobs: Iterable, depth: int = 2) -> Iterator[Result]:
         """The Results of ``jobs`` in order, pipelined: request k + depth − 1 is submitted before

@@ -424,3 +424,28 @@ def test_gl_blur_schemes_match_their_numpy_mirrors(gl_ctx, scheme):
     assert np.array_equal(got[keep].view(np.uint32), src32[keep].view(np.uint32))
     assert stages == {"separable": ["blur_horizontal", "blur_vertical"], "hybrid": ["blur_horizontal", "blur_hybrid"],
                       "gather": ["blur_gather"], "expansion": ["blur_rows", "blur_columns"]}[scheme]
+
+
+@pytest.mark.parametrize("kernel", ["gaussian", "disk"])
+def test_gather_linearization_is_the_blur_and_its_size_derivative(kernel):
+    """gather_linearization (image Jacobians through the depth of field): C·image is the oracle's
+    gather to rounding (a few ulps of grey levels ≤ 1: 1e-14), and ∂out/∂size matches central
+    differences of the gather in the size (δ = 1e-6 px: rounding ~1e-16/δ, 1e-8 allowed) on every
+    pixel whose window radius is the same at size ± δ; unblurred pixels copy. size_derivative
+    matches central differences of blur_sigma in Z (δ = 1e-5 mm) across the focus plane."""
+    rng = np.random.default_rng(0)
+    image = rng.random((20, 26))
+    size = np.where(rng.random((20, 26)) > 0.3, rng.uniform(0.4, 1.6, (20, 26)), 0.0)
+    gather = blur.blur_exact if kernel == "gaussian" else blur.blur_disk
+    C, d = blur.gather_linearization(image, size, kernel)
+    np.testing.assert_allclose(C @ image.ravel(), gather(image, size).ravel(), rtol=0, atol=1e-14)
+    h = 1e-6
+    moved = [np.where(size > 0, size + sign * h, 0.0) for sign in (1, -1)]
+    fd = (gather(image, moved[0]) - gather(image, moved[1])).ravel() / (2 * h)
+    same = np.all([blur.kernel_radius(m, kernel) == blur.kernel_radius(size, kernel) for m in moved], axis=0).ravel()
+    np.testing.assert_allclose(d[same], fd[same], rtol=0, atol=1e-8)
+    assert np.abs(d).max() > 0.1 and not d[size.ravel() == 0].any()
+    optics = SimpleNamespace(focal_length=25.0, f_number=8.0, focus_distance=270.0, pixel_pitch=0.01, coc_px=1.0)
+    Z = np.linspace(200.0, 340.0, 141)
+    fdz = (blur.blur_sigma(Z + 1e-5, optics) - blur.blur_sigma(Z - 1e-5, optics)) / 2e-5
+    np.testing.assert_allclose(blur.size_derivative(Z, optics), fdz, rtol=1e-6, atol=1e-9)

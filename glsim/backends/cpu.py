@@ -215,24 +215,6 @@ def _box(a: np.ndarray, H: int, W: int, s: int) -> np.ndarray:
     return a.reshape(H, s, W, s).mean(axis=(1, 3))
 
 
-def pixel_depth(z: np.ndarray, H: int, W: int, s: int) -> np.ndarray:
-    """Per-pixel depth for the blur as the GL path holds it: each sample's depth rounded to
-    float32 (the depth target), for s > 1 the mean over the covered (non-zero) samples summed
-    in float32 in downsample.frag's order (rows j, then columns i). σ is then evaluated in
-    float64 from the same float32 depth in both backends, so they draw the in-focus threshold
-    and the window ceil(3σ) alike. Returns float64 (H, W), 0 where nothing is covered."""
-    z32 = np.asarray(z, np.float32).reshape(H, s, W, s)
-    if s == 1:
-        return z32[:, 0, :, 0].astype(np.float64)
-    acc = np.zeros((H, W), np.float32)
-    n = np.zeros((H, W), np.float32)
-    for j in range(s):
-        for i in range(s):
-            acc += z32[:, j, :, i]
-            n += (z32[:, j, :, i] > 0).astype(np.float32)
-    return np.divide(acc, n, out=np.zeros((H, W), np.float32), where=n > 0).astype(np.float64)
-
-
 def render_view(view: View, sample, opts, truth: bool, fx=None, raster=None):
     """Image (H, W) float32, the pixel-centre raster of :func:`rasterize` if ``truth``, and
     the list of stages run. ``sample(uv)`` gives the reference grey at reference-image
@@ -261,7 +243,7 @@ def render_view(view: View, sample, opts, truth: bool, fx=None, raster=None):
     if fx.blur:
         from glsim.effects import dof as blur
 
-        depth = pixel_depth(np.where(hit, r["depth"], 0.0), H, W, s)
+        depth = blur.pixel_depth(np.where(hit, r["depth"], 0.0), H, W, s)
         if fx.optics.kernel == "disk":
             image = blur.blur_disk(image, blur.blur_sigma(depth, fx.optics))
         else:

@@ -172,6 +172,24 @@ def blur_scheme(optics) -> str:
     return scheme
 
 
+def pixel_depth(z: np.ndarray, H: int, W: int, s: int) -> np.ndarray:
+    """Per-pixel depth for the blur as the GL path holds it: each sample's depth rounded to
+    float32 (the depth target), for s > 1 the mean over the covered (non-zero) samples summed
+    in float32 in downsample.frag's order (rows j, then columns i). σ is then evaluated in
+    float64 from the same float32 depth in both backends, so they draw the in-focus threshold
+    and the window ceil(3σ) alike. Returns float64 (H, W), 0 where nothing is covered."""
+    z32 = np.asarray(z, np.float32).reshape(H, s, W, s)
+    if s == 1:
+        return z32[:, 0, :, 0].astype(np.float64)
+    acc = np.zeros((H, W), np.float32)
+    n = np.zeros((H, W), np.float32)
+    for j in range(s):
+        for i in range(s):
+            acc += z32[:, j, :, i]
+            n += (z32[:, j, :, i] > 0).astype(np.float32)
+    return np.divide(acc, n, out=np.zeros((H, W), np.float32), where=n > 0).astype(np.float64)
+
+
 # ---------------------------------------------------------------------------- kernels
 
 def gaussian_weights(d, sigma):
@@ -241,6 +259,78 @@ def _gauss(dx, dy, s):
 
 def _disk(dx, dy, r):
     return np.clip(r + 0.5 - np.hypot(dx, dy), 0.0, 1.0)
+
+
+def _dgauss(dx, dy, s):
+    """∂/∂σ of :func:`_gauss`."""
+    d2 = float(dx * dx + dy * dy)
+    return np.exp(-d2 / (2 * s * s)) * d2 / (s * s * s)
+
+
+def _ddisk(dx, dy, r):
+    """∂/∂r of :func:`_disk` (1 on its ramp)."""
+    t = r + 0.5 - np.hypot(dx, dy)
+    return ((t > 0) & (t < 1)).astype(np.float64)
+
+
+def gather_linearization(image, size_map, kernel: str = "gaussian"):
+    """The oracle's gather blur (:func:`blur_exact`, :func:`blur_disk`) of ``image`` (H, W) with
+    the per-pixel σ or radius ``size_map`` (px), linearised for image Jacobians: (C, d) — C a
+    scipy CSR matrix (H·W × H·W), the blur of any image x with this size map being C·x.ravel()
+    (unblurred pixels: the identity), and d (H·W,) ∂out/∂size at ``image`` (per px of σ or
+    radius; 0 where the size is 0). The window is held (its radius jumps with the size)."""
+    from scipy import sparse
+
+    img, s = _check(image, size_map, "size")
+    H, W = img.shape
+    weight, dweight = (_gauss, _dgauss) if kernel == "gaussian" else (_disk, _ddisk)
+    radius = kernel_radius(s, kernel)
+    flat = img.ravel()
+    still = np.flatnonzero(s.ravel() == 0)
+    rows, cols = np.nonzero(s > 0)
+    d = np.zeros(H * W)
+    if rows.size == 0:
+        return sparse.identity(H * W, format="csr"), d
+    R = radius[rows, cols]
+    order = np.argsort(-R, kind="stable")
+    rows, cols, R = rows[order], cols[order], R[order]
+    sz = s[rows, cols]
+    count = np.searchsorted(-R, -np.arange(int(R[0]) + 1), side="right")
+    acc, wsum, dacc, dwsum = (np.zeros(rows.size) for _ in range(4))
+    at, to, val = [], [], []
+    for dy in range(-int(R[0]), int(R[0]) + 1):
+        for dx in range(-int(R[0]), int(R[0]) + 1):
+            n = count[max(abs(dx), abs(dy))]
+            r, c = rows[:n] + dy, cols[:n] + dx
+            ok = (r >= 0) & (r < H) & (c >= 0) & (c < W)
+            w, dw = np.where(ok, weight(dx, dy, sz[:n]), 0.0), np.where(ok, dweight(dx, dy, sz[:n]), 0.0)
+            q = np.clip(r, 0, H - 1) * W + np.clip(c, 0, W - 1)
+            acc[:n] += w * flat[q]
+            wsum[:n] += w
+            dacc[:n] += dw * flat[q]
+            dwsum[:n] += dw
+            k = np.flatnonzero(w)
+            at.append(k)
+            to.append(q[k])
+            val.append(w[k])
+    at = np.concatenate(at)
+    pixel = rows * W + cols
+    d[pixel] = (dacc - acc / wsum * dwsum) / wsum
+    C = sparse.csr_matrix((np.concatenate([np.concatenate(val) / wsum[at], np.ones(still.size)]),
+                           (np.concatenate([pixel[at], still]), np.concatenate([np.concatenate(to), still]))),
+                          shape=(H * W, H * W))
+    return C, d
+
+
+def size_derivative(Z, optics):
+    """∂(blur σ or disk radius)/∂Z (px per mm) at camera-frame depths Z (mm): of CoC_px/2 =
+    f²|Z − D| / (2 N (Z − f) D · pitch), i.e. sign(Z − D)·f²(D − f) / (2 N D (Z − f)² · pitch),
+    where the pixel is blurred (:func:`blur_sigma` > 0), else 0."""
+    Z = np.asarray(Z, dtype=np.float64)
+    f, D, N, pitch = (_param(optics, k) for k in ("focal_length", "focus_distance", "f_number", "pixel_pitch"))
+    blurred = _blur_size(Z, optics) > 0
+    Zs = np.where(blurred, Z, 2 * f + 1.0)
+    return np.where(blurred, np.sign(Zs - D) * f * f * (D - f) / (2 * N * D * (Zs - f) ** 2 * pitch), 0.0)
 
 
 def blur_exact(image, sigma_map):

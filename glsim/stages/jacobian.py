@@ -42,15 +42,14 @@ MODES = ("exact", "q4")
 # optional tables the Jacobian allows: it is of the noise-free image, over the exposure (the
 # sub-frames' mean) and through the camera effects that act on it linearly
 # (glsim.effects.through_camera_effects)
-UNREFUSED = ("noise", "vignetting", "psf", "sensor", "exposure", "lighting")
+UNREFUSED = ("noise", "vignetting", "psf", "sensor", "exposure", "lighting", "optics")
 CHUNK = 1 << 18          # samples differentiated at once (bounds memory: ~100 doubles each)
 
 
 def check_request(scene: Scene, opts: Render, rig: bool = False) -> None:
-    """SceneError naming what ``jacobian=True`` cannot differentiate: [optics] (every optional
-    table but [noise], [exposure], [lighting] and the linear camera effects:
-    :func:`glsim.effects.through_camera_effects`), a fill factor below 1 with supersampling, [psf] with a rolling
-    shutter, [vignetting] in the rig Jacobian, mode fast, procedural interpolation."""
+    """SceneError naming what ``jacobian=True`` cannot differentiate: a fill factor below 1 with
+    supersampling, [psf] or [optics] with a rolling shutter, [vignetting] or [optics] in the rig
+    Jacobian, mode fast, procedural interpolation (and any optional table not in UNREFUSED)."""
     for f in dataclasses.fields(scene):
         if f.default is None and getattr(scene, f.name) is not None and f.name not in UNREFUSED:
             raise SceneError(f.name, "the image Jacobian does not differentiate this effect",
@@ -65,6 +64,11 @@ def check_request(scene: Scene, opts: Render, rig: bool = False) -> None:
         raise SceneError("psf", "with a rolling shutter (sensor.line_time) the image Jacobian is not made through the "
                          "PSF (each row is blurred in its own state)", "remove [psf] or line_time, or render without "
                          "jacobian")
+    if scene.optics is not None and (rig or (scene.sensor is not None and scene.sensor.line_time > 0)):
+        raise SceneError("optics", "the image Jacobian is not made through the depth of field " + (
+            "with respect to the rig (the depths, and so the blur, move with the pose)" if rig else
+            "with a rolling shutter (each row is blurred in its own state)"),
+            "remove [optics], or render without " + ("rig" if rig else "jacobian"))
     if rig and scene.vignetting is not None:
         raise SceneError("vignetting", "the rig Jacobian does not differentiate the vignetting gain (it varies with "
                          "the intrinsics and distortion)", "remove [vignetting], or render without rig")
@@ -226,20 +230,28 @@ def sample_rays(cam: Camera, index: np.ndarray) -> np.ndarray:
 
 def image_jacobian(cam: Camera, s: int, ref_cam: Camera, nodes: np.ndarray, deformed: np.ndarray,
                    quads: np.ndarray, mode: str, raster: dict, grad, rig: bool = False, patches=None,
-                   shading=None):
+                   shading=None, depth: bool = False):
     """The image Jacobian (W·H × 3·nodes, CSR, grey levels per mm) of ``cam`` from ``raster``:
     flat ``element``, ``xi``, ``eta`` (float64) over the (W·s)·(H·s) samples of
     :func:`sample_camera` (element −1: background); the reference point is recomputed from them.
     ``nodes``, ``deformed`` (N, 3) world mm; ``patches``: a quadratic mesh's (its (ξ, η) are the
     patches'); ``grad(uv)`` the reference interpolant's gradient
     (grey per px). A pixel's row is the mean of its s² samples' derivatives. ``shading``: the
-    lighting's :class:`glsim.effects.lighting.ShadingTerms` (:func:`lit_sensitivities`). Returns it and, if ``rig``, the W·H × 23 CSR Jacobian with
-    respect to ``cam``'s parameters (:func:`rig_derivatives`), else None."""
+    lighting's :class:`glsim.effects.lighting.ShadingTerms` (:func:`lit_sensitivities`). Returns
+    it; if ``rig``, the W·H × 23 CSR Jacobian with respect to ``cam``'s parameters
+    (:func:`rig_derivatives`), else None; if ``depth``, (z, J_z): each sample's camera-frame depth
+    (flat, 0 on the background; mm) and the derivative of each pixel's depth — the mean of its
+    covered samples', what the depth of field blurs with — with respect to the nodal
+    displacements (W·H × 3·nodes, CSR, mm per mm), else None."""
     W, H = cam.size
     scam = sample_camera(cam, s)
     R = cam.rotation
     hit = np.flatnonzero(raster["element"] >= 0)
-    parts, rig_parts, normal_parts = [], [], []
+    parts, rig_parts, normal_parts, depth_parts = [], [], [], []
+    shape = (W * H, 3 * len(nodes))
+    if depth:
+        z = np.zeros(len(raster["element"]))
+        covered = np.bincount(hit // (W * s) // s * W + hit % (W * s) // s, minlength=W * H)
     for k in range(0, len(hit), CHUNK):
         idx = hit[k:k + CHUNK]
         e, xi, eta = raster["element"][idx], raster["xi"][idx], raster["eta"][idx]
@@ -257,11 +269,14 @@ def image_jacobian(cam: Camera, s: int, ref_cam: Camera, nodes: np.ndarray, defo
             cols = (3 * src[..., None] + np.arange(3)).ravel()
             normal_parts.append(sparse.coo_matrix(((dn @ R).ravel() / (s * s), (np.repeat(pixel, 12), cols)),
                                                   shape=(W * H, shading.D.shape[0])).tocsr())
-        corners, cn = (quads[e], c) if patches is None else qd.fold_centres(patches[e], c)
-        values = cn @ R / (s * s)                                                   # per world mm
-        cols = (3 * corners[..., None] + np.arange(3)).ravel()
-        parts.append(sparse.coo_matrix((values.ravel(), (np.repeat(pixel, 3 * corners.shape[1]), cols)),
-                                       shape=(W * H, 3 * len(nodes))).tocsr())
+        parts.append(_node_part(c, e, quads, patches, R, pixel, np.full(len(idx), 1.0 / (s * s)), shape))
+        if depth:   # z = Σ N_k Z_k, through (ξ, η) and directly
+            Nz, Nz_xi, Nz_eta = _shape_derivatives(xi, eta, Xd.shape[1])
+            z[idx] = np.einsum("nk,nk->n", Nz, Xd[..., 2])
+            wz = np.column_stack([np.einsum("nk,nk->n", Nz_xi, Xd[..., 2]), np.einsum("nk,nk->n", Nz_eta, Xd[..., 2])])
+            cz = sensitivities(mode, wz, Xd, xi, eta, ray, scam)[2]
+            cz[..., 2] += Nz
+            depth_parts.append(_node_part(cz, e, quads, patches, R, pixel, 1.0 / covered[pixel], shape))
         if rig:
             q = (np.column_stack([fi, fj]) + 0.5) / s - 0.5    # the samples in cam's pixels
             values = rig_derivatives(mode, N, v, c, Xd, cam, s, q, ray)
@@ -270,10 +285,20 @@ def image_jacobian(cam: Camera, s: int, ref_cam: Camera, nodes: np.ndarray, defo
             values /= s * s
             rig_parts.append(sparse.coo_matrix((values.ravel(), (np.repeat(pixel, 23), np.tile(np.arange(23), len(idx)))),
                                                shape=(W * H, 23)).tocsr())
-    J = _total(parts, (W * H, 3 * len(nodes)))
+    J = _total(parts, shape)
     if shading is not None:   # through the corner normals' own dependence on the nodes
         J = J + _total(normal_parts, (W * H, shading.D.shape[0])) @ shading.D
-    return J, _total(rig_parts, (W * H, 23)) if rig else None
+    return J, _total(rig_parts, (W * H, 23)) if rig else None, (z, _total(depth_parts, shape)) if depth else None
+
+
+def _node_part(c, e, quads, patches, R, pixel, weight, shape) -> sparse.csr_matrix:
+    """Per-sample derivatives c (n, corners, 3; camera frame) of elements ``e`` as a CSR matrix
+    of ``shape`` (pixels × 3·nodes, world frame: ·R), each sample's row ``pixel`` scaled by its
+    ``weight`` (n,) — a quadratic mesh's derived centres spread (glsim.scene.quadratic.fold_centres)."""
+    corners, cn = (quads[e], c) if patches is None else qd.fold_centres(patches[e], c)
+    values = cn @ R * weight[:, None, None]                                          # per world mm
+    cols = (3 * corners[..., None] + np.arange(3)).ravel()
+    return sparse.coo_matrix((values.ravel(), (np.repeat(pixel, 3 * corners.shape[1]), cols)), shape=shape).tocsr()
 
 
 def lit_sensitivities(mode: str, w, Xd, xi, eta, ray, cam: Camera, shading, e, r):
