@@ -316,10 +316,13 @@ class Renderer:
                                              opts.mode, raster, lambda uv: interp.gradient(coeffs, uv, method), rig,
                                              mesh.patches, shading, self.scene.optics is not None)
         if depth is not None:   # through the depth of field's blur, of this state's unblurred image
-            z, J_z = depth
+            z, J_z, J_z_rig = depth
             W, H = cam.size
-            J = through_blur(J, J_z, self._unblurred(cam, step, opts, tl, tau), dof.pixel_depth(z, H, W, s),
-                             self.scene.optics)
+            n = J.shape[1]
+            out = through_blur(J if J_rig is None else sparse.hstack([J, J_rig], format="csr"),
+                               J_z if J_rig is None else sparse.hstack([J_z, J_z_rig], format="csr"),
+                               self._unblurred(cam, step, opts, tl, tau), dof.pixel_depth(z, H, W, s), self.scene.optics)
+            J, J_rig = (out, None) if J_rig is None else (out[:, :n], out[:, n:])
         if tl is not None:   # ∂g/∂u_k = ∂g/∂X(τ) · ∂X(τ)/∂X_k, per node
             J = J @ sparse.kron(sparse.identity(mesh.n_nodes), tl.derivative(tau), format="csr")
         return J, J_rig

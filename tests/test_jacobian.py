@@ -259,24 +259,31 @@ OPTICS = {"focal_length": 50.0, "f_number": 2.8, "focus_distance": 300.0, "pixel
 DOF = {"focal_length": 25.0, "f_number": 16.0, "focus_distance": 250.0, "pixel_pitch": 0.01}
 
 
-def _blurred64(r: Renderer, deformed: np.ndarray):
-    """The depth of field's model image in float64 (W·H,): _image64 blurred by the oracle's
-    gather with each pixel's σ (or radius) from its covered samples' mean depth in float64 (the
-    renderer rounds it to float32, which moves σ by ~1e-6 px here), and per pixel one element
-    (−2 where its samples differ), and the blur's window radius per pixel."""
+def _blurred64(r: Renderer, deformed: np.ndarray, cam=None):
+    """The depth of field's model image in float64 (W·H,): _image64 (of ``cam``, default camera
+    0) blurred by the oracle's gather with each pixel's σ (or radius) from its covered samples'
+    mean depth in float64 (the renderer rounds it to float32), per pixel one element (−2 where
+    its samples differ), the blur's window radius per pixel, and a bound of the relative change
+    of σ that rounding makes, twice ulp(Z)/2 · max|∂σ/∂Z| / min σ (~1e-6 here): the Jacobian is
+    made at the rendered σ map, so entries may differ from the float64 model's by that share of
+    the largest."""
     from glsim.effects import dof
 
     opts, optics = r.scene.render, r.scene.optics
     W, H = r.scene.cameras[0].size
     s = opts.supersampling
-    grey, one = _image64(r, deformed)
-    raster = rasterize(r.view(0, 1, deformed=deformed), opts.mode, s)
+    grey, one = _image64(r, deformed, cam)
+    view = r.view(0, 1, deformed=deformed) if cam is None else \
+        make_view(cam, r.reference.camera, r.mesh.nodes, deformed, r.mesh.quads, warn=False)
+    raster = rasterize(view, opts.mode, s)
     z = np.where(raster["element"] >= 0, raster["depth"], 0.0).reshape(H, s, W, s)
     n = (z > 0).sum(axis=(1, 3))
     depth = np.divide(z.sum(axis=(1, 3)), n, out=np.zeros((H, W)), where=n > 0)
     size = dof.blur_sigma(depth, optics)
     blur = dof.blur_exact if optics.kernel == "gaussian" else dof.blur_disk
-    return blur(grey.reshape(H, W), size).ravel(), one, dof.kernel_radius(size, optics.kernel)
+    rounding = 2 * np.spacing(np.float32(depth.max())) / 2 * np.abs(dof.size_derivative(depth, optics)).max() \
+        / size[size > 0].min()
+    return blur(grey.reshape(H, W), size).ravel(), one, dof.kernel_radius(size, optics.kernel), float(rounding)
 
 
 @pytest.mark.parametrize("mode, spp, kernel, lit", [("exact", 1, "gaussian", False), ("q4", 1, "disk", False),
@@ -287,39 +294,64 @@ def test_depth_of_field_jacobian_matches_central_differences(mode, spp, kernel, 
     ∂σ/∂Z · ∂Z/∂u). Against central differences of the oracle's blurred model image in float64
     (_blurred64, checked to be the rendered image to the σ rounding's effect) on every pixel whose
     window holds only pixels of one element in both renders and whose window radius stays the
-    same; the criterion of _against_central_differences. Leaving out the depth's part fails it
-    (checked)."""
+    same (_blurred_entries_agree). Leaving out the depth's part fails it (checked)."""
     scene, mesh = _plate(backend="cpu", mode=mode, samples_per_pixel=spp)
     scene = scene.replace(optics={**DOF, "kernel": kernel}, **({"lighting": LIGHTING} if lit else {}))
     with Renderer(scene, mesh=mesh) as r:
         res = r.render(0, 1, jacobian=True)
         J = res.jacobian.tocsc()
         deformed = mesh.deformed(1)
-        model, _, R0 = _blurred64(r, deformed)
+        model, _, R0, rounding = _blurred64(r, deformed)
         assert np.abs(model - res.image.ravel()).max() <= 1e-5
         win = 2 * int(R0.max()) + 1
         checked = 0
         for node in np.random.default_rng(7).choice(mesh.n_nodes, 5, replace=False):
             for c in range(3):
                 step = DELTA * (np.arange(3) == c) * (np.arange(mesh.n_nodes) == node)[:, None]
-                (plus, ep, Rp), (minus, em, Rm) = _blurred64(r, deformed + step), _blurred64(r, deformed - step)
-                fd = (plus - minus) / (2 * DELTA)
+                (plus, ep, Rp, _), (minus, em, Rm, _) = _blurred64(r, deformed + step), _blurred64(r, deformed - step)
                 col = J[:, 3 * node + c].toarray().ravel()
-                clean = minimum_filter(((ep == em) & (ep >= -1)).reshape(48, 64), size=win, mode="nearest").ravel()
-                clean &= ((Rp == R0) & (Rm == R0)).ravel()
-                floor = 1e-3 * np.abs(col).max()
-                assert np.all(np.abs(fd - col)[clean] <= 1e-4 * np.maximum(np.abs(col[clean]), floor))
-                checked += np.count_nonzero(col[clean])
+                checked += _blurred_entries_agree((plus - minus) / (2 * DELTA), col, ep, em, Rp, Rm, R0, win, rounding)
         assert checked > 100
 
 
-def test_depth_of_field_with_the_rig_or_a_rolling_shutter_is_refused_by_name():
+def test_rig_jacobian_through_the_depth_of_field_matches_central_differences():
+    """The rig Jacobian through the blur: a pose change moves the depths and so σ (J_z's rig
+    columns), the intrinsics and distortion move (ξ, η) and with it the depth. Every camera
+    parameter of the posed, skewed camera of test_rig_jacobian_matches_central_differences,
+    against central differences of _blurred64 of re-posed / re-calibrated cameras
+    (_blurred_entries_agree).
+    Leaving out the depth's rig columns fails the pose's (checked)."""
+    scene, mesh = _plate(backend="cpu", mode="exact", interpolation="bspline3")
+    cam = dataclasses.replace(scene.cameras[0], skew=0.7, R=rodrigues(np.array([0.02, -0.03, 0.01])), t=(1.0, -0.5, 3.0),
+                              distortion=Distortion(k1=-0.2, p1=1e-3, k4=0.05, s1=0.01))
+    with Renderer(scene.replace(cameras=(cam,), optics=DOF), mesh=mesh) as r:
+        J = r.render(0, 1, rig=True).rig_jacobian.toarray()
+        _, _, R0, rounding = _blurred64(r, mesh.deformed(1), cam)
+        win = 2 * int(R0.max()) + 1
+        for col, name in enumerate(jac.RIG_COLUMNS):
+            d = RIG_STEPS.get(name, 1e-5)
+            (plus, ep, Rp, _), (minus, em, Rm, _) = (_blurred64(r, mesh.deformed(1), _moved(cam, name, sign * d))
+                                                     for sign in (1, -1))
+            assert _blurred_entries_agree((plus - minus) / (2 * d), J[:, col], ep, em, Rp, Rm, R0, win, rounding), name
+
+
+def _blurred_entries_agree(fd, col, ep, em, Rp, Rm, R0, win: int, rounding: float) -> int:
+    """_against_central_differences' criterion for a blurred column ``col`` (W·H,) and its
+    central differences ``fd``, on the pixels whose window (``win`` px) holds one element in both
+    renders (``ep``, ``em``) and whose radius stays R0, plus ``rounding`` of the column's largest
+    entry (_blurred64); asserts, and returns the entries checked (non-zero)."""
+    clean = minimum_filter(((ep == em) & (ep >= -1)).reshape(48, 64), size=win, mode="nearest").ravel()
+    clean &= ((Rp == R0) & (Rm == R0)).ravel()
+    scale = np.abs(col).max()
+    assert scale > 0 and np.all(np.abs(fd - col)[clean] <= 1e-4 * np.maximum(np.abs(col[clean]), 1e-3 * scale)
+                                + rounding * scale)
+    return int(np.count_nonzero(col[clean]))
+
+
+def test_depth_of_field_with_a_rolling_shutter_is_refused_by_name():
     scene, mesh = _plate(backend="cpu")
-    with Renderer(scene.replace(optics=DOF), mesh=mesh) as r, \
-            pytest.raises(SceneError, match=r"^optics: .*rig.* — remove \[optics\], or render without rig"):
-        r.render(0, 1, rig=True)
     with Renderer(scene.replace(optics=DOF, sensor={"line_time": 1e-5}, exposure={"velocity": [1.0, 0.0, 0.0]}),
-                  mesh=mesh) as r, pytest.raises(SceneError, match=r"^optics: .*rolling shutter.* — remove \[optics\]"):
+                  mesh=mesh) as r, pytest.raises(SceneError, match=r"^optics: .*rolling shutter.* — remove \[optics\] or line_time"):
         r.render(0, 1, jacobian=True)
 
 
@@ -568,16 +600,15 @@ def test_gl_matches_the_oracle_over_an_exposure(gl_ctx, spp):
     _gl_against_oracle(gl_ctx, scene.replace(exposure=EXPOSURES["rigid"]), mesh)
 
 
-def _gl_against_oracle(gl_ctx, scene, mesh, rig: bool = True):
-    """GL's nodal and (``rig``) rig Jacobians within 1e-3 of the oracle's largest entry."""
+def _gl_against_oracle(gl_ctx, scene, mesh):
+    """GL's nodal and rig Jacobians within 1e-3 of the oracle's largest entry."""
     out = {}
     for backend in ("cpu", "gl"):
         with Renderer(scene, backend, ctx=gl_ctx if backend == "gl" else None, mesh=mesh) as r:
-            res = r.render(0, 1, jacobian=True, rig=rig)
+            res = r.render(0, 1, rig=True)
             out[backend], out[backend + " rig"] = res.jacobian, res.rig_jacobian
     assert abs(out["gl"] - out["cpu"]).max() <= 1e-3 * abs(out["cpu"]).max()
-    if rig:
-        assert abs(out["gl rig"] - out["cpu rig"]).max() <= 1e-3 * abs(out["cpu rig"]).max()
+    assert abs(out["gl rig"] - out["cpu rig"]).max() <= 1e-3 * abs(out["cpu rig"]).max()
 
 
 @pytest.mark.gl
@@ -585,10 +616,9 @@ def _gl_against_oracle(gl_ctx, scene, mesh, rig: bool = True):
 def test_gl_matches_the_oracle_through_the_depth_of_field(gl_ctx, spp):
     """The depth of field over an exposure (each sub-frame blurred with its own depths; GL's
     unblurred image is float32, as the oracle's, and its blur scheme does not enter: the
-    Jacobian is of the oracle's gather), lit: as above, nodal (the rig Jacobian refuses [optics])."""
+    Jacobian is of the oracle's gather), lit: as above."""
     scene, mesh = _plate(samples_per_pixel=spp)
-    _gl_against_oracle(gl_ctx, scene.replace(optics=DOF, lighting=LIGHTING, exposure=EXPOSURES["rigid"]), mesh,
-                       rig=False)
+    _gl_against_oracle(gl_ctx, scene.replace(optics=DOF, lighting=LIGHTING, exposure=EXPOSURES["rigid"]), mesh)
 
 
 @pytest.mark.gl

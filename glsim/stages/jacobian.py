@@ -49,8 +49,8 @@ CHUNK = 1 << 18          # samples differentiated at once (bounds memory: ~100 d
 
 def check_request(scene: Scene, opts: Render, rig: bool = False) -> None:
     """SceneError naming what ``jacobian=True`` cannot differentiate: a fill factor below 1 with
-    supersampling, [psf] or [optics] with a rolling shutter, [vignetting] or [optics] in the rig
-    Jacobian, mode fast, procedural interpolation (and any optional table not in UNREFUSED)."""
+    supersampling, [psf] or [optics] with a rolling shutter, [vignetting] in the rig Jacobian,
+    mode fast, procedural interpolation (and any optional table not in UNREFUSED)."""
     for f in dataclasses.fields(scene):
         if f.default is None and getattr(scene, f.name) is not None and f.name not in UNREFUSED:
             raise SceneError(f.name, "the image Jacobian does not differentiate this effect",
@@ -65,11 +65,10 @@ def check_request(scene: Scene, opts: Render, rig: bool = False) -> None:
         raise SceneError("psf", "with a rolling shutter (sensor.line_time) the image Jacobian is not made through the "
                          "PSF (each row is blurred in its own state)", "remove [psf] or line_time, or render without "
                          "jacobian")
-    if scene.optics is not None and (rig or (scene.sensor is not None and scene.sensor.line_time > 0)):
-        raise SceneError("optics", "the image Jacobian is not made through the depth of field " + (
-            "with respect to the rig (the depths, and so the blur, move with the pose)" if rig else
-            "with a rolling shutter (each row is blurred in its own state)"),
-            "remove [optics], or render without " + ("rig" if rig else "jacobian"))
+    if scene.optics is not None and scene.sensor is not None and scene.sensor.line_time > 0:
+        raise SceneError("optics", "the image Jacobian is not made through the depth of field with a rolling "
+                         "shutter (each row is blurred in its own state)", "remove [optics] or line_time, or render "
+                         "without jacobian")
     if rig and scene.vignetting is not None:
         raise SceneError("vignetting", "the rig Jacobian does not differentiate the vignetting gain (it varies with "
                          "the intrinsics and distortion)", "remove [vignetting], or render without rig")
@@ -240,15 +239,16 @@ def image_jacobian(cam: Camera, s: int, ref_cam: Camera, nodes: np.ndarray, defo
     (grey per px). A pixel's row is the mean of its s² samples' derivatives. ``shading``: the
     lighting's :class:`glsim.effects.lighting.ShadingTerms` (:func:`lit_sensitivities`). Returns
     it; if ``rig``, the W·H × 23 CSR Jacobian with respect to ``cam``'s parameters
-    (:func:`rig_derivatives`), else None; if ``depth``, (z, J_z): each sample's camera-frame depth
-    (flat, 0 on the background; mm) and the derivative of each pixel's depth — the mean of its
-    covered samples', what the depth of field blurs with — with respect to the nodal
-    displacements (W·H × 3·nodes, CSR, mm per mm), else None."""
+    (:func:`rig_derivatives`), else None; if ``depth``, (z, J_z, J_z rig): each sample's
+    camera-frame depth (flat, 0 on the background; mm) and the derivative of each pixel's depth —
+    the mean of its covered samples', what the depth of field blurs with — with respect to the
+    nodal displacements (W·H × 3·nodes, CSR, mm per mm) and, if ``rig``, the camera's parameters
+    (W·H × 23), else None."""
     W, H = cam.size
     scam = sample_camera(cam, s)
     R = cam.rotation
     hit = np.flatnonzero(raster["element"] >= 0)
-    parts, rig_parts, normal_parts, depth_parts = [], [], [], []
+    parts, rig_parts, normal_parts, depth_parts, depth_rig_parts = [], [], [], [], []
     shape = (W * H, 3 * len(nodes))
     if depth:
         z = np.zeros(len(raster["element"]))
@@ -275,7 +275,7 @@ def image_jacobian(cam: Camera, s: int, ref_cam: Camera, nodes: np.ndarray, defo
             Nz, Nz_xi, Nz_eta = _shape_derivatives(xi, eta, Xd.shape[1])
             z[idx] = np.einsum("nk,nk->n", Nz, Xd[..., 2])
             wz = np.column_stack([np.einsum("nk,nk->n", Nz_xi, Xd[..., 2]), np.einsum("nk,nk->n", Nz_eta, Xd[..., 2])])
-            cz = sensitivities(mode, wz, Xd, xi, eta, ray, scam)[2]
+            _, vz, cz = sensitivities(mode, wz, Xd, xi, eta, ray, scam)
             cz[..., 2] += Nz
             depth_parts.append(_node_part(cz, e, quads, patches, R, pixel, 1.0 / covered[pixel], shape))
         if rig:
@@ -283,13 +283,23 @@ def image_jacobian(cam: Camera, s: int, ref_cam: Camera, nodes: np.ndarray, defo
             values = rig_derivatives(mode, N, v, c, Xd, cam, s, q, ray)
             if shading is not None:
                 values[:, :6] += pose
-            values /= s * s
-            rig_parts.append(sparse.coo_matrix((values.ravel(), (np.repeat(pixel, 23), np.tile(np.arange(23), len(idx)))),
-                                               shape=(W * H, 23)).tocsr())
+            rig_parts.append(_rig_part(values / (s * s), pixel, W * H))
+            if depth:   # the depth in the camera's frame moves with its pose, and (ξ, η) with all its parameters
+                depth_rig_parts.append(_rig_part(rig_derivatives(mode, N, vz, cz, Xd, cam, s, q, ray)
+                                                 / covered[pixel][:, None], pixel, W * H))
     J = _total(parts, shape)
     if shading is not None:   # through the corner normals' own dependence on the nodes
         J = J + _total(normal_parts, (W * H, shading.D.shape[0])) @ shading.D
-    return J, _total(rig_parts, (W * H, 23)) if rig else None, (z, _total(depth_parts, shape)) if depth else None
+    rig_shape = (W * H, len(RIG_COLUMNS))
+    return (J, _total(rig_parts, rig_shape) if rig else None,
+            (z, _total(depth_parts, shape), _total(depth_rig_parts, rig_shape) if rig else None) if depth else None)
+
+
+def _rig_part(values, pixel, rows: int) -> sparse.csr_matrix:
+    """Per-sample rig derivatives (n, 23) as a CSR matrix (rows × 23), sample i in row ``pixel[i]``."""
+    return sparse.coo_matrix((values.ravel(), (np.repeat(pixel, values.shape[1]), np.tile(np.arange(values.shape[1]),
+                                                                                           len(pixel)))),
+                             shape=(rows, values.shape[1])).tocsr()
 
 
 def _node_part(c, e, quads, patches, R, pixel, weight, shape) -> sparse.csr_matrix:
