@@ -517,11 +517,14 @@ def test_quadratic_exposure_jacobian_matches_central_differences():
         assert checked > 50
 
 
-def test_rolling_shutter_jacobian_of_a_still_specimen_is_the_global_shutters():
+@pytest.mark.parametrize("lit", [False, True])
+def test_rolling_shutter_jacobian_of_a_still_specimen_is_the_global_shutters(lit):
     """A rolling shutter's rows are rendered by one-row cameras with the rows' own states: with
     the specimen still (velocity 0) each row's Jacobian is the global shutter's row, to rounding
-    (the one-row camera's rays are the full camera's), nodal and rig."""
+    (the one-row camera's rays are the full camera's), nodal and rig; ``lit``: each row's
+    normals' derivative made for that row's elements only (ShadingTerms.D)."""
     scene, mesh = _plate(backend="cpu", mode="exact")
+    scene = scene.replace(lighting=LIGHTING) if lit else scene
     with Renderer(scene, mesh=mesh) as r:
         still = r.render(0, 1, rig=True)
     with Renderer(scene.replace(exposure={"velocity": [0.0, 0.0, 0.0]}, sensor={"line_time": 1e-4}), mesh=mesh) as r:

@@ -201,17 +201,13 @@ def shading_terms(scene: Scene, nodes: np.ndarray, quads: np.ndarray, cam: Camer
     the reference interpolant's values). ``pieces``: a quadratic mesh's
     :class:`~glsim.scene.quadratic.Pieces` (``nodes``, ``quads``: theirs), whose normals the
     lighting interpolates."""
-    from scipy import sparse
-
     from glsim.effects import lighting as shade
 
     lit, quads = scene.lighting, np.asarray(quads, np.intp)
     flat = lit.normals == "flat"
     source = np.repeat(np.arange(len(quads))[:, None], 4, axis=1) if flat else quads
-    D = shade.normal_jacobian(nodes, quads, flat)
-    if pieces is not None:   # the pieces' nodes are weights of the mesh's
-        D = D @ sparse.kron(pieces.mesh.grid_matrix(), sparse.identity(3), format="csr")
-    return shade.ShadingTerms(lit, _camera_lights(lit, cam), corner_normals(nodes, quads, cam, flat), source, D, grey,
+    return shade.ShadingTerms(lit, _camera_lights(lit, cam), corner_normals(nodes, quads, cam, flat), source, nodes,
+                              quads, flat, None if pieces is None else pieces.mesh.grid_matrix(), grey,
                               0 if pieces is None else pieces.n)
 
 

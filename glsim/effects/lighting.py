@@ -374,17 +374,44 @@ class ShadingTerms:
     ``corners`` (M, 4, 3): the corner normals n_k in the camera frame (unit, as rendered) of
     the elements, or of a quadratic mesh's linear pieces (``pieces`` per side; the normal is
     interpolated over the piece holding the sample); ``source`` (M, 4): the row block of each
-    corner's normal in ``D`` (its node's, smooth; its element's, flat); ``D``: the normals'
-    derivative with respect to the mesh's nodes, world frame (:func:`normal_jacobian`, for
-    pieces chained through their nodes' weights); ``grey(uv)``: the reference interpolant's
-    values (a multiplicative combination needs them)."""
+    corner's normal in :meth:`D` (its node's, smooth; its element's, flat); ``nodes`` (world mm),
+    ``quads`` and ``flat``: what the normals are made from; ``grid``: the pieces' nodes as weights of the
+    mesh's (CSR) or None; ``grey(uv)``: the reference interpolant's values (a multiplicative
+    combination needs them)."""
     lighting: Any
     lights: LightArrays
     corners: np.ndarray
     source: np.ndarray
-    D: Any
+    nodes: np.ndarray
+    quads: np.ndarray
+    flat: bool
+    grid: Any
     grey: Any
     pieces: int = 0
+
+    @property
+    def sources(self) -> int:
+        """Row blocks of :meth:`D`: the elements' (flat) or the nodes' normals."""
+        return len(self.quads) if self.flat else len(self.nodes)
+
+    def D(self, needed):
+        """The normals' derivative with respect to the mesh's nodes, world frame (scipy CSR,
+        3·sources × 3·nodes; :func:`normal_jacobian`, for pieces chained through ``grid``), made
+        for the row blocks ``needed`` only (the others zero): from the elements whose normals
+        (flat) or whose corners' normals (smooth) they are — a rolling shutter's row needs few."""
+        from scipy import sparse
+
+        quads, needed = np.asarray(self.quads, np.intp), np.unique(needed)
+        if self.flat:
+            block = normal_jacobian(self.nodes, quads[needed], True).tocoo()
+            rows = 3 * needed[block.row // 3] + block.row % 3
+            D = sparse.csr_matrix((block.data, (rows, block.col)), shape=(3 * len(quads), 3 * len(self.nodes)))
+        else:
+            keep = np.zeros(len(self.nodes), bool)
+            keep[needed] = True
+            D = sparse.diags(np.repeat(keep, 3).astype(np.float64)) @ normal_jacobian(
+                self.nodes, quads[keep[quads].any(axis=1)], False)
+        return D if self.grid is None else D @ sparse.kron(self.grid, sparse.identity(3), format="csr")
 
     def normals_at(self, e, xi, eta):
         """The interpolated normal Ñ (n, 3, camera frame) at element e's (ξ, η), ∂Ñ/∂(ξ, η)

@@ -248,7 +248,7 @@ def image_jacobian(cam: Camera, s: int, ref_cam: Camera, nodes: np.ndarray, defo
     scam = sample_camera(cam, s)
     R = cam.rotation
     hit = np.flatnonzero(raster["element"] >= 0)
-    parts, rig_parts, normal_parts, depth_parts, depth_rig_parts = [], [], [], [], []
+    parts, rig_parts, normal_parts, depth_parts, depth_rig_parts, needed = [], [], [], [], [], []
     shape = (W * H, 3 * len(nodes))
     if depth:
         z = np.zeros(len(raster["element"]))
@@ -269,7 +269,8 @@ def image_jacobian(cam: Camera, s: int, ref_cam: Camera, nodes: np.ndarray, defo
             N, v, c, dn, src, pose = lit_sensitivities(mode, w, Xd, xi, eta, ray, scam, shading, e, r)
             cols = (3 * src[..., None] + np.arange(3)).ravel()
             normal_parts.append(sparse.coo_matrix(((dn @ R).ravel() / (s * s), (np.repeat(pixel, 12), cols)),
-                                                  shape=(W * H, shading.D.shape[0])).tocsr())
+                                                  shape=(W * H, 3 * shading.sources)).tocsr())
+            needed.append(np.unique(src))
         parts.append(_node_part(c, e, quads, patches, R, pixel, np.full(len(idx), 1.0 / (s * s)), shape))
         if depth:   # z = Σ N_k Z_k, through (ξ, η) and directly
             Nz, Nz_xi, Nz_eta = _shape_derivatives(xi, eta, Xd.shape[1])
@@ -288,8 +289,8 @@ def image_jacobian(cam: Camera, s: int, ref_cam: Camera, nodes: np.ndarray, defo
                 depth_rig_parts.append(_rig_part(rig_derivatives(mode, N, vz, cz, Xd, cam, s, q, ray)
                                                  / covered[pixel][:, None], pixel, W * H))
     J = _total(parts, shape)
-    if shading is not None:   # through the corner normals' own dependence on the nodes
-        J = J + _total(normal_parts, (W * H, shading.D.shape[0])) @ shading.D
+    if shading is not None and normal_parts:   # through the corner normals' own dependence on the nodes
+        J = J + _total(normal_parts, (W * H, 3 * shading.sources)) @ shading.D(np.concatenate(needed))
     rig_shape = (W * H, len(RIG_COLUMNS))
     return (J, _total(rig_parts, rig_shape) if rig else None,
             (z, _total(depth_parts, shape), _total(depth_rig_parts, rig_shape) if rig else None) if depth else None)
@@ -319,7 +320,7 @@ def lit_sensitivities(mode: str, w, Xd, xi, eta, ray, cam: Camera, shading, e, r
     ``shading.normals_at``) move with (ξ, η) and with the nodes, so ∂g'/∂(ξ, η) = ∂g'/∂g·w +
     ∂g'/∂X·∂X/∂(ξ, η) + ∂g'/∂Ñ·∂Ñ/∂(ξ, η) enters the implicit differentiation, and the corners
     gain ∂g'/∂X·N_k. Also returns dn (n, 4, 3): ∂g'/∂n_j, camera frame, and src (n, 4): the
-    normals' rows in ``shading.D`` (their own derivatives), and what
+    normals' row blocks in ``shading.D`` (their own derivatives), and what
     the lighting adds to :func:`rig_derivatives`' pose columns (n, 6: ω, τ): a pose change moves
     the corners, normals and lights alike, δY = ω × (Y − t) + τ, which leaves I unchanged but for
     the view direction — its rotation about the camera changes nothing and its translation
