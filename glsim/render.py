@@ -203,12 +203,13 @@ class Renderer:
         return dataclasses.replace(res, truth=res.truth if truth else None,
                                    **self._through_camera_effects(res.camera, J, J_rig))
 
-    def _through_camera_effects(self, cam: Camera, J, J_rig) -> dict:
+    def _through_camera_effects(self, cam: Camera, J, J_rig, stages=None) -> dict:
         """``jacobian`` and ``rig_jacobian`` of ``cam``'s image from the raster's: through the
-        camera effects that act on the image linearly (:func:`glsim.effects.through_camera_effects`)."""
+        camera effects that act on the image linearly (:func:`glsim.effects.through_camera_effects`;
+        ``stages``: only those)."""
         index = self.scene.cameras.index(self.scene.camera(cam.name))
-        return {"jacobian": through_camera_effects(J, self.scene, cam, index),
-                "rig_jacobian": None if J_rig is None else through_camera_effects(J_rig, self.scene, cam, index)}
+        return {"jacobian": through_camera_effects(J, self.scene, cam, index, stages),
+                "rig_jacobian": None if J_rig is None else through_camera_effects(J_rig, self.scene, cam, index, stages)}
 
     def _moving(self, camera, step: int, truth: bool, quantize: bool, jacobian: bool, rig: bool,
                 options: dict) -> Result:
@@ -232,8 +233,7 @@ class Renderer:
                       for tau in taus]
             images.append(sum(out.image.astype(np.float64) for out, _ in frames) / len(taus))
             if jacobian:
-                c = cam if row is None else motion.row_band(cam, row)[0]
-                Js, rigs = zip(*(self._jacobian(c, step, opts, out.samples if one else None, rig, tl, t + tau)
+                Js, rigs = zip(*(self._sub_jacobian(cam, step, opts, out.samples if one else None, rig, tl, t + tau, row)
                                  for (out, _), tau in zip(frames, taus)))
                 jacobians.append((sum(Js) / len(taus), sum(rigs) / len(taus) if rig else None))
             if truth:
@@ -260,10 +260,40 @@ class Renderer:
         if jacobian:
             J = sparse.csr_matrix(sparse.vstack([j for j, _ in jacobians]))
             J_rig = sparse.csr_matrix(sparse.vstack([r for _, r in jacobians])) if rig else None
-            derivatives = self._through_camera_effects(cam, J, J_rig)
+            derivatives = self._through_camera_effects(cam, J, J_rig, ("prnu",) if line > 0 and self._banded else None)
         return Result(image=quantize_image(image, cam.bit_depth) if quantize else image, camera=cam, step=step,
                       backend=self.backend_name, options=opts, seconds=time.perf_counter() - t0,
                       truth=self._stack(truths) if truth else None, stages=stages, specimen=specimen, **derivatives)
+
+    @property
+    def _banded(self) -> bool:
+        """Whether a rolling shutter's rows are rendered as bands (:meth:`_frame`): the depth of
+        field or the PSF move light between rows."""
+        return self.scene.optics is not None or self.scene.psf is not None
+
+    def _row_band(self, cam: Camera, step: int, state, nodes: np.ndarray, row: int):
+        """A rolling shutter's ``row`` as the band of rows whose light the depth of field and the
+        PSF move into it at this state's depths (:func:`glsim.effects.spread`): the band's camera,
+        the row's index in it, and the corner depths (mm; empty without [optics])."""
+        view = self.geometry.view(cam, step, state, nodes)
+        depths = view.corner_depths() if self.scene.optics is not None else np.empty(0)
+        return (*motion.row_band(cam, row, spread_rows(self.scene, depths)), depths)
+
+    def _sub_jacobian(self, cam: Camera, step: int, opts: Render, raster: dict | None, rig: bool,
+                      tl: "motion.Timeline", tau: float, row: int | None):
+        """One sub-frame's (J, J_rig) in :meth:`_moving`: of ``cam``, or of a rolling shutter's
+        ``row`` — the row's one-row camera with its own ``raster``, or, where the rows are
+        banded, the band's Jacobian (its raster rendered), through its depth of field, vignetting
+        and PSF as the band is rendered, cut to the row."""
+        if row is None or not self._banded:
+            return self._jacobian(cam if row is None else motion.row_band(cam, row)[0], step, opts, raster, rig, tl, tau)
+        band, at, _ = self._row_band(cam, step, None if tau == 0 else float(tau), tl.at(tau, self.drawn_mesh.deformed),
+                                     row)
+        J, J_rig = self._jacobian(band, step, opts, None, rig, tl, tau)
+        index = self.scene.cameras.index(self.scene.camera(cam.name))
+        rows = slice(at * cam.width, (at + 1) * cam.width)
+        return (through_camera_effects(J, self.scene, band, index, ("vignetting", "psf"))[rows],
+                None if J_rig is None else through_camera_effects(J_rig, self.scene, band, index, ("vignetting", "psf"))[rows])
 
     def _frame(self, cam: Camera, step: int, tau: float, tl: "motion.Timeline", opts: Render, truth: bool,
                row: int | None = None):
@@ -274,11 +304,12 @@ class Renderer:
         mesh, state = self.drawn_mesh, None if tau == 0 else float(tau)
         nodes = tl.at(tau, mesh.deformed)
         curved = self._curved(opts, step, tl, tau)
-        view = self.geometry.view(cam, step, state, nodes)
-        depths = view.corner_depths() if self.scene.optics is not None else np.empty(0)
         index = self.scene.cameras.index(self.scene.camera(cam.name))   # (a band camera has its camera's name)
-        if row is not None:
-            cam, at = motion.row_band(cam, row, spread_rows(self.scene, depths))
+        if row is None:
+            view = self.geometry.view(cam, step, state, nodes)
+            depths = view.corner_depths() if self.scene.optics is not None else np.empty(0)
+        else:
+            cam, at, depths = self._row_band(cam, step, state, nodes, row)
             view = self.geometry.view(cam, step, state, nodes)
         fx = prepare_effects(self.scene, nodes, mesh.quads, cam, index, step, depths,
                              normals=not self.backend.capabilities.device_geometry)

@@ -119,21 +119,26 @@ def through_blur(J, J_depth, image: np.ndarray, depth: np.ndarray, optics: Optic
     return sparse.csr_matrix(C @ J + sparse.diags(d * dof.size_derivative(depth, optics).ravel()) @ J_depth)
 
 
-def through_camera_effects(J, scene: Scene, cam: Camera, camera_index: int):
+CAMERA_STAGES = ("vignetting", "psf", "prnu")
+
+
+def through_camera_effects(J, scene: Scene, cam: Camera, camera_index: int, stages=None):
     """An image Jacobian ``J`` (W·H × n, sparse; glsim.stages.jacobian) of the image before the
     camera effects → of the image after those of them that act on it linearly and do not move
     with the nodes, in the pipeline's order (docs/camera.md): vignetting's gain per pixel, the
     lens PSF (a convolution, clamp to edge: :func:`glsim.effects.psf.matrix`), the PRNU's gain;
-    the DSNU adds an offset (no derivative). SceneError naming [psf] where the PSF's product
-    would need more memory than this process may use."""
+    the DSNU adds an offset (no derivative); ``stages``: only those of CAMERA_STAGES (a rolling
+    shutter's band takes vignetting and the PSF, its whole image the PRNU). SceneError naming
+    [psf] where the PSF's product would need more memory than this process may use."""
     from scipy import sparse
 
     W, H = cam.size
-    if scene.vignetting is not None:
+    stages = CAMERA_STAGES if stages is None else stages
+    if scene.vignetting is not None and "vignetting" in stages:
         from glsim.effects.vignetting import flat_field
 
         J = sparse.diags(flat_field(cam, scene.vignetting).ravel()) @ J
-    if scene.psf is not None:
+    if scene.psf is not None and "psf" in stages:
         from glsim.effects import psf
         from glsim.limits import memory_budget
 
@@ -146,7 +151,7 @@ def through_camera_effects(J, scene: Scene, cam: Camera, camera_index: int):
                              "render a smaller camera (a region of interest), give a narrower PSF, or render "
                              "without jacobian")
         J = psf.matrix(k, (W, H)) @ J
-    if scene.sensor is not None and scene.sensor.prnu > 0:
+    if scene.sensor is not None and scene.sensor.prnu > 0 and "prnu" in stages:
         from glsim.effects import noise
 
         gain = noise.prnu_gain((H, W), scene.sensor.prnu, noise.fixed_pattern_seed(scene.seed, camera_index))

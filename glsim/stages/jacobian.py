@@ -49,8 +49,8 @@ CHUNK = 1 << 18          # samples differentiated at once (bounds memory: ~100 d
 
 def check_request(scene: Scene, opts: Render, rig: bool = False) -> None:
     """SceneError naming what ``jacobian=True`` cannot differentiate: a fill factor below 1 with
-    supersampling, [psf] or [optics] with a rolling shutter, [vignetting] in the rig Jacobian,
-    mode fast, procedural interpolation (and any optional table not in UNREFUSED)."""
+    supersampling, [vignetting] in the rig Jacobian, mode fast, procedural interpolation (and any
+    optional table not in UNREFUSED)."""
     for f in dataclasses.fields(scene):
         if f.default is None and getattr(scene, f.name) is not None and f.name not in UNREFUSED:
             raise SceneError(f.name, "the image Jacobian does not differentiate this effect",
@@ -60,14 +60,6 @@ def check_request(scene: Scene, opts: Render, rig: bool = False) -> None:
                          "per pixel the image Jacobian's samples are a finer camera's pixel grid, and a fill factor "
                          "below 1 moves them (at 1 sample per pixel it does not)", "set fill_factor = 1, or "
                          "samples_per_pixel = 1, or render "
-                         "without jacobian")
-    if scene.psf is not None and scene.sensor is not None and scene.sensor.line_time > 0:
-        raise SceneError("psf", "with a rolling shutter (sensor.line_time) the image Jacobian is not made through the "
-                         "PSF (each row is blurred in its own state)", "remove [psf] or line_time, or render without "
-                         "jacobian")
-    if scene.optics is not None and scene.sensor is not None and scene.sensor.line_time > 0:
-        raise SceneError("optics", "the image Jacobian is not made through the depth of field with a rolling "
-                         "shutter (each row is blurred in its own state)", "remove [optics] or line_time, or render "
                          "without jacobian")
     if rig and scene.vignetting is not None:
         raise SceneError("vignetting", "the rig Jacobian does not differentiate the vignetting gain (it varies with "
