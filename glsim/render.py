@@ -201,15 +201,27 @@ class Renderer:
                   "eta": res.truth.eta.ravel()} if one else None
         J, J_rig = self._jacobian(res.camera, step, opts, raster, rig)
         return dataclasses.replace(res, truth=res.truth if truth else None,
-                                   **self._through_camera_effects(res.camera, J, J_rig))
+                                   **self._through_camera_effects(res.camera, J, J_rig,
+                                                                  gain_term=self._gain_term(res.camera, step, opts, rig)))
 
-    def _through_camera_effects(self, cam: Camera, J, J_rig, stages=None) -> dict:
+    def _gain_term(self, cam: Camera, step: int, opts: Render, rig: bool):
+        """The rig Jacobian's share of the vignetting gain's own change with the intrinsics and
+        distortion: diag(the image before vignetting) · ∂gain/∂params (W·H × 23, CSR), or None."""
+        if not rig or self.scene.vignetting is None:
+            return None
+        from glsim.effects.vignetting import flat_field_rig_jacobian
+
+        before = self._image_before(cam, step, opts, None, 0.0, blur=True)
+        return sparse.csr_matrix(before.reshape(-1, 1) * flat_field_rig_jacobian(cam, self.scene.vignetting))
+
+    def _through_camera_effects(self, cam: Camera, J, J_rig, stages=None, gain_term=None) -> dict:
         """``jacobian`` and ``rig_jacobian`` of ``cam``'s image from the raster's: through the
         camera effects that act on the image linearly (:func:`glsim.effects.through_camera_effects`;
-        ``stages``: only those)."""
+        ``stages``: only those; ``gain_term``: the rig Jacobian's vignetting-gain share)."""
         index = self.scene.cameras.index(self.scene.camera(cam.name))
         return {"jacobian": through_camera_effects(J, self.scene, cam, index, stages),
-                "rig_jacobian": None if J_rig is None else through_camera_effects(J_rig, self.scene, cam, index, stages)}
+                "rig_jacobian": None if J_rig is None else through_camera_effects(J_rig, self.scene, cam, index, stages,
+                                                                                  gain_term)}
 
     def _moving(self, camera, step: int, truth: bool, quantize: bool, jacobian: bool, rig: bool,
                 options: dict) -> Result:
@@ -352,22 +364,24 @@ class Renderer:
             n = J.shape[1]
             out = through_blur(J if J_rig is None else sparse.hstack([J, J_rig], format="csr"),
                                J_z if J_rig is None else sparse.hstack([J_z, J_z_rig], format="csr"),
-                               self._unblurred(cam, step, opts, tl, tau), dof.pixel_depth(z, H, W, s), self.scene.optics)
+                               self._image_before(cam, step, opts, tl, tau, blur=False), dof.pixel_depth(z, H, W, s),
+                               self.scene.optics)
             J, J_rig = (out, None) if J_rig is None else (out[:, :n], out[:, n:])
         if tl is not None:   # ∂g/∂u_k = ∂g/∂X(τ) · ∂X(τ)/∂X_k, per node
             J = J @ sparse.kron(sparse.identity(mesh.n_nodes), tl.derivative(tau), format="csr")
         return J, J_rig
 
-    def _unblurred(self, cam: Camera, step: int, opts: Render, tl, tau: float) -> np.ndarray:
+    def _image_before(self, cam: Camera, step: int, opts: Render, tl, tau: float, blur: bool) -> np.ndarray:
         """``cam``'s image (H, W) float64 at ``step`` (or the state τ s from it on ``tl``) before
-        the depth of field: lit, supersampled, without the camera effects and noise."""
+        the camera effects and noise: lit, supersampled, and with its depth of field if ``blur``."""
         state = None if tl is None or tau == 0 else float(tau)
         nodes = self.drawn_mesh.deformed(step) if tl is None else tl.at(tau, self.drawn_mesh.deformed)
         view = self.geometry.view(cam, step, state, None if tl is None else nodes)
         index = self.scene.cameras.index(self.scene.camera(cam.name))
         fx = prepare_effects(self.scene, nodes, self.drawn_mesh.quads, cam, index, step, view.corner_depths(),
                              normals=not self.backend.capabilities.device_geometry)
-        fx = dataclasses.replace(fx, optics=None, sigma_max=0.0, noise=None, sensor=None, vignette=None, psf=None)
+        fx = dataclasses.replace(fx, noise=None, sensor=None, vignette=None, psf=None,
+                                 **({} if blur else {"optics": None, "sigma_max": 0.0}))
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
             out = self.backend.render(Request(view, opts, False, fx, self._curved(opts, step, tl, tau)))

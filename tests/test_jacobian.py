@@ -197,23 +197,34 @@ def _moved(cam, name: str, d: float):
     return dataclasses.replace(cam, distortion=Distortion.from_opencv(cam.distortion.coeffs + d * np.eye(12)[col - 11]))
 
 
-@pytest.mark.parametrize("mode, spp, lit", [("exact", 1, False), ("q4", 4, False), ("exact", 1, True)])
-def test_rig_jacobian_matches_central_differences(mode, spp, lit):
+@pytest.mark.parametrize("mode, spp, extra", [("exact", 1, None), ("q4", 4, None), ("exact", 1, "lit"),
+                                              ("exact", 1, "vignetted")])
+def test_rig_jacobian_matches_central_differences(mode, spp, extra):
     """Every camera parameter (pose, intrinsics, the 12 distortion coefficients) of a posed, skewed
-    camera; bspline3 (C², so no kink of the kernel's second derivative in the differences); ``lit``:
+    camera; bspline3 (C², so no kink of the kernel's second derivative in the differences); lit:
     with LIGHTING (the lights stay in the world as the pose changes; smooth normals, multiplicative),
-    which the pose columns fail without the lighting's pose terms (checked)."""
+    which the pose columns fail without the lighting's pose terms (checked); vignetted: the image
+    times the re-posed camera's own flat field (its gain moves with the intrinsics and distortion:
+    fails without that term, checked)."""
+    from glsim.effects.vignetting import flat_field
+
     scene, mesh = _plate(backend="cpu", mode=mode, samples_per_pixel=spp, interpolation="bspline3")
     cam = dataclasses.replace(scene.cameras[0], skew=0.7, R=rodrigues(np.array([0.02, -0.03, 0.01])), t=(1.0, -0.5, 3.0),
                               distortion=Distortion(k1=-0.2, p1=1e-3, k4=0.05, s1=0.01))
-    scene = scene.replace(cameras=(cam,), **({"lighting": {**LIGHTING, "combine": "multiplicative"}} if lit else {}))
+    scene = scene.replace(cameras=(cam,), **({"lighting": {**LIGHTING, "combine": "multiplicative"}} if extra == "lit"
+                                             else {"vignetting": CAMERA_EFFECTS["vignetting"]} if extra else {}))
+
+    def image(c):
+        grey, one = _image64(r, mesh.deformed(1), c)
+        return (grey * flat_field(c, r.scene.vignetting).ravel() if r.scene.vignetting else grey), one
+
     with Renderer(scene, mesh=mesh) as r:
         res = r.render(0, 1, rig=True)
         assert res.jacobian.shape == (64 * 48, 3 * mesh.n_nodes) and res.rig_jacobian.shape == (64 * 48, 23)
         J = res.rig_jacobian.toarray()
         for col, name in enumerate(jac.RIG_COLUMNS):
             d = RIG_STEPS.get(name, 1e-5)
-            (plus, ep), (minus, em) = (_image64(r, mesh.deformed(1), _moved(cam, name, sign * d)) for sign in (1, -1))
+            (plus, ep), (minus, em) = (image(_moved(cam, name, sign * d)) for sign in (1, -1))
             same = (ep == em) & (ep >= -1)
             fd = (plus - minus)[same] / (2 * d)
             floor = 1e-3 * np.abs(J[:, col]).max()
@@ -548,7 +559,8 @@ def test_the_psf_matrix_is_the_convolution():
 
 @pytest.mark.parametrize("change, rig, key", [({"sensor": {"fill_factor": 0.5}, "render": {"samples_per_pixel": 4}},
                                                False, "sensor.fill_factor"),
-                                              ({"vignetting": {"natural": True}}, True, "vignetting")])
+                                              ({"vignetting": {"natural": True}, "exposure": EXPOSURES["rigid"]}, True,
+                                               "vignetting")])
 def test_what_the_camera_effects_jacobian_leaves_out_is_refused_by_name(change, rig, key):
     scene, mesh = _plate(backend="cpu")
     with Renderer(scene.replace(**change), mesh=mesh) as r, pytest.raises(SceneError, match=rf"^{key}: .* — "):
@@ -587,9 +599,10 @@ def test_gl_matches_the_oracle(gl_ctx, mode, spp):
 
 @pytest.mark.gl
 def test_gl_matches_the_oracle_through_camera_effects(gl_ctx):
-    """The PSF and fixed-pattern noise (the rig Jacobian refuses vignetting): as above."""
+    """Vignetting, the PSF and fixed-pattern noise (the rig's vignetting-gain term from each
+    backend's own image before the camera effects): as above."""
     scene, mesh = _plate()
-    _gl_against_oracle(gl_ctx, scene.replace(psf=CAMERA_EFFECTS["psf"], sensor=CAMERA_EFFECTS["sensor"]), mesh)
+    _gl_against_oracle(gl_ctx, scene.replace(**CAMERA_EFFECTS), mesh)
 
 
 @pytest.mark.gl

@@ -122,14 +122,16 @@ def through_blur(J, J_depth, image: np.ndarray, depth: np.ndarray, optics: Optic
 CAMERA_STAGES = ("vignetting", "psf", "prnu")
 
 
-def through_camera_effects(J, scene: Scene, cam: Camera, camera_index: int, stages=None):
+def through_camera_effects(J, scene: Scene, cam: Camera, camera_index: int, stages=None, gain_term=None):
     """An image Jacobian ``J`` (W·H × n, sparse; glsim.stages.jacobian) of the image before the
     camera effects → of the image after those of them that act on it linearly and do not move
     with the nodes, in the pipeline's order (docs/camera.md): vignetting's gain per pixel, the
     lens PSF (a convolution, clamp to edge: :func:`glsim.effects.psf.matrix`), the PRNU's gain;
     the DSNU adds an offset (no derivative); ``stages``: only those of CAMERA_STAGES (a rolling
-    shutter's band takes vignetting and the PSF, its whole image the PRNU). SceneError naming
-    [psf] where the PSF's product would need more memory than this process may use."""
+    shutter's band takes vignetting and the PSF, its whole image the PRNU); ``gain_term``: what
+    the vignetting gain's own change adds after its stage (a rig Jacobian's diag(image)·∂gain).
+    SceneError naming [psf] where the PSF's product would need more memory than this process may
+    use."""
     from scipy import sparse
 
     W, H = cam.size
@@ -138,6 +140,8 @@ def through_camera_effects(J, scene: Scene, cam: Camera, camera_index: int, stag
         from glsim.effects.vignetting import flat_field
 
         J = sparse.diags(flat_field(cam, scene.vignetting).ravel()) @ J
+        if gain_term is not None:
+            J = J + gain_term
     if scene.psf is not None and "psf" in stages:
         from glsim.effects import psf
         from glsim.limits import memory_budget

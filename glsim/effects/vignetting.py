@@ -37,3 +37,26 @@ def gain(cam: Camera, natural: bool, radial: tuple[float, ...]) -> np.ndarray:
 def flat_field(cam: Camera, vignetting) -> np.ndarray:
     """The scene's [vignetting] gain of ``cam`` (H, W) float64: the flat-field image."""
     return gain(cam, vignetting.natural, tuple(vignetting.radial))
+
+
+def flat_field_rig_jacobian(cam: Camera, vignetting) -> np.ndarray:
+    """∂(:func:`flat_field`)/∂(``cam``'s parameters) (H·W, 23) in the rig Jacobian's columns
+    (glsim.stages.jacobian.RIG_COLUMNS): the gain moves with the rays' x_n as the intrinsics
+    and distortion move them (∂g/∂r² · 2 x_n · ∂x_n/∂params); the pose does not move it; 0 where
+    the pixel has no ray."""
+    from glsim.stages.jacobian import RIG_COLUMNS, ray_parameter_jacobian
+
+    q = pixel_grid(cam).reshape(-1, 2)
+    xn, ok = undistort(pixel_to_normalized(q, cam.intrinsics), cam.distortion.coeffs)
+    r2 = xn[:, 0] ** 2 + xn[:, 1] ** 2
+    radial = tuple(vignetting.radial)
+    poly = 1.0 + sum(a * r2 ** (k + 1) for k, a in enumerate(radial))
+    dpoly = sum((k + 1) * a * r2 ** k for k, a in enumerate(radial))
+    if vignetting.natural:
+        f, df = 1.0 / (1.0 + r2) ** 2, -2.0 / (1.0 + r2) ** 3
+    else:
+        f, df = np.ones_like(r2), np.zeros_like(r2)
+    dg = np.where(ok, df * poly + f * dpoly, 0.0)
+    out = np.zeros((len(q), len(RIG_COLUMNS)))
+    out[:, 6:] = np.einsum("n,nl,nlp->np", 2.0 * dg, xn, ray_parameter_jacobian(cam, q, xn))
+    return out

@@ -49,8 +49,8 @@ CHUNK = 1 << 18          # samples differentiated at once (bounds memory: ~100 d
 
 def check_request(scene: Scene, opts: Render, rig: bool = False) -> None:
     """SceneError naming what ``jacobian=True`` cannot differentiate: a fill factor below 1 with
-    supersampling, [vignetting] in the rig Jacobian, mode fast, procedural interpolation (and any
-    optional table not in UNREFUSED)."""
+    supersampling, [vignetting] in the rig Jacobian over an exposure, mode fast, procedural
+    interpolation (and any optional table not in UNREFUSED)."""
     for f in dataclasses.fields(scene):
         if f.default is None and getattr(scene, f.name) is not None and f.name not in UNREFUSED:
             raise SceneError(f.name, "the image Jacobian does not differentiate this effect",
@@ -61,9 +61,10 @@ def check_request(scene: Scene, opts: Render, rig: bool = False) -> None:
                          "below 1 moves them (at 1 sample per pixel it does not)", "set fill_factor = 1, or "
                          "samples_per_pixel = 1, or render "
                          "without jacobian")
-    if rig and scene.vignetting is not None:
-        raise SceneError("vignetting", "the rig Jacobian does not differentiate the vignetting gain (it varies with "
-                         "the intrinsics and distortion)", "remove [vignetting], or render without rig")
+    if rig and scene.vignetting is not None and scene.exposure is not None:
+        raise SceneError("vignetting", "over an exposure the rig Jacobian does not differentiate the vignetting gain "
+                         "(it varies with the intrinsics and distortion)", "remove [vignetting] or [exposure], or "
+                         "render without rig")
     if opts.mode not in MODES:
         raise SceneError("render.mode", f"the image Jacobian differentiates modes {' and '.join(MODES)}, "
                          f"not {opts.mode!r} (its triangles interpolate the reference point linearly)",
@@ -178,15 +179,8 @@ def rig_derivatives(mode: str, N, v, c, Xd, cam: Camera, s: int, q=None, ray=Non
     out[:, 3:6] = c.sum(axis=1)
     out[:, 0:3] = np.cross(Y, c).sum(axis=1)
     if mode == "exact":
-        xd = pixel_to_normalized(q, cam.intrinsics)
-        dxd = np.zeros((len(v), 2, 5))        # ∂xd/∂(fx, fy, cx, cy, skew)
-        dxd[:, 1, 1], dxd[:, 1, 3] = -xd[:, 1] / fy, -1.0 / fy
-        dxd[:, 0, 0], dxd[:, 0, 2], dxd[:, 0, 4] = -xd[:, 0] / fx, -1.0 / fx, -xd[:, 1] / fx
-        dxd[:, 0, 1], dxd[:, 0, 3] = -skew * dxd[:, 1, 1] / fx, -skew * dxd[:, 1, 3] / fx
         Pz = np.einsum("nk,nk->n", N, Xd[..., 2])
-        b = _left_solve(v * Pz[:, None], distort_jacobian(ray, k))
-        out[:, 6:11] = np.einsum("nl,nlp->np", b, dxd)
-        out[:, 11:] = -np.einsum("nl,nlp->np", b, distortion_coefficient_jacobian(ray, k))
+        out[:, 6:] = np.einsum("nl,nlp->np", v * Pz[:, None], ray_parameter_jacobian(cam, q, ray))
         return out
     xn = Xd[..., :2] / Xd[..., 2:3]
     xdk = distort(xn, k)
@@ -198,6 +192,27 @@ def rig_derivatives(mode: str, N, v, c, Xd, cam: Camera, s: int, q=None, ray=Non
     out[:, 6:11] = -s * np.einsum("nl,nk,nklp->np", v, N, dpi)
     out[:, 11:] = -s * np.einsum("nl,nk,nklp->np", v, N, dpik)
     return out
+
+
+def ray_parameter_jacobian(cam: Camera, q, ray=None) -> np.ndarray:
+    """∂x_n/∂(intrinsics, distortion) (n, 2, 17), in RIG_COLUMNS' order from ``fx``, of the
+    undistorted normalized rays x_n = undistort(K⁻¹q) of ``cam``'s pixel points q (n, 2):
+    (∂distort/∂x_n)⁻¹ (∂x_d/∂(fx, fy, cx, cy, skew) | −∂distort/∂k); 0 where the distortion's
+    Jacobian is singular. ``ray``: the rays, if known."""
+    k = cam.distortion.coeffs
+    fx, fy, skew = cam.fx, cam.fy, cam.skew
+    ray = sample_rays(cam, None, q) if ray is None else ray
+    xd = pixel_to_normalized(q, cam.intrinsics)
+    dxd = np.zeros((len(q), 2, 17))
+    dxd[:, 1, 1], dxd[:, 1, 3] = -xd[:, 1] / fy, -1.0 / fy
+    dxd[:, 0, 0], dxd[:, 0, 2], dxd[:, 0, 4] = -xd[:, 0] / fx, -1.0 / fx, -xd[:, 1] / fx
+    dxd[:, 0, 1], dxd[:, 0, 3] = -skew * dxd[:, 1, 1] / fx, -skew * dxd[:, 1, 3] / fx
+    dxd[:, :, 5:] = -distortion_coefficient_jacobian(ray, k)
+    M = distort_jacobian(ray, k)
+    det = M[:, 0, 0] * M[:, 1, 1] - M[:, 0, 1] * M[:, 1, 0]
+    inv = np.stack([np.stack([M[:, 1, 1], -M[:, 0, 1]], -1), np.stack([-M[:, 1, 0], M[:, 0, 0]], -1)], 1)
+    inv = np.divide(inv, det[:, None, None], out=np.zeros_like(inv), where=det[:, None, None] != 0)
+    return inv @ dxd
 
 
 def reference_point(mode: str, Xr, ref_cam: Camera, xi, eta):
@@ -213,10 +228,11 @@ def reference_point(mode: str, Xr, ref_cam: Camera, xi, eta):
     return at(corners, xi, eta), _tangents(N_xi, N_eta, corners)
 
 
-def sample_rays(cam: Camera, index: np.ndarray) -> np.ndarray:
-    """Undistorted normalized rays (n, 2) of ``cam``'s pixels at flat indices ``index``."""
+def sample_rays(cam: Camera, index: np.ndarray | None, q=None) -> np.ndarray:
+    """Undistorted normalized rays (n, 2) of ``cam``'s pixels at flat indices ``index`` (or at
+    the pixel points ``q`` (n, 2))."""
     W, _ = cam.size
-    q = np.column_stack([index % W, index // W]).astype(np.float64)
+    q = np.column_stack([index % W, index // W]).astype(np.float64) if q is None else q
     return undistort(pixel_to_normalized(q, cam.intrinsics), cam.distortion.coeffs)[0]
 
 
