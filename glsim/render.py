@@ -218,7 +218,7 @@ class Renderer:
         """``jacobian`` and ``rig_jacobian`` of ``cam``'s image from the raster's: through the
         camera effects that act on the image linearly (:func:`glsim.effects.through_camera_effects`;
         ``stages``: only those; ``gain_term``: the rig Jacobian's vignetting-gain share)."""
-        index = self.scene.cameras.index(self.scene.camera(cam.name))
+        index = self._camera_index(cam)
         return {"jacobian": through_camera_effects(J, self.scene, cam, index, stages),
                 "rig_jacobian": None if J_rig is None else through_camera_effects(J_rig, self.scene, cam, index, stages,
                                                                                   gain_term)}
@@ -277,6 +277,10 @@ class Renderer:
                       backend=self.backend_name, options=opts, seconds=time.perf_counter() - t0,
                       truth=self._stack(truths) if truth else None, stages=stages, specimen=specimen, **derivatives)
 
+    def _camera_index(self, cam: Camera) -> int:
+        """``cam``'s index in the scene (a band camera's or a sample camera's: its camera's, by name)."""
+        return self.scene.cameras.index(self.scene.camera(cam.name))
+
     @property
     def _banded(self) -> bool:
         """Whether a rolling shutter's rows are rendered as bands (:meth:`_frame`): the depth of
@@ -302,7 +306,7 @@ class Renderer:
         band, at, _ = self._row_band(cam, step, None if tau == 0 else float(tau), tl.at(tau, self.drawn_mesh.deformed),
                                      row)
         J, J_rig = self._jacobian(band, step, opts, None, rig, tl, tau)
-        index = self.scene.cameras.index(self.scene.camera(cam.name))
+        index = self._camera_index(cam)
         rows = slice(at * cam.width, (at + 1) * cam.width)
         return (through_camera_effects(J, self.scene, band, index, ("vignetting", "psf"))[rows],
                 None if J_rig is None else through_camera_effects(J_rig, self.scene, band, index, ("vignetting", "psf"))[rows])
@@ -316,7 +320,7 @@ class Renderer:
         mesh, state = self.drawn_mesh, None if tau == 0 else float(tau)
         nodes = tl.at(tau, mesh.deformed)
         curved = self._curved(opts, step, tl, tau)
-        index = self.scene.cameras.index(self.scene.camera(cam.name))   # (a band camera has its camera's name)
+        index = self._camera_index(cam)
         if row is None:
             view = self.geometry.view(cam, step, state, nodes)
             depths = view.corner_depths() if self.scene.optics is not None else np.empty(0)
@@ -377,7 +381,7 @@ class Renderer:
         state = None if tl is None or tau == 0 else float(tau)
         nodes = self.drawn_mesh.deformed(step) if tl is None else tl.at(tau, self.drawn_mesh.deformed)
         view = self.geometry.view(cam, step, state, None if tl is None else nodes)
-        index = self.scene.cameras.index(self.scene.camera(cam.name))
+        index = self._camera_index(cam)
         fx = prepare_effects(self.scene, nodes, self.drawn_mesh.quads, cam, index, step, view.corner_depths(),
                              normals=not self.backend.capabilities.device_geometry)
         fx = dataclasses.replace(fx, noise=None, sensor=None, vignette=None, psf=None,
