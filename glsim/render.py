@@ -43,7 +43,7 @@ from glsim.stages.view import View, coverage, make_view, warn_unseen
 from glsim.backends import make_backend
 from glsim.backends.contract import Curved, Request
 from glsim.io.fe import specimen_mesh
-from glsim.stages.reference import make_reference
+from glsim.stages.reference import make_reference, require_dots
 from glsim.stages import interp, jacobian as jac
 from glsim.scene import Render, Scene
 from glsim.scene.optional import row_offsets
@@ -194,7 +194,7 @@ class Renderer:
         if not jacobian:
             return self._finish(self._submit(camera, step, truth, quantize, options))
         opts = self._options(options)
-        jac.check_request(self.scene, opts, rig)
+        jac.check_request(self.scene, opts, rig, self.reference.dots)
         one = opts.supersampling == 1   # the image's own pixel-centre raster is the samples'
         res = self._finish(self._submit(camera, step, truth or one, quantize, options))
         raster = {"element": res.truth.element.ravel(), "xi": res.truth.xi.ravel(),
@@ -232,7 +232,7 @@ class Renderer:
         t0, scene, mesh = time.perf_counter(), self.scene, self.drawn_mesh
         opts = self._options(options)
         if jacobian:
-            jac.check_request(scene, opts, rig)
+            jac.check_request(scene, opts, rig, self.reference.dots)
         self.check_size(camera, truth, opts)
         cam, ex = scene.camera(camera), scene.exposure
         line = scene.sensor.line_time if scene.sensor is not None else 0.0
@@ -350,18 +350,14 @@ class Renderer:
                 curved = self._curved(opts, step, tl, tau)
                 raster = self.backend.render(Request(view, dataclasses.replace(opts, samples_per_pixel=1), True,
                                                      curved=curved)).samples
-        method = opts.interpolation
-        if method not in self._ref_coeffs:
-            self._ref_coeffs[method] = interp.prepare(self.reference.image, method, np.float64)
-        coeffs = self._ref_coeffs[method]
+        value, gradient = self._reference_functions(opts.interpolation)
         shading = None
         if self.scene.lighting is not None:   # the drawn mesh's normals (a quadratic mesh's pieces')
             nodes = self.drawn_mesh.deformed(step) if tl is None else tl.at(tau, self.drawn_mesh.deformed)
-            shading = shading_terms(self.scene, nodes, self.drawn_mesh.quads, cam,
-                                    lambda uv: interp.sample(coeffs, uv, method), self.pieces)
+            shading = shading_terms(self.scene, nodes, self.drawn_mesh.quads, cam, value, self.pieces)
         J, J_rig, depth = jac.image_jacobian(cam, s, self.reference.camera, mesh.nodes, deformed, mesh.quads,
-                                             opts.mode, raster, lambda uv: interp.gradient(coeffs, uv, method), rig,
-                                             mesh.patches, shading, self.scene.optics is not None)
+                                             opts.mode, raster, gradient, rig, mesh.patches, shading,
+                                             self.scene.optics is not None)
         if depth is not None:   # through the depth of field's blur, of this state's unblurred image
             z, J_z, J_z_rig = depth
             W, H = cam.size
@@ -374,6 +370,21 @@ class Renderer:
         if tl is not None:   # ∂g/∂u_k = ∂g/∂X(τ) · ∂X(τ)/∂X_k, per node
             J = J @ sparse.kron(sparse.identity(mesh.n_nodes), tl.derivative(tau), format="csr")
         return J, J_rig
+
+    def _reference_functions(self, method: str):
+        """The reference grey's value and gradient (grey per px) at reference points uv (n, 2), in
+        float64: the interpolant of ``method`` (its coefficients made once), or the procedural
+        speckle's exact dots (glsim.scene.speckle.evaluate, gradient)."""
+        if method == "procedural":
+            from glsim.scene import speckle
+
+            dots = require_dots(self.reference.dots)
+            grid = speckle.dot_grid(dots)
+            return (lambda uv: speckle.evaluate(dots, uv, grid)), (lambda uv: speckle.gradient(dots, uv, grid))
+        if method not in self._ref_coeffs:
+            self._ref_coeffs[method] = interp.prepare(self.reference.image, method, np.float64)
+        coeffs = self._ref_coeffs[method]
+        return (lambda uv: interp.sample(coeffs, uv, method)), (lambda uv: interp.gradient(coeffs, uv, method))
 
     def _image_before(self, cam: Camera, step: int, opts: Render, tl, tau: float, blur: bool) -> np.ndarray:
         """``cam``'s image (H, W) float64 at ``step`` (or the state τ s from it on ``tl``) before

@@ -67,10 +67,12 @@ def _image64(r: Renderer, deformed: np.ndarray, cam=None):
     return grey.reshape(H, s, W, s).mean(axis=(1, 3)).ravel(), one
 
 
-@pytest.mark.parametrize("mode, spp", [("exact", 1), ("q4", 1), ("exact", 4)])
-def test_oracle_matches_central_differences(mode, spp):
-    """_against_central_differences of the oracle's float64 renders."""
-    scene, mesh = _plate(backend="cpu", mode=mode, samples_per_pixel=spp)
+@pytest.mark.parametrize("mode, spp, interpolation", [("exact", 1, "cubic"), ("q4", 1, "cubic"), ("exact", 4, "cubic"),
+                                                      ("exact", 1, "procedural"), ("q4", 4, "procedural")])
+def test_oracle_matches_central_differences(mode, spp, interpolation):
+    """_against_central_differences of the oracle's float64 renders; procedural: the speckle's
+    own dots evaluated exactly, their smooth edges' gradient (glsim.scene.speckle.gradient)."""
+    scene, mesh = _plate(backend="cpu", mode=mode, samples_per_pixel=spp, interpolation=interpolation)
     with Renderer(scene, mesh=mesh) as r:
         J = r.render(0, 1, jacobian=True).jacobian.tocsc()
         assert J.shape == (64 * 48, 3 * mesh.n_nodes)
@@ -584,17 +586,19 @@ def test_modes_and_interpolation_are_refused_by_name():
     with Renderer(scene, mesh=mesh) as r:
         with pytest.raises(SceneError, match=r"^render\.mode: .*'fast'.* — set mode = \"exact\""):
             r.render(0, 1, jacobian=True, mode="fast")
-        with pytest.raises(SceneError, match=r"^render\.interpolation: .*procedural"):
-            r.render(0, 1, jacobian=True, interpolation="procedural")
         J = r.render(0, 1, jacobian=True).jacobian
+    with Renderer(scene.replace(speckle={"edge_px": 0.0}), mesh=mesh) as r, \
+            pytest.raises(SceneError, match=r"^speckle\.edge_px: is 0: .* — give the dots a smooth edge"):
+        r.render(0, 1, jacobian=True, interpolation="procedural")
     with Renderer(scene.replace(noise={"sigma": 1.0}), mesh=mesh) as r:   # the noise-free image's Jacobian
         assert abs(r.render(0, 1, jacobian=True).jacobian - J).max() == 0
 
 
 @pytest.mark.gl
-@pytest.mark.parametrize("mode, spp", [("exact", 1), ("q4", 1), ("exact", 4)])
-def test_gl_matches_the_oracle(gl_ctx, mode, spp):
-    _gl_against_oracle(gl_ctx, *_plate(mode=mode, samples_per_pixel=spp))
+@pytest.mark.parametrize("mode, spp, interpolation", [("exact", 1, "cubic"), ("q4", 1, "cubic"), ("exact", 4, "cubic"),
+                                                      ("exact", 1, "procedural")])
+def test_gl_matches_the_oracle(gl_ctx, mode, spp, interpolation):
+    _gl_against_oracle(gl_ctx, *_plate(mode=mode, samples_per_pixel=spp, interpolation=interpolation))
 
 
 @pytest.mark.gl

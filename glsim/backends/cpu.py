@@ -12,6 +12,7 @@ import numpy as np
 from glsim.scene import bilinear as bl
 from glsim.scene import quadratic as qd
 from glsim.stages import interp
+from glsim.stages.reference import require_dots
 from glsim.scene.camera import pixel_grid, pixel_to_normalized, project_camera_frame, undistort
 from glsim.backends.contract import Capabilities, Raster, Request
 from glsim.stages.quadview import make_quad_view
@@ -332,13 +333,3 @@ class CPUBackend:
 
     def close(self) -> None:
         self._samplers.clear()
-
-
-def require_dots(dots):
-    """The reference's dots, or the error that says procedural needs the generator."""
-    if dots is None:
-        from glsim.errors import SceneError
-
-        raise SceneError("render.interpolation", "'procedural' needs the built-in speckle generator",
-                         "remove [speckle] image, or choose linear, cubic, bspline3 or bspline5")
-    return dots

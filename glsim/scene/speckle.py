@@ -233,11 +233,26 @@ def dot_grid(dots: Dots) -> DotGrid:
 def evaluate(dots: Dots, uv, grid: DotGrid | None = None) -> np.ndarray:
     """Exact grey level of the Boolean-model speckle at reference coordinates uv (..., 2) px
     (u = column, v = row): no interpolation. float64."""
-    grid = grid or dot_grid(dots)
     uv = np.asarray(uv, dtype=np.float64)
-    flat_uv = uv.reshape(-1, 2)
-    darkness = np.zeros(len(flat_uv))
-    cell = np.floor((flat_uv - grid.origin) / grid.cell).astype(np.int64)
+    darkness, _ = _darkness(dots, uv.reshape(-1, 2), grid or dot_grid(dots), gradient=False)
+    return (dots.white - (dots.white - dots.black) * darkness).reshape(uv.shape[:-1])
+
+
+def gradient(dots: Dots, uv, grid: DotGrid | None = None) -> np.ndarray:
+    """∂(:func:`evaluate`)/∂(u, v) (..., 2) grey per px: the darkest dot's smoothstep edge
+    (where dots overlap the darkness is their maximum, whose derivative is its dot's); 0 inside
+    and outside the edges. A hard edge (edge_px = 0) has none."""
+    uv = np.asarray(uv, dtype=np.float64)
+    _, grad = _darkness(dots, uv.reshape(-1, 2), grid or dot_grid(dots), gradient=True)
+    return (-(dots.white - dots.black) * grad).reshape(uv.shape)
+
+
+def _darkness(dots: Dots, uv: np.ndarray, grid: DotGrid, gradient: bool):
+    """The darkness (n,) in [0, 1] at uv (n, 2) — the maximum of the dots' edge profiles — and,
+    with ``gradient``, its derivative (n, 2) per px (the maximising dot's), else None."""
+    darkness = np.zeros(len(uv))
+    grad = np.zeros((len(uv), 2)) if gradient else None
+    cell = np.floor((uv - grid.origin) / grid.cell).astype(np.int64)
     nx, ny = grid.dims
     for dj in (-1, 0, 1):
         for di in (-1, 0, 1):
@@ -248,10 +263,18 @@ def evaluate(dots: Dots, uv, grid: DotGrid | None = None) -> np.ndarray:
             for m in range(int(n.max(initial=0))):
                 has = n > m
                 idx = grid.order[grid.start[k[has]] + m]
-                d = np.hypot(*(flat_uv[has] - dots.centres[idx]).T)
-                darkness[has] = np.maximum(darkness[has], _edge_profile(d, dots.radii[idx], dots.edge_px))
-    grey = dots.white - (dots.white - dots.black) * darkness
-    return grey.reshape(uv.shape[:-1])
+                offset = uv[has] - dots.centres[idx]
+                d = np.hypot(*offset.T)
+                profile = _edge_profile(d, dots.radii[idx], dots.edge_px)
+                if gradient:   # where this dot is the darkest so far, its slope: smoothstep'(x)·(−1/edge)·(uv − c)/d
+                    x = np.clip(0.5 - (d - dots.radii[idx]) / dots.edge_px, 0.0, 1.0) if dots.edge_px else np.zeros_like(d)
+                    slope = np.where((x > 0) & (x < 1) & (d > 0), -6.0 * x * (1.0 - x) / max(dots.edge_px, 1e-300)
+                                     / np.where(d > 0, d, 1.0), 0.0)
+                    darker = profile > darkness[has]
+                    rows = np.flatnonzero(has)[darker]
+                    grad[rows] = slope[darker, None] * offset[darker]
+                darkness[has] = np.maximum(darkness[has], profile)
+    return darkness, grad
 
 
 def load_reference(path, key="speckle.image"):

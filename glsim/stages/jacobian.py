@@ -47,10 +47,11 @@ UNREFUSED = ("noise", "vignetting", "psf", "sensor", "exposure", "lighting", "op
 CHUNK = 1 << 18          # samples differentiated at once (bounds memory: ~100 doubles each)
 
 
-def check_request(scene: Scene, opts: Render, rig: bool = False) -> None:
+def check_request(scene: Scene, opts: Render, rig: bool = False, dots=None) -> None:
     """SceneError naming what ``jacobian=True`` cannot differentiate: a fill factor below 1 with
-    supersampling, [vignetting] in the rig Jacobian over an exposure, mode fast, procedural
-    interpolation (and any optional table not in UNREFUSED)."""
+    supersampling, [vignetting] in the rig Jacobian over an exposure, mode fast, a procedural
+    speckle (the reference's ``dots``) with a hard edge (and any optional table not in
+    UNREFUSED)."""
     for f in dataclasses.fields(scene):
         if f.default is None and getattr(scene, f.name) is not None and f.name not in UNREFUSED:
             raise SceneError(f.name, "the image Jacobian does not differentiate this effect",
@@ -69,10 +70,10 @@ def check_request(scene: Scene, opts: Render, rig: bool = False) -> None:
         raise SceneError("render.mode", f"the image Jacobian differentiates modes {' and '.join(MODES)}, "
                          f"not {opts.mode!r} (its triangles interpolate the reference point linearly)",
                          "set mode = \"exact\" (or \"q4\") or render without jacobian")
-    if opts.interpolation == "procedural":
-        raise SceneError("render.interpolation", "the image Jacobian needs the reference image's interpolant; "
-                         "'procedural' evaluates the dots directly", "choose cubic, bspline3 or bspline5 "
-                         "(or linear), or render without jacobian")
+    if opts.interpolation == "procedural" and dots is not None and dots.edge_px == 0:
+        raise SceneError("speckle.edge_px", "is 0: a hard-edged procedural speckle's grey jumps at the dots' edges, "
+                         "so the image Jacobian would be zero everywhere else", "give the dots a smooth edge "
+                         "(edge_px > 0), or choose an interpolated reference (cubic, bspline3, bspline5)")
 
 
 def sample_camera(cam: Camera, s: int) -> Camera:

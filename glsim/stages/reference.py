@@ -341,3 +341,11 @@ def require_coverage(mesh: meshmod.Mesh, cam: Camera, key: str, mm_per_px: float
         what = "the reference image"
     raise SceneError(key, f"{what} would leave part of the specimen without pattern, {100 * (1 - coverage(mesh, cam)):.3g} % "
                      f"of its area: {where}", fix)
+
+
+def require_dots(dots):
+    """The reference's dots, or the error that says procedural needs the generator."""
+    if dots is None:
+        raise SceneError("render.interpolation", "'procedural' needs the built-in speckle generator",
+                         "remove [speckle] image, or choose linear, cubic, bspline3 or bspline5")
+    return dots

@@ -613,7 +613,7 @@ class GLBackend(ImagePasses):
     def _bind_dots(self, prog) -> None:
         """Bind procedural.glsl's storage buffers (made once) and set its uniforms."""
         if self._dot_buffers is None:
-            from glsim.backends.cpu import require_dots
+            from glsim.stages.reference import require_dots
             from glsim.scene.speckle import dot_grid
 
             dots = require_dots(self._dots)
