@@ -18,6 +18,7 @@ from __future__ import annotations
 import dataclasses
 import collections
 import functools
+import math
 from collections.abc import Callable, Iterable, Iterator, Mapping
 import time
 import warnings
@@ -342,14 +343,23 @@ class Renderer:
         s, mesh = opts.supersampling, self.mesh
         state = None if tl is None or tau == 0 else float(tau)
         deformed = mesh.deformed(step) if tl is None else tl.at(tau, mesh.deformed)
+        aperture = math.sqrt(self.scene.sensor.fill_factor) if self.scene.sensor is not None else 1.0
         if raster is None:
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore")
                 drawn = None if tl is None else tl.at(tau, self.drawn_mesh.deformed)
-                view = self.geometry.view(jac.sample_camera(cam, s), step, state, drawn)
+                one = dataclasses.replace(opts, samples_per_pixel=1)
                 curved = self._curved(opts, step, tl, tau)
-                raster = self.backend.render(Request(view, dataclasses.replace(opts, samples_per_pixel=1), True,
-                                                     curved=curved)).samples
+                if aperture == 1.0:
+                    view = self.geometry.view(jac.sample_camera(cam, s), step, state, drawn)
+                    raster = self.backend.render(Request(view, one, True, curved=curved)).samples
+                else:   # each sample offset as a camera shifted by it: (H, s, W, s) → the sample camera's order
+                    parts = [[self.backend.render(Request(self.geometry.view(shifted, step, state, drawn), one, True,
+                                                          curved=curved)).samples for shifted in row]
+                             for row in jac.shifted_cameras(cam, s, aperture)]
+                    W, H = cam.size
+                    raster = {k: np.stack([np.stack([p[k].reshape(H, W) for p in row], -1) for row in parts], 1)
+                              .reshape(-1) for k in ("element", "xi", "eta")}
         value, gradient = self._reference_functions(opts.interpolation)
         shading = None
         if self.scene.lighting is not None:   # the drawn mesh's normals (a quadratic mesh's pieces')
@@ -357,7 +367,7 @@ class Renderer:
             shading = shading_terms(self.scene, nodes, self.drawn_mesh.quads, cam, value, self.pieces)
         J, J_rig, depth = jac.image_jacobian(cam, s, self.reference.camera, mesh.nodes, deformed, mesh.quads,
                                              opts.mode, raster, gradient, rig, mesh.patches, shading,
-                                             self.scene.optics is not None)
+                                             self.scene.optics is not None, aperture)
         if depth is not None:   # through the depth of field's blur, of this state's unblurred image
             z, J_z, J_z_rig = depth
             W, H = cam.size

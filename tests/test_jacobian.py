@@ -44,7 +44,8 @@ def _plate(**render):
 
 def _image64(r: Renderer, deformed: np.ndarray, cam=None):
     """The oracle's float64 image (before its float32 cast) of ``deformed`` nodes seen by ``cam``
-    (default: camera 0 at step 1), and per pixel its samples' one element (−2 where they differ);
+    (default: camera 0 at step 1; its samples placed by the fill factor's aperture), and per pixel
+    its samples' one element (−2 where they differ);
     lit as the oracle lights each sample (glsim.backends.cpu._shade, the Effects of ``deformed``)
     when the scene has [lighting]."""
     from glsim.backends.cpu import _shade
@@ -55,7 +56,7 @@ def _image64(r: Renderer, deformed: np.ndarray, cam=None):
     s = opts.supersampling
     view = r.view(0, 1, deformed=deformed) if cam is None else \
         make_view(cam, r.reference.camera, r.mesh.nodes, deformed, r.mesh.quads, warn=False)
-    raster = rasterize(view, opts.mode, s)
+    raster = rasterize(view, opts.mode, s, np.sqrt(r.scene.sensor.fill_factor) if r.scene.sensor else 1.0)
     hit = raster["element"] >= 0
     grey = np.full(hit.shape, opts.background)
     grey[hit] = r.backend.sampler(opts.interpolation)(raster["ref_uv"][hit])
@@ -67,12 +68,17 @@ def _image64(r: Renderer, deformed: np.ndarray, cam=None):
     return grey.reshape(H, s, W, s).mean(axis=(1, 3)).ravel(), one
 
 
-@pytest.mark.parametrize("mode, spp, interpolation", [("exact", 1, "cubic"), ("q4", 1, "cubic"), ("exact", 4, "cubic"),
-                                                      ("exact", 1, "procedural"), ("q4", 4, "procedural")])
-def test_oracle_matches_central_differences(mode, spp, interpolation):
+@pytest.mark.parametrize("mode, spp, interpolation, fill", [("exact", 1, "cubic", 1.0), ("q4", 1, "cubic", 1.0),
+                                                            ("exact", 4, "cubic", 1.0), ("exact", 1, "procedural", 1.0),
+                                                            ("q4", 4, "procedural", 1.0), ("exact", 4, "cubic", 0.5),
+                                                            ("q4", 9, "cubic", 0.3)])
+def test_oracle_matches_central_differences(mode, spp, interpolation, fill):
     """_against_central_differences of the oracle's float64 renders; procedural: the speckle's
-    own dots evaluated exactly, their smooth edges' gradient (glsim.scene.speckle.gradient)."""
+    own dots evaluated exactly, their smooth edges' gradient (glsim.scene.speckle.gradient); a fill
+    factor below 1: the samples at c + √fill·((k + ½)/s − ½), rendered as shifted cameras
+    (glsim.stages.jacobian.shifted_cameras; fails with the full pixel's rays, checked)."""
     scene, mesh = _plate(backend="cpu", mode=mode, samples_per_pixel=spp, interpolation=interpolation)
+    scene = scene.replace(sensor={"fill_factor": fill}) if fill < 1 else scene
     with Renderer(scene, mesh=mesh) as r:
         J = r.render(0, 1, jacobian=True).jacobian.tocsc()
         assert J.shape == (64 * 48, 3 * mesh.n_nodes)
@@ -559,9 +565,7 @@ def test_the_psf_matrix_is_the_convolution():
     np.testing.assert_allclose(got, psf.apply(image, k), rtol=0, atol=1e-15)
 
 
-@pytest.mark.parametrize("change, rig, key", [({"sensor": {"fill_factor": 0.5}, "render": {"samples_per_pixel": 4}},
-                                               False, "sensor.fill_factor"),
-                                              ({"vignetting": {"natural": True}, "exposure": EXPOSURES["rigid"]}, True,
+@pytest.mark.parametrize("change, rig, key", [({"vignetting": {"natural": True}, "exposure": EXPOSURES["rigid"]}, True,
                                                "vignetting")])
 def test_what_the_camera_effects_jacobian_leaves_out_is_refused_by_name(change, rig, key):
     scene, mesh = _plate(backend="cpu")
@@ -627,6 +631,14 @@ def _gl_against_oracle(gl_ctx, scene, mesh):
             out[backend], out[backend + " rig"] = res.jacobian, res.rig_jacobian
     assert abs(out["gl"] - out["cpu"]).max() <= 1e-3 * abs(out["cpu"]).max()
     assert abs(out["gl rig"] - out["cpu rig"]).max() <= 1e-3 * abs(out["cpu rig"]).max()
+
+
+@pytest.mark.gl
+def test_gl_matches_the_oracle_with_a_fill_factor(gl_ctx):
+    """A fill factor of 0.5 at 4 samples per pixel (the samples rendered as shifted cameras by
+    each backend): as above."""
+    scene, mesh = _plate(samples_per_pixel=4)
+    _gl_against_oracle(gl_ctx, scene.replace(sensor={"fill_factor": 0.5}), mesh)
 
 
 @pytest.mark.gl

@@ -48,20 +48,14 @@ CHUNK = 1 << 18          # samples differentiated at once (bounds memory: ~100 d
 
 
 def check_request(scene: Scene, opts: Render, rig: bool = False, dots=None) -> None:
-    """SceneError naming what ``jacobian=True`` cannot differentiate: a fill factor below 1 with
-    supersampling, [vignetting] in the rig Jacobian over an exposure, mode fast, a procedural
+    """SceneError naming what ``jacobian=True`` cannot differentiate: [vignetting] in the rig
+    Jacobian over an exposure, mode fast, a procedural
     speckle (the reference's ``dots``) with a hard edge (and any optional table not in
     UNREFUSED)."""
     for f in dataclasses.fields(scene):
         if f.default is None and getattr(scene, f.name) is not None and f.name not in UNREFUSED:
             raise SceneError(f.name, "the image Jacobian does not differentiate this effect",
                              f"remove [{f.name}] or render without jacobian")
-    if scene.sensor is not None and scene.sensor.fill_factor < 1 and opts.supersampling > 1:
-        raise SceneError("sensor.fill_factor", f"is {scene.sensor.fill_factor}: at {opts.samples_per_pixel} samples "
-                         "per pixel the image Jacobian's samples are a finer camera's pixel grid, and a fill factor "
-                         "below 1 moves them (at 1 sample per pixel it does not)", "set fill_factor = 1, or "
-                         "samples_per_pixel = 1, or render "
-                         "without jacobian")
     if rig and scene.vignetting is not None and scene.exposure is not None:
         raise SceneError("vignetting", "over an exposure the rig Jacobian does not differentiate the vignetting gain "
                          "(it varies with the intrinsics and distortion)", "remove [vignetting] or [exposure], or "
@@ -229,6 +223,22 @@ def reference_point(mode: str, Xr, ref_cam: Camera, xi, eta):
     return at(corners, xi, eta), _tangents(N_xi, N_eta, corners)
 
 
+def sample_points(W: int, s: int, index: np.ndarray, aperture: float = 1.0) -> np.ndarray:
+    """The samples at flat indices ``index`` of the sample camera (:func:`sample_camera`) of a
+    camera W px wide as that camera's pixel points (n, 2): pixel c's sample k along an axis at
+    c + aperture·((k + ½)/s − ½) (glsim.scene.camera.pixel_grid's)."""
+    fi, fj = index % (W * s), index // (W * s)
+    off = lambda f: f // s + aperture * ((f % s + 0.5) / s - 0.5)   # noqa: E731
+    return np.column_stack([off(fi), off(fj)]).astype(np.float64)
+
+
+def shifted_cameras(cam: Camera, s: int, aperture: float) -> list[list[Camera]]:
+    """Per sample offset (row l, column k of the s × s) ``cam`` shifted so that its pixel
+    centres are those samples: c' = c − aperture·((k + ½)/s − ½) (the same rays)."""
+    off = [aperture * ((k + 0.5) / s - 0.5) for k in range(s)]
+    return [[dataclasses.replace(cam, cx=cam.cx - du, cy=cam.cy - dv) for du in off] for dv in off]
+
+
 def sample_rays(cam: Camera, index: np.ndarray | None, q=None) -> np.ndarray:
     """Undistorted normalized rays (n, 2) of ``cam``'s pixels at flat indices ``index`` (or at
     the pixel points ``q`` (n, 2))."""
@@ -239,7 +249,7 @@ def sample_rays(cam: Camera, index: np.ndarray | None, q=None) -> np.ndarray:
 
 def image_jacobian(cam: Camera, s: int, ref_cam: Camera, nodes: np.ndarray, deformed: np.ndarray,
                    quads: np.ndarray, mode: str, raster: dict, grad, rig: bool = False, patches=None,
-                   shading=None, depth: bool = False):
+                   shading=None, depth: bool = False, aperture: float = 1.0):
     """The image Jacobian (W·H × 3·nodes, CSR, grey levels per mm) of ``cam`` from ``raster``:
     flat ``element``, ``xi``, ``eta`` (float64) over the (W·s)·(H·s) samples of
     :func:`sample_camera` (element −1: background); the reference point is recomputed from them.
@@ -252,7 +262,9 @@ def image_jacobian(cam: Camera, s: int, ref_cam: Camera, nodes: np.ndarray, defo
     camera-frame depth (flat, 0 on the background; mm) and the derivative of each pixel's depth —
     the mean of its covered samples', what the depth of field blurs with — with respect to the
     nodal displacements (W·H × 3·nodes, CSR, mm per mm) and, if ``rig``, the camera's parameters
-    (W·H × 23), else None."""
+    (W·H × 23), else None. ``aperture`` < 1 (√ of a fill factor): the samples lie at
+    c + aperture·((k + ½)/s − ½) of their pixel c (:func:`sample_points`; the raster in the sample
+    camera's order, :func:`shifted_cameras`)."""
     W, H = cam.size
     scam = sample_camera(cam, s)
     R = cam.rotation
@@ -267,7 +279,10 @@ def image_jacobian(cam: Camera, s: int, ref_cam: Camera, nodes: np.ndarray, defo
         e, xi, eta = raster["element"][idx], raster["xi"][idx], raster["eta"][idx]
         Xd = qd.element_points(quads, patches, e, to_camera(deformed, scam))
         Xr = qd.element_points(quads, patches, e, to_camera(nodes, ref_cam))
-        ray = sample_rays(scam, idx) if mode == "exact" else None
+        if aperture == 1.0:
+            ray = sample_rays(scam, idx) if mode == "exact" else None
+        else:
+            ray = sample_rays(cam, None, sample_points(W, s, idx, aperture)) if mode == "exact" else None
         r, dr = reference_point(mode, Xr, ref_cam, xi, eta)
         w = np.einsum("nc,ncl->nl", grad(r), dr)                                    # ∂g/∂(ξ, η)
         fi, fj = idx % (W * s), idx // (W * s)
@@ -289,7 +304,7 @@ def image_jacobian(cam: Camera, s: int, ref_cam: Camera, nodes: np.ndarray, defo
             cz[..., 2] += Nz
             depth_parts.append(_node_part(cz, e, quads, patches, R, pixel, 1.0 / covered[pixel], shape))
         if rig:
-            q = (np.column_stack([fi, fj]) + 0.5) / s - 0.5    # the samples in cam's pixels
+            q = sample_points(W, s, idx, aperture)    # the samples in cam's pixels
             values = rig_derivatives(mode, N, v, c, Xd, cam, s, q, ray)
             if shading is not None:
                 values[:, :6] += pose
