@@ -205,14 +205,15 @@ class Renderer:
                                    **self._through_camera_effects(res.camera, J, J_rig,
                                                                   gain_term=self._gain_term(res.camera, step, opts, rig)))
 
-    def _gain_term(self, cam: Camera, step: int, opts: Render, rig: bool):
+    def _gain_term(self, cam: Camera, step: int, opts: Render, rig: bool, tl=None, taus=(0.0,)):
         """The rig Jacobian's share of the vignetting gain's own change with the intrinsics and
-        distortion: diag(the image before vignetting) · ∂gain/∂params (W·H × 23, CSR), or None."""
+        distortion: diag(the image before vignetting) · ∂gain/∂params (W·H × 23, CSR), or None;
+        over an exposure (``tl``) the image is its sub-frames' (at ``taus``) mean."""
         if not rig or self.scene.vignetting is None:
             return None
         from glsim.effects.vignetting import flat_field_rig_jacobian
 
-        before = self._image_before(cam, step, opts, None, 0.0, blur=True)
+        before = sum(self._image_before(cam, step, opts, tl, tau, blur=True) for tau in taus) / len(taus)
         return sparse.csr_matrix(before.reshape(-1, 1) * flat_field_rig_jacobian(cam, self.scene.vignetting))
 
     def _through_camera_effects(self, cam: Camera, J, J_rig, stages=None, gain_term=None) -> dict:
@@ -273,7 +274,9 @@ class Renderer:
         if jacobian:
             J = sparse.csr_matrix(sparse.vstack([j for j, _ in jacobians]))
             J_rig = sparse.csr_matrix(sparse.vstack([r for _, r in jacobians])) if rig else None
-            derivatives = self._through_camera_effects(cam, J, J_rig, ("prnu",) if line > 0 and self._banded else None)
+            gain_term = self._gain_term(cam, step, opts, rig, tl, taus) if line == 0 else None
+            derivatives = self._through_camera_effects(cam, J, J_rig, ("prnu",) if line > 0 and self._banded else None,
+                                                       gain_term)
         return Result(image=quantize_image(image, cam.bit_depth) if quantize else image, camera=cam, step=step,
                       backend=self.backend_name, options=opts, seconds=time.perf_counter() - t0,
                       truth=self._stack(truths) if truth else None, stages=stages, specimen=specimen, **derivatives)

@@ -49,17 +49,17 @@ CHUNK = 1 << 18          # samples differentiated at once (bounds memory: ~100 d
 
 def check_request(scene: Scene, opts: Render, rig: bool = False, dots=None) -> None:
     """SceneError naming what ``jacobian=True`` cannot differentiate: [vignetting] in the rig
-    Jacobian over an exposure, mode fast, a procedural
+    Jacobian with a rolling shutter, mode fast, a procedural
     speckle (the reference's ``dots``) with a hard edge (and any optional table not in
     UNREFUSED)."""
     for f in dataclasses.fields(scene):
         if f.default is None and getattr(scene, f.name) is not None and f.name not in UNREFUSED:
             raise SceneError(f.name, "the image Jacobian does not differentiate this effect",
                              f"remove [{f.name}] or render without jacobian")
-    if rig and scene.vignetting is not None and scene.exposure is not None:
-        raise SceneError("vignetting", "over an exposure the rig Jacobian does not differentiate the vignetting gain "
-                         "(it varies with the intrinsics and distortion)", "remove [vignetting] or [exposure], or "
-                         "render without rig")
+    if rig and scene.vignetting is not None and scene.sensor is not None and scene.sensor.line_time > 0:
+        raise SceneError("vignetting", "with a rolling shutter the rig Jacobian does not differentiate the vignetting "
+                         "gain (it varies with the intrinsics and distortion; each row's image is its own state's)",
+                         "remove [vignetting] or line_time, or render without rig")
     if opts.mode not in MODES:
         raise SceneError("render.mode", f"the image Jacobian differentiates modes {' and '.join(MODES)}, "
                          f"not {opts.mode!r} (its triangles interpolate the reference point linearly)",
