@@ -346,18 +346,19 @@ class Renderer:
         s, mesh = opts.supersampling, self.mesh
         state = None if tl is None or tau == 0 else float(tau)
         deformed = mesh.deformed(step) if tl is None else tl.at(tau, mesh.deformed)
+        drawn = self.drawn_mesh.deformed(step) if tl is None else tl.at(tau, self.drawn_mesh.deformed)
         aperture = math.sqrt(self.scene.sensor.fill_factor) if self.scene.sensor is not None else 1.0
         if raster is None:
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore")
-                drawn = None if tl is None else tl.at(tau, self.drawn_mesh.deformed)
+                drawn_state = None if tl is None else drawn   # (the step's own view when not moving)
                 one = dataclasses.replace(opts, samples_per_pixel=1)
                 curved = self._curved(opts, step, tl, tau)
                 if aperture == 1.0:
-                    view = self.geometry.view(jac.sample_camera(cam, s), step, state, drawn)
+                    view = self.geometry.view(jac.sample_camera(cam, s), step, state, drawn_state)
                     raster = self.backend.render(Request(view, one, True, curved=curved)).samples
                 else:   # each sample offset as a camera shifted by it: (H, s, W, s) → the sample camera's order
-                    parts = [[self.backend.render(Request(self.geometry.view(shifted, step, state, drawn), one, True,
+                    parts = [[self.backend.render(Request(self.geometry.view(shifted, step, state, drawn_state), one, True,
                                                           curved=curved)).samples for shifted in row]
                              for row in jac.shifted_cameras(cam, s, aperture)]
                     W, H = cam.size
@@ -366,8 +367,7 @@ class Renderer:
         value, gradient = self._reference_functions(opts.interpolation)
         shading = None
         if self.scene.lighting is not None:   # the drawn mesh's normals (a quadratic mesh's pieces')
-            nodes = self.drawn_mesh.deformed(step) if tl is None else tl.at(tau, self.drawn_mesh.deformed)
-            shading = shading_terms(self.scene, nodes, self.drawn_mesh.quads, cam, value, self.pieces)
+            shading = shading_terms(self.scene, drawn, self.drawn_mesh.quads, cam, value, self.pieces)
         J, J_rig, depth = jac.image_jacobian(cam, s, self.reference.camera, mesh.nodes, deformed, mesh.quads,
                                              opts.mode, raster, gradient, rig, mesh.patches, shading,
                                              self.scene.optics is not None, aperture)
@@ -556,7 +556,8 @@ class Renderer:
         return r
 
     def _stack(self, rows: list[Truth]) -> Truth:
-        """A rolling shutter's rows' truths as one (:func:`glsim.effects.motion.stack`)."""
+        """A rolling shutter's rows' truths as one (:func:`glsim.effects.motion.stack`; the
+        library's compact renderer stacks its own)."""
         return motion.stack(rows)
 
     def _motion_range(self, tr: Truth, cam: Camera, tl: "motion.Timeline", tau: float, duration: float) -> Truth:

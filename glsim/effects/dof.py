@@ -219,37 +219,52 @@ def _check(image, size_map, what):
     return img, s
 
 
-def _gather(img, size, radius, weight, offsets_1d=None):
-    """out(p) = Σ_q w(dx, dy, size_p) img(q) / Σ_q w over the window |q − p|∞ ≤ radius_p clipped
-    at the border; pixels with size 0 are copied. ``offsets_1d`` = "x" or "y" makes it 1-D.
-    Pixels are sorted by radius so each offset ring touches only the pixels that reach it."""
-    out = img.copy()
+def _windows(size, radius, shape, offsets_1d=None):
+    """The gather's pixels and window offsets: (rows, cols, their sizes) of the pixels with size
+    > 0, sorted by window radius (largest first), and an iterator over the offsets (dx, dy) of
+    the largest window giving (dx, dy, n, r, c, ok) — the first n pixels (those whose window
+    reaches the offset), the offset pixels' rows and columns, and whether they lie in the image
+    of ``shape`` (H, W). ``offsets_1d`` = "x" or "y": only that axis' offsets."""
     rows, cols = np.nonzero(size > 0)
     if rows.size == 0:
-        return out
+        return rows, cols, np.zeros(0), iter(())
     R = radius[rows, cols]
     order = np.argsort(-R, kind="stable")
     rows, cols, R = rows[order], cols[order], R[order]
-    s = size[rows, cols]
-    H, W = img.shape
+    H, W = shape
     Rmax = int(R[0])
     count = np.searchsorted(-R, -np.arange(Rmax + 1), side="right")  # pixels with R ≥ k
+
+    def offsets():
+        for dy in range(-Rmax, Rmax + 1):
+            if offsets_1d == "x" and dy != 0:
+                continue
+            for dx in range(-Rmax, Rmax + 1):
+                if offsets_1d == "y" and dx != 0:
+                    continue
+                n = count[max(abs(dx), abs(dy))]
+                r, c = rows[:n] + dy, cols[:n] + dx
+                yield dx, dy, n, r, c, (r >= 0) & (r < H) & (c >= 0) & (c < W)
+    return rows, cols, size[rows, cols], offsets()
+
+
+def _gather(img, size, radius, weight, offsets_1d=None):
+    """out(p) = Σ_q w(dx, dy, size_p) img(q) / Σ_q w over the window |q − p|∞ ≤ radius_p clipped
+    at the border; pixels with size 0 are copied. ``offsets_1d`` = "x" or "y" makes it 1-D.
+    Pixels are sorted by radius so each offset ring touches only the pixels that reach it
+    (:func:`_windows`)."""
+    out = img.copy()
+    H, W = img.shape
+    rows, cols, s, offsets = _windows(size, radius, img.shape, offsets_1d)
     acc = np.zeros(rows.size)
     wsum = np.zeros(rows.size)
-    for dy in range(-Rmax, Rmax + 1):
-        if offsets_1d == "x" and dy != 0:
-            continue
-        for dx in range(-Rmax, Rmax + 1):
-            if offsets_1d == "y" and dx != 0:
-                continue
-            n = count[max(abs(dx), abs(dy))]
-            r, c = rows[:n] + dy, cols[:n] + dx
-            ok = (r >= 0) & (r < H) & (c >= 0) & (c < W)
-            w = weight(dx, dy, s[:n])
-            w = np.where(ok, w, 0.0)
-            acc[:n] += w * img[np.clip(r, 0, H - 1), np.clip(c, 0, W - 1)]
-            wsum[:n] += w
-    out[rows, cols] = acc / wsum
+    for dx, dy, n, r, c, ok in offsets:
+        w = weight(dx, dy, s[:n])
+        w = np.where(ok, w, 0.0)
+        acc[:n] += w * img[np.clip(r, 0, H - 1), np.clip(c, 0, W - 1)]
+        wsum[:n] += w
+    if rows.size:
+        out[rows, cols] = acc / wsum
     return out
 
 
@@ -284,35 +299,25 @@ def gather_linearization(image, size_map, kernel: str = "gaussian"):
     img, s = _check(image, size_map, "size")
     H, W = img.shape
     weight, dweight = (_gauss, _dgauss) if kernel == "gaussian" else (_disk, _ddisk)
-    radius = kernel_radius(s, kernel)
     flat = img.ravel()
     still = np.flatnonzero(s.ravel() == 0)
-    rows, cols = np.nonzero(s > 0)
+    rows, cols, sz, offsets = _windows(s, kernel_radius(s, kernel), img.shape)
     d = np.zeros(H * W)
     if rows.size == 0:
         return sparse.identity(H * W, format="csr"), d
-    R = radius[rows, cols]
-    order = np.argsort(-R, kind="stable")
-    rows, cols, R = rows[order], cols[order], R[order]
-    sz = s[rows, cols]
-    count = np.searchsorted(-R, -np.arange(int(R[0]) + 1), side="right")
     acc, wsum, dacc, dwsum = (np.zeros(rows.size) for _ in range(4))
     at, to, val = [], [], []
-    for dy in range(-int(R[0]), int(R[0]) + 1):
-        for dx in range(-int(R[0]), int(R[0]) + 1):
-            n = count[max(abs(dx), abs(dy))]
-            r, c = rows[:n] + dy, cols[:n] + dx
-            ok = (r >= 0) & (r < H) & (c >= 0) & (c < W)
-            w, dw = np.where(ok, weight(dx, dy, sz[:n]), 0.0), np.where(ok, dweight(dx, dy, sz[:n]), 0.0)
-            q = np.clip(r, 0, H - 1) * W + np.clip(c, 0, W - 1)
-            acc[:n] += w * flat[q]
-            wsum[:n] += w
-            dacc[:n] += dw * flat[q]
-            dwsum[:n] += dw
-            k = np.flatnonzero(w)
-            at.append(k)
-            to.append(q[k])
-            val.append(w[k])
+    for dx, dy, n, r, c, ok in offsets:
+        w, dw = np.where(ok, weight(dx, dy, sz[:n]), 0.0), np.where(ok, dweight(dx, dy, sz[:n]), 0.0)
+        q = np.clip(r, 0, H - 1) * W + np.clip(c, 0, W - 1)
+        acc[:n] += w * flat[q]
+        wsum[:n] += w
+        dacc[:n] += dw * flat[q]
+        dwsum[:n] += dw
+        k = np.flatnonzero(w)
+        at.append(k)
+        to.append(q[k])
+        val.append(w[k])
     at = np.concatenate(at)
     pixel = rows * W + cols
     d[pixel] = (dacc - acc / wsum * dwsum) / wsum

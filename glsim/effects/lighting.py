@@ -69,15 +69,26 @@ def vertex_normals(nodes, quads) -> np.ndarray:
     """
     nodes = np.asarray(nodes, dtype=np.float64)
     quads = np.asarray(quads, dtype=np.intp)
-    c, norm = _diagonal_cross(nodes, quads)
-    acc = np.zeros((len(nodes), 3))
-    wsum = np.zeros(len(nodes))
+    acc, wsum, _ = _vertex_sums(quads, *_diagonal_cross(nodes, quads), len(nodes))
+    return _normalised(acc, wsum)
+
+
+def _vertex_sums(quads: np.ndarray, c: np.ndarray, norm: np.ndarray, n_nodes: int):
+    """Per node the sums Σ c/2 (N, 3) and Σ |c|/2 (N,) over its elements (each once per distinct
+    node), and the (nodes, elements) pairs summed, per corner slot."""
+    acc, wsum, pairs = np.zeros((n_nodes, 3)), np.zeros(n_nodes), []
     for j in range(4):
         first = np.ones(len(quads), dtype=bool)
         for i in range(j):
             first &= quads[:, j] != quads[:, i]
         np.add.at(acc, quads[first, j], 0.5 * c[first])
         np.add.at(wsum, quads[first, j], 0.5 * norm[first])
+        pairs.append((quads[first, j], np.flatnonzero(first)))
+    return acc, wsum, pairs
+
+
+def _normalised(acc: np.ndarray, wsum: np.ndarray) -> np.ndarray:
+    """:func:`vertex_normals` from :func:`_vertex_sums`: 0 where the sums cancel."""
     n = np.linalg.norm(acc, axis=-1)
     ok = (n > DEGENERATE_SIN * wsum) & (n > 0)
     return np.where(ok[:, None], acc / np.where(ok, n, 1.0)[:, None], 0.0)
@@ -343,15 +354,8 @@ def normal_jacobian(nodes, quads, flat: bool):
         rows = np.broadcast_to((3 * np.arange(M)[:, None] + np.arange(3))[:, :, None], (M, 3, 12))
         return sparse.csr_matrix((block.reshape(M, 3, 12).ravel(), (rows.ravel(), np.broadcast_to(cols, (M, 3, 12)).ravel())),
                                  shape=(3 * M, 3 * n_nodes))
-    acc = np.zeros((n_nodes, 3))
-    parts = []
-    for j in range(4):   # each element once per distinct node, as vertex_normals
-        first = np.ones(M, dtype=bool)
-        for i in range(j):
-            first &= quads[:, j] != quads[:, i]
-        np.add.at(acc, quads[first, j], 0.5 * c[first])
-        parts.append((quads[first, j], np.flatnonzero(first)))
-    n = vertex_normals(nodes, quads)
+    acc, wsum, parts = _vertex_sums(quads, c, norm, n_nodes)   # each element once per distinct node
+    n = _normalised(acc, wsum)
     P = _unit_derivative(n, np.where(np.any(n != 0, axis=1), np.linalg.norm(acc, axis=1), 0.0))   # (N, 3, 3)
     data, rows, col = [], [], []
     for node, e in parts:

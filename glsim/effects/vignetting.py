@@ -25,13 +25,19 @@ from glsim.scene.camera import Camera, pixel_grid, pixel_to_normalized, undistor
 def gain(cam: Camera, natural: bool, radial: tuple[float, ...]) -> np.ndarray:
     """(H, W) float64 gain of ``cam`` (read-only; cached per camera model)."""
     xn, ok = undistort(pixel_to_normalized(pixel_grid(cam), cam.intrinsics), cam.distortion.coeffs)
-    r2 = xn[..., 0] ** 2 + xn[..., 1] ** 2
-    g = 1.0 / (1.0 + r2) ** 2 if natural else np.ones(r2.shape)
-    if radial:
-        g = g * (1.0 + sum(a * r2 ** (k + 1) for k, a in enumerate(radial)))
-    g = np.where(ok, g, 0.0)
+    g = np.where(ok, _falloff(xn[..., 0] ** 2 + xn[..., 1] ** 2, natural, radial)[0], 0.0)
     g.flags.writeable = False
     return g
+
+
+def _falloff(r2, natural: bool, radial: tuple[float, ...]):
+    """The gain at squared normalized radii ``r2`` and its derivative in r²: cos⁴θ = 1/(1 + r²)²
+    (``natural``) times 1 + a1·r² + a2·r⁴ + … (``radial``)."""
+    f, df = (1.0 / (1.0 + r2) ** 2, -2.0 / (1.0 + r2) ** 3) if natural else (np.ones(r2.shape), np.zeros(r2.shape))
+    if not radial:
+        return f, df
+    poly = 1.0 + sum(a * r2 ** (k + 1) for k, a in enumerate(radial))
+    return f * poly, df * poly + f * sum((k + 1) * a * r2 ** k for k, a in enumerate(radial))
 
 
 def flat_field(cam: Camera, vignetting) -> np.ndarray:
@@ -48,15 +54,7 @@ def flat_field_rig_jacobian(cam: Camera, vignetting) -> np.ndarray:
 
     q = pixel_grid(cam).reshape(-1, 2)
     xn, ok = undistort(pixel_to_normalized(q, cam.intrinsics), cam.distortion.coeffs)
-    r2 = xn[:, 0] ** 2 + xn[:, 1] ** 2
-    radial = tuple(vignetting.radial)
-    poly = 1.0 + sum(a * r2 ** (k + 1) for k, a in enumerate(radial))
-    dpoly = sum((k + 1) * a * r2 ** k for k, a in enumerate(radial))
-    if vignetting.natural:
-        f, df = 1.0 / (1.0 + r2) ** 2, -2.0 / (1.0 + r2) ** 3
-    else:
-        f, df = np.ones_like(r2), np.zeros_like(r2)
-    dg = np.where(ok, df * poly + f * dpoly, 0.0)
+    dg = np.where(ok, _falloff(xn[:, 0] ** 2 + xn[:, 1] ** 2, vignetting.natural, tuple(vignetting.radial))[1], 0.0)
     out = np.zeros((len(q), len(RIG_COLUMNS)))
     out[:, 6:] = np.einsum("n,nl,nlp->np", 2.0 * dg, xn, ray_parameter_jacobian(cam, q, xn))
     return out

@@ -52,8 +52,21 @@ def _edge_profile(r, radius, edge_px):
     """
     if edge_px == 0:
         return (r < radius).astype(np.float64)
-    x = np.clip(0.5 - (r - radius) / edge_px, 0.0, 1.0)
+    x = _edge_x(r, radius, edge_px)
     return x * x * (3.0 - 2.0 * x)
+
+
+def _edge_x(r, radius, edge_px):
+    return np.clip(0.5 - (r - radius) / edge_px, 0.0, 1.0)
+
+
+def _edge_slope(r, radius, edge_px):
+    """∂(:func:`_edge_profile`)/∂r per px: −smoothstep'(x)/edge_px on the edge, 0 elsewhere and for
+    a hard edge."""
+    if edge_px == 0:
+        return np.zeros(np.shape(r))
+    x = _edge_x(r, radius, edge_px)
+    return -6.0 * x * (1.0 - x) / edge_px
 
 
 @dataclass(frozen=True, eq=False)
@@ -266,10 +279,8 @@ def _darkness(dots: Dots, uv: np.ndarray, grid: DotGrid, gradient: bool):
                 offset = uv[has] - dots.centres[idx]
                 d = np.hypot(*offset.T)
                 profile = _edge_profile(d, dots.radii[idx], dots.edge_px)
-                if gradient:   # where this dot is the darkest so far, its slope: smoothstep'(x)·(−1/edge)·(uv − c)/d
-                    x = np.clip(0.5 - (d - dots.radii[idx]) / dots.edge_px, 0.0, 1.0) if dots.edge_px else np.zeros_like(d)
-                    slope = np.where((x > 0) & (x < 1) & (d > 0), -6.0 * x * (1.0 - x) / max(dots.edge_px, 1e-300)
-                                     / np.where(d > 0, d, 1.0), 0.0)
+                if gradient:   # where this dot is the darkest so far, its slope along (uv − c)/d
+                    slope = np.where(d > 0, _edge_slope(d, dots.radii[idx], dots.edge_px) / np.where(d > 0, d, 1.0), 0.0)
                     darker = profile > darkness[has]
                     rows = np.flatnonzero(has)[darker]
                     grad[rows] = slope[darker, None] * offset[darker]

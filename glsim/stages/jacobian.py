@@ -196,7 +196,7 @@ def ray_parameter_jacobian(cam: Camera, q, ray=None) -> np.ndarray:
     Jacobian is singular. ``ray``: the rays, if known."""
     k = cam.distortion.coeffs
     fx, fy, skew = cam.fx, cam.fy, cam.skew
-    ray = sample_rays(cam, None, q) if ray is None else ray
+    ray = sample_rays(cam, q) if ray is None else ray
     xd = pixel_to_normalized(q, cam.intrinsics)
     dxd = np.zeros((len(q), 2, 17))
     dxd[:, 1, 1], dxd[:, 1, 3] = -xd[:, 1] / fy, -1.0 / fy
@@ -239,11 +239,8 @@ def shifted_cameras(cam: Camera, s: int, aperture: float) -> list[list[Camera]]:
     return [[dataclasses.replace(cam, cx=cam.cx - du, cy=cam.cy - dv) for du in off] for dv in off]
 
 
-def sample_rays(cam: Camera, index: np.ndarray | None, q=None) -> np.ndarray:
-    """Undistorted normalized rays (n, 2) of ``cam``'s pixels at flat indices ``index`` (or at
-    the pixel points ``q`` (n, 2))."""
-    W, _ = cam.size
-    q = np.column_stack([index % W, index // W]).astype(np.float64) if q is None else q
+def sample_rays(cam: Camera, q: np.ndarray) -> np.ndarray:
+    """Undistorted normalized rays (n, 2) of ``cam``'s pixel points ``q`` (n, 2)."""
     return undistort(pixel_to_normalized(q, cam.intrinsics), cam.distortion.coeffs)[0]
 
 
@@ -279,10 +276,8 @@ def image_jacobian(cam: Camera, s: int, ref_cam: Camera, nodes: np.ndarray, defo
         e, xi, eta = raster["element"][idx], raster["xi"][idx], raster["eta"][idx]
         Xd = qd.element_points(quads, patches, e, to_camera(deformed, scam))
         Xr = qd.element_points(quads, patches, e, to_camera(nodes, ref_cam))
-        if aperture == 1.0:
-            ray = sample_rays(scam, idx) if mode == "exact" else None
-        else:
-            ray = sample_rays(cam, None, sample_points(W, s, idx, aperture)) if mode == "exact" else None
+        q = sample_points(W, s, idx, aperture)    # the samples in cam's pixels
+        ray = sample_rays(cam, q) if mode == "exact" else None
         r, dr = reference_point(mode, Xr, ref_cam, xi, eta)
         w = np.einsum("nc,ncl->nl", grad(r), dr)                                    # ∂g/∂(ξ, η)
         fi, fj = idx % (W * s), idx // (W * s)
@@ -304,7 +299,6 @@ def image_jacobian(cam: Camera, s: int, ref_cam: Camera, nodes: np.ndarray, defo
             cz[..., 2] += Nz
             depth_parts.append(_node_part(cz, e, quads, patches, R, pixel, 1.0 / covered[pixel], shape))
         if rig:
-            q = sample_points(W, s, idx, aperture)    # the samples in cam's pixels
             values = rig_derivatives(mode, N, v, c, Xd, cam, s, q, ray)
             if shading is not None:
                 values[:, :6] += pose
