@@ -601,6 +601,18 @@ def test_what_the_camera_effects_jacobian_leaves_out_is_refused_by_name(change, 
         r.render(0, 1, jacobian=True, rig=rig)
 
 
+@pytest.mark.parametrize("change, key", [({"psf": {"kind": "gaussian", "sigma": 0.9}}, "psf"), ({"optics": DOF}, "optics")])
+def test_a_jacobian_over_the_memory_budget_is_refused_by_name(monkeypatch, change, key):
+    """Through the PSF or the depth of field the Jacobian holds up to a window's times the
+    raster's entries: where that exceeds what the process may use (here a budget of 1 MiB) the
+    table is named with the fix, before the product is made."""
+    monkeypatch.setattr("glsim.limits.memory_budget", lambda: 1 << 20)
+    scene, mesh = _plate(backend="cpu")
+    with Renderer(scene.replace(**change), mesh=mesh) as r, \
+            pytest.raises(SceneError, match=rf"^{key}: the image Jacobian through .* GiB, more than .* — render a smaller camera"):
+        r.render(0, 1, jacobian=True)
+
+
 def test_a_fill_factor_at_one_sample_per_pixel_leaves_the_jacobian_unchanged():
     """At 1 sample per pixel the sample is the pixel's centre whatever the fill factor
     (glsim.scene.camera.pixel_grid), so image and Jacobian are those of a full pixel."""
