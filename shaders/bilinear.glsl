@@ -33,8 +33,9 @@ real3 bilinear3(real3 p[4], real xi, real eta) {
 // Edge functions of the 2-D quad p at q (edge k from corner k to k+1): E = cross(p_i - q, p_j - q),
 // positive left of i -> j, and its gradient m in q.
 void edge_functions_2d(real2 p[4], real2 q, out real E[4], out real2 m[4]) {
+    #pragma unroll
     for (int k = 0; k < 4; ++k) {
-        int j = (k + 1) & 3;
+        const int j = (k + 1) & 3;
         precise real2 a = p[k] - q;
         precise real2 b = p[j] - q;
         precise real e = a.x * b.y - a.y * b.x;
@@ -46,8 +47,9 @@ void edge_functions_2d(real2 p[4], real2 q, out real E[4], out real2 m[4]) {
 // Edge functions of patch P for the ray (xn, 1): E = (xn, 1) . (P_i x P_j), and the gradient in xn.
 // With pinhole_corners(P) and the sample's pixel point for xn, the same in pixel space.
 void edge_functions_ray(real3 P[4], real2 xn, out real E[4], out real2 m[4]) {
+    #pragma unroll
     for (int k = 0; k < 4; ++k) {
-        int j = (k + 1) & 3;
+        const int j = (k + 1) & 3;
         precise real mx = P[k].y * P[j].z - P[k].z * P[j].y;
         precise real my = P[k].z * P[j].x - P[k].x * P[j].z;
         precise real mz = P[k].x * P[j].y - P[k].y * P[j].x;
@@ -61,6 +63,7 @@ void edge_functions_ray(real3 P[4], real2 xn, out real E[4], out real2 m[4]) {
 // (A_i x A_j) is fx fy times the ray's edge function, measured from the sample's pixel point,
 // which is exact, instead of its rounded ray (glsim.scene.bilinear.pinhole_corners).
 void pinhole_corners(real3 P[4], real intr[5], out real3 A[4]) {
+    #pragma unroll
     for (int i = 0; i < 4; ++i) {
         precise real a = (intr[0] * P[i].x + intr[2] * P[i].y) + intr[3] * P[i].z;
         precise real b = intr[1] * P[i].y + intr[4] * P[i].z;
@@ -88,6 +91,7 @@ bool owned(real xi, real eta, real E[4], real2 m[4], real s) {
     if (!in_range(xi, eta)) return false;
     bool near[4] = bool[4](eta <= -1.0 + NEAR_TOL, xi >= 1.0 - NEAR_TOL, eta >= 1.0 - NEAR_TOL,
                            xi <= -1.0 + NEAR_TOL);
+    #pragma unroll
     for (int k = 0; k < 4; ++k)
         if (near[k] && !edge_owns(E[k], m[k], s)) return false;
     return true;
@@ -127,6 +131,7 @@ void newton_step(real2 p[4], real xi, real eta, real2 q, out real dxi, out real 
 // Works relative to corner 0, which keeps float32 residuals at the element's scale.
 bool invert_newton(real2 p[4], real2 q, out real xi, out real eta) {
     real2 o = p[0];
+    #pragma unroll
     for (int i = 0; i < 4; ++i) p[i] -= o;
     q -= o;
     xi = 0.0;
@@ -162,6 +167,7 @@ void invert_closed(real2 p[4], real2 q, out real xi[2], out real eta[2], out boo
     t[1] = Q == 0.0 ? t[0] : C / Q;
     good[0] = linear ? B != 0.0 : disc >= 0.0;
     good[1] = good[0] && !linear;
+    #pragma unroll
     for (int k = 0; k < 2; ++k) {
         ok[k] = false;
         xi[k] = 0.0;
@@ -206,6 +212,7 @@ bool intersect_ray_patch_p(real3 P[4], real2 p[4], real2 xn, real2 px, out real 
     xi = 0.0;
     eta = 0.0;
     Z = 0.0;
+    #pragma unroll
     for (int k = 0; k < 2; ++k) {
         real z = dot(shape_functions(xs[k], es[k]), real4(P[0].z, P[1].z, P[2].z, P[3].z));
         if (!(ok[k] && z > 0.0 && (!found || z < Z) && in_range(xs[k], es[k]))) continue;

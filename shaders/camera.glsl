@@ -17,7 +17,7 @@
 
 #ifdef APERTURE
 // The pixel point of sample `q` (its index on the SS-times grid) on a sensor of fill factor
-// f < 1: its offset from the pixel centre scaled by APERTURE = sqrt(f) (a real literal), in
+// f < 1: its offset from the pixel centre scaled by APERTURE = sqrt(f) (a real, exact), in
 // glsim.scene.camera.pixel_grid's operations and order.
 real2 aperture_sample(ivec2 q) {
     ivec2 pix = q / SS;

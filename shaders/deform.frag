@@ -122,6 +122,7 @@ float light_at(int e, real xi, real eta) {
     piece_cell(e, pid, ci, cj);
     real Nq[9];
     q9_shape(xi, eta, Nq);
+    #pragma unroll
     for (int i = 0; i < 9; ++i) X += float(Nq[i]) * vec3(patch_camera(pid, i));
     real n2 = real(PIECES);
     real cx = clamp(floor((xi + 1.0) * n2 / 2.0), 0.0, n2 - 1.0), cy = clamp(floor((eta + 1.0) * n2 / 2.0), 0.0, n2 - 1.0);
@@ -159,9 +160,11 @@ bool inside_reference(real2 ref) {
 void element_camera(int e, out real3 P[4]) {
 #ifdef CAMERA_LOCAL
     int l = 32 * e;
+    #pragma unroll
     for (int i = 0; i < 4; ++i) P[i] = real3(elem_local[l + 3 * i], elem_local[l + 3 * i + 1], elem_local[l + 3 * i + 2]);
 #else
     int b = e * 12;
+    #pragma unroll
     for (int i = 0; i < 4; ++i) P[i] = real3(elem_data[b + 3 * i], elem_data[b + 3 * i + 1], elem_data[b + 3 * i + 2]);
 #endif
 }
@@ -176,6 +179,7 @@ void projected_corners(int e, real3 P[4], real2 xn, real2 lo, out real2 p[4]) {
     if (cz > 0.0) {
         // the high halves' difference is exact (they are close), the low ones' small
         vec2 d = (xn - vec2(elem_local[l + 26], elem_local[l + 27])) + (lo - vec2(elem_local[l + 28], elem_local[l + 29]));
+        #pragma unroll
         for (int i = 0; i < 4; ++i) {
             vec3 D = vec3(elem_local[l + 12 + 3 * i], elem_local[l + 13 + 3 * i], elem_local[l + 14 + 3 * i]);
             p[i] = (D.xy - xn * D.z) - cz * d;
@@ -183,6 +187,7 @@ void projected_corners(int e, real3 P[4], real2 xn, real2 lo, out real2 p[4]) {
         return;
     }
 #endif
+    #pragma unroll
     for (int i = 0; i < 4; ++i) p[i] = P[i].xy - xn * P[i].z;
 }
 
@@ -195,6 +200,7 @@ bool exact_reference(int e, real xi, real eta, out real2 ref) {
     // exact to float32's relative precision, added to C's pixel kept as hi + lo
     int r = e * 20;
     real3 D[4];
+    #pragma unroll
     for (int i = 0; i < 4; ++i) D[i] = real3(ref_local[r + 3 * i], ref_local[r + 3 * i + 1], ref_local[r + 3 * i + 2]);
     real3 d = bilinear3(D, xi, eta);
     real3 C = real3(ref_local[r + 12], ref_local[r + 13], ref_local[r + 14]);
@@ -211,6 +217,7 @@ bool exact_reference(int e, real xi, real eta, out real2 ref) {
     // the pinhole projection of the blended corners: (fx X + skew Y + cx Z, fy Y + cy Z) / Z
     int r = e * 12;
     real3 R[4];
+    #pragma unroll
     for (int i = 0; i < 4; ++i) R[i] = real3(ref_pinhole[r + 3 * i], ref_pinhole[r + 3 * i + 1], ref_pinhole[r + 3 * i + 2]);
     real3 w = bilinear3(R, xi, eta);
     ref_ok = w.z > 0.0;
@@ -218,6 +225,7 @@ bool exact_reference(int e, real xi, real eta, out real2 ref) {
 #else
     ivec4 q = quads[e];
     real3 R[4];  // undeformed corners in the reference camera's frame (mm)
+    #pragma unroll
     for (int i = 0; i < 4; ++i) R[i] = real3(ref_xr[3 * q[i]], ref_xr[3 * q[i] + 1], ref_xr[3 * q[i] + 2]);
     ref_ok = project_camera_frame(bilinear3(R, xi, eta), u_ref_intr, u_ref_dist, u_ref_valid_r2, ref);
 #endif
@@ -239,21 +247,26 @@ bool map_sample(int e, real2 px, real2 xn, out real xi, out real eta, out real2 
     real z[9];
     real2 pp[9];
     real3 Q[9];
+    #pragma unroll
     for (int i = 0; i < 9; ++i) { Q[i] = patch_camera(pid, i); z[i] = Q[i].z; }
     real N[9];
 #if defined(MODE_Q4)
+    #pragma unroll
     for (int i = 0; i < 9; ++i) {
         if (!project_camera_frame(Q[i], u_intr, u_dist, u_valid_r2, pp[i])) return false;
     }
     if (!q9_invert_piece(e, pp, z, px, xi, eta, Z)) return false;
     q9_shape(xi, eta, N);
+    #pragma unroll
     for (int i = 0; i < 9; ++i) ref += N[i] * real2(patch_ref[18 * pid + 2 * i], patch_ref[18 * pid + 2 * i + 1]);
     ref_ok = true;
 #else
+    #pragma unroll
     for (int i = 0; i < 9; ++i) pp[i] = Q[i].xy - xn * Q[i].z;
     if (!q9_invert_piece(e, pp, z, real2(0.0), xi, eta, Z)) return false;
     q9_shape(xi, eta, N);
     real3 X = real3(0.0);
+    #pragma unroll
     for (int i = 0; i < 9; ++i) {
         int r = 27 * pid + 3 * i;
         X += N[i] * real3(patch_ref[r], patch_ref[r + 1], patch_ref[r + 2]);
@@ -262,6 +275,7 @@ bool map_sample(int e, real2 px, real2 xn, out real xi, out real eta, out real2 
 #endif
 #elif defined(MODE_Q4)
     real2 p[4];
+    #pragma unroll
     for (int i = 0; i < 4; ++i) p[i] = real2(elem_data[b + 2 * i], elem_data[b + 2 * i + 1]);
     Z = 0.0;
     if (!invert_newton(p, px, xi, eta) || !in_range(xi, eta)) return false;
@@ -273,6 +287,7 @@ bool map_sample(int e, real2 px, real2 xn, out real xi, out real eta, out real2 
     }
     ivec4 q = quads[e];
     real2 r[4];
+    #pragma unroll
     for (int i = 0; i < 4; ++i) r[i] = real2(ref_uv[2 * q[i]], ref_uv[2 * q[i] + 1]);
     ref = bilinear2(r, xi, eta);
     Z = dot(shape_functions(xi, eta), real4(elem_data[b + 8], elem_data[b + 9], elem_data[b + 10], elem_data[b + 11]));

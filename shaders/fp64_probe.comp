@@ -1,7 +1,8 @@
 // The double-path primitives of the shaders on a batch of inputs, written bit for bit, for
 // comparison with their numpy twins (glsim.evaluation.check.fp64_probe, glsim check): hilo.glsl's
 // split_double, camera.glsl's pixel_to_normalized, distort and normalized_to_pixel, bilinear.glsl's
-// pinhole_corners and edge_functions_ray.
+// pinhole_corners and edge_functions_ray. Its own loops over local double arrays are written out
+// (#pragma unroll), as the renderer's are: a variable index would round them to float32 on NVIDIA.
 #include "camera.glsl"
 #include "bilinear.glsl"
 #include "hilo.glsl"
@@ -23,23 +24,29 @@ void main() {
     outputs[o] = double(hl.x);
     outputs[o + 1] = double(hl.y);
     double intr[5];
+    #pragma unroll
     for (int k = 0; k < 5; ++k) intr[k] = inputs[a + 3 + k];
     dvec2 xd = pixel_to_normalized(dvec2(inputs[a + 1], inputs[a + 2]), intr);
     outputs[o + 2] = xd.x;
     outputs[o + 3] = xd.y;
     dvec3 P[4], A[4];
+    #pragma unroll
     for (int k = 0; k < 4; ++k) P[k] = dvec3(inputs[a + 8 + 3 * k], inputs[a + 9 + 3 * k], inputs[a + 10 + 3 * k]);
     pinhole_corners(P, intr, A);
     double E[4];
     dvec2 m[4];
     edge_functions_ray(A, dvec2(inputs[a + 20], inputs[a + 21]), E, m);
+    #pragma unroll
     for (int k = 0; k < 4; ++k) {
-        for (int c = 0; c < 3; ++c) outputs[o + 4 + 3 * k + c] = A[k][c];
+        outputs[o + 4 + 3 * k] = A[k].x;
+        outputs[o + 5 + 3 * k] = A[k].y;
+        outputs[o + 6 + 3 * k] = A[k].z;
         outputs[o + 16 + k] = E[k];
         outputs[o + 20 + 2 * k] = m[k].x;
         outputs[o + 21 + 2 * k] = m[k].y;
     }
     double k[12];
+    #pragma unroll
     for (int c = 0; c < 12; ++c) k[c] = inputs[a + 22 + c];
     dvec2 d = distort(dvec2(inputs[a + 34], inputs[a + 35]), k);
     dvec2 uv = normalized_to_pixel(d, intr);

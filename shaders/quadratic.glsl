@@ -28,6 +28,7 @@ real3 dlagrange3(real t) { return real3(t - 0.5, -2.0 * t, t + 0.5); }
 
 void q9_shape(real xi, real eta, out real N[9]) {
     real3 a = lagrange3(xi), b = lagrange3(eta);
+    #pragma unroll
     for (int i = 0; i < 9; ++i) N[i] = a[Q_IA[i]] * b[Q_IB[i]];
 }
 
@@ -43,11 +44,13 @@ real3 patch_camera(int p, int k) {
 // glsim.scene.quadratic.newton (relative to the centre node; steps clipped to +-1).
 bool q9_newton(real2 p[9], real2 q, real scale, inout real xi, inout real eta) {
     real2 o = p[8];
+    #pragma unroll
     for (int i = 0; i < 9; ++i) p[i] -= o;
     q -= o;
     for (int it = 0; it < Q_MAX_ITER; ++it) {
         real3 a = lagrange3(xi), b = lagrange3(eta), da = dlagrange3(xi), db = dlagrange3(eta);
         real2 f = -q, ja = real2(0.0), jb = real2(0.0);
+        #pragma unroll
         for (int i = 0; i < 9; ++i) {
             f += a[Q_IA[i]] * b[Q_IB[i]] * p[i];
             ja += da[Q_IA[i]] * b[Q_IB[i]] * p[i];
@@ -64,6 +67,7 @@ bool q9_newton(real2 p[9], real2 q, real scale, inout real xi, inout real eta) {
     real N[9];
     q9_shape(xi, eta, N);
     real2 f = -q;
+    #pragma unroll
     for (int i = 0; i < 9; ++i) f += N[i] * p[i];
     return length(f) <= Q_RESIDUAL * scale && !(isnan(xi) || isnan(eta));
 }
@@ -87,6 +91,17 @@ bool in_piece(int ci, int cj, real xi, real eta) {
 // sub-quad s = 2 j + i spans xi in [-1 + i, i], eta in [-1 + j, j].
 const int Q_SUB[16] = int[16](0, 4, 8, 7,  4, 1, 5, 8,  7, 8, 6, 3,  8, 5, 2, 6);
 
+// Sub-quad s's corners: the points indexed by constants only (s selects one written-out copy).
+void piece_corners(real2 pp[9], int s, out real2 sub[4]) {
+    #pragma unroll
+    for (int t = 0; t < 4; ++t) {
+        if (s == t) {
+            #pragma unroll
+            for (int i = 0; i < 4; ++i) sub[i] = pp[Q_SUB[4 * t + i]];
+        }
+    }
+}
+
 // The patch point of piece e's share that maps to q under the patch's 2-D map (points pp) and
 // is nearest (patch depths z): Newton from the starts of glsim.scene.quadratic.starts — both
 // closed-form roots of each 2x2 sub-quad within Q_START_RANGE of it, and always its centre (beside
@@ -97,27 +112,31 @@ bool q9_invert_piece(int e, real2 pp[9], real z[9], real2 q, out real xi, out re
     int pid, ci, cj;
     piece_cell(e, pid, ci, cj);
     real2 lo = pp[0], hi = pp[0];
+    #pragma unroll
     for (int i = 1; i < 9; ++i) { lo = min(lo, pp[i]); hi = max(hi, pp[i]); }
     real scale = max(hi.x - lo.x, hi.y - lo.y);
     bool found = false;
     xi = 0.0; eta = 0.0; Z = 0.0;
     for (int s = 0; s < 4; ++s) {
         real2 sub[4];
-        for (int i = 0; i < 4; ++i) sub[i] = pp[Q_SUB[4 * s + i]];
+        piece_corners(pp, s, sub);
         real xs[2], ys[2];
         bool ok[2], usable[3];
         invert_closed(sub, q, xs, ys, ok);
+        #pragma unroll
         for (int k = 0; k < 2; ++k) usable[k] = ok[k] && abs(xs[k]) <= Q_START_RANGE && abs(ys[k]) <= Q_START_RANGE;
         usable[2] = true;
         for (int k = 0; k < 3; ++k) {
             if (!usable[k]) continue;
-            real sx = k < 2 ? xs[k] : 0.0, sy = k < 2 ? ys[k] : 0.0;
+            // (a variable index into xs would put them in NVIDIA's float32 memory: README, glsim check)
+            real sx = k == 0 ? xs[0] : k == 1 ? xs[1] : 0.0, sy = k == 0 ? ys[0] : k == 1 ? ys[1] : 0.0;
             real x = -1.0 + (2.0 * real(s % 2) + 1.0 + sx) * 0.5;
             real y = -1.0 + (2.0 * real(s / 2) + 1.0 + sy) * 0.5;
             if (!q9_newton(pp, q, scale, x, y) || !in_piece(ci, cj, x, y)) continue;
             real N[9];
             q9_shape(x, y, N);
             real zz = 0.0;
+            #pragma unroll
             for (int i = 0; i < 9; ++i) zz += N[i] * z[i];
             if (!(zz > 0.0) || (found && zz >= Z)) continue;
             found = true;

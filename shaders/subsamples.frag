@@ -40,9 +40,12 @@ void main() {
     real z0 = dot(shape_functions(xs[0], es[0]), Pz), z1 = dot(shape_functions(xs[1], es[1]), Pz);
     bool in0 = ok[0] && z0 > 0.0 && in_range(xs[0], es[0]);
     bool in1 = ok[1] && z1 > 0.0 && in_range(xs[1], es[1]);
-    int r = in0 && (!in1 || z0 <= z1) ? 0 : 1;
-    bool other_far = !ok[1 - r] || max(abs(xs[1 - r]), abs(es[1 - r])) > OTHER_ROOT_RANGE;
-    bool done = centre_ray && (r == 0 ? in0 : in1) && other_far && !near_edge(xs[r], es[r]);
+    // the nearer root r and the other one, selected (a variable index into xs would put it in
+    // NVIDIA's float32 memory: README, "glsim check")
+    bool r0 = in0 && (!in1 || z0 <= z1);
+    real xr = r0 ? xs[0] : xs[1], er = r0 ? es[0] : es[1];
+    bool other_far = !(r0 ? ok[1] : ok[0]) || max(abs(r0 ? xs[1] : xs[0]), abs(r0 ? es[1] : es[0])) > OTHER_ROOT_RANGE;
+    bool done = centre_ray && (r0 ? in0 : in1) && other_far && !near_edge(xr, er);
     float acc = 0.0, zacc = 0.0, zn = 0.0;
     uint dropped = 0u;
     for (int j = 0; j < SS; ++j)
@@ -50,7 +53,7 @@ void main() {
             real2 xn;
             bool has_ray = ray_at(u_rays, pix * SS + ivec2(i, j), xn);
             projected_corners(e, P, xn, ray_lo, p);
-            real xi = xs[r], eta = es[r];
+            real xi = xr, eta = er;
             bool converged = false;
             for (int it = 0; it < SUBSAMPLE_STEPS && !converged; ++it) {
                 real dx, dy, det;

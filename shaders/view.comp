@@ -34,6 +34,7 @@ void main() {
     record_flags(e, P, projectable, behind);
     int b = 12 * e;
 #if defined(MODE_Q4)
+    #pragma unroll
     for (int i = 0; i < 4; ++i) {
         real2 uv;
         project_camera_frame(P[i], u_intr, u_dist, u_valid_r2, uv);
@@ -43,6 +44,7 @@ void main() {
     }
     bool drawn = projectable && !behind;   // q4 draws only elements that project
 #else
+    #pragma unroll
     for (int i = 0; i < 4; ++i) {
         elem_data[b + 3 * i] = P[i].x;
         elem_data[b + 3 * i + 1] = P[i].y;
@@ -54,11 +56,14 @@ void main() {
     real2 xc = C.z > 0.0 ? C.xy / C.z : real2(0.0);
     vec4 xc_hl = split_double2(xc);   // hilo.glsl (RECORD_LOCAL is an FP64 build)
     int l = 32 * e;
-    for (int i = 0; i < 4; ++i)
+    #pragma unroll
+    for (int i = 0; i < 4; ++i) {
+        #pragma unroll
         for (int k = 0; k < 3; ++k) {
             elem_local[l + 3 * i + k] = float(P[i][k]);
             elem_local[l + 12 + 3 * i + k] = float(P[i][k] - C[k]);
         }
+    }
     vec4 tail[2] = vec4[2](vec4(float(C.z > 0.0 ? C.z : 0.0), 0.0, xc_hl.xy), vec4(xc_hl.zw, 0.0, 0.0));
     for (int k = 0; k < 4; ++k) {
         elem_local[l + 24 + k] = tail[0][k];

@@ -31,11 +31,13 @@ real3 node_camera(int n) {
 // The corners of element e in the camera frame (mm).
 void element_corners(int e, out real3 P[4]) {
     ivec4 q = quads[e];
+    #pragma unroll
     for (int i = 0; i < 4; ++i) P[i] = node_camera(q[i]);
 }
 
 // All four corners in front of the camera and inside the valid radius (camera.glsl's test).
 bool corners_projectable(real3 P[4], real valid_r2) {
+    #pragma unroll
     for (int i = 0; i < 4; ++i) {
         if (!(P[i].z > 0.0)) return false;
         real2 xn = P[i].xy / P[i].z;
@@ -125,6 +127,7 @@ const ivec2 COVER_SEGMENTS[6] = ivec2[6](ivec2(0, 1), ivec2(1, 2), ivec2(2, 3), 
 // strays more than COVER_COARSE_SAG_PX from its chord, the segments sampled finely.
 void projectable_cover(real3 P[4], out vec2 rect[4], out vec4 tight[2]) {
     real2 xn[4], uvc[4];
+    #pragma unroll
     for (int i = 0; i < 4; ++i) {
         xn[i] = P[i].xy / P[i].z;
         uvc[i] = to_pixels(xn[i]);
@@ -134,17 +137,20 @@ void projectable_cover(real3 P[4], out vec2 rect[4], out vec4 tight[2]) {
     a = n > 0.0 ? a / n : real2(1.0, 0.0);
     Extent x = extent_start(a);
     real sag = 0.0;
+    #pragma unroll
     for (int i = 0; i < 4; ++i) extent_add(x, uvc[i]);
+    #pragma unroll
     for (int s = 0; s < 6; ++s) {
-        ivec2 ij = COVER_SEGMENTS[s];
+        const ivec2 ij = COVER_SEGMENTS[s];
         real2 m = to_pixels(0.5 * (xn[ij.x] + xn[ij.y]));
         sag = max(sag, length(m - 0.5 * (uvc[ij.x] + uvc[ij.y])));
         extent_add(x, m);
     }
     if (sag > COVER_COARSE_SAG_PX) {
         sag = 0.0;
+        #pragma unroll
         for (int s = 0; s < 6; ++s) {
-            ivec2 ij = COVER_SEGMENTS[s];
+            const ivec2 ij = COVER_SEGMENTS[s];
             real2 d = xn[ij.y] - xn[ij.x];
             real2 prev = uvc[ij.x];
             for (int k = 1; k <= COVER_FINE_INTERVALS; ++k) {
@@ -172,11 +178,13 @@ bool unprojectable_cover(real3 P[4], out vec2 rect[4], out vec4 tight[2]) {
         return true;
     }
     real2 lo = real2(FAR_AWAY), hi = real2(-FAR_AWAY);
+    #pragma unroll
     for (int i = 0; i < 4; ++i) {
         if (!(P[i].z > 0.0)) continue;
         real2 p = P[i].xy / P[i].z;
         lo = min(lo, p);
         hi = max(hi, p);
+        #pragma unroll
         for (int j = 0; j < 4; ++j) {
             if (P[j].z > 0.0) continue;
             real2 d = P[i].z * P[j].xy - P[j].z * P[i].xy;   // the segment's crossing: a direction
@@ -195,6 +203,7 @@ bool unprojectable_cover(real3 P[4], out vec2 rect[4], out vec4 tight[2]) {
     real sag = 0.0;
     const int N = 2 * COVER_BOUNDARY_INTERVALS;
     real2 first, prev, mid;
+    #pragma unroll
     for (int s = 0; s < 4; ++s) {
         for (int k = 0; k < N; ++k) {
             real2 q = c[s] + (real(k) / real(N)) * (c[(s + 1) & 3] - c[s]);

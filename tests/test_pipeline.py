@@ -9,7 +9,7 @@ import pytest
 from glsim.errors import SceneError
 from glsim.render import Renderer
 from glsim.scene import Noise
-from tests._plates import plate_scene
+from _plates import plate_scene
 
 BACKENDS = ["cpu", pytest.param("gl", marks=pytest.mark.gl)]
 

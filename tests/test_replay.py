@@ -7,8 +7,8 @@ import pytest
 
 from glsim.render import Renderer
 from glsim.scene import Lighting
-from tests._plates import plate_scene
-from tests.test_pipeline import _same
+from _plates import plate_scene
+from test_pipeline import _same
 
 # kinds that share programs whose uniforms differ (candidates.comp's u_half at 1 and 4 spp),
 # with truth and without, quantised on the GPU (inside the record) or not, Newton's sub-samples
@@ -201,7 +201,7 @@ def test_a_time_series_new_steps_replay_the_pass_of_the_first_ones(gl_ctx):
     import numpy as np
 
     from glsim.scene.mesh import Mesh
-    from tests.test_render import custom_mesh_scene, grid_nodes
+    from test_render import custom_mesh_scene, grid_nodes
 
     nodes, quads = grid_nodes(8, 6, 20.0, 15.0, 300.0)
     steps = [np.zeros_like(nodes)]

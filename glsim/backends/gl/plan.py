@@ -15,6 +15,8 @@ from dataclasses import dataclass
 from types import MappingProxyType
 from typing import Mapping, NamedTuple
 
+import numpy as np
+
 from glsim.effects.dof import blur_scheme
 
 PLANS_KEPT = 64   # plans kept by :func:`plan` (one per kind of render; a library makes a few)
@@ -110,9 +112,14 @@ def deform_defines(opts, truth: bool, fp64: bool, fx: EffectsShape = _NO_EFFECTS
 
 
 def aperture_literal(aperture: float, fp64: bool) -> str:
-    """√(sensor.fill_factor) as a GLSL literal of type ``real`` (shaders/camera.glsl's
-    aperture_sample): the float64 value's shortest repr, with ``lf`` for float64 programs."""
-    return repr(float(aperture)) + ("lf" if fp64 else "")
+    """√(sensor.fill_factor) as a GLSL expression of type ``real`` (shaders/camera.glsl's
+    aperture_sample): for float64 programs its bits (``packDouble2x32``), since NVIDIA's compiler
+    reads decimal double literals up to an ulp off (0.1lf as 0.09999999999999999 on an H100:
+    README, "glsim check"); for float32 ones the value's shortest repr."""
+    if not fp64:
+        return repr(float(aperture))
+    lo, hi = np.array([aperture], "<f8").view("<u4")
+    return f"packDouble2x32(uvec2({int(lo):#010x}u, {int(hi):#010x}u))"
 
 
 def newton_subsamples(opts, s: int, quadratic: bool) -> bool:

@@ -27,6 +27,9 @@ PRECISION = """#ifdef FP64
 #define real3x3 mat3
 #endif"""
 _INCLUDE = re.compile(r'^\s*#include\s+"([^"]+)"\s*$')
+_UNROLL = re.compile(r"^\s*#pragma\s+unroll\s*$")
+_FOR = re.compile(r"^(\s*)for\s*\(\s*int\s+(\w+)\s*=\s*(\w+)\s*;\s*\2\s*(<=?)\s*(\w+)\s*;\s*(?:\+\+\2|\2\+\+)\s*\)\s*(.*)$")
+_INT_DEFINE = re.compile(r"^\s*#define\s+(\w+)\s+(-?\d+)\s*(?://.*)?$")
 # Mesa: "0:12(5): error: ..."; NVIDIA: "0(12) : error C1008: ..."
 _LOG_LINE = re.compile(r"^\s*\d+[:(](\d+)\)?(?:\(\d+\))?\s*:\s*(.*)$")
 
@@ -85,7 +88,86 @@ def assemble(name: str, defines: dict | None = None, dirs: tuple = ()) -> Source
             origin.append((fname, n))
 
     add(name)
+    ints = {k: int(v) for k, v in (defines or {}).items() if re.fullmatch(r"-?\d+", str(v))}
+    while any(_UNROLL.match(t) for t in lines):   # nested loops: the outer one first
+        lines, origin = _unroll(lines, origin, ints)
     return Source("\n".join(lines) + "\n", tuple(origin))
+
+
+def _unroll(lines: list[str], origin: list[tuple[str, int]], ints: dict[str, int]) -> tuple[list, list]:
+    """Each loop after a ``#pragma unroll`` line — ``for (int k = A; k < B; ++k)`` (or ``<=``),
+    A and B integer literals or integer #defines, then a braced body or a one-line statement
+    without braces — written out once per k as ``do { const int k = …; body } while (false);``
+    (``continue`` keeps its meaning; ``break`` is refused): every index by k becomes a constant
+    expression. NVIDIA keeps a local array that a loop variable indexes in memory that holds
+    doubles as float32 (README, "glsim check": reads round to float32); constant indices keep
+    it in registers, bit for bit. Origins are kept, so driver logs name the loop's own lines."""
+    out: list[str] = []
+    where: list[tuple[str, int]] = []
+    i = 0
+    while i < len(lines):
+        m = _INT_DEFINE.match(lines[i])
+        if m:
+            ints.setdefault(m.group(1), int(m.group(2)))
+        if not _UNROLL.match(lines[i]):
+            out.append(lines[i])
+            where.append(origin[i])
+            i += 1
+            continue
+        f, n = origin[i]
+        m = _FOR.match(lines[i + 1]) if i + 1 < len(lines) else None
+        if m is None:
+            raise ShaderError(f"{f}:{n}: #pragma unroll must precede a loop 'for (int k = A; k < B; ++k)'")
+        indent, var, a, op, b, rest = m.groups()
+        try:
+            lo = int(a) if a.lstrip("-").isdigit() else ints[a]
+            hi = (int(b) if b.lstrip("-").isdigit() else ints[b]) + (op == "<=")
+        except KeyError as exc:
+            raise ShaderError(f"{f}:{n}: #pragma unroll: the bound {exc.args[0]} is not an integer literal or "
+                              "#define") from None
+        try:
+            body, body_origin, end = _loop_body(lines, origin, i + 1, rest.strip())
+        except (ValueError, IndexError):
+            raise ShaderError(f"{f}:{n}: #pragma unroll: a loop body of more than one line needs braces") from None
+        if any(re.search(r"\bbreak\b", t.split("//")[0]) for t in body):
+            raise ShaderError(f"{f}:{n}: #pragma unroll: 'break' in the loop (unrolled copies cannot leave the loop)")
+        for k in range(lo, hi):
+            out.append(f"{indent}do {{ const int {var} = {k};")
+            where.append(origin[i + 1])
+            out += body
+            where += body_origin
+            out.append(f"{indent}}} while (false);")
+            where.append(body_origin[-1])
+        i = end
+    return out, where
+
+
+def _loop_body(lines, origin, i, rest):
+    """The body of the loop whose header is lines[i] (``rest``: the header line after the
+    closing parenthesis): its lines without the outer braces, their origins, and the index of
+    the first line after it."""
+    if not rest.strip():
+        i += 1
+        rest = lines[i].strip()
+    if not rest.startswith("{"):
+        if rest.startswith("#") or not rest.split("//")[0].rstrip().endswith(";"):
+            raise ValueError("a loop body of more than one line needs braces")
+        return [lines[i] if lines[i].strip() == rest else rest], [origin[i]], i + 1
+    depth, body, where, first = 0, [], [], True
+    while True:
+        text = rest if first else lines[i]
+        code = text.split("//")[0]
+        for j, c in enumerate(code):
+            depth += (c == "{") - (c == "}")
+            if depth == 0 and c == "}":
+                inner = code[:j].lstrip()[1:] if first else code[:j]
+                body.append(inner)
+                where.append(origin[i])
+                return body, where, i + 1
+        body.append(code.lstrip()[1:] if first else text)
+        where.append(origin[i])
+        first = False
+        i += 1
 
 
 def translate_log(log: str, sources: dict[str, Source]) -> str:
