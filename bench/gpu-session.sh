@@ -12,9 +12,9 @@
 #   on the device (carry .gpukit), two calls in a row (a warm machine is given back when idle):
 #     bash .gpukit/run.sh "$OUT" info tests quick      → $OUT/r.tgz
 #     bash bench/gpu-session.sh run "$OUT" [probe] [check] [throughput]   → $OUT/gpu/
-#     The second runs the probes (seconds: bench/gpu_array_probe.py, how the driver keeps local
-#     double arrays and reads double literals; bench/gpu_pass_probe.py, the same per-pixel work
-#     as a fragment and as a compute pass), `glsim check` and the full throughput benchmark (all by default;
+#     The second runs bench/gpu_probes.py (seconds: how the driver keeps local double arrays and
+#     reads double literals; the same per-pixel work as a fragment and as a compute pass), `glsim
+#     check` and the full throughput benchmark (all by default;
 #     name some to split them over calls, each then shorter than a call's limit) with the kit installed the
 #     same way; commit its results beside the llvmpipe ones: bench/results/check-<gpu>.json (add
 #     it to the sources of README's "check-drivers" region, then `glsim docs`: a column of that
@@ -74,8 +74,7 @@ run)
   gpu=$(nvidia-smi --query-gpu=name --format=csv,noheader 2>/dev/null | head -1 | tr 'A-Z ' 'a-z-' | tr -cd 'a-z0-9-')
   gpu=${gpu:-unknown-gpu}
   steps=" ${*:3} "; [ "$steps" = "  " ] && steps=" probe check throughput "
-  [[ $steps == *" probe "* ]] && { echo "== probe"; timeout 60 python3 bench/gpu_array_probe.py "$G/array-probe-$gpu.json" > "$G/probe.log" 2>&1; echo "rc=$?"
-    timeout 60 python3 bench/gpu_pass_probe.py "$G/pass-probe-$gpu.json" >> "$G/probe.log" 2>&1; echo "rc=$?"; }
+  [[ $steps == *" probe "* ]] && { echo "== probe"; timeout 90 python3 bench/gpu_probes.py "$G/probes-$gpu.json" > "$G/probe.log" 2>&1; echo "rc=$?"; }
   [[ $steps == *" check "* ]] && { echo "== check ($gpu)"; timeout 150 glsim check --json "$G/check-$gpu.json" > "$G/check.log" 2>&1; echo "rc=$?"; tail -3 "$G/check.log"; }
   [[ $steps == *" throughput "* ]] && { echo "== throughput"; timeout 330 glsim bench throughput ${QUICK:+--quick} --out "$G/throughput-$gpu" > "$G/throughput.log" 2>&1; echo "rc=$?"; tail -3 "$G/throughput.log"; }
   true ;;

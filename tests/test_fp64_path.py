@@ -210,38 +210,39 @@ def test_double_path_primitives_are_bit_for_bit_numpys(gl_ctx):
                                   "edge_functions": 0, "distort": 0, "normalized_to_pixel": 0}
 
 
-def _bench_script(name: str):
-    """bench/<name> loaded as a module (the GPU session's probes are scripts, not package code)."""
+def _probes():
+    """bench/gpu_probes.py as a module (the GPU session's probes are a script, not package code)."""
     import importlib.util
 
-    spec = importlib.util.spec_from_file_location(name[:-3], Path(__file__).parents[1] / "bench" / name)
+    spec = importlib.util.spec_from_file_location("gpu_probes", Path(__file__).parents[1] / "bench" / "gpu_probes.py")
     module = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(module)
     return module
 
 
 @pytest.mark.gl
-def test_array_probe_reports_every_way(tmp_path):
-    """bench/gpu_array_probe.py (a GPU session's first step) runs and reports each way; the ways
+def test_array_probe_reports_every_way(gl_ctx):
+    """bench/gpu_probes.py's arrays probe (a GPU session's first step) reports each way; the ways
     every driver measured so far keeps bit for bit (llvmpipe; the H100: constant indices,
     uniform arrays, an exact division) are 0 here too."""
-    probe = _bench_script("gpu_array_probe.py")
-    probe.main(str(tmp_path / "p.json"))
-    got = json.loads((tmp_path / "p.json").read_text())
-    assert set(probe.WAYS) <= set(got)
-    assert all(isinstance(got[k], int) or got[k].startswith("compile error") for k in probe.WAYS)
+    probe = _probes()
+    got = probe.arrays(gl_ctx)
+    assert set(got) == set(probe.WAYS)
+    assert all(isinstance(v, int) or v.startswith("compile error") for v in got.values())
     assert got["loop writes, constant read"] == got["uniform array, variable read"] == got["literal 1.0lf / 10.0lf"] == 0
 
 
 @pytest.mark.gl
-def test_pass_probe_draws_the_same_image_both_ways(tmp_path):
-    """bench/gpu_pass_probe.py times a fragment and a compute pass doing the same `precise`
-    float64 work: both write the same bytes (a like-for-like comparison), each time reported."""
-    probe = _bench_script("gpu_pass_probe.py")
+def test_pass_probe_draws_the_same_image_both_ways(gl_ctx, tmp_path):
+    """bench/gpu_probes.py's passes probe times a fragment and a compute pass doing the same
+    `precise` float64 work: both write the same bytes (a like-for-like comparison), each time
+    reported; the script writes both probes to its JSON file."""
+    probe = _probes()
     probe.SIZE, probe.REPS = (96, 72), 2
     probe.main(str(tmp_path / "p.json"))
     got = json.loads((tmp_path / "p.json").read_text())
+    assert set(got["arrays"]) == set(probe.WAYS)
     for it in (0, 16, 64):
-        row = got[f"iter {it}"]
+        row = got["passes"][f"iter {it}"]
         assert row["same_bytes"] is True
         assert all(row[k] >= 0 for k in ("fragment_gpu_ms", "compute_gpu_ms", "fragment_wall_ms", "compute_wall_ms"))
