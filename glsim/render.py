@@ -195,7 +195,7 @@ class Renderer:
         if not jacobian:
             return self._finish(self._submit(camera, step, truth, quantize, options))
         opts = self._options(options)
-        jac.check_request(self.scene, opts, rig, self.reference.dots)
+        jac.check_request(self.scene, opts, self.reference.dots)
         one = opts.supersampling == 1   # the image's own pixel-centre raster is the samples'
         res = self._finish(self._submit(camera, step, truth or one, quantize, options))
         raster = {"element": res.truth.element.ravel(), "xi": res.truth.xi.ravel(),
@@ -205,15 +205,19 @@ class Renderer:
                                    **self._through_camera_effects(res.camera, J, J_rig,
                                                                   gain_term=self._gain_term(res.camera, step, opts, rig)))
 
-    def _gain_term(self, cam: Camera, step: int, opts: Render, rig: bool, tl=None, taus=(0.0,)):
+    def _gain_term(self, cam: Camera, step: int, opts: Render, rig: bool, tl=None, taus=(0.0,), rows=None):
         """The rig Jacobian's share of the vignetting gain's own change with the intrinsics and
         distortion: diag(the image before vignetting) · ∂gain/∂params (W·H × 23, CSR), or None;
-        over an exposure (``tl``) the image is its sub-frames' (at ``taus``) mean."""
+        over an exposure (``tl``) the image is its sub-frames' (at ``taus``) mean; ``rows``: a
+        rolling shutter's (row, time offset) pairs, each row's image its own sub-frames' (one-row
+        cameras)."""
         if not rig or self.scene.vignetting is None:
             return None
         from glsim.effects.vignetting import flat_field_rig_jacobian
 
-        before = sum(self._image_before(cam, step, opts, tl, tau, blur=True) for tau in taus) / len(taus)
+        parts = [(cam, 0.0)] if rows is None else [(motion.row_band(cam, row)[0], t) for row, t in rows]
+        before = np.concatenate([sum(self._image_before(c, step, opts, tl, t + tau, blur=True).ravel() for tau in taus)
+                                 for c, t in parts]) / len(taus)
         return sparse.csr_matrix(before.reshape(-1, 1) * flat_field_rig_jacobian(cam, self.scene.vignetting))
 
     def _through_camera_effects(self, cam: Camera, J, J_rig, stages=None, gain_term=None) -> dict:
@@ -234,7 +238,7 @@ class Renderer:
         t0, scene, mesh = time.perf_counter(), self.scene, self.drawn_mesh
         opts = self._options(options)
         if jacobian:
-            jac.check_request(scene, opts, rig, self.reference.dots)
+            jac.check_request(scene, opts, self.reference.dots)
         self.check_size(camera, truth, opts)
         cam, ex = scene.camera(camera), scene.exposure
         line = scene.sensor.line_time if scene.sensor is not None else 0.0
@@ -274,7 +278,8 @@ class Renderer:
         if jacobian:
             J = sparse.csr_matrix(sparse.vstack([j for j, _ in jacobians]))
             J_rig = sparse.csr_matrix(sparse.vstack([r for _, r in jacobians])) if rig else None
-            gain_term = self._gain_term(cam, step, opts, rig, tl, taus) if line == 0 else None
+            gain_term = None if line > 0 and self._banded else \
+                self._gain_term(cam, step, opts, rig, tl, taus, rows if line > 0 else None)   # (banded: per band)
             derivatives = self._through_camera_effects(cam, J, J_rig, ("prnu",) if line > 0 and self._banded else None,
                                                        gain_term)
         return Result(image=quantize_image(image, cam.bit_depth) if quantize else image, camera=cam, step=step,
@@ -312,8 +317,10 @@ class Renderer:
         J, J_rig = self._jacobian(band, step, opts, None, rig, tl, tau)
         index = self._camera_index(cam)
         rows = slice(at * cam.width, (at + 1) * cam.width)
-        return (through_camera_effects(J, self.scene, band, index, ("vignetting", "psf"))[rows],
-                None if J_rig is None else through_camera_effects(J_rig, self.scene, band, index, ("vignetting", "psf"))[rows])
+        stages = ("vignetting", "psf")
+        return (through_camera_effects(J, self.scene, band, index, stages)[rows],
+                None if J_rig is None else through_camera_effects(J_rig, self.scene, band, index, stages,
+                                                                  self._gain_term(band, step, opts, rig, tl, (tau,)))[rows])
 
     def _frame(self, cam: Camera, step: int, tau: float, tl: "motion.Timeline", opts: Render, truth: bool,
                row: int | None = None):

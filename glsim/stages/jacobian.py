@@ -47,19 +47,14 @@ UNREFUSED = ("noise", "vignetting", "psf", "sensor", "exposure", "lighting", "op
 CHUNK = 1 << 18          # samples differentiated at once (bounds memory: ~100 doubles each)
 
 
-def check_request(scene: Scene, opts: Render, rig: bool = False, dots=None) -> None:
-    """SceneError naming what ``jacobian=True`` cannot differentiate: [vignetting] in the rig
-    Jacobian with a rolling shutter, mode fast, a procedural
+def check_request(scene: Scene, opts: Render, dots=None) -> None:
+    """SceneError naming what ``jacobian=True`` cannot differentiate: mode fast, a procedural
     speckle (the reference's ``dots``) with a hard edge (and any optional table not in
     UNREFUSED)."""
     for f in dataclasses.fields(scene):
         if f.default is None and getattr(scene, f.name) is not None and f.name not in UNREFUSED:
             raise SceneError(f.name, "the image Jacobian does not differentiate this effect",
                              f"remove [{f.name}] or render without jacobian")
-    if rig and scene.vignetting is not None and scene.sensor is not None and scene.sensor.line_time > 0:
-        raise SceneError("vignetting", "with a rolling shutter the rig Jacobian does not differentiate the vignetting "
-                         "gain (it varies with the intrinsics and distortion; each row's image is its own state's)",
-                         "remove [vignetting] or line_time, or render without rig")
     if opts.mode not in MODES:
         raise SceneError("render.mode", f"the image Jacobian differentiates modes {' and '.join(MODES)}, "
                          f"not {opts.mode!r} (its triangles interpolate the reference point linearly)",
