@@ -198,7 +198,7 @@ def parser() -> argparse.ArgumentParser:
     j.add_argument("--step", type=int, required=True, help="load step")
     j.add_argument("-o", "--output", required=True, help=".npz file to write (scipy.sparse.load_npz reads it)")
     j.add_argument("--backend", choices=BACKENDS, help="override [render] backend")
-    j.add_argument("--mode", choices=MODES, help="override [render] mode (exact or q4)")
+    j.add_argument("--mode", choices=MODES, help="override [render] mode")
     j.add_argument("--rig", action="store_true", help="also the derivative w.r.t. the camera's pose, intrinsics and "
                    "distortion (rig_data, rig_indices, rig_indptr, rig_columns)")
     j.set_defaults(func=cmd_jacobian)

@@ -195,9 +195,10 @@ class Renderer:
         if not jacobian:
             return self._finish(self._submit(camera, step, truth, quantize, options))
         opts = self._options(options)
-        jac.check_request(self.scene, opts, self.reference.dots)
+        jac.check_request(self.scene, opts, self.reference.dots, self.mesh.is_quadratic)
         one = opts.supersampling == 1   # the image's own pixel-centre raster is the samples'
-        res = self._finish(self._submit(camera, step, truth or one, quantize, options))
+        res = self._finish(self._submit(camera, step, truth or one, quantize, options,
+                                        polish=truth or opts.mode != "fast"))   # (fast's Jacobian: elements only)
         raster = {"element": res.truth.element.ravel(), "xi": res.truth.xi.ravel(),
                   "eta": res.truth.eta.ravel()} if one else None
         J, J_rig = self._jacobian(res.camera, step, opts, raster, rig)
@@ -238,7 +239,7 @@ class Renderer:
         t0, scene, mesh = time.perf_counter(), self.scene, self.drawn_mesh
         opts = self._options(options)
         if jacobian:
-            jac.check_request(scene, opts, self.reference.dots)
+            jac.check_request(scene, opts, self.reference.dots, self.mesh.is_quadratic)
         self.check_size(camera, truth, opts)
         cam, ex = scene.camera(camera), scene.exposure
         line = scene.sensor.line_time if scene.sensor is not None else 0.0
@@ -363,10 +364,12 @@ class Renderer:
                 curved = self._curved(opts, step, tl, tau)
                 if aperture == 1.0:
                     view = self.geometry.view(jac.sample_camera(cam, s), step, state, drawn_state)
-                    raster = self.backend.render(Request(view, one, True, curved=curved)).samples
+                    raster = self.backend.render(Request(view, one, True, curved=curved,
+                                                         polish=opts.mode != "fast")).samples
                 else:   # each sample offset as a camera shifted by it: (H, s, W, s) → the sample camera's order
                     parts = [[self.backend.render(Request(self.geometry.view(shifted, step, state, drawn_state), one, True,
-                                                          curved=curved)).samples for shifted in row]
+                                                          curved=curved, polish=opts.mode != "fast")).samples
+                              for shifted in row]
                              for row in jac.shifted_cameras(cam, s, aperture)]
                     W, H = cam.size
                     raster = {k: np.stack([np.stack([p[k].reshape(H, W) for p in row], -1) for row in parts], 1)
@@ -503,7 +506,7 @@ class Renderer:
         hit = self._equal.get(key)
         return hit if hit is not None else keep(self._equal, key, value, SEEN_KEPT)
 
-    def _submit(self, camera, step: int, truth: bool, quantize: bool, options: dict) -> "_Submitted":
+    def _submit(self, camera, step: int, truth: bool, quantize: bool, options: dict, polish: bool = True) -> "_Submitted":
         t0 = time.perf_counter()
         opts, cam, index = self._job_setup(camera, truth, options)
         view = self.geometry.view(cam, step)
@@ -512,7 +515,7 @@ class Renderer:
         fx = prepare_effects(self.scene, deformed, self.drawn_mesh.quads, cam, index, step,
                              depths, normals=not self.backend.capabilities.device_geometry)
         curved = self._curved(opts, step)
-        token = self.backend.submit(Request(view, opts, truth, fx, curved, cam.bit_depth if quantize else None))
+        token = self.backend.submit(Request(view, opts, truth, fx, curved, cam.bit_depth if quantize else None, polish))
         return _Submitted(token, cam, step, opts, truth, quantize, view.step_geo, curved is not None,
                           time.perf_counter() - t0)
 

@@ -41,6 +41,22 @@ def test_both_backends_answer_one_request_type(backend, ctx_for):
         assert {"light", "noise"} <= set(res.stages) and any(s.startswith("blur") for s in res.stages), res.stages
 
 
+@pytest.mark.parametrize("backend", BACKENDS)
+@pytest.mark.parametrize("spp", [1, 4])
+def test_an_unpolished_raster_has_the_same_elements(backend, spp, ctx_for):
+    """Request.polish = False (mode fast's Jacobian, which wants only the elements): the raster's
+    elements and image as polished, its (ξ, η) the triangles' own (not the material point's)."""
+    scene = bulge_scene(size=(96, 72), steps=1)
+    with Renderer(scene, backend, ctx=ctx_for(backend)) as r:
+        view = r.geometry.view(scene.cameras[0], 1)
+        opts = dataclasses.replace(scene.render, mode="fast", samples_per_pixel=spp)
+        a, b = (r.backend.render(Request(view, opts, truth=True, polish=p)) for p in (True, False))
+    hit = a.samples["element"] >= 0
+    assert np.array_equal(a.samples["element"], b.samples["element"]) and hit.sum() > 1000
+    assert np.array_equal(a.image, b.image)
+    assert not np.array_equal(a.samples["xi"][hit], b.samples["xi"][hit])
+
+
 def test_the_renderer_asks_capabilities_not_names():
     """glsim/render.py never compares the backend's name."""
     tree = ast.parse((Path(__file__).parents[1] / "glsim" / "render.py").read_text())

@@ -45,7 +45,8 @@ def _plate(**render):
 def _image64(r: Renderer, deformed: np.ndarray, cam=None):
     """The oracle's float64 image (before its float32 cast) of ``deformed`` nodes seen by ``cam``
     (default: camera 0 at step 1; its samples placed by the fill factor's aperture), and per pixel
-    its samples' one element (−2 where they differ);
+    its samples' one element (−2 where they differ; in mode fast one triangle of it: the grey's
+    derivative jumps across the diagonal);
     lit as the oracle lights each sample (glsim.backends.cpu._shade, the Effects of ``deformed``)
     when the scene has [lighting]."""
     from glsim.backends.cpu import _shade
@@ -63,7 +64,10 @@ def _image64(r: Renderer, deformed: np.ndarray, cam=None):
     if r.scene.lighting is not None:
         fx = prepare(r.scene, deformed, r.mesh.quads, view.camera, 0, 1, np.empty(0))
         grey[hit] = _shade(view, raster, hit, grey[hit], fx)
-    el = raster["element"].reshape(H, s, W, s).transpose(0, 2, 1, 3).reshape(H * W, s * s)
+    el = raster["element"]
+    if opts.mode == "fast":   # its two triangles: ξ − η = 2w₁ ≥ 0 in (0, 1, 2), −2w₂ ≤ 0 in (0, 2, 3)
+        el = np.where(el >= 0, 2 * el + (raster["xi"] < raster["eta"]), el)
+    el = el.reshape(H, s, W, s).transpose(0, 2, 1, 3).reshape(H * W, s * s)
     one = np.where((el == el[:, :1]).all(axis=1), el[:, 0], -2)
     return grey.reshape(H, s, W, s).mean(axis=(1, 3)).ravel(), one
 
@@ -71,12 +75,15 @@ def _image64(r: Renderer, deformed: np.ndarray, cam=None):
 @pytest.mark.parametrize("mode, spp, interpolation, fill", [("exact", 1, "cubic", 1.0), ("q4", 1, "cubic", 1.0),
                                                             ("exact", 4, "cubic", 1.0), ("exact", 1, "procedural", 1.0),
                                                             ("q4", 4, "procedural", 1.0), ("exact", 4, "cubic", 0.5),
-                                                            ("q4", 9, "cubic", 0.3)])
+                                                            ("q4", 9, "cubic", 0.3), ("fast", 1, "cubic", 1.0),
+                                                            ("fast", 4, "bspline3", 1.0)])
 def test_oracle_matches_central_differences(mode, spp, interpolation, fill):
     """_against_central_differences of the oracle's float64 renders; procedural: the speckle's
     own dots evaluated exactly, their smooth edges' gradient (glsim.scene.speckle.gradient); a fill
     factor below 1: the samples at c + √fill·((k + ½)/s − ½), rendered as shifted cameras
-    (glsim.stages.jacobian.shifted_cameras; fails with the full pixel's rays, checked)."""
+    (glsim.stages.jacobian.shifted_cameras; fails with the full pixel's rays, checked); fast: the
+    perspective-correct triangles' weights moved by their corners' projections and depths
+    (glsim.stages.jacobian.fast_sensitivities; fails without the depths' term, checked)."""
     scene, mesh = _plate(backend="cpu", mode=mode, samples_per_pixel=spp, interpolation=interpolation)
     scene = scene.replace(sensor={"fill_factor": fill}) if fill < 1 else scene
     with Renderer(scene, mesh=mesh) as r:
@@ -206,7 +213,7 @@ def _moved(cam, name: str, d: float):
 
 
 @pytest.mark.parametrize("mode, spp, extra", [("exact", 1, None), ("q4", 4, None), ("exact", 1, "lit"),
-                                              ("exact", 1, "vignetted")])
+                                              ("exact", 1, "vignetted"), ("fast", 4, None)])
 def test_rig_jacobian_matches_central_differences(mode, spp, extra):
     """Every camera parameter (pose, intrinsics, the 12 distortion coefficients) of a posed, skewed
     camera; bspline3 (C², so no kink of the kernel's second derivative in the differences); lit:
@@ -644,11 +651,18 @@ def test_a_fill_factor_at_one_sample_per_pixel_leaves_the_jacobian_unchanged():
     assert out[0].jacobian.nnz > 0
 
 
-def test_modes_and_interpolation_are_refused_by_name():
+def test_what_the_jacobian_leaves_out_is_refused_by_name():
+    """Mode fast lit, defocused or on a quadratic mesh; a hard-edged procedural speckle."""
     scene, mesh = _plate(backend="cpu")
-    with Renderer(scene, mesh=mesh) as r:
-        with pytest.raises(SceneError, match=r"^render\.mode: .*'fast'.* — set mode = \"exact\""):
+    for table, value in (("lighting", LIGHTING), ("optics", DOF)):
+        with Renderer(scene.replace(**{table: value}), mesh=mesh) as r, \
+                pytest.raises(SceneError, match=rf"^{table}: in mode fast the image Jacobian .* — set render\.mode"):
             r.render(0, 1, jacobian=True, mode="fast")
+    qscene, (qmesh, _) = _curved()
+    with Renderer(qscene, mesh=qmesh) as r, \
+            pytest.raises(SceneError, match=r"^render\.mode: is 'fast': .* quadratic .* — set mode = \"exact\""):
+        r.render(0, 1, jacobian=True, mode="fast")
+    with Renderer(scene, mesh=mesh) as r:
         J = r.render(0, 1, jacobian=True).jacobian
     with Renderer(scene.replace(speckle={"edge_px": 0.0}), mesh=mesh) as r, \
             pytest.raises(SceneError, match=r"^speckle\.edge_px: is 0: .* — give the dots a smooth edge"):
@@ -659,7 +673,7 @@ def test_modes_and_interpolation_are_refused_by_name():
 
 @pytest.mark.gl
 @pytest.mark.parametrize("mode, spp, interpolation", [("exact", 1, "cubic"), ("q4", 1, "cubic"), ("exact", 4, "cubic"),
-                                                      ("exact", 1, "procedural")])
+                                                      ("exact", 1, "procedural"), ("fast", 4, "cubic")])
 def test_gl_matches_the_oracle(gl_ctx, mode, spp, interpolation):
     _gl_against_oracle(gl_ctx, *_plate(mode=mode, samples_per_pixel=spp, interpolation=interpolation))
 
@@ -819,8 +833,7 @@ def test_cli_round_trip(tmp_path, capsys):
         G = sp.csr_matrix((f["rig_data"], f["rig_indices"], f["rig_indptr"]), shape=(48 * 36, 23))
         assert abs(G - res.rig_jacobian).max() == 0 and list(f["rig_columns"]) == list(jac.RIG_COLUMNS)
     for args, message in ((["--camera", "right", "--step", "1"], "camera: no camera named 'right'"),
-                          (["--step", "5"], "step: 5 is outside"),
-                          (["--step", "1", "--mode", "fast"], "render.mode:")):
+                          (["--step", "5"], "step: 5 is outside")):
         bad = tmp_path / "bad.npz"
         assert cli.main(["jacobian", str(path), *args, "-o", str(bad)]) == 2
         assert f"glsim: error: {message}" in capsys.readouterr().err

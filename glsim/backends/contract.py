@@ -64,13 +64,16 @@ class Request:
     """One image to render: ``view`` (one camera, one step), ``options`` (the scene's [render]),
     ``truth`` (also the pixel-centre raster), ``effects`` (what the scene asks for), ``curved``,
     ``quantize`` (a bit depth: the image may come back quantised as glsim.io.images.quantize
-    does, where the backend can do that exactly)."""
+    does, where the backend can do that exactly), ``polish`` (the raster's (ξ, η) made float64,
+    glsim.stages.truth.polish; False: as the pass gave them, where only its elements are wanted —
+    mode fast's Jacobian)."""
     view: ViewSpec
     options: Render
     truth: bool = False
     effects: Effects = field(default_factory=Effects)
     curved: Curved | None = None
     quantize: int | None = None
+    polish: bool = True
 
 
 @dataclass(frozen=True, eq=False)

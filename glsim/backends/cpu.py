@@ -72,17 +72,8 @@ def _fast(view: View, e, q):
     out_ref = np.zeros(q.shape)
     depth = np.full(len(q), np.inf)
     ok = np.zeros(len(q), bool)
-    for tri in ((0, 1, 2), (0, 2, 3)):
-        a, b, c = (uv[:, k] for k in tri)
-        den = bl._cross(b - a, c - a)
-        safe = np.where(den == 0, 1.0, den)
-        l1 = bl._cross(q - a, c - a) / safe
-        l2 = bl._cross(b - a, q - a) / safe
-        lam = np.stack([1 - l1 - l2, l1, l2], -1)
-        # coverage: the shared tie rule on the triangle's edge functions (as GL's rasterizer,
-        # which however snaps the vertices to its sub-pixel grid first)
-        E, m = bl.edge_functions_2d(uv, q, edges=tuple(zip(tri, tri[1:] + tri[:1])))
-        hit = (den != 0) & ~ok & bl.edge_owns(E, m, np.sign(den)[:, None]).all(-1)
+    for tri in bl.FAST_TRIANGLES:
+        lam, hit = bl.triangle_barycentric(uv, q, tri, ok)   # coverage: the shared tie rule
         w = lam / z[:, tri]
         w /= np.where(hit, w.sum(-1), 1.0)[:, None]
         out_ref = np.where(hit[:, None], np.einsum("nk,nkd->nd", w, view.ref_uv[e][:, tri]), out_ref)
@@ -216,11 +207,12 @@ def _box(a: np.ndarray, H: int, W: int, s: int) -> np.ndarray:
     return a.reshape(H, s, W, s).mean(axis=(1, 3))
 
 
-def render_view(view: View, sample, opts, truth: bool, fx=None, raster=None):
+def render_view(view: View, sample, opts, truth: bool, fx=None, raster=None, polished: bool = True):
     """Image (H, W) float32, the pixel-centre raster of :func:`rasterize` if ``truth``, and
     the list of stages run. ``sample(uv)`` gives the reference grey at reference-image
     coordinates; ``opts`` is the scene's Render; ``fx`` the Effects; ``raster`` replaces
-    :func:`rasterize` (:func:`rasterize_quadratic` for a QuadView)."""
+    :func:`rasterize` (:func:`rasterize_quadratic` for a QuadView); ``polished`` False leaves
+    mode fast's (ξ, η) as its triangles give them (Request.polish)."""
     raster = raster or rasterize
     from glsim.effects import Effects
 
@@ -259,7 +251,7 @@ def render_view(view: View, sample, opts, truth: bool, fx=None, raster=None):
     if not truth:
         return image, None, stages
     r = r if s == 1 else raster(view, opts.mode, 1)
-    if opts.mode == "fast":  # truth at the material point that coloured the pixel (exact, q4: float64 already)
+    if opts.mode == "fast" and polished:  # truth at the material point that coloured the pixel (exact, q4: float64 already)
         r = polish(view, "fast", r)
     return image, r, stages
 
@@ -320,7 +312,7 @@ class CPUBackend:
             mesh = v.mesh_geo.mesh
             view = make_view(v.camera, v.ref_camera, mesh.nodes, v.step_geo.deformed, mesh.quads, mesh.element_labels)
         image, r, stages = render_view(view, self.sampler(opts.interpolation), opts, request.truth, request.effects,
-                                       rasterize_quadratic if c is not None else None)
+                                       rasterize_quadratic if c is not None else None, request.polish)
         return Raster(image, r, tuple(stages))
 
     def submit(self, request: Request) -> Raster:

@@ -2,8 +2,9 @@
 docs/jacobian.md) against one render and against finite differences of the nodal Jacobian.
 
 The bulge (step 1, camera 0, exact mode, bspline3) at 1624×1234 by default, per row of ROWS
-(backend, samples per pixel, what the scene adds: nothing; the lighting or the depth of field
-of :func:`glsim.scene.demo_effects`; a 2-sample exposure of a rigid motion; vignetting and PRNU):
+(backend, samples per pixel, what the scene adds or changes: nothing; mode fast; the lighting or
+the depth of field of :func:`glsim.scene.demo_effects`; a 2-sample exposure of a rigid motion;
+vignetting and PRNU):
 after one warm-up, ``reps`` interleaved pairs of a plain render and a render with the Jacobian;
 medians. Finite differences are not run: they cost two renders per degree of freedom (3 per
 node), estimated as 2 · 3N times the plain render's median.
@@ -20,8 +21,8 @@ FULL_SIZE = (1624, 1234)
 QUICK_SIZE = (406, 308)
 EXPOSURE = {"time": 0.01, "samples": 2, "velocity": [20.0, 0.0, 0.0]}    # 0.2 mm over the exposure
 CAMERA_EFFECTS = {"vignetting": {"natural": True}, "sensor": {"prnu": 1.0}}
-ROWS = (("gl", 1, "—"), ("gl", 4, "—"), ("cpu", 1, "—"), ("gl", 1, "lighting"), ("gl", 1, "depth of field"),
-        ("gl", 1, "exposure"), ("gl", 1, "vignetting, PRNU"))
+ROWS = (("gl", 1, "—"), ("gl", 4, "—"), ("cpu", 1, "—"), ("gl", 1, "mode fast"), ("gl", 4, "mode fast"),
+        ("gl", 1, "lighting"), ("gl", 1, "depth of field"), ("gl", 1, "exposure"), ("gl", 1, "vignetting, PRNU"))
 
 
 def _scene(size, spp: int, adds: str):
@@ -31,6 +32,8 @@ def _scene(size, spp: int, adds: str):
         return scene.replace(lighting=effects.lighting) if adds == "lighting" else scene.replace(optics=effects.optics)
     if adds == "exposure":
         return scene.replace(exposure=EXPOSURE)
+    if adds == "mode fast":
+        return scene.replace(render={"samples_per_pixel": spp, "mode": "fast"})
     return scene.replace(**CAMERA_EFFECTS) if adds != "—" else scene
 
 
@@ -77,7 +80,8 @@ def caption(report: dict) -> str:
     return (f"The bulge, camera 0, step 1, exact mode, bspline3, {W}×{H} px; {report['date']}; "
             f"{machine_line(report['machine'])}. Medians of {report['reps']} interleaved renders after a warm-up. "
             "*Render + Jacobian* is `render(..., jacobian=True)` (the image, the samples' float64 raster and the "
-            "derivatives in numpy); *with*: the demo's spotlight or depth of field (`glsim.scene.demo_effects`), a 2-sample exposure "
+            "derivatives in numpy); *with*: mode fast (render and Jacobian), the demo's spotlight or depth of field "
+            "(`glsim.scene.demo_effects`), a 2-sample exposure "
             "of a rigid motion, or natural vignetting and 1 % PRNU; finite differences are estimated as 2 · 3N plain "
             "renders (not run).")
 

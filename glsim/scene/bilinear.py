@@ -185,6 +185,25 @@ def edge_owns(E, m, s):
     return collapsed | (sE > 0) | ((sE == 0) & ((smx > 0) | ((smx == 0) & (smy > 0))))
 
 
+# mode fast's two triangles per quad (corner indices), tried in this order
+FAST_TRIANGLES = ((0, 1, 2), (0, 2, 3))
+
+
+def triangle_barycentric(p, q, tri, taken):
+    """Screen-space barycentric coordinates λ (n, 3) of points q (n, 2) in triangle ``tri`` of
+    quads p (n, 4, 2), and whether the triangle owns q under the tie rule on its edge functions
+    (as GL's rasterizer, which however snaps the vertices to its sub-pixel grid first), unless
+    ``taken`` (n,) by an earlier triangle."""
+    a, b, c = (p[:, k] for k in tri)
+    den = _cross(b - a, c - a)
+    safe = np.where(den == 0, 1.0, den)
+    l1 = _cross(q - a, c - a) / safe
+    l2 = _cross(b - a, q - a) / safe
+    E, m = edge_functions_2d(p, q, edges=tuple(zip(tri, tri[1:] + tri[:1])))
+    hit = (den != 0) & ~taken & edge_owns(E, m, np.sign(den)[:, None]).all(-1)
+    return np.stack([1 - l1 - l2, l1, l2], -1), hit
+
+
 def owned(xi, eta, E, m, s, tol=NEAR_TOL):
     """Coverage under the tie rule: (ξ, η) within [−1 − tol, 1 + tol]², and for each edge the
     sample is within ``tol`` of, :func:`edge_owns`. E, m: (..., 4), (..., 4, 2); s (...,)."""

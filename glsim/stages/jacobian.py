@@ -38,7 +38,6 @@ from glsim.scene import quadratic as qd
 from glsim.scene.camera import (Camera, distort, distort_jacobian, pixel_to_normalized, project_camera_frame, to_camera,
                                 undistort)
 
-MODES = ("exact", "q4")
 # optional tables the Jacobian takes (check_request refuses any other by name): it is of the
 # noise-free image, over the exposure (the sub-frames' mean), lit, through the depth of field
 # (glsim.effects.through_blur) and through the camera effects that act on it linearly
@@ -47,18 +46,23 @@ UNREFUSED = ("noise", "vignetting", "psf", "sensor", "exposure", "lighting", "op
 CHUNK = 1 << 18          # samples differentiated at once (bounds memory: ~100 doubles each)
 
 
-def check_request(scene: Scene, opts: Render, dots=None) -> None:
-    """SceneError naming what ``jacobian=True`` cannot differentiate: mode fast, a procedural
-    speckle (the reference's ``dots``) with a hard edge (and any optional table not in
-    UNREFUSED)."""
+def check_request(scene: Scene, opts: Render, dots=None, quadratic: bool = False) -> None:
+    """SceneError naming what ``jacobian=True`` cannot differentiate: in mode fast the lighting,
+    the depth of field and quadratic elements; a procedural speckle (the reference's ``dots``)
+    with a hard edge (and any optional table not in UNREFUSED)."""
     for f in dataclasses.fields(scene):
         if f.default is None and getattr(scene, f.name) is not None and f.name not in UNREFUSED:
             raise SceneError(f.name, "the image Jacobian does not differentiate this effect",
                              f"remove [{f.name}] or render without jacobian")
-    if opts.mode not in MODES:
-        raise SceneError("render.mode", f"the image Jacobian differentiates modes {' and '.join(MODES)}, "
-                         f"not {opts.mode!r} (its triangles interpolate the reference point linearly)",
-                         "set mode = \"exact\" (or \"q4\") or render without jacobian")
+    if opts.mode == "fast":
+        for field, what in (("lighting", "the lighting"), ("optics", "the depth of field")):
+            if getattr(scene, field) is not None:
+                raise SceneError(field, f"in mode fast the image Jacobian does not differentiate {what}",
+                                 f"set render.mode = \"exact\" (or \"q4\"), remove [{field}], or render without "
+                                 "jacobian")
+        if quadratic:
+            raise SceneError("render.mode", "is 'fast': its image Jacobian is of linear elements, not of the "
+                             "quadratic mesh's pieces", "set mode = \"exact\" (or \"q4\") or render without jacobian")
     if opts.interpolation == "procedural" and dots is not None and dots.edge_px == 0:
         raise SceneError("speckle.edge_px", "is 0: a hard-edged procedural speckle's grey jumps at the dots' edges, "
                          "so the image Jacobian would be zero everywhere else", "give the dots a smooth edge "
@@ -155,17 +159,19 @@ RIG_COLUMNS = ("rx", "ry", "rz", "tx", "ty", "tz", "fx", "fy", "cx", "cy", "skew
                "k1", "k2", "p1", "p2", "k3", "k4", "k5", "k6", "s1", "s2", "s3", "s4")
 
 
-def rig_derivatives(mode: str, N, v, c, Xd, cam: Camera, s: int, q=None, ray=None) -> np.ndarray:
+def rig_derivatives(mode: str, N, v, c, Xd, cam: Camera, s: int, q=None, ray=None, dP=None) -> np.ndarray:
     """∂g/∂(camera parameters) (n, 23) in :data:`RIG_COLUMNS`' order, from :func:`sensitivities`'s
     N, v (of the sample camera) and camera-frame corner derivatives c. Pose: a rotation vector ω
     applied on the left (R ← exp([ω]×)·R, per radian) and t ← t + τ (per mm) move every corner by
     ω × (X_k − t) + τ: ∂g/∂τ = Σ c_k, ∂g/∂ω = Σ (X_k − t) × c_k. Intrinsics (per px) and
     distortion (per unit) of ``cam``: ``exact`` through the ray of the pixel point ``q`` (n, 2,
-    ``cam``'s px; F = A(x_n)·P, ∂F/∂x_n = −P_z), ``q4`` through the corners' projections."""
+    ``cam``'s px; F = A(x_n)·P, ∂F/∂x_n = −P_z), ``q4`` and ``fast`` through the corners'
+    projections (``dP``: fast's ∂g/∂(corner's pixel) (n, 4, 2) per ``cam`` px, :func:`fast_sensitivities`;
+    q4's is −s·v·N_k)."""
     k = cam.distortion.coeffs
     fx, fy, skew = cam.fx, cam.fy, cam.skew
     Y = Xd - np.asarray(cam.t)
-    out = np.empty((len(v), 23))
+    out = np.empty((len(c), 23))
     out[:, 3:6] = c.sum(axis=1)
     out[:, 0:3] = np.cross(Y, c).sum(axis=1)
     if mode == "exact":
@@ -179,8 +185,9 @@ def rig_derivatives(mode: str, N, v, c, Xd, cam: Camera, s: int, q=None, ray=Non
         xdk[..., 0], xdk[..., 1], 1.0, 1.0, xdk[..., 1]
     K2 = np.array([[fx, skew], [0.0, fy]])
     dpik = K2 @ distortion_coefficient_jacobian(xn, k)
-    out[:, 6:11] = -s * np.einsum("nl,nk,nklp->np", v, N, dpi)
-    out[:, 11:] = -s * np.einsum("nl,nk,nklp->np", v, N, dpik)
+    dP = -s * N[..., None] * v[:, None, :] if dP is None else dP
+    out[:, 6:11] = np.einsum("nkl,nklp->np", dP, dpi)
+    out[:, 11:] = np.einsum("nkl,nklp->np", dP, dpik)
     return out
 
 
@@ -203,6 +210,53 @@ def ray_parameter_jacobian(cam: Camera, q, ray=None) -> np.ndarray:
     inv = np.stack([np.stack([M[:, 1, 1], -M[:, 0, 1]], -1), np.stack([-M[:, 1, 0], M[:, 0, 0]], -1)], 1)
     inv = np.divide(inv, det[:, None, None], out=np.zeros_like(inv), where=det[:, None, None] != 0)
     return inv @ dxd
+
+
+def fast_triangles(P, q):
+    """Mode fast's triangle of each sample point q (n, 2) in quads of projected corners P (n, 4,
+    2): the index into glsim.scene.bilinear.FAST_TRIANGLES (the first that owns q under the tie
+    rule, as the oracle draws; where none does — a backend's raster snapped otherwise — the one q
+    lies deepest in) and q's screen-space barycentric coordinates λ (n, 3) in it."""
+    lams, hits, taken = [], [], np.zeros(len(q), bool)
+    for tri in bl.FAST_TRIANGLES:
+        lam, hit = bl.triangle_barycentric(P, q, tri, taken)
+        lams.append(lam)
+        hits.append(hit)
+        taken |= hit
+    t = np.where(hits[0], 0, np.where(hits[1], 1, np.argmax([lam.min(-1) for lam in lams], axis=0)))
+    return t, np.where((t == 0)[:, None], lams[0], lams[1])
+
+
+def fast_sensitivities(grad, q, P, Pr, z, PJ):
+    """Mode fast's derivatives of a sample's grey g = I(r): r = Σ w_j R_j over its triangle's
+    corners (glsim.backends.cpu's perspective-correct weights w_j = (λ_j/z_j)/Σ λ_m/z_m of the
+    screen-space barycentrics λ of the sample point q (n, 2) in the corners' projections P_j
+    (n, 4, 2), R_j their reference points ``Pr`` (n, 4, 2), z_j their depths (n, 4)). With h_j =
+    (∇I·R_j − Σ w_m ∇I·R_m)/Σ λ_m/z_m and ∂λ_j/∂P_i = −λ_i ∇_q λ_j: ∂g/∂P_i = −λ_i Σ_j (h_j/z_j)
+    ∇_q λ_j and ∂g/∂z_i = −h_i λ_i/z_i². Returns the camera-frame corner derivatives c (n, 4, 3)
+    per mm (through the corners' projection Jacobians PJ (n, 4, 2, 3), :func:`projection_jacobian`
+    of the camera whose pixels q and P are) and ∂g/∂P (n, 4, 2) per px; the corner off the
+    triangle gets 0."""
+    n = len(q)
+    t, lam = fast_triangles(P, q)
+    tri, rows = np.array(bl.FAST_TRIANGLES)[t], np.arange(n)[:, None]
+    zt, Pt, Rt = z[rows, tri], P[rows, tri], Pr[rows, tri]
+    a = lam / zt
+    S = a.sum(-1)[:, None]
+    w = a / S
+    G = np.einsum("nd,nkd->nk", grad(np.einsum("nk,nkd->nd", w, Rt)), Rt)
+    h = (G - (w * G).sum(-1)[:, None]) / S
+    d1, d2 = Pt[:, 1] - Pt[:, 0], Pt[:, 2] - Pt[:, 0]
+    den = bl._cross(d1, d2)[:, None]
+    g1 = np.divide(np.column_stack([d2[:, 1], -d2[:, 0]]), den, out=np.zeros((n, 2)), where=den != 0)
+    g2 = np.divide(np.column_stack([-d1[:, 1], d1[:, 0]]), den, out=np.zeros((n, 2)), where=den != 0)
+    u = np.einsum("nk,nkd->nd", h / zt, np.stack([-g1 - g2, g1, g2], 1))
+    dPt = -lam[..., None] * u[:, None, :]
+    ct = np.einsum("nkd,nkdc->nkc", dPt, PJ[rows, tri])
+    ct[..., 2] -= h * lam / zt ** 2
+    c, dP = np.zeros((n, 4, 3)), np.zeros((n, 4, 2))
+    c[rows, tri], dP[rows, tri] = ct, dPt
+    return c, dP
 
 
 def reference_point(mode: str, Xr, ref_cam: Camera, xi, eta):
@@ -266,6 +320,10 @@ def image_jacobian(cam: Camera, s: int, ref_cam: Camera, nodes: np.ndarray, defo
     if depth:
         z = np.zeros(len(raster["element"]))
         covered = np.bincount(hit // (W * s) // s * W + hit % (W * s) // s, minlength=W * H)
+    if mode == "fast":   # per node once: the projections (cam's pixels), the reference points, ∂π/∂X
+        Xc = to_camera(deformed, scam)
+        nodal = (project_camera_frame(Xc, cam)[0], project_camera_frame(to_camera(nodes, ref_cam), ref_cam)[0],
+                 projection_jacobian(Xc, cam))
     for k in range(0, len(hit), CHUNK):
         idx = hit[k:k + CHUNK]
         e, xi, eta = raster["element"][idx], raster["xi"][idx], raster["eta"][idx]
@@ -273,13 +331,20 @@ def image_jacobian(cam: Camera, s: int, ref_cam: Camera, nodes: np.ndarray, defo
         Xr = qd.element_points(quads, patches, e, to_camera(nodes, ref_cam))
         q = sample_points(W, s, idx, aperture)    # the samples in cam's pixels
         ray = sample_rays(cam, q) if mode == "exact" else None
-        r, dr = reference_point(mode, Xr, ref_cam, xi, eta)
-        w = np.einsum("nc,ncl->nl", grad(r), dr)                                    # ∂g/∂(ξ, η)
         fi, fj = idx % (W * s), idx // (W * s)
         pixel = fj // s * W + fi // s
-        if shading is None:
+        dP = None
+        if mode == "fast":   # (check_request refuses it lit, blurred or curved)
+            N = v = None
+            k = quads[e]
+            c, dP = fast_sensitivities(grad, q, nodal[0][k], nodal[1][k], Xd[..., 2], nodal[2][k])
+        elif shading is None:
+            r, dr = reference_point(mode, Xr, ref_cam, xi, eta)
+            w = np.einsum("nc,ncl->nl", grad(r), dr)                                # ∂g/∂(ξ, η)
             N, v, c = sensitivities(mode, w, Xd, xi, eta, ray, scam)
         else:
+            r, dr = reference_point(mode, Xr, ref_cam, xi, eta)
+            w = np.einsum("nc,ncl->nl", grad(r), dr)
             N, v, c, dn, src, pose = lit_sensitivities(mode, w, Xd, xi, eta, ray, scam, shading, e, r)
             cols = (3 * src[..., None] + np.arange(3)).ravel()
             normal_parts.append(sparse.coo_matrix(((dn @ R).ravel() / (s * s), (np.repeat(pixel, 12), cols)),
@@ -294,7 +359,7 @@ def image_jacobian(cam: Camera, s: int, ref_cam: Camera, nodes: np.ndarray, defo
             cz[..., 2] += Nz
             depth_parts.append(_node_part(cz, e, quads, patches, R, pixel, 1.0 / covered[pixel], shape))
         if rig:
-            values = rig_derivatives(mode, N, v, c, Xd, cam, s, q, ray)
+            values = rig_derivatives(mode, N, v, c, Xd, cam, s, q, ray, dP)
             if shading is not None:
                 values[:, :6] += pose
             rig_parts.append(_rig_part(values / (s * s), pixel, W * H))

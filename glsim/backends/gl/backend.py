@@ -265,7 +265,7 @@ class GLBackend(ImagePasses):
             patches = patch_data(c, v, opts.mode, self._curved.setdefault(id(c.mesh), {}))
         self._make_current()
         return self._render_view(v, opts, request.truth, request.effects, patches,
-                                 request.quantize if self.fp64 else None, c)
+                                 request.quantize if self.fp64 else None, c, request.polish)
 
     def collect(self, frame: Frame) -> Raster:
         """Fetch a submitted frame's image (and raster), and warn about its view's problems; the
@@ -279,12 +279,13 @@ class GLBackend(ImagePasses):
         return Raster(image, raster, frame.stages)
 
     def _render_view(self, view: ViewSpec, opts, truth: bool, fx, patches, quantize: int | None = None,
-                     curved=None) -> Frame:
+                     curved=None, polish: bool = True) -> Frame:
         s = opts.supersampling
         W, H = view.camera.size
         pieces = patches.pieces if patches is not None else None
         p = plan(opts, truth and s == 1, self.fp64, fx, view.camera, view.ref_camera, pieces)
-        color, grey, depth, raster, report = self._deform(view, opts, p, s, truth and s == 1, fx, patches, quantize)
+        color, grey, depth, raster, report = self._deform(view, opts, p, s, truth and s == 1, fx, patches, quantize,
+                                                          polish=polish)
         stages = ["raster", "interpolate"] + (["light"] if fx.lighting is not None else [])   # one pass
         if p.subsamples:
             stages.append("subsamples")
@@ -304,19 +305,19 @@ class GLBackend(ImagePasses):
         if truth and s > 1:
             one = _one_sample(opts)
             p1 = plan(one, True, self.fp64, _NO_EFFECTS, view.camera, view.ref_camera, pieces)
-            raster = self._deform(view, one, p1, 1, True, _NO_EFFECTS, patches, warn=False)[3]
+            raster = self._deform(view, one, p1, 1, True, _NO_EFFECTS, patches, warn=False, polish=polish)[3]
         return Frame(image, raster or (lambda: None), report, tuple(stages), curved, view.camera, opts.mode)
 
     def _deform(self, view: ViewSpec, opts, p, s: int, truth: bool, fx, patches, quantize: int | None = None,
-                warn: bool = True):
+                warn: bool = True, polish: bool = True):
         """The deformation pass of plan ``p`` into the cached target, then the pixels' box filter
         (s > 1, no Newton sub-samples) and, if no image effects come between, the quantisation
         to ``quantize`` bits, into cached textures (replayed where a view of this camera was
         rendered so before: :mod:`glsim.backends.gl.replay`; what differs between the views of a
         camera goes through the :class:`ViewSlot`). Returns the color textures, the grey and
         depth textures at pixel size (depth if blurred), what finishes the raster (if
-        ``truth``; its reads queued) and what reports the view's problems (its flags copied on
-        the GPU; nothing if not ``warn``)."""
+        ``truth``; its reads queued; ``polish``: Request.polish) and what reports the view's
+        problems (its flags copied on the GPU; nothing if not ``warn``)."""
         geo = self._buffers(view)
         self._slot.set(view, geo, "FP64" in p.define_dict, patches)
         lit = None if fx.lighting is None else (fx.lighting.normals == "flat", _light_uniforms(fx))
@@ -335,7 +336,7 @@ class GLBackend(ImagePasses):
         check_error(self.ctx, f"deformation pass ({opts.mode})")
         self.ctx.memory_barrier()  # shader storage writes visible to the read-backs
         report = self._queue_report(view, s, geo, warn, key, (*refs, view))
-        raster = self._queue_raster(view, opts.mode, color, p, patches) if truth else None
+        raster = self._queue_raster(view, opts.mode, color, p, patches, polish) if truth else None
         return color, grey, depth, raster, report
 
     def _pixel_passes(self, color, size: tuple[int, int], s: int, p, quantize: int | None):
@@ -542,10 +543,11 @@ class GLBackend(ImagePasses):
             warn_dropped(cam, count, s)
         return report
 
-    def _queue_raster(self, view: ViewSpec, mode: str, color, p, patches):
+    def _queue_raster(self, view: ViewSpec, mode: str, color, p, patches, polish: bool = True):
         """Queue the truth targets' reads; returns what makes the raster from them: float32 hi
         (+ lo with TRUTH_LO: (ξ, η) to 2^-48) widened to float64, polished where the shader
-        computed in float32 (the patches' (ξ, η) are polished by the caller, glsim.render)."""
+        computed in float32 and ``polish`` (the patches' (ξ, η) are polished by the caller,
+        glsim.render)."""
         W, H = view.camera.size
         lo = "TRUTH_LO" in p.define_dict
         reads = [read_texture(self._pack, t, np.float32) for t in color[1:4 if lo else 3]]
@@ -558,7 +560,7 @@ class GLBackend(ImagePasses):
                 out["xi"] += low[0][:, 0]
                 out["eta"] += low[0][:, 1]
                 return out
-            if patches is not None:
+            if patches is not None or not polish:
                 return out
             return self._float64_truth(view, mode, out, "FP64" in p.define_dict)
         return raster
