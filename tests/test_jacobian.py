@@ -320,7 +320,9 @@ def test_depth_of_field_jacobian_matches_central_differences(mode, spp, kernel, 
     ∂σ/∂Z · ∂Z/∂u). Against central differences of the oracle's blurred model image in float64
     (_blurred64, checked to be the rendered image to the σ rounding's effect) on every pixel whose
     window holds only pixels of one element in both renders and whose window radius stays the
-    same (_blurred_entries_agree). Leaving out the depth's part fails it (checked)."""
+    same (_blurred_entries_agree). Leaving out the depth's part fails it (checked). (Mode fast:
+    its triangles' diagonals leave no blur window of one triangle here; its depth's derivative
+    is checked below, the blur's chain is the same.)"""
     scene, mesh = _plate(backend="cpu", mode=mode, samples_per_pixel=spp)
     scene = scene.replace(optics={**DOF, "kernel": kernel}, **({"lighting": LIGHTING} if lit else {}))
     with Renderer(scene, mesh=mesh) as r:
@@ -338,6 +340,37 @@ def test_depth_of_field_jacobian_matches_central_differences(mode, spp, kernel, 
                 col = J[:, 3 * node + c].toarray().ravel()
                 checked += _blurred_entries_agree((plus - minus) / (2 * DELTA), col, ep, em, Rp, Rm, R0, win, rounding)
         assert checked > 100
+
+
+def test_fast_depth_derivative_matches_central_differences():
+    """Mode fast's depth (the oracle's 1/Σ λ_j/z_j per sample, what its depth of field blurs with):
+    image_jacobian(depth=True)'s per-pixel mean over the covered samples against central
+    differences of the oracle's raster depths, _against_central_differences' criterion on the
+    pixels whose samples stay in one triangle; fails without the corners' own depth term (checked)."""
+    scene, mesh = _plate(backend="cpu", mode="fast", samples_per_pixel=4)
+    cam, s = scene.cameras[0], 4
+    W, H = cam.size
+
+    def depth(deformed):
+        with Renderer(scene, mesh=mesh) as r:
+            raster = rasterize(make_view(cam, r.reference.camera, mesh.nodes, deformed, mesh.quads, warn=False), "fast", s)
+        el = raster["element"]
+        z = np.where(el >= 0, raster["depth"], 0.0).reshape(H, s, W, s)
+        n = (z > 0).sum(axis=(1, 3))
+        ids = np.where(el >= 0, 2 * el + (raster["xi"] < raster["eta"]), el).reshape(H, s, W, s)
+        ids = ids.transpose(0, 2, 1, 3).reshape(H * W, s * s)
+        one = np.where((ids == ids[:, :1]).all(axis=1), ids[:, 0], -2)
+        return np.divide(z.sum(axis=(1, 3)), n, out=np.zeros((H, W)), where=n > 0).ravel(), one, raster
+
+    with Renderer(scene, mesh=mesh) as r:
+        coeffs = interp.prepare(r.reference.image, "cubic", np.float64)
+        grad = functools.partial(interp.gradient, coeffs, method="cubic")
+        raster = depth(mesh.deformed(1))[2]
+        _, _, (z, J_z, _) = jac.image_jacobian(cam, s, r.reference.camera, mesh.nodes, mesh.deformed(1), mesh.quads,
+                                               "fast", raster, grad, depth=True)
+    hit = raster["element"] >= 0
+    assert np.abs(z[hit] - raster["depth"][hit]).max() <= 1e-12 * z.max()
+    _against_central_differences(J_z.tocsc(), mesh, lambda nodes: depth(nodes)[:2], seed=3)
 
 
 def test_rig_jacobian_through_the_depth_of_field_matches_central_differences():
@@ -652,12 +685,11 @@ def test_a_fill_factor_at_one_sample_per_pixel_leaves_the_jacobian_unchanged():
 
 
 def test_what_the_jacobian_leaves_out_is_refused_by_name():
-    """Mode fast lit, defocused or on a quadratic mesh; a hard-edged procedural speckle."""
+    """Mode fast lit or on a quadratic mesh; a hard-edged procedural speckle."""
     scene, mesh = _plate(backend="cpu")
-    for table, value in (("lighting", LIGHTING), ("optics", DOF)):
-        with Renderer(scene.replace(**{table: value}), mesh=mesh) as r, \
-                pytest.raises(SceneError, match=rf"^{table}: in mode fast the image Jacobian .* — set render\.mode"):
-            r.render(0, 1, jacobian=True, mode="fast")
+    with Renderer(scene.replace(lighting=LIGHTING), mesh=mesh) as r, \
+            pytest.raises(SceneError, match=r"^lighting: in mode fast the image Jacobian .* — set render\.mode"):
+        r.render(0, 1, jacobian=True, mode="fast")
     qscene, (qmesh, _) = _curved()
     with Renderer(qscene, mesh=qmesh) as r, \
             pytest.raises(SceneError, match=r"^render\.mode: is 'fast': .* quadratic .* — set mode = \"exact\""):
@@ -731,6 +763,14 @@ def test_gl_matches_the_oracle_through_the_depth_of_field(gl_ctx, spp):
     Jacobian is of the oracle's gather), lit: as above."""
     scene, mesh = _plate(samples_per_pixel=spp)
     _gl_against_oracle(gl_ctx, scene.replace(optics=DOF, lighting=LIGHTING, exposure=EXPOSURES["rigid"]), mesh)
+
+
+@pytest.mark.gl
+def test_gl_matches_the_oracle_through_the_depth_of_field_in_mode_fast(gl_ctx):
+    """Mode fast at 4 samples per pixel through the depth of field (GL's rasterized elements, the
+    oracle's depth model): as above."""
+    scene, mesh = _plate(mode="fast", samples_per_pixel=4)
+    _gl_against_oracle(gl_ctx, scene.replace(optics=DOF), mesh)
 
 
 @pytest.mark.gl

@@ -47,19 +47,17 @@ CHUNK = 1 << 18          # samples differentiated at once (bounds memory: ~100 d
 
 
 def check_request(scene: Scene, opts: Render, dots=None, quadratic: bool = False) -> None:
-    """SceneError naming what ``jacobian=True`` cannot differentiate: in mode fast the lighting,
-    the depth of field and quadratic elements; a procedural speckle (the reference's ``dots``)
+    """SceneError naming what ``jacobian=True`` cannot differentiate: in mode fast the lighting
+    and quadratic elements; a procedural speckle (the reference's ``dots``)
     with a hard edge (and any optional table not in UNREFUSED)."""
     for f in dataclasses.fields(scene):
         if f.default is None and getattr(scene, f.name) is not None and f.name not in UNREFUSED:
             raise SceneError(f.name, "the image Jacobian does not differentiate this effect",
                              f"remove [{f.name}] or render without jacobian")
     if opts.mode == "fast":
-        for field, what in (("lighting", "the lighting"), ("optics", "the depth of field")):
-            if getattr(scene, field) is not None:
-                raise SceneError(field, f"in mode fast the image Jacobian does not differentiate {what}",
-                                 f"set render.mode = \"exact\" (or \"q4\"), remove [{field}], or render without "
-                                 "jacobian")
+        if scene.lighting is not None:
+            raise SceneError("lighting", "in mode fast the image Jacobian does not differentiate the lighting",
+                             "set render.mode = \"exact\" (or \"q4\"), remove [lighting], or render without jacobian")
         if quadratic:
             raise SceneError("render.mode", "is 'fast': its image Jacobian is of linear elements, not of the "
                              "quadratic mesh's pieces", "set mode = \"exact\" (or \"q4\") or render without jacobian")
@@ -227,16 +225,17 @@ def fast_triangles(P, q):
     return t, np.where((t == 0)[:, None], lams[0], lams[1])
 
 
-def fast_sensitivities(grad, q, P, Pr, z, PJ):
+def fast_sensitivities(grad, q, P, Pr, z, PJ, depth: bool = False):
     """Mode fast's derivatives of a sample's grey g = I(r): r = Σ w_j R_j over its triangle's
-    corners (glsim.backends.cpu's perspective-correct weights w_j = (λ_j/z_j)/Σ λ_m/z_m of the
-    screen-space barycentrics λ of the sample point q (n, 2) in the corners' projections P_j
-    (n, 4, 2), R_j their reference points ``Pr`` (n, 4, 2), z_j their depths (n, 4)). With h_j =
-    (∇I·R_j − Σ w_m ∇I·R_m)/Σ λ_m/z_m and ∂λ_j/∂P_i = −λ_i ∇_q λ_j: ∂g/∂P_i = −λ_i Σ_j (h_j/z_j)
-    ∇_q λ_j and ∂g/∂z_i = −h_i λ_i/z_i². Returns the camera-frame corner derivatives c (n, 4, 3)
-    per mm (through the corners' projection Jacobians PJ (n, 4, 2, 3), :func:`projection_jacobian`
-    of the camera whose pixels q and P are) and ∂g/∂P (n, 4, 2) per px; the corner off the
-    triangle gets 0."""
+    corners (glsim.backends.cpu's perspective-correct weights w_j = a_j/S, a_j = λ_j/z_j, S = Σ a_m,
+    of the screen-space barycentrics λ of the sample point q (n, 2) in the corners' projections
+    P_j (n, 4, 2), R_j their reference points ``Pr`` (n, 4, 2), z_j their depths (n, 4)). A value
+    f(a) of the triangle moves with its corners through ψ_j = ∂f/∂a_j and ∂λ_j/∂P_i = −λ_i ∇_q λ_j:
+    ∂f/∂P_i = −λ_i Σ_j (ψ_j/z_j) ∇_q λ_j, ∂f/∂z_i = −ψ_i λ_i/z_i² — for the grey ψ_j =
+    (∇I·R_j − Σ w_m ∇I·R_m)/S. Returns the camera-frame corner derivatives c (n, 4, 3) per mm
+    (through the corners' projection Jacobians PJ (n, 4, 2, 3), :func:`projection_jacobian` of
+    the camera whose pixels q and P are) and ∂f/∂P (n, 4, 2) per px, the corner off the triangle
+    0; with ``depth`` also the sample's depth 1/S (n,) (the oracle's) and its (c, ∂/∂P), ψ_j = −1/S²."""
     n = len(q)
     t, lam = fast_triangles(P, q)
     tri, rows = np.array(bl.FAST_TRIANGLES)[t], np.arange(n)[:, None]
@@ -244,19 +243,25 @@ def fast_sensitivities(grad, q, P, Pr, z, PJ):
     a = lam / zt
     S = a.sum(-1)[:, None]
     w = a / S
-    G = np.einsum("nd,nkd->nk", grad(np.einsum("nk,nkd->nd", w, Rt)), Rt)
-    h = (G - (w * G).sum(-1)[:, None]) / S
     d1, d2 = Pt[:, 1] - Pt[:, 0], Pt[:, 2] - Pt[:, 0]
     den = bl._cross(d1, d2)[:, None]
     g1 = np.divide(np.column_stack([d2[:, 1], -d2[:, 0]]), den, out=np.zeros((n, 2)), where=den != 0)
     g2 = np.divide(np.column_stack([-d1[:, 1], d1[:, 0]]), den, out=np.zeros((n, 2)), where=den != 0)
-    u = np.einsum("nk,nkd->nd", h / zt, np.stack([-g1 - g2, g1, g2], 1))
-    dPt = -lam[..., None] * u[:, None, :]
-    ct = np.einsum("nkd,nkdc->nkc", dPt, PJ[rows, tri])
-    ct[..., 2] -= h * lam / zt ** 2
-    c, dP = np.zeros((n, 4, 3)), np.zeros((n, 4, 2))
-    c[rows, tri], dP[rows, tri] = ct, dPt
-    return c, dP
+    grad_lam, PJt = np.stack([-g1 - g2, g1, g2], 1), PJ[rows, tri]
+
+    def through(psi):   # (c, ∂f/∂P) of a value with ∂f/∂a = psi (n, 3)
+        dPt = -lam[..., None] * np.einsum("nk,nkd->nd", psi / zt, grad_lam)[:, None, :]
+        ct = np.einsum("nkd,nkdc->nkc", dPt, PJt)
+        ct[..., 2] -= psi * lam / zt ** 2
+        c, dP = np.zeros((n, 4, 3)), np.zeros((n, 4, 2))
+        c[rows, tri], dP[rows, tri] = ct, dPt
+        return c, dP
+
+    G = np.einsum("nd,nkd->nk", grad(np.einsum("nk,nkd->nd", w, Rt)), Rt)
+    out = through((G - (w * G).sum(-1)[:, None]) / S)
+    if not depth:
+        return out
+    return (*out, 1.0 / S[:, 0], *through(np.broadcast_to(-1.0 / S ** 2, lam.shape)))
 
 
 def reference_point(mode: str, Xr, ref_cam: Camera, xi, eta):
@@ -334,10 +339,10 @@ def image_jacobian(cam: Camera, s: int, ref_cam: Camera, nodes: np.ndarray, defo
         fi, fj = idx % (W * s), idx // (W * s)
         pixel = fj // s * W + fi // s
         dP = None
-        if mode == "fast":   # (check_request refuses it lit, blurred or curved)
+        if mode == "fast":   # (check_request refuses it lit or curved)
             N = v = None
             k = quads[e]
-            c, dP = fast_sensitivities(grad, q, nodal[0][k], nodal[1][k], Xd[..., 2], nodal[2][k])
+            c, dP, *fast_depth = fast_sensitivities(grad, q, nodal[0][k], nodal[1][k], Xd[..., 2], nodal[2][k], depth)
         elif shading is None:
             r, dr = reference_point(mode, Xr, ref_cam, xi, eta)
             w = np.einsum("nc,ncl->nl", grad(r), dr)                                # ∂g/∂(ξ, η)
@@ -351,12 +356,17 @@ def image_jacobian(cam: Camera, s: int, ref_cam: Camera, nodes: np.ndarray, defo
                                                   shape=(W * H, 3 * shading.sources)).tocsr())
             needed.append(np.unique(src))
         parts.append(_node_part(c, e, quads, patches, R, pixel, np.full(len(idx), 1.0 / (s * s)), shape))
-        if depth:   # z = Σ N_k Z_k, through (ξ, η) and directly
+        if depth and mode == "fast":   # z = 1/Σ λ_j/z_j (fast_sensitivities)
+            z[idx], cz, dPz = fast_depth
+            vz = None
+            depth_parts.append(_node_part(cz, e, quads, patches, R, pixel, 1.0 / covered[pixel], shape))
+        elif depth:   # z = Σ N_k Z_k, through (ξ, η) and directly
             Nz, Nz_xi, Nz_eta = _shape_derivatives(xi, eta, Xd.shape[1])
             z[idx] = np.einsum("nk,nk->n", Nz, Xd[..., 2])
             wz = np.column_stack([np.einsum("nk,nk->n", Nz_xi, Xd[..., 2]), np.einsum("nk,nk->n", Nz_eta, Xd[..., 2])])
             _, vz, cz = sensitivities(mode, wz, Xd, xi, eta, ray, scam)
             cz[..., 2] += Nz
+            dPz = None
             depth_parts.append(_node_part(cz, e, quads, patches, R, pixel, 1.0 / covered[pixel], shape))
         if rig:
             values = rig_derivatives(mode, N, v, c, Xd, cam, s, q, ray, dP)
@@ -364,7 +374,7 @@ def image_jacobian(cam: Camera, s: int, ref_cam: Camera, nodes: np.ndarray, defo
                 values[:, :6] += pose
             rig_parts.append(_rig_part(values / (s * s), pixel, W * H))
             if depth:   # the depth in the camera's frame moves with its pose, and (ξ, η) with all its parameters
-                depth_rig_parts.append(_rig_part(rig_derivatives(mode, N, vz, cz, Xd, cam, s, q, ray)
+                depth_rig_parts.append(_rig_part(rig_derivatives(mode, N, vz, cz, Xd, cam, s, q, ray, dPz)
                                                  / covered[pixel][:, None], pixel, W * H))
     J = _total(parts, shape)
     if shading is not None and normal_parts:   # through the corner normals' own dependence on the nodes
