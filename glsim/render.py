@@ -195,12 +195,12 @@ class Renderer:
         if not jacobian:
             return self._finish(self._submit(camera, step, truth, quantize, options))
         opts = self._options(options)
-        jac.check_request(self.scene, opts, self.reference.dots, self.mesh.is_quadratic)
+        jac.check_request(self.scene, opts, self.reference.dots)
         one = opts.supersampling == 1   # the image's own pixel-centre raster is the samples'
         res = self._finish(self._submit(camera, step, truth or one, quantize, options,
                                         polish=truth or opts.mode != "fast"))   # (fast's Jacobian: elements only)
-        raster = {"element": res.truth.element.ravel(), "xi": res.truth.xi.ravel(),
-                  "eta": res.truth.eta.ravel()} if one else None
+        raster = {"element": res.truth.element.ravel(), "xi": res.truth.xi.ravel(), "eta": res.truth.eta.ravel()} \
+            if one and not (opts.mode == "fast" and self.mesh.is_quadratic) else None   # (a Truth is of the patches)
         J, J_rig = self._jacobian(res.camera, step, opts, raster, rig)
         return dataclasses.replace(res, truth=res.truth if truth else None,
                                    **self._through_camera_effects(res.camera, J, J_rig,
@@ -239,7 +239,7 @@ class Renderer:
         t0, scene, mesh = time.perf_counter(), self.scene, self.drawn_mesh
         opts = self._options(options)
         if jacobian:
-            jac.check_request(scene, opts, self.reference.dots, self.mesh.is_quadratic)
+            jac.check_request(scene, opts, self.reference.dots)
         self.check_size(camera, truth, opts)
         cam, ex = scene.camera(camera), scene.exposure
         line = scene.sensor.line_time if scene.sensor is not None else 0.0
@@ -378,9 +378,15 @@ class Renderer:
         shading = None
         if self.scene.lighting is not None:   # the drawn mesh's normals (a quadratic mesh's pieces')
             shading = shading_terms(self.scene, drawn, self.drawn_mesh.quads, cam, value, self.pieces)
-        J, J_rig, depth = jac.image_jacobian(cam, s, self.reference.camera, mesh.nodes, deformed, mesh.quads,
-                                             opts.mode, raster, gradient, rig, mesh.patches, shading,
-                                             self.scene.optics is not None, aperture)
+        pieces = opts.mode == "fast" and mesh.is_quadratic   # fast draws the pieces: their nodes, then chained
+        drawn_mesh = self.drawn_mesh if pieces else mesh
+        J, J_rig, depth = jac.image_jacobian(cam, s, self.reference.camera, drawn_mesh.nodes, drawn if pieces else deformed,
+                                             drawn_mesh.quads, opts.mode, raster, gradient, rig, drawn_mesh.patches,
+                                             shading, self.scene.optics is not None, aperture)
+        if pieces:   # the pieces' nodes as weights of the mesh's (PiecesMesh.grid_matrix)
+            G = sparse.kron(self.drawn_mesh.grid_matrix(), sparse.identity(3), format="csr")
+            J = J @ G
+            depth = None if depth is None else (depth[0], depth[1] @ G, depth[2])
         if depth is not None:   # through the depth of field's blur, of this state's unblurred image
             z, J_z, J_z_rig = depth
             W, H = cam.size

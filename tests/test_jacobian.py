@@ -142,27 +142,37 @@ def _curved_image(r: Renderer, cam, mesh, deformed, mode: str):
     s, (W, H) = r.scene.render.supersampling, cam.size
     lit = r.scene.lighting is not None
     pieces_def = r.pieces.mesh.at_grid(deformed) if lit else None
-    view = make_quad_view(cam, r.reference.camera, mesh.nodes, deformed, mesh.patches, warn=False, mode=mode,
-                          pieces=r.pieces if lit else None, pieces_def=pieces_def)
-    raster = rasterize_quadratic(view, mode, s)
+    if mode == "fast":   # the pieces drawn as linear quads, their nodes at the patches' grid
+        pm = r.pieces.mesh
+        view = make_view(cam, r.reference.camera, pm.nodes, pm.nodes + pm.at_grid(deformed - mesh.nodes), pm.quads,
+                         warn=False)
+        raster = rasterize(view, mode, s)
+    else:
+        view = make_quad_view(cam, r.reference.camera, mesh.nodes, deformed, mesh.patches, warn=False, mode=mode,
+                              pieces=r.pieces if lit else None, pieces_def=pieces_def)
+        raster = rasterize_quadratic(view, mode, s)
     hit = raster["element"] >= 0
     grey = np.full(hit.shape, r.scene.render.background)
     grey[hit] = r.backend.sampler(r.scene.render.interpolation)(raster["ref_uv"][hit])
     if lit:   # the normals interpolated over the pieces, in their state (as the oracle renders)
         grey[hit] = _shade(view, raster, hit, grey[hit], prepare(r.scene, pieces_def, r.pieces.mesh.quads, cam, 0, 1,
                                                                 np.empty(0)))
-    el = raster["element"].reshape(H, s, W, s).transpose(0, 2, 1, 3).reshape(H * W, s * s)
+    el = raster["element"]
+    if mode == "fast":   # one triangle per pixel (as _image64)
+        el = np.where(el >= 0, 2 * el + (raster["xi"] < raster["eta"]), el)
+    el = el.reshape(H, s, W, s).transpose(0, 2, 1, 3).reshape(H * W, s * s)
     return grey.reshape(H, s, W, s).mean(axis=(1, 3)).ravel(), np.where((el == el[:, :1]).all(1), el[:, 0], -2)
 
 
 @pytest.mark.parametrize("mode, spp, lit", [("exact", 1, False), ("q4", 1, False), ("exact", 4, False),
-                                           ("exact", 1, True), ("q4", 1, True)])
+                                           ("exact", 1, True), ("q4", 1, True), ("fast", 4, False)])
 def test_quadratic_jacobian_matches_central_differences(mode, spp, lit):
     """Q8 and T6 (derived centres: their derivatives spread over the nodes) and a mid-side node
     among those checked: as test_oracle_matches_central_differences, the oracle's curved raster
     (glsim.backends.cpu.rasterize_quadratic) re-rendered with one node moved ±DELTA; ``lit``:
     with LIGHTING (smooth normals of the pieces, 3 per side, multiplicative; flat in q4), which
-    fails without the pieces' normals chained to the nodes (checked)."""
+    fails without the pieces' normals chained to the nodes (checked); fast: the pieces drawn as
+    linear quads, their Jacobian chained to the nodes by PiecesMesh.grid_matrix."""
     scene, meshes = _curved(mode=mode, samples_per_pixel=spp, pieces=3)
     if lit:
         scene = scene.replace(lighting={**LIGHTING, "combine": "multiplicative",
@@ -685,14 +695,10 @@ def test_a_fill_factor_at_one_sample_per_pixel_leaves_the_jacobian_unchanged():
 
 
 def test_what_the_jacobian_leaves_out_is_refused_by_name():
-    """Mode fast lit or on a quadratic mesh; a hard-edged procedural speckle."""
+    """Mode fast lit; a hard-edged procedural speckle."""
     scene, mesh = _plate(backend="cpu")
     with Renderer(scene.replace(lighting=LIGHTING), mesh=mesh) as r, \
             pytest.raises(SceneError, match=r"^lighting: in mode fast the image Jacobian .* — set render\.mode"):
-        r.render(0, 1, jacobian=True, mode="fast")
-    qscene, (qmesh, _) = _curved()
-    with Renderer(qscene, mesh=qmesh) as r, \
-            pytest.raises(SceneError, match=r"^render\.mode: is 'fast': .* quadratic .* — set mode = \"exact\""):
         r.render(0, 1, jacobian=True, mode="fast")
     with Renderer(scene, mesh=mesh) as r:
         J = r.render(0, 1, jacobian=True).jacobian
@@ -784,10 +790,11 @@ def test_gl_matches_the_oracle_with_lighting(gl_ctx, mode, spp):
 
 
 @pytest.mark.gl
-@pytest.mark.parametrize("mode, spp", [("exact", 1), ("q4", 1), ("exact", 4)])
+@pytest.mark.parametrize("mode, spp", [("exact", 1), ("q4", 1), ("exact", 4), ("fast", 4)])
 def test_gl_matches_the_oracle_on_quadratic_elements(gl_ctx, mode, spp):
     """As test_gl_matches_the_oracle, on the Q8 and T6 meshes of _curved (GL's curved truth is
-    polished in float64, so its raster is the oracle's to Newton's tolerance)."""
+    polished in float64, so its raster is the oracle's to Newton's tolerance; fast: the pieces'
+    rasterized elements)."""
     scene, meshes = _curved(mode=mode, samples_per_pixel=spp)
     for mesh in meshes:
         _gl_against_oracle(gl_ctx, scene, mesh)

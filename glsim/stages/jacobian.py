@@ -46,9 +46,9 @@ UNREFUSED = ("noise", "vignetting", "psf", "sensor", "exposure", "lighting", "op
 CHUNK = 1 << 18          # samples differentiated at once (bounds memory: ~100 doubles each)
 
 
-def check_request(scene: Scene, opts: Render, dots=None, quadratic: bool = False) -> None:
-    """SceneError naming what ``jacobian=True`` cannot differentiate: in mode fast the lighting
-    and quadratic elements; a procedural speckle (the reference's ``dots``)
+def check_request(scene: Scene, opts: Render, dots=None) -> None:
+    """SceneError naming what ``jacobian=True`` cannot differentiate: in mode fast the lighting;
+    a procedural speckle (the reference's ``dots``)
     with a hard edge (and any optional table not in UNREFUSED)."""
     for f in dataclasses.fields(scene):
         if f.default is None and getattr(scene, f.name) is not None and f.name not in UNREFUSED:
@@ -58,9 +58,6 @@ def check_request(scene: Scene, opts: Render, dots=None, quadratic: bool = False
         if scene.lighting is not None:
             raise SceneError("lighting", "in mode fast the image Jacobian does not differentiate the lighting",
                              "set render.mode = \"exact\" (or \"q4\"), remove [lighting], or render without jacobian")
-        if quadratic:
-            raise SceneError("render.mode", "is 'fast': its image Jacobian is of linear elements, not of the "
-                             "quadratic mesh's pieces", "set mode = \"exact\" (or \"q4\") or render without jacobian")
     if opts.interpolation == "procedural" and dots is not None and dots.edge_px == 0:
         raise SceneError("speckle.edge_px", "is 0: a hard-edged procedural speckle's grey jumps at the dots' edges, "
                          "so the image Jacobian would be zero everywhere else", "give the dots a smooth edge "
@@ -339,7 +336,7 @@ def image_jacobian(cam: Camera, s: int, ref_cam: Camera, nodes: np.ndarray, defo
         fi, fj = idx % (W * s), idx // (W * s)
         pixel = fj // s * W + fi // s
         dP = None
-        if mode == "fast":   # (check_request refuses it lit or curved)
+        if mode == "fast":   # (check_request refuses it lit; a quadratic mesh's pieces are linear)
             N = v = None
             k = quads[e]
             c, dP, *fast_depth = fast_sensitivities(grad, q, nodal[0][k], nodal[1][k], Xd[..., 2], nodal[2][k], depth)
