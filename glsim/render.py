@@ -375,11 +375,11 @@ class Renderer:
                     raster = {k: np.stack([np.stack([p[k].reshape(H, W) for p in row], -1) for row in parts], 1)
                               .reshape(-1) for k in ("element", "xi", "eta")}
         value, gradient = self._reference_functions(opts.interpolation)
-        shading = None
-        if self.scene.lighting is not None:   # the drawn mesh's normals (a quadratic mesh's pieces')
-            shading = shading_terms(self.scene, drawn, self.drawn_mesh.quads, cam, value, self.pieces)
         pieces = opts.mode == "fast" and mesh.is_quadratic   # fast draws the pieces: their nodes, then chained
         drawn_mesh = self.drawn_mesh if pieces else mesh
+        shading = None
+        if self.scene.lighting is not None:   # the drawn mesh's normals (a quadratic mesh's pieces')
+            shading = shading_terms(self.scene, drawn, self.drawn_mesh.quads, cam, value, None if pieces else self.pieces)
         J, J_rig, depth = jac.image_jacobian(cam, s, self.reference.camera, drawn_mesh.nodes, drawn if pieces else deformed,
                                              drawn_mesh.quads, opts.mode, raster, gradient, rig, drawn_mesh.patches,
                                              shading, self.scene.optics is not None, aperture)

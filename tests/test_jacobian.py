@@ -12,6 +12,7 @@ import scipy.sparse as sp
 from scipy.ndimage import minimum_filter
 
 from glsim import cli
+from glsim.backends.contract import Request
 from glsim.backends.cpu import rasterize
 from glsim.effects import motion
 from glsim.errors import SceneError
@@ -165,7 +166,7 @@ def _curved_image(r: Renderer, cam, mesh, deformed, mode: str):
 
 
 @pytest.mark.parametrize("mode, spp, lit", [("exact", 1, False), ("q4", 1, False), ("exact", 4, False),
-                                           ("exact", 1, True), ("q4", 1, True), ("fast", 4, False)])
+                                           ("exact", 1, True), ("q4", 1, True), ("fast", 4, False), ("fast", 1, True)])
 def test_quadratic_jacobian_matches_central_differences(mode, spp, lit):
     """Q8 and T6 (derived centres: their derivatives spread over the nodes) and a mid-side node
     among those checked: as test_oracle_matches_central_differences, the oracle's curved raster
@@ -205,8 +206,9 @@ def test_quadratic_jacobian_matches_central_differences(mode, spp, lit):
 
 # k3, k6 (r⁶ at r ≲ 0.04: columns ~1e-7 grey per unit): the raster's rounding, ~1e-14 grey, over 2δ stays
 # below the criterion's 1e-4 · 1e-3 of the column only for δ ≈ 10 (the differences shrink as 1/δ; at
-# δ = 10 they are ~1e-15, no truncation seen)
-RIG_STEPS = {"rx": 1e-7, "ry": 1e-7, "rz": 1e-7, "p1": 1e-6, "p2": 1e-6, "s1": 1e-6,
+# δ = 10 they are ~1e-15, no truncation seen); skew (~1e-5 grey per px here): the lit raster's rounding
+# (~4e-14) over 2δ at δ = 1e-5 is 1e-4 of its smallest counted entries, at δ = 1e-4 a tenth of that
+RIG_STEPS = {"rx": 1e-7, "ry": 1e-7, "rz": 1e-7, "p1": 1e-6, "p2": 1e-6, "s1": 1e-6, "skew": 1e-4,
              "s3": 1e-6, "k2": 1e-2, "k5": 1e-2, "s2": 1e-2, "s4": 1e-2, "k3": 10.0, "k6": 10.0}   # else 1e-5
 
 
@@ -223,7 +225,7 @@ def _moved(cam, name: str, d: float):
 
 
 @pytest.mark.parametrize("mode, spp, extra", [("exact", 1, None), ("q4", 4, None), ("exact", 1, "lit"),
-                                              ("exact", 1, "vignetted"), ("fast", 4, None)])
+                                              ("exact", 1, "vignetted"), ("fast", 4, None), ("fast", 1, "lit")])
 def test_rig_jacobian_matches_central_differences(mode, spp, extra):
     """Every camera parameter (pose, intrinsics, the 12 distortion coefficients) of a posed, skewed
     camera; bspline3 (C², so no kink of the kernel's second derivative in the differences); lit:
@@ -427,7 +429,9 @@ LIGHTING = {"ambient": -0.02, "diffuse": 0.6, "specular": 0.4, "shininess": 6.0,
 
 @pytest.mark.parametrize("mode, spp, normals, combine", [("exact", 1, "smooth", "additive"),
                                                           ("q4", 1, "flat", "multiplicative"),
-                                                          ("exact", 4, "smooth", "multiplicative")])
+                                                          ("exact", 4, "smooth", "multiplicative"),
+                                                          ("fast", 4, "smooth", "multiplicative"),
+                                                          ("fast", 1, "flat", "additive")])
 def test_lit_jacobian_matches_central_differences(mode, spp, normals, combine):
     """Phong lighting (docs/jacobian.md, "With lighting"): the lit grey moves with the sample's
     point, its interpolated normal and, through the corner normals, with the nodes of the
@@ -694,12 +698,8 @@ def test_a_fill_factor_at_one_sample_per_pixel_leaves_the_jacobian_unchanged():
     assert out[0].jacobian.nnz > 0
 
 
-def test_what_the_jacobian_leaves_out_is_refused_by_name():
-    """Mode fast lit; a hard-edged procedural speckle."""
+def test_a_hard_edged_speckle_is_refused_by_name_and_noise_left_out():
     scene, mesh = _plate(backend="cpu")
-    with Renderer(scene.replace(lighting=LIGHTING), mesh=mesh) as r, \
-            pytest.raises(SceneError, match=r"^lighting: in mode fast the image Jacobian .* — set render\.mode"):
-        r.render(0, 1, jacobian=True, mode="fast")
     with Renderer(scene, mesh=mesh) as r:
         J = r.render(0, 1, jacobian=True).jacobian
     with Renderer(scene.replace(speckle={"edge_px": 0.0}), mesh=mesh) as r, \
@@ -711,7 +711,7 @@ def test_what_the_jacobian_leaves_out_is_refused_by_name():
 
 @pytest.mark.gl
 @pytest.mark.parametrize("mode, spp, interpolation", [("exact", 1, "cubic"), ("q4", 1, "cubic"), ("exact", 4, "cubic"),
-                                                      ("exact", 1, "procedural"), ("fast", 4, "cubic")])
+                                                      ("exact", 1, "procedural")])
 def test_gl_matches_the_oracle(gl_ctx, mode, spp, interpolation):
     _gl_against_oracle(gl_ctx, *_plate(mode=mode, samples_per_pixel=spp, interpolation=interpolation))
 
@@ -772,11 +772,40 @@ def test_gl_matches_the_oracle_through_the_depth_of_field(gl_ctx, spp):
 
 
 @pytest.mark.gl
-def test_gl_matches_the_oracle_through_the_depth_of_field_in_mode_fast(gl_ctx):
-    """Mode fast at 4 samples per pixel through the depth of field (GL's rasterized elements, the
-    oracle's depth model): as above."""
-    scene, mesh = _plate(mode="fast", samples_per_pixel=4)
-    _gl_against_oracle(gl_ctx, scene.replace(optics=DOF), mesh)
+@pytest.mark.parametrize("case", ["plain", "lit", "depth of field", "Q8"])
+def test_gl_matches_the_oracle_in_mode_fast(gl_ctx, case):
+    """Mode fast at 4 samples per pixel: GL's Jacobian (its rasterizer's elements, the derivatives
+    from the sample points) within 1e-3 of the oracle's largest entry on every pixel whose 16
+    samples fall in the same elements in both backends' rasters — the rasterizer snaps vertices
+    to its sub-pixel grid, so a sample on an edge may go to the other element (docs/hard_cases.md);
+    with the depth of field, pixels within the blur's reach of such a sample left out too."""
+    from scipy.ndimage import binary_dilation
+
+    if case == "Q8":
+        scene, (mesh, _) = _curved(mode="fast", samples_per_pixel=4)
+    else:
+        scene, mesh = _plate(mode="fast", samples_per_pixel=4)
+        scene = scene.replace(**{"plain": {}, "lit": {"lighting": {**LIGHTING, "combine": "multiplicative"}},
+                                 "depth of field": {"optics": DOF}}[case])
+    cam, out = scene.cameras[0], {}
+    W, H = cam.size
+    for backend in ("cpu", "gl"):
+        with Renderer(scene, backend, ctx=gl_ctx if backend == "gl" else None, mesh=mesh) as r:
+            res = r.render(0, 1, rig=True)
+            view = r.geometry.view(jac.sample_camera(cam, 4), 1)
+            one = dataclasses.replace(r.scene.render, samples_per_pixel=1)
+            el = r.backend.render(Request(view, one, truth=True, polish=False)).samples["element"]
+            out[backend] = (res.jacobian, res.rig_jacobian, el.reshape(H, 4, W, 4).transpose(0, 2, 1, 3).reshape(H, W, 16))
+            if case == "depth of field" and backend == "cpu":   # the blur windows' largest radius
+                reach = int(_blurred64(r, mesh.deformed(1))[2].max())
+    differ = (out["cpu"][2] != out["gl"][2]).any(-1)
+    if case == "depth of field":
+        differ = binary_dilation(differ, np.ones((3, 3), bool), iterations=reach)
+    keep = ~differ.ravel()
+    assert keep.mean() > 0.8   # (most of the image compared)
+    for k in (0, 1):
+        a, b = out["cpu"][k][keep], out["gl"][k][keep]
+        assert abs(b - a).max() <= 1e-3 * abs(a).max()
 
 
 @pytest.mark.gl
@@ -790,11 +819,10 @@ def test_gl_matches_the_oracle_with_lighting(gl_ctx, mode, spp):
 
 
 @pytest.mark.gl
-@pytest.mark.parametrize("mode, spp", [("exact", 1), ("q4", 1), ("exact", 4), ("fast", 4)])
+@pytest.mark.parametrize("mode, spp", [("exact", 1), ("q4", 1), ("exact", 4)])
 def test_gl_matches_the_oracle_on_quadratic_elements(gl_ctx, mode, spp):
     """As test_gl_matches_the_oracle, on the Q8 and T6 meshes of _curved (GL's curved truth is
-    polished in float64, so its raster is the oracle's to Newton's tolerance; fast: the pieces'
-    rasterized elements)."""
+    polished in float64, so its raster is the oracle's to Newton's tolerance)."""
     scene, meshes = _curved(mode=mode, samples_per_pixel=spp)
     for mesh in meshes:
         _gl_against_oracle(gl_ctx, scene, mesh)

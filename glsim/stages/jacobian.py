@@ -47,17 +47,12 @@ CHUNK = 1 << 18          # samples differentiated at once (bounds memory: ~100 d
 
 
 def check_request(scene: Scene, opts: Render, dots=None) -> None:
-    """SceneError naming what ``jacobian=True`` cannot differentiate: in mode fast the lighting;
-    a procedural speckle (the reference's ``dots``)
-    with a hard edge (and any optional table not in UNREFUSED)."""
+    """SceneError naming what ``jacobian=True`` cannot differentiate: a procedural speckle (the
+    reference's ``dots``) with a hard edge (and any optional table not in UNREFUSED)."""
     for f in dataclasses.fields(scene):
         if f.default is None and getattr(scene, f.name) is not None and f.name not in UNREFUSED:
             raise SceneError(f.name, "the image Jacobian does not differentiate this effect",
                              f"remove [{f.name}] or render without jacobian")
-    if opts.mode == "fast":
-        if scene.lighting is not None:
-            raise SceneError("lighting", "in mode fast the image Jacobian does not differentiate the lighting",
-                             "set render.mode = \"exact\" (or \"q4\"), remove [lighting], or render without jacobian")
     if opts.interpolation == "procedural" and dots is not None and dots.edge_px == 0:
         raise SceneError("speckle.edge_px", "is 0: a hard-edged procedural speckle's grey jumps at the dots' edges, "
                          "so the image Jacobian would be zero everywhere else", "give the dots a smooth edge "
@@ -222,21 +217,31 @@ def fast_triangles(P, q):
     return t, np.where((t == 0)[:, None], lams[0], lams[1])
 
 
-def fast_sensitivities(grad, q, P, Pr, z, PJ, depth: bool = False):
+FAST_CORNERS = np.array([[-1.0, -1.0], [1.0, -1.0], [1.0, 1.0], [-1.0, 1.0]])   # (ξ, η) of the corners
+
+
+def fast_sensitivities(grad, q, P, Pr, Xd, PJ, depth: bool = False, shading=None, e=None, t=None):
     """Mode fast's derivatives of a sample's grey g = I(r): r = Σ w_j R_j over its triangle's
     corners (glsim.backends.cpu's perspective-correct weights w_j = a_j/S, a_j = λ_j/z_j, S = Σ a_m,
     of the screen-space barycentrics λ of the sample point q (n, 2) in the corners' projections
-    P_j (n, 4, 2), R_j their reference points ``Pr`` (n, 4, 2), z_j their depths (n, 4)). A value
-    f(a) of the triangle moves with its corners through ψ_j = ∂f/∂a_j and ∂λ_j/∂P_i = −λ_i ∇_q λ_j:
-    ∂f/∂P_i = −λ_i Σ_j (ψ_j/z_j) ∇_q λ_j, ∂f/∂z_i = −ψ_i λ_i/z_i² — for the grey ψ_j =
-    (∇I·R_j − Σ w_m ∇I·R_m)/S. Returns the camera-frame corner derivatives c (n, 4, 3) per mm
-    (through the corners' projection Jacobians PJ (n, 4, 2, 3), :func:`projection_jacobian` of
-    the camera whose pixels q and P are) and ∂f/∂P (n, 4, 2) per px, the corner off the triangle
-    0; with ``depth`` also the sample's depth 1/S (n,) (the oracle's) and its (c, ∂/∂P), ψ_j = −1/S²."""
+    P_j (n, 4, 2), R_j their reference points ``Pr`` (n, 4, 2), z_j the depths of the corners Xd
+    (n, 4, 3, camera frame)). A value f(a) of the triangle moves with its corners through ψ_j =
+    ∂f/∂a_j and ∂λ_j/∂P_i = −λ_i ∇_q λ_j: ∂f/∂P_i = −λ_i Σ_j (ψ_j/z_j) ∇_q λ_j, ∂f/∂z_i =
+    −ψ_i λ_i/z_i² — for the grey ψ_j = (∇I·R_j − Σ w_m ∇I·R_m)/S. Returns the camera-frame corner
+    derivatives c (n, 4, 3) per mm (through the corners' projection Jacobians PJ (n, 4, 2, 3),
+    :func:`projection_jacobian` of the camera whose pixels q and P are), ∂f/∂P (n, 4, 2) per px
+    (the corner off the triangle 0), what the lighting adds, and the depth's.
+
+    ``shading`` (:class:`glsim.effects.lighting.ShadingTerms`, elements ``e``, the camera's
+    translation ``t``): the oracle lights the point (ξ, η) = Σ w_j C_j of the triangle's corners'
+    (ξ, η) C_j — X = Σ N_k X_k and Ñ interpolated there — so g' = combine(g, I(X, Ñ)) adds
+    ∂g'/∂(ξ, η)·(C_j − (ξ, η))/S to ψ, and ∂g'/∂X·N_k to c; returns (dn (n, 4, 3): ∂g'/∂n_j, src,
+    the pose columns' term) as :func:`lit_sensitivities` does, else None. ``depth``: the sample's
+    depth 1/S (n,) (the oracle's) and its (c, ∂/∂P), ψ_j = −1/S²; else None."""
     n = len(q)
-    t, lam = fast_triangles(P, q)
-    tri, rows = np.array(bl.FAST_TRIANGLES)[t], np.arange(n)[:, None]
-    zt, Pt, Rt = z[rows, tri], P[rows, tri], Pr[rows, tri]
+    tp, lam = fast_triangles(P, q)
+    tri, rows = np.array(bl.FAST_TRIANGLES)[tp], np.arange(n)[:, None]
+    zt, Pt, Rt = Xd[rows, tri, 2], P[rows, tri], Pr[rows, tri]
     a = lam / zt
     S = a.sum(-1)[:, None]
     w = a / S
@@ -254,11 +259,25 @@ def fast_sensitivities(grad, q, P, Pr, z, PJ, depth: bool = False):
         c[rows, tri], dP[rows, tri] = ct, dPt
         return c, dP
 
-    G = np.einsum("nd,nkd->nk", grad(np.einsum("nk,nkd->nd", w, Rt)), Rt)
-    out = through((G - (w * G).sum(-1)[:, None]) / S)
-    if not depth:
-        return out
-    return (*out, 1.0 / S[:, 0], *through(np.broadcast_to(-1.0 / S ** 2, lam.shape)))
+    r = np.einsum("nk,nkd->nd", w, Rt)
+    G = np.einsum("nd,nkd->nk", grad(r), Rt)
+    psi, lit = (G - (w * G).sum(-1)[:, None]) / S, None
+    if shading is not None:
+        C = FAST_CORNERS[tri]
+        xe = np.einsum("nk,nkd->nd", w, C)
+        N, N_xi, N_eta = _shape_derivatives(xe[:, 0], xe[:, 1])
+        X = np.einsum("nk,nkd->nd", N, Xd)
+        Nt, dNt, src, weights = shading.normals_at(e, xe[:, 0], xe[:, 1])
+        gg, gX, gN, gV = shading.terms(r, X, Nt)
+        w_xe = np.einsum("nd,ndl->nl", gX, _tangents(N_xi, N_eta, Xd)) + np.einsum("nd,ndl->nl", gN, dNt)
+        psi = gg[:, None] * psi + (np.einsum("nl,nkl->nk", w_xe, C) - (w_xe * xe).sum(-1)[:, None]) / S
+        tt = np.asarray(t, np.float64)
+        lit = (weights[..., None] * gN[:, None, :], src,
+               np.hstack([np.cross(tt, gX - gV) - np.cross(X, gX), gV - gX]))
+    c, dP = through(psi)
+    if shading is not None:
+        c = c + N[..., None] * gX[:, None, :]
+    return c, dP, lit, (1.0 / S[:, 0], *through(np.broadcast_to(-1.0 / S ** 2, lam.shape))) if depth else None
 
 
 def reference_point(mode: str, Xr, ref_cam: Camera, xi, eta):
@@ -336,18 +355,21 @@ def image_jacobian(cam: Camera, s: int, ref_cam: Camera, nodes: np.ndarray, defo
         fi, fj = idx % (W * s), idx // (W * s)
         pixel = fj // s * W + fi // s
         dP = None
-        if mode == "fast":   # (check_request refuses it lit; a quadratic mesh's pieces are linear)
+        if mode == "fast":   # (a quadratic mesh's pieces are linear elements here)
             N = v = None
-            k = quads[e]
-            c, dP, *fast_depth = fast_sensitivities(grad, q, nodal[0][k], nodal[1][k], Xd[..., 2], nodal[2][k], depth)
-        elif shading is None:
-            r, dr = reference_point(mode, Xr, ref_cam, xi, eta)
-            w = np.einsum("nc,ncl->nl", grad(r), dr)                                # ∂g/∂(ξ, η)
-            N, v, c = sensitivities(mode, w, Xd, xi, eta, ray, scam)
+            corners = quads[e]
+            c, dP, lit, fast_depth = fast_sensitivities(grad, q, nodal[0][corners], nodal[1][corners], Xd,
+                                                        nodal[2][corners], depth, shading, e, cam.t)
+            if lit is not None:
+                dn, src, pose = lit
         else:
             r, dr = reference_point(mode, Xr, ref_cam, xi, eta)
-            w = np.einsum("nc,ncl->nl", grad(r), dr)
-            N, v, c, dn, src, pose = lit_sensitivities(mode, w, Xd, xi, eta, ray, scam, shading, e, r)
+            w = np.einsum("nc,ncl->nl", grad(r), dr)                                # ∂g/∂(ξ, η)
+            if shading is None:
+                N, v, c = sensitivities(mode, w, Xd, xi, eta, ray, scam)
+            else:
+                N, v, c, dn, src, pose = lit_sensitivities(mode, w, Xd, xi, eta, ray, scam, shading, e, r)
+        if shading is not None:
             cols = (3 * src[..., None] + np.arange(3)).ravel()
             normal_parts.append(sparse.coo_matrix(((dn @ R).ravel() / (s * s), (np.repeat(pixel, 12), cols)),
                                                   shape=(W * H, 3 * shading.sources)).tocsr())
