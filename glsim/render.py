@@ -196,11 +196,13 @@ class Renderer:
             return self._finish(self._submit(camera, step, truth, quantize, options))
         opts = self._options(options)
         jac.check_request(self.scene, opts, self.reference.dots)
-        one = opts.supersampling == 1   # the image's own pixel-centre raster is the samples'
-        res = self._finish(self._submit(camera, step, truth or one, quantize, options,
+        # the image's own pixel-centre raster is the samples' at 1 spp (not fast's of a quadratic
+        # mesh: a Truth is of the patches, the Jacobian of the pieces it draws)
+        own = opts.supersampling == 1 and not (opts.mode == "fast" and self.mesh.is_quadratic)
+        res = self._finish(self._submit(camera, step, truth or own, quantize, options,
                                         polish=truth or opts.mode != "fast"))   # (fast's Jacobian: elements only)
         raster = {"element": res.truth.element.ravel(), "xi": res.truth.xi.ravel(), "eta": res.truth.eta.ravel()} \
-            if one and not (opts.mode == "fast" and self.mesh.is_quadratic) else None   # (a Truth is of the patches)
+            if own else None
         J, J_rig = self._jacobian(res.camera, step, opts, raster, rig)
         return dataclasses.replace(res, truth=res.truth if truth else None,
                                    **self._through_camera_effects(res.camera, J, J_rig,
@@ -362,27 +364,26 @@ class Renderer:
                 drawn_state = None if tl is None else drawn   # (the step's own view when not moving)
                 one = dataclasses.replace(opts, samples_per_pixel=1)
                 curved = self._curved(opts, step, tl, tau)
+                polish = opts.mode != "fast"   # (fast's Jacobian uses the raster's elements only)
                 if aperture == 1.0:
                     view = self.geometry.view(jac.sample_camera(cam, s), step, state, drawn_state)
-                    raster = self.backend.render(Request(view, one, True, curved=curved,
-                                                         polish=opts.mode != "fast")).samples
+                    raster = self.backend.render(Request(view, one, True, curved=curved, polish=polish)).samples
                 else:   # each sample offset as a camera shifted by it: (H, s, W, s) → the sample camera's order
                     parts = [[self.backend.render(Request(self.geometry.view(shifted, step, state, drawn_state), one, True,
-                                                          curved=curved, polish=opts.mode != "fast")).samples
-                              for shifted in row]
+                                                          curved=curved, polish=polish)).samples for shifted in row]
                              for row in jac.shifted_cameras(cam, s, aperture)]
                     W, H = cam.size
                     raster = {k: np.stack([np.stack([p[k].reshape(H, W) for p in row], -1) for row in parts], 1)
                               .reshape(-1) for k in ("element", "xi", "eta")}
         value, gradient = self._reference_functions(opts.interpolation)
         pieces = opts.mode == "fast" and mesh.is_quadratic   # fast draws the pieces: their nodes, then chained
-        drawn_mesh = self.drawn_mesh if pieces else mesh
+        of = self.drawn_mesh if pieces else mesh             # the mesh differentiated
         shading = None
         if self.scene.lighting is not None:   # the drawn mesh's normals (a quadratic mesh's pieces')
             shading = shading_terms(self.scene, drawn, self.drawn_mesh.quads, cam, value, None if pieces else self.pieces)
-        J, J_rig, depth = jac.image_jacobian(cam, s, self.reference.camera, drawn_mesh.nodes, drawn if pieces else deformed,
-                                             drawn_mesh.quads, opts.mode, raster, gradient, rig, drawn_mesh.patches,
-                                             shading, self.scene.optics is not None, aperture)
+        J, J_rig, depth = jac.image_jacobian(cam, s, self.reference.camera, of.nodes, drawn if pieces else deformed,
+                                             of.quads, opts.mode, raster, gradient, rig, of.patches, shading,
+                                             self.scene.optics is not None, aperture)
         if pieces:   # the pieces' nodes as weights of the mesh's (PiecesMesh.grid_matrix)
             G = sparse.kron(self.drawn_mesh.grid_matrix(), sparse.identity(3), format="csr")
             J = J @ G

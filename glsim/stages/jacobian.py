@@ -319,7 +319,9 @@ def image_jacobian(cam: Camera, s: int, ref_cam: Camera, nodes: np.ndarray, defo
                    shading=None, depth: bool = False, aperture: float = 1.0):
     """The image Jacobian (W·H × 3·nodes, CSR, grey levels per mm) of ``cam`` from ``raster``:
     flat ``element``, ``xi``, ``eta`` (float64) over the (W·s)·(H·s) samples of
-    :func:`sample_camera` (element −1: background); the reference point is recomputed from them.
+    :func:`sample_camera` (element −1: background); the reference point is recomputed from them
+    (``mode`` exact or q4; in fast from the element's triangle at the sample point,
+    :func:`fast_sensitivities`: its (ξ, η) are not used).
     ``nodes``, ``deformed`` (N, 3) world mm; ``patches``: a quadratic mesh's (its (ξ, η) are the
     patches'); ``grad(uv)`` the reference interpolant's gradient
     (grey per px). A pixel's row is the mean of its s² samples' derivatives. ``shading``: the
@@ -349,7 +351,6 @@ def image_jacobian(cam: Camera, s: int, ref_cam: Camera, nodes: np.ndarray, defo
         idx = hit[k:k + CHUNK]
         e, xi, eta = raster["element"][idx], raster["xi"][idx], raster["eta"][idx]
         Xd = qd.element_points(quads, patches, e, to_camera(deformed, scam))
-        Xr = qd.element_points(quads, patches, e, to_camera(nodes, ref_cam))
         q = sample_points(W, s, idx, aperture)    # the samples in cam's pixels
         ray = sample_rays(cam, q) if mode == "exact" else None
         fi, fj = idx % (W * s), idx // (W * s)
@@ -363,6 +364,7 @@ def image_jacobian(cam: Camera, s: int, ref_cam: Camera, nodes: np.ndarray, defo
             if lit is not None:
                 dn, src, pose = lit
         else:
+            Xr = qd.element_points(quads, patches, e, to_camera(nodes, ref_cam))
             r, dr = reference_point(mode, Xr, ref_cam, xi, eta)
             w = np.einsum("nc,ncl->nl", grad(r), dr)                                # ∂g/∂(ξ, η)
             if shading is None:
@@ -375,17 +377,18 @@ def image_jacobian(cam: Camera, s: int, ref_cam: Camera, nodes: np.ndarray, defo
                                                   shape=(W * H, 3 * shading.sources)).tocsr())
             needed.append(np.unique(src))
         parts.append(_node_part(c, e, quads, patches, R, pixel, np.full(len(idx), 1.0 / (s * s)), shape))
-        if depth and mode == "fast":   # z = 1/Σ λ_j/z_j (fast_sensitivities)
-            z[idx], cz, dPz = fast_depth
-            vz = None
-            depth_parts.append(_node_part(cz, e, quads, patches, R, pixel, 1.0 / covered[pixel], shape))
-        elif depth:   # z = Σ N_k Z_k, through (ξ, η) and directly
-            Nz, Nz_xi, Nz_eta = _shape_derivatives(xi, eta, Xd.shape[1])
-            z[idx] = np.einsum("nk,nk->n", Nz, Xd[..., 2])
-            wz = np.column_stack([np.einsum("nk,nk->n", Nz_xi, Xd[..., 2]), np.einsum("nk,nk->n", Nz_eta, Xd[..., 2])])
-            _, vz, cz = sensitivities(mode, wz, Xd, xi, eta, ray, scam)
-            cz[..., 2] += Nz
-            dPz = None
+        if depth:
+            if mode == "fast":   # z = 1/Σ λ_j/z_j (fast_sensitivities)
+                z[idx], cz, dPz = fast_depth
+                vz = None
+            else:   # z = Σ N_k Z_k, through (ξ, η) and directly
+                Nz, Nz_xi, Nz_eta = _shape_derivatives(xi, eta, Xd.shape[1])
+                z[idx] = np.einsum("nk,nk->n", Nz, Xd[..., 2])
+                wz = np.column_stack([np.einsum("nk,nk->n", Nz_xi, Xd[..., 2]),
+                                      np.einsum("nk,nk->n", Nz_eta, Xd[..., 2])])
+                _, vz, cz = sensitivities(mode, wz, Xd, xi, eta, ray, scam)
+                cz[..., 2] += Nz
+                dPz = None
             depth_parts.append(_node_part(cz, e, quads, patches, R, pixel, 1.0 / covered[pixel], shape))
         if rig:
             values = rig_derivatives(mode, N, v, c, Xd, cam, s, q, ray, dP)
