@@ -14,6 +14,9 @@ def test_glsim_check_passes_here_and_writes_its_report(tmp_path, capsys):
     report = json.loads(out.read_text())
     assert report["passed"] and [r["name"] for r in report["checks"]] == [c.name for c in check.CHECKS]
     assert all(r["passed"] is not False and r["value"] <= r["bound"] for r in report["checks"] if r["value"] is not None)
+    primitives = report["checks"][0]
+    if primitives["value"] is not None:   # per primitive, each 0 here
+        assert set(primitives["detail"]) >= {"split_double", "distort"} and not any(primitives["detail"].values())
     text = capsys.readouterr().out
     assert report["machine"]["gl"]["renderer"] in text.splitlines()[-1]     # the driver is named
     for r in report["checks"]:
@@ -27,3 +30,12 @@ def test_a_failing_check_fails_the_command(monkeypatch, tmp_path, capsys):
     assert check.main(["--json", str(tmp_path / "c.json")]) == 1
     assert "FAIL  a grey level off: 1 ≤ 0 grey levels" in capsys.readouterr().out
     assert json.loads((tmp_path / "c.json").read_text())["passed"] is False
+
+
+def test_a_failing_checks_detail_names_what_failed():
+    """A check's detail (the float64 primitives' per-primitive counts) is printed where it fails,
+    naming only what differed."""
+    row = {"name": "float64 primitives", "bound": 0, "unit": "results differing in any bit", "value": 4096.0,
+           "passed": False, "seconds": 0.4, "detail": {"split_double": 0, "distort": 4096}}
+    assert check.check_row(row).endswith("(0.4 s) — distort 4096")
+    assert "—" not in check.check_row(dict(row, value=0.0, passed=True, detail={"distort": 0}))

@@ -54,9 +54,11 @@ class Check:
 
 @dataclass
 class Context:
-    """The renderers a run shares (made on first use, closed at the end) and the GL context."""
+    """The renderers a run shares (made on first use, closed at the end), the GL context, and
+    what a check reports beside its value (``detail``, by check name: the report's row keeps it)."""
     ctx: object
     _pairs: dict = dataclasses.field(default_factory=dict)
+    detail: dict = dataclasses.field(default_factory=dict)
 
     def pair(self, name: str, scene: Scene, mesh=None) -> tuple[Renderer, Renderer]:
         if name not in self._pairs:
@@ -117,7 +119,9 @@ def fp64_probe(ctx, n: int = 4096, seed: int = 25) -> dict[str, int]:
 def _probe(c: Context) -> float:
     if "GL_ARB_gpu_shader_fp64" not in c.ctx.extensions:
         return float("nan")   # reported as "no float64" (check_row)
-    return float(sum(fp64_probe(c.ctx).values()))
+    counts = fp64_probe(c.ctx)
+    c.detail["float64 primitives"] = counts   # which primitive differs, where any does
+    return float(sum(counts.values()))
 
 
 # ---- coverage -----------------------------------------------------------------------------------
@@ -280,6 +284,8 @@ def run_checks(ctx=None, checks=CHECKS, progress=print) -> dict:
                    "value": None if np.isnan(value) else value,
                    "passed": None if np.isnan(value) else bool(value <= ch.bound),
                    "seconds": round(time.perf_counter() - t0, 2)}
+            if ch.name in c.detail:
+                row["detail"] = c.detail.pop(ch.name)
             rows.append(row)
             progress(check_row(row))
         machine = machine_info(info(ctx))
@@ -294,7 +300,9 @@ def run_checks(ctx=None, checks=CHECKS, progress=print) -> dict:
 def check_row(r: dict) -> str:
     state = "skipped (no float64)" if r["passed"] is None else "pass" if r["passed"] else "FAIL"
     value = "–" if r["value"] is None else f"{r['value']:.3g}"
-    return f"{state:>6}  {r['name']}: {value} ≤ {r['bound']:.3g} {r['unit']}  ({r['seconds']} s)"
+    detail = "" if r["passed"] is not False or not r.get("detail") else \
+        " — " + ", ".join(f"{k} {v}" for k, v in r["detail"].items() if v)
+    return f"{state:>6}  {r['name']}: {value} ≤ {r['bound']:.3g} {r['unit']}  ({r['seconds']} s){detail}"
 
 
 def main(argv: list[str]) -> int:
