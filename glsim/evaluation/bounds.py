@@ -77,3 +77,74 @@ def camera_passes(fx, base: np.ndarray) -> float:
         dz = 5.77 * 2.0 ** -11 + 5.77 * 8 * u
         bound += fx.sensor.prnu / 100 * M * dz + fx.sensor.dsnu / ((1 << fx.bit_depth) - 1) * dz + 4 * u * M
     return bound
+
+
+def phong(X, N, lights, ambient: float, k_r: float, k_s: float, shininess: float, grey=None,
+          model: str = "additive") -> np.ndarray:
+    """Per point, the largest |I_GL − I| that GLSL 4.50's precision rules (§4.7.1; u = 2^-24,
+    1 ULP ≤ 2u) allow shaders/shade.glsl in float32 against glsim.effects.lighting.phong in
+    float64 on the same float32 inputs — or, with ``grey``, of combine(grey, I) under ``model`` —
+    to first order in u:
+
+    - a normalised vector (N, V, L): the dot product 3u, halved by sqrt, sqrt = 1/inversesqrt
+      (2 + 2.5 ULP = 9u): |d|'s relative error ≤ 11u; the division 2.5 ULP: |Δv̂| ≤ 16u;
+    - N·L: 2·16u + 3u; R − V = 2(N·L)N − L − V: 2(|Δnl| + |nl|·16u) + 2·16u and the roundings;
+      s = |R − V|²/2: |R − V|·|Δ(R − V)| + 3u·s;
+    - log(1 − s): for s ≤ ¼ the shader's series, 10u and its 3e-8 relative; else GLSL's log, 2^-21
+      absolute on [½, 2), 3 ULP elsewhere; plus |Δs|/(1 − s); x = r·log(1 − s): r times that;
+      spec = exp(x): (3 + 2|x|) ULP more;
+    - a smooth spot's t = (cos θ − cos_cutoff)/width: (16u + 3u)/width and the division;
+      smoothstep's 6t(1 − t) times it; the attenuation I_i/(1 + k d²): 2k d²/(1 + k d²)·11u + 8u;
+    - the products and the sum over the lights: one u per term each; float32's smallest normal
+      2^-126 absolute where a term underflows.
+
+    Points within reach of a switch (N·V, N·L or R·V crossing 0, a hard spot's edge) are the
+    caller's to leave out: there the two may differ by a whole term."""
+    from glsim.effects.lighting import spot_factor
+
+    def _normalize(v):
+        n = np.linalg.norm(v, axis=-1, keepdims=True)
+        return np.where(n > 0, v / np.where(n > 0, n, 1.0), 0.0), n[..., 0]
+
+    u = FLOAT32_ROUNDOFF
+    unit, len_rel = 16 * u, 11 * u
+    X = np.asarray(X, np.float64)
+    Nu, _ = _normalize(np.asarray(N, np.float64))
+    V, _ = _normalize(-X)
+    Nu = np.where((np.einsum("nd,nd->n", Nu, V) < 0)[:, None], -Nu, Nu)[:, None]
+    L, d = _normalize(lights.pos[None] - X[:, None])
+    nl = np.einsum("nld,nld->nl", np.broadcast_to(Nu, L.shape), L)
+    RmV = 2.0 * nl[..., None] * Nu - L - V[:, None]
+    s = 0.5 * np.einsum("nld,nld->nl", RmV, RmV)
+    lit = (nl > 0) & (s < 1)
+    sl = np.where(lit, s, 0.0)
+    lg = np.log1p(-sl)
+    spec = np.where(lit, np.exp(shininess * lg), 0.0)
+    dnl = 2 * unit + 3 * u
+    dRmV = 2 * (dnl + np.abs(nl) * unit) + 2 * unit + 4 * u * (2 * np.abs(nl) + 2)
+    ds = np.sqrt(2 * sl) * dRmV + 3 * u * sl
+    dlog = np.where(sl <= 0.25, np.abs(lg) * (10 * u + 3e-8), np.where(1 - sl >= 0.5, 8 * u, 6 * u * np.abs(lg))) \
+        + (ds + u * (1 - sl)) / np.maximum(1 - sl, 1e-300)
+    x = shininess * lg
+    # (+ float32's smallest normal: a value below it may come out as 0)
+    dspec = np.where(lit, spec * (shininess * dlog + u * np.abs(x) + (6 + 4 * np.abs(x)) * u) + 2.0 ** -126, 0.0)
+    is_spot = np.any(lights.dir != 0, axis=-1)
+    cos_theta = np.einsum("nld,ld->nl", -L, lights.dir)
+    spot = np.where(is_spot, spot_factor(cos_theta, lights.cos_cutoff, lights.cos_inner), 1.0)
+    smooth = is_spot & (lights.cos_inner > lights.cos_cutoff)
+    width = np.where(smooth, lights.cos_inner - lights.cos_cutoff, 1.0)
+    t = np.clip((cos_theta - lights.cos_cutoff) / width, 0.0, 1.0)
+    dspot = np.where(smooth, 6 * t * (1 - t) * ((unit + 3 * u) / width + 5 * u * t) + 4 * u, 0.0)
+    kd2 = lights.attenuation * d * d
+    att = lights.intensity / (1.0 + kd2)
+    datt = np.abs(att) * (2 * kd2 / (1 + kd2) * len_rel + 8 * u)
+    body = k_r * np.maximum(nl, 0.0) + k_s * spec
+    dbody = np.abs(k_r) * dnl * (nl > 0) + np.abs(k_s) * dspec + 2 * u * np.abs(body)
+    term = spot * att * body
+    dI = np.sum(dspot * np.abs(att * body) + spot * datt * np.abs(body) + spot * np.abs(att) * dbody
+                + 3 * u * np.abs(term), axis=-1) + (len(lights.pos) + 1) * u * (abs(ambient) + np.abs(term).sum(-1))
+    if grey is None:
+        return dI
+    I = ambient + term.sum(-1)
+    g = np.asarray(grey, np.float64)
+    return (np.abs(g) * dI + u * np.abs(g * I)) if model == "multiplicative" else (dI + u * np.abs(g + I))
