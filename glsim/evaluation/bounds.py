@@ -148,3 +148,45 @@ def phong(X, N, lights, ambient: float, k_r: float, k_s: float, shininess: float
     I = ambient + term.sum(-1)
     g = np.asarray(grey, np.float64)
     return (np.abs(g) * dI + u * np.abs(g * I)) if model == "multiplicative" else (dI + u * np.abs(g + I))
+
+
+def blur(scheme: str, size: np.ndarray, M: float) -> np.ndarray:
+    """Per pixel, the largest |GL − mirror| GLSL 4.50's precision rules allow the depth of
+    field's float32 gathers (shaders/blur.frag) against their float64 numpy mirrors
+    (glsim.effects.dof) on the same float32 source of largest |value| ``M``, ``size`` the
+    pixels' σ (Gaussian schemes) or disk radius (px, 0: copied). First order in u:
+
+    - a Gaussian weight e^{x}, x = k²·c, c = −½/σ² from σ in float32 (σ² and the division: 8u,
+      the product u): x within 9u|x|, exp's (3 + 2|x|) ULP: ε ≤ (6 + 13|x|)u, |x| ≤ R²/(2σ²);
+      weights off by ε move a normalised average of values within M by ≤ 2εM;
+    - a 1-D pass of n = 2R + 1 taps: Σ w·v and Σ w (γ_n each), the division 2.5 ULP:
+      (2ε + 2n + 5)u·M; the 2-D gather (weights g_x g_y: 2ε; two nested sums and two weight
+      sums): (4ε + 4n + 7)u·M; separable: the vertical pass's own plus the largest horizontal
+      one (an average passes its input's error on unchanged); hybrid: the larger of the two;
+    - a disk weight clamp(r + ½ − |d|, 0, 1): r rounded, |d| = sqrt(dot) (≈ 11u|d|), the
+      sums: δw ≤ (14r + 13)u per tap; the average moves by ≤ 2M·Σδw/Σw, plus (2·taps + 5)u·M.
+    """
+    from glsim.effects.dof import kernel_radius
+
+    u = FLOAT32_ROUNDOFF
+    s = np.asarray(size, np.float64)
+    H, W = s.shape
+    if scheme == "disk":
+        R = kernel_radius(s, "disk")
+        Rm = int(R.max(initial=0))
+        yy, xx = np.mgrid[0:H, 0:W]
+        wsum, dsum, taps = np.zeros(s.shape), np.zeros(s.shape), np.zeros(s.shape)
+        for dy in range(-Rm, Rm + 1):
+            for dx in range(-Rm, Rm + 1):
+                ok = (np.abs(dx) <= R) & (np.abs(dy) <= R) & (yy + dy >= 0) & (yy + dy < H) & (xx + dx >= 0) & (xx + dx < W)
+                wsum += np.where(ok, np.clip(s + 0.5 - np.hypot(dx, dy), 0.0, 1.0), 0.0)
+                dsum += np.where(ok, (14 * s + 13) * u, 0.0)
+                taps += ok
+        return np.where(s > 0, 2 * M * dsum / np.where(wsum > 0, wsum, 1.0) + (2 * taps + 5) * u * M, 0.0)
+    R = kernel_radius(s)
+    n = 2 * R + 1
+    eps = (6 + 13 * R ** 2 / (2 * np.where(s > 0, s, 1.0) ** 2)) * u
+    pass1d = np.where(s > 0, 2 * eps + (2 * n + 5) * u, 0.0) * M
+    gather = np.where(s > 0, 4 * eps + (4 * n + 7) * u, 0.0) * M
+    separable = np.where(s > 0, pass1d + pass1d.max(), 0.0)
+    return {"gather": gather, "separable": separable, "hybrid": np.maximum(separable, gather)}[scheme]
