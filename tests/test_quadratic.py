@@ -702,9 +702,7 @@ def test_missing_nodes_are_refused():
 def _lit_bound(c: Renderer, mesh, mode: str) -> np.ndarray:
     """Per pixel (H, W), how far GL's lit grey may lie from the oracle's (its float32 arithmetic,
     first order in u = 2^-24): the grey g' = g·I (multiplicative) takes the bspline3 sample's
-    float32 error I·δg — 16 products and sums over the float32 coefficients and the weights
-    (γ_16 + 8u + u, as UNIFORM_INTERP in test_camera_effects) and the sample's position rounded
-    to float32 (≤ u px, times the coefficients' 2·max|c| per px): δg = 27u·max|c| — and
+    float32 error I·δg (glsim.evaluation.bounds.interpolation over its coefficients) and
     g·δI: shade.glsl's own (glsim.evaluation.bounds.phong) plus its inputs — the point
     X = Σ N_i X_i summed in float32 from the patch's nine nodes (each node, weight, product and sum
     rounded: 12u·Σ|N_i||X_i|) and the normal interpolated in float32 over the piece's corners
@@ -736,7 +734,7 @@ def _lit_bound(c: Renderer, mesh, mode: str) -> np.ndarray:
     dX = 12 * u * np.einsum("nk,nkd->nd", np.abs(qd.shape_functions(xi, eta)), np.abs(view.Pd[e])).max(-1)
     dI = bounds.phong(X, N, *args) + np.linalg.norm(dI_X, axis=-1) * dX + np.linalg.norm(dI_N, axis=-1) * 6 * u
     out = np.zeros(hit.shape)
-    out[hit] = np.abs(I) * 27 * u * np.abs(coeffs).max() + np.abs(g) * dI + 2 * u * np.abs(g * I)
+    out[hit] = np.abs(I) * bounds.interpolation("bspline3", np.abs(coeffs).max()) + np.abs(g) * dI + 2 * u * np.abs(g * I)
     return out.reshape(cam.height, cam.width)
 
 

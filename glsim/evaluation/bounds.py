@@ -190,3 +190,20 @@ def blur(scheme: str, size: np.ndarray, M: float) -> np.ndarray:
     gather = np.where(s > 0, 4 * eps + (4 * n + 7) * u, 0.0) * M
     separable = np.where(s > 0, pass1d + pass1d.max(), 0.0)
     return {"gather": gather, "separable": separable, "hybrid": np.maximum(separable, gather)}[scheme]
+
+
+# taps per axis and the largest Σ|w| per axis of each reference interpolant (Keys' cubic has
+# negative lobes: 1.25 at t = ½)
+_INTERP = {"linear": (2, 1.0), "cubic": (4, 1.25), "bspline3": (4, 1.0), "bspline5": (6, 1.0)}
+
+
+def interpolation(method: str, coeffs_max: float) -> float:
+    """The largest |GL − oracle| of a reference sample (shaders/interp.glsl in float32 against
+    glsim.stages.interp in float64 at the same float64 point), over coefficients (the image, or
+    its B-spline coefficients) of largest |value| ``coeffs_max``: with n taps and Σ|w| = S per
+    axis, the n² products and sums γ_{n²}·S², each weight's polynomial (≈ 8u, relative, over S²),
+    the coefficient texels' float32 rounding (u·S²) and the sample's position rounded to float32
+    (u px, times at most 2S·coeffs_max per px): (n² + 9)·u·S²·M + 2u·S·M."""
+    n, S = _INTERP[method]
+    u = FLOAT32_ROUNDOFF
+    return ((n * n + 9) * S * S + 2 * S) * u * coeffs_max
