@@ -1,6 +1,9 @@
 """Bounds of the GL path's error against the CPU oracle, derived from the arithmetic of each
 mode (issue 25), for ``glsim check`` and the GL tests: the same bounds on llvmpipe and on a GPU.
-The camera passes' (vignetting, PSF, fixed pattern): :func:`camera_passes`.
+The camera passes' (vignetting, PSF, fixed pattern): :func:`camera_passes`; the float32
+passes' against their float64 twins under GLSL 4.50's precision rules: the lighting
+(:func:`phong`), the depth of field's gathers (:func:`blur`), a reference sample
+(:func:`interpolation`).
 
 - **float64 (exact, q4, and their truth)**: unit roundoff 2^-53 = 1.1e-16 on coordinates below
   1e4 (px or mm) is 1.1e-12; the closed-form roots, two Newton polishes and the projections
