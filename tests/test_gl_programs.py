@@ -55,14 +55,16 @@ def test_unroll_writes_each_index_out_as_a_constant(tmp_path):
 
 
 @pytest.mark.parametrize("loop, why", [
-    ("for (int k = 0; k < M; ++k) { x[k] = 0; }", "the bound M is not an integer literal or #define"),
+    ("for (int k = 0; k < M; ++k) { x[k] = 0; }", "the bound M is not an integer literal or a #define"),
+    ("for (int k = 0; k < T; ++k) { x[k] = 0; }", "the bound T is not an integer literal or a #define of one"),
     ("for (int k = 0; k < 4; ++k) { if (x[k] > 0) break; }", "'break' in the loop"),
     ("for (int k = 0; k < 4; k += 2) { x[k] = 0; }", "must precede a loop"),
     ("for (int k = 0; k < 4; ++k)\n        if (x[k] > 0)\n            x[k] = 0;", "needs braces"),
 ])
 def test_unroll_refuses_what_it_cannot_write_out(tmp_path, loop, why):
-    (tmp_path / "bad.glsl").write_text("void f(inout int x[4]) {\n    #pragma unroll\n    " + loop + "\n}\n")
-    with pytest.raises(ShaderError, match=r"bad\.glsl:2: .*" + re.escape(why)):
+    (tmp_path / "bad.glsl").write_text("#ifdef A\n#define T 2\n#else\n#define T 4\n#endif\n"
+                                       "void f(inout int x[4]) {\n    #pragma unroll\n    " + loop + "\n}\n")
+    with pytest.raises(ShaderError, match=r"bad\.glsl:7: .*" + re.escape(why)):
         assemble("bad.glsl", {}, dirs=(tmp_path,))
 
 

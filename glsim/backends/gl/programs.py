@@ -107,8 +107,8 @@ def _unroll(lines: list[str], origin: list[tuple[str, int]], ints: dict[str, int
     i = 0
     while i < len(lines):
         m = _INT_DEFINE.match(lines[i])
-        if m:
-            ints.setdefault(m.group(1), int(m.group(2)))
+        if m and ints.setdefault(m.group(1), int(m.group(2))) != int(m.group(2)):
+            ints[m.group(1)] = None   # two values (#ifdef branches): not a bound the loader can know
         if not _UNROLL.match(lines[i]):
             out.append(lines[i])
             where.append(origin[i])
@@ -119,12 +119,11 @@ def _unroll(lines: list[str], origin: list[tuple[str, int]], ints: dict[str, int
         if m is None:
             raise ShaderError(f"{f}:{n}: #pragma unroll must precede a loop 'for (int k = A; k < B; ++k)'")
         indent, var, a, op, b, rest = m.groups()
-        try:
-            lo = int(a) if a.lstrip("-").isdigit() else ints[a]
-            hi = (int(b) if b.lstrip("-").isdigit() else ints[b]) + (op == "<=")
-        except KeyError as exc:
-            raise ShaderError(f"{f}:{n}: #pragma unroll: the bound {exc.args[0]} is not an integer literal or "
-                              "#define") from None
+        lo, hi = (int(v) if v.lstrip("-").isdigit() else ints.get(v) for v in (a, b))
+        if lo is None or hi is None:
+            raise ShaderError(f"{f}:{n}: #pragma unroll: the bound {a if lo is None else b} is not an integer literal "
+                              "or a #define of one value")
+        hi += op == "<="
         try:
             body, body_origin, end = _loop_body(lines, origin, i + 1, rest.strip())
         except (ValueError, IndexError):
