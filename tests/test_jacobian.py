@@ -46,8 +46,7 @@ def _plate(**render):
 def _image64(r: Renderer, deformed: np.ndarray, cam=None):
     """The oracle's float64 image (before its float32 cast) of ``deformed`` nodes seen by ``cam``
     (default: camera 0 at step 1; its samples placed by the fill factor's aperture), and per pixel
-    its samples' one element (−2 where they differ; in mode fast one triangle of it: the grey's
-    derivative jumps across the diagonal);
+    its samples' one element (_one_per_pixel);
     lit as the oracle lights each sample (glsim.backends.cpu._shade, the Effects of ``deformed``)
     when the scene has [lighting]."""
     from glsim.backends.cpu import _shade
@@ -65,12 +64,18 @@ def _image64(r: Renderer, deformed: np.ndarray, cam=None):
     if r.scene.lighting is not None:
         fx = prepare(r.scene, deformed, r.mesh.quads, view.camera, 0, 1, np.empty(0))
         grey[hit] = _shade(view, raster, hit, grey[hit], fx)
+    return grey.reshape(H, s, W, s).mean(axis=(1, 3)).ravel(), _one_per_pixel(raster, opts.mode, H, W, s)
+
+
+def _one_per_pixel(raster: dict, mode: str, H: int, W: int, s: int) -> np.ndarray:
+    """Per pixel (H·W,) the one element its s × s samples of ``raster`` fall in, −2 where they
+    differ, −1 on the background; in mode fast one triangle of it (the grey's derivative jumps
+    across the diagonal: ξ − η = 2w₁ ≥ 0 in (0, 1, 2), −2w₂ ≤ 0 in (0, 2, 3))."""
     el = raster["element"]
-    if opts.mode == "fast":   # its two triangles: ξ − η = 2w₁ ≥ 0 in (0, 1, 2), −2w₂ ≤ 0 in (0, 2, 3)
+    if mode == "fast":
         el = np.where(el >= 0, 2 * el + (raster["xi"] < raster["eta"]), el)
     el = el.reshape(H, s, W, s).transpose(0, 2, 1, 3).reshape(H * W, s * s)
-    one = np.where((el == el[:, :1]).all(axis=1), el[:, 0], -2)
-    return grey.reshape(H, s, W, s).mean(axis=(1, 3)).ravel(), one
+    return np.where((el == el[:, :1]).all(axis=1), el[:, 0], -2)
 
 
 @pytest.mark.parametrize("mode, spp, interpolation, fill", [("exact", 1, "cubic", 1.0), ("q4", 1, "cubic", 1.0),
@@ -158,11 +163,7 @@ def _curved_image(r: Renderer, cam, mesh, deformed, mode: str):
     if lit:   # the normals interpolated over the pieces, in their state (as the oracle renders)
         grey[hit] = _shade(view, raster, hit, grey[hit], prepare(r.scene, pieces_def, r.pieces.mesh.quads, cam, 0, 1,
                                                                 np.empty(0)))
-    el = raster["element"]
-    if mode == "fast":   # one triangle per pixel (as _image64)
-        el = np.where(el >= 0, 2 * el + (raster["xi"] < raster["eta"]), el)
-    el = el.reshape(H, s, W, s).transpose(0, 2, 1, 3).reshape(H * W, s * s)
-    return grey.reshape(H, s, W, s).mean(axis=(1, 3)).ravel(), np.where((el == el[:, :1]).all(1), el[:, 0], -2)
+    return grey.reshape(H, s, W, s).mean(axis=(1, 3)).ravel(), _one_per_pixel(raster, mode, H, W, s)
 
 
 @pytest.mark.parametrize("mode, spp, lit", [("exact", 1, False), ("q4", 1, False), ("exact", 4, False),
@@ -366,13 +367,10 @@ def test_fast_depth_derivative_matches_central_differences():
     def depth(deformed):
         with Renderer(scene, mesh=mesh) as r:
             raster = rasterize(make_view(cam, r.reference.camera, mesh.nodes, deformed, mesh.quads, warn=False), "fast", s)
-        el = raster["element"]
-        z = np.where(el >= 0, raster["depth"], 0.0).reshape(H, s, W, s)
+        z = np.where(raster["element"] >= 0, raster["depth"], 0.0).reshape(H, s, W, s)
         n = (z > 0).sum(axis=(1, 3))
-        ids = np.where(el >= 0, 2 * el + (raster["xi"] < raster["eta"]), el).reshape(H, s, W, s)
-        ids = ids.transpose(0, 2, 1, 3).reshape(H * W, s * s)
-        one = np.where((ids == ids[:, :1]).all(axis=1), ids[:, 0], -2)
-        return np.divide(z.sum(axis=(1, 3)), n, out=np.zeros((H, W)), where=n > 0).ravel(), one, raster
+        return (np.divide(z.sum(axis=(1, 3)), n, out=np.zeros((H, W)), where=n > 0).ravel(),
+                _one_per_pixel(raster, "fast", H, W, s), raster)
 
     with Renderer(scene, mesh=mesh) as r:
         coeffs = interp.prepare(r.reference.image, "cubic", np.float64)

@@ -24,7 +24,7 @@ else 0. Point lights have ``dir = 0`` and a spot factor of 1.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any, Sequence
+from typing import Any, NamedTuple, Sequence
 
 import numpy as np
 
@@ -196,36 +196,63 @@ def _normalize(v):
     return np.where(n > 0, v / np.where(n > 0, n, 1.0), 0.0), n[..., 0]
 
 
+class Geometry(NamedTuple):
+    """Per point (…) and light (…, L) of :func:`phong`: the unit normal Nu and its length m, the
+    flip (±1) that turns it to the camera and the turned normal N, the view direction V and
+    |X| x, the light directions L and distances d, N·L, R − V, s = 1 − R·V, where the specular
+    term is on (``lit``) and its value, cos θ to the spot axes, the spot factors, the attenuated
+    intensities."""
+    Nu: np.ndarray
+    m: np.ndarray
+    flip: np.ndarray
+    N: np.ndarray
+    V: np.ndarray
+    x: np.ndarray
+    L: np.ndarray
+    d: np.ndarray
+    nl: np.ndarray
+    RmV: np.ndarray
+    s: np.ndarray
+    lit: np.ndarray
+    spec: np.ndarray
+    cos_theta: np.ndarray
+    spot: np.ndarray
+    att: np.ndarray
+
+
+def geometry(X, N, lights: LightArrays, shininess: float) -> Geometry:
+    """:class:`Geometry` at camera-frame points X and normals N (…, 3, broadcast; N need not be
+    unit, N = 0 gives zero directions). The specular power is taken only where N·L > 0 and
+    R·V > 0 (so shininess 0 gives k_s·[R·V > 0], not 0⁰), as exp(r·log(1 − s)) with s = |R − V|²/2
+    = 1 − R·V for unit R, V: the same number, but in float32 (the shader) it keeps its relative
+    accuracy at the highlight, where 1 − R·V is tiny and a plain dot product near 1 loses r·2⁻²⁴."""
+    X = np.asarray(X, dtype=np.float64)
+    Nu, m = _normalize(np.asarray(N, dtype=np.float64))
+    X, Nu = np.broadcast_arrays(X, Nu)
+    V, x = _normalize(-X)
+    flip = np.where(_dot(Nu, V) < 0, -1.0, 1.0)
+    Nf = Nu * flip[..., None]
+    L, d = _normalize(lights.pos - X[..., None, :])                  # (…, L, 3), (…, L)
+    nl = _dot(Nf[..., None, :], L)
+    RmV = 2.0 * nl[..., None] * Nf[..., None, :] - L - V[..., None, :]
+    s = 0.5 * _dot(RmV, RmV)                                          # 1 − R·V
+    lit = (nl > 0) & (s < 1)                                          # N·L > 0 and R·V > 0
+    spec = np.where(lit, np.exp(shininess * np.log1p(-np.where(lit, s, 0.0))), 0.0)
+    cos_theta = _dot(-L, lights.dir)
+    is_spot = np.any(lights.dir != 0, axis=-1)
+    spot = np.where(is_spot, spot_factor(cos_theta, lights.cos_cutoff, lights.cos_inner), 1.0)
+    att = lights.intensity / (1.0 + lights.attenuation * d * d)
+    return Geometry(Nu, m, flip, Nf, V, x, L, d, nl, RmV, s, lit, spec, cos_theta, spot, att)
+
+
 def phong(X, N, lights: LightArrays, ambient: float, k_r: float, k_s: float, shininess: float):
     """The paper's eq. 13 summed over ``lights``, in fractions of full scale (see module doc).
 
     X (..., 3) surface points and N (..., 3) normals in the camera frame; returns I (...).
     N is normalised here (interpolated normals need not be unit); N = 0 (degenerate) gives the
-    ambient term only. The specular power is taken only where R·V > 0 (so shininess 0 gives
-    k_s·[R·V > 0], not 0⁰) and is evaluated as exp(r·log(1 − s)) with s = |R − V|²/2 = 1 − R·V
-    for unit R, V: the same number, but in float32 (the shader) it keeps its relative accuracy
-    at the highlight, where 1 − R·V is tiny and a plain dot product near 1 loses r·2⁻²⁴.
-    """
-    X = np.asarray(X, dtype=np.float64)
-    N, _ = _normalize(np.asarray(N, dtype=np.float64))
-    X, N = np.broadcast_arrays(X, N)
-    V, _ = _normalize(-X)
-    nv = np.einsum("...d,...d->...", N, V)
-    N = np.where((nv < 0)[..., None], -N, N)
-    Xl = X[..., None, :]                                           # (..., 1, 3)
-    Nl = N[..., None, :]
-    L, d = _normalize(lights.pos - Xl)                             # (..., L, 3), (..., L)
-    nl = np.einsum("...d,...d->...", Nl, L)
-    R = 2.0 * nl[..., None] * Nl - L
-    RmV = R - V[..., None, :]
-    s = 0.5 * np.einsum("...d,...d->...", RmV, RmV)                # 1 − R·V
-    lit = (nl > 0) & (s < 1)                                       # N·L > 0 and R·V > 0
-    spec = np.where(lit, np.exp(shininess * np.log1p(-np.where(lit, s, 0.0))), 0.0)
-    cos_theta = np.einsum("...d,...d->...", -L, lights.dir)
-    is_spot = np.any(lights.dir != 0, axis=-1)
-    spot = np.where(is_spot, spot_factor(cos_theta, lights.cos_cutoff, lights.cos_inner), 1.0)
-    att = lights.intensity / (1.0 + lights.attenuation * d * d)
-    return ambient + np.sum(spot * att * (k_r * np.maximum(nl, 0.0) + k_s * spec), axis=-1)
+    ambient term only. The specular term as :func:`geometry` takes it."""
+    g = geometry(X, N, lights, shininess)
+    return ambient + np.sum(g.spot * g.att * (k_r * np.maximum(g.nl, 0.0) + k_s * g.spec), axis=-1)
 
 
 MODELS = ("additive", "multiplicative")
@@ -272,40 +299,25 @@ def phong_gradient(X, N, lights: LightArrays, ambient: float, k_r: float, k_s: f
     per unit of N. X, N: (n, 3). Exact wherever :func:`phong` is smooth: not where N·L = 0,
     R·V = 0, N·V = 0 (the flip), on a hard spot edge or at the smooth edge's ends (there the
     one-sided value the branch taken gives). N = 0 gives I = ambient and zero derivatives."""
-    X = np.asarray(X, dtype=np.float64)
-    N = np.asarray(N, dtype=np.float64)
-    Nu, m = _normalize(N)
-    V, x = _normalize(-X)
-    flip = np.where(_dot(Nu, V) < 0, -1.0, 1.0)
-    Nf = Nu * flip[:, None]
-    dNf = _unit_derivative(Nu, m) * flip[:, None, None]              # ∂Nf/∂N (n, 3, 3)
-    dV = -_unit_derivative(V, x)                                      # ∂V/∂X
-    L, d = _normalize(lights.pos[None] - X[:, None])                  # (n, L, 3), (n, L)
+    g = geometry(X, N, lights, shininess)
+    Nf, V, L, d, nl, RmV, lit, spec, cos_theta, spot, att = (g.N, g.V, g.L, g.d, g.nl, g.RmV, g.lit, g.spec,
+                                                             g.cos_theta, g.spot, g.att)
+    dNf = _unit_derivative(g.Nu, g.m) * g.flip[:, None, None]          # ∂Nf/∂N (n, 3, 3)
+    dV = -_unit_derivative(V, g.x)                                    # ∂V/∂X
     dL = -_unit_derivative(L, d)                                      # ∂L/∂X (n, L, 3, 3)
-    Nl = Nf[:, None]
-    nl = _dot(Nl, L)
     nv = _dot(Nf, V)[:, None]
-    RmV = 2.0 * nl[..., None] * Nl - L - V[:, None]
-    s = 0.5 * _dot(RmV, RmV)                                          # 1 − R·V
-    rv = 1.0 - s
-    lit = (nl > 0) & (s < 1)
-    spec = np.where(lit, np.exp(shininess * np.log1p(-np.where(lit, s, 0.0))), 0.0)
-    dspec = np.where(lit, shininess * spec / np.where(lit, rv, 1.0), 0.0)   # ∂spec/∂(R·V)
+    dspec = np.where(lit, shininess * spec / np.where(lit, 1.0 - g.s, 1.0), 0.0)   # ∂spec/∂(R·V)
     dnl_X = np.einsum("nd,nlde->nle", Nf, dL)                        # ∂(N·L)/∂X
     # R·V = 2 (N·L)(N·V) − L·V
     drv_X = (2.0 * nv[..., None] * dnl_X + 2.0 * nl[..., None] * np.einsum("nd,nde->ne", Nf, dV)[:, None]
              - np.einsum("nld,nde->nle", L, dV) - np.einsum("nd,nlde->nle", V, dL))
     drv_N = 2.0 * nv[..., None] * L + 2.0 * nl[..., None] * V[:, None]    # ∂(R·V)/∂Nf
-    is_spot = np.any(lights.dir != 0, axis=-1)
-    cos_theta = _dot(-L, lights.dir[None])
-    spot = np.where(is_spot, spot_factor(cos_theta, lights.cos_cutoff, lights.cos_inner), 1.0)
-    smooth = is_spot & (lights.cos_inner > lights.cos_cutoff)
+    smooth = np.any(lights.dir != 0, axis=-1) & (lights.cos_inner > lights.cos_cutoff)
     width = np.where(smooth, lights.cos_inner - lights.cos_cutoff, 1.0)
     t = (cos_theta - lights.cos_cutoff) / width
     dspot = np.where(smooth & (t > 0) & (t < 1), 6.0 * t * (1.0 - t) / width, 0.0)   # ∂spot/∂cosθ
     dcos_X = -np.einsum("ld,nlde->nle", lights.dir, dL)
     k_d2 = 1.0 + lights.attenuation * d * d
-    att = lights.intensity / k_d2
     datt_X = (2.0 * lights.intensity * lights.attenuation * d / (k_d2 * k_d2))[..., None] * L   # ∂d/∂X = −L
     body = k_r * np.maximum(nl, 0.0) + k_s * spec
     dbody_X = k_r * (nl > 0)[..., None] * dnl_X + k_s * dspec[..., None] * drv_X

@@ -103,26 +103,14 @@ def phong(X, N, lights, ambient: float, k_r: float, k_s: float, shininess: float
 
     Points within reach of a switch (N·V, N·L or R·V crossing 0, a hard spot's edge) are the
     caller's to leave out: there the two may differ by a whole term."""
-    from glsim.effects.lighting import spot_factor
-
-    def _normalize(v):
-        n = np.linalg.norm(v, axis=-1, keepdims=True)
-        return np.where(n > 0, v / np.where(n > 0, n, 1.0), 0.0), n[..., 0]
+    from glsim.effects.lighting import geometry
 
     u = FLOAT32_ROUNDOFF
     unit, len_rel = 16 * u, 11 * u
-    X = np.asarray(X, np.float64)
-    Nu, _ = _normalize(np.asarray(N, np.float64))
-    V, _ = _normalize(-X)
-    Nu = np.where((np.einsum("nd,nd->n", Nu, V) < 0)[:, None], -Nu, Nu)[:, None]
-    L, d = _normalize(lights.pos[None] - X[:, None])
-    nl = np.einsum("nld,nld->nl", np.broadcast_to(Nu, L.shape), L)
-    RmV = 2.0 * nl[..., None] * Nu - L - V[:, None]
-    s = 0.5 * np.einsum("nld,nld->nl", RmV, RmV)
-    lit = (nl > 0) & (s < 1)
-    sl = np.where(lit, s, 0.0)
+    g = geometry(X, N, lights, shininess)
+    nl, d, lit, spec, cos_theta, spot, att = g.nl, g.d, g.lit, g.spec, g.cos_theta, g.spot, g.att
+    sl = np.where(lit, g.s, 0.0)
     lg = np.log1p(-sl)
-    spec = np.where(lit, np.exp(shininess * lg), 0.0)
     dnl = 2 * unit + 3 * u
     dRmV = 2 * (dnl + np.abs(nl) * unit) + 2 * unit + 4 * u * (2 * np.abs(nl) + 2)
     ds = np.sqrt(2 * sl) * dRmV + 3 * u * sl
@@ -131,15 +119,11 @@ def phong(X, N, lights, ambient: float, k_r: float, k_s: float, shininess: float
     x = shininess * lg
     # (+ float32's smallest normal: a value below it may come out as 0)
     dspec = np.where(lit, spec * (shininess * dlog + u * np.abs(x) + (6 + 4 * np.abs(x)) * u) + 2.0 ** -126, 0.0)
-    is_spot = np.any(lights.dir != 0, axis=-1)
-    cos_theta = np.einsum("nld,ld->nl", -L, lights.dir)
-    spot = np.where(is_spot, spot_factor(cos_theta, lights.cos_cutoff, lights.cos_inner), 1.0)
-    smooth = is_spot & (lights.cos_inner > lights.cos_cutoff)
+    smooth = np.any(lights.dir != 0, axis=-1) & (lights.cos_inner > lights.cos_cutoff)
     width = np.where(smooth, lights.cos_inner - lights.cos_cutoff, 1.0)
     t = np.clip((cos_theta - lights.cos_cutoff) / width, 0.0, 1.0)
     dspot = np.where(smooth, 6 * t * (1 - t) * ((unit + 3 * u) / width + 5 * u * t) + 4 * u, 0.0)
     kd2 = lights.attenuation * d * d
-    att = lights.intensity / (1.0 + kd2)
     datt = np.abs(att) * (2 * kd2 / (1 + kd2) * len_rel + 8 * u)
     body = k_r * np.maximum(nl, 0.0) + k_s * spec
     dbody = np.abs(k_r) * dnl * (nl > 0) + np.abs(k_s) * dspec + 2 * u * np.abs(body)
@@ -149,8 +133,8 @@ def phong(X, N, lights, ambient: float, k_r: float, k_s: float, shininess: float
     if grey is None:
         return dI
     I = ambient + term.sum(-1)
-    g = np.asarray(grey, np.float64)
-    return (np.abs(g) * dI + u * np.abs(g * I)) if model == "multiplicative" else (dI + u * np.abs(g + I))
+    grey = np.asarray(grey, np.float64)
+    return (np.abs(grey) * dI + u * np.abs(grey * I)) if model == "multiplicative" else (dI + u * np.abs(grey + I))
 
 
 def blur(scheme: str, size: np.ndarray, M: float) -> np.ndarray:

@@ -265,15 +265,9 @@ def fast_sensitivities(grad, q, P, Pr, Xd, PJ, depth: bool = False, shading=None
     if shading is not None:
         C = FAST_CORNERS[tri]
         xe = np.einsum("nk,nkd->nd", w, C)
-        N, N_xi, N_eta = _shape_derivatives(xe[:, 0], xe[:, 1])
-        X = np.einsum("nk,nkd->nd", N, Xd)
-        Nt, dNt, src, weights = shading.normals_at(e, xe[:, 0], xe[:, 1])
-        gg, gX, gN, gV = shading.terms(r, X, Nt)
-        w_xe = np.einsum("nd,ndl->nl", gX, _tangents(N_xi, N_eta, Xd)) + np.einsum("nd,ndl->nl", gN, dNt)
+        N, gg, gX, w_xe, dn, src, pose = lit_point(shading, e, xe[:, 0], xe[:, 1], Xd, r, t)
         psi = gg[:, None] * psi + (np.einsum("nl,nkl->nk", w_xe, C) - (w_xe * xe).sum(-1)[:, None]) / S
-        tt = np.asarray(t, np.float64)
-        lit = (weights[..., None] * gN[:, None, :], src,
-               np.hstack([np.cross(tt, gX - gV) - np.cross(X, gX), gV - gX]))
+        lit = (dn, src, pose)
     c, dP = through(psi)
     if shading is not None:
         c = c + N[..., None] * gX[:, None, :]
@@ -436,15 +430,25 @@ def lit_sensitivities(mode: str, w, Xd, xi, eta, ray, cam: Camera, shading, e, r
     the view direction — its rotation about the camera changes nothing and its translation
     τ' = τ − ω × t acts as the camera moved by −τ' — so ∂g'/∂X·δX of the corners' part (already
     in c) is replaced by ∂g'/∂X|_V·τ'."""
+    N, gg, gX, w_lit, dn, src, pose = lit_point(shading, e, xi, eta, Xd, r, cam.t)
+    N, v, c = sensitivities(mode, gg[:, None] * w + w_lit, Xd, xi, eta, ray, cam)
+    return N, v, c + N[..., None] * gX[:, None, :], dn, src, pose
+
+
+def lit_point(shading, e, xi, eta, Xd, r, t):
+    """What the lighting of the point (ξ, η) of elements ``e`` (corners or control points Xd,
+    camera frame; reference points r; the camera's translation t) adds to a sample's
+    derivatives (:func:`lit_sensitivities`, :func:`fast_sensitivities`): the shape functions N at
+    (ξ, η), ∂g'/∂g (n,), ∂g'/∂X (n, 3), ∂g'/∂(ξ, η) through X and Ñ (n, 2), dn (n, 4, 3):
+    ∂g'/∂n_j, src (n, 4): the normals' rows of ``shading.D``, and the pose columns' term (n, 6)."""
     N, N_xi, N_eta = _shape_derivatives(xi, eta, Xd.shape[1])
     X = np.einsum("nk,nkd->nd", N, Xd)
     Nt, dNt, src, weights = shading.normals_at(e, xi, eta)
     gg, gX, gN, gV = shading.terms(r, X, Nt)
-    w = gg[:, None] * w + np.einsum("nd,ndl->nl", gX, _tangents(N_xi, N_eta, Xd)) + np.einsum("nd,ndl->nl", gN, dNt)
-    N, v, c = sensitivities(mode, w, Xd, xi, eta, ray, cam)
-    t = np.asarray(cam.t, np.float64)
+    w_lit = np.einsum("nd,ndl->nl", gX, _tangents(N_xi, N_eta, Xd)) + np.einsum("nd,ndl->nl", gN, dNt)
+    t = np.asarray(t, np.float64)
     pose = np.hstack([np.cross(t, gX - gV) - np.cross(X, gX), gV - gX])
-    return N, v, c + N[..., None] * gX[:, None, :], weights[..., None] * gN[:, None, :], src, pose
+    return N, gg, gX, w_lit, weights[..., None] * gN[:, None, :], src, pose
 
 
 def _total(parts: list, shape: tuple) -> sparse.csr_matrix:
