@@ -16,6 +16,22 @@
 // full-screen passes run with EARLY_TESTS on their own layer only. The exact test and the
 // shared tie rule decide coverage in all three. With PIXEL_LOOP (subsamples.frag) this file
 // supplies the functions and that file the main.
+// COMPUTE_PIXELS (deform.comp, resolve.comp; glsim.backends.gl.plan's pixel stage "compute"):
+// the first two as compute passes, one invocation per sample of the pixels in classify.comp's
+// list of their layer (pixellists.glsl), writing the targets as images; a sample the fragment
+// passes discard is left as cleared alike.
+#if defined(COMPUTE_PIXELS)
+#if defined(MODE_FAST) || defined(FALLBACK) || defined(PIXEL_LOOP)
+#error "COMPUTE_PIXELS: the exact and q4 full-screen passes only"
+#endif
+#include "pixellists.glsl"
+layout(local_size_x = LIST_LOCAL) in;
+#define FRAG_COORD (vec2(at) + 0.5)   // the sample shade_sample is given
+#define DROP return
+#else
+#define FRAG_COORD gl_FragCoord.xy
+#define DROP discard
+#endif
 #ifdef EARLY_TESTS
 // the full-screen passes: the depth test (classify.frag's layers) runs before the shader
 layout(early_fragment_tests) in;
@@ -85,7 +101,9 @@ uniform real u_valid_r2;
 #endif
 #include "quadratic.glsl"
 #endif
+#ifndef COMPUTE_PIXELS
 flat in int v_elem;
+#endif
 #endif
 // samples that hit the specimen but map outside the reference image (reset before each pass)
 layout(std430, binding = BINDING_DROPPED) buffer Dropped { uint dropped_samples; };
@@ -98,6 +116,24 @@ uniform real u_ref_dist[12];
 uniform real u_ref_valid_r2;
 #endif
 
+#ifdef COMPUTE_PIXELS
+// the targets as images (their units: glsim.backends.gl.bindings.IMAGES); main stores the values
+layout(r32f, binding = IMAGE_GREY) uniform writeonly image2D u_out_grey;
+float out_grey;
+#ifdef TRUTH
+layout(rgba32f, binding = IMAGE_MAP) uniform writeonly image2D u_out_map;
+layout(rgba32f, binding = IMAGE_EXTRA) uniform writeonly image2D u_out_extra;
+vec4 out_map, out_extra;
+#ifdef TRUTH_LO
+layout(rg32f, binding = IMAGE_LO) uniform writeonly image2D u_out_lo;
+vec2 out_lo;
+#endif
+#endif
+#ifdef DEPTH_OUT
+layout(r32f, binding = IMAGE_DEPTH) uniform writeonly image2D u_out_depth;
+float out_depth;
+#endif
+#else
 layout(location = 0) out float out_grey;
 #ifdef TRUTH
 layout(location = 1) out vec4 out_map;     // ref u, ref v, xi, eta (float32)
@@ -108,6 +144,7 @@ layout(location = 3) out vec2 out_lo;      // xi, eta rounding residuals (FP64: 
 #endif
 #ifdef DEPTH_OUT
 layout(location = DEPTH_LOCATION) out float out_depth;  // camera-frame Z (mm)
+#endif
 #endif
 
 #ifdef LIGHTING
@@ -307,13 +344,17 @@ bool map_sample(int e, real2 px, real2 xn, out real xi, out real eta, out real2 
 
 
 #ifndef PIXEL_LOOP
+#ifdef COMPUTE_PIXELS
+void shade_sample(ivec2 at) {
+#else
 void main() {
+#endif
     real xi, eta;
     real2 ref;
 #if defined(MODE_FAST)
     // the perspective-correct interpolation of glsim.backends.cpu._fast in float32, at the
     // sample's exact pixel point q: barycentrics from edge functions relative to vertex 0
-    vec2 q = gl_FragCoord.xy / float(SS) - 0.5;
+    vec2 q = FRAG_COORD / float(SS) - 0.5;
     vec2 a = g_uv[0], ab = g_uv[1] - a, ac = g_uv[2] - a, aq = q - a;
     float den = ab.x * ac.y - ab.y * ac.x;
     float l1 = (aq.x * ac.y - aq.y * ac.x) / den, l2 = (ab.x * aq.y - ab.y * aq.x) / den;
@@ -328,31 +369,31 @@ void main() {
     int elem = g_elem;
     if (ref.x < -0.5 || ref.y < -0.5 || ref.x > real(u_ref_size.x) - 0.5 || ref.y > real(u_ref_size.y) - 0.5) {
         atomicAdd(dropped_samples, 1u);  // counted for the warning (glsim.stages.view.warn_dropped)
-        discard;
+        DROP;
     }
 #else
-    ivec2 pix = ivec2(gl_FragCoord.xy) / SS;
-#if defined(RESOLVE) || defined(FALLBACK) || !defined(EARLY_TESTS)
-    // (the one-candidate pass with EARLY_TESTS needs no count: classify.frag's layer implies it)
+    ivec2 pix = ivec2(FRAG_COORD) / SS;
+#if defined(RESOLVE) || defined(FALLBACK) || !(defined(EARLY_TESTS) || defined(COMPUTE_PIXELS))
+    // (the one-candidate pass needs no count where classify.frag's layer or classify.comp's list implies it)
     uint n = candidate_count(pix);
 #endif
 #if defined(RESOLVE)
-    if (n < 2u || n > uint(CANDIDATES)) discard;
+    if (n < 2u || n > uint(CANDIDATES)) DROP;
 #elif defined(FALLBACK)
-    if (n <= uint(CANDIDATES) || n == LIST_DONE) discard;
-#elif !defined(EARLY_TESTS)
-    if (n != 1u) discard;
+    if (n <= uint(CANDIDATES) || n == LIST_DONE) DROP;
+#elif !defined(EARLY_TESTS) && !defined(COMPUTE_PIXELS)
+    if (n != 1u) DROP;
 #endif
 #ifdef APERTURE
-    real2 px = aperture_sample(ivec2(gl_FragCoord.xy));   // sensor.fill_factor < 1
+    real2 px = aperture_sample(ivec2(FRAG_COORD));   // sensor.fill_factor < 1
     vec2 sample_px = vec2(px);
 #else
-    vec2 sample_px = gl_FragCoord.xy / float(SS) - 0.5;  // this sample's pixel coordinates
-    real2 px = real2(gl_FragCoord.xy) / real(SS) - 0.5;
+    vec2 sample_px = FRAG_COORD / float(SS) - 0.5;  // this sample's pixel coordinates
+    real2 px = real2(FRAG_COORD) / real(SS) - 0.5;
 #endif
     real2 xn = real2(0.0);
 #if defined(MODE_EXACT)
-    if (!ray_at(u_rays, ivec2(gl_FragCoord.xy), xn)) discard;
+    if (!ray_at(u_rays, ivec2(FRAG_COORD), xn)) DROP;
 #endif
     int elem = -1;
     real Z = 0.0;
@@ -378,7 +419,7 @@ void main() {
     ref_lo = chosen_lo;
     if (elem < 0) {
         if (dropped) atomicAdd(dropped_samples, 1u);  // counted for the warning (warn_dropped)
-        discard;
+        DROP;
     }
 #else
 #if defined(FALLBACK)
@@ -387,13 +428,15 @@ void main() {
     elem = candidate(pix, 0);
 #endif
     bool ok;
-    if (!map_sample(elem, px, xn, xi, eta, ref, Z, ok)) discard;
+    if (!map_sample(elem, px, xn, xi, eta, ref, Z, ok)) DROP;
     if (!ok) {
         atomicAdd(dropped_samples, 1u);  // counted for the warning (warn_dropped)
-        discard;
+        DROP;
     }
 #endif
+#ifndef COMPUTE_PIXELS
     gl_FragDepth = float(Z) / u_far;
+#endif
 #endif
     float grey = sample_ref(ref);
 #ifdef LIGHTING
@@ -421,5 +464,33 @@ void main() {
 #endif
 #endif
 #endif
+#ifdef COMPUTE_PIXELS
+    imageStore(u_out_grey, at, vec4(out_grey));
+#ifdef TRUTH
+    imageStore(u_out_map, at, out_map);
+    imageStore(u_out_extra, at, out_extra);
+#ifdef TRUTH_LO
+    imageStore(u_out_lo, at, vec4(out_lo, 0.0, 0.0));
+#endif
+#endif
+#ifdef DEPTH_OUT
+    imageStore(u_out_depth, at, vec4(out_depth));
+#endif
+#endif
 }
+#ifdef COMPUTE_PIXELS
+void main() {
+#ifdef RESOLVE
+    const uint layer = 1u;
+#else
+    const uint layer = 0u;
+#endif
+    // one invocation per sample of a listed pixel (a loop over them costs llvmpipe twice the time)
+    uint i = gl_GlobalInvocationID.y * gl_NumWorkGroups.x * uint(LIST_LOCAL) + gl_GlobalInvocationID.x;
+    uint j = i / uint(SS * SS), k = i % uint(SS * SS);
+    if (j >= layer_count[layer]) return;
+    uint w = pixels[layer == 0u ? j : uint(pixels.length()) - 1u - j];
+    shade_sample(ivec2(w & 0xFFFFu, w >> 16) * SS + ivec2(k % uint(SS), k / uint(SS)));
+}
+#endif
 #endif

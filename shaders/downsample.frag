@@ -1,18 +1,25 @@
 // Pixel integration: box filter over the SS x SS samples of each pixel. With COVERED_MEAN the
 // mean is taken over non-zero samples only (depth maps: 0 = no surface). With SKIP_DONE the
-// pixels subsamples.frag finished (candidate count LIST_DONE) are left as they are.
+// pixels subsamples.frag finished (candidate count LIST_DONE) are left as they are. Either
+// pixel stage (pixelpass.glsl; downsample.comp).
+#include "pixelpass.glsl"
 #ifdef SKIP_DONE
 #include "candidates.glsl"
 #endif
 layout(binding = SAMPLER_SAMPLES) uniform sampler2D u_samples;
 
+#ifdef COMPUTE_PIXELS
+layout(r32f, binding = IMAGE_PASS_OUT) uniform writeonly image2D u_out;
+#else
 out float out_grey;
+#endif
 
 void main() {
+    if (PASS_OUTSIDE) return;
 #ifdef SKIP_DONE
-    if (imageLoad(u_cand_count, ivec2(gl_FragCoord.xy)).x == LIST_DONE) discard;
+    if (imageLoad(u_cand_count, PASS_PIXEL).x == LIST_DONE) PASS_SKIP;
 #endif
-    ivec2 base = ivec2(gl_FragCoord.xy) * SS;
+    ivec2 base = PASS_PIXEL * SS;
     float acc = 0.0;
     float n = 0.0;
     for (int j = 0; j < SS; ++j)
@@ -24,8 +31,13 @@ void main() {
 #endif
         }
 #ifdef COVERED_MEAN
-    out_grey = n > 0.0 ? acc / n : 0.0;
+    float grey = n > 0.0 ? acc / n : 0.0;
 #else
-    out_grey = acc / float(SS * SS);
+    float grey = acc / float(SS * SS);
+#endif
+#ifdef COMPUTE_PIXELS
+    imageStore(u_out, PASS_PIXEL, vec4(grey));
+#else
+    out_grey = grey;
 #endif
 }

@@ -111,13 +111,16 @@ def test_bench_quadratic_reduced(tmp_path, capsys):
 @pytest.mark.gl
 def test_bench_throughput_quick(tmp_path):
     """`glsim bench throughput --quick`: every mode at 1 and 4 spp, one at a time and pipelined,
-    the pipelined images bit for bit the single ones; aimed at bench/results it is refused."""
+    and pipelined in the other pixel stage, those images bit for bit the single ones; aimed at
+    bench/results it is refused."""
     assert cli.bench_main(["throughput", "--quick", "--out", str(cli.RESULTS)]) == 2
     assert cli.bench_main(["throughput", "--quick", "--size", "96", "72", "--out", str(tmp_path)]) == 0
     report = json.loads((tmp_path / "throughput.json").read_text())
     rows = report["rows"]
     assert [(r["mode"], r["spp"]) for r in rows] == [(m, s) for m in ("fast", "q4", "exact") for s in (1, 4)]
     assert all(r["same_bytes"] for r in rows)
+    other = {"fragment": "compute", "compute": "fragment"}[report["stage"]]   # (llvmpipe: fragment; a GPU: compute)
+    assert {r["other_stage"] for r in rows} == {other} and all(r["other_pairs_per_s"] > 0 for r in rows)
     assert all(r["pipelined_pairs_per_s"] > 0 and r["single_pairs_per_s"] > 0 and r["passes"] for r in rows)
     assert all(r["fresh_host_ms"] > 0 for r in rows) and report["counting"]["reps"] >= 1   # (timings: not tested)
     # (counts, not timings) the same views again replay their passes: less Python than a new step's

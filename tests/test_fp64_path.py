@@ -89,6 +89,7 @@ def test_double_literals_are_thresholds_only():
 # holds values float32 represents exactly
 EXACT_FLOAT_SOURCES = {
     "gl_FragCoord": "half-integer pixel coordinates (< 2^23)",
+    "at": "the compute pixel stage's sample (deform.frag's FRAG_COORD: vec2(at) + 0.5, as gl_FragCoord)",
     "u_ref_size": "the reference image's width and height in px (integers)",
     "u_size": "the image's width and height in px (integers)",
     "hl": "fp64_probe.comp writes split_double's float32 halves out as doubles",
@@ -121,17 +122,19 @@ _STAGES = {"vert": "vert", "frag": "frag", "comp": "comp", "geom": "geom"}
 @pytest.fixture(scope="module")
 def fp64_programs(gl_ctx):
     """(files, defines) of every float64 program the GL backend builds for exact and q4 renders
-    (1 and 4 spp, truth, Newton sub-samples, pinhole cameras, a fill factor below 1, float32
-    samples over float64 records, lit quadratic Q8 and T6 patches), and the probe of glsim check."""
+    (1 and 4 spp, truth, Newton sub-samples, both pixel stages, pinhole cameras, a fill factor
+    below 1, float32 samples over float64 records, lit quadratic Q8 and T6 patches in both
+    stages), and the probe of glsim check."""
     from _plates import plate_scene
     from glsim.evaluation import quadratic
 
     built = [(("fp64_probe.comp",), {"FP64": None})]
     with Renderer(bulge_scene(size=(96, 72), steps=1), "gl", ctx=gl_ctx) as r:
-        for mode in ("exact", "q4"):
-            for spp in (1, 4):
-                r.render(1, 1, truth=True, mode=mode, samples_per_pixel=spp)
-        r.render(1, 1, mode="exact", samples_per_pixel=4, subsamples="newton")
+        for r.backend.stage in ("fragment", "compute"):
+            for mode in ("exact", "q4"):
+                for spp in (1, 4):
+                    r.render(1, 1, truth=True, mode=mode, samples_per_pixel=spp)
+            r.render(1, 1, mode="exact", samples_per_pixel=4, subsamples="newton")
         built += r.backend.programs.compiled
     pinhole = plate_scene(size=(64, 48), mode="exact")   # pinhole cameras: REF_PINHOLE, PIXEL_TIES
     with Renderer(pinhole, "gl", ctx=gl_ctx) as r, \
@@ -145,8 +148,9 @@ def fp64_programs(gl_ctx):
     for kind in ("quad8", "triangle6"):
         with Renderer(quadratic.paraboloid_scene((64, 48)).replace(lighting=lit), "gl", ctx=gl_ctx,
                       mesh=quadratic.mesh(kind, 2, 2)) as r:
-            for mode in ("exact", "q4"):
-                r.render(0, 0, truth=True, mode=mode)
+            for r.backend.stage in ("fragment", "compute"):
+                for mode in ("exact", "q4"):
+                    r.render(0, 0, truth=True, mode=mode)
             built += r.backend.programs.compiled
     fp64 = {(files, tuple(sorted(d.items(), key=str))): (files, d) for files, d in built if "FP64" in d}
     assert len(fp64) >= 8

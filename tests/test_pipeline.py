@@ -106,12 +106,13 @@ def test_a_renderer_given_a_new_scene_renders_its_cameras_and_options(backend, c
 
 
 @pytest.mark.gl
-def test_no_pass_reads_what_it_did_not_write(gl_ctx, monkeypatch):
+@pytest.mark.parametrize("stage", ["fragment", "compute"])
+def test_no_pass_reads_what_it_did_not_write(stage, gl_ctx, monkeypatch):
     """A GPU's new textures and buffers hold whatever their memory held (llvmpipe's hold zeros):
     every image and truth map is the same, bit for bit, when each texture and reserved buffer
     glsim makes starts filled with 0x7F or 0xFF bytes (NaN floats, huge integers) — every mode,
     1 and 4 samples per pixel (mapped and Newton subsamples), lighting, depth of field, noise and
-    the camera passes, two cameras and two steps."""
+    the camera passes, two cameras and two steps; either pixel stage (a GPU's default is compute)."""
     import moderngl
 
     from glsim.scene import bulge_scene, demo_effects
@@ -126,6 +127,7 @@ def test_no_pass_reads_what_it_did_not_write(gl_ctx, monkeypatch):
         out = []
         for scene in scenes:
             with Renderer(scene, "gl", ctx=gl_ctx) as r:
+                r.backend.stage = stage
                 for o in options:
                     for cam, step in ((0, 1), (1, 1), (0, 2), (0, 1)):
                         res = r.render(cam, step, truth=True, **o)

@@ -82,3 +82,68 @@ def test_a_render_runs_the_plans_passes(options, gl_ctx):
     p = plan(dataclasses.replace(scene.render, **options), False, True, fx, scene.cameras[0], r.reference.camera)
     assert set(ran) <= set(shaders(p)), (sorted(ran), shaders(p))
     assert {x.shader for x in p.passes if not x.when} <= set(ran), (sorted(ran), shaders(p))
+
+
+def test_the_pixel_stage_is_the_drivers_and_fast_draws_its_triangles_in_both():
+    from glsim.backends.gl.plan import pixel_stage
+
+    assert pixel_stage(True) == "fragment" and pixel_stage(False) == "compute"
+    p = plan(Render(mode="exact", samples_per_pixel=4), True, True, None, PIN, PIN, stage="compute")
+    assert p.stage == "compute" and "classify.frag" not in shaders(p)
+    assert shaders(p)[-5:] == ["classify.comp", "deform.comp", "resolve.comp", "deform.frag",   # (overflow: covers)
+                               "downsample.comp"]
+    assert p.define_dict == plan(Render(mode="exact", samples_per_pixel=4), True, True, None, PIN, PIN).define_dict
+    fast = plan(Render(mode="fast", samples_per_pixel=4), False, True, None, PIN, PIN, stage="compute")
+    assert shaders(fast) == ["deform.frag", "downsample.comp"]
+
+
+@pytest.mark.gl
+def test_the_compute_pixel_stage_gives_the_fragment_stages_bytes(gl_ctx):
+    """The compute pixel stage (the default on GPUs: exact and q4's pass 2 over pixel lists, the
+    box filter and quantisation as compute passes) writes the images, 8- and 12-bit images and
+    truth of the fragment stage (llvmpipe's default) bit for bit: every mode, float64 and
+    float32, 1 and 4 samples per pixel (mapped and Newton sub-samples), a fill factor, lighting,
+    depth of field and noise, a quadratic mesh (Q8), two cameras and two steps; and its renders
+    ran the compute passes."""
+    from test_quadratic import scene as q8_scene, surface_mesh
+
+    from glsim.backends.gl.backend import GLBackend
+
+    plain = bulge_scene(size=(128, 96), steps=2)
+    lit = demo_effects(plain)   # lit, noisy and defocused: f/1, pixels a quarter of the rig's pitch
+    lit = dataclasses.replace(lit, optics=dataclasses.replace(lit.optics, f_number=1.0,
+                                                              pixel_pitch=30.0 / 6818.0 / 4))
+    twelve = dataclasses.replace(plain, cameras=tuple(dataclasses.replace(c, bit_depth=12) for c in plain.cameras))
+    options = [{"mode": m, "samples_per_pixel": s} for m in ("exact", "q4", "fast") for s in (1, 4)]
+    options += [{"mode": "exact", "samples_per_pixel": 4, "subsamples": "newton"},
+                {"mode": "exact", "precision": "fp32"}, {"mode": "q4", "precision": "fp32", "samples_per_pixel": 4}]
+    cases = [(plain, None, options, ((0, 1), (1, 1), (0, 2))),
+             (plain.replace(sensor={"fill_factor": 0.5}), None, [{"mode": "exact", "samples_per_pixel": 4}], ((0, 1),)),
+             (lit, None, options[:6], ((0, 1), (1, 2))),
+             (twelve, None, options[:6], ((1, 1),)),
+             (q8_scene(), surface_mesh("quad8"), options[:4], ((0, 1),))]
+
+    def renders(stage):
+        out, ran = [], set()
+        for scene, mesh, opts, views in cases:
+            with Renderer(scene, "gl", ctx=gl_ctx, mesh=mesh) as r:
+                assert isinstance(r.backend, GLBackend)
+                r.backend.stage = stage
+                for o in opts:
+                    for cam, step in views:
+                        with r.backend.pass_times() as p:
+                            res = r.render(cam, step, truth=True, **o)
+                            image = r.render(cam, step, quantize=True, **o).image
+                        ran |= set(p)
+                        out += [res.image, image, res.truth.element, res.truth.xi, res.truth.eta, res.truth.ref_uv]
+        return out, ran
+
+    fragment, ran_f = renders("fragment")
+    compute, ran_c = renders("compute")
+    assert {"classify.comp", "deform.comp", "resolve.comp", "downsample.comp", "quantize.comp"} <= ran_c
+    assert not {"classify.comp", "deform.comp", "resolve.comp", "downsample.comp", "quantize.comp"} & ran_f
+    assert "classify.frag" in ran_f and "classify.frag" in ran_c   # (compute: Newton's pixels at 1 spp only)
+    assert {"blur.frag", "noise.frag"} <= ran_c
+    assert len(fragment) == len(compute)
+    for a, b in zip(fragment, compute):
+        np.testing.assert_array_equal(a, b)

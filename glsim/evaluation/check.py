@@ -233,6 +233,29 @@ def _camera_passes(effects: dict) -> Callable[[Context], float]:
     return run
 
 
+def _stages(c: Context) -> float:
+    """Values of the bulge pair's images and truth (element, ξ, η, reference point; exact and q4,
+    1 and 4 spp, both cameras at step 1) that differ in any bit between the two pixel stages
+    (glsim.backends.gl.plan: fragment passes on depth layers, compute passes over pixel lists)."""
+    from glsim.backends.gl.plan import PIXEL_STAGES
+
+    g, _ = _bulge(c)
+    saved, differ = g.backend.stage, 0
+    try:
+        for mode, spp in (("exact", 1), ("exact", 4), ("q4", 1), ("q4", 4)):
+            out = []
+            for g.backend.stage in PIXEL_STAGES:
+                out.append([g.render(cam, 1, truth=True, mode=mode, samples_per_pixel=spp) for cam in (0, 1)])
+            for a, b in zip(*out):
+                for x, y in ((a.image, b.image), (a.truth.element, b.truth.element), (a.truth.xi, b.truth.xi),
+                             (a.truth.eta, b.truth.eta), (a.truth.ref_uv, b.truth.ref_uv)):
+                    same = (x == y) | (np.isnan(x) & np.isnan(y)) if x.dtype.kind == "f" else x == y
+                    differ += int((~same).sum())
+    finally:
+        g.backend.stage = saved
+    return float(differ)
+
+
 FLOAT64 = "glsim.evaluation.bounds: float64, 1e-9 px or mm"
 CAMERA = "glsim.evaluation.bounds.camera_passes: float32 passes on GL's own image"
 CHECKS = (
@@ -253,6 +276,9 @@ CHECKS = (
     Check("quadratic Q8 exact 1 spp: reference point", 1, "× bound", FLOAT64, _mapping("exact", 1, "ref", _curved)),
     Check("quadratic Q8 exact 1 spp: truth X", 1, "× bound", FLOAT64, _mapping("exact", 1, "X", _curved)),
     Check("quadratic Q8 q4 1 spp: reference point", 1, "× bound", FLOAT64, _mapping("q4", 1, "ref", _curved)),
+    Check("pixel stages: compute against fragment", 0, "values differing in any bit", "the same code "
+          "(deform.frag) as fragment passes on depth layers and as compute passes over pixel lists "
+          "(glsim.backends.gl.plan); images and truth of the bulge pair, exact and q4, 1 and 4 spp", _stages),
     Check("lighting, exact", 2, "px > 0.5 grey of 8 bit", "as tests/test_effects.py (element edges)", _effect("lighting")),
     Check("depth of field, exact", 0, "px > 0.5 grey of 8 bit", "as tests/test_effects.py", _effect("optics")),
     Check("noise, exact", 2, "px > 0.5 grey of 8 bit", "as tests/test_effects.py (element edges)", _effect("noise")),

@@ -36,8 +36,13 @@ their camera's record with their own step's buffers and view's uniforms.
   (:func:`glsim.backends.gl.timing.host_opcodes`; one pair, pipelined, after the repetitions;
   and one pair of new steps): the host work of the host ms column as a count that a loaded or
   slower machine does not change.
-- **same bytes**: the pipelined images equal the one-at-a-time ones bit for bit (checked on
-  every repetition).
+- **other pixel stage**: pairs/s pipelined with the pixel stage the driver does not get by
+  default (:mod:`glsim.backends.gl.plan`: exact and q4's samples as fragment passes on depth
+  layers or compute passes over pixel lists, the box filter and quantisation as fragment or
+  compute passes; llvmpipe's default is fragment, a GPU's compute), timed in the same
+  repetitions.
+- **same bytes**: the pipelined images, and those of the other pixel stage, equal the
+  one-at-a-time ones bit for bit (checked on every repetition).
 - **glsim / riley**: glsim's pipelined seconds per image (a pair's time / 2) over
   riley-raster's (PyPI ``riley-raster``, all cores, its own 2048² texture, camera 0 of the same
   plate at the same samples per pixel), timed in the same repetitions; "—" when not installed.
@@ -49,6 +54,7 @@ Writes ``throughput.json`` and ``throughput.md``; only the full run writes to be
 """
 from __future__ import annotations
 
+import contextlib
 import datetime
 import math
 import statistics
@@ -118,6 +124,7 @@ def _riley(size: tuple[int, int], spp: int, elements: int):
 def throughput(size=FULL_SIZE, reps: int = REPS, pairs: int = PAIRS, spps=SPPS, elements: int = ELEMENTS,
                log=print, counting_reps: int = COUNTING_REPS) -> dict:
     """Measure every row (see the module text); returns the report."""
+    from glsim.backends.gl.plan import PIXEL_STAGES
     from glsim.backends.gl.timing import driver_time, host_opcodes
     from glsim.evaluation.report import gl_info, machine_info
     from glsim.render import Renderer
@@ -130,23 +137,37 @@ def throughput(size=FULL_SIZE, reps: int = REPS, pairs: int = PAIRS, spps=SPPS, 
     # step 0's views from the first one's caches (STEPS_KEPT)
     with Renderer(scene, "gl") as r, Renderer(scene, "gl", ctx=r.backend.ctx) as new:
         machine, elements = machine_info(gl_info(r)), len(r.mesh.quads)
+        stage = r.backend.stage
+        other = next(x for x in PIXEL_STAGES if x != stage)
         for mode in MODES:
             for spp in spps:
                 jobs = _jobs(pairs, mode, spp)
                 riley, riley_name = _riley(tuple(size), spp, elements)
+                ways = ("single", "pipelined", "fresh", "other")
                 for _ in range(2):   # warm-up: programs, targets, ray maps; then the passes recorded
                     list(r.render_many(_jobs(1, mode, spp)))
                     list(new.render_many(_jobs(1, mode, spp, [next(fresh)])))
+                    with _stage(r, other):
+                        list(r.render_many(_jobs(1, mode, spp)))
                 row = {"mode": mode, "spp": spp, "single_s": [], "pipelined_s": [], "single_host_ms": [],
                        "pipelined_host_ms": [], "single_host_wall_ms": [], "pipelined_host_wall_ms": [],
                        "single_calls": [], "pipelined_calls": [], "fresh_s": [], "fresh_host_ms": [],
+                       "other_s": [], "other_stage": other,
                        "riley_s": [], "riley": riley_name, "same_bytes": True}
                 if riley is not None:
                     riley()
+                single = []   # this repetition's one-at-a-time images (ways[0])
                 for _ in range(reps):
-                    for way in ("single", "pipelined", "fresh"):
+                    for way in ways:
                         todo = (_jobs(pairs, mode, spp, [next(fresh) for _ in range(pairs)]) if way == "fresh"
                                 else jobs)
+                        if way == "other":
+                            with _stage(r, other):
+                                t = time.perf_counter()
+                                out = list(r.render_many(todo, depth=DEPTH))
+                                row["other_s"].append(time.perf_counter() - t)
+                            row["same_bytes"] &= all(a.tobytes() == b.image.tobytes() for a, b in zip(single, out))
+                            continue
                         with driver_time() as d:
                             t, c = time.perf_counter(), time.thread_time()
                             out = ([r.render(**j) for j in todo] if way == "single"
@@ -182,8 +203,19 @@ def throughput(size=FULL_SIZE, reps: int = REPS, pairs: int = PAIRS, spps=SPPS, 
                 log(f"throughput: {mode} {spp} spp: {rows[-1]['pipelined_pairs_per_s']:.3g} pairs/s pipelined")
     counting = _counting_cost(counting_reps)
     return {"size": list(size), "elements": elements, "pairs": pairs, "reps": reps, "depth": DEPTH, "warmup": 2,
+            "stage": stage,
             "counting": counting, "machine": machine, "date": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
             "rows": rows}
+
+
+@contextlib.contextmanager
+def _stage(renderer, stage: str):
+    """``renderer``'s GL backend with the pixel stage ``stage`` inside the block."""
+    saved, renderer.backend.stage = renderer.backend.stage, stage
+    try:
+        yield
+    finally:
+        renderer.backend.stage = saved
 
 
 def _counting_cost(reps: int) -> dict:
@@ -223,6 +255,9 @@ def _summary(row: dict, pairs: int) -> dict:
         out[f"{way}_calls"] = statistics.median(row[f"{way}_calls"])
         out[f"{way}_s_all"] = row[f"{way}_s"]
     out["fresh_pairs_per_s"] = pairs / statistics.median(row["fresh_s"])
+    out["other_stage"] = row["other_stage"]
+    out["other_pairs_per_s"] = pairs / statistics.median(row["other_s"]) if row["other_s"] else None
+    out["other_s_all"] = row["other_s"]
     out["fresh_host_ms"] = statistics.median(row["fresh_host_ms"])
     out["riley_s"] = statistics.median(row["riley_s"]) if row["riley_s"] else None
     out["riley_s_all"] = row["riley_s"]
@@ -238,10 +273,10 @@ def table(report: dict) -> str:
     W, H = report["size"]
     lines = [f"{machine_line(report['machine'])}; {report['date']}", "",
              "| mode | spp | pairs/s one at a time | pairs/s pipelined | images/s pipelined | pipelined / one "
-             "at a time | host ms / image (one / pipelined / new step) | host opcodes / image (pipelined / new step) | "
-             "GL calls / image | "
+             "at a time | pairs/s pipelined, other pixel stage | host ms / image (one / pipelined / new step) | "
+             "host opcodes / image (pipelined / new step) | GL calls / image | "
              "same bytes | glsim / riley per image | largest passes (ms) and rest |",
-             "|---|---|---|---|---|---|---|---|---|---|---|---|"]
+             "|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
     for r in report["rows"]:
         passes = sorted(r["passes"].items(), key=lambda kv: -kv[1])
         rest = r["passes_wall_s"] - sum(r["passes"].values())
@@ -249,6 +284,7 @@ def table(report: dict) -> str:
         ratio = num(r["glsim_over_riley"], ".3g") if r["glsim_over_riley"] is not None else "—"
         lines.append(f"| {r['mode']} | {r['spp']} | {r['single_pairs_per_s']:.3g} | {r['pipelined_pairs_per_s']:.3g} | "
                      f"{r['pipelined_images_per_s']:.3g} | {r['pipelined_pairs_per_s'] / r['single_pairs_per_s']:.2f} | "
+                     f"{_other(r)} | "
                      f"{r['single_host_ms']:.2g} / {r['pipelined_host_ms']:.2g} / {_cell(r, 'fresh_host_ms', '.2g')} | "
                      f"{_cell(r, 'host_opcodes', ',.0f')} / {_cell(r, 'fresh_host_opcodes', ',.0f')} | "
                      f"{_cell(r, 'pipelined_calls', '.0f')} | "
@@ -261,7 +297,9 @@ def table(report: dict) -> str:
               f"depth {report['depth']}; new step: as pipelined, each pair a load step not rendered before. "
               "One at a time and pipelined render the same views again: their deformation passes are "
               "replayed (`glsim.backends.gl.replay`), those of new steps replayed from their camera's record "
-              f"with their own buffers and uniforms. Peer: {riley}, camera 0 only."]
+              f"with their own buffers and uniforms. Pixel stage: {report.get('stage', 'fragment')}, "
+              "the driver's (`glsim.backends.gl.plan`); the other one in its own column. "
+              f"Peer: {riley}, camera 0 only."]
     c = report.get("counting")
     if c:
         lines += ["", f"Counting the driver's calls costs {c['in_place_us']:.2g} µs per GL call in place (exact, "
@@ -269,6 +307,12 @@ def table(report: dict) -> str:
                   f"on a no-op, whose share outside the counted spans the host figures take off: where the first "
                   f"is larger, read the host ms as upper bounds."]
     return "\n".join(lines)
+
+
+def _other(row: dict) -> str:
+    """The other pixel stage's cell: its name and pairs/s, or "—" (results made before it)."""
+    value = row.get("other_pairs_per_s")
+    return "—" if value is None else f"{row['other_stage']} {value:.3g}"
 
 
 def _cell(row: dict, key: str, fmt: str) -> str:

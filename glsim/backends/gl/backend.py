@@ -30,11 +30,11 @@ from glsim.stages.geometry import VIEWS_KEPT, ViewSpec
 from glsim.stages.quadview import patch_data, pieces_to_patches
 from glsim.backends.contract import Capabilities, Raster, Request
 from glsim.stages.view import warn_dropped, warn_problems
-from glsim.backends.gl.bindings import sampler, storage
-from glsim.backends.gl.context import check_error, create_context, driver_info
-from glsim.backends.gl.geometry import DRAW_FALLBACK, DRAW_RESOLVE, LAYERS, GeometryBuffers, ViewSlot
+from glsim.backends.gl.bindings import image, sampler, storage
+from glsim.backends.gl.context import check_error, create_context, driver_info, software_renderer
+from glsim.backends.gl.geometry import DRAW_FALLBACK, DRAW_RESOLVE, LAYER_DISPATCH, LAYERS, GeometryBuffers, ViewSlot
 from glsim.backends.gl import timing
-from glsim.backends.gl.plan import aperture_literal, plan
+from glsim.backends.gl.plan import aperture_literal, pixel_stage, plan
 from glsim.backends.gl.imagepasses import ImagePasses
 from glsim.backends.gl.programs import ProgramCache
 from glsim.backends.gl.readback import PackBuffers, Pending, read_buffer, read_texture
@@ -43,6 +43,14 @@ from glsim.backends.gl.uniforms import Uniforms, set_uniform
 
 
 _REF_UNIT, _RAYS_UNIT = sampler("u_ref"), sampler("u_rays")
+
+
+def _target_images(truth: bool, defines) -> tuple[int, ...]:
+    """The image units deform.comp writes the deformation target's textures through, in the
+    order of :meth:`GLBackend._target`'s (``truth``: its truth maps)."""
+    names = ["GREY", *(["MAP", "EXTRA"] if truth else []), *(["LO"] if "TRUTH_LO" in defines else []),
+             *(["DEPTH"] if "DEPTH_OUT" in defines else [])]
+    return tuple(image(n) for n in names)
 _DTYPES = {"f4": np.float32, "u1": np.uint8, "u2": np.uint16}   # moderngl texture dtype → numpy
 
 
@@ -110,12 +118,16 @@ class GLBackend(ImagePasses):
 
     def __init__(self, reference_image: np.ndarray, ctx=None, shader_dirs: tuple = (), dots=None):
         """``dots``: the generator's speckle, for ``interpolation = "procedural"``;
-        ``shader_dirs`` are searched before the packaged shaders (tests add their own)."""
+        ``shader_dirs`` are searched before the packaged shaders (tests add their own). The
+        attribute ``stage`` is the pixel stage of the exact and q4 modes, "fragment" or
+        "compute" (the same bytes: :mod:`glsim.backends.gl.plan`), the driver's
+        (:func:`~glsim.backends.gl.plan.pixel_stage`) unless set (tests and benchmarks set both)."""
         self._dots = dots
         self._dot_buffers = None
         self._own_ctx = ctx is None
         self.ctx = ctx if ctx is not None else create_context()
         self.fp64 = "GL_ARB_gpu_shader_fp64" in self.ctx.extensions
+        self.stage = pixel_stage(software_renderer(self.ctx))
         self.programs = ProgramCache(self.ctx, shader_dirs)
         self._image = reference_image
         self._textures: dict[str, object] = {}
@@ -283,7 +295,7 @@ class GLBackend(ImagePasses):
         s = opts.supersampling
         W, H = view.camera.size
         pieces = patches.pieces if patches is not None else None
-        p = plan(opts, truth and s == 1, self.fp64, fx, view.camera, view.ref_camera, pieces)
+        p = plan(opts, truth and s == 1, self.fp64, fx, view.camera, view.ref_camera, pieces, self.stage)
         color, grey, depth, raster, report = self._deform(view, opts, p, s, truth and s == 1, fx, patches, quantize,
                                                           polish=polish)
         stages = ["raster", "interpolate"] + (["light"] if fx.lighting is not None else [])   # one pass
@@ -304,7 +316,7 @@ class GLBackend(ImagePasses):
         self._recycle(temps)
         if truth and s > 1:
             one = _one_sample(opts)
-            p1 = plan(one, True, self.fp64, _NO_EFFECTS, view.camera, view.ref_camera, pieces)
+            p1 = plan(one, True, self.fp64, _NO_EFFECTS, view.camera, view.ref_camera, pieces, self.stage)
             raster = self._deform(view, one, p1, 1, True, _NO_EFFECTS, patches, warn=False, polish=polish)[3]
         return Frame(image, raster or (lambda: None), report, tuple(stages), curved, view.camera, opts.mode)
 
@@ -481,7 +493,8 @@ class GLBackend(ImagePasses):
         """Pass 2 at s×s samples per pixel into the cached target (grey from the background,
         truth and depth from zero): fast mode's element triangles, else the full-screen programs
         on their layers (one candidate, then several) and the overflow fallback's covers — those
-        two drawn by pass 1's indirect commands, so nothing waits for the host to decide."""
+        two drawn by pass 1's indirect commands, so nothing waits for the host to decide; with
+        the compute pixel stage the first two as compute passes over every sample."""
         ctx, (W, H) = self.ctx, view.camera.size
         defines = p.define_dict
         fbo, color, _, grey, depth = self._target(W * s, H * s, truth, "TRUTH_LO" in defines, "DEPTH_OUT" in defines)
@@ -495,6 +508,16 @@ class GLBackend(ImagePasses):
             setup(prog)
             ctx.enable(ctx.DEPTH_TEST)
             geo.draw(prog)
+        elif p.stage == "compute":
+            lists = geo.layer_pass(W, H, s)
+            for name, offset in LAYER_DISPATCH.items():
+                prog = self.programs.compute(name, defines)
+                setup(prog)
+                geo.bind_lists(W, H, textures=True)
+                for unit, tex in zip(_target_images(truth, defines), color):
+                    tex.bind_to_image(unit, read=False, write=True)
+                prog.run_indirect(lists, offset)
+            ctx.memory_barrier()   # the image stores seen by the fallback's draws and the passes after
         else:
             ctx.enable(ctx.DEPTH_TEST)
             geo.classify_pass(depth, W, H, s)
@@ -503,6 +526,7 @@ class GLBackend(ImagePasses):
             self._list_program(view, "resolve.frag", defines, setup, geo, fbo, LAYERS["resolve.frag"],
                                indirect=DRAW_RESOLVE)
             ctx.depth_func, fbo.depth_mask = "<", True
+        if opts.mode != "fast":
             # pixels with more candidates than the lists hold: the cover rectangles
             prog = self.programs.program("exact.vert", "deform.frag", defines={**defines, "FALLBACK": None})
             setup(prog)

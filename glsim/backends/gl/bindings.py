@@ -4,7 +4,8 @@ table: the shaders read them as ``#define BINDING_<NAME> n``, ``IMAGE_<NAME> n``
 ``layout(binding = SAMPLER_SRC) uniform sampler2D u_src;``), the Python side binds by name
 (:func:`storage`, :func:`image`, :func:`sampler`). A sampler's unit is fixed in the program, so
 no frame sets it. Numbers stay below 24 (GL 4.3 guarantees 8 storage bindings; Mesa has 80,
-NVIDIA 96); texture units below 16, GL 4.5's least number per shader stage."""
+NVIDIA 96); texture units below 16, GL 4.5's least number per shader stage; image units
+below 8, its least number per compute shader."""
 from __future__ import annotations
 
 STORAGE = {
@@ -27,8 +28,12 @@ STORAGE = {
     "LOCAL": 16,        # float32 exact: per-element camera-frame records (CAMERA_LOCAL)
     "REF_PINHOLE": 17,  # float64 exact, pinhole reference: per-element blends
     "PATCH_NODES": 18,  # quadratic patches: the step's control points
+    "PIXEL_LISTS": 19,  # the compute pixel stage's pixels by layer (classify.comp → deform.comp)
 }
-IMAGES = {"CAND_COUNT": 0, "CAND_LIST": 1}
+IMAGES = {"CAND_COUNT": 0, "CAND_LIST": 1,   # candidate lists (candidates.glsl)
+          # the deformation target written by the compute pixel stage (deform.comp, resolve.comp)
+          "GREY": 2, "MAP": 3, "EXTRA": 4, "LO": 5, "DEPTH": 6,
+          "PASS_OUT": 7}   # a full-screen pass's output in the compute stage (pixelpass.glsl)
 SAMPLERS = {           # by the sampler's uniform name (SAMPLER_<name without u_, upper case>)
     "u_ref": 0,        # the reference speckle image (interp.glsl)
     "u_rays": 1,       # the ray map at the pass's samples (rays.frag)

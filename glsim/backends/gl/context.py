@@ -63,6 +63,12 @@ def driver_info(ctx) -> dict:
     return out
 
 
+def software_renderer(ctx) -> bool:
+    """Whether ``ctx`` renders in software (Mesa llvmpipe or softpipe)."""
+    renderer = driver_info(ctx)["GL_RENDERER"]
+    return "llvmpipe" in renderer or "softpipe" in renderer
+
+
 @replayed
 def check_error(ctx, where) -> None:
     """Raise if the GL error flag is set (ctx.error reads and clears it); ``where``: what ran,
@@ -86,6 +92,7 @@ def info(ctx, probe: bool = False) -> dict:
         "egl_devices": "; ".join(d.describe() for d in egl_devices()) or "unknown",
         "max_texture_size": gl["GL_MAX_TEXTURE_SIZE"],
         "fp64": fp64,
+        "pixel_stage": _pixel_stage_line(ctx),
     }
     if not fp64:
         out["exact_precision"] = ("fp32: the driver has no GL_ARB_gpu_shader_fp64, so precision = 'fp64' "
@@ -99,6 +106,16 @@ def info(ctx, probe: bool = False) -> dict:
             out["exact_precision"] += (f"; float64 runs at {rate:.2g} of float32 here: precision = 'fp32' "
                                        "renders exact faster, at the fp32 rows' mapping error")
     return out
+
+
+def _pixel_stage_line(ctx) -> str:
+    """`glsim info`'s line on the pixel stage exact and q4 get here (glsim.backends.gl.plan)."""
+    from glsim.backends.gl.plan import pixel_stage
+
+    stage = pixel_stage(software_renderer(ctx))
+    why = ("a software rasterizer runs them faster as fragment passes" if stage == "fragment" else
+           "a GPU: data-centre GPUs shade fragments on a few of their SMs only")
+    return f"{stage} (the exact and q4 modes' per-sample passes; {why}; the same bytes either way)"
 
 
 SLOW_FP64_RATE = 1 / 8   # below this float64 / float32 throughput, glsim info suggests fp32

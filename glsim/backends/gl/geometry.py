@@ -33,6 +33,10 @@ _STEP_BINDINGS = tuple(storage(n) for n in ("NODES", "EXCLUDED"))               
 CANDIDATES = 8       # candidates.glsl: elements listed per pixel before it overflows
 # classify.frag's window depths: the full-screen pass 2 program run on each (lists.vert)
 LAYERS = {"deform.frag": 0.25, "resolve.frag": 0.5}
+# the compute stage's layers: their dispatch commands' byte offsets in the lists' buffer, and
+# what the buffer starts as (pixellists.glsl: no groups yet, lengths 0)
+LAYER_DISPATCH = {"deform.comp": 0, "resolve.comp": 12}
+_LAYERS_START = np.array([0, 1, 1, 0, 1, 1, 0, 0], np.uint32).tobytes()
 _MAX_GROUPS = 65535  # per dispatch dimension
 _CAND_COUNT, _CAND_LIST, _TIGHT = image("CAND_COUNT"), image("CAND_LIST"), storage("TIGHT")
 _COUNT_UNIT, _LIST_UNIT = sampler("u_count_tex"), sampler("u_list_tex")
@@ -370,6 +374,24 @@ class GeometryBuffers:
         self.bind_lists(W, H)
         depth_only.use()
         self._vao(prog, indexed=False).render(self.ctx.TRIANGLES, vertices=3)
+
+    def layer_pass(self, W: int, H: int, s: int):
+        """Pass 1b of the compute pixel stage: classify.comp lists the pixels with one candidate
+        and those with 2..CANDIDATES (shaders/pixellists.glsl) and sets their indirect dispatches
+        (one invocation per sample at ``s``×``s`` per pixel);
+        returns the lists' buffer (binding PIXEL_LISTS; dispatch offsets LAYER_DISPATCH)."""
+        key = ("pixel_lists", W, H)
+        if key not in self._bufs:
+            for k in [k for k in self._bufs if isinstance(k, tuple) and k[0] == "pixel_lists"]:
+                self._bufs.pop(k).release()
+            self._bufs[key] = self.ctx.buffer(reserve=4 * (8 + W * H))
+        buf = self._bufs[key]
+        buf.write(_LAYERS_START)
+        buf.bind_to_storage_buffer(storage("PIXEL_LISTS"))
+        self.bind_lists(W, H)
+        self.programs.compute("classify.comp", {"SS": s}).run((W + 15) // 16, (H + 7) // 8)
+        self.ctx.memory_barrier()   # the lists and their dispatches seen by the passes after
+        return buf
 
     def bind_lists(self, W: int, H: int, textures: bool = False) -> None:
         """The lists as images (pass 1) and, with ``textures`` (pass 2), as the textures

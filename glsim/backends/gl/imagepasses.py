@@ -1,6 +1,8 @@
 """The GL backend's image passes: full-screen fragment programs over a texture — box filter,
 depth-of-field blur, camera effects, noise, quantisation — drawn into scratch textures reused
-across frames (:class:`ImagePasses`, a part of :class:`glsim.backends.gl.backend.GLBackend`).
+across frames (:class:`ImagePasses`, a part of :class:`glsim.backends.gl.backend.GLBackend`);
+the box filter and quantisation also as compute passes (the compute pixel stage:
+glsim.backends.gl.plan; shaders/pixelpass.glsl).
 """
 from __future__ import annotations
 
@@ -8,7 +10,7 @@ import numpy as np
 
 from glsim.effects import noise
 from glsim.effects.dof import blur_scheme, kernel_radius, shader_uniforms
-from glsim.backends.gl.bindings import sampler
+from glsim.backends.gl.bindings import image, sampler
 from glsim.backends.gl.context import check_error
 from glsim.backends.gl.plan import BLUR_PASSES
 from glsim.backends.gl.readback import read_texture
@@ -16,14 +18,19 @@ from glsim.backends.gl.sensor_passes import camera_passes
 from glsim.backends.gl.uniforms import set_uniform
 
 
+_IMAGE_FORMATS = {"f4": "r32f", "u1": "r8ui", "u2": "r16ui"}   # a compute pass's output image, by dtype
+_PASS_OUT = image("PASS_OUT")
+
+
 class ImagePasses:
     """Full-screen passes of a GL backend. Expects of the backend: ``ctx``, ``programs``,
-    ``fp64``, ``_pack`` (pack buffers), ``_unbind()``, and the reuse tables ``_scratch`` (free
+    ``fp64``, ``stage`` (the pixel stage), ``_pack`` (pack buffers), ``_unbind()``, and the reuse tables ``_scratch`` (free
     scratch textures by shape), ``_lent`` (those a frame holds), ``_outputs``, ``_fbos`` and
     ``_vaos``."""
 
     def fullscreen_pass(self, frag: str, defines: dict, inputs: dict, uniforms: dict, size: tuple[int, int],
-                        components: tuple[int, ...] = (1,), into=None, dtype: str = "f4", scratch: list | None = None):
+                        components: tuple[int, ...] = (1,), into=None, dtype: str = "f4", scratch: list | None = None,
+                        compute: bool = False):
         """Run a full-screen fragment pass into a new R32F texture of ``size`` (W, H); the
         caller releases it. ``inputs`` maps sampler names to textures or float arrays (H, W)
         (arrays are uploaded for the pass and released after it), each bound to its sampler's
@@ -32,10 +39,14 @@ class ImagePasses:
         ``dtype``. ``into``: an existing texture to draw into instead (pixels the shader
         discards keep their values); it is returned. ``scratch``: a frame's list of textures
         on loan: the outputs are taken from the backend's reused ones and added to it
-        (:meth:`_recycle` gives them back), not made and released."""
+        (:meth:`_recycle` gives them back), not made and released. ``compute``: as the compute
+        pass of the same shader (its .comp file; one output, an image of ``dtype``)."""
         ctx = self.ctx
         W, H = size
-        prog = self.programs.program("fullscreen.vert", frag, defines=defines)
+        if compute:
+            prog = self.programs.compute(frag.replace(".frag", ".comp"), {**defines, "OUT_FORMAT": _IMAGE_FORMATS[dtype]})
+        else:
+            prog = self.programs.program("fullscreen.vert", frag, defines=defines)
         uploaded = []
         for name, tex in inputs.items():
             if isinstance(tex, np.ndarray):
@@ -56,9 +67,14 @@ class ImagePasses:
             outs = tuple(ctx.texture((W, H), n, dtype=dtype) for n in components)
             fbo = ctx.framebuffer(color_attachments=list(outs))
             uploaded.append(fbo)
-        fbo.use()
-        fbo.viewport = (0, 0, W, H)
-        self._vao(prog).render(ctx.TRIANGLES, vertices=3)
+        if compute:
+            outs[0].bind_to_image(_PASS_OUT, read=False, write=True)
+            prog.run((W + 15) // 16, (H + 7) // 8)   # pixelpass.glsl's work groups
+            ctx.memory_barrier()   # its image stores seen by the reads and passes after
+        else:
+            fbo.use()
+            fbo.viewport = (0, 0, W, H)
+            self._vao(prog).render(ctx.TRIANGLES, vertices=3)
         check_error(ctx, lambda: f"pass {frag} {sorted(defines)}")
         self._unbind()   # (before releasing a framebuffer of its own; on llvmpipe it also hands the
         #                  queued pass to the render threads now, which a stream of frames gains from)
@@ -141,13 +157,15 @@ class ImagePasses:
         finished (their candidate count is LIST_DONE; the lists bound as images); else the
         backend's own (:meth:`_output`)."""
         skip = {} if into is None else {"SKIP_DONE": None}
+        compute = self.stage == "compute"
         grey = self.fullscreen_pass("downsample.frag", {"SS": s, **skip}, {"u_samples": samples}, {}, (W, H),
-                                    into=self._output((W, H), "grey") if into is None else into[0])
+                                    into=self._output((W, H), "grey") if into is None else into[0], compute=compute)
         if depth is None:
             return grey, None
         return grey, self.fullscreen_pass("downsample.frag", {"SS": s, "COVERED_MEAN": None, **skip},
                                           {"u_samples": depth}, {}, (W, H),
-                                          into=self._output((W, H), "depth") if into is None else into[-1])
+                                          into=self._output((W, H), "depth") if into is None else into[-1],
+                                          compute=compute)
 
     def _output(self, size: tuple[int, int], role: str, dtype: str = "f4"):
         """This backend's one-component texture of ``size`` for the pixel passes' ``role``
@@ -173,7 +191,8 @@ class ImagePasses:
         dtype = "u1" if bit_depth == 8 else "u2"
         return self.fullscreen_pass("quantize.frag", {"FP64": None}, {"u_src": grey},
                                     {"u_top": float((1 << bit_depth) - 1)}, (W, H),
-                                    into=self._output((W, H), "quantized", dtype))
+                                    into=self._output((W, H), "quantized", dtype), dtype=dtype,
+                                    compute=self.stage == "compute")
 
     def noise_pass(self, grey, params, bit_depth: int, seed: int, table=None, scratch: list | None = None):
         """noise.frag on an R32F texture or (H, W) array: grey + σ(grey)·z, the same field as

@@ -7,6 +7,14 @@ Some run only when the view needs them (``when``): ``several`` (pixels with two 
 candidates), ``overflow`` (a list overflowed) and ``big`` (covers over 192 px on a side) are
 indirect draws whose instance counts the candidate pass sets on the GPU (0: nothing drawn);
 ``uncached``: the camera's ray map, made once per camera and supersampling.
+
+The pixel stage: "fragment" runs the exact and q4 modes' pass 2 as full-screen fragment
+programs on classify.frag's depth layers (early depth tests, so that each shades only its own
+samples), "compute" as compute passes over classify.comp's lists of their pixels, dispatched
+indirectly (as many work groups as samples listed), and the box filter and quantisation (every
+mode) as compute passes too — the same code (deform.frag, downsample.frag, quantize.frag with
+COMPUTE_PIXELS), the same bytes (tested). Fast mode's triangles are fragment passes in both.
+:func:`pixel_stage` picks the stage per driver.
 """
 from __future__ import annotations
 
@@ -37,12 +45,14 @@ class Plan:
     (exact: "bits" float64 pairs, "split" float32 hi + lo made in float64, "float"; else None);
     ``ref`` the reference projection ("REF_PINHOLE" float64 blends, "REF_LOCAL" float32 relative
     records, None the general projection); ``camera_local`` float32 exact relative to each
-    element's centre; ``subsamples`` Newton sub-samples; ``passes`` in order."""
+    element's centre; ``subsamples`` Newton sub-samples; ``stage`` the pixel stage (module
+    docstring); ``passes`` in order."""
     defines: tuple[tuple[str, object], ...]
     rays: str | None
     ref: str | None
     camera_local: bool
     subsamples: bool
+    stage: str
     passes: tuple[Pass, ...]
 
     @functools.cached_property
@@ -130,28 +140,41 @@ def newton_subsamples(opts, s: int, quadratic: bool) -> bool:
 
 # the passes that integrate the pixels (the deformation pass's, the box filter)
 PIXEL_PASSES = {"rays.frag", "view.comp", "candidates.comp", "candidates.frag", "classify.frag", "subsamples.frag",
-                "deform.frag", "resolve.frag", "downsample.frag"}
+                "deform.frag", "resolve.frag", "classify.comp", "deform.comp", "resolve.comp", "downsample.frag",
+                "downsample.comp"}
+PIXEL_STAGES = ("fragment", "compute")
+
+
+def pixel_stage(software: bool) -> str:
+    """The pixel stage for a driver: "fragment" on a software rasterizer (llvmpipe runs the same
+    float64 work about 25 % slower as a compute pass: ``bench/gpu_probes.py``, step "passes"),
+    "compute" on a GPU: data-centre GPUs (H100, H200) run fragment shaders on a few of their
+    SMs only (NVIDIA's Hopper whitepaper: two of the H100's TPCs are graphics-capable), and the
+    H100's float64 deformation pass ran at 17× llvmpipe's speed on this machine's two cores
+    where its compute passes ran at 75× (README "What is not here yet")."""
+    return "fragment" if software else "compute"
 
 # the depth-of-field passes of each scheme (glsim.effects.dof.blur_scheme), in order
 BLUR_PASSES = {"disk": ("BLUR_DISK",), "gather": ("BLUR_GATHER",), "expansion": ("BLUR_ROWS", "BLUR_COLUMNS"),
                "separable": ("BLUR_HORIZONTAL", "BLUR_VERTICAL"), "hybrid": ("BLUR_HORIZONTAL", "BLUR_HYBRID")}
 
 
-def plan(opts, truth: bool, fp64_driver: bool, fx, camera, ref_camera, pieces: int | None = None) -> Plan:
+def plan(opts, truth: bool, fp64_driver: bool, fx, camera, ref_camera, pieces: int | None = None,
+         stage: str = "fragment") -> Plan:
     """The plan of one render at ``opts.supersampling`` (the deformation program writes the
     truth maps only at 1 spp): ``opts`` the [render] options, ``truth`` whether the pixel-centre
     raster is asked for, ``fp64_driver`` whether the driver has GL_ARB_gpu_shader_fp64, ``fx`` the
     effects (or None), the view's and the reference's cameras, ``pieces`` the pieces per side of
-    curved elements (exact, q4) or None. With truth at s > 1 the executor runs the plan of the
-    same render at 1 spp for it. Made once per distinct argument (:func:`_plan` sees only what
+    curved elements (exact, q4) or None, ``stage`` the pixel stage (module docstring). With
+    truth at s > 1 the executor runs the plan of the same render at 1 spp for it. Made once per distinct argument (:func:`_plan` sees only what
     a plan depends on, so a kept plan cannot go stale)."""
     return _plan(opts, truth, fp64_driver, EffectsShape.of(fx), camera.distortion.is_zero,
-                 ref_camera.distortion.is_zero, pieces)
+                 ref_camera.distortion.is_zero, pieces, stage)
 
 
 @functools.lru_cache(maxsize=PLANS_KEPT)
 def _plan(opts, truth: bool, fp64_driver: bool, fx: EffectsShape, pinhole: bool, ref_pinhole: bool,
-          pieces: int | None) -> Plan:
+          pieces: int | None, stage: str) -> Plan:
     """:func:`plan` over its dependencies: ``pinhole`` / ``ref_pinhole`` whether the view's /
     the reference camera's distortion is zero."""
     s = opts.supersampling
@@ -184,10 +207,13 @@ def _plan(opts, truth: bool, fp64_driver: bool, fx: EffectsShape, pinhole: bool,
         passes += [Pass("view.comp"), Pass("candidates.comp"), Pass("candidates.frag", "big")]
         if sub:
             passes += [Pass("classify.frag"), Pass("rays.frag", "uncached"), Pass("subsamples.frag")]
-        passes += [Pass("classify.frag"), Pass("deform.frag"), Pass("resolve.frag", "several"),
-                   Pass("deform.frag", "overflow")]
-    if s > 1:
-        passes += [Pass("downsample.frag")] * (1 + blur)   # grey, and the covered samples' mean depth
+        if stage == "compute":
+            passes += [Pass("classify.comp"), Pass("deform.comp"), Pass("resolve.comp", "several")]
+        else:
+            passes += [Pass("classify.frag"), Pass("deform.frag"), Pass("resolve.frag", "several")]
+        passes.append(Pass("deform.frag", "overflow"))
+    if s > 1:   # grey, and the covered samples' mean depth
+        passes += [Pass("downsample.comp" if stage == "compute" else "downsample.frag")] * (1 + blur)
     if blur:
         passes += [Pass("blur.frag", "", name) for name in BLUR_PASSES[fx.scheme]]
     if fx.vignette:
@@ -199,4 +225,4 @@ def _plan(opts, truth: bool, fp64_driver: bool, fx: EffectsShape, pinhole: bool,
         passes.append(Pass("fpn.frag"))
     if fx.noise:
         passes.append(Pass("noise.frag"))
-    return Plan(tuple(sorted(d.items())), rays, ref, camera_local, sub, tuple(passes))
+    return Plan(tuple(sorted(d.items())), rays, ref, camera_local, sub, stage, tuple(passes))

@@ -43,7 +43,7 @@ RECORDED = {   # moderngl class → its calls (methods, property setters) that c
     "Framebuffer": {"use", "clear", "viewport", "depth_mask"},
     "Context": {"memory_barrier", "enable", "disable", "depth_func", "detect_framebuffer"},
     "Uniform": {"write"},
-    "ComputeShader": {"run"},
+    "ComputeShader": {"run", "run_indirect"},
     "VertexArray": {"render", "render_indirect"},
 }
 _LOOKUPS = {("Program", "get"), ("ComputeShader", "get")}   # the host's own tables: not GL calls

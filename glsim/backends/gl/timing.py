@@ -231,7 +231,8 @@ def pass_times(ctx, name_of):
 
     calls = [(moderngl.VertexArray, "render", lambda vao: vao.program),
              (moderngl.VertexArray, "render_indirect", lambda vao: vao.program),   # (drawn where pass 1 said)
-             (moderngl.ComputeShader, "run", lambda c: c)]
+             (moderngl.ComputeShader, "run", lambda c: c),
+             (moderngl.ComputeShader, "run_indirect", lambda c: c)]   # (as many groups as pass 1 listed)
     saved = [(cls, name, getattr(cls, name)) for cls, name, _ in calls]
     for cls, name, program_of in calls:
         setattr(cls, name, timed(getattr(cls, name), program_of))

@@ -1,0 +1,13 @@
+// The compute pixel stage's lists (glsim.backends.gl.plan; classify.comp writes them, deform.comp
+// and resolve.comp read them): per layer — 0: pixels with one candidate, 1: with 2..CANDIDATES —
+// its indirect dispatch (groups along x and y, 1; the backend writes (0, 1, 1) before
+// classify.comp), for one invocation per sample of its pixels, and its length; then the pixels as
+// x | y << 16, layer 0 from the front of `pixels`, layer 1 from its back (W·H entries: a pixel is
+// in one layer at most).
+#define LIST_LOCAL 64            // deform.comp's local size
+#define LIST_MAX_GROUPS 65535u   // along x: GL's least GL_MAX_COMPUTE_WORK_GROUP_COUNT; then rows of them
+layout(std430, binding = BINDING_PIXEL_LISTS) buffer PixelLists {
+    uint layer_args[6];
+    uint layer_count[2];
+    uint pixels[];
+};

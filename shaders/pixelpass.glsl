@@ -1,0 +1,14 @@
+// A full-screen pass in either pixel stage (glsim.backends.gl.plan): PASS_PIXEL is the pixel
+// this invocation writes, PASS_SKIP leaves it as it is. COMPUTE_PIXELS: a compute pass, 16×8
+// work groups over the output image u_out (format OUT_FORMAT, unit IMAGE_PASS_OUT), whose
+// invocations beyond it end at once (PASS_OUTSIDE); else a fragment pass (fullscreen.vert).
+#ifdef COMPUTE_PIXELS
+layout(local_size_x = 16, local_size_y = 8) in;
+#define PASS_PIXEL ivec2(gl_GlobalInvocationID.xy)
+#define PASS_SKIP return
+#define PASS_OUTSIDE any(greaterThanEqual(PASS_PIXEL, imageSize(u_out)))
+#else
+#define PASS_PIXEL ivec2(gl_FragCoord.xy)
+#define PASS_SKIP discard
+#define PASS_OUTSIDE false
+#endif
