@@ -113,7 +113,7 @@ def _pixel_stage_line(ctx) -> str:
     from glsim.backends.gl.plan import pixel_stage
 
     stage = pixel_stage(software_renderer(ctx))
-    why = ("a software rasterizer runs them faster as fragment passes" if stage == "fragment" else
+    why = ("a software rasterizer: neither stage is faster throughout" if stage == "fragment" else
            "a GPU: data-centre GPUs shade fragments on a few of their SMs only")
     return f"{stage} (the exact and q4 modes' per-sample passes; {why}; the same bytes either way)"
 
