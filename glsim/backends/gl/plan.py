@@ -147,12 +147,11 @@ PIXEL_STAGES = ("fragment", "compute")
 
 def pixel_stage(software: bool) -> str:
     """The pixel stage for a driver: "fragment" on a software rasterizer (llvmpipe runs neither
-    faster throughout: the compute stage's pairs/s are 0.89–1.36× the fragment stage's in the
-    throughput table, the least at exact 4 spp), "compute" on a GPU: data-centre GPUs (H100,
-    H200) run fragment shaders on a few of their SMs only (NVIDIA's Hopper whitepaper: two of
-    the H100's TPCs are graphics-capable), and the H100's float64 deformation pass ran at 17×
-    llvmpipe's speed on this machine's two cores where its compute passes ran at 75× (README
-    "What is not here yet")."""
+    stage faster throughout: the throughput table's other-stage column), "compute" on a GPU:
+    data-centre GPUs (H100, H200) run fragment shaders on a few of their SMs only (NVIDIA's
+    Hopper whitepaper: two of the H100's TPCs are graphics-capable), and the H100 ran its float64
+    deformation pass, a fragment pass, at a far smaller multiple of llvmpipe's speed than its
+    compute passes (the throughput tables' pass columns; README "What is not here yet")."""
     return "fragment" if software else "compute"
 
 # the depth-of-field passes of each scheme (glsim.effects.dof.blur_scheme), in order
