@@ -147,3 +147,21 @@ def test_the_compute_pixel_stage_gives_the_fragment_stages_bytes(gl_ctx):
     assert len(fragment) == len(compute)
     for a, b in zip(fragment, compute):
         np.testing.assert_array_equal(a, b)
+
+
+@pytest.mark.gl
+def test_compute_lists_longer_than_a_row_of_work_groups(gl_ctx):
+    """A layer with more samples than one row of indirect work groups holds (65,535 × 64:
+    pixellists.glsl) is dispatched as rows of them: the scaling plate at 1624×1234, q4, 4 spp
+    (about 1.4 Mpx of single-candidate pixels) gives the fragment stage's bytes."""
+    from glsim.evaluation.scaling import plate_scene
+
+    size = (1624, 1234)
+    with Renderer(plate_scene(size, 2000), "gl", ctx=gl_ctx) as r:
+        images = []
+        for r.backend.stage in ("fragment", "compute"):
+            images.append(r.render(0, 0, mode="q4", samples_per_pixel=4, quantize=True).image)
+        lists = r.backend.geometry._bufs["pixel_lists", *size]
+        args = np.frombuffer(lists.read(size=32), np.uint32)
+    assert args[6] * 4 > 65_535 * 64 and args[0] == 65_535 and args[1] == 2   # (layer 0: one candidate)
+    np.testing.assert_array_equal(images[0], images[1])
