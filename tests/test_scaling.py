@@ -262,16 +262,19 @@ def stacked_plates(layers: int):
 
 
 @pytest.mark.gl
+@pytest.mark.parametrize("stage", ["fragment", "compute"])
 @pytest.mark.parametrize("layers", [6, 12])
 @pytest.mark.parametrize("mode", ["exact", "q4"])
-def test_candidate_lists_and_their_overflow_give_the_oracle(gl_ctx, mode, layers):
-    """Pixels with several candidates (resolve.frag) and with more than the lists hold (the
-    fallback over the cover rectangles) show the nearest layer, as the oracle; elements differ
-    only on shared edges (pixel centres on an edge, both elements giving the same point)."""
+def test_candidate_lists_and_their_overflow_give_the_oracle(gl_ctx, mode, layers, stage):
+    """Pixels with several candidates (resolve.frag or .comp) and with more than the lists hold
+    (the fallback over the cover rectangles) show the nearest layer, as the oracle, in either
+    pixel stage; elements differ only on shared edges (pixel centres on an edge, both elements
+    giving the same point)."""
     scene, mesh = stacked_plates(layers)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", RenderWarning)
         with Renderer(scene, "gl", ctx=gl_ctx, mesh=mesh) as g, Renderer(scene, "cpu", mesh=mesh) as c:
+            g.backend.stage = stage
             a = g.render(0, 0, truth=True, mode=mode)
             flags = g.backend.geometry.list_flags(*scene.cameras[0].size)   # pass 1's draws of the last view
             b = c.render(0, 0, truth=True, mode=mode)
