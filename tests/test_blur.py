@@ -347,11 +347,17 @@ def test_gl_coc_and_sigma_match_numpy(gl_ctx, tmp_path):
     z64 = Z.astype(np.float64)
     ref_c = blur.coc_px(np.maximum(z64, 40.0), OPTICS)
     ref_s = blur.blur_sigma(z64, OPTICS)
-    off = np.abs(z64 - D) > 0.01
-    rel = np.abs(got_c - ref_c)[off] / ref_c[off]
-    assert rel.max() < 2e-6                         # measured 1.6e-7 (llvmpipe)
-    tie = np.abs(ref_c - 1.0) < 1e-5                # the in-focus threshold itself
-    np.testing.assert_allclose(got_s[~tie], ref_s[~tie], rtol=2e-6, atol=0)
+    # per depth within what float32 allows (glsim.evaluation.bounds.coc: the uniforms' rounding,
+    # the operations', the cancellation in |Z − D| near focus; Z clamped to ≥ 40 mm as the shader)
+    zc = np.maximum(z64, 40.0)
+    bound = bounds.coc(zc, OPTICS)
+    off = zc != D                                   # (in focus CoC = 0: |Z − D| = 0 exactly, in both)
+    assert np.all(np.abs(got_c - ref_c)[off] <= bound[off] * ref_c[off]) and np.all(got_c[~off] == 0)
+    # σ = CoC/2 beyond the in-focus threshold, 0 within it: but where CoC is within its bound of
+    # the threshold, float32 may decide either way
+    tie = np.abs(ref_c - OPTICS.coc_px) <= bounds.coc(zc, OPTICS) * ref_c
+    keep = ~tie & (z64 > F)
+    assert np.all(np.abs(got_s - ref_s)[keep] <= 0.5 * bound[keep] * ref_c[keep])
     assert np.all(got_s[z64 <= 0] == 0)
 
 
@@ -381,10 +387,11 @@ def test_gl_blur_matches_numpy_mirror(gl_ctx):
 
     ref_g = blur.blur_separable(img, sigma)
     ref_d = blur.blur_disk(img, radius)
-    # float32 against the float64 mirror: measured max 1.9e-7 (Gaussian, H then V) and 2.6e-7
-    # (disk) of full scale on llvmpipe
-    assert np.abs(gauss - ref_g).max() < 1e-5
-    assert np.abs(disk - ref_d).max() < 1e-5
+    # float32 against the float64 mirror, per pixel within what GLSL 4.50 allows the passes
+    # (glsim.evaluation.bounds.blur)
+    M = float(np.abs(src32).max())
+    assert np.all(np.abs(gauss - ref_g) <= bounds.blur("separable", sigma, M))
+    assert np.all(np.abs(disk - ref_d) <= bounds.blur("disk", radius, M))
     # in focus and background: the source texel, bit for bit
     keep = sigma == 0
     assert np.array_equal(gauss[keep].view(np.uint32), src32[keep].view(np.uint32))

@@ -2,8 +2,9 @@
 mode (issue 25), for ``glsim check`` and the GL tests: the same bounds on llvmpipe and on a GPU.
 The camera passes' (vignetting, PSF, fixed pattern): :func:`camera_passes`; the float32
 passes' against their float64 twins under GLSL 4.50's precision rules: the lighting
-(:func:`phong`), the depth of field's gathers (:func:`blur`), a reference sample
-(:func:`interpolation`).
+(:func:`phong`), the depth of field's circle of confusion (:func:`coc`) and gathers
+(:func:`blur`), a reference sample (:func:`interpolation`), the sensor noise's normal field
+(:func:`standard_normal`) and pass (:func:`noise`).
 
 - **float64 (exact, q4, and their truth)**: unit roundoff 2^-53 = 1.1e-16 on coordinates below
   1e4 (px or mm) is 1.1e-12; the closed-form roots, two Newton polishes and the projections
@@ -194,3 +195,87 @@ def interpolation(method: str, coeffs_max: float) -> float:
     n, S = _INTERP[method]
     u = FLOAT32_ROUNDOFF
     return ((n * n + 9) * S * S + 2 * S) * u * coeffs_max
+
+
+def _f32_error(value: float) -> float:
+    """|float32(value) − value|: a float64 uniform's rounding as the shader receives it."""
+    return abs(float(np.float32(value)) - float(value))
+
+
+def coc(Z: np.ndarray, optics) -> np.ndarray:
+    """Per depth Z (mm, values float32 holds), the largest relative |GL − numpy| of
+    shaders/dof.glsl's coc_px in float32 against glsim.effects.dof.coc_px in float64, both
+    f²|Z − D| / (N (Z − f) D) / pitch: the uniforms' rounding to float32 (δ, from their values),
+    +, −, × correctly rounded (u each) and each division 2.5 ULP (5u) (GLSL 4.50 §4.7.1), first
+    order in u — f² 2δf/f + u; |Z − D| (δD + u|Z − D|)/|Z − D| (the cancellation near focus);
+    the product u; N δN/N; Z − f (δf + u|Z − f|)/|Z − f|; the two products 2u; D δD/D; the
+    divisions 10u; the pitch δp/p — plus float64's own (10·2^-53)."""
+    u = FLOAT32_ROUNDOFF
+    Z = np.asarray(Z, np.float64)
+    f, N, D, p = (float(getattr(optics, k)) for k in ("focal_length", "f_number", "focus_distance", "pixel_pitch"))
+    dZD, dZf = np.abs(Z - D), np.abs(Z - f)
+    return (2 * _f32_error(f) / f + u + (_f32_error(D) + u * dZD) / dZD + u + _f32_error(N) / N
+            + (_f32_error(f) + u * dZf) / dZf + 2 * u + _f32_error(D) / D + 10 * u + _f32_error(p) / p
+            + 10 * 2.0 ** -53)
+
+
+def standard_normal(u1: np.ndarray, u2: np.ndarray) -> np.ndarray:
+    """Per sample, the largest |z_GL − z| of shaders/noise.glsl's standard_normal (float32)
+    against glsim.effects.noise.standard_normal (float64) from the same uniforms u1, u2 (bit
+    for bit, tested): z = −√(2L)·cos θ, L = −ln u1, θ = 2π(u2 − ½), GLSL 4.50 §4.7.1, first
+    order in u:
+
+    - L: log's 3 ULP (6u·L) below u1 = ½; from ½ the shader's series in s = m/(2 − m),
+      m = 1 − u1 (exact): s 6u, s² 13u, Horner on s² ≤ 1/9 with float32 coefficients 10u, 2sp 2u:
+      18u·L, and the series' cut tail 2s^17/(17(1 − s²)) ≤ 1.2e-9 (s ≤ 1/3);
+    - √(2L): sqrt is 1/inversesqrt (2 + 2.5 ULP: 9u) plus half L's relative error;
+    - θ: 2π as float32, u2 − ½ and the product (3u·π); cos: absolute 2^-11 on [−π, π] (the
+      spec's only guarantee; drivers do far better) plus |sin θ|·δθ;
+    - the product: u|z|."""
+    u = FLOAT32_ROUNDOFF
+    u1, u2 = np.asarray(u1, np.float64), np.asarray(u2, np.float64)
+    L = -np.log(u1)
+    dL = np.where(u1 < 0.5, 6 * u * L, 18 * u * L + 1.2e-9)
+    r = np.sqrt(2 * L)
+    theta = 2 * np.pi * (u2 - 0.5)
+    dr = r * (0.5 * dL / np.maximum(L, 1e-300) + 9 * u)
+    dc = 2.0 ** -11 + np.abs(np.sin(theta)) * 3 * u * np.pi
+    return dr * np.abs(np.cos(theta)) + r * dc + u * r
+
+
+def noise(I: np.ndarray, z: np.ndarray, dz: np.ndarray, sigma: np.ndarray, params, bit_depth: int,
+          table=None) -> np.ndarray:
+    """Per pixel, the largest |GL − numpy| (full scale) of shaders/noise.frag's I + σ(I)·z
+    against glsim.effects.noise.add_noise on the same float32 image I, both rounded to float32:
+    ``z`` the numpy normal, ``dz`` its bound (:func:`standard_normal`), ``sigma`` numpy's σ(I).
+    σ's float32 error by model — gaussian: its uniform's rounding; heteroscedastic: x = I·dn_max
+    (u·x, moving the interpolation by the level table's slope), the variance texels and mix
+    (4u of the larger), sqrt (½ the variance's relative error, at most √δv near zero, + 9u) and
+    the division (6u); poisson-gaussian: the uniforms (u each), e = I·full_well, e + rn² and the
+    sum (3u of it), sqrt and the division (15u) — then σ·dz + |z|·δσ, the product and sum
+    (u|σz| + u|I + σz|) and the two float32 roundings (2u|I + σz|)."""
+    from glsim.effects import noise as nz
+
+    u = FLOAT32_ROUNDOFF
+    I, z, dz, sigma = (np.asarray(a, np.float64) for a in (I, z, dz, sigma))
+    model = params.model
+    if model == "gaussian":
+        dsigma = np.full(I.shape, _f32_error(float(sigma.flat[0])))
+    elif model == "heteroscedastic":
+        dn_max = float((1 << bit_depth) - 1)
+        per = nz.variance_per_level(nz._table(params, bit_depth, table), bit_depth)
+        slope = np.abs(np.diff(per, append=per[-1]))
+        x = np.clip(I * dn_max, 0.0, dn_max)
+        n = np.minimum(np.floor(x).astype(np.int64), per.size - 1)
+        v = (sigma * dn_max) ** 2
+        dv = 4 * u * np.maximum(per[n], per[np.minimum(n + 1, per.size - 1)]) + slope[n] * u * x
+        dsigma = (np.minimum(0.5 * dv / np.maximum(v, 1e-300) * sigma * dn_max, np.sqrt(dv)) / dn_max
+                  + 15 * u * sigma)
+    else:
+        fw, rn = float(params.full_well), float(params.read_noise)
+        e = np.maximum(I, 0.0) * fw
+        rel = ((_f32_error(fw) / fw * e + 3 * u * (e + rn * rn) + 2 * _f32_error(rn) * abs(rn))
+               / np.maximum(e + rn * rn, 1e-300))
+        dsigma = sigma * (0.5 * rel + 15 * u + _f32_error(fw) / fw)
+    out = np.abs(I + sigma * z)
+    return sigma * dz + np.abs(z) * dsigma + u * np.abs(sigma * z) + 3 * u * out
