@@ -98,6 +98,24 @@ def test_the_pixel_stage_is_the_drivers_and_fast_draws_its_triangles_in_both():
 
 
 @pytest.mark.gl
+def test_the_environment_picks_the_pixel_stage(gl_ctx, monkeypatch):
+    """GLSIM_PIXEL_STAGE overrides the driver's stage; a value that is none is refused with the
+    variable, the value and the fix named, before anything is drawn."""
+    from glsim.backends.gl.backend import GLBackend
+    from glsim.errors import SceneError
+
+    for stage in ("fragment", "compute"):
+        monkeypatch.setenv("GLSIM_PIXEL_STAGE", stage)
+        backend = GLBackend(np.zeros((8, 8), np.float32), ctx=gl_ctx)
+        assert backend.stage == stage
+        backend.close()
+    monkeypatch.setenv("GLSIM_PIXEL_STAGE", "vertex")
+    with pytest.raises(SceneError, match=r"GLSIM_PIXEL_STAGE: 'vertex' is not a pixel stage — set it to one of "
+                                         r"fragment, compute, or unset it"):
+        GLBackend(np.zeros((8, 8), np.float32), ctx=gl_ctx)
+
+
+@pytest.mark.gl
 def test_the_compute_pixel_stage_gives_the_fragment_stages_bytes(gl_ctx):
     """The compute pixel stage (the default on GPUs: exact and q4's pass 2 over pixel lists, the
     box filter and quantisation as compute passes) writes the images, 8- and 12-bit images and
