@@ -235,6 +235,9 @@ def main(argv: list[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else list(argv)
     formatwarning, warnings.formatwarning = warnings.formatwarning, _format_warning
     try:
+        from glsim.backends.gl.plan import environment_stage
+
+        environment_stage()   # a bad GLSIM_PIXEL_STAGE is refused before a command writes anything
         if argv and argv[0] in DELEGATED:
             return _delegated(argv[0], argv[1:])
         args = parser().parse_args(argv)

@@ -98,9 +98,14 @@ def test_the_pixel_stage_is_the_drivers_and_fast_draws_its_triangles_in_both():
 
 
 @pytest.mark.gl
-def test_the_environment_picks_the_pixel_stage(gl_ctx, monkeypatch):
+def test_the_environment_picks_the_pixel_stage(gl_ctx, monkeypatch, tmp_path, capsys):
     """GLSIM_PIXEL_STAGE overrides the driver's stage; a value that is none is refused with the
-    variable, the value and the fix named, before anything is drawn."""
+    variable, the value and the fix named, by the backend and by the CLI before it writes."""
+    from pathlib import Path
+
+    from glsim import cli
+
+    EXAMPLES = Path(__file__).parents[1] / "examples"
     from glsim.backends.gl.backend import GLBackend
     from glsim.errors import SceneError
 
@@ -110,9 +115,12 @@ def test_the_environment_picks_the_pixel_stage(gl_ctx, monkeypatch):
         assert backend.stage == stage
         backend.close()
     monkeypatch.setenv("GLSIM_PIXEL_STAGE", "vertex")
-    with pytest.raises(SceneError, match=r"GLSIM_PIXEL_STAGE: 'vertex' is not a pixel stage — set it to one of "
-                                         r"fragment, compute, or unset it"):
+    message = "GLSIM_PIXEL_STAGE: 'vertex' is not a pixel stage — set it to one of fragment, compute, or unset it"
+    with pytest.raises(SceneError, match=message):
         GLBackend(np.zeros((8, 8), np.float32), ctx=gl_ctx)
+    out = tmp_path / "out"
+    assert cli.main(["render", str(EXAMPLES / "bulge.toml"), "--out", str(out)]) == 2
+    assert message in capsys.readouterr().err and not out.exists()   # (no regex metacharacters in it)
 
 
 @pytest.mark.gl

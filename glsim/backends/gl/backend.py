@@ -34,7 +34,7 @@ from glsim.backends.gl.bindings import image, sampler, storage
 from glsim.backends.gl.context import check_error, create_context, driver_info, software_renderer
 from glsim.backends.gl.geometry import DRAW_FALLBACK, DRAW_RESOLVE, LAYER_DISPATCH, LAYERS, GeometryBuffers, ViewSlot
 from glsim.backends.gl import timing
-from glsim.backends.gl.plan import PIXEL_STAGES, aperture_literal, pixel_stage, plan
+from glsim.backends.gl.plan import aperture_literal, environment_stage, pixel_stage, plan
 from glsim.backends.gl.imagepasses import ImagePasses
 from glsim.backends.gl.programs import ProgramCache
 from glsim.backends.gl.readback import PackBuffers, Pending, read_buffer, read_texture
@@ -43,20 +43,6 @@ from glsim.backends.gl.uniforms import Uniforms, set_uniform
 
 
 _REF_UNIT, _RAYS_UNIT = sampler("u_ref"), sampler("u_rays")
-
-
-def _stage_override() -> str | None:
-    """The pixel stage the environment asks for (GLSIM_PIXEL_STAGE: "fragment" or "compute", to
-    compare the two on a driver or to step around one's fault), or None."""
-    import os
-
-    from glsim.errors import SceneError
-
-    value = os.environ.get("GLSIM_PIXEL_STAGE", "").strip()
-    if value and value not in PIXEL_STAGES:
-        raise SceneError("environment variable GLSIM_PIXEL_STAGE", f"{value!r} is not a pixel stage",
-                         f"set it to one of {', '.join(PIXEL_STAGES)}, or unset it for the driver's")
-    return value or None
 
 
 def _target_images(truth: bool, defines) -> tuple[int, ...]:
@@ -141,7 +127,7 @@ class GLBackend(ImagePasses):
         self._own_ctx = ctx is None
         self.ctx = ctx if ctx is not None else create_context()
         self.fp64 = "GL_ARB_gpu_shader_fp64" in self.ctx.extensions
-        self.stage = _stage_override() or pixel_stage(software_renderer(self.ctx))
+        self.stage = environment_stage() or pixel_stage(software_renderer(self.ctx))
         self.programs = ProgramCache(self.ctx, shader_dirs)
         self._image = reference_image
         self._textures: dict[str, object] = {}

@@ -145,6 +145,21 @@ PIXEL_PASSES = {"rays.frag", "view.comp", "candidates.comp", "candidates.frag", 
 PIXEL_STAGES = ("fragment", "compute")
 
 
+def environment_stage() -> str | None:
+    """The pixel stage the environment asks for (GLSIM_PIXEL_STAGE: "fragment" or "compute", to
+    compare the two on a driver or to step around one's fault), or None; a value that is neither
+    is refused (the CLI checks it before any command writes)."""
+    import os
+
+    from glsim.errors import SceneError
+
+    value = os.environ.get("GLSIM_PIXEL_STAGE", "").strip()
+    if value and value not in PIXEL_STAGES:
+        raise SceneError("environment variable GLSIM_PIXEL_STAGE", f"{value!r} is not a pixel stage",
+                         f"set it to one of {', '.join(PIXEL_STAGES)}, or unset it for the driver's")
+    return value or None
+
+
 def pixel_stage(software: bool) -> str:
     """The pixel stage for a driver: "fragment" on a software rasterizer (llvmpipe runs neither
     stage faster throughout: the throughput table's other-stage column), "compute" on a GPU:

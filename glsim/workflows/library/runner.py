@@ -493,8 +493,11 @@ def run(plan: Plan, out: str | Path, workers: int | None = None, scheduler: str 
         force: bool = False, progress: bool = False, flush_s: float = 2.0) -> Summary:
     """Render ``plan`` into ``out`` (see the module text); returns the :class:`Summary`. With a
     ``scheduler``, nothing is written before it has answered and a worker has joined."""
+    from glsim.backends.gl.plan import environment_stage
+
     out = Path(out)
     outdir.inside(out, [rel for job in plan.jobs for rel in (job.image, job.truth) if rel], "output.pattern")
+    environment_stage()   # (this process's: a worker elsewhere refuses its own bad value per image)
     client = connect(scheduler) if scheduler else None
     try:
         with _interrupt_once(), outdir.locked(out):
