@@ -43,6 +43,7 @@ from glsim.backends.gl.uniforms import Uniforms, set_uniform
 
 
 _REF_UNIT, _RAYS_UNIT = sampler("u_ref"), sampler("u_rays")
+_DTYPES = {"f4": np.float32, "u1": np.uint8, "u2": np.uint16}   # moderngl texture dtype → numpy
 
 
 def _target_images(truth: bool, defines) -> tuple[int, ...]:
@@ -51,7 +52,6 @@ def _target_images(truth: bool, defines) -> tuple[int, ...]:
     names = ["GREY", *(["MAP", "EXTRA"] if truth else []), *(["LO"] if "TRUTH_LO" in defines else []),
              *(["DEPTH"] if "DEPTH_OUT" in defines else [])]
     return tuple(image(n) for n in names)
-_DTYPES = {"f4": np.float32, "u1": np.uint8, "u2": np.uint16}   # moderngl texture dtype → numpy
 
 
 def _ray_key(cam, s: int, kind: str, aperture: float = 1.0) -> tuple:
@@ -494,7 +494,8 @@ class GLBackend(ImagePasses):
         truth and depth from zero): fast mode's element triangles, else the full-screen programs
         on their layers (one candidate, then several) and the overflow fallback's covers — those
         two drawn by pass 1's indirect commands, so nothing waits for the host to decide; with
-        the compute pixel stage the first two as compute passes over every sample."""
+        the compute pixel stage the first two as compute passes over classify.comp's lists,
+        dispatched indirectly alike."""
         ctx, (W, H) = self.ctx, view.camera.size
         defines = p.define_dict
         fbo, color, _, grey, depth = self._target(W * s, H * s, truth, "TRUTH_LO" in defines, "DEPTH_OUT" in defines)

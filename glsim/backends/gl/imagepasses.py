@@ -24,9 +24,9 @@ _PASS_OUT = image("PASS_OUT")
 
 class ImagePasses:
     """Full-screen passes of a GL backend. Expects of the backend: ``ctx``, ``programs``,
-    ``fp64``, ``stage`` (the pixel stage), ``_pack`` (pack buffers), ``_unbind()``, and the reuse tables ``_scratch`` (free
-    scratch textures by shape), ``_lent`` (those a frame holds), ``_outputs``, ``_fbos`` and
-    ``_vaos``."""
+    ``fp64``, ``stage`` (the pixel stage), ``_pack`` (pack buffers), ``_unbind()``, and the
+    reuse tables ``_scratch`` (free scratch textures by shape), ``_lent`` (those a frame
+    holds), ``_outputs``, ``_fbos`` and ``_vaos``."""
 
     def fullscreen_pass(self, frag: str, defines: dict, inputs: dict, uniforms: dict, size: tuple[int, int],
                         components: tuple[int, ...] = (1,), into=None, dtype: str = "f4", scratch: list | None = None,
@@ -44,7 +44,8 @@ class ImagePasses:
         ctx = self.ctx
         W, H = size
         if compute:
-            prog = self.programs.compute(frag.replace(".frag", ".comp"), {**defines, "OUT_FORMAT": _IMAGE_FORMATS[dtype]})
+            prog = self.programs.compute(frag.replace(".frag", ".comp"),
+                                         {**defines, "OUT_FORMAT": _IMAGE_FORMATS[dtype]})
         else:
             prog = self.programs.program("fullscreen.vert", frag, defines=defines)
         uploaded = []
