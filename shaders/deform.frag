@@ -19,13 +19,19 @@
 // COMPUTE_PIXELS (deform.comp, resolve.comp; glsim.backends.gl.plan's pixel stage "compute"):
 // the first two as compute passes, one invocation per sample of the pixels in classify.comp's
 // list of their layer (pixellists.glsl), writing the targets as images; a sample the fragment
-// passes discard is left as cleared alike.
+// passes discard is left as cleared alike. Mode fast in that stage: FAST_VISIBILITY draws the
+// triangles as before but writes only each sample's triangle (fast.geom keeps their records),
+// then deform.comp shades every sample of the target from its triangle's record.
 #if defined(COMPUTE_PIXELS)
-#if defined(MODE_FAST) || defined(FALLBACK) || defined(PIXEL_LOOP)
-#error "COMPUTE_PIXELS: the exact and q4 full-screen passes only"
+#if defined(FALLBACK) || defined(PIXEL_LOOP)
+#error "COMPUTE_PIXELS: the exact and q4 full-screen passes and mode fast only"
 #endif
+#ifdef MODE_FAST
+layout(local_size_x = 16, local_size_y = 8) in;
+#else
 #include "pixellists.glsl"
 layout(local_size_x = LIST_LOCAL) in;
+#endif
 #define FRAG_COORD (vec2(at) + 0.5)   // the sample shade_sample is given
 #define DROP return
 #else
@@ -58,12 +64,23 @@ uniform vec2 u_ref_size;  // reference image W, H (px)
 uniform float u_far;      // depth range (mm): gl_FragDepth = Z / u_far
 
 #if defined(MODE_FAST)
+#include "fasttriangles.glsl"
+#ifdef COMPUTE_PIXELS
+// the triangle of each sample (FAST_VISIBILITY's target; 0: none) and, from its record, the
+// values the fragment stage gets from fast.geom
+layout(binding = SAMPLER_VISIBILITY) uniform usampler2D u_visibility;
+vec2 g_uv[3], g_ref[3], g_xe[3];
+float g_z[3];
+int g_elem;
+#else
 // fast.geom: the triangle's projected vertices (px), reference points, (xi, eta) and depths
 flat in vec2 g_uv[3];
 flat in vec2 g_ref[3];
 flat in vec2 g_xe[3];
 flat in float g_z[3];
 flat in int g_elem;
+flat in int g_tri;
+#endif
 #else
 // Per-view element records written by view.comp, float64 or float32 as `real`: exact: corners
 // in the camera frame (12); q4: distorted pixel corners (8) and depths Z (4).
@@ -133,6 +150,8 @@ vec2 out_lo;
 layout(r32f, binding = IMAGE_DEPTH) uniform writeonly image2D u_out_depth;
 float out_depth;
 #endif
+#elif defined(FAST_VISIBILITY)
+layout(location = 0) out uint out_triangle;   // the sample's triangle + 1 (fast.geom's records)
 #else
 layout(location = 0) out float out_grey;
 #ifdef TRUTH
@@ -352,6 +371,11 @@ void main() {
     real xi, eta;
     real2 ref;
 #if defined(MODE_FAST)
+#ifdef COMPUTE_PIXELS
+    uint t = texelFetch(u_visibility, at, 0).r;
+    if (t == 0u) return;
+    fast_triangle(int(t) - 1, g_uv, g_ref, g_xe, g_z, g_elem);
+#endif
     // the perspective-correct interpolation of glsim.backends.cpu._fast in float32, at the
     // sample's exact pixel point q: barycentrics from edge functions relative to vertex 0
     vec2 q = FRAG_COORD / float(SS) - 0.5;
@@ -367,10 +391,15 @@ void main() {
     xi = xe.x;
     eta = xe.y;
     int elem = g_elem;
+#ifndef COMPUTE_PIXELS   // (there FAST_VISIBILITY has left such samples out)
     if (ref.x < -0.5 || ref.y < -0.5 || ref.x > real(u_ref_size.x) - 0.5 || ref.y > real(u_ref_size.y) - 0.5) {
         atomicAdd(dropped_samples, 1u);  // counted for the warning (glsim.stages.view.warn_dropped)
         DROP;
     }
+#endif
+#ifdef FAST_VISIBILITY
+    out_triangle = uint(g_tri + 1);
+#endif
 #else
     ivec2 pix = ivec2(FRAG_COORD) / SS;
 #if defined(RESOLVE) || defined(FALLBACK) || !(defined(EARLY_TESTS) || defined(COMPUTE_PIXELS))
@@ -438,6 +467,7 @@ void main() {
     gl_FragDepth = float(Z) / u_far;
 #endif
 #endif
+#ifndef FAST_VISIBILITY
     float grey = sample_ref(ref);
 #ifdef LIGHTING
     grey = combine(grey, light_at(elem, xi, eta));
@@ -464,6 +494,7 @@ void main() {
 #endif
 #endif
 #endif
+#endif
 #ifdef COMPUTE_PIXELS
     imageStore(u_out_grey, at, vec4(out_grey));
 #ifdef TRUTH
@@ -479,6 +510,12 @@ void main() {
 #endif
 }
 #ifdef COMPUTE_PIXELS
+#ifdef MODE_FAST
+void main() {   // every sample of the target (FAST_VISIBILITY's)
+    ivec2 at = ivec2(gl_GlobalInvocationID.xy);
+    if (all(lessThan(at, textureSize(u_visibility, 0)))) shade_sample(at);
+}
+#else
 void main() {
 #ifdef RESOLVE
     const uint layer = 1u;
@@ -492,5 +529,6 @@ void main() {
     uint w = pixels[layer == 0u ? j : uint(pixels.length()) - 1u - j];
     shade_sample(ivec2(w & 0xFFFFu, w >> 16) * SS + ivec2(k % uint(SS), k / uint(SS)));
 }
+#endif
 #endif
 #endif

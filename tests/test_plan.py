@@ -85,6 +85,7 @@ def test_a_render_runs_the_plans_passes(options, gl_ctx):
 
 
 def test_the_pixel_stage_is_the_drivers_and_fast_draws_its_triangles_in_both():
+    """The plan's passes per stage; the defines are the stage's own business (the same)."""
     from glsim.backends.gl.plan import pixel_stage
 
     assert pixel_stage(True) == "fragment" and pixel_stage(False) == "compute"
@@ -94,7 +95,7 @@ def test_the_pixel_stage_is_the_drivers_and_fast_draws_its_triangles_in_both():
                                "downsample.comp"]
     assert p.define_dict == plan(Render(mode="exact", samples_per_pixel=4), True, True, None, PIN, PIN).define_dict
     fast = plan(Render(mode="fast", samples_per_pixel=4), False, True, None, PIN, PIN, stage="compute")
-    assert shaders(fast) == ["deform.frag", "downsample.comp"]
+    assert shaders(fast) == ["deform.frag", "deform.comp", "downsample.comp"]   # (the triangles' indices, then shaded)
 
 
 @pytest.mark.gl

@@ -234,15 +234,16 @@ def _camera_passes(effects: dict) -> Callable[[Context], float]:
 
 
 def _stages(c: Context) -> float:
-    """Values of the bulge pair's images and truth (element, ξ, η, reference point; exact and q4,
-    1 and 4 spp, both cameras at step 1) that differ in any bit between the two pixel stages
-    (glsim.backends.gl.plan: fragment passes on depth layers, compute passes over pixel lists)."""
+    """Values of the bulge pair's images and truth (element, ξ, η, reference point; every mode
+    at 1 and 4 spp, both cameras at step 1) that differ in any bit between the two pixel stages
+    (glsim.backends.gl.plan: fragment passes on depth layers, compute passes over pixel lists;
+    fast's triangles shaded in the fragment pass or from their records by a compute pass)."""
     from glsim.backends.gl.plan import PIXEL_STAGES
 
     g, _ = _bulge(c)
     saved, differ = g.backend.stage, 0
     try:
-        for mode, spp in (("exact", 1), ("exact", 4), ("q4", 1), ("q4", 4)):
+        for mode, spp in (("exact", 1), ("exact", 4), ("q4", 1), ("q4", 4), ("fast", 1), ("fast", 4)):
             out = []
             for g.backend.stage in PIXEL_STAGES:
                 out.append([g.render(cam, 1, truth=True, mode=mode, samples_per_pixel=spp) for cam in (0, 1)])
@@ -277,8 +278,8 @@ CHECKS = (
     Check("quadratic Q8 exact 1 spp: truth X", 1, "× bound", FLOAT64, _mapping("exact", 1, "X", _curved)),
     Check("quadratic Q8 q4 1 spp: reference point", 1, "× bound", FLOAT64, _mapping("q4", 1, "ref", _curved)),
     Check("pixel stages: compute against fragment", 0, "values differing in any bit", "the same code "
-          "(deform.frag) as fragment passes on depth layers and as compute passes over pixel lists "
-          "(glsim.backends.gl.plan); images and truth of the bulge pair, exact and q4, 1 and 4 spp", _stages),
+          "(deform.frag) as fragment passes and as compute passes (glsim.backends.gl.plan); images and "
+          "truth of the bulge pair, every mode, 1 and 4 spp", _stages),
     Check("lighting, exact", 2, "px > 0.5 grey of 8 bit", "as tests/test_effects.py (element edges)", _effect("lighting")),
     Check("depth of field, exact", 0, "px > 0.5 grey of 8 bit", "as tests/test_effects.py", _effect("optics")),
     Check("noise, exact", 2, "px > 0.5 grey of 8 bit", "as tests/test_effects.py (element edges)", _effect("noise")),

@@ -144,6 +144,7 @@ class GLBackend(ImagePasses):
         self._vaos: dict[int, tuple] = {}       # id(program) → (program, attribute-less vertex array)
         self._ray_host: dict[tuple, np.ndarray] = {}   # the float64 ray maps' bits on the host (truth polish)
         self._dropped = None                    # deform.frag's count of samples mapping outside the reference
+        self._visibility = None                 # mode fast's triangle-index target, compute stage (_visibility_target)
         self._uniforms: dict[tuple, tuple] = {}  # the last views' uniform values (_view_uniforms)
         self._camera_values: dict[tuple, tuple] = {}   # and their cameras' (_camera_uniforms)
         self._reports: dict[tuple, tuple] = {}  # the last views' problems and dropped counts (_queue_report)
@@ -211,9 +212,10 @@ class GLBackend(ImagePasses):
                 t.release()
         for _, vao in self._vaos.values():
             vao.release()
-        for obj in (self._pack, self._dropped):
+        for obj in (self._pack, self._dropped, *(self._visibility or ())[1:]):
             if obj is not None:
                 obj.release()
+        self._visibility = None
         self._fbos.clear()
         self._outputs.clear()
         self._scratch.clear()
@@ -504,7 +506,9 @@ class GLBackend(ImagePasses):
         fbo.use()
         fbo.viewport = (0, 0, W * s, H * s)
         ctx.disable(ctx.CULL_FACE)
-        if opts.mode == "fast":  # the element triangles, projected in the vertex stage
+        if opts.mode == "fast" and p.stage == "compute":
+            self._fast_compute(defines, setup, geo, W * s, H * s, truth, color)
+        elif opts.mode == "fast":  # the element triangles, projected in the vertex stage
             prog = self.programs.program("deform.vert", "deform.frag", defines=defines, geometry="fast.geom")
             setup(prog)
             ctx.enable(ctx.DEPTH_TEST)
@@ -536,6 +540,47 @@ class GLBackend(ImagePasses):
             geo.draw(prog, (geo.draws(W, H), DRAW_FALLBACK))
         ctx.disable(ctx.DEPTH_TEST)
         return color
+
+    def _fast_compute(self, defines, setup, geo, w: int, h: int, truth: bool, color) -> None:
+        """Mode fast in the compute pixel stage: the element triangles drawn as in the fragment
+        stage (the same depth test and discards) into a w×h target of triangle indices, fast.geom
+        keeping their records (FAST_VISIBILITY), then deform.comp shading every sample of
+        ``color`` from its triangle's record."""
+        ctx = self.ctx
+        fbo, ids = self._visibility_target(w, h)
+        fbo.clear(0.0, 0.0, 0.0, 0.0, depth=1.0)   # (index 0: no triangle)
+        fbo.use()
+        fbo.viewport = (0, 0, w, h)
+        records = geo.fast_records()
+        records.bind_to_storage_buffer(storage("FAST_TRIANGLES"))
+        prog = self.programs.program("deform.vert", "deform.frag", defines={**defines, "FAST_VISIBILITY": None},
+                                     geometry="fast.geom")
+        setup(prog)
+        ctx.enable(ctx.DEPTH_TEST)
+        geo.draw(prog)
+        ctx.disable(ctx.DEPTH_TEST)
+        ctx.memory_barrier()   # the records and indices seen by the compute pass
+        comp = self.programs.compute("deform.comp", defines)
+        setup(comp)
+        ids.use(sampler("u_visibility"))
+        for unit, tex in zip(_target_images(truth, defines), color):
+            tex.bind_to_image(unit, read=False, write=True)
+        comp.run((w + 15) // 16, (h + 7) // 8)   # deform.frag's work groups in mode fast
+        ctx.memory_barrier()
+
+    def _visibility_target(self, w: int, h: int):
+        """The framebuffer of mode fast's triangle indices (R32UI, with a depth buffer) at w×h,
+        made once per size (the last one kept)."""
+        hit = self._visibility
+        if hit is None or hit[0] != (w, h):
+            if hit is not None:
+                for obj in hit[1:]:
+                    obj.release()
+            ids = self.ctx.texture((w, h), 1, dtype="u4")
+            depth = self.ctx.depth_renderbuffer((w, h))
+            hit = self._visibility = ((w, h), self.ctx.framebuffer(color_attachments=[ids], depth_attachment=depth),
+                                      ids, depth)
+        return hit[1], hit[2]
 
     def _queue_report(self, view: ViewSpec, s: int, geo, warn: bool, key: tuple, refs: tuple):
         """Copy the view's problem flags and dropped count on the GPU (read when the frame is

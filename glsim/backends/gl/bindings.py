@@ -29,6 +29,7 @@ STORAGE = {
     "REF_PINHOLE": 17,  # float64 exact, pinhole reference: per-element blends
     "PATCH_NODES": 18,  # quadratic patches: the step's control points
     "PIXEL_LISTS": 19,  # the compute pixel stage's pixels by layer (classify.comp → deform.comp)
+    "FAST_TRIANGLES": 20,  # the compute pixel stage's fast triangles (fast.geom → deform.comp)
 }
 IMAGES = {"CAND_COUNT": 0, "CAND_LIST": 1,   # candidate lists (candidates.glsl)
           # the deformation target written by the compute pixel stage (deform.comp, resolve.comp)
@@ -49,6 +50,7 @@ SAMPLERS = {           # by the sampler's uniform name (SAMPLER_<name without u_
     "u_variance": 11,  # noise variance table
     "u_samples": 12,   # the s×s samples (box filter)
     "u_kernel": 13,    # a PSF kernel
+    "u_visibility": 14,  # each sample's fast triangle (the compute pixel stage)
 }
 
 

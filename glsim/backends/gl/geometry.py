@@ -206,6 +206,11 @@ class GeometryBuffers:
             self._bufs[key] = self.ctx.buffer(np.ascontiguousarray(rec, np.float64).tobytes())
         return self._bufs[key]
 
+    def fast_records(self):
+        """Mode fast's triangle records in the compute pixel stage: FAST_RECORD (24) floats for
+        each of the 2 M triangles (shaders/fasttriangles.glsl; fast.geom writes them every draw)."""
+        return self._buffer("fast_records", lambda: self.ctx.buffer(reserve=max(1, 2 * self.M * 24 * 4)))
+
     def index_buffer(self):
         """Six indices per element into the 4 M attribute-less vertices (made once)."""
         def make():

@@ -13,8 +13,9 @@ programs on classify.frag's depth layers (early depth tests, so that each shades
 samples), "compute" as compute passes over classify.comp's lists of their pixels, dispatched
 indirectly (as many work groups as samples listed), and the box filter and quantisation (every
 mode) as compute passes too — the same code (deform.frag, downsample.frag, quantize.frag with
-COMPUTE_PIXELS), the same bytes (tested). Fast mode's triangles are fragment passes in both.
-:func:`pixel_stage` picks the stage per driver.
+COMPUTE_PIXELS), the same bytes (tested). Mode fast draws its triangles in both; in the compute
+stage the fragment pass writes only each sample's triangle and deform.comp shades the samples
+from the triangles' records. :func:`pixel_stage` picks the stage per driver.
 """
 from __future__ import annotations
 
@@ -214,8 +215,8 @@ def _plan(opts, truth: bool, fp64_driver: bool, fx: EffectsShape, pinhole: bool,
     sub = newton_subsamples(opts, s, pieces is not None)
     blur = fx.blur
     passes: list[Pass] = []
-    if opts.mode == "fast":
-        passes.append(Pass("deform.frag"))   # deform.vert, fast.geom: the element triangles
+    if opts.mode == "fast":   # deform.vert, fast.geom: the element triangles (compute: their indices only)
+        passes += [Pass("deform.frag")] + [Pass("deform.comp")] * (stage == "compute")
     else:
         if rays:
             passes.append(Pass("rays.frag", "uncached"))
