@@ -522,7 +522,7 @@ void main() {
 #else
     const uint layer = 0u;
 #endif
-    // one invocation per sample of a listed pixel (a loop over them costs llvmpipe twice the time)
+    // one invocation per sample of a listed pixel (a loop over them ran far slower on llvmpipe)
     uint i = gl_GlobalInvocationID.y * gl_NumWorkGroups.x * uint(LIST_LOCAL) + gl_GlobalInvocationID.x;
     uint j = i / uint(SS * SS), k = i % uint(SS * SS);
     if (j >= layer_count[layer]) return;
