@@ -15,6 +15,10 @@
 // *output* pixel's depth; sigma (or r) = 0 (in focus, background) copies the source texel.
 // MAX_RADIUS (define) bounds the loops: >= ceil(3 sigma_max) or ceil(r_max); a pixel needing
 // more is cut to MAX_RADIUS.
+#ifndef BLUR_ROWS
+#define GREY_PASS
+#endif
+#include "pixelpass.glsl"
 #include "dof.glsl"
 
 layout(binding = SAMPLER_SRC) uniform sampler2D u_src;      // R32F grey (BLUR_VERTICAL, BLUR_HYBRID: BLUR_HORIZONTAL's output)
@@ -24,11 +28,14 @@ layout(binding = SAMPLER_MOMENTS) uniform sampler2D u_moments;  // BLUR_COLUMNS:
 layout(binding = SAMPLER_ROWS) uniform sampler2D u_rows;     // BLUR_COLUMNS: BLUR_ROWS's (remainder factor, c, R, grey) per pixel
 uniform float u_expansion_tol;
 
-#ifdef BLUR_ROWS
+#if defined(BLUR_ROWS) && defined(COMPUTE_PIXELS)
+layout(rgba32f, binding = IMAGE_PASS_OUT) uniform writeonly image2D u_out;     // the moments
+layout(rgba32f, binding = IMAGE_PASS_OUT_B) uniform writeonly image2D u_out_b; // the row records
+#define ROWS_WRITE(m, r) imageStore(u_out, PASS_PIXEL, m); imageStore(u_out_b, PASS_PIXEL, r)
+#elif defined(BLUR_ROWS)
 layout(location = 0) out vec4 out_moments;
 layout(location = 1) out vec4 out_rows;
-#else
-out float out_grey;
+#define ROWS_WRITE(m, r) out_moments = (m); out_rows = (r)
 #endif
 
 // ceil(3 sigma) as numpy's kernel_radius (in double in FP64 builds), cut to MAX_RADIUS
@@ -58,7 +65,8 @@ float gather_gauss(sampler2D img, ivec2 p, ivec2 size, float sigma, int R) {
 }
 
 void main() {
-    ivec2 p = ivec2(gl_FragCoord.xy);
+    if (PASS_OUTSIDE) return;
+    ivec2 p = PASS_PIXEL;
     ivec2 size = textureSize(u_depth, 0);
     real Z = real(texelFetch(u_depth, p, 0).r);
 #ifndef BLUR_DISK
@@ -68,7 +76,7 @@ void main() {
 #endif
 #if defined(BLUR_HORIZONTAL) || defined(BLUR_VERTICAL)
     if (sigma <= 0.0) {
-        out_grey = texelFetch(u_src, p, 0).r;
+        PASS_WRITE(texelFetch(u_src, p, 0).r);
         return;
     }
 #ifdef BLUR_HORIZONTAL
@@ -86,10 +94,10 @@ void main() {
         acc += w * texelFetch(u_src, q, 0).r;
         wsum += w;
     }
-    out_grey = acc / wsum;
+    PASS_WRITE(acc / wsum);
 #elif defined(BLUR_HYBRID)
     if (sigma <= 0.0) {
-        out_grey = texelFetch(u_image, p, 0).r;
+        PASS_WRITE(texelFetch(u_image, p, 0).r);
         return;
     }
     float c = -0.5 / (sigma * sigma);
@@ -101,16 +109,16 @@ void main() {
         // the min/max of sigma along the column: any other sigma, and the rows read were
         // blurred with another kernel
         if (blur_sigma(real(texelFetch(u_depth, q, 0).r)) != sigma_p) {
-            out_grey = gather_gauss(u_image, p, size, sigma, R);
+            PASS_WRITE(gather_gauss(u_image, p, size, sigma, R));
             return;
         }
         float w = exp(float(k * k) * c);
         acc += w * texelFetch(u_src, q, 0).r;
         wsum += w;
     }
-    out_grey = acc / wsum;
+    PASS_WRITE(acc / wsum);
 #elif defined(BLUR_GATHER)
-    out_grey = sigma <= 0.0 ? texelFetch(u_src, p, 0).r : gather_gauss(u_src, p, size, sigma, R);
+    PASS_WRITE(sigma <= 0.0 ? texelFetch(u_src, p, 0).r : gather_gauss(u_src, p, size, sigma, R));
 #elif defined(BLUR_ROWS)
     // M_n = sum_k w_k k^(2n) (I(p + k) - I(p)), n = 0..3, w_k = exp(c k^2) of this pixel's own
     // sigma and window; out_rows = (max_k |I(p + k) - I(p)| * sum_k w_k k^8 (the remainder's
@@ -118,8 +126,7 @@ void main() {
     // the recurrence w_(k+1) = w_k a_k, a_(k+1) = a_k exp(2c) (k ulps; exp is dear on llvmpipe).
     float I0 = texelFetch(u_src, p, 0).r;
     if (sigma <= 0.0) {
-        out_moments = vec4(0.0);
-        out_rows = vec4(0.0, 0.0, -1.0, I0);
+        ROWS_WRITE(vec4(0.0), vec4(0.0, 0.0, -1.0, I0));
         return;
     }
     float c = -0.5 / (sigma * sigma);
@@ -137,11 +144,10 @@ void main() {
         N4 += w * (float(right) + float(left)) * ((kk * kk) * (kk * kk));
         F = max(F, max(abs(fr), abs(fl)));
     }
-    out_moments = M;
-    out_rows = vec4(F * N4, c, float(R), I0);
+    ROWS_WRITE(M, vec4(F * N4, c, float(R), I0));
 #elif defined(BLUR_COLUMNS)
     if (sigma <= 0.0) {
-        out_grey = texelFetch(u_image, p, 0).r;
+        PASS_WRITE(texelFetch(u_image, p, 0).r);
         return;
     }
     float c = -0.5 / (sigma * sigma);
@@ -215,12 +221,12 @@ void main() {
             av *= g2;
         }
     }
-    out_grey = acc / (Bv * Bp);
+    PASS_WRITE(acc / (Bv * Bp));
 #elif defined(BLUR_DISK)
     real r_p = blur_radius(Z);
     float r = float(r_p);
     if (r <= 0.0) {
-        out_grey = texelFetch(u_src, p, 0).r;
+        PASS_WRITE(texelFetch(u_src, p, 0).r);
         return;
     }
     int R = min(int(ceil(r_p)), MAX_RADIUS);
@@ -235,7 +241,7 @@ void main() {
             wsum += w;
         }
     }
-    out_grey = acc / wsum;
+    PASS_WRITE(acc / wsum);
 #else
 #error "blur.frag: define BLUR_HORIZONTAL, BLUR_VERTICAL, BLUR_HYBRID, BLUR_GATHER, BLUR_ROWS, BLUR_COLUMNS or BLUR_DISK"
 #endif

@@ -2,17 +2,13 @@
 // mean is taken over non-zero samples only (depth maps: 0 = no surface). With SKIP_DONE the
 // pixels subsamples.frag finished (candidate count LIST_DONE) are left as they are. Either
 // pixel stage (pixelpass.glsl; downsample.comp).
+#define GREY_PASS
 #include "pixelpass.glsl"
 #ifdef SKIP_DONE
 #include "candidates.glsl"
 #endif
 layout(binding = SAMPLER_SAMPLES) uniform sampler2D u_samples;
 
-#ifdef COMPUTE_PIXELS
-layout(r32f, binding = IMAGE_PASS_OUT) uniform writeonly image2D u_out;
-#else
-out float out_grey;
-#endif
 
 void main() {
     if (PASS_OUTSIDE) return;
@@ -31,13 +27,8 @@ void main() {
 #endif
         }
 #ifdef COVERED_MEAN
-    float grey = n > 0.0 ? acc / n : 0.0;
+    PASS_WRITE(n > 0.0 ? acc / n : 0.0);
 #else
-    float grey = acc / float(SS * SS);
-#endif
-#ifdef COMPUTE_PIXELS
-    imageStore(u_out, PASS_PIXEL, vec4(grey));
-#else
-    out_grey = grey;
+    PASS_WRITE(acc / float(SS * SS));
 #endif
 }

@@ -2,6 +2,8 @@
 // pixels beyond the image clamped to its edge. PSF_ROWS then PSF_COLUMNS: the two 1-D passes
 // of a separable kernel (u_taps, 2 RADIUS + 1 weights); PSF_2D: the whole kernel, an R32F
 // texture of (2 RADIUS + 1)^2 texels (texel (i, j): offset (i - RADIUS, j - RADIUS)).
+#define GREY_PASS
+#include "pixelpass.glsl"
 #define TAPS (2 * RADIUS + 1)
 
 layout(binding = SAMPLER_SRC) uniform sampler2D u_src;
@@ -11,10 +13,9 @@ layout(binding = SAMPLER_KERNEL) uniform sampler2D u_kernel;
 uniform float u_taps[TAPS];
 #endif
 
-out float out_grey;
-
 void main() {
-    ivec2 p = ivec2(gl_FragCoord.xy);
+    if (PASS_OUTSIDE) return;
+    ivec2 p = PASS_PIXEL;
     ivec2 last = textureSize(u_src, 0) - 1;
     float acc = 0.0;
 #if defined(PSF_2D)
@@ -31,5 +32,5 @@ void main() {
     for (int i = 0; i < TAPS; ++i)
         acc += u_taps[i] * texelFetch(u_src, clamp(p + (RADIUS - i) * step, ivec2(0), last), 0).r;
 #endif
-    out_grey = acc;
+    PASS_WRITE(acc);
 }

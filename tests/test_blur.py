@@ -400,15 +400,16 @@ def test_gl_blur_matches_numpy_mirror(gl_ctx):
 
 
 @pytest.mark.gl
+@pytest.mark.parametrize("stage", ["fragment", "compute"])
 @pytest.mark.parametrize("scheme", ["separable", "hybrid", "gather", "expansion"])
-def test_gl_blur_schemes_match_their_numpy_mirrors(gl_ctx, scheme):
+def test_gl_blur_schemes_match_their_numpy_mirrors(gl_ctx, scheme, stage):
     """Each GL scheme's passes (GLBackend.blur_passes) against its float64 mirror, and the exact
     schemes against the oracle's 2-D gather, on a float32 tilted-plate depth (ties removed)
     with a no-surface strip: separable, hybrid and gather per pixel within what float32 allows
     them (glsim.evaluation.bounds.blur); expansion within its tolerance of the exact gather
     (EXPANSION_TOL of the grey range, its remainder bound) plus the gather's rounding, and so
     within twice that of its mirror (a row's bound test near its threshold may go either way in
-    float32)."""
+    float32). Either pixel stage (fragment or compute passes)."""
     from types import SimpleNamespace
 
     shape = (72, 96)
@@ -416,6 +417,7 @@ def test_gl_blur_schemes_match_their_numpy_mirrors(gl_ctx, scheme):
     Z = _plate_depth(shape)
     img, sigma = src32.astype(np.float64), blur.blur_sigma(Z.astype(np.float64), OPTICS)
     backend = _backend(gl_ctx)
+    backend.stage = stage
     temps, stages = [], []
     out = backend.blur_passes(src32, Z, SimpleNamespace(**vars(OPTICS), scheme=scheme), float(sigma.max()),
                               shape[::-1], temps, stages)

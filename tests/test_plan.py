@@ -126,12 +126,13 @@ def test_the_environment_picks_the_pixel_stage(gl_ctx, monkeypatch, tmp_path, ca
 
 @pytest.mark.gl
 def test_the_compute_pixel_stage_gives_the_fragment_stages_bytes(gl_ctx):
-    """The compute pixel stage (the default on GPUs: exact and q4's pass 2 over pixel lists, the
-    box filter and quantisation as compute passes) writes the images, 8- and 12-bit images and
-    truth of the fragment stage (llvmpipe's default) bit for bit: every mode, float64 and
-    float32, 1 and 4 samples per pixel (mapped and Newton sub-samples), a fill factor, lighting,
-    depth of field and noise, a quadratic mesh (Q8), two cameras and two steps; and its renders
-    ran the compute passes."""
+    """The compute pixel stage (the default on GPUs: exact and q4's pass 2 over pixel lists,
+    fast's samples from its triangles' records, every full-screen pass as a compute pass)
+    writes the images, 8- and 12-bit images and truth of the fragment stage (llvmpipe's
+    default) bit for bit: every mode, float64 and float32, 1 and 4 samples per pixel (mapped and
+    Newton sub-samples), a fill factor, lighting, depth of field, noise, vignetting, a Gaussian
+    PSF and fixed-pattern noise, a quadratic mesh (Q8), two cameras and two steps; and its
+    renders ran the compute passes."""
     from test_quadratic import scene as q8_scene, surface_mesh
 
     from glsim.backends.gl.backend import GLBackend
@@ -141,6 +142,8 @@ def test_the_compute_pixel_stage_gives_the_fragment_stages_bytes(gl_ctx):
     lit = dataclasses.replace(lit, optics=dataclasses.replace(lit.optics, f_number=1.0,
                                                               pixel_pitch=30.0 / 6818.0 / 4))
     twelve = dataclasses.replace(plain, cameras=tuple(dataclasses.replace(c, bit_depth=12) for c in plain.cameras))
+    camera = demo_effects(plain).replace(psf={"kind": "gaussian", "sigma": 0.8}, vignetting={"natural": True},
+                                         sensor={"prnu": 1.0, "dsnu": 2.0})   # the camera passes too
     options = [{"mode": m, "samples_per_pixel": s} for m in ("exact", "q4", "fast") for s in (1, 4)]
     options += [{"mode": "exact", "samples_per_pixel": 4, "subsamples": "newton"},
                 {"mode": "exact", "precision": "fp32"}, {"mode": "q4", "precision": "fp32", "samples_per_pixel": 4}]
@@ -148,6 +151,7 @@ def test_the_compute_pixel_stage_gives_the_fragment_stages_bytes(gl_ctx):
              (plain.replace(sensor={"fill_factor": 0.5}), None, [{"mode": "exact", "samples_per_pixel": 4}], ((0, 1),)),
              (lit, None, options[:6], ((0, 1), (1, 2))),
              (twelve, None, options[:6], ((1, 1),)),
+             (camera, None, options[:6], ((0, 1),)),
              (q8_scene(), surface_mesh("quad8"), options[:4], ((0, 1),))]
 
     def renders(stage):
@@ -170,7 +174,9 @@ def test_the_compute_pixel_stage_gives_the_fragment_stages_bytes(gl_ctx):
     assert {"classify.comp", "deform.comp", "resolve.comp", "downsample.comp", "quantize.comp"} <= ran_c
     assert not {"classify.comp", "deform.comp", "resolve.comp", "downsample.comp", "quantize.comp"} & ran_f
     assert "classify.frag" in ran_f and "classify.frag" in ran_c   # (compute: Newton's pixels at 1 spp only)
-    assert {"blur.frag", "noise.frag"} <= ran_c
+    assert {"blur.comp", "noise.comp", "vignette.comp", "psf.comp", "fpn.comp"} <= ran_c
+    assert not {x for x in ran_c if x.endswith(".frag")} - {"deform.frag", "classify.frag", "subsamples.frag",
+                                                           "rays.frag", "candidates.frag"}
     assert len(fragment) == len(compute)
     for a, b in zip(fragment, compute):
         np.testing.assert_array_equal(a, b)

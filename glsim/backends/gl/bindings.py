@@ -34,7 +34,8 @@ STORAGE = {
 IMAGES = {"CAND_COUNT": 0, "CAND_LIST": 1,   # candidate lists (candidates.glsl)
           # the deformation target written by the compute pixel stage (deform.comp, resolve.comp)
           "GREY": 2, "MAP": 3, "EXTRA": 4, "LO": 5, "DEPTH": 6,
-          "PASS_OUT": 7}   # a full-screen pass's output in the compute stage (pixelpass.glsl)
+          "PASS_OUT": 7,   # a full-screen pass's output in the compute stage (pixelpass.glsl)
+          "PASS_OUT_B": 6}  # its second (blur.frag's row moments): DEPTH's unit, never bound in the same pass
 SAMPLERS = {           # by the sampler's uniform name (SAMPLER_<name without u_, upper case>)
     "u_ref": 0,        # the reference speckle image (interp.glsl)
     "u_rays": 1,       # the ray map at the pass's samples (rays.frag)

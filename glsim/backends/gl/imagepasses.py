@@ -1,8 +1,8 @@
 """The GL backend's image passes: full-screen fragment programs over a texture — box filter,
 depth-of-field blur, camera effects, noise, quantisation — drawn into scratch textures reused
 across frames (:class:`ImagePasses`, a part of :class:`glsim.backends.gl.backend.GLBackend`);
-the box filter and quantisation also as compute passes (the compute pixel stage:
-glsim.backends.gl.plan; shaders/pixelpass.glsl).
+each also as a compute pass (the compute pixel stage: glsim.backends.gl.plan;
+shaders/pixelpass.glsl).
 """
 from __future__ import annotations
 
@@ -19,7 +19,7 @@ from glsim.backends.gl.uniforms import set_uniform
 
 
 _IMAGE_FORMATS = {"f4": "r32f", "u1": "r8ui", "u2": "r16ui"}   # a compute pass's output image, by dtype
-_PASS_OUT = image("PASS_OUT")
+_PASS_OUT = (image("PASS_OUT"), image("PASS_OUT_B"))   # a compute pass's outputs
 
 
 class ImagePasses:
@@ -40,7 +40,7 @@ class ImagePasses:
         discards keep their values); it is returned. ``scratch``: a frame's list of textures
         on loan: the outputs are taken from the backend's reused ones and added to it
         (:meth:`_recycle` gives them back), not made and released. ``compute``: as the compute
-        pass of the same shader (its .comp file; one output, an image of ``dtype``)."""
+        pass of the same shader (its .comp file; its outputs images of ``dtype``, two at most)."""
         ctx = self.ctx
         W, H = size
         if compute:
@@ -69,7 +69,8 @@ class ImagePasses:
             fbo = ctx.framebuffer(color_attachments=list(outs))
             uploaded.append(fbo)
         if compute:
-            outs[0].bind_to_image(_PASS_OUT, read=False, write=True)
+            for unit, tex in zip(_PASS_OUT, outs):
+                tex.bind_to_image(unit, read=False, write=True)
             prog.run((W + 15) // 16, (H + 7) // 8)   # pixelpass.glsl's work groups
             ctx.memory_barrier()   # its image stores seen by the reads and passes after
         else:
@@ -131,7 +132,7 @@ class ImagePasses:
             # FP64: sigma and window in double from double uniforms, bit for bit numpy's
             defines = {name: None, "MAX_RADIUS": radius, **({"FP64": None} if self.fp64 else {})}
             out = self.fullscreen_pass("blur.frag", defines, {**inputs, "u_depth": depth}, uniforms, size, components,
-                                       scratch=temps)
+                                       scratch=temps, compute=self.stage == "compute")
             stages.append(name.lower())
             return out
 
@@ -204,7 +205,7 @@ class ImagePasses:
         H, W = grey.shape if isinstance(grey, np.ndarray) else grey.size[::-1]
         uniforms = {**noise.shader_uniforms(params, bit_depth), "u_seed": int(seed), "u_width": W}
         return self.fullscreen_pass("noise.frag", noise.shader_defines(params), inputs, uniforms, (W, H),
-                                    scratch=scratch)
+                                    scratch=scratch, compute=self.stage == "compute")
 
     def camera_passes(self, grey, fx, size: tuple[int, int], scratch: list, stages: list):
         """Vignetting, lens PSF and fixed-pattern noise where ``fx`` asks for them

@@ -10,12 +10,13 @@ indirect draws whose instance counts the candidate pass sets on the GPU (0: noth
 
 The pixel stage: "fragment" runs the exact and q4 modes' pass 2 as full-screen fragment
 programs on classify.frag's depth layers (early depth tests, so that each shades only its own
-samples), "compute" as compute passes over classify.comp's lists of their pixels, dispatched
-indirectly (as many work groups as samples listed), and the box filter and quantisation (every
-mode) as compute passes too — the same code (deform.frag, downsample.frag, quantize.frag with
-COMPUTE_PIXELS), the same bytes (tested). Mode fast draws its triangles in both; in the compute
-stage the fragment pass writes only each sample's triangle and deform.comp shades the samples
-from the triangles' records. :func:`pixel_stage` picks the stage per driver.
+samples) and every full-screen pass as a fragment pass; "compute" runs pass 2 as compute passes
+over classify.comp's lists of their pixels, dispatched indirectly (as many work groups as
+samples listed), and the box filter, the image effects and the quantisation as compute passes —
+the same code (deform.frag and each pass's shader with COMPUTE_PIXELS), the same bytes
+(tested). Mode fast draws its triangles in both; in the compute stage that fragment pass writes
+only each sample's triangle and deform.comp shades the samples from the triangles' records.
+:func:`pixel_stage` picks the stage per driver.
 """
 from __future__ import annotations
 
@@ -230,15 +231,16 @@ def _plan(opts, truth: bool, fp64_driver: bool, fx: EffectsShape, pinhole: bool,
         passes.append(Pass("deform.frag", "overflow"))
     if s > 1:   # grey, and the covered samples' mean depth
         passes += [Pass("downsample.comp" if stage == "compute" else "downsample.frag")] * (1 + blur)
+    ext = "comp" if stage == "compute" else "frag"   # the image effects' passes in either stage
     if blur:
-        passes += [Pass("blur.frag", "", name) for name in BLUR_PASSES[fx.scheme]]
+        passes += [Pass(f"blur.{ext}", "", name) for name in BLUR_PASSES[fx.scheme]]
     if fx.vignette:
-        passes.append(Pass("vignette.frag"))
+        passes.append(Pass(f"vignette.{ext}"))
     if fx.psf is not None:
-        passes += [Pass("psf.frag", "", v) for v in (("PSF_ROWS", "PSF_COLUMNS") if fx.psf == "separable"
-                                                       else ("PSF_2D",))]
+        passes += [Pass(f"psf.{ext}", "", v) for v in (("PSF_ROWS", "PSF_COLUMNS") if fx.psf == "separable"
+                                                         else ("PSF_2D",))]
     if fx.fixed_pattern:
-        passes.append(Pass("fpn.frag"))
+        passes.append(Pass(f"fpn.{ext}"))
     if fx.noise:
-        passes.append(Pass("noise.frag"))
+        passes.append(Pass(f"noise.{ext}"))
     return Plan(tuple(sorted(d.items())), rays, ref, camera_local, sub, stage, tuple(passes))

@@ -1,0 +1,3 @@
+// blur.frag as a compute pass (the pixel stage "compute"; pixelpass.glsl).
+#define COMPUTE_PIXELS
+#include "blur.frag"

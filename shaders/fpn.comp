@@ -1,0 +1,3 @@
+// fpn.frag as a compute pass (the pixel stage "compute"; pixelpass.glsl).
+#define COMPUTE_PIXELS
+#include "fpn.frag"

@@ -1,0 +1,3 @@
+// vignette.frag as a compute pass (the pixel stage "compute"; pixelpass.glsl).
+#define COMPUTE_PIXELS
+#include "vignette.frag"
