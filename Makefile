@@ -15,6 +15,8 @@ demo: venv
 # even on two cores
 test: venv x11 readme-check
 	$(BIN)/python -m pytest -q -ra -n 2 --durations=25
+	# the GL tier again in the pixel stage a GPU gets (llvmpipe's own is fragment)
+	GLSIM_PIXEL_STAGE=compute $(BIN)/python -m pytest -q -ra -n 2 -m gl
 
 # every measured figure in README.md and docs/ equals what its bench/results file gives
 readme-check: venv

@@ -1,6 +1,7 @@
 // A full-screen pass in either pixel stage (glsim.backends.gl.plan): PASS_PIXEL is the pixel
 // this invocation writes, PASS_SKIP leaves it as it is. COMPUTE_PIXELS: a compute pass, 16×8
-// work groups over the output image u_out (unit IMAGE_PASS_OUT), whose invocations beyond it
+// work groups over the output image u_out (unit IMAGE_PASS_OUT; an integer one's format
+// OUT_FORMAT), whose invocations beyond it
 // end at once (PASS_OUTSIDE, main's first test); else a fragment pass (fullscreen.vert).
 // GREY_PASS: the pass writes one float per pixel, PASS_WRITE(value) (an R32F image or output);
 // others declare their own u_out (compute) and outputs (fragment).

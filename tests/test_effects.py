@@ -75,24 +75,28 @@ def test_effect_free_scene_runs_no_effect_stage():
 
 
 @pytest.mark.gl
-def test_programs_carry_only_the_scene_effects(effects_scene, gl_ctx):
+@pytest.mark.parametrize("stage", ["fragment", "compute"])
+def test_programs_carry_only_the_scene_effects(effects_scene, gl_ctx, stage):
+    ext = {"fragment": "frag", "compute": "comp"}[stage]   # (the pixel stage's pass programs)
     for effect, expect in (("lighting", {"LIGHTING", "MAX_LIGHTS"}), ("optics", {"DEPTH_OUT", "DEPTH_LOCATION"}),
                            ("noise", set()), (None, set())):
         scene = only(effects_scene, effect)
         with Renderer(scene, "gl", ctx=gl_ctx) as r:
+            r.backend.stage = stage
             res = r.render(0, 1, mode="exact")
             compiled = r.backend.programs.compiled
-        deform = [d for files, d in compiled if "deform.frag" in files and "FALLBACK" not in d]
+        deform = [d for files, d in compiled if files[-1] == f"deform.{ext}" and "FALLBACK" not in d]
         assert len(deform) == 1
         extra = set(deform[0]) - {"MODE_EXACT", "INTERP_BSPLINE3", "SS", "FP64", "EARLY_TESTS", "REF_PINHOLE", "PIXEL_TIES"}
         assert extra == expect, effect
-        # rays: exact mode's ray map; view.comp, candidates.comp, classify.frag, resolve.frag: its
-        # per-view element pass (covers on the GPU), the candidate lists, their layers, and the
-        # indirect draws pass 1 enables (big covers' candidates.frag, resolve.frag for pixels
-        # with several candidates, deform.frag's FALLBACK): compiled always, drawn where needed
+        # rays: exact mode's ray map; view.comp, candidates.comp, classify, resolve: its per-view
+        # element pass (covers on the GPU), the candidate lists, their layers, and the indirect
+        # draws or dispatches pass 1 enables (big covers' candidates.frag, resolve for pixels
+        # with several candidates, deform.frag's FALLBACK): compiled always, run where needed
         passes = {files[-1] for files, _ in compiled} - {"deform.frag", "rays.frag", "view.comp", "candidates.comp",
-                                                         "candidates.frag", "classify.frag", "resolve.frag"}
-        assert passes == {"lighting": set(), "optics": {"blur.frag"}, "noise": {"noise.frag"}, None: set()}[effect]
+                                                         "candidates.frag", f"classify.{ext}", f"resolve.{ext}",
+                                                         f"deform.{ext}"}
+        assert passes == {"lighting": set(), "optics": {f"blur.{ext}"}, "noise": {f"noise.{ext}"}, None: set()}[effect]
         assert ("noise" in res.stages) == (effect == "noise")
 
 

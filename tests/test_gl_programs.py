@@ -201,29 +201,44 @@ def test_glsl_invert_closed_matches_the_oracle(gl_ctx):
 
 
 @pytest.mark.gl
-def test_programs_compiled_only_with_what_the_scene_asks_for(gl_ctx):
+@pytest.mark.parametrize("stage", ["fragment", "compute"])
+def test_programs_compiled_only_with_what_the_scene_asks_for(gl_ctx, stage):
     """The GL program's #defines are exactly the scene's choices: mode, interpolation,
-    supersampling and precision (and EARLY_TESTS, which every full-screen pass 2 program has;
-    the overflow fallback's program adds FALLBACK); a scene without truth maps compiles no
-    truth outputs."""
+    supersampling and precision (and EARLY_TESTS, which every full-screen pass 2 program of the
+    fragment stage has; the overflow fallback's program adds FALLBACK); a scene without truth
+    maps compiles no truth outputs."""
     scene = bulge_scene(size=(203, 154), steps=1, mode="q4", interpolation="cubic", samples_per_pixel=4)
     with Renderer(scene, "gl", ctx=gl_ctx) as r:
+        r.backend.stage = stage
         r.render(0, 1)
         compiled = r.backend.programs.compiled
-    deform = [d for files, d in compiled if "deform.frag" in files]
     scene_defines = {"MODE_Q4": None, "INTERP_CUBIC": None, "SS": 2, "FP64": None}
-    assert deform == [{**scene_defines, "EARLY_TESTS": None}, {**scene_defines, "FALLBACK": None}]
-    assert [d for files, d in compiled if "downsample.frag" in files] == [{"SS": 2}]
+    deform = [d for files, d in compiled if "deform.frag" in files]
+    if stage == "fragment":
+        assert deform == [{**scene_defines, "EARLY_TESTS": None}, {**scene_defines, "FALLBACK": None}]
+    else:
+        assert deform == [{**scene_defines, "FALLBACK": None}]
+        assert [d for files, d in compiled if files == ("deform.comp",)] == [scene_defines]
+    ext = {"fragment": "frag", "compute": "comp"}[stage]
+    assert [d for files, d in compiled if f"downsample.{ext}" in files] == [{"SS": 2}]
 
 
 @pytest.mark.gl
-def test_fast_mode_compiles_no_double_arithmetic(gl_ctx):
+@pytest.mark.parametrize("stage", ["fragment", "compute"])
+def test_fast_mode_compiles_no_double_arithmetic(gl_ctx, stage):
+    """Mode fast's programs are float32 only: its triangles (all that the fragment stage
+    compiles) and, in the compute stage, their indices' shading."""
     scene = bulge_scene(size=(203, 154), steps=1, mode="fast")
     with Renderer(scene, "gl", ctx=gl_ctx) as r:
+        r.backend.stage = stage
         r.render(0, 1, truth=True)
-        (files, defines), = r.backend.programs.compiled
-    assert files == ("deform.vert", "fast.geom", "deform.frag")
-    assert set(defines) == {"MODE_FAST", "INTERP_BSPLINE3", "SS", "TRUTH"}
+        compiled = r.backend.programs.compiled
+    plain = {"MODE_FAST", "INTERP_BSPLINE3", "SS", "TRUTH"}
+    if stage == "fragment":
+        assert [(files, set(d)) for files, d in compiled] == [(("deform.vert", "fast.geom", "deform.frag"), plain)]
+    else:
+        assert [(files, set(d)) for files, d in compiled] == [
+            (("deform.vert", "fast.geom", "deform.frag"), plain | {"FAST_VISIBILITY"}), (("deform.comp",), plain)]
 
 
 def test_missing_egl_gives_one_clear_error(monkeypatch):

@@ -67,19 +67,23 @@ def test_effects_add_their_passes_only():
 
 
 @pytest.mark.gl
+@pytest.mark.parametrize("stage", ["fragment", "compute"])
 @pytest.mark.parametrize("options", [dict(mode="fast"), dict(mode="q4"), dict(mode="exact", samples_per_pixel=4),
                                      dict(mode="exact", samples_per_pixel=4, subsamples="newton")])
-def test_a_render_runs_the_plans_passes(options, gl_ctx):
-    """Every pass that ran is in the plan; every unconditional pass of the plan ran."""
+def test_a_render_runs_the_plans_passes(options, stage, gl_ctx):
+    """Every pass that ran is in the plan; every unconditional pass of the plan ran (either
+    pixel stage)."""
     scene = demo_effects(bulge_scene(size=(96, 72), steps=1))
     with Renderer(scene, "gl", ctx=gl_ctx) as r:
+        r.backend.stage = stage
         r.render(0, 1, **options)                       # programs built, ray map made
         with r.backend.pass_times() as ran:
             r.render(0, 1, **options)
         view = r.geometry.view(scene.cameras[0], 1)
         fx = prepare_effects(scene, view.step_geo.deformed, r.drawn_mesh.quads, scene.cameras[0], 0, 1,
                              view.corner_depths())
-    p = plan(dataclasses.replace(scene.render, **options), False, True, fx, scene.cameras[0], r.reference.camera)
+    p = plan(dataclasses.replace(scene.render, **options), False, True, fx, scene.cameras[0], r.reference.camera,
+             stage=stage)
     assert set(ran) <= set(shaders(p)), (sorted(ran), shaders(p))
     assert {x.shader for x in p.passes if not x.when} <= set(ran), (sorted(ran), shaders(p))
 

@@ -109,10 +109,11 @@ def test_a_recording_keeps_state_calls_and_abandons_one_that_makes_or_reads(gl_c
 
 
 @pytest.mark.gl
-def test_a_replay_issues_the_made_pass_calls_where_patches_see_them(gl_ctx):
+@pytest.mark.parametrize("stage", ["fragment", "compute"])
+def test_a_replay_issues_the_made_pass_calls_where_patches_see_them(gl_ctx, stage):
     """A replay looks its methods up when it runs: a patch of moderngl's classes (as driver_time
     and pass_times make) sees the same state-changing calls, in number and kind, as in the
-    render that recorded them, and pass timing names the replayed passes."""
+    render that recorded them, and pass timing names the replayed passes (either pixel stage)."""
     import collections
     import functools
 
@@ -130,6 +131,7 @@ def test_a_replay_issues_the_made_pass_calls_where_patches_see_them(gl_ctx):
 
     scene = plate_scene((96, 72), fx=1200.0, second={"name": "d", "t": (-4.0, 0.0, 0.0)})
     with Renderer(scene, "gl", ctx=gl_ctx) as r:
+        r.backend.stage = stage
         kind = {"mode": "exact", "samples_per_pixel": 4, "quantize": True}
         r.render("c", 0, **kind)
         seen = [collections.Counter(), collections.Counter()]
@@ -140,8 +142,9 @@ def test_a_replay_issues_the_made_pass_calls_where_patches_see_them(gl_ctx):
             r.render("c", 0, **kind)
         assert r.backend.frames.replays == 2 and r.backend.frames.recordings == 1
     assert seen[0] == seen[1] and sum(seen[1].values()) > 50
-    assert {"view.comp", "candidates.comp", "classify.frag", "deform.frag", "downsample.frag",
-            "quantize.frag"} <= set(p)
+    ext = {"fragment": "frag", "compute": "comp"}[stage]
+    assert {"view.comp", "candidates.comp", f"classify.{ext}", f"deform.{ext}", f"downsample.{ext}",
+            f"quantize.{ext}"} <= set(p)
 
 
 @pytest.mark.gl

@@ -18,7 +18,7 @@ from glsim.backends.gl.sensor_passes import camera_passes
 from glsim.backends.gl.uniforms import set_uniform
 
 
-_IMAGE_FORMATS = {"f4": "r32f", "u1": "r8ui", "u2": "r16ui"}   # a compute pass's output image, by dtype
+_UINT_FORMATS = {"u1": "r8ui", "u2": "r16ui"}   # a compute pass's integer output image, by dtype
 _PASS_OUT = (image("PASS_OUT"), image("PASS_OUT_B"))   # a compute pass's outputs
 
 
@@ -44,8 +44,8 @@ class ImagePasses:
         ctx = self.ctx
         W, H = size
         if compute:
-            prog = self.programs.compute(frag.replace(".frag", ".comp"),
-                                         {**defines, "OUT_FORMAT": _IMAGE_FORMATS[dtype]})
+            fmt = {"OUT_FORMAT": _UINT_FORMATS[dtype]} if dtype in _UINT_FORMATS else {}   # (quantize.frag's)
+            prog = self.programs.compute(frag.replace(".frag", ".comp"), {**defines, **fmt})
         else:
             prog = self.programs.program("fullscreen.vert", frag, defines=defines)
         uploaded = []
