@@ -315,21 +315,28 @@ class GeometryBuffers:
         prog.run(group_x=gx, group_y=(groups + gx - 1) // gx)
 
     # ---- candidate lists (modes exact and q4) -----------------------------------------------
+    def _sized(self, name: str, W: int, H: int, make):
+        """``make()``'s GL object(s) for the image size W×H under ``name``, made once; those made
+        for another size are released (a renderer draws one camera size after another)."""
+        key = (name, W, H)
+        hit = self._bufs.get(key)
+        if hit is None:
+            for k in [k for k in self._bufs if isinstance(k, tuple) and k[0] == name]:
+                _release(self._bufs.pop(k))
+            hit = self._bufs[key] = make()
+        return hit
+
     def _lists(self, W: int, H: int):
         """Per-pixel candidate count (r32ui) and list (CANDIDATES layers), a framebuffer to clear
         the counts and an attachment-less one for pass 1, and the list flags (candidates.glsl)."""
-        key = ("lists", W, H)
-        hit = self._bufs.get(key)
-        if hit is None:
-            for k in [k for k in self._bufs if isinstance(k, tuple) and k[0] == "lists"]:
-                for obj in self._bufs.pop(k):
-                    obj.release()
-            ctx = self.ctx
+        ctx = self.ctx
+
+        def make():
             count = ctx.texture((W, H), 1, dtype="u4")
             lists = ctx.texture_array((W, H, CANDIDATES), 1, dtype="u4")
-            hit = self._bufs[key] = (count, lists, ctx.framebuffer(color_attachments=[count]),
-                                     ctx.empty_framebuffer((W, H)), ctx.buffer(self._draw_commands))
-        return hit
+            return (count, lists, ctx.framebuffer(color_attachments=[count]), ctx.empty_framebuffer((W, H)),
+                    ctx.buffer(self._draw_commands))
+        return self._sized("lists", W, H, make)
 
     @functools.cached_property
     def _draw_commands(self) -> bytes:
@@ -385,12 +392,7 @@ class GeometryBuffers:
         and those with 2..CANDIDATES (shaders/pixellists.glsl) and sets their indirect dispatches
         (one invocation per sample at ``s``×``s`` per pixel);
         returns the lists' buffer (binding PIXEL_LISTS; dispatch offsets LAYER_DISPATCH)."""
-        key = ("pixel_lists", W, H)
-        if key not in self._bufs:
-            for k in [k for k in self._bufs if isinstance(k, tuple) and k[0] == "pixel_lists"]:
-                self._bufs.pop(k).release()
-            self._bufs[key] = self.ctx.buffer(reserve=4 * (8 + W * H))
-        buf = self._bufs[key]
+        buf = self._sized("pixel_lists", W, H, lambda: self.ctx.buffer(reserve=4 * (8 + W * H)))
         buf.write(_LAYERS_START)
         buf.bind_to_storage_buffer(storage("PIXEL_LISTS"))
         self.bind_lists(W, H)
