@@ -15,6 +15,7 @@ import glsim.render
 import glsim.stages.geometry
 import glsim.stages.view
 from glsim.errors import RenderWarning
+from glsim.evaluation import bounds
 from glsim.render import Renderer
 from glsim.scene import Plate, Scene, Specimen, bulge_scene
 from glsim.scene.camera import Camera, Distortion
@@ -86,13 +87,14 @@ def test_lighting_normals_once_per_step_not_per_view(gl_ctx, monkeypatch, flat):
     monkeypatch.setattr(glsim.effects, "corner_normals", per_view)
     with Renderer(scene, "gl", ctx=gl_ctx) as g:
         images = [g.render(cam, 1).image for cam in (0, 1)]
+        ties = [bounds.renderer_ties(g, scene.render.mode, cam, 1) for cam in (0, 1)]
         assert per_view.calls == 0 and g.geometry.step_builds == 1
         assert g.backend.geometry.uploads["step"] == 2          # nodes and normals, once
     with Renderer(scene, "cpu") as c:
         ref = [c.render(cam, 1).image for cam in (0, 1)]
-    for a, b in zip(images, ref):
-        d = np.abs(a.astype(float) - b) * 255
-        assert (d > 0.5).sum() <= 8 and np.median(d) < 1e-3
+    for a, b, tie in zip(images, ref, ties):
+        d = np.abs(a.astype(float) - b) * 255   # within 0.5 grey levels but at coverage ties
+        assert not ((d > 0.5) & ~tie).any() and np.median(d) < 1e-3
 
 
 @pytest.mark.gl
@@ -303,11 +305,12 @@ def test_elements_too_large_for_one_invocation_are_listed_by_their_covers(gl_ctx
         a = g.render(0, 0, truth=True, mode=mode)
         b = c.render(0, 0, truth=True, mode=mode)
         built = [d for files, d in g.backend.programs.compiled if files == ("exact.vert", "candidates.frag")]
+        tie = bounds.renderer_ties(g, mode, 0, 0)
     assert built == [{"BIG_ONLY": None}]
     assert np.array_equal(a.truth.mask, b.truth.mask) and (a.truth.element == 0).sum() > 50_000
-    differ = a.truth.element != b.truth.element     # only on shared edges: the same point either way
+    differ = a.truth.element != b.truth.element     # only at ties on shared edges: the same point either way
     assert np.abs(a.truth.X_deformed[differ] - b.truth.X_deformed[differ]).max(initial=0) < 1e-9
-    assert differ.sum() < 0.01 * a.truth.mask.sum()
+    assert not (differ & ~tie).any()
     assert np.abs(a.image.astype(float) - b.image).max() * 255 < 0.01
 
 

@@ -36,11 +36,14 @@ class Capabilities:
     float32 where False); ``passes``: GL passes that benches time one by one (``pass_times``) and
     full-screen passes (``fullscreen_pass``); ``max_size``: the largest texture and render-target
     side the device takes (px; GL_MAX_TEXTURE_SIZE and GL_MAX_RENDERBUFFER_SIZE), None where there
-    is none."""
+    is none; ``subpixel_bits``: the rasterizer's sub-pixel precision (GL_SUBPIXEL_BITS: fast mode's
+    vertices are snapped to 2^-bits px, glsim.evaluation.bounds.tie_px), None where coverage is
+    decided in float64."""
     device_geometry: bool
     float64: bool
     passes: bool
     max_size: int | None = None
+    subpixel_bits: int | None = None
 
 
 @dataclass(frozen=True, eq=False)

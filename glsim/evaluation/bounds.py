@@ -56,6 +56,120 @@ def fast_bound(fx: float, field: np.ndarray, mask: np.ndarray) -> np.ndarray:
     return fast_px(fx) * per_pixel(field, mask) + FLOAT64
 
 
+def tie_px(mode: str, fx: float, subpixel_bits: int | None) -> float:
+    """How far (px) from an element edge a sample may legitimately be covered differently by GL
+    and the oracle: exact and q4 decide coverage in float64 from the same float64 corners
+    (FLOAT64); fast rasterizes its float32 vertices (:func:`fast_px` from the oracle's) after
+    snapping them to the rasterizer's sub-pixel grid, ``subpixel_bits`` (GL_SUBPIXEL_BITS): a
+    vertex moves by at most 2^-(bits+1) per axis, so under 2^-bits px, and an edge by at most what
+    its ends move."""
+    if mode != "fast":
+        return FLOAT64
+    return fast_px(fx) + 2.0 ** -subpixel_bits
+
+
+EDGE_PIECES = 8   # a distorted exact-mode edge: pieces of its polyline (:func:`near_edges`)
+
+
+def near_edges(cam, nodes: np.ndarray, quads: np.ndarray, radius: float, spp: int = 1,
+               curved: bool = False) -> np.ndarray:
+    """(H, W) bool: the pixels with a sample (:func:`glsim.scene.camera.pixel_grid`'s s×s points)
+    within ``radius`` px of an element edge as ``cam`` projects it — the pixels where a coverage
+    tie (:func:`tie_px`) may change a sample's element, or cover it or not (the silhouette).
+    ``nodes`` (N, 3) world mm, ``quads`` (M, 4); edges with an end the camera cannot project are
+    left out (the fast and q4 modes drop their elements). The edges are straight between their
+    projected ends, as fast and q4 draw them and as a pinhole camera images any straight edge;
+    with ``curved`` (the exact mode, whose edges a distorted camera images as curves) each is
+    a polyline of EDGE_PIECES projected points, the radius widened by its largest second
+    difference |p₋ − 2p + p₊| (the chords' deviation from the curve is about an eighth of it)."""
+    from glsim.scene.camera import project
+
+    s = int(round(np.sqrt(spp)))
+    W, H = cam.size
+    pairs = np.sort(np.stack([quads, np.roll(quads, -1, axis=1)], -1).reshape(-1, 2), axis=1)
+    a, b = np.unique(pairs, axis=0).T
+    if curved and np.any(cam.distortion.coeffs != 0):
+        t = np.linspace(0.0, 1.0, EDGE_PIECES + 1)
+        P = nodes[a, None] * (1 - t[None, :, None]) + nodes[b, None] * t[None, :, None]
+        uv, ok = project(P.reshape(-1, 3), cam)
+        uv, ok = uv.reshape(len(a), -1, 2), ok.reshape(len(a), -1).all(axis=1)
+        bend = np.linalg.norm(uv[:, :-2] - 2 * uv[:, 1:-1] + uv[:, 2:], axis=-1).max(axis=1)
+        A, B = uv[ok, :-1].reshape(-1, 2), uv[ok, 1:].reshape(-1, 2)
+        r = np.repeat(radius + bend[ok], EDGE_PIECES)
+    else:
+        uv, ok = project(nodes, cam)
+        keep = ok[a] & ok[b]
+        A, B = uv[a[keep]], uv[b[keep]]
+        r = np.full(len(A), float(radius))
+    hit = np.zeros((H * s, W * s), bool)
+    steep = np.abs(B[:, 1] - A[:, 1]) > np.abs(B[:, 0] - A[:, 0])
+    for axis in (0, 1):   # walk a segment's sample columns (mostly horizontal) or rows (steep)
+        sel = steep if axis else ~steep
+        _mark(hit if axis == 0 else hit.T, A[sel][:, [axis, 1 - axis]], B[sel][:, [axis, 1 - axis]], r[sel], s)
+    return hit.reshape(H, s, W, s).any(axis=(1, 3))
+
+
+def _mark(hit: np.ndarray, A: np.ndarray, B: np.ndarray, r: np.ndarray, s: int) -> None:
+    """Set ``hit`` (rows along y, columns along x: samples at (k + 0.5)/s − 0.5 px) where a
+    sample lies within ``r`` of a segment A→B whose slope |Δy/Δx| ≤ 1. Each column x the segment
+    (widened by r) spans is looked at: its point within r of the segment lies within 2r of the
+    segment's y at x (clamped to the segment: r·|slope| more at an end), so the rows within 2r
+    of it are the candidates, kept where their distance to the segment is ≤ r."""
+    n_rows, n_cols = hit.shape
+    idx = lambda x: (x + 0.5) * s - 0.5   # noqa: E731  (px → sample index)
+    lo = np.maximum(np.ceil(idx(np.minimum(A[:, 0], B[:, 0]) - r)), 0).astype(np.int64)
+    hi = np.minimum(np.floor(idx(np.maximum(A[:, 0], B[:, 0]) + r)), n_cols - 1).astype(np.int64)
+    count = np.maximum(hi - lo + 1, 0)
+    seg = np.repeat(np.arange(len(A)), count)
+    col = lo[seg] + np.arange(count.sum()) - np.repeat(np.cumsum(count) - count, count)
+    a, d, rr = A[seg], (B - A)[seg], r[seg]
+    x = (col + 0.5) / s - 0.5
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t = np.clip(np.where(d[:, 0] != 0, (x - a[:, 0]) / d[:, 0], 0.0), 0.0, 1.0)
+    y = a[:, 1] + t * d[:, 1]
+    first = np.ceil(idx(y - 2 * rr)).astype(np.int64)
+    last = np.floor(idx(y + 2 * rr)).astype(np.int64)
+    for k in range(int((last - first).max(initial=-1)) + 1):
+        row = first + k
+        ok = (row <= last) & (row >= 0) & (row < n_rows)
+        py = (row + 0.5) / s - 0.5
+        dd = (d * d).sum(-1)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            u = np.clip(np.where(dd > 0, ((x - a[:, 0]) * d[:, 0] + (py - a[:, 1]) * d[:, 1]) / dd, 0.0), 0.0, 1.0)
+        near = np.hypot(x - a[:, 0] - u * d[:, 0], py - a[:, 1] - u * d[:, 1]) <= rr
+        hit[row[ok & near], col[ok & near]] = True
+
+
+def tie_pixels(mode: str, cam, nodes: np.ndarray, quads: np.ndarray, subpixel_bits: int | None,
+               spp: int = 1) -> np.ndarray:
+    """:func:`near_edges` within ``mode``'s :func:`tie_px`: where GL's image, mask or element map
+    may differ from the oracle's by a sample decided the other way (element edges curved in the
+    exact mode under distortion)."""
+    return near_edges(cam, nodes, quads, tie_px(mode, cam.fx, subpixel_bits), spp, curved=mode == "exact")
+
+
+def renderer_ties(renderer, mode: str, cam: int, step: int, spp: int = 1) -> np.ndarray:
+    """:func:`tie_pixels` of camera ``cam`` at ``step`` in a GL renderer (its mesh, and its
+    rasterizer's GL_SUBPIXEL_BITS); with the scene's depth of field, grown by the blur's reach
+    (a sample decided the other way changes every pixel whose kernel takes it in: the largest
+    kernel radius over the specimen's depths, which lie between its nodes')."""
+    from glsim.effects import dof
+    from glsim.scene.camera import to_camera
+
+    camera, nodes = renderer.scene.cameras[cam], renderer.mesh.deformed(step)
+    tie = tie_pixels(mode, camera, nodes, renderer.mesh.quads, renderer.backend.capabilities.subpixel_bits, spp)
+    optics = renderer.scene.optics
+    if optics is None or not tie.any():
+        return tie
+    size = dof.blur_sigma(to_camera(nodes, camera)[:, 2], optics).max()
+    reach = int(dof.kernel_radius(size, getattr(optics, "kernel", "gaussian")))
+    if reach == 0:
+        return tie
+    import cv2
+
+    return cv2.dilate(tie.astype(np.uint8), np.ones((2 * reach + 1, 2 * reach + 1), np.uint8)).astype(bool)
+
+
 def camera_passes(fx, base: np.ndarray) -> float:
     """The largest |GL − oracle| (full scale) the float32 arithmetic of the camera passes allows
     on the same input image ``base`` with :class:`~glsim.effects.Effects` ``fx`` (M = max |value|

@@ -7,9 +7,9 @@ inverse rigid motion (X_undeformed), and its coverage is the projected outline. 
 draws the cases from a fixed derandomized seed with a small example budget and no database:
 ``make test`` stays fast and gives the same cases on every run.
 
-Tolerances as in test_hard_geometry: mask exact 1e-6 px away from the outline (GL fast:
-1/128 px, the rasterizer's snapping); X within 1e-9 mm in exact mode and in the oracle's fast
-mode, 1e-3 mm in GL's fast mode (float32 ref_uv). q4 maps in the image plane, so only its mask
+Tolerances as in test_hard_geometry: mask exact 1e-6 px away from the outline (GL fast: its
+tie distance, bounds.tie_px); X within 1e-9 mm in exact mode and in the oracle's fast mode, in
+GL's fast mode its float32 bound per pixel (x_err_ok). q4 maps in the image plane, so only its mask
 is checked.
 """
 import numpy as np
@@ -87,11 +87,11 @@ def test_random_rigid_pose_of_a_perturbed_plate(backend, ctx_for, **case):
     exact and fast: X_deformed and X_undeformed within their bound of the closed form (x_err_ok)."""
     scene, mesh, (Xu, Xd, d) = random_case(**case)
     ctx = ctx_for(backend)
-    assert (d > 1 / 128).sum() > 100  # the plate is in view
+    assert (d > 0).sum() > 100  # the plate is in view
     for mode in ("exact", "q4", "fast"):
         res = render(scene, mesh, backend, ctx, mode)
         t = res.truth
-        band = band_px(backend, mode)
+        band = band_px(backend, mode, res.camera.fx, ctx)
         assert finite_where_covered(res)
         assert t.mask[d > band].all(), (mode, int((~t.mask[d > band]).sum()))
         assert not t.mask[d < -band].any(), (mode, int(t.mask[d < -band].sum()))

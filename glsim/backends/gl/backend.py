@@ -262,7 +262,8 @@ class GLBackend(ImagePasses):
     def capabilities(self) -> Capabilities:
         gl = driver_info(self.ctx)
         return Capabilities(device_geometry=True, float64=self.fp64, passes=True,
-                            max_size=min(gl["GL_MAX_TEXTURE_SIZE"], gl["GL_MAX_RENDERBUFFER_SIZE"]))
+                            max_size=min(gl["GL_MAX_TEXTURE_SIZE"], gl["GL_MAX_RENDERBUFFER_SIZE"]),
+                            subpixel_bits=gl["GL_SUBPIXEL_BITS"])
 
     def render(self, request: Request) -> Raster:
         """One request (glsim.backends.contract): :meth:`submit`, then :meth:`collect`."""
