@@ -337,19 +337,18 @@ def test_gl_fast_matches_the_oracle_fast(gl_ctx):
 def test_gl_curved_modes_match_the_oracle(gl_ctx, kind, mode):
     """GL exact / q4 (Newton on the patch's 9 nodes in the fragment shader, from the piece's
     roots): the same coverage and elements as the oracle on every pixel, X within 1e-9 mm of
-    it (and, exact, of the closed form); grey levels within what float32 allows the reference
-    sample at the same point (glsim.evaluation.bounds.interpolation, both stored as float32) in
+    it (and, exact, of the closed form); grey levels within glsim.evaluation.bounds.grey: what
+    float32 allows the reference sample at the same point (both images stored as float32) in
     fp64 builds, plus the box filter's float32 mean at 2×2 samples; fp32 builds, whose reference
     points move by their own Δ (the truth maps'): plus |∇I|·|Δ| and a second-order term."""
     from glsim.stages import interp
 
-    u = bounds.FLOAT32_ROUNDOFF
     mesh = surface_mesh(kind)
     with Renderer(scene(), "gl", ctx=gl_ctx, mesh=mesh) as g, Renderer(scene(), "cpu", mesh=mesh) as c:
         method = c.scene.render.interpolation
         coeffs = interp.prepare(c.reference.image, method, np.float64)
         M = float(np.abs(coeffs).max())
-        sample = bounds.interpolation(method, M) + 2 * u * M   # (+ both images' float32 rounding)
+        sample = bounds.grey(method, M, 0.0, 0.0)   # (the same points)
         for step in (0, 1):
             a = g.render(0, step, truth=True, mode=mode)
             b = c.render(0, step, truth=True, mode=mode)
@@ -362,13 +361,12 @@ def test_gl_curved_modes_match_the_oracle(gl_ctx, kind, mode):
             if mode == "exact":
                 check_against_closed_form(a.truth, 1e-9, deformed=step == 1)
         a, b = g.render(0, 1, mode=mode, samples_per_pixel=4), c.render(0, 1, mode=mode, samples_per_pixel=4)
-        assert np.abs(a.image.astype(float) - b.image).max() <= sample + 10 * u * M   # (4 adds and a division)
+        assert np.abs(a.image.astype(float) - b.image).max() <= bounds.grey(method, M, 0.0, 0.0, 4)
         a, b = g.render(0, 1, truth=True, mode=mode, precision="fp32"), c.render(0, 1, truth=True, mode=mode)
         m = a.truth.mask & b.truth.mask
-        d = np.linalg.norm(a.truth.ref_uv - b.truth.ref_uv, axis=-1)[m]
-        grad = np.linalg.norm(interp.gradient(coeffs, b.truth.ref_uv[m], method), axis=-1)
-        # (an interpolant's second derivatives stay within 16 M per px² for these kernels)
-        assert np.all(np.abs(a.image.astype(float) - b.image)[m] <= sample + grad * d + 8 * M * d ** 2)
+        d = np.linalg.norm(a.truth.ref_uv - b.truth.ref_uv, axis=-1)
+        grad = bounds.sample_gradient(method, coeffs, b.truth.ref_uv, m)
+        assert np.all((np.abs(a.image.astype(float) - b.image) <= bounds.grey(method, M, grad, d))[m])
 
 
 @pytest.mark.gl

@@ -294,9 +294,60 @@ def blur(scheme: str, size: np.ndarray, M: float) -> np.ndarray:
     return {"gather": gather, "separable": separable, "hybrid": np.maximum(separable, gather)}[scheme]
 
 
-# taps per axis and the largest Σ|w| per axis of each reference interpolant (Keys' cubic has
-# negative lobes: 1.25 at t = ½)
-_INTERP = {"linear": (2, 1.0), "cubic": (4, 1.25), "bspline3": (4, 1.0), "bspline5": (6, 1.0)}
+# per reference interpolant: taps per axis, and the largest Σ|w|, Σ|w'| and Σ|w''| per axis over
+# the texel fraction t (glsim.stages.interp's weights; Keys' cubic has negative lobes: Σ|w| =
+# 1.25 at t = ½; linear's w'' is 0 between texels, its gradient jumps across them)
+_INTERP = {"linear": (2, 1.0, 2.0, 0.0), "cubic": (4, 1.25, 3.0, 12.0),
+           "bspline3": (4, 1.0, 1.5, 4.0), "bspline5": (6, 1.0, 1.2, 2.0)}
+
+
+def gradient_max(method: str) -> float:
+    """The largest |∇I| (per px) of ``method``'s interpolant over coefficients of largest
+    |value| 1: each partial derivative is at most Σ|w'|·Σ|w|."""
+    _, s0, s1, _ = _INTERP[method]
+    return float(np.sqrt(2.0) * s1 * s0)
+
+
+def hessian(method: str) -> float:
+    """The largest Frobenius norm of ``method``'s interpolant's Hessian (per px²) over
+    coefficients of largest |value| 1: ∂²/∂u² ≤ Σ|w''|·Σ|w|, ∂²/∂u∂v ≤ (Σ|w'|)²; inf for
+    linear, whose gradient jumps between texels (cubic's second derivatives jump but stay
+    bounded)."""
+    _, s0, s1, s2 = _INTERP[method]
+    return float("inf") if method == "linear" else float(np.sqrt(2 * (s2 * s0) ** 2 + 2 * s1 ** 4))
+
+
+def sample_gradient(method: str, coeffs: np.ndarray, ref_uv: np.ndarray, mask: np.ndarray, s: int = 1) -> np.ndarray:
+    """Per pixel (H, W), the largest |∇I| (per px) of ``method``'s interpolant of ``coeffs``
+    (:func:`glsim.stages.interp.prepare`) at the reference points ``ref_uv`` (H·s, W·s, 2) of its
+    s×s samples where ``mask`` (H·s, W·s) holds; 0 where none does."""
+    from glsim.stages import interp
+
+    g = np.zeros(mask.shape)
+    if mask.any():
+        g[mask] = np.linalg.norm(interp.gradient(coeffs, ref_uv[mask], method), axis=-1)
+    Hs, Ws = mask.shape
+    return g.reshape(Hs // s, s, Ws // s, s).max(axis=(1, 3))
+
+
+def grey(method: str, coeffs_max: float, gradient, shift, spp: int = 1):
+    """The largest |GL − oracle| (full scale) of a pixel of an image without effects, the
+    reference image interpolated with ``method`` from coefficients of largest |value| M =
+    ``coeffs_max``, where GL and the oracle cover the pixel's samples alike (off the ties,
+    :func:`renderer_ties`) and GL's reference points lie within ``shift`` px of the oracle's,
+    at which the interpolant's gradient is at most ``gradient`` (:func:`sample_gradient`;
+    numbers or per-pixel arrays). u = 2^-24: a sample's float32 error (:func:`interpolation`)
+    and both images' float32 rounding (2uM); at ``spp`` = n > 1 the box filter's n − 1 float32
+    adds and its division (2.5 ULP): (n + 4)uM; the points' shift δ: |∇I|·δ + ½·H·δ² (Taylor,
+    H = :func:`hessian`·M), or for linear interpolation, whose gradient jumps between texels,
+    :func:`gradient_max`·M·δ."""
+    u = FLOAT32_ROUNDOFF
+    M = float(coeffs_max)
+    base = interpolation(method, M) + 2 * u * M + ((spp + 4) * u * M if spp > 1 else 0.0)
+    shift = np.asarray(shift, np.float64)
+    if method == "linear":
+        return base + gradient_max(method) * M * shift
+    return base + np.asarray(gradient, np.float64) * shift + 0.5 * hessian(method) * M * shift ** 2
 
 
 def interpolation(method: str, coeffs_max: float) -> float:
@@ -306,7 +357,7 @@ def interpolation(method: str, coeffs_max: float) -> float:
     axis, the n² products and sums γ_{n²}·S², each weight's polynomial (≈ 8u, relative, over S²),
     the coefficient texels' float32 rounding (u·S²) and the sample's position rounded to float32
     (u px, times at most 2S·coeffs_max per px): (n² + 9)·u·S²·M + 2u·S·M."""
-    n, S = _INTERP[method]
+    n, S = _INTERP[method][:2]
     u = FLOAT32_ROUNDOFF
     return ((n * n + 9) * S * S + 2 * S) * u * coeffs_max
 
