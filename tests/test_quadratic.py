@@ -1056,3 +1056,11 @@ def test_glsim_compare_on_a_quadratic_render(tmp_path):
         for name in names:
             assert by[name]["mean_mm"] == pytest.approx(bias[j], abs=1e-9)
             assert by[name]["std_mm"] < 1e-9
+
+
+def test_coverage_ties_are_not_claimed_for_curved_elements():
+    """bounds.renderer_ties draws element edges straight between corners: a quadratic mesh's
+    are curved in space, so it refuses one instead of giving a wrong tie set."""
+    with Renderer(scene(), "cpu", mesh=surface_mesh("quad8")) as c:
+        with pytest.raises(ValueError, match="quadratic mesh"):
+            bounds.renderer_ties(c, "exact", 0, 0)

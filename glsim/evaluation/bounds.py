@@ -156,6 +156,9 @@ def renderer_ties(renderer, mode: str, cam: int, step: int, spp: int = 1) -> np.
     from glsim.effects import dof
     from glsim.scene.camera import to_camera
 
+    if renderer.mesh.is_quadratic:
+        raise ValueError("renderer_ties: a quadratic mesh's element edges are curved in space; "
+                         "its ties are not derived here (linear meshes only)")
     camera, nodes = renderer.scene.cameras[cam], renderer.mesh.deformed(step)
     tie = tie_pixels(mode, camera, nodes, renderer.mesh.quads, renderer.backend.capabilities.subpixel_bits, spp)
     optics = renderer.scene.optics
