@@ -68,7 +68,7 @@ def tie_px(mode: str, fx: float, subpixel_bits: int | None) -> float:
     return fast_px(fx) + 2.0 ** -subpixel_bits
 
 
-EDGE_PIECES = 8   # a distorted exact-mode edge: pieces of its polyline (:func:`near_edges`)
+EDGE_PIECES = 32   # a distorted exact-mode edge: pieces of its polyline (:func:`near_edges`)
 
 
 def near_edges(cam, nodes: np.ndarray, quads: np.ndarray, radius: float, spp: int = 1,
