@@ -6,7 +6,6 @@ within the mode's coverage tie distance of an element edge or the silhouette
 (bounds.tie_pixels: float64 in exact and q4, fast's float32 vertices snapped to
 GL_SUBPIXEL_BITS), where the two may legitimately decide it the other way.
 """
-import dataclasses
 import warnings
 
 import cv2
@@ -16,8 +15,6 @@ import pytest
 from glsim.scene.camera import Camera, Distortion
 from glsim.errors import RenderWarning
 from glsim.evaluation import bounds
-from glsim.stages import interp
-from glsim.workflows.preview.layout import scaled_camera
 from glsim.scene.mesh import Mesh
 from glsim.render import Renderer
 from glsim.scene import Plate, Scene, Specimen, bulge_scene
@@ -124,31 +121,6 @@ def bulge_pair(request):
 MODES_SPP = [(mode, spp) for mode in ("exact", "fast", "q4") for spp in (1, 4)]
 
 
-def grey_bound(c, mode, camera, truth, spp, shift):
-    """Per pixel, bounds.grey of the oracle ``c``'s image of ``camera`` at step 1 (``truth``: its
-    pixel centres' at ``spp``; ``shift``: GL's reference points' bound), with the interpolant's
-    gradient at the oracle's sample reference points: the pixel centres' at 1 spp; fast at
-    s × s spp the oracle's truth on a camera added to the scene whose pixel centres are those
-    samples (preview.layout.scaled_camera by s); exact and q4, whose points move by 1e-9 px only, the
-    interpolant's largest gradient."""
-    method = c.scene.render.interpolation
-    coeffs = interp.prepare(c.reference.image, method, np.float64)
-    M = float(np.abs(coeffs).max())
-    s = int(np.sqrt(spp))
-    if s == 1:
-        grad = bounds.sample_gradient(method, coeffs, truth.ref_uv, truth.mask)
-    elif mode == "fast":
-        fine_cam = dataclasses.replace(scaled_camera(c.scene.cameras[camera], s), name="samples")
-        cams = c.scene.cameras + (fine_cam,)   # (camera 0 sets the speckle's scale)
-        with Renderer(c.scene.replace(cameras=cams), "cpu") as fine:
-            assert np.array_equal(fine.reference.image, c.reference.image)
-            t = fine.render(len(cams) - 1, 1, truth=True, mode=mode).truth
-        grad = bounds.sample_gradient(method, coeffs, t.ref_uv, t.mask, s)
-    else:
-        grad = bounds.gradient_max(method) * M
-    return bounds.grey(method, M, grad, shift, spp)
-
-
 def off_ties(differ, tie) -> int:
     """Pixels of ``differ`` outside the tie set ``tie``."""
     return int((differ & ~tie).sum())
@@ -229,7 +201,7 @@ def test_gl_matches_oracle_on_bulge(bulge_pair, mode, spp, camera):
     shift = ref_bound(mode, a.camera, b.truth)
     d = np.linalg.norm(a.truth.ref_uv[both] - b.truth.ref_uv[both], axis=-1)
     assert (d <= shift[both]).all(), d.max()
-    over = np.abs(a.image.astype(np.float64) - b.image) > grey_bound(c, mode, camera, b.truth, spp, shift)
+    over = np.abs(a.image.astype(np.float64) - b.image) > bounds.renderer_grey(c, mode, camera, 1, spp, shift, b.truth)
     assert off_ties(over, bounds.renderer_ties(g, mode, camera, 1, spp)) == 0, over.sum()
     # a different element (the same mapping on a shared edge) only at a tie
     assert off_ties(both & (a.truth.element != b.truth.element), centre) == 0
@@ -247,7 +219,7 @@ def test_newton_subsamples_match_the_oracle_on_bulge(bulge_pair, spp):
     a = g.render(0, 1, mode="exact", samples_per_pixel=spp, subsamples="newton")
     b = c.render(0, 1, mode="exact", samples_per_pixel=spp, subsamples="newton")
     assert "subsamples" in a.stages and "subsamples" not in b.stages
-    over = np.abs(a.image.astype(np.float64) - b.image) > grey_bound(c, "exact", 0, None, spp, bounds.FLOAT64)
+    over = np.abs(a.image.astype(np.float64) - b.image) > bounds.renderer_grey(c, "exact", 0, 1, spp, bounds.FLOAT64)
     assert off_ties(over, bounds.renderer_ties(g, "exact", 0, 1, spp)) == 0, over.sum()
 
 

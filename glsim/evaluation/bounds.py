@@ -353,6 +353,37 @@ def grey(method: str, coeffs_max: float, gradient, shift, spp: int = 1):
     return base + np.asarray(gradient, np.float64) * shift + 0.5 * hessian(method) * M * shift ** 2
 
 
+def renderer_grey(oracle, mode: str, cam: int, step: int, spp: int, shift, truth=None):
+    """Per pixel, :func:`grey` of the oracle renderer ``oracle``'s image of camera ``cam`` at
+    ``step`` in ``mode`` at ``spp``, GL's reference points within ``shift`` px (a number or per
+    pixel) of the oracle's, with the interpolant's gradient at the oracle's sample reference
+    points: at 1 spp the pixel centres' (``truth``: the oracle's truth of that image); fast at
+    s × s spp the oracle's truth on a camera added to the scene whose pixel centres are those
+    samples (scaled_camera by s; camera 0, which sets the speckle's scale, kept); exact and q4,
+    whose points move by float64 rounding only, the interpolant's largest gradient."""
+    import dataclasses
+
+    from glsim.render import Renderer
+    from glsim.stages import interp
+    from glsim.workflows.preview.layout import scaled_camera
+
+    method = oracle.scene.render.interpolation
+    coeffs = interp.prepare(oracle.reference.image, method, np.float64)
+    M = float(np.abs(coeffs).max())
+    s = int(round(np.sqrt(spp)))
+    if s == 1:
+        grad = sample_gradient(method, coeffs, truth.ref_uv, truth.mask)
+    elif mode == "fast":
+        cams = oracle.scene.cameras
+        fine = dataclasses.replace(scaled_camera(cams[cam], s), name=f"glsim-samples-{cam}")
+        with Renderer(oracle.scene.replace(cameras=cams + (fine,)), "cpu", mesh=oracle.mesh) as r:
+            t = r.render(len(cams), step, truth=True, mode=mode).truth
+        grad = sample_gradient(method, coeffs, t.ref_uv, t.mask, s)
+    else:
+        grad = gradient_max(method) * M
+    return grey(method, M, grad, shift, spp)
+
+
 def interpolation(method: str, coeffs_max: float) -> float:
     """The largest |GL − oracle| of a reference sample (shaders/interp.glsl in float32 against
     glsim.stages.interp in float64 at the same float64 point), over coefficients (the image, or

@@ -32,7 +32,6 @@ from pathlib import Path
 import numpy as np
 
 from glsim.evaluation import bounds
-from glsim.stages import interp
 from glsim.render import Renderer
 from glsim.scene import Plate, Scene, Specimen, bulge_scene, demo_effects
 from glsim.scene import bilinear as bl
@@ -192,12 +191,11 @@ def _mapping(mode: str, spp: int, what: str, pair=_bulge) -> Callable[[Context],
 
 def _grey_ratio(g, o, a, b, mode: str, cam: int, spp: int) -> float:
     """The largest |Δgrey| of GL's image ``a`` (renderer ``g``, camera ``cam``, step 1) against
-    the oracle's ``b`` (renderer ``o``) where no sample lies at a coverage tie
-    (bounds.renderer_ties), in units of bounds.grey with reference points 1e-9 px apart
-    (exact, q4) and the interpolant's largest gradient."""
-    method = o.scene.render.interpolation
-    M = float(np.abs(interp.prepare(o.reference.image, method, np.float64)).max())
-    bound = bounds.grey(method, M, bounds.gradient_max(method) * M, bounds.FLOAT64, spp)
+    the oracle's ``b`` (renderer ``o``; ``b``'s truth at 1 spp) where no sample lies at a
+    coverage tie (bounds.renderer_ties), in units of bounds.renderer_grey: GL's reference
+    points within float64's bound (exact, q4) or fast's per pixel of the oracle's."""
+    shift = bounds.fast_bound(a.camera.fx, b.truth.ref_uv, b.truth.mask) if mode == "fast" else bounds.FLOAT64
+    bound = bounds.renderer_grey(o, mode, cam, 1, spp, shift, b.truth)
     d = np.abs(a.image.astype(np.float64) - b.image)
     return float((d / bound)[~bounds.renderer_ties(g, mode, cam, 1, spp)].max())
 
@@ -281,6 +279,8 @@ def _stages(c: Context) -> float:
 
 FLOAT64 = "glsim.evaluation.bounds: float64, 1e-9 px or mm"
 OFF_TIES = "px > 0.5 grey of 8 bit off coverage ties"   # (bounds.renderer_ties)
+GREY = ("glsim.evaluation.bounds.renderer_grey off coverage ties (bounds.renderer_ties): the float32 reference "
+        "sample and box filter, the samples' shift through the interpolant's gradient")
 CAMERA = "glsim.evaluation.bounds.camera_passes: float32 passes on GL's own image"
 CHECKS = (
     Check("float64 primitives", 0, "results differing in any bit", "split_double, pixel_to_normalized, "
@@ -292,9 +292,10 @@ CHECKS = (
           "2-D edge functions at the exact pixel centres, the same float64 corners as the oracle", _coverage("q4")),
     Check("bulge exact 1 spp: reference point", 1, "× bound", FLOAT64, _mapping("exact", 1, "ref")),
     Check("bulge exact 1 spp: truth X", 1, "× bound", FLOAT64, _mapping("exact", 1, "X")),
-    Check("bulge exact 4 spp: grey per pixel", 1, "× bound", "glsim.evaluation.bounds.grey: the float32 reference sample and box "
-          "filter, the samples within 1e-9 px of the oracle's; off coverage ties (bounds.renderer_ties)",
+    Check("bulge exact 4 spp: grey per pixel", 1, "× bound", GREY + ", the samples within 1e-9 px of the oracle's",
           _mapping("exact", 4, "grey")),
+    Check("bulge fast 4 spp: grey per pixel", 1, "× bound", GREY + ", the samples within fast's float32 bound",
+          _mapping("fast", 4, "grey")),
     Check("bulge q4 1 spp: reference point", 1, "× bound", FLOAT64, _mapping("q4", 1, "ref")),
     Check("bulge fast 1 spp: reference point", 1, "× bound", "glsim.evaluation.bounds.fast_bound: float32 vertex "
           "projection, fx·12·2^-24 px times the reference pixels per image pixel", _mapping("fast", 1, "ref")),

@@ -30,7 +30,6 @@ from glsim.errors import RenderWarning
 from glsim.evaluation import bounds
 from glsim.render import Renderer
 from glsim.scene.camera import Camera, Distortion
-from glsim.stages import interp
 
 from test_hard_coverage import BACKENDS, custom, grid_mesh, outline_distance, plane_truth, rotation  # noqa: F401
 
@@ -475,10 +474,8 @@ def test_gl_subsamples_agree_with_the_oracle_on_hard_scenes(case, subsamples, gl
     a = image(scene, mesh, "gl", gl_ctx, subsamples=subsamples, **options)
     b = image(scene, mesh, "cpu", None, **options)
     assert ("subsamples" in a.stages) == (subsamples == "newton")
-    method = scene.render.interpolation
     with Renderer(scene, "cpu", mesh=mesh) as c:
-        M = float(np.abs(interp.prepare(c.reference.image, method, np.float64)).max())
-    bound = bounds.grey(method, M, bounds.gradient_max(method) * M, bounds.FLOAT64, 4)
+        bound = bounds.renderer_grey(c, "exact", 0, 1, 4, bounds.FLOAT64)
     over = (np.abs(a.image.astype(np.float64) - b.image) > bound) & ~ties(scene, mesh, "exact", gl_ctx, 4)
     assert not over.any(), int(over.sum())
 
