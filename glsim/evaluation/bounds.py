@@ -4,7 +4,9 @@ The camera passes' (vignetting, PSF, fixed pattern): :func:`camera_passes`; the 
 passes' against their float64 twins under GLSL 4.50's precision rules: the lighting
 (:func:`phong`), the depth of field's circle of confusion (:func:`coc`) and gathers
 (:func:`blur`), a reference sample (:func:`interpolation`), the sensor noise's normal field
-(:func:`standard_normal`) and pass (:func:`noise`).
+(:func:`standard_normal`) and pass (:func:`noise`). Where the two may decide a sample's
+coverage the other way: :func:`tie_px`, :func:`near_edges`, :func:`renderer_ties`; an image's
+grey levels elsewhere: :func:`grey`, :func:`renderer_grey`.
 
 - **float64 (exact, q4, and their truth)**: unit roundoff 2^-53 = 1.1e-16 on coordinates below
   1e4 (px or mm) is 1.1e-12; the closed-form roots, two Newton polishes and the projections
