@@ -531,3 +531,16 @@ def test_gl_procedural_matches_oracle(bulge_pair, mode):
     d = np.abs(a.image.astype(np.float64) - b.image) * 255
     # float32 dot offsets and distances in GL: within 0.5 grey levels but at coverage ties
     assert off_ties(d > 0.5, bounds.renderer_ties(g, mode, 1, 1)) == 0 and np.median(d) < 1e-3
+
+
+def test_shape_median_is_numpys():
+    """glsim.stages.view._median (one partition; the element shape checks' median area, once
+    per load step) is np.median bit for bit: odd and even counts, ties, empty."""
+    from glsim.stages.view import _median
+
+    rng = np.random.default_rng(5)
+    for n in (1, 2, 3, 4, 101, 8000, 8001):
+        a = rng.lognormal(0.0, 3.0, n)
+        assert _median(a) == float(np.median(a))
+        assert _median(np.round(a)) == float(np.median(np.round(a)))   # (ties)
+    assert _median(np.empty(0)) == 0.0
