@@ -152,7 +152,9 @@ def tie_pixels(mode: str, cam, nodes: np.ndarray, quads: np.ndarray, subpixel_bi
 
 def renderer_ties(renderer, mode: str, cam: int, step: int, spp: int = 1) -> np.ndarray:
     """:func:`tie_pixels` of camera ``cam`` at ``step`` in a GL renderer (its mesh, and its
-    rasterizer's GL_SUBPIXEL_BITS); with the scene's depth of field, grown by the blur's reach
+    rasterizer's GL_SUBPIXEL_BITS; exact and q4 as float64 builds, whose ties are float64's —
+    a float32 build decides coverage to its own mapping error, not derived here); with the
+    scene's depth of field, grown by the blur's reach
     (a sample decided the other way changes every pixel whose kernel takes it in: the largest
     kernel radius over the specimen's depths, which lie between its nodes')."""
     from glsim.effects import dof
