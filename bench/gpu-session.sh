@@ -76,7 +76,7 @@ run)
   steps=" ${*:3} "; [ "$steps" = "  " ] && steps=" probe check throughput "
   [[ $steps == *" probe "* ]] && { echo "== probe"; timeout 90 python3 bench/gpu_probes.py "$G/probes-$gpu.json" > "$G/probe.log" 2>&1; echo "rc=$?"; }
   [[ $steps == *" check "* ]] && { echo "== check ($gpu)"; timeout 150 glsim check --json "$G/check-$gpu.json" > "$G/check.log" 2>&1; echo "rc=$?"; tail -3 "$G/check.log"; }
-  [[ $steps == *" throughput "* ]] && { echo "== throughput"; timeout 330 glsim bench throughput ${QUICK:+--quick} --out "$G/throughput-$gpu" > "$G/throughput.log" 2>&1; echo "rc=$?"; tail -3 "$G/throughput.log"; }
+  [[ $steps == *" throughput "* ]] && { echo "== throughput"; timeout 480 glsim bench throughput ${QUICK:+--quick} --out "$G/throughput-$gpu" > "$G/throughput.log" 2>&1; echo "rc=$?"; tail -3 "$G/throughput.log"; }
   true ;;
 *)
   sed -n '2,16p' "$0"; exit 2 ;;
