@@ -18,9 +18,13 @@ void main() {
         uint n = imageLoad(u_cand_count, pix).x;
         layer = n == 1u ? 0u : n >= 2u && n <= uint(CANDIDATES) ? 1u : 2u;
     }
+    // (memoryBarrierShared before each barrier, as is common practice, so that the shared
+    // counts written before it are seen after it; both in uniform control flow)
     if (gl_LocalInvocationIndex < 2u) s_count[gl_LocalInvocationIndex] = 0u;
+    memoryBarrierShared();
     barrier();
     uint k = layer < 2u ? atomicAdd(s_count[layer], 1u) : 0u;
+    memoryBarrierShared();
     barrier();
     if (gl_LocalInvocationIndex < 2u) {
         uint l = gl_LocalInvocationIndex, m = s_count[l];
@@ -33,6 +37,7 @@ void main() {
             atomicMax(layer_args[3u * l + 1u], (groups + LIST_MAX_GROUPS - 1u) / LIST_MAX_GROUPS);
         }
     }
+    memoryBarrierShared();
     barrier();
     uint w = uint(pix.x) | (uint(pix.y) << 16);
     if (layer == 0u) pixels[s_base[0] + k] = w;
