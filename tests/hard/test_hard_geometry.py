@@ -9,7 +9,8 @@ independently of glsim's own geometry code.
   the camera.
 - A twisted (non-planar) bilinear patch that many rays pierce twice: the ray/patch quadratic
   is solved here and the nearer root must be the one rendered.
-- GL against the oracle on the same scenes, in every mode (mean, max and outliers).
+- GL against the oracle on the same scenes, in every mode: masks, element maps and grey levels
+  within derived bounds off the coverage ties (glsim.evaluation.bounds).
 
 Each test states what it compares and its tolerance. The closed forms are exact up to float64
 rounding, so the truth tolerance is 1e-9 mm wherever the mode is exact
