@@ -131,11 +131,11 @@ def _mark(hit: np.ndarray, A: np.ndarray, B: np.ndarray, r: np.ndarray, s: int) 
     y = a[:, 1] + t * d[:, 1]
     first = np.ceil(idx(y - 2 * rr)).astype(np.int64)
     last = np.floor(idx(y + 2 * rr)).astype(np.int64)
+    dd = (d * d).sum(-1)
     for k in range(int((last - first).max(initial=-1)) + 1):
         row = first + k
         ok = (row <= last) & (row >= 0) & (row < n_rows)
         py = (row + 0.5) / s - 0.5
-        dd = (d * d).sum(-1)
         with np.errstate(divide="ignore", invalid="ignore"):
             u = np.clip(np.where(dd > 0, ((x - a[:, 0]) * d[:, 0] + (py - a[:, 1]) * d[:, 1]) / dd, 0.0), 0.0, 1.0)
         near = np.hypot(x - a[:, 0] - u * d[:, 0], py - a[:, 1] - u * d[:, 1]) <= rr
