@@ -74,23 +74,25 @@ EDGE_PIECES = 32   # a distorted exact-mode edge: pieces of its polyline (:func:
 
 
 def near_edges(cam, nodes: np.ndarray, quads: np.ndarray, radius: float, spp: int = 1,
-               curved: bool = False) -> np.ndarray:
+               exact: bool = False) -> np.ndarray:
     """(H, W) bool: the pixels with a sample (:func:`glsim.scene.camera.pixel_grid`'s s×s points)
     within ``radius`` px of an element edge as ``cam`` projects it — the pixels where a coverage
     tie (:func:`tie_px`) may change a sample's element, or cover it or not (the silhouette).
-    ``nodes`` (N, 3) world mm, ``quads`` (M, 4); edges with an end the camera cannot project are
-    left out (the fast and q4 modes drop their elements). The edges are straight between their
-    projected ends, as fast and q4 draw them and as a pinhole camera images any straight edge;
-    with ``curved`` (the exact mode, whose edges a distorted camera images as curves) each is
-    a polyline of EDGE_PIECES projected points, the radius widened by its largest second
-    difference |p₋ − 2p + p₊| (the chords' deviation from the curve is about an eighth of it)."""
-    from glsim.scene.camera import project
+    ``nodes`` (N, 3) world mm, ``quads`` (M, 4). The edges are straight between their projected
+    ends, as fast and q4 draw them (edges with an end the camera cannot project left out: those
+    modes drop their elements). With ``exact``, the exact mode's edges, which it intersects per
+    pixel: under distortion each is imaged as a curve — a polyline of EDGE_PIECES projected
+    points, the radius widened by its largest second difference |p₋ − 2p + p₊| (the chords'
+    deviation from the curve is about an eighth of it), edges with a point it cannot project left
+    out; through a pinhole, an edge that crosses the camera plane is imaged as a half-line from
+    its end in front (drawn to LONG_PX beyond it)."""
+    from glsim.scene.camera import project, to_camera
 
     s = int(round(np.sqrt(spp)))
     W, H = cam.size
     pairs = np.sort(np.stack([quads, np.roll(quads, -1, axis=1)], -1).reshape(-1, 2), axis=1)
     a, b = np.unique(pairs, axis=0).T
-    if curved and np.any(cam.distortion.coeffs != 0):
+    if exact and np.any(cam.distortion.coeffs != 0):
         t = np.linspace(0.0, 1.0, EDGE_PIECES + 1)
         P = nodes[a, None] * (1 - t[None, :, None]) + nodes[b, None] * t[None, :, None]
         uv, ok = project(P.reshape(-1, 3), cam)
@@ -102,6 +104,9 @@ def near_edges(cam, nodes: np.ndarray, quads: np.ndarray, radius: float, spp: in
         uv, ok = project(nodes, cam)
         keep = ok[a] & ok[b]
         A, B = uv[a[keep]], uv[b[keep]]
+        if exact:
+            starts, ends = _half_lines(to_camera(nodes, cam), a, b, cam)
+            A, B = np.concatenate([A, starts]), np.concatenate([B, ends])
         r = np.full(len(A), float(radius))
     hit = np.zeros((H * s, W * s), bool)
     steep = np.abs(B[:, 1] - A[:, 1]) > np.abs(B[:, 0] - A[:, 0])
@@ -109,6 +114,30 @@ def near_edges(cam, nodes: np.ndarray, quads: np.ndarray, radius: float, spp: in
         sel = steep if axis else ~steep
         _mark(hit if axis == 0 else hit.T, A[sel][:, [axis, 1 - axis]], B[sel][:, [axis, 1 - axis]], r[sel], s)
     return hit.reshape(H, s, W, s).any(axis=(1, 3))
+
+
+LONG_PX = 1e7   # a half-line's drawn length (px): beyond any image (glsim.limits)
+
+
+def _half_lines(Xc: np.ndarray, a: np.ndarray, b: np.ndarray, cam) -> tuple[np.ndarray, np.ndarray]:
+    """Through a pinhole ``cam``, the images of the edges a→b (node indices; ``Xc`` the nodes
+    in its frame, mm) that cross its plane: from the projection of the end in front (z > 0)
+    along the image of the edge toward the end behind, LONG_PX long — the front part's image
+    is that half-line, reaching infinity where the edge meets z = 0. Returns (starts, ends)."""
+    from glsim.scene.camera import project_camera_frame
+
+    za, zb = Xc[a, 2], Xc[b, 2]
+    cross = (za > 0) != (zb > 0)
+    front = np.where(za[cross] > 0, a[cross], b[cross])
+    back = np.where(za[cross] > 0, b[cross], a[cross])
+    P, Q = Xc[front], Xc[back]
+    zc = P[:, 2:] / (P[:, 2:] - Q[:, 2:])          # the crossing's parameter along P→Q, in (0, 1]
+    near = P + 0.5 * zc * (Q - P)                  # halfway to the crossing: still in front
+    (p, _), (q, _) = project_camera_frame(P, cam), project_camera_frame(near, cam)
+    d = q - p
+    n = np.linalg.norm(d, axis=1)
+    ok = n > 0                                      # (an edge on a ray through the centre: a point)
+    return p[ok], p[ok] + d[ok] / n[ok, None] * LONG_PX
 
 
 def _mark(hit: np.ndarray, A: np.ndarray, B: np.ndarray, r: np.ndarray, s: int) -> None:
@@ -147,7 +176,7 @@ def tie_pixels(mode: str, cam, nodes: np.ndarray, quads: np.ndarray, subpixel_bi
     """:func:`near_edges` within ``mode``'s :func:`tie_px`: where GL's image, mask or element map
     may differ from the oracle's by a sample decided the other way (element edges curved in the
     exact mode under distortion)."""
-    return near_edges(cam, nodes, quads, tie_px(mode, cam.fx, subpixel_bits), spp, curved=mode == "exact")
+    return near_edges(cam, nodes, quads, tie_px(mode, cam.fx, subpixel_bits), spp, exact=mode == "exact")
 
 
 def renderer_ties(renderer, mode: str, cam: int, step: int, spp: int = 1) -> np.ndarray:
