@@ -303,8 +303,9 @@ def _backend(ctx, dirs=()):
 
 
 def _run(backend, frag, defines, inputs, uniforms, shape):
-    """One full-screen pass through the GL backend; returns the float32 (H, W) result."""
-    tex = backend.fullscreen_pass(frag, defines, inputs, uniforms, shape[::-1])
+    """One full-screen fragment pass through the GL backend (the tests' own shaders have no
+    compute twin); returns the float32 (H, W) result."""
+    tex = backend.fullscreen_pass(frag, defines, inputs, uniforms, shape[::-1], compute=False)
     out = backend.read(tex)
     tex.release()
     return out
@@ -376,7 +377,7 @@ def test_gl_blur_matches_numpy_mirror(gl_ctx):
     uni = blur.shader_uniforms(OPTICS)
     R = int(blur.kernel_radius(sigma.max()))
     h = backend.fullscreen_pass("blur.frag", {"BLUR_HORIZONTAL": None, "MAX_RADIUS": R},
-                                {"u_src": src32, "u_depth": Z}, uni, shape[::-1])
+                                {"u_src": src32, "u_depth": Z}, uni, shape[::-1], compute=False)
     gauss = _run(backend, "blur.frag", {"BLUR_VERTICAL": None, "MAX_RADIUS": R},
                  {"u_src": h, "u_depth": Z}, uni, shape)
     h.release()

@@ -516,12 +516,12 @@ class GLBackend(ImagePasses):
             geo.draw(prog)
         elif p.stage == "compute":
             lists = geo.layer_pass(W, H, s)
+            geo.bind_lists(W, H, textures=True)
+            for unit, tex in zip(_target_images(truth, defines), color):
+                tex.bind_to_image(unit, read=False, write=True)
             for name, offset in LAYER_DISPATCH.items():
                 prog = self.programs.compute(name, defines)
                 setup(prog)
-                geo.bind_lists(W, H, textures=True)
-                for unit, tex in zip(_target_images(truth, defines), color):
-                    tex.bind_to_image(unit, read=False, write=True)
                 prog.run_indirect(lists, offset)
             ctx.memory_barrier()   # the image stores seen by the fallback's draws and the passes after
         else:

@@ -30,7 +30,7 @@ class ImagePasses:
 
     def fullscreen_pass(self, frag: str, defines: dict, inputs: dict, uniforms: dict, size: tuple[int, int],
                         components: tuple[int, ...] = (1,), into=None, dtype: str = "f4", scratch: list | None = None,
-                        compute: bool = False):
+                        compute: bool | None = None):
         """Run a full-screen fragment pass into a new R32F texture of ``size`` (W, H); the
         caller releases it. ``inputs`` maps sampler names to textures or float arrays (H, W)
         (arrays are uploaded for the pass and released after it), each bound to its sampler's
@@ -40,9 +40,11 @@ class ImagePasses:
         discards keep their values); it is returned. ``scratch``: a frame's list of textures
         on loan: the outputs are taken from the backend's reused ones and added to it
         (:meth:`_recycle` gives them back), not made and released. ``compute``: as the compute
-        pass of the same shader (its .comp file; its outputs images of ``dtype``, two at most)."""
+        pass of the same shader (its .comp file; its outputs images of ``dtype``, two at most);
+        by default as the backend's pixel stage (``stage``) has it."""
         ctx = self.ctx
         W, H = size
+        compute = self.stage == "compute" if compute is None else compute
         if compute:
             fmt = {"OUT_FORMAT": _UINT_FORMATS[dtype]} if dtype in _UINT_FORMATS else {}   # (quantize.frag's)
             prog = self.programs.compute(frag.replace(".frag", ".comp"), {**defines, **fmt})
@@ -132,7 +134,7 @@ class ImagePasses:
             # FP64: sigma and window in double from double uniforms, bit for bit numpy's
             defines = {name: None, "MAX_RADIUS": radius, **({"FP64": None} if self.fp64 else {})}
             out = self.fullscreen_pass("blur.frag", defines, {**inputs, "u_depth": depth}, uniforms, size, components,
-                                       scratch=temps, compute=self.stage == "compute")
+                                       scratch=temps)
             stages.append(name.lower())
             return out
 
@@ -159,15 +161,13 @@ class ImagePasses:
         finished (their candidate count is LIST_DONE; the lists bound as images); else the
         backend's own (:meth:`_output`)."""
         skip = {} if into is None else {"SKIP_DONE": None}
-        compute = self.stage == "compute"
         grey = self.fullscreen_pass("downsample.frag", {"SS": s, **skip}, {"u_samples": samples}, {}, (W, H),
-                                    into=self._output((W, H), "grey") if into is None else into[0], compute=compute)
+                                    into=self._output((W, H), "grey") if into is None else into[0])
         if depth is None:
             return grey, None
         return grey, self.fullscreen_pass("downsample.frag", {"SS": s, "COVERED_MEAN": None, **skip},
                                           {"u_samples": depth}, {}, (W, H),
-                                          into=self._output((W, H), "depth") if into is None else into[-1],
-                                          compute=compute)
+                                          into=self._output((W, H), "depth") if into is None else into[-1])
 
     def _output(self, size: tuple[int, int], role: str, dtype: str = "f4"):
         """This backend's one-component texture of ``size`` for the pixel passes' ``role``
@@ -193,8 +193,7 @@ class ImagePasses:
         dtype = "u1" if bit_depth == 8 else "u2"
         return self.fullscreen_pass("quantize.frag", {"FP64": None}, {"u_src": grey},
                                     {"u_top": float((1 << bit_depth) - 1)}, (W, H),
-                                    into=self._output((W, H), "quantized", dtype), dtype=dtype,
-                                    compute=self.stage == "compute")
+                                    into=self._output((W, H), "quantized", dtype), dtype=dtype)
 
     def noise_pass(self, grey, params, bit_depth: int, seed: int, table=None, scratch: list | None = None):
         """noise.frag on an R32F texture or (H, W) array: grey + σ(grey)·z, the same field as
@@ -205,7 +204,7 @@ class ImagePasses:
         H, W = grey.shape if isinstance(grey, np.ndarray) else grey.size[::-1]
         uniforms = {**noise.shader_uniforms(params, bit_depth), "u_seed": int(seed), "u_width": W}
         return self.fullscreen_pass("noise.frag", noise.shader_defines(params), inputs, uniforms, (W, H),
-                                    scratch=scratch, compute=self.stage == "compute")
+                                    scratch=scratch)
 
     def camera_passes(self, grey, fx, size: tuple[int, int], scratch: list, stages: list):
         """Vignetting, lens PSF and fixed-pattern noise where ``fx`` asks for them
