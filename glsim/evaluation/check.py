@@ -261,19 +261,17 @@ def _stages(c: Context) -> float:
     from glsim.backends.gl.plan import PIXEL_STAGES
 
     g, _ = _bulge(c)
-    saved, differ = g.backend.stage, 0
-    try:
-        for mode, spp in (("exact", 1), ("exact", 4), ("q4", 1), ("q4", 4), ("fast", 1), ("fast", 4)):
-            out = []
-            for g.backend.stage in PIXEL_STAGES:
+    differ = 0
+    for mode, spp in (("exact", 1), ("exact", 4), ("q4", 1), ("q4", 4), ("fast", 1), ("fast", 4)):
+        out = []
+        for stage in PIXEL_STAGES:
+            with g.backend.in_stage(stage):
                 out.append([g.render(cam, 1, truth=True, mode=mode, samples_per_pixel=spp) for cam in (0, 1)])
-            for a, b in zip(*out):
-                for x, y in ((a.image, b.image), (a.truth.element, b.truth.element), (a.truth.xi, b.truth.xi),
-                             (a.truth.eta, b.truth.eta), (a.truth.ref_uv, b.truth.ref_uv)):
-                    same = (x == y) | (np.isnan(x) & np.isnan(y)) if x.dtype.kind == "f" else x == y
-                    differ += int((~same).sum())
-    finally:
-        g.backend.stage = saved
+        for a, b in zip(*out):
+            for x, y in ((a.image, b.image), (a.truth.element, b.truth.element), (a.truth.xi, b.truth.xi),
+                         (a.truth.eta, b.truth.eta), (a.truth.ref_uv, b.truth.ref_uv)):
+                same = (x == y) | (np.isnan(x) & np.isnan(y)) if x.dtype.kind == "f" else x == y
+                differ += int((~same).sum())
     return float(differ)
 
 

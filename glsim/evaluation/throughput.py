@@ -54,7 +54,6 @@ Writes ``throughput.json`` and ``throughput.md``; only the full run writes to be
 """
 from __future__ import annotations
 
-import contextlib
 import datetime
 import math
 import statistics
@@ -147,7 +146,7 @@ def throughput(size=FULL_SIZE, reps: int = REPS, pairs: int = PAIRS, spps=SPPS, 
                 for _ in range(2):   # warm-up: programs, targets, ray maps; then the passes recorded
                     list(r.render_many(_jobs(1, mode, spp)))
                     list(new.render_many(_jobs(1, mode, spp, [next(fresh)])))
-                    with _stage(r, other):
+                    with r.backend.in_stage(other):
                         list(r.render_many(_jobs(1, mode, spp)))
                 row = {"mode": mode, "spp": spp, "single_s": [], "pipelined_s": [], "single_host_ms": [],
                        "pipelined_host_ms": [], "single_host_wall_ms": [], "pipelined_host_wall_ms": [],
@@ -162,7 +161,7 @@ def throughput(size=FULL_SIZE, reps: int = REPS, pairs: int = PAIRS, spps=SPPS, 
                         todo = (_jobs(pairs, mode, spp, [next(fresh) for _ in range(pairs)]) if way == "fresh"
                                 else jobs)
                         if way == "other":
-                            with _stage(r, other):
+                            with r.backend.in_stage(other):
                                 t = time.perf_counter()
                                 out = list(r.render_many(todo, depth=DEPTH))
                                 row["other_s"].append(time.perf_counter() - t)
@@ -206,16 +205,6 @@ def throughput(size=FULL_SIZE, reps: int = REPS, pairs: int = PAIRS, spps=SPPS, 
             "stage": stage,
             "counting": counting, "machine": machine, "date": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
             "rows": rows}
-
-
-@contextlib.contextmanager
-def _stage(renderer, stage: str):
-    """``renderer``'s GL backend with the pixel stage ``stage`` inside the block."""
-    saved, renderer.backend.stage = renderer.backend.stage, stage
-    try:
-        yield
-    finally:
-        renderer.backend.stage = saved
 
 
 def _counting_cost(reps: int) -> dict:

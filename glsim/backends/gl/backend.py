@@ -15,6 +15,7 @@ pixels it can); for s > 1 the box filter down to W×H (of the pixels not finishe
 """
 from __future__ import annotations
 
+import contextlib
 import functools
 from collections.abc import Callable
 from dataclasses import replace
@@ -257,6 +258,15 @@ class GLBackend(ImagePasses):
                 self.geometry.release()
             self.geometry = GeometryBuffers(self.ctx, self.programs, view.mesh_geo)
         return self.geometry
+
+    @contextlib.contextmanager
+    def in_stage(self, stage: str):
+        """This backend with the pixel stage ``stage`` inside the block (to compare the two)."""
+        saved, self.stage = self.stage, stage
+        try:
+            yield self
+        finally:
+            self.stage = saved
 
     @functools.cached_property
     def capabilities(self) -> Capabilities:
