@@ -3,7 +3,7 @@
 Tolerances are stated per test, each derived (glsim.evaluation.bounds): reference points
 within their mode's bound, and images, masks and element maps the same but where a sample lies
 within the mode's coverage tie distance of an element edge or the silhouette
-(bounds.tie_pixels: float64 in exact and q4, fast's float32 vertices snapped to
+(bounds.renderer_ties: float64 in exact and q4, fast's float32 vertices snapped to
 GL_SUBPIXEL_BITS), where the two may legitimately decide it the other way.
 """
 import dataclasses

@@ -171,19 +171,12 @@ def _mark(hit: np.ndarray, A: np.ndarray, B: np.ndarray, r: np.ndarray, s: int) 
         hit[row[ok & near], col[ok & near]] = True
 
 
-def tie_pixels(mode: str, cam, nodes: np.ndarray, quads: np.ndarray, subpixel_bits: int | None,
-               spp: int = 1) -> np.ndarray:
-    """:func:`near_edges` within ``mode``'s :func:`tie_px`: where GL's image, mask or element map
-    may differ from the oracle's by a sample decided the other way (element edges curved in the
-    exact mode under distortion)."""
-    return near_edges(cam, nodes, quads, tie_px(mode, cam.fx, subpixel_bits), spp, exact=mode == "exact")
-
-
 def renderer_ties(renderer, mode: str, cam: int, step: int, spp: int = 1) -> np.ndarray:
-    """:func:`tie_pixels` of camera ``cam`` at ``step`` in a GL renderer (its mesh, and its
-    rasterizer's GL_SUBPIXEL_BITS; exact and q4 as float64 builds, whose ties are float64's —
-    a float32 build decides coverage to its own mapping error, not derived here); with the
-    scene's depth of field, grown by the blur's reach
+    """Camera ``cam``'s pixels at ``step`` where a GL renderer's image, mask or element map may
+    differ from the oracle's by a sample decided the other way: :func:`near_edges` within
+    ``mode``'s :func:`tie_px` (its mesh, its rasterizer's GL_SUBPIXEL_BITS; exact and q4 as
+    float64 builds, whose ties are float64's — a float32 build decides coverage to its own
+    mapping error, not derived here); with the scene's depth of field, grown by the blur's reach
     (a sample decided the other way changes every pixel whose kernel takes it in: the largest
     kernel radius over the specimen's depths, which lie between its nodes')."""
     from glsim.effects import dof
@@ -193,7 +186,8 @@ def renderer_ties(renderer, mode: str, cam: int, step: int, spp: int = 1) -> np.
         raise ValueError("renderer_ties: a quadratic mesh's element edges are curved in space; "
                          "its ties are not derived here (linear meshes only)")
     camera, nodes = renderer.scene.cameras[cam], renderer.mesh.deformed(step)
-    tie = tie_pixels(mode, camera, nodes, renderer.mesh.quads, renderer.backend.capabilities.subpixel_bits, spp)
+    radius = tie_px(mode, camera.fx, renderer.backend.capabilities.subpixel_bits)
+    tie = near_edges(camera, nodes, renderer.mesh.quads, radius, spp, exact=mode == "exact")
     optics = renderer.scene.optics
     if optics is None or not tie.any():
         return tie
