@@ -211,10 +211,8 @@ def test_near_edges_of_exact_edges_under_distortion():
 
 
 def ref_bound(mode, cam, oracle):
-    """The bound of GL's reference points against the oracle's (px): float64, or per pixel fast's."""
-    if mode == "fast":
-        return bounds.fast_bound(cam.fx, oracle.ref_uv, oracle.mask)
-    return np.full(oracle.mask.shape, bounds.FLOAT64)
+    """The bound of GL's reference points against the oracle's (px, per pixel): bounds.mapping."""
+    return np.broadcast_to(bounds.mapping(mode, cam.fx, oracle.ref_uv, oracle.mask), oracle.mask.shape)
 
 
 @pytest.mark.gl

@@ -58,6 +58,13 @@ def fast_bound(fx: float, field: np.ndarray, mask: np.ndarray) -> np.ndarray:
     return fast_px(fx) * per_pixel(field, mask) + FLOAT64
 
 
+def mapping(mode: str, fx: float, field: np.ndarray, mask: np.ndarray):
+    """The bound of a GL map (reference points in px, material points in mm) against the
+    oracle's in ``mode``: FLOAT64 in exact and q4, per pixel :func:`fast_bound` (``field`` the
+    oracle's map, camera focal length ``fx`` px) in fast."""
+    return fast_bound(fx, field, mask) if mode == "fast" else FLOAT64
+
+
 def tie_px(mode: str, fx: float, subpixel_bits: int | None) -> float:
     """How far (px) from an element edge a sample may legitimately be covered differently by GL
     and the oracle: exact and q4 decide coverage in float64 from the same float64 corners

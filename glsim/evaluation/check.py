@@ -168,7 +168,7 @@ def _mapping(mode: str, spp: int, what: str, pair=_bulge) -> Callable[[Context],
     """Over the cameras of ``pair``'s scene (the bulge's two by default) at step 1, GL against
     the oracle in the same mode: the largest |Δref_uv| (px) or |ΔX_deformed| (mm) in units of
     its bound (glsim.evaluation.bounds: float64, or fast's per pixel), or the largest |Δgrey|
-    off the coverage ties in units of its bound (:func:`_grey_ratio`; exact and q4)."""
+    off the coverage ties in units of its bound (:func:`_grey_ratio`)."""
     def run(c: Context) -> float:
         g, o = pair(c)
         worst = 0.0
@@ -181,8 +181,7 @@ def _mapping(mode: str, spp: int, what: str, pair=_bulge) -> Callable[[Context],
             else:
                 field = b.truth.ref_uv if what == "ref" else b.truth.X_deformed
                 other = a.truth.ref_uv if what == "ref" else a.truth.X_deformed
-                bound = (bounds.fast_bound(a.camera.fx, field, b.truth.mask) if mode == "fast"
-                         else bounds.FLOAT64)
+                bound = bounds.mapping(mode, a.camera.fx, field, b.truth.mask)
                 v = (np.linalg.norm(other - field, axis=-1) / bound)[both].max()
             worst = max(worst, float(v))
         return worst
@@ -194,7 +193,7 @@ def _grey_ratio(g, o, a, b, mode: str, cam: int, spp: int) -> float:
     the oracle's ``b`` (renderer ``o``; ``b``'s truth at 1 spp) where no sample lies at a
     coverage tie (bounds.renderer_ties), in units of bounds.renderer_grey: GL's reference
     points within float64's bound (exact, q4) or fast's per pixel of the oracle's."""
-    shift = bounds.fast_bound(a.camera.fx, b.truth.ref_uv, b.truth.mask) if mode == "fast" else bounds.FLOAT64
+    shift = bounds.mapping(mode, a.camera.fx, b.truth.ref_uv, b.truth.mask)
     bound = bounds.renderer_grey(o, mode, cam, 1, spp, shift, b.truth)
     d = np.abs(a.image.astype(np.float64) - b.image)
     return float((d / bound)[~bounds.renderer_ties(g, mode, cam, 1, spp)].max())

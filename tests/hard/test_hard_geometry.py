@@ -427,10 +427,7 @@ def agreement(a, b, mode, fx, tie):
     same = both & (a.element == b.element)
     d = np.linalg.norm(a.ref_uv - b.ref_uv, axis=-1)
     dX = np.linalg.norm(a.X_deformed - b.X_deformed, axis=-1)
-    if mode == "fast":
-        ref_bound, X_bound = bounds.fast_bound(fx, b.ref_uv, b.mask), bounds.fast_bound(fx, b.X_deformed, b.mask)
-    else:
-        ref_bound = X_bound = bounds.FLOAT64
+    ref_bound, X_bound = (bounds.mapping(mode, fx, f, b.mask) for f in (b.ref_uv, b.X_deformed))
     return dict(covered=int(both.sum()), xor=int(((a.mask ^ b.mask) & ~tie).sum()),
                 element=int((both & (a.element != b.element) & ~tie).sum()),
                 ref_over=int((d > ref_bound)[both].sum()), ref_max=float(d[both].max()),
