@@ -440,25 +440,29 @@ class GLBackend(ImagePasses):
 
     def _view_uniforms(self, view: ViewSpec, geo, fp64: bool, sag: float) -> tuple[Uniforms, Uniforms]:
         """The uniforms every deformation program and view.comp read: its camera's
-        (:meth:`_camera_uniforms`) and the view's own, its transform
-        (:meth:`GeometryBuffers.view_values`), far plane and ``sag`` (px: a quadratic mesh's
-        pieces' chord error at this view, else 0), made once per view (the last VIEWS_KEPT kept)."""
+        (:meth:`_camera_uniforms`) and the view's own — whether its step excludes elements
+        (:meth:`GeometryBuffers.view_values`), its far plane and ``sag`` (px: a quadratic mesh's
+        pieces' chord error at this view, else 0) —, made once per view (the last VIEWS_KEPT kept)."""
         key = (id(view), id(geo), fp64, sag)
         hit = self._uniforms.get(key)
         if hit is None or hit[0] is not view or hit[1] is not geo:
             values = {**geo.view_values(view, fp64), "u_far": view.far, "u_extra_sag": sag}
             hit = keep(self._uniforms, key, (view, geo, Uniforms(values)), VIEWS_KEPT)
-        return self._camera_uniforms(view.camera, view.ref_camera, geo), hit[2]
+        return self._camera_uniforms(view, geo), hit[2]
 
-    def _camera_uniforms(self, cam, ref, geo) -> Uniforms:
-        """What the views of ``cam`` share (their bytes made once for all of its steps): the
-        camera and reference models, the sizes and view.glsl's constants for the mesh
+    def _camera_uniforms(self, view: ViewSpec, geo) -> Uniforms:
+        """What the views of ``view``'s camera share (their bytes made once for all of its steps,
+        written as part of a recorded pass): the camera and reference models, the transform of
+        the mesh's local frame to the camera's (``view.rotation``, ``view.translation``: the
+        camera's and the mesh's origin only), the sizes and view.glsl's constants for the mesh
         (:meth:`GeometryBuffers.camera_values`); the last VIEWS_KEPT kept."""
+        cam, ref = view.camera, view.ref_camera
         key = (id(cam), id(ref), id(geo))
         hit = self._camera_values.get(key)
         if hit is not None and hit[0] is cam and hit[1] is geo and hit[2] is ref:
             return hit[3]
-        u = Uniforms({**geo.camera_values(cam), "u_intr": cam.intrinsics, "u_dist": cam.distortion.coeffs,
+        u = Uniforms({**geo.camera_values(cam), "u_rot": view.rotation.ravel(), "u_trans": view.translation,
+                      "u_intr": cam.intrinsics, "u_dist": cam.distortion.coeffs,
                       "u_valid_r2": cam.distortion.valid_radius() ** 2,
                       "u_ref_intr": ref.intrinsics, "u_ref_dist": ref.distortion.coeffs,
                       "u_ref_valid_r2": ref.distortion.valid_radius() ** 2, "u_size": cam.size,

@@ -66,7 +66,7 @@ DRAW_BIG, DRAW_FALLBACK, DRAW_RESOLVE = 0, 1, 2   # the list flags' indirect dra
 class ViewSlot:
     """The view a deformation pass draws, :meth:`set` before each pass: ``view``, the mesh's
     ``geo`` (GeometryBuffers), a quadratic mesh's ``patches`` (PatchData of the view, or None)
-    and their uniforms — its camera's and its own (transform, far plane, excluded flag, the
+    and their uniforms — its camera's (with the transform) and its own (far plane, excluded flag, the
     patches' sagitta), as :class:`~glsim.backends.gl.uniforms.Uniforms` made by
     ``uniforms(view, geo, fp64, sag)`` when first written. What differs between the views of
     one camera (a time series' steps) is bound and written by the methods marked
@@ -271,10 +271,10 @@ class GeometryBuffers:
             buf.bind_to_storage_buffer(point)
 
     def view_values(self, view: ViewSpec, fp64: bool) -> dict:
-        """The view's transform and whether its step excludes elements (uniform name → value);
-        the rest of view.glsl's are :meth:`camera_values`."""
+        """Whether the view's step excludes elements (uniform name → value); the rest of
+        view.glsl's are :meth:`camera_values` and the backend's."""
         _, _, has = self._step_buffers(view, fp64)
-        return {"u_rot": view.rotation.ravel(), "u_trans": view.translation, "u_excluded": int(has)}
+        return {"u_excluded": int(has)}
 
     def camera_values(self, camera) -> dict:
         """view.glsl's constants for this mesh seen by ``camera`` (uniform name → value)."""
