@@ -16,6 +16,7 @@ import pytest
 from glsim.scene.camera import Camera, Distortion
 from glsim.errors import RenderWarning
 from glsim.evaluation import bounds
+from glsim.evaluation.accuracy import TARGET_MAP_MAX_PX
 from glsim.scene.mesh import Mesh
 from glsim.render import Renderer
 from glsim.scene import Plate, Scene, Specimen, bulge_scene
@@ -44,13 +45,22 @@ def backend_renderer(scene, backend, ctx_for):
     return Renderer(scene, backend, ctx=ctx_for(backend))
 
 
+def exact_tol(r: Renderer) -> float:
+    """Exact mode's reference points against an analytic map (px): float64's bound
+    (bounds.FLOAT64) on the oracle and on a driver with float64 — the check that a GPU's
+    float64 path stays float64 (an H200 once gave 4.6e-5 px); a driver without it computes in
+    float32, held to issue 12's requirement (accuracy.TARGET_MAP_MAX_PX: a goal; no bound is
+    derived for float32 exact)."""
+    return bounds.FLOAT64 if r.backend.capabilities.float64 else TARGET_MAP_MAX_PX
+
+
 # --------------------------------------------------------------------------------------------
 # Analytic: rigid in-plane translation of a fronto-parallel plate
 
 @pytest.mark.parametrize("distortion", [Distortion(), Distortion(k1=-0.2, k2=0.05, p1=1e-3)],
                          ids=["pinhole", "distorted"])
-@pytest.mark.parametrize("backend,tol", [("cpu", 1e-9), pytest.param("gl", 1e-4, marks=pytest.mark.gl)])
-def test_exact_mapping_equals_analytic_shift(backend, tol, distortion, ctx_for):
+@pytest.mark.parametrize("backend", ["cpu", pytest.param("gl", marks=pytest.mark.gl)])
+def test_exact_mapping_equals_analytic_shift(backend, distortion, ctx_for):
     scene = plate_scene(distortion=distortion, mode="exact")
     with backend_renderer(scene, backend, ctx_for) as r:
         for step, shift in ((0, (0, 0, 0)), (1, SHIFT)):
@@ -59,14 +69,14 @@ def test_exact_mapping_equals_analytic_shift(backend, tol, distortion, ctx_for):
             m = truth.mask
             assert m.sum() > 0.3 * m.size
             err = np.linalg.norm(truth.ref_uv[m] - expected[m], axis=-1)
-            assert err.max() <= tol, (step, err.max())
+            assert err.max() <= exact_tol(r), (step, err.max())
             # material points in camera 0's frame: deformed − undeformed = the imposed shift
             moved = truth.X_deformed[m] - truth.X_undeformed[m]
             assert np.abs(moved - shift).max() < 1e-9
 
 
-@pytest.mark.parametrize("backend,tol", [("cpu", 1e-9), pytest.param("gl", 1e-4, marks=pytest.mark.gl)])
-def test_distorted_reference_camera_equals_analytic_shift(backend, tol, ctx_for, tmp_path):
+@pytest.mark.parametrize("backend", ["cpu", pytest.param("gl", marks=pytest.mark.gl)])
+def test_distorted_reference_camera_equals_analytic_shift(backend, ctx_for, tmp_path):
     """A reference image taken through a distorting camera (speckle.image + speckle.camera):
     GL's general reference projection (a pinhole reference camera takes the per-element path,
     REF_PINHOLE) against OpenCV's projectPoints with that camera's distortion."""
@@ -87,6 +97,7 @@ def test_distorted_reference_camera_equals_analytic_shift(backend, tol, ctx_for,
         assert np.any(r.reference.camera.distortion.coeffs)
         truth = r.render(0, 1, truth=True).truth
         expected = opencv_ref_uv(r, 300.0, SHIFT)
+        tol = exact_tol(r)
     m = truth.mask
     assert m.sum() > 0.3 * m.size
     err = np.linalg.norm(truth.ref_uv[m] - expected[m], axis=-1)
@@ -471,6 +482,7 @@ def test_strong_corner_distortion_masks_beyond_valid_radius(backend, ctx_for):
         warnings.simplefilter("ignore", RenderWarning)
         res = r.render(0, 1, truth=True, mode="exact")
         expected = opencv_ref_uv(r, 100.0, SHIFT)
+        tol = exact_tol(r)
     check_stable(res)
     t = res.truth
     r_max = dist.valid_radius()
@@ -481,13 +493,13 @@ def test_strong_corner_distortion_masks_beyond_valid_radius(backend, ctx_for):
     assert not t.mask[rad_d > r_d_max * 1.001].any()
     inner = t.mask & (rad_d < 0.9 * r_d_max)
     assert inner.sum() > 1000
-    assert np.abs(t.ref_uv[inner] - expected[inner]).max() < (1e-9 if backend == "cpu" else 1e-4)
+    assert np.abs(t.ref_uv[inner] - expected[inner]).max() <= tol
 
 
 @pytest.mark.parametrize("backend", BACKENDS)
 def test_specimen_far_from_world_origin(backend, ctx_for):
     """Camera and plate 8 m from the world origin: camera-relative float64 geometry keeps the
-    GL exact mapping within 1e-4 px."""
+    exact mapping within float64's bound (exact_tol)."""
     far = np.array([5000.0, -3000.0, 8000.0])
     scene = plate_scene(t=tuple(-far))  # camera at `far`, looking along +z
     spec = scene.specimen
@@ -496,8 +508,9 @@ def test_specimen_far_from_world_origin(backend, ctx_for):
     with backend_renderer(scene, backend, ctx_for) as r:
         t = r.render(0, 1, truth=True, mode="exact").truth
         expected = opencv_ref_uv(r, 300.0, SHIFT)
+        tol = exact_tol(r)
     assert t.mask.sum() > 0.3 * t.mask.size
-    assert np.abs(t.ref_uv[t.mask] - expected[t.mask]).max() < (1e-9 if backend == "cpu" else 1e-4)
+    assert np.abs(t.ref_uv[t.mask] - expected[t.mask]).max() <= tol
 
 
 @pytest.mark.parametrize("backend", BACKENDS)
@@ -522,16 +535,19 @@ def test_pixels_exactly_on_edges_and_nodes_leave_no_holes(backend, mode, ctx_for
 # --------------------------------------------------------------------------------------------
 # Procedural speckle: the Boolean model evaluated exactly, no texture interpolation
 
-@pytest.mark.parametrize("backend,tol", [("cpu", 1e-6), pytest.param("gl", 2e-5, marks=pytest.mark.gl)])
-def test_procedural_grey_equals_the_speckle_at_the_analytic_point(backend, tol, ctx_for):
+@pytest.mark.parametrize("backend", ["cpu", pytest.param("gl", marks=pytest.mark.gl)])
+def test_procedural_grey_equals_the_speckle_at_the_analytic_point(backend, ctx_for):
     """Rigid shift: each pixel's grey is the speckle model's value at the analytic reference
-    point (OpenCV), evaluated independently of the renderer."""
+    point (OpenCV), evaluated independently of the renderer: within bounds.procedural (GL's
+    float32 evaluation, or the oracle's float32 image) at points exact_tol apart."""
     from glsim.scene import speckle
 
     scene = plate_scene(distortion=Distortion(k1=-0.2), mode="exact", interpolation="procedural")
     with backend_renderer(scene, backend, ctx_for) as r:
         res = r.render(0, 1, truth=True)
         expected = speckle.evaluate(r.reference.dots, opencv_ref_uv(r, 300.0, SHIFT))
+        tol = bounds.procedural(r.reference.dots, exact_tol(r), glsl=backend == "gl",
+                                float64=r.backend.capabilities.float64)
     m = res.truth.mask
     assert m.sum() > 0.3 * m.size
     assert np.abs(res.image[m] - expected[m]).max() < tol
@@ -563,12 +579,16 @@ def test_procedural_needs_the_generator(tmp_path):
 @pytest.mark.gl
 @pytest.mark.parametrize("mode", MODES)
 def test_gl_procedural_matches_oracle(bulge_pair, mode):
+    """Every pixel off the coverage ties within bounds.procedural: GL's float32 evaluation of
+    the dots (a float64 build in exact and q4, float32 in fast) at reference points within the
+    mode's mapping bound of the oracle's (bounds.mapping)."""
     g, c = bulge_pair
     a = g.render(1, 1, mode=mode, interpolation="procedural")
-    b = c.render(1, 1, mode=mode, interpolation="procedural")
-    d = np.abs(a.image.astype(np.float64) - b.image) * 255
-    # float32 dot offsets and distances in GL: within 0.5 grey levels but at coverage ties
-    assert off_ties(d > 0.5, bounds.renderer_ties(g, mode, 1, 1)) == 0 and np.median(d) < 1e-3
+    b = c.render(1, 1, mode=mode, interpolation="procedural", truth=True)
+    shift = bounds.mapping(mode, c.scene.cameras[1].fx, b.truth.ref_uv, b.truth.mask)
+    bound = bounds.procedural(c.reference.dots, shift, float64=mode != "fast" and g.backend.fp64)
+    over = np.abs(a.image.astype(np.float64) - b.image) > bound
+    assert off_ties(over, bounds.renderer_ties(g, mode, 1, 1)) == 0, over.sum()
 
 
 def test_shape_median_is_numpys():

@@ -270,8 +270,9 @@ def stacked_plates(layers: int):
 def test_candidate_lists_and_their_overflow_give_the_oracle(gl_ctx, mode, layers, stage):
     """Pixels with several candidates (resolve.frag or .comp) and with more than the lists hold
     (the fallback over the cover rectangles) show the nearest layer, as the oracle, in either
-    pixel stage; elements differ only on shared edges (pixel centres on an edge, both elements
-    giving the same point)."""
+    pixel stage: the same mask; elements differ only on the coverage ties (pixel centres on a
+    shared edge, within float64's tie distance, bounds.renderer_ties), both giving the same
+    point; grey levels within the mode's bound (bounds.renderer_grey) off the ties."""
     scene, mesh = stacked_plates(layers)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", RenderWarning)
@@ -280,12 +281,14 @@ def test_candidate_lists_and_their_overflow_give_the_oracle(gl_ctx, mode, layers
             a = g.render(0, 0, truth=True, mode=mode)
             flags = g.backend.geometry.list_flags(*scene.cameras[0].size)   # pass 1's draws of the last view
             b = c.render(0, 0, truth=True, mode=mode)
+            ties = bounds.renderer_ties(g, mode, 0, 0)
+            grey = bounds.renderer_grey(c, mode, 0, 0, 1, bounds.FLOAT64, b.truth)
     assert flags == (True, layers > 8)
     assert np.array_equal(a.truth.mask, b.truth.mask) and a.truth.mask.sum() > 5000
     differ = a.truth.element != b.truth.element
-    assert np.abs(a.truth.X_deformed[differ] - b.truth.X_deformed[differ]).max(initial=0) < 1e-9
-    assert differ.sum() < 0.01 * a.truth.mask.sum()
-    assert np.abs(a.image.astype(float) - b.image).max() * 255 < 0.01
+    assert np.abs(a.truth.X_deformed[differ] - b.truth.X_deformed[differ]).max(initial=0) <= bounds.FLOAT64
+    assert not (differ & ~ties).any() and ties.sum() < 0.2 * a.truth.mask.sum()
+    assert not ((np.abs(a.image.astype(float) - b.image) > grey) & ~ties).any()
 
 
 @pytest.mark.gl

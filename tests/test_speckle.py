@@ -176,3 +176,17 @@ def test_gradient_is_the_derivative_of_evaluate():
     assert (np.abs(g) > 0.01).any(axis=1).mean() > 0.2
     hard = speckle.draw_dots((60, 80), 6.0, 0.5, seed=3, edge_px=0.0)
     assert not speckle.gradient(hard, uv).any()
+
+
+@pytest.mark.parametrize("reach", [6.999002704514054, 1.0 + 2.0 ** -30, 0.3, 7.0])
+def test_dot_grid_cell_is_a_float32_at_least_the_reach(reach):
+    """The cell is the float the shaders receive (procedural.glsl's cell corners k·cell are then
+    the host's, where each dot's offset from its corner is made: a float64 cell put them up to
+    k·2^-24·cell apart, 6e-6 of full scale in grey on the plate) and at least the dots' reach,
+    max(reach, 1) rounded up, so that a point's dots stay in its 3 × 3 cells; the values of
+    speckle.evaluate do not depend on it."""
+    radius = reach - 0.5
+    dots = speckle.Dots(np.array([[3.0, 4.0], [40.0, 9.5]]), np.array([radius, radius / 2]), 1.0, 0.1, 0.9, (60, 60))
+    cell = speckle.dot_grid(dots).cell
+    assert cell == float(np.float32(cell)) and cell >= max(dots.reach, 1.0)
+    assert cell == max(dots.reach, 1.0) or float(np.nextafter(np.float32(cell), np.float32(0))) < max(dots.reach, 1.0)

@@ -430,6 +430,41 @@ def interpolation(method: str, coeffs_max: float) -> float:
     return ((n * n + 9) * S * S + 2 * S) * u * coeffs_max
 
 
+def procedural(dots, shift, glsl: bool = True, float64: bool = True):
+    """The largest |GL − oracle| of a procedural reference sample (shaders/procedural.glsl
+    against glsim.scene.speckle.evaluate in float64) at points ``shift`` px apart, for the
+    speckle ``dots`` (smooth edges, edge_px > 0); ``glsl=False``: the oracle's own float64
+    value stored as float32. GLSL 4.50's float32 rules, first order in u = 2^-24, with the
+    grid's cell c (max(reach, 1) px rounded up to a float32, glsim.scene.speckle.dot_grid; a dot
+    darkens within its reach ≤ c):
+
+    - the offset d = local − centre: local = (g − k)·c rounded (|local| < 2c per axis), the
+      dot's centre stored relative to its cell (< c), the difference (< c): |Δd| ≤ √2·5u·c;
+      g = (uv − origin)/c is float64 in a float64 build; in a float32 one (``float64=False``)
+      the subtraction, division and product add 6u·|uv − origin| per axis, |uv − origin| under
+      the reference image's larger side plus the grid's extra cell (max(dots.shape) + c);
+    - r = length(d) = 1/inversesqrt(d·d) (2 + 2.5 ULP) over a 3u dot product: 11u·r ≤ 11u·c;
+    - x = 0.5 − (r − radius)/edge where 0 < x < 1 (|r − radius| ≤ edge/2): the radius' storage
+      (u·c) and the difference's rounding (u·edge/2) over edge, the division (2.5 ULP of a
+      quotient ≤ ½), the edge's storage and the subtraction: Δx ≤ (Δr + u·c + u·edge/2)/edge + 5u;
+    - the smoothstep x²(3 − 2x), slope ≤ 1.5: 1.5·Δx + 4u; the darkest dot's (max, exact);
+    - grey = white − (white − black)·darkness: |white − black|·Δprofile + 6u·max(|white|, |black|)
+      (the levels' storage, their difference, the product, the subtraction);
+    - the points' distance: the largest slope, |white − black|·1.5/edge, times ``shift`` (px,
+      a number or per pixel: then the bound is per pixel)."""
+    if not dots.edge_px > 0:
+        raise ValueError("bounds.procedural: hard dots (edge_px = 0) change grey by a step at their edge")
+    u = FLOAT32_ROUNDOFF
+    span, level = abs(dots.white - dots.black), max(abs(dots.white), abs(dots.black))
+    slope = span * 1.5 / dots.edge_px
+    if not glsl:
+        return slope * np.asarray(shift) + u * level
+    c = max(dots.reach, 1.0)
+    dr = np.sqrt(2) * (5 * u * c + (0.0 if float64 else 6 * u * (max(dots.shape) + c))) + 11 * u * c
+    dx = (dr + u * c + u * dots.edge_px / 2) / dots.edge_px + 5 * u
+    return span * (1.5 * dx + 4 * u) + 6 * u * level + slope * np.asarray(shift)
+
+
 def _f32_error(value: float) -> float:
     """|float32(value) − value|: a float64 uniform's rounding as the shader receives it."""
     return abs(float(np.float32(value)) - float(value))

@@ -230,8 +230,13 @@ class DotGrid:
 
 
 def dot_grid(dots: Dots) -> DotGrid:
-    """Bin the dots' centres into cells of size max(reach, 1) px (CSR layout)."""
-    cell = max(dots.reach, 1.0)
+    """Bin the dots' centres into cells of size max(reach, 1) px (CSR layout), rounded up to a
+    float32 value: the shaders (procedural.glsl) take it as a float uniform, and a cell corner
+    k·cell must be the same there as here, where the dots' offsets from their corners are made."""
+    reach = max(dots.reach, 1.0)
+    cell = float(np.float32(reach))
+    if cell < reach:
+        cell = float(np.nextafter(np.float32(reach), np.float32(np.inf)))
     origin = dots.centres.min(axis=0) if len(dots.radii) else np.zeros(2)
     ij = np.floor((dots.centres - origin) / cell).astype(np.int64)
     nx, ny = (ij.max(axis=0) + 1) if len(dots.radii) else (1, 1)
