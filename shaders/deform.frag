@@ -233,8 +233,9 @@ void projected_corners(int e, real3 P[4], real2 xn, real2 lo, out real2 p[4]) {
     int l = 32 * e;
     float cz = elem_local[l + 24];
     if (cz > 0.0) {
-        // the high halves' difference is exact (they are close), the low ones' small
-        vec2 d = (xn - vec2(elem_local[l + 26], elem_local[l + 27])) + (lo - vec2(elem_local[l + 28], elem_local[l + 29]));
+        // the high halves' difference is exact (they are close), the low ones' small; `precise`:
+        // a hi/lo pair regrouped as (xn + lo) - (C_hi + C_lo) would lose the low halves
+        precise vec2 d = (xn - vec2(elem_local[l + 26], elem_local[l + 27])) + (lo - vec2(elem_local[l + 28], elem_local[l + 29]));
         #pragma unroll
         for (int i = 0; i < 4; ++i) {
             vec3 D = vec3(elem_local[l + 12 + 3 * i], elem_local[l + 13 + 3 * i], elem_local[l + 14 + 3 * i]);
@@ -264,9 +265,14 @@ bool exact_reference(int e, real xi, real eta, out real2 ref) {
     real2 dxn = (d.xy * C.z - C.xy * d.z) / (C.z * zd);
     real2 duv = real2(u_ref_intr[0] * dxn.x + u_ref_intr[2] * dxn.y, u_ref_intr[1] * dxn.y);
     real2 hi = real2(ref_local[r + 16], ref_local[r + 17]);
-    ref_lo = real2(ref_local[r + 18], ref_local[r + 19]) + duv;
-    ref = hi + ref_lo;
-    ref_lo -= ref - hi;   // what the float32 sum dropped (Fast2Sum: |hi| >= |lo| here)
+    // Fast2Sum (|hi| >= |lo| here): ref and what the float32 sum dropped, `precise` so that no
+    // compiler folds (lo - ((hi + lo) - hi)) to 0
+    precise real2 lo = real2(ref_local[r + 18], ref_local[r + 19]) + duv;
+    precise real2 sum = hi + lo;
+    precise real2 back = sum - hi;
+    precise real2 dropped = lo - back;
+    ref = sum;
+    ref_lo = dropped;
     real2 xn_ref = C.xy / C.z + dxn;
     ref_ok = zd > 0.0 && dot(xn_ref, xn_ref) < u_ref_valid_r2;
 #elif defined(REF_PINHOLE)

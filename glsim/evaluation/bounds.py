@@ -80,7 +80,7 @@ def tie_px(mode: str, fx: float, subpixel_bits: int | None) -> float:
 EDGE_PIECES = 32   # a distorted exact-mode edge: pieces of its polyline (:func:`near_edges`)
 
 
-def near_edges(cam, nodes: np.ndarray, quads: np.ndarray, radius: float, spp: int = 1,
+def near_edges(cam, nodes: np.ndarray, quads: np.ndarray, radius, spp: int = 1,
                exact: bool = False) -> np.ndarray:
     """(H, W) bool: the pixels with a sample (:func:`glsim.scene.camera.pixel_grid`'s s×s points)
     within ``radius`` px of an element edge as ``cam`` projects it — the pixels where a coverage
@@ -92,13 +92,15 @@ def near_edges(cam, nodes: np.ndarray, quads: np.ndarray, radius: float, spp: in
     points, the radius widened by its largest second difference |p₋ − 2p + p₊| (the chords'
     deviation from the curve is about an eighth of it), edges with a point it cannot project left
     out; through a pinhole, an edge that crosses the camera plane is imaged as a half-line from
-    its end in front (drawn to LONG_PX beyond it)."""
+    its end in front (drawn to LONG_PX beyond it). ``radius``: px, or a function of the edges'
+    node indices (a, b) giving each its own (:func:`glsim.evaluation.exact32.edge_px`)."""
     from glsim.scene.camera import project, to_camera
 
     s = int(round(np.sqrt(spp)))
     W, H = cam.size
     pairs = np.sort(np.stack([quads, np.roll(quads, -1, axis=1)], -1).reshape(-1, 2), axis=1)
     a, b = np.unique(pairs, axis=0).T
+    radius = radius(a, b) if callable(radius) else np.full(len(a), float(radius))
     if exact and np.any(cam.distortion.coeffs != 0):
         t = np.linspace(0.0, 1.0, EDGE_PIECES + 1)
         P = nodes[a, None] * (1 - t[None, :, None]) + nodes[b, None] * t[None, :, None]
@@ -106,15 +108,14 @@ def near_edges(cam, nodes: np.ndarray, quads: np.ndarray, radius: float, spp: in
         uv, ok = uv.reshape(len(a), -1, 2), ok.reshape(len(a), -1).all(axis=1)
         bend = np.linalg.norm(uv[:, :-2] - 2 * uv[:, 1:-1] + uv[:, 2:], axis=-1).max(axis=1)
         A, B = uv[ok, :-1].reshape(-1, 2), uv[ok, 1:].reshape(-1, 2)
-        r = np.repeat(radius + bend[ok], EDGE_PIECES)
+        r = np.repeat(radius[ok] + bend[ok], EDGE_PIECES)
     else:
         uv, ok = project(nodes, cam)
         keep = ok[a] & ok[b]
-        A, B = uv[a[keep]], uv[b[keep]]
+        A, B, r = uv[a[keep]], uv[b[keep]], radius[keep]
         if exact:
-            starts, ends = _half_lines(to_camera(nodes, cam), a, b, cam)
-            A, B = np.concatenate([A, starts]), np.concatenate([B, ends])
-        r = np.full(len(A), float(radius))
+            starts, ends, crossing = _half_lines(to_camera(nodes, cam), a, b, cam)
+            A, B, r = np.concatenate([A, starts]), np.concatenate([B, ends]), np.concatenate([r, radius[crossing]])
     hit = np.zeros((H * s, W * s), bool)
     steep = np.abs(B[:, 1] - A[:, 1]) > np.abs(B[:, 0] - A[:, 0])
     for axis in (0, 1):   # walk a segment's sample columns (mostly horizontal) or rows (steep)
@@ -130,7 +131,8 @@ def _half_lines(Xc: np.ndarray, a: np.ndarray, b: np.ndarray, cam) -> tuple[np.n
     """Through a pinhole ``cam``, the images of the edges a→b (node indices; ``Xc`` the nodes
     in its frame, mm) that cross its plane: from the projection of the end in front (z > 0)
     along the image of the edge toward the end behind, LONG_PX long — the front part's image
-    is that half-line, reaching infinity where the edge meets z = 0. Returns (starts, ends)."""
+    is that half-line, reaching infinity where the edge meets z = 0. Returns (starts, ends) and
+    the indices of their edges in a, b."""
     from glsim.scene.camera import project_camera_frame
 
     za, zb = Xc[a, 2], Xc[b, 2]
@@ -144,7 +146,7 @@ def _half_lines(Xc: np.ndarray, a: np.ndarray, b: np.ndarray, cam) -> tuple[np.n
     d = q - p
     n = np.linalg.norm(d, axis=1)
     ok = n > 0                                      # (an edge on a ray through the centre: a point)
-    return p[ok], p[ok] + d[ok] / n[ok, None] * LONG_PX
+    return p[ok], p[ok] + d[ok] / n[ok, None] * LONG_PX, np.flatnonzero(cross)[ok]
 
 
 def _mark(hit: np.ndarray, A: np.ndarray, B: np.ndarray, r: np.ndarray, s: int) -> None:
@@ -178,12 +180,13 @@ def _mark(hit: np.ndarray, A: np.ndarray, B: np.ndarray, r: np.ndarray, s: int) 
         hit[row[ok & near], col[ok & near]] = True
 
 
-def renderer_ties(renderer, mode: str, cam: int, step: int, spp: int = 1) -> np.ndarray:
+def renderer_ties(renderer, mode: str, cam: int, step: int, spp: int = 1, precision: str = "fp64") -> np.ndarray:
     """Camera ``cam``'s pixels at ``step`` where a GL renderer's image, mask or element map may
     differ from the oracle's by a sample decided the other way: :func:`near_edges` within
     ``mode``'s :func:`tie_px` (its mesh, its rasterizer's GL_SUBPIXEL_BITS; exact and q4 as
-    float64 builds, whose ties are float64's — a float32 build decides coverage to its own
-    mapping error, not derived here); with the scene's depth of field, grown by the blur's reach
+    float64 builds, whose ties are float64's); exact with ``precision`` "fp32" within each
+    edge's own distance (:func:`glsim.evaluation.exact32.edge_px`: its float32 edge function,
+    on a driver with float64; q4's float32 build is not derived); with the scene's depth of field, grown by the blur's reach
     (a sample decided the other way changes every pixel whose kernel takes it in: the largest
     kernel radius over the specimen's depths, which lie between its nodes')."""
     from glsim.effects import dof
@@ -194,6 +197,13 @@ def renderer_ties(renderer, mode: str, cam: int, step: int, spp: int = 1) -> np.
                          "its ties are not derived here (linear meshes only)")
     camera, nodes = renderer.scene.cameras[cam], renderer.mesh.deformed(step)
     radius = tie_px(mode, camera.fx, renderer.backend.capabilities.subpixel_bits)
+    if precision == "fp32" and mode != "fast":
+        if mode != "exact" or not renderer.backend.capabilities.float64:
+            raise ValueError("renderer_ties: float32 ties are derived for exact on a driver with float64 only")
+        from glsim.evaluation.exact32 import edge_px
+
+        Pc = to_camera(nodes, camera)
+        radius = lambda a, b: edge_px(camera, Pc[a], Pc[b]) + FLOAT64   # noqa: E731
     tie = near_edges(camera, nodes, renderer.mesh.quads, radius, spp, exact=mode == "exact")
     optics = renderer.scene.optics
     if optics is None or not tie.any():

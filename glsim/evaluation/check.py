@@ -188,6 +188,33 @@ def _mapping(mode: str, spp: int, what: str, pair=_bulge) -> Callable[[Context],
     return run
 
 
+def _fp32_exact(what: str) -> Callable[[Context], float]:
+    """Over the bulge's cameras at step 1, GL's float32 exact build (precision fp32: CAMERA_LOCAL,
+    REF_LOCAL) against the oracle's exact: the largest |Δref_uv| off its ties in units of its
+    bound (glsim.evaluation.exact32.renderer_mapping), or the pixels whose mask or element
+    differs off its ties (bounds.renderer_ties with precision fp32); NaN (skipped) on a driver
+    without float64, which the build's records need."""
+    def run(c: Context) -> float:
+        from glsim.evaluation import exact32
+
+        g, o = _bulge(c)
+        if not g.backend.fp64:
+            return float("nan")
+        worst = 0.0
+        for cam in range(len(g.scene.cameras)):
+            a = g.render(cam, 1, truth=True, mode="exact", precision="fp32").truth
+            b = o.render(cam, 1, truth=True, mode="exact").truth
+            off = ~bounds.renderer_ties(g, "exact", cam, 1, precision="fp32")
+            if what == "ref":
+                bound = exact32.renderer_mapping(g, b, cam, 1) + bounds.FLOAT64
+                v = (np.linalg.norm(a.ref_uv - b.ref_uv, axis=-1) / bound)[a.mask & b.mask & off].max()
+            else:
+                v = (((a.mask ^ b.mask) | (a.mask & b.mask & (a.element != b.element))) & off).sum()
+            worst = max(worst, float(v))
+        return worst
+    return run
+
+
 def _grey_ratio(g, o, a, b, mode: str, cam: int, spp: int) -> float:
     """The largest |Δgrey| of GL's image ``a`` (renderer ``g``, camera ``cam``, step 1) against
     the oracle's ``b`` (renderer ``o``; ``b``'s truth at 1 spp) where no sample lies at a
@@ -293,6 +320,11 @@ CHECKS = (
           _mapping("exact", 4, "grey")),
     Check("bulge fast 4 spp: grey per pixel", 1, "× bound", GREY + ", the samples within fast's float32 bound",
           _mapping("fast", 4, "grey")),
+    Check("bulge exact fp32 1 spp: reference point", 1, "× bound", "glsim.evaluation.exact32.renderer_mapping: "
+          "the float32 solve relative to each element's centre and the reference projection (CAMERA_LOCAL, "
+          "REF_LOCAL), off its ties", _fp32_exact("ref")),
+    Check("bulge exact fp32 1 spp: coverage and elements", 0, "px off ties", "each edge's float32 edge function "
+          "(glsim.evaluation.exact32.edge_px, bounds.renderer_ties with precision fp32)", _fp32_exact("coverage")),
     Check("bulge q4 1 spp: reference point", 1, "× bound", FLOAT64, _mapping("q4", 1, "ref")),
     Check("bulge fast 1 spp: reference point", 1, "× bound", "glsim.evaluation.bounds.fast_bound: float32 vertex "
           "projection, fx·12·2^-24 px times the reference pixels per image pixel", _mapping("fast", 1, "ref")),
