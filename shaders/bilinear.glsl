@@ -59,6 +59,31 @@ void edge_functions_ray(real3 P[4], real2 xn, out real E[4], out real2 m[4]) {
     }
 }
 
+#ifndef FP64
+// Float32 builds: the same edge functions, each edge's from its first corner in the mesh's node
+// order q as a x (b - a) (= a x b): float32 then rounds products of ~|P| coordinates with the
+// edge's length, not with another ~|P| (so a sample is decided to within about 2^-24 |P| of the
+// edge, not |P|/length times that: glsim.evaluation.exact32.edge_px); one order for both
+// elements of an edge, negated for the one that runs it backwards, keeps them exactly opposite.
+// (Float64 builds keep P_i x P_j, the oracle's to the bit.)
+void edge_functions_ray_ordered(real3 P[4], ivec4 q, real2 xn, out real E[4], out real2 m[4]) {
+    #pragma unroll
+    for (int k = 0; k < 4; ++k) {
+        const int j = (k + 1) & 3;
+        bool back = q[k] > q[j];
+        real3 a = back ? P[j] : P[k];
+        precise real3 d = (back ? P[k] : P[j]) - a;
+        precise real mx = a.y * d.z - a.z * d.y;
+        precise real my = a.z * d.x - a.x * d.z;
+        precise real mz = a.x * d.y - a.y * d.x;
+        precise real e = (xn.x * mx + xn.y * my) + mz;
+        real s = back ? -1.0 : 1.0;
+        E[k] = s * e;
+        m[k] = s * real2(mx, my);
+    }
+}
+#endif
+
 // K P of camera-frame corners for pinhole intrinsics intr (fx, fy, skew, cx, cy): (u, v, 1) .
 // (A_i x A_j) is fx fy times the ray's edge function, measured from the sample's pixel point,
 // which is exact, instead of its rounded ray (glsim.scene.bilinear.pinhole_corners).
@@ -203,8 +228,9 @@ void invert_closed(real2 p[4], real2 q, out real xi[2], out real eta[2], out boo
 // problem with target (0, 0), p = P.xy - xn P.z, given here (deform.frag's CAMERA_LOCAL makes
 // it relative to the element's centre in float32). A root counts where the tie rule (owned)
 // gives it to this element; PIXEL_TIES (a pinhole camera; the including shader declares its
-// u_intr) decides it in pixel space at the sample's pixel point px.
-bool intersect_ray_patch_p(real3 P[4], real2 p[4], real2 xn, real2 px, out real xi, out real eta, out real Z) {
+// u_intr) decides it in pixel space at the sample's pixel point px. q: the element's node
+// indices (float32 builds' edge function order).
+bool intersect_ray_patch_p(real3 P[4], real2 p[4], ivec4 q, real2 xn, real2 px, out real xi, out real eta, out real Z) {
     real xs[2], es[2];
     bool ok[2];
     invert_closed(p, real2(0.0), xs, es, ok);
@@ -222,10 +248,19 @@ bool intersect_ray_patch_p(real3 P[4], real2 p[4], real2 xn, real2 px, out real 
 #ifdef PIXEL_TIES
             real3 A[4];
             pinhole_corners(P, u_intr, A);
-            edge_functions_ray(A, px, E, m);
+#define TIE_CORNERS A
+#define TIE_POINT px
 #else
-            edge_functions_ray(P, xn, E, m);
+#define TIE_CORNERS P
+#define TIE_POINT xn
 #endif
+#ifdef FP64
+            edge_functions_ray(TIE_CORNERS, TIE_POINT, E, m);
+#else
+            edge_functions_ray_ordered(TIE_CORNERS, q, TIE_POINT, E, m);
+#endif
+#undef TIE_CORNERS
+#undef TIE_POINT
             if (!owned(xs[k], es[k], E, m, orientation_ray(P, xs[k], es[k]))) ok[k] = false;
         }
         if (!ok[k]) continue;

@@ -359,7 +359,7 @@ bool map_sample(int e, real2 px, real2 xn, out real xi, out real eta, out real2 
     element_camera(e, P);
     real2 p[4];
     projected_corners(e, P, xn, ray_lo, p);
-    if (!intersect_ray_patch_p(P, p, xn, px, xi, eta, Z)) return false;
+    if (!intersect_ray_patch_p(P, p, quads[e], xn, px, xi, eta, Z)) return false;
     ref_ok = exact_reference(e, xi, eta, ref);
 #endif
     ref_ok = ref_ok && inside_reference(ref);

@@ -29,11 +29,13 @@ def random_elements(rng, n, z=(300.0, 900.0), size=(1.0, 8.0)):
 
 
 def edge_function32(A, B, x, y):
-    """bilinear.glsl's edge function in float32 (`precise`: no fused multiply-add)."""
+    """bilinear.glsl's float32 edge function, edge_functions_ray_ordered: A × (B − A) from the
+    edge's first corner (`precise`: no fused multiply-add)."""
     A, B, x, y = (np.asarray(v, f32) for v in (A, B, x, y))
-    mx = A[:, 1] * B[:, 2] - A[:, 2] * B[:, 1]
-    my = A[:, 2] * B[:, 0] - A[:, 0] * B[:, 2]
-    mz = A[:, 0] * B[:, 1] - A[:, 1] * B[:, 0]
+    d = B - A
+    mx = A[:, 1] * d[:, 2] - A[:, 2] * d[:, 1]
+    my = A[:, 2] * d[:, 0] - A[:, 0] * d[:, 2]
+    mz = A[:, 0] * d[:, 1] - A[:, 1] * d[:, 0]
     return (x * mx + y * my) + mz
 
 
@@ -44,9 +46,9 @@ def edge_function64(A, B, x, y):
 
 @pytest.mark.parametrize("distortion", [Distortion(), Distortion(k1=-0.2, k2=0.05)], ids=["pinhole", "distorted"])
 def test_edge_distance_bounds_the_float32_edge_function(distortion):
-    """Samples on random edges: |E₃₂ − E|/|∇E| within edge_px (through a pinhole in pixel
+    """Samples near random edges: |E₃₂ − E|/|∇E| within edge_px (through a pinhole in pixel
     space on K·P at the exact pixel point; else at the ray's float32 high half, times the
-    largest ‖∂uv/∂xn‖, here at least fx)."""
+    largest ‖∂uv/∂xn‖, here at least fx), which is a few 1e-3 px at most here."""
     rng = np.random.default_rng(3)
     cam = Camera(name="c", size=(1624, 1234), fx=3000.0, fy=3000.0, cx=812.0, cy=617.0, distortion=distortion)
     P = random_elements(rng, 4000)
@@ -74,8 +76,8 @@ def test_edge_distance_bounds_the_float32_edge_function(distortion):
         E, grad = edge_function64(Pa, Pb, xn[:, 0], xn[:, 1])
         dist = np.abs(E32 - E) / grad * cam.fx                        # ≥ fx·(xn distance): at most the bound
     assert (dist <= radius).all(), (dist / radius).max()
-    # float32 edge functions of small, steep, far elements err by up to ~0.1 px (both cases)
-    assert np.median(radius) < 1.0 and (dist > 0).mean() > 0.9
+    # (the float32 edge function P x P' instead of P x (P' − P) erred by up to 0.13 px here)
+    assert np.median(radius) < 0.01 and (dist > 0).mean() > 0.5
     assert (dist / radius).max() > 0.01                                 # the bound is not loose by orders
 
 

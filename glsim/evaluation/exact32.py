@@ -5,13 +5,15 @@ centre; PIXEL_TIES through a pinhole). First order in u = 2^-24 under GLSL 4.50'
 and × within u of the exact result (a contraction into a fused multiply-add rounds once, not
 twice: within the same bound; the edge functions are `precise`), a stored float64 value within
 u. Each quantity is carried as its value and a bound of its error (:class:`_F`) through the
-shaders' operations in their order; where a sum's operands' signs are unknown the rounding is
-bounded by u(|a| + |b|).
+shaders' operations in their order, each rounding within u of its exact result; where only a
+bound of an operand's magnitude is known (a sample's ray or pixel anywhere in the image), a
+sum's rounding within u(|a| + |b|).
 
 - :func:`edge_px`: how far (px) from an element edge a sample may be given to the other side:
-  the edge function E = (x, y, 1)·(Pᵢ × Pⱼ) (bilinear.glsl's edge_functions_ray on the rounded
-  camera-frame corners and the sample's float32 ray; through a pinhole pinhole_corners' K·P and
-  the exact pixel point) over |∇E| — the oracle decides the same in float64. Its (ξ, η), whose
+  the edge function E = (x, y, 1)·(Pᵢ × (Pⱼ − Pᵢ)) (bilinear.glsl's edge_functions_ray_ordered
+  on the rounded camera-frame corners and the sample's float32 ray; through a pinhole
+  pinhole_corners' K·P and the exact pixel point) over |∇E| — the oracle decides the same in
+  float64. Its (ξ, η), whose
   float32 error is far smaller, only chooses where the edge function is asked (NEAR_TOL, 1e-3).
 - :func:`mapping_px`: per pixel, the reference point's error: the camera-side problem's corners
   p = (D.xy − x D.z) − C.z d (deform.frag's projected_corners) and the residual Σ Nᵢ pᵢ at the
@@ -51,11 +53,19 @@ def _exact(x) -> _F:
 
 
 def _add(a: _F, b: _F) -> _F:
-    return _F(a.v + b.v, a.e + b.e + U * (np.abs(a.v) + np.abs(b.v)))
+    v = a.v + b.v
+    return _F(v, a.e + b.e + U * np.abs(v))
 
 
 def _sub(a: _F, b: _F) -> _F:
-    return _F(a.v - b.v, a.e + b.e + U * (np.abs(a.v) + np.abs(b.v)))
+    v = a.v - b.v
+    return _F(v, a.e + b.e + U * np.abs(v))
+
+
+def _add_magnitudes(a: _F, b: _F) -> _F:
+    """A sum whose operands are known by their magnitudes only (``v`` a bound of |value|): its
+    rounding bounded by u(|a| + |b|)."""
+    return _F(a.v + b.v, a.e + b.e + U * (a.v + b.v))
 
 
 def _mul(a: _F, b: _F) -> _F:
@@ -74,12 +84,15 @@ def _comp(P: np.ndarray, k: int, stored: bool = True) -> _F:
 
 
 def _edge_function(A, B, x: _F, y: _F) -> tuple[_F, np.ndarray]:
-    """E = (x·mx + y·my) + mz with m = A × B (bilinear.glsl, `precise`), A, B as (3,) tuples of
-    _F; returns E and |(mx, my)| (its gradient in (x, y)), exact."""
-    mx = _sub(_mul(A[1], B[2]), _mul(A[2], B[1]))
-    my = _sub(_mul(A[2], B[0]), _mul(A[0], B[2]))
-    mz = _sub(_mul(A[0], B[1]), _mul(A[1], B[0]))
-    E = _add(_add(_mul(x, mx), _mul(y, my)), mz)
+    """E = (x·mx + y·my) + mz with m = A × (B − A) (bilinear.glsl's float32
+    edge_functions_ray_ordered, `precise`; A the edge's first corner in node order), A, B as
+    (3,) tuples of _F; returns E and |(mx, my)| (its gradient in (x, y)), exact."""
+    d = [_sub(B[k], A[k]) for k in range(3)]
+    mx = _sub(_mul(A[1], d[2]), _mul(A[2], d[1]))
+    my = _sub(_mul(A[2], d[0]), _mul(A[0], d[2]))
+    mz = _sub(_mul(A[0], d[1]), _mul(A[1], d[0]))
+    ax, ay, az = (_F(np.abs(t.v), t.e) for t in (_mul(x, mx), _mul(y, my), mz))   # x, y: bounds of |x|, |y|
+    E = _add_magnitudes(_add_magnitudes(ax, ay), az)
     return E, np.hypot(mx.v, my.v)
 
 
@@ -101,13 +114,17 @@ def _image_extent(cam) -> tuple[float, float]:
 
 
 def edge_px(cam, Pa: np.ndarray, Pb: np.ndarray) -> np.ndarray:
-    """Per edge a → b (camera-frame ends (K, 3), mm, float64), the distance (px) within which a
-    sample may be decided the other way (module text). Through a pinhole (PIXEL_TIES): E on
-    K·P (intrinsics stored as float32, the products and sums rounded) at the exact pixel point
-    (|u| ≤ W, |v| ≤ H), over |∇E| in px. Under distortion: E on P at the sample's ray, its
-    float32 high half (|x|, |y| at most the image's, :func:`_image_extent`), over |∇E| in
-    normalized coordinates, times the largest ‖∂uv/∂xn‖ along the edge (fx, fy and the
-    distortion's Jacobian at 9 points of its image)."""
+    """Per edge a → b (camera-frame ends (K, 3), mm, float64; a the lower node index), the
+    distance (px) within which a sample may be decided the other way (module text): what the
+    float32 corners' own rounding moves the edge — its ends, each by its displacement in the
+    image (through a pinhole: K·P with the intrinsics stored as float32, the products and sums
+    rounded; else P rounded, and the sample's ray rounded to its float32 high half) — plus the
+    edge function's arithmetic on those float32 corners over |∇E|: through a pinhole
+    (PIXEL_TIES) at the exact pixel point (|u| ≤ W, |v| ≤ H), in px; under distortion at the
+    ray (|x|, |y| at most the image's, :func:`_image_extent`), in normalized coordinates times
+    the largest ‖∂uv/∂xn‖ along the edge (fx, fy and the distortion's Jacobian at 9 points of
+    its image). An edge with an end not in front of the camera (z ≤ 0, its image a half-line)
+    takes the first-order bound of E with the corners' rounding in it, componentwise."""
     pinhole = not np.any(cam.distortion.coeffs)
     if pinhole:
         fx, fy, skew, cx, cy = (_stored(v) for v in cam.intrinsics)
@@ -116,20 +133,36 @@ def edge_px(cam, Pa: np.ndarray, Pb: np.ndarray) -> np.ndarray:
             X, Y, Z = (_comp(P, k) for k in range(3))
             return (_add(_add(_mul(fx, X), _mul(skew, Y)), _mul(cx, Z)), _add(_mul(fy, Y), _mul(cy, Z)), Z)
 
+        A, B = corners(Pa), corners(Pb)
         W, H = cam.size
-        E, grad = _edge_function(corners(Pa), corners(Pb), _exact(float(W)), _exact(float(H)))
+        u, v = _exact(float(W)), _exact(float(H))
+        whole, grad = _edge_function(A, B, u, v)
+        E, _ = _edge_function(*(tuple(_exact(c.v) for c in X) for X in (A, B)), u, v)
         with np.errstate(divide="ignore", invalid="ignore"):
-            return np.where(grad > 0, E.e / grad, np.inf)
+            moved = np.maximum(_end_px(A), _end_px(B))
+            arith = np.where(np.minimum(A[2].v, B[2].v) > 0, moved + E.e / grad, whole.e / grad)
+            return np.where(grad > 0, arith, np.inf)
     xmax, ymax = _image_extent(cam)
-    E, grad = _edge_function(tuple(_comp(Pa, k) for k in range(3)), tuple(_comp(Pb, k) for k in range(3)),
-                             _stored(xmax), _stored(ymax))
+    x, y = _exact(xmax), _exact(ymax)
+    whole, grad = _edge_function(*(tuple(_comp(P, k) for k in range(3)) for P in (Pa, Pb)), _stored(xmax), _stored(ymax))
+    E, _ = _edge_function(*(tuple(_comp(P, k, stored=False) for k in range(3)) for P in (Pa, Pb)), x, y)
     t = np.linspace(0.0, 1.0, 9)[:, None, None]
     P = Pa[None] * (1 - t) + Pb[None] * t                       # (9, K, 3)
     front = P[..., 2] > 0
     with np.errstate(divide="ignore", invalid="ignore"):
         xn = np.where(front[..., None], P[..., :2] / P[..., 2:], 0.0)
-        gain = np.where(front, _gain(cam, xn), 0.0).max(axis=0)
-        return np.where(grad > 0, E.e / grad * np.maximum(gain, _gain(cam, np.zeros(2))), np.inf)
+        gain = np.maximum(np.where(front, _gain(cam, xn), 0.0).max(axis=0), _gain(cam, np.zeros(2)))
+        ends = [tuple(_comp(Q, k) for k in range(3)) for Q in (Pa, Pb)]
+        moved = np.maximum(*(_end_px(Q) for Q in ends)) + U * np.hypot(xmax, ymax)   # + the ray's rounding
+        arith = np.where(np.minimum(Pa[:, 2], Pb[:, 2]) > 0, moved + E.e / grad, whole.e / grad)
+        return np.where(grad > 0, arith * gain, np.inf)
+
+
+def _end_px(A) -> np.ndarray:
+    """How far its rounding moves the image (A.x/A.z, A.y/A.z) of a homogeneous point A (a tuple
+    of three _F): (|δA.xy| + |A.xy/A.z|·δA.z)/A.z, first order (the units of A.xy/A.z)."""
+    z = np.abs(A[2].v)
+    return np.hypot(A[0].e + np.abs(A[0].v) / z * A[2].e, A[1].e + np.abs(A[1].v) / z * A[2].e) / z
 
 
 def _gain(cam, xn: np.ndarray) -> np.ndarray:
