@@ -271,7 +271,7 @@ def test_gl_fp32_exact_is_bounded(bulge_pair):
     """float32 arithmetic in the exact mode, the camera-side problem and the reference projection
     relative to each element's centre (CAMERA_LOCAL, REF_LOCAL): reference points within the
     derived bound per pixel (glsim.evaluation.exact32.renderer_mapping), masks and element maps
-    equal but within each edge's float32 tie distance (bounds.renderer_ties, precision fp32);
+    equal but within each edge's float32 tie distance (exact32.renderer_ties);
     its records need a driver with float64."""
     from glsim.evaluation import exact32
 
@@ -280,7 +280,7 @@ def test_gl_fp32_exact_is_bounded(bulge_pair):
         pytest.skip("float32 relative to the element centre needs GL_ARB_gpu_shader_fp64 for its records")
     a = g.render(0, 1, truth=True, mode="exact", precision="fp32")
     b = c.render(0, 1, truth=True, mode="exact")
-    ties = bounds.renderer_ties(g, "exact", 0, 1, precision="fp32")
+    ties = exact32.renderer_ties(g, 0, 1)
     bound = exact32.renderer_mapping(g, b.truth, 0, 1) + bounds.FLOAT64
     assert off_ties(a.truth.mask ^ b.truth.mask, ties) == 0
     both = a.truth.mask & b.truth.mask

@@ -180,13 +180,13 @@ def _mark(hit: np.ndarray, A: np.ndarray, B: np.ndarray, r: np.ndarray, s: int) 
         hit[row[ok & near], col[ok & near]] = True
 
 
-def renderer_ties(renderer, mode: str, cam: int, step: int, spp: int = 1, precision: str = "fp64") -> np.ndarray:
+def renderer_ties(renderer, mode: str, cam: int, step: int, spp: int = 1, radius=None) -> np.ndarray:
     """Camera ``cam``'s pixels at ``step`` where a GL renderer's image, mask or element map may
     differ from the oracle's by a sample decided the other way: :func:`near_edges` within
     ``mode``'s :func:`tie_px` (its mesh, its rasterizer's GL_SUBPIXEL_BITS; exact and q4 as
-    float64 builds, whose ties are float64's); exact with ``precision`` "fp32" within each
-    edge's own distance (:func:`glsim.evaluation.exact32.edge_px`: its float32 edge function,
-    on a driver with float64; q4's float32 build is not derived); with the scene's depth of field, grown by the blur's reach
+    float64 builds, whose ties are float64's), or within ``radius`` (:func:`near_edges`' per
+    edge function of the step's nodes in the camera's frame: the float32 exact build's,
+    :func:`glsim.evaluation.exact32.renderer_ties`); with the scene's depth of field, grown by the blur's reach
     (a sample decided the other way changes every pixel whose kernel takes it in: the largest
     kernel radius over the specimen's depths, which lie between its nodes')."""
     from glsim.effects import dof
@@ -196,14 +196,11 @@ def renderer_ties(renderer, mode: str, cam: int, step: int, spp: int = 1, precis
         raise ValueError("renderer_ties: a quadratic mesh's element edges are curved in space; "
                          "its ties are not derived here (linear meshes only)")
     camera, nodes = renderer.scene.cameras[cam], renderer.mesh.deformed(step)
-    radius = tie_px(mode, camera.fx, renderer.backend.capabilities.subpixel_bits)
-    if precision == "fp32" and mode != "fast":
-        if mode != "exact" or not renderer.backend.capabilities.float64:
-            raise ValueError("renderer_ties: float32 ties are derived for exact on a driver with float64 only")
-        from glsim.evaluation.exact32 import edge_px
-
+    if radius is None:
+        radius = tie_px(mode, camera.fx, renderer.backend.capabilities.subpixel_bits)
+    else:
         Pc = to_camera(nodes, camera)
-        radius = lambda a, b: edge_px(camera, Pc[a], Pc[b]) + FLOAT64   # noqa: E731
+        radius = (lambda per_edge: lambda a, b: per_edge(Pc[a], Pc[b]))(radius)
     tie = near_edges(camera, nodes, renderer.mesh.quads, radius, spp, exact=mode == "exact")
     optics = renderer.scene.optics
     if optics is None or not tie.any():

@@ -192,7 +192,7 @@ def _fp32_exact(what: str) -> Callable[[Context], float]:
     """Over the bulge's cameras at step 1, GL's float32 exact build (precision fp32: CAMERA_LOCAL,
     REF_LOCAL) against the oracle's exact: the largest |Δref_uv| off its ties in units of its
     bound (glsim.evaluation.exact32.renderer_mapping), or the pixels whose mask or element
-    differs off its ties (bounds.renderer_ties with precision fp32); NaN (skipped) on a driver
+    differs off its ties (exact32.renderer_ties); NaN (skipped) on a driver
     without float64, which the build's records need."""
     def run(c: Context) -> float:
         from glsim.evaluation import exact32
@@ -204,7 +204,7 @@ def _fp32_exact(what: str) -> Callable[[Context], float]:
         for cam in range(len(g.scene.cameras)):
             a = g.render(cam, 1, truth=True, mode="exact", precision="fp32").truth
             b = o.render(cam, 1, truth=True, mode="exact").truth
-            off = ~bounds.renderer_ties(g, "exact", cam, 1, precision="fp32")
+            off = ~exact32.renderer_ties(g, cam, 1)
             if what == "ref":
                 bound = exact32.renderer_mapping(g, b, cam, 1) + bounds.FLOAT64
                 v = (np.linalg.norm(a.ref_uv - b.ref_uv, axis=-1) / bound)[a.mask & b.mask & off].max()
@@ -324,7 +324,7 @@ CHECKS = (
           "the float32 solve relative to each element's centre and the reference projection (CAMERA_LOCAL, "
           "REF_LOCAL), off its ties", _fp32_exact("ref")),
     Check("bulge exact fp32 1 spp: coverage and elements", 0, "px off ties", "each edge's float32 edge function "
-          "(glsim.evaluation.exact32.edge_px, bounds.renderer_ties with precision fp32)", _fp32_exact("coverage")),
+          "(glsim.evaluation.exact32.edge_px, exact32.renderer_ties)", _fp32_exact("coverage")),
     Check("bulge q4 1 spp: reference point", 1, "× bound", FLOAT64, _mapping("q4", 1, "ref")),
     Check("bulge fast 1 spp: reference point", 1, "× bound", "glsim.evaluation.bounds.fast_bound: float32 vertex "
           "projection, fx·12·2^-24 px times the reference pixels per image pixel", _mapping("fast", 1, "ref")),

@@ -30,6 +30,7 @@ from typing import NamedTuple
 
 import numpy as np
 
+from glsim.evaluation import bounds
 from glsim.evaluation.bounds import FLOAT32_ROUNDOFF as U
 
 NEAR_TOL = 1e-3    # bilinear.glsl's float32 NEAR_TOL (|ξ|, |η| within it of 1: the edge function decides)
@@ -246,6 +247,17 @@ def solve_error(P: np.ndarray, xi: np.ndarray, eta: np.ndarray, xn: np.ndarray) 
     sigma = np.linalg.svd(np.stack([a, b], -1), compute_uv=False)[:, -1]
     with np.errstate(divide="ignore"):
         return np.linalg.norm(f_err, axis=1) / sigma + np.sqrt(2) * U * (1 + NEAR_TOL)
+
+
+def renderer_ties(renderer, cam: int, step: int, spp: int = 1) -> np.ndarray:
+    """:func:`glsim.evaluation.bounds.renderer_ties` of a GL renderer's float32 exact build:
+    each edge within its :func:`edge_px` (+ float64's); on a driver with float64 (CAMERA_LOCAL)
+    only."""
+    if not renderer.backend.capabilities.float64:
+        raise ValueError("exact32.renderer_ties: derived for the build with float64 records (CAMERA_LOCAL) only")
+    camera = renderer.scene.cameras[cam]
+    return bounds.renderer_ties(renderer, "exact", cam, step, spp,
+                                radius=lambda Pa, Pb: edge_px(camera, Pa, Pb) + bounds.FLOAT64)
 
 
 def renderer_mapping(renderer, truth, cam: int, step: int) -> np.ndarray:

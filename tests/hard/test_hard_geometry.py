@@ -482,8 +482,8 @@ def test_gl_subsamples_agree_with_the_oracle_on_hard_scenes(case, subsamples, gl
 @pytest.mark.parametrize("case", sorted(HARD_SCENES))
 def test_gl_float32_exact_on_hard_scenes(case, gl_ctx):
     """precision = "fp32" in exact mode against the float64 oracle: the same coverage and
-    elements but within each edge's float32 tie distance (bounds.renderer_ties, precision
-    fp32: its edge function), and every reference point within its derived bound
+    elements but within each edge's float32 tie distance (exact32.renderer_ties: its edge
+    function), and every reference point within its derived bound
     (glsim.evaluation.exact32.renderer_mapping). Float32 keeps this by working relative to each
     element's centre with the per-element records and the rays made in float64 (CAMERA_LOCAL),
     which needs a driver with float64."""
@@ -497,7 +497,7 @@ def test_gl_float32_exact_on_hard_scenes(case, gl_ctx):
             if not g.backend.fp64:
                 pytest.skip("float32 relative to the element centre needs GL_ARB_gpu_shader_fp64 for its records")
             a = g.render(0, 1, truth=True, mode="exact", precision="fp32").truth
-            tie = bounds.renderer_ties(g, "exact", 0, 1, precision="fp32")
+            tie = exact32.renderer_ties(g, 0, 1)
             bound = exact32.renderer_mapping(g, b, 0, 1) + bounds.FLOAT64
     s = agreement(a, b, "exact", scene.cameras[0].fx, tie)
     assert s["covered"] > 500 and s["xor"] == 0 and s["element"] == 0, s
