@@ -425,6 +425,56 @@ def renderer_grey(oracle, mode: str, cam: int, step: int, spp: int, shift, truth
     return grey(method, M, grad, shift, spp)
 
 
+def renderer_lit(oracle, mode: str, cam: int, step: int, truth, unlit) -> np.ndarray:
+    """Per pixel (H, W), how far a GL renderer's lit image (1 spp, linear elements) may lie from
+    the oracle renderer ``oracle``'s of camera ``cam`` at ``step`` in ``mode`` (``truth``: the
+    oracle's truth of that view), first order in u = 2^-24: the unlit grey g's own bound
+    ``unlit`` (:func:`renderer_grey`) through the combine (additive: 1, multiplicative: |I|);
+    shade.glsl's float32 lighting and combine on float32 inputs (:func:`phong`); and those
+    inputs' own errors through |∂I/∂X|, |∂I/∂N| (glsim.effects.lighting.phong_gradient) —
+    deform.frag's light_at: the point Σ wᵢ Pᵢ from the nodes in the camera frame as float32 (each
+    node, weight, product and sum rounded: 8u·Σ|wᵢ||Pᵢ|), the normal Σ wᵢ nᵢ of the float32
+    corner normals turned by the float32 rotation (12u) and normalised (16u); in fast the
+    (ξ, η) it interpolates, within fast's vertex bound (:func:`fast_px`) times the point's and
+    the normal's change per image pixel (:func:`per_pixel`). 0 off the oracle's mask."""
+    from glsim.effects import lighting as shade
+    from glsim.effects import prepare
+    from glsim.scene import bilinear as bl
+    from glsim.stages.view import make_view
+
+    u, camera, lit, mesh = FLOAT32_ROUNDOFF, oracle.scene.cameras[cam], oracle.scene.lighting, oracle.mesh
+    if mesh.is_quadratic:
+        raise ValueError("renderer_lit: linear elements only (a quadratic mesh's point lies on its curved patch)")
+    deformed = mesh.deformed(step)
+    view = make_view(camera, oracle.reference.camera, mesh.nodes, deformed, mesh.quads, warn=False)
+    fx = prepare(oracle.scene, deformed, mesh.quads, camera, cam, step, np.empty(0))
+    m = truth.mask
+    e, xi, eta = truth.element[m], truth.xi[m], truth.eta[m]
+    w = bl.shape_functions(xi, eta)
+    P = view.Xd[e]
+    X = np.einsum("ni,nik->nk", w, P)
+    N = np.einsum("ni,nik->nk", w, fx.normals[e])
+    args = (fx.lights, lit.ambient, lit.diffuse, lit.specular, lit.shininess)
+    I, dI_X, dI_N, _ = shade.phong_gradient(X, N, *args)
+    g = oracle.backend.sampler(oracle.scene.render.interpolation)(truth.ref_uv[m])
+    dX = 8 * u * np.einsum("ni,ni->n", np.abs(w), np.linalg.norm(P, axis=-1))
+    dN = 28 * u * np.einsum("ni,ni->n", np.abs(w), np.linalg.norm(fx.normals[e], axis=-1))
+    if mode == "fast":
+        H, W = m.shape
+        for field, add in ((X, "X"), (N, "N")):
+            full = np.zeros((H, W, 3))
+            full[m] = field
+            moved = per_pixel(full, m)[m] * fast_px(camera.fx)
+            dX, dN = (dX + moved, dN) if add == "X" else (dX, dN + moved)
+    multiplicative = lit.combine == "multiplicative"
+    out = np.zeros(m.shape)
+    out[m] = ((np.abs(I) if multiplicative else 1.0) * unlit[m]
+              + phong(X, N, *args, grey=g, model=lit.combine)
+              + (np.abs(g) if multiplicative else 1.0) * (np.linalg.norm(dI_X, axis=-1) * dX
+                                                         + np.linalg.norm(dI_N, axis=-1) * dN))
+    return out
+
+
 def interpolation(method: str, coeffs_max: float) -> float:
     """The largest |GL − oracle| of a reference sample (shaders/interp.glsl in float32 against
     glsim.stages.interp in float64 at the same float64 point), over coefficients (the image, or

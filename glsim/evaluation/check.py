@@ -247,6 +247,18 @@ def _effect(effect: str) -> Callable[[Context], float]:
     return run
 
 
+def _lit(c: Context) -> float:
+    """The demo's lighting alone on the bulge, exact, camera 1: the largest |Δgrey| off the
+    coverage ties in units of bounds.renderer_lit."""
+    scene = demo_effects(bulge_scene(size=BULGE_SIZE, steps=1))
+    g, o = c.pair("lighting", dataclasses.replace(scene, optics=None, noise=None))
+    a, b = g.render(1, 1, mode="exact"), o.render(1, 1, mode="exact", truth=True)
+    unlit = bounds.renderer_grey(o, "exact", 1, 1, 1, bounds.FLOAT64, b.truth)
+    bound = bounds.renderer_lit(o, "exact", 1, 1, b.truth, unlit)
+    ratio = np.abs(a.image.astype(np.float64) - b.image) / np.where(bound > 0, bound, np.inf)
+    return float(ratio[~bounds.renderer_ties(g, "exact", 1, 1)].max())
+
+
 def _motion(c: Context) -> float:
     """Pixels whose grey differs by more than 0.5 of 8 bit, exact mode, camera 1 of the bulge
     rotating and moving over a 2-sample exposure seen by a rolling shutter (its rows rendered
@@ -334,8 +346,8 @@ CHECKS = (
     Check("pixel stages: compute against fragment", 0, "values differing in any bit", "the same code "
           "(deform.frag) as fragment passes and as compute passes (glsim.backends.gl.plan); images and "
           "truth of the bulge pair, every mode, 1 and 4 spp", _stages),
-    Check("lighting, exact", 0, OFF_TIES, "as tests/test_effects.py (glsim.evaluation.bounds.renderer_ties)",
-          _effect("lighting")),
+    Check("lighting, exact: grey per pixel", 1, "× bound", "glsim.evaluation.bounds.renderer_lit off coverage ties: the unlit "
+          "grey's bound through the combine, shade.glsl's float32 arithmetic and light_at's point and normal", _lit),
     Check("depth of field, exact", 0, OFF_TIES, "as tests/test_effects.py (ties grown by the blur's reach)",
           _effect("optics")),
     Check("noise, exact", 0, OFF_TIES, "as tests/test_effects.py (glsim.evaluation.bounds.renderer_ties)",
