@@ -475,6 +475,29 @@ def renderer_lit(oracle, mode: str, cam: int, step: int, truth, unlit) -> np.nda
     return out
 
 
+def renderer_noise(oracle, cam: int, step: int, image: np.ndarray, before) -> np.ndarray:
+    """Per pixel (H, W), how far a GL renderer's noisy image may lie from the oracle renderer
+    ``oracle``'s of camera ``cam`` at ``step``, given the oracle's image before the noise
+    ``image`` (H, W) and the bound ``before`` of GL's against it there (:func:`renderer_grey`,
+    :func:`renderer_lit`): I + σ(I)·z moves by ΔI and σ(I ± ΔI) − σ(I) (σ is monotone in I) times
+    |z|, plus the noise pass's own float32 error on the same I (:func:`noise`: the normal
+    field's, σ's and the sum's)."""
+    from glsim.effects import noise as nz
+
+    scene, camera = oracle.scene, oracle.scene.cameras[cam]
+    params, bits = scene.noise, camera.bit_depth
+    table = nz.load_variance_table(scene.resolve(params.variance_file), bits) if params.model == "heteroscedastic" else None
+    H, W = image.shape
+    index = np.arange(H * W, dtype=np.uint32).reshape(H, W)
+    seed = np.uint32(nz.stream_seed(scene.seed, cam, step))
+    z = nz.standard_normal(index, seed)
+    dz = standard_normal(*(nz.uniform01(index, seed, nz.STREAM_U1 + k) for k in (0, 1)))
+    I = np.asarray(image, np.float64)
+    sigma = nz.noise_sigma(I, params, bits, table)
+    moved = np.maximum(*(np.abs(nz.noise_sigma(I + k * before, params, bits, table) - sigma) for k in (1, -1)))
+    return before + moved * np.abs(z) + noise(I, z, dz, sigma, params, bits, table)
+
+
 def interpolation(method: str, coeffs_max: float) -> float:
     """The largest |GL − oracle| of a reference sample (shaders/interp.glsl in float32 against
     glsim.stages.interp in float64 at the same float64 point), over coefficients (the image, or

@@ -259,6 +259,20 @@ def _lit(c: Context) -> float:
     return float(ratio[~bounds.renderer_ties(g, "exact", 1, 1)].max())
 
 
+def _noise(c: Context) -> float:
+    """The demo's noise alone on the bulge, exact, camera 1: the largest |Δgrey| off the coverage
+    ties in units of bounds.renderer_noise (from the oracle's noise-free image and its bound)."""
+    scene = demo_effects(bulge_scene(size=BULGE_SIZE, steps=1))
+    scene = dataclasses.replace(scene, optics=None, lighting=None)
+    g, o = c.pair("noise", scene)
+    _, plain = c.pair("noise-free", dataclasses.replace(scene, noise=None))
+    a, b, q = g.render(1, 1, mode="exact"), o.render(1, 1, mode="exact"), plain.render(1, 1, mode="exact", truth=True)
+    before = np.where(q.truth.mask, bounds.renderer_grey(plain, "exact", 1, 1, 1, bounds.FLOAT64, q.truth), 0.0)
+    bound = bounds.renderer_noise(o, 1, 1, q.image, before)
+    ratio = np.abs(a.image.astype(np.float64) - b.image) / bound
+    return float(ratio[~bounds.renderer_ties(g, "exact", 1, 1)].max())
+
+
 def _motion(c: Context) -> float:
     """Pixels whose grey differs by more than 0.5 of 8 bit, exact mode, camera 1 of the bulge
     rotating and moving over a 2-sample exposure seen by a rolling shutter (its rows rendered
@@ -350,8 +364,8 @@ CHECKS = (
           "grey's bound through the combine, shade.glsl's float32 arithmetic and light_at's point and normal", _lit),
     Check("depth of field, exact", 0, OFF_TIES, "as tests/test_effects.py (ties grown by the blur's reach)",
           _effect("optics")),
-    Check("noise, exact", 0, OFF_TIES, "as tests/test_effects.py (glsim.evaluation.bounds.renderer_ties)",
-          _effect("noise")),
+    Check("noise, exact: grey per pixel", 1, "× bound", "glsim.evaluation.bounds.renderer_noise off coverage ties: "
+          "the noise-free image's bound through I + σ(I)·z and the noise pass's float32 error", _noise),
     Check("motion: exposure and rolling shutter, exact", 0, "px > 0.5 grey of 8 bit", "the same sub-frames "
           "as the oracle (docs/motion.md: |GL − oracle| ≤ the sub-frames' + 2^-24)", _motion),
     Check("camera passes: Gaussian PSF, vignetting, fixed pattern", 1, "× bound", CAMERA,
