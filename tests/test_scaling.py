@@ -90,11 +90,13 @@ def test_lighting_normals_once_per_step_not_per_view(gl_ctx, monkeypatch, flat):
         ties = [bounds.renderer_ties(g, scene.render.mode, cam, 1) for cam in (0, 1)]
         assert per_view.calls == 0 and g.geometry.step_builds == 1
         assert g.backend.geometry.uploads["step"] == 2          # nodes and normals, once
+    mode = scene.render.mode
     with Renderer(scene, "cpu") as c:
-        ref = [c.render(cam, 1).image for cam in (0, 1)]
-    for a, b, tie in zip(images, ref, ties):
-        d = np.abs(a.astype(float) - b) * 255   # within 0.5 grey levels but at coverage ties
-        assert not ((d > 0.5) & ~tie).any() and np.median(d) < 1e-3
+        for cam, a, tie in zip((0, 1), images, ties):   # within the lit image's bound but at coverage ties
+            b = c.render(cam, 1, truth=True)
+            shift = bounds.mapping(mode, scene.cameras[cam].fx, b.truth.ref_uv, b.truth.mask)
+            bound = bounds.renderer_lit(c, mode, cam, 1, b.truth, bounds.renderer_grey(c, mode, cam, 1, 1, shift, b.truth))
+            assert not ((np.abs(a.astype(float) - b.image) > bound) & ~tie).any()
 
 
 @pytest.mark.gl
@@ -281,14 +283,24 @@ def test_candidate_lists_and_their_overflow_give_the_oracle(gl_ctx, mode, layers
             a = g.render(0, 0, truth=True, mode=mode)
             flags = g.backend.geometry.list_flags(*scene.cameras[0].size)   # pass 1's draws of the last view
             b = c.render(0, 0, truth=True, mode=mode)
-            ties = bounds.renderer_ties(g, mode, 0, 0)
-            grey = bounds.renderer_grey(c, mode, 0, 0, 1, bounds.FLOAT64, b.truth)
+            ties = agree_off_ties(g, c, a, b, mode)
     assert flags == (True, layers > 8)
-    assert np.array_equal(a.truth.mask, b.truth.mask) and a.truth.mask.sum() > 5000
+    assert a.truth.mask.sum() > 5000 and ties.sum() < 0.2 * a.truth.mask.sum()
+
+
+def agree_off_ties(g, c, a, b, mode):
+    """GL's render ``a`` (renderer ``g``, camera 0, step 0, 1 spp) and the oracle's ``b``
+    (renderer ``c``): the same mask; elements differing only on the coverage ties
+    (bounds.renderer_ties), both giving the same point there; grey levels within
+    bounds.renderer_grey off the ties. Returns the ties."""
+    ties = bounds.renderer_ties(g, mode, 0, 0)
+    grey = bounds.renderer_grey(c, mode, 0, 0, 1, bounds.FLOAT64, b.truth)
+    assert np.array_equal(a.truth.mask, b.truth.mask)
     differ = a.truth.element != b.truth.element
     assert np.abs(a.truth.X_deformed[differ] - b.truth.X_deformed[differ]).max(initial=0) <= bounds.FLOAT64
-    assert not (differ & ~ties).any() and ties.sum() < 0.2 * a.truth.mask.sum()
+    assert not (differ & ~ties).any()
     assert not ((np.abs(a.image.astype(float) - b.image) > grey) & ~ties).any()
+    return ties
 
 
 @pytest.mark.gl
@@ -308,13 +320,9 @@ def test_elements_too_large_for_one_invocation_are_listed_by_their_covers(gl_ctx
         a = g.render(0, 0, truth=True, mode=mode)
         b = c.render(0, 0, truth=True, mode=mode)
         built = [d for files, d in g.backend.programs.compiled if files == ("exact.vert", "candidates.frag")]
-        tie = bounds.renderer_ties(g, mode, 0, 0)
+        agree_off_ties(g, c, a, b, mode)   # elements differ only at ties on shared edges: the same point either way
     assert built == [{"BIG_ONLY": None}]
-    assert np.array_equal(a.truth.mask, b.truth.mask) and (a.truth.element == 0).sum() > 50_000
-    differ = a.truth.element != b.truth.element     # only at ties on shared edges: the same point either way
-    assert np.abs(a.truth.X_deformed[differ] - b.truth.X_deformed[differ]).max(initial=0) < 1e-9
-    assert not (differ & ~tie).any()
-    assert np.abs(a.image.astype(float) - b.image).max() * 255 < 0.01
+    assert (a.truth.element == 0).sum() > 50_000
 
 
 @pytest.mark.gl
