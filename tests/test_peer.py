@@ -7,7 +7,7 @@ import math
 
 import pytest
 
-from glsim.evaluation import cli, docs, peer
+from glsim.evaluation import bounds, cli, docs, peer
 
 SIZE = ("203", "154")
 RILEY = importlib.util.find_spec("riley") is not None
@@ -32,13 +32,13 @@ def test_reduced_peer_bench(tmp_path, capsys):
         assert r["only_here"] + r["only_oracle"] <= 1e-3 * W * H     # coverage as the oracle's
     for k1 in peer.K1S:
         exact = rows["glsim GL exact fp64", k1]
-        # float64 ray/patch intersection against the float64 oracle: ~1e-12 px measured
-        assert exact["map_max_px"] < 1e-6 and exact["grey_max"] < 0.01
+        # float64 ray/patch intersection against the float64 oracle: within float64's bound
+        assert exact["map_max_px"] <= bounds.FLOAT64 and exact["grey_max"] < 0.01
         # sub-samples placed by Newton from the pixel centre: the oracle's image as closely
         assert rows["glsim GL exact fp64 newton", k1]["grey_max"] < 0.01
         assert rows["glsim GL fast fp32", k1]["map_max_px"] < 0.01  # float32 and straight pieces
     # without distortion a face-on plate projects affinely: q4's inverse mapping is exact there
-    assert rows["glsim GL q4 fp64", 0.0]["map_max_px"] < 1e-6
+    assert rows["glsim GL q4 fp64", 0.0]["map_max_px"] <= bounds.FLOAT64
     assert rows["glsim GL q4 fp64", -0.1]["map_max_px"] > 1e-6
     if RILEY:  # riley's ξ, η against the oracle (its element taken from the oracle's)
         assert rows["riley-raster", 0.0]["map_max_px"] < 1e-6 and rows["riley-raster", -0.1]["map_max_px"] < 1e-3
