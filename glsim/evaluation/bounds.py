@@ -199,8 +199,8 @@ def renderer_ties(renderer, mode: str, cam: int, step: int, spp: int = 1, radius
     if radius is None:
         radius = tie_px(mode, camera.fx, renderer.backend.capabilities.subpixel_bits)
     else:
-        Pc = to_camera(nodes, camera)
-        radius = (lambda per_edge: lambda a, b: per_edge(Pc[a], Pc[b]))(radius)
+        Pc, per_edge = to_camera(nodes, camera), radius
+        radius = lambda a, b: per_edge(Pc[a], Pc[b])   # noqa: E731
     tie = near_edges(camera, nodes, renderer.mesh.quads, radius, spp, exact=mode == "exact")
     optics = renderer.scene.optics
     if optics is None or not tie.any():
@@ -459,13 +459,13 @@ def renderer_lit(oracle, mode: str, cam: int, step: int, truth, unlit) -> np.nda
     g = oracle.backend.sampler(oracle.scene.render.interpolation)(truth.ref_uv[m])
     dX = 8 * u * np.einsum("ni,ni->n", np.abs(w), np.linalg.norm(P, axis=-1))
     dN = 28 * u * np.einsum("ni,ni->n", np.abs(w), np.linalg.norm(fx.normals[e], axis=-1))
-    if mode == "fast":
-        H, W = m.shape
-        for field, add in ((X, "X"), (N, "N")):
-            full = np.zeros((H, W, 3))
+    if mode == "fast":   # GL's (ξ, η) interpolated over its float32 triangles
+
+        def moved(field):
+            full = np.zeros(m.shape + (3,))
             full[m] = field
-            moved = per_pixel(full, m)[m] * fast_px(camera.fx)
-            dX, dN = (dX + moved, dN) if add == "X" else (dX, dN + moved)
+            return per_pixel(full, m)[m] * fast_px(camera.fx)
+        dX, dN = dX + moved(X), dN + moved(N)
     multiplicative = lit.combine == "multiplicative"
     out = np.zeros(m.shape)
     out[m] = ((np.abs(I) if multiplicative else 1.0) * unlit[m]

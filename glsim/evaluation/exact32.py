@@ -9,12 +9,13 @@ shaders' operations in their order, each rounding within u of its exact result; 
 bound of an operand's magnitude is known (a sample's ray or pixel anywhere in the image), a
 sum's rounding within u(|a| + |b|).
 
-- :func:`edge_px`: how far (px) from an element edge a sample may be given to the other side:
-  the edge function E = (x, y, 1)·(Pᵢ × (Pⱼ − Pᵢ)) (bilinear.glsl's edge_functions_ray_ordered
-  on the rounded camera-frame corners and the sample's float32 ray; through a pinhole
-  pinhole_corners' K·P and the exact pixel point) over |∇E| — the oracle decides the same in
-  float64. Its (ξ, η), whose
-  float32 error is far smaller, only chooses where the edge function is asked (NEAR_TOL, 1e-3).
+- :func:`edge_px`: how far (px) from an element edge a sample may be given to the other side
+  than the oracle's float64 decision: the edge function E = (x, y, 1)·(Pᵢ × (Pⱼ − Pᵢ))
+  (bilinear.glsl's edge_functions_ray_ordered on the rounded camera-frame corners and the
+  sample's float32 ray; through a pinhole pinhole_corners' K·P and the exact pixel point) —
+  the corners' rounding taken as the displacement of the edge's ends in the image, the
+  arithmetic on them over |∇E|. Its (ξ, η), whose float32 error is far smaller, only chooses
+  where the edge function is asked (NEAR_TOL, 1e-3).
 - :func:`mapping_px`: per pixel, the reference point's error: the camera-side problem's corners
   p = (D.xy − x D.z) − C.z d (deform.frag's projected_corners) and the residual Σ Nᵢ pᵢ at the
   solution, through the inverse of its Jacobian (the last Newton steps leave (ξ, η) where the
@@ -286,9 +287,9 @@ def renderer_mapping(renderer, truth, cam: int, step: int) -> np.ndarray:
 
 def _jacobian(p: np.ndarray, xi: np.ndarray, eta: np.ndarray):
     """∂(Σ Nᵢ pᵢ)/∂ξ and /∂η for corners p (n, 4, k)."""
-    a = 0.25 * ((p[:, 1] - p[:, 0]) * (1 - eta)[:, None] + (p[:, 2] - p[:, 3]) * (1 + eta)[:, None])
-    b = 0.25 * ((p[:, 3] - p[:, 0]) * (1 - xi)[:, None] + (p[:, 2] - p[:, 1]) * (1 + xi)[:, None])
-    return a, b
+    from glsim.scene import bilinear as bl
+
+    return (np.einsum("ni,nik->nk", dN, p) for dN in bl.shape_derivatives(xi, eta))
 
 
 def _ref_jacobian(R: np.ndarray, fx: float, fy: float, skew: float, xi: np.ndarray, eta: np.ndarray) -> np.ndarray:
