@@ -245,22 +245,20 @@ bool intersect_ray_patch_p(real3 P[4], real2 p[4], ivec4 q, real2 xn, real2 px, 
         for (bool once = near_edge(xs[k], es[k]); once; once = false) {  // the tie rule
             real E[4];
             real2 m[4];
+            real3 A[4];   // the corners and point the edge functions take
+            real2 at;
 #ifdef PIXEL_TIES
-            real3 A[4];
             pinhole_corners(P, u_intr, A);
-#define TIE_CORNERS A
-#define TIE_POINT px
+            at = px;
 #else
-#define TIE_CORNERS P
-#define TIE_POINT xn
+            A = P;
+            at = xn;
 #endif
 #ifdef FP64
-            edge_functions_ray(TIE_CORNERS, TIE_POINT, E, m);
+            edge_functions_ray(A, at, E, m);
 #else
-            edge_functions_ray_ordered(TIE_CORNERS, q, TIE_POINT, E, m);
+            edge_functions_ray_ordered(A, q, at, E, m);
 #endif
-#undef TIE_CORNERS
-#undef TIE_POINT
             if (!owned(xs[k], es[k], E, m, orientation_ray(P, xs[k], es[k]))) ok[k] = false;
         }
         if (!ok[k]) continue;
