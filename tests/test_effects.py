@@ -43,8 +43,8 @@ def assert_matches(g, a, b, mode, spp=1):
     8 bit but where a sample may be decided the other way (bounds.renderer_ties: element
     edges, silhouettes, and with depth of field every pixel whose kernel reaches one), mean
     |Δgrey| < 1e-3 (issue 16: the separable pair the gathers replaced had 400 pixels beyond
-    0.5). Lighting and noise at 1 spp have derived bounds per pixel: assert_lit_matches,
-    assert_noisy_matches."""
+    0.5). At 1 spp each effect has its derived bound per pixel instead: assert_lit_matches,
+    assert_after_matches."""
     d = np.abs(a.image.astype(np.float64) - b.image) * 255
     tie = bounds.renderer_ties(g, mode, 1, 1, spp)
     assert not ((d > 0.5) & ~tie).any() and d.mean() < 1e-3, (d.max(), (d > 0.5).sum(), tie.sum(), d.mean())
@@ -63,17 +63,25 @@ def assert_lit_matches(g, c, a, mode):
     assert not (over & ~bounds.renderer_ties(g, mode, 1, 1)).any(), over.sum()
 
 
-def assert_noisy_matches(g, c, a, b, mode):
-    """GL's noisy image ``a`` (camera 1, step 1, 1 spp) against the oracle's ``b`` (renderer
-    ``c``): every pixel off the coverage ties within bounds.renderer_noise — the noise-free
-    image's bound (bounds.renderer_grey, from the oracle without noise) through I + σ(I)·z and
-    the noise pass's own float32 error."""
-    with Renderer(dataclasses.replace(c.scene, noise=None), "cpu") as plain:
+def assert_after_matches(g, c, a, b, mode, effect):
+    """GL's image ``a`` (camera 1, step 1, 1 spp) with noise or depth of field against the
+    oracle's ``b`` (renderer ``c``): every pixel off the coverage ties within the effect's bound
+    from the image before it (the oracle without the effect, and its bound there:
+    bounds.renderer_grey) — bounds.renderer_noise (I + σ(I)·z and the noise pass's float32
+    error) or bounds.renderer_dof (the window's source bound, the scheme's error, σ's float32
+    error through the gather; pixels whose σ may switch window or focus are ties too)."""
+    with Renderer(dataclasses.replace(c.scene, **{effect: None}), "cpu") as plain:
         q = plain.render(1, 1, mode=mode, truth=True)
         shift = bounds.mapping(mode, c.scene.cameras[1].fx, q.truth.ref_uv, q.truth.mask)
         before = np.where(q.truth.mask, bounds.renderer_grey(plain, mode, 1, 1, 1, shift, q.truth), 0.0)
-    over = np.abs(a.image.astype(np.float64) - b.image) > bounds.renderer_noise(c, 1, 1, q.image, before)
-    assert not (over & ~bounds.renderer_ties(g, mode, 1, 1)).any(), over.sum()
+    ties = bounds.renderer_ties(g, mode, 1, 1)
+    if effect == "noise":
+        bound = bounds.renderer_noise(c, 1, 1, q.image, before)
+    else:
+        bound, blur_ties = bounds.renderer_dof(c, mode, 1, 1, q.truth, q.image, before)
+        ties |= blur_ties
+    over = np.abs(a.image.astype(np.float64) - b.image) > bound
+    assert not (over & ~ties).any(), over.sum()
 
 
 @pytest.mark.gl
@@ -86,10 +94,8 @@ def test_gl_matches_oracle_per_effect(effects_scene, gl_ctx, effect, mode):
         a, b = g.render(1, 1, mode=mode), c.render(1, 1, mode=mode)
         if effect == "lighting":
             assert_lit_matches(g, c, a, mode)
-        elif effect == "noise":
-            assert_noisy_matches(g, c, a, b, mode)
         else:
-            assert_matches(g, a, b, mode)
+            assert_after_matches(g, c, a, b, mode, effect)
     assert abs(a.saturated - b.saturated) < 1e-3
 
 

@@ -425,6 +425,25 @@ def renderer_grey(oracle, mode: str, cam: int, step: int, spp: int, shift, truth
     return grey(method, M, grad, shift, spp)
 
 
+def _pixel_points(oracle, cam: int, step: int, truth, who: str):
+    """The oracle's covered pixels of camera ``cam`` at ``step`` (``truth`` of that view, 1 spp):
+    their elements, the shape functions at their (ξ, η) (n, 4), their elements' corners and
+    points in the camera's frame (n, 4, 3), (n, 3), mm; linear elements only (``who`` refuses)."""
+    from glsim.scene import bilinear as bl
+    from glsim.stages.view import make_view
+
+    mesh = oracle.mesh
+    if mesh.is_quadratic:
+        raise ValueError(f"{who}: linear elements only (a quadratic mesh's point lies on its curved patch)")
+    view = make_view(oracle.scene.cameras[cam], oracle.reference.camera, mesh.nodes, mesh.deformed(step),
+                     mesh.quads, warn=False)
+    m = truth.mask
+    e = truth.element[m]
+    w = bl.shape_functions(truth.xi[m], truth.eta[m])
+    P = view.Xd[e]
+    return e, w, P, np.einsum("ni,nik->nk", w, P)
+
+
 def renderer_lit(oracle, mode: str, cam: int, step: int, truth, unlit) -> np.ndarray:
     """Per pixel (H, W), how far a GL renderer's lit image (1 spp, linear elements) may lie from
     the oracle renderer ``oracle``'s of camera ``cam`` at ``step`` in ``mode`` (``truth``: the
@@ -439,20 +458,11 @@ def renderer_lit(oracle, mode: str, cam: int, step: int, truth, unlit) -> np.nda
     the normal's change per image pixel (:func:`per_pixel`). 0 off the oracle's mask."""
     from glsim.effects import lighting as shade
     from glsim.effects import prepare
-    from glsim.scene import bilinear as bl
-    from glsim.stages.view import make_view
 
-    u, camera, lit, mesh = FLOAT32_ROUNDOFF, oracle.scene.cameras[cam], oracle.scene.lighting, oracle.mesh
-    if mesh.is_quadratic:
-        raise ValueError("renderer_lit: linear elements only (a quadratic mesh's point lies on its curved patch)")
-    deformed = mesh.deformed(step)
-    view = make_view(camera, oracle.reference.camera, mesh.nodes, deformed, mesh.quads, warn=False)
-    fx = prepare(oracle.scene, deformed, mesh.quads, camera, cam, step, np.empty(0))
+    u, camera, lit = FLOAT32_ROUNDOFF, oracle.scene.cameras[cam], oracle.scene.lighting
+    e, w, P, X = _pixel_points(oracle, cam, step, truth, "renderer_lit")
+    fx = prepare(oracle.scene, oracle.mesh.deformed(step), oracle.mesh.quads, camera, cam, step, np.empty(0))
     m = truth.mask
-    e, xi, eta = truth.element[m], truth.xi[m], truth.eta[m]
-    w = bl.shape_functions(xi, eta)
-    P = view.Xd[e]
-    X = np.einsum("ni,nik->nk", w, P)
     N = np.einsum("ni,nik->nk", w, fx.normals[e])
     args = (fx.lights, lit.ambient, lit.diffuse, lit.specular, lit.shininess)
     I, dI_X, dI_N, _ = shade.phong_gradient(X, N, *args)
@@ -473,6 +483,56 @@ def renderer_lit(oracle, mode: str, cam: int, step: int, truth, unlit) -> np.nda
               + (np.abs(g) if multiplicative else 1.0) * (np.linalg.norm(dI_X, axis=-1) * dX
                                                          + np.linalg.norm(dI_N, axis=-1) * dN))
     return out
+
+
+def renderer_dof(oracle, mode: str, cam: int, step: int, truth, sharp: np.ndarray, before) -> tuple[np.ndarray, np.ndarray]:
+    """How far a GL renderer's depth-of-field image may lie from the oracle renderer ``oracle``'s
+    of camera ``cam`` at ``step`` (Gaussian kernel; ``truth``: the oracle's truth of that view,
+    1 spp), given the oracle's image before the blur ``sharp`` (H, W) and the bound ``before``
+    of GL's against it there. Returns (bound, ties), per pixel (H, W): where a pixel's σ (=
+    CoC/2 from its depth) may be decided the other way — within its own error of the in-focus
+    threshold or of a window step R = ceil(3σ) — it is a tie; elsewhere, first order in u:
+
+    - the gathered source: a normalised average moves by at most its window's largest ``before``;
+    - GL's scheme against the exact gather on the same source and σ: its rounding (:func:`blur`,
+      the gather's) and, for the default expansion, dof.EXPANSION_TOL of the source's grey range;
+    - σ's own error δσ: shaders/dof.glsl's CoC in float32 (:func:`coc`) and the depth GL reads —
+      the sample's Z as float32 (u|Z|), in fast also interpolated (|∂Z/∂uv|·:func:`fast_px`) —
+      through ∂σ/∂Z; through the gather |∂out/∂σ| ≤ (2R²/σ³)·(the window's grey range).
+    The separable scheme, inexact where σ varies, and the disk kernel are not derived here."""
+    import cv2
+
+    from glsim.effects import dof
+
+    optics, camera = oracle.scene.optics, oracle.scene.cameras[cam]
+    scheme = dof.blur_scheme(optics)
+    if scheme in ("separable", "disk"):
+        raise ValueError(f"renderer_dof: the {scheme} scheme is not derived here")
+    u, m = FLOAT32_ROUNDOFF, truth.mask
+    Z = np.zeros(m.shape)
+    Z[m] = _pixel_points(oracle, cam, step, truth, "renderer_dof")[3][:, 2]
+    dZ = u * np.abs(Z)
+    if mode == "fast":
+        dZ = dZ + per_pixel(Z[..., None], m) * fast_px(camera.fx)
+    sigma = dof.blur_sigma(Z, optics)
+    c = np.where(m, dof.coc_px(np.where(m, Z, 2 * optics.focal_length + 1.0), optics), 0.0)
+    dcoc = np.where(m, c * coc(np.where(m, Z, 1.0), optics) + 2 * np.abs(dof.size_derivative(Z, optics)) * dZ, 0.0)
+    dsigma = dcoc / 2
+    R = dof.kernel_radius(sigma)
+    threshold = getattr(optics, "coc_px", 1.0)
+    step_tie = (sigma > 0) & (np.abs(3 * sigma - np.round(3 * sigma)) <= 3 * dsigma)   # R = ceil(3σ) changes
+    ties = m & ((np.abs(c - threshold) <= dcoc) | step_tie)
+    reach = int(R.max(initial=0))
+    window = np.ones((2 * reach + 1, 2 * reach + 1), np.uint8)
+    src = np.asarray(sharp, np.float64)
+    spread = cv2.dilate(src, window) - cv2.erode(src, window)
+    moved = cv2.dilate(np.asarray(before, np.float64), window)
+    M, F = float(np.abs(src).max()), float(np.ptp(src))
+    scheme_err = blur("gather", sigma, M) + (dof.EXPANSION_TOL * F if scheme == "expansion" else 0.0)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        slope = np.where(sigma > 0, 2 * R.astype(np.float64) ** 2 / sigma ** 3, 0.0)
+    bound = np.where(sigma > 0, moved + scheme_err + slope * spread * dsigma, before)
+    return bound, ties
 
 
 def renderer_noise(oracle, cam: int, step: int, image: np.ndarray, before) -> np.ndarray:

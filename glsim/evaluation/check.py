@@ -226,51 +226,40 @@ def _grey_ratio(g, o, a, b, mode: str, cam: int, spp: int) -> float:
     return float((d / bound)[~bounds.renderer_ties(g, mode, cam, 1, spp)].max())
 
 
-def _off_ties(g, a, b, mode: str, cam: int, spp: int) -> int:
-    """Pixels of GL's image ``a`` (renderer ``g``, camera ``cam``, step 1) and the oracle's ``b``
-    whose grey differs by more than 0.5 of 8 bit where no sample lies at a coverage tie
-    (bounds.renderer_ties)."""
-    d = np.abs(a.image.astype(np.float64) - b.image) * 255
-    return int(((d > 0.5) & ~bounds.renderer_ties(g, mode, cam, 1, spp)).sum())
+def _one_effect(effect: str) -> Scene:
+    """The demo's effects on the bulge with ``effect`` alone kept."""
+    scene = demo_effects(bulge_scene(size=BULGE_SIZE, steps=1))
+    return dataclasses.replace(scene, **{e: (getattr(scene, e) if e == effect else None)
+                                         for e in ("lighting", "optics", "noise")})
 
 
 def _effect(effect: str) -> Callable[[Context], float]:
-    """Pixels whose grey differs by more than 0.5 of 8 bit off the coverage ties, exact mode,
-    with one effect on."""
+    """One of the demo's effects alone on the bulge, exact, camera 1: the largest |Δgrey| off the
+    coverage ties in units of its bound — bounds.renderer_lit from the unlit grey's bound, or
+    bounds.renderer_noise / renderer_dof from the oracle's image without the effect and its bound
+    (the blur's σ ties left out too)."""
     def run(c: Context) -> float:
-        scene = demo_effects(bulge_scene(size=BULGE_SIZE, steps=1))
-        scene = dataclasses.replace(scene, **{e: (getattr(scene, e) if e == effect else None)
-                                              for e in ("lighting", "optics", "noise")})
+        scene = _one_effect(effect)
         g, o = c.pair(effect, scene)
-        a, b = g.render(1, 1, mode="exact"), o.render(1, 1, mode="exact")
-        return float(_off_ties(g, a, b, "exact", 1, 1))
+        a = g.render(1, 1, mode="exact")
+        ties = bounds.renderer_ties(g, "exact", 1, 1)
+        if effect == "lighting":
+            b = o.render(1, 1, mode="exact", truth=True)
+            unlit = bounds.renderer_grey(o, "exact", 1, 1, 1, bounds.FLOAT64, b.truth)
+            bound = bounds.renderer_lit(o, "exact", 1, 1, b.truth, unlit)
+        else:
+            b = o.render(1, 1, mode="exact")
+            _, plain = c.pair(f"{effect}-free", dataclasses.replace(scene, **{effect: None}))
+            q = plain.render(1, 1, mode="exact", truth=True)
+            before = np.where(q.truth.mask, bounds.renderer_grey(plain, "exact", 1, 1, 1, bounds.FLOAT64, q.truth), 0.0)
+            if effect == "noise":
+                bound = bounds.renderer_noise(o, 1, 1, q.image, before)
+            else:
+                bound, blur_ties = bounds.renderer_dof(o, "exact", 1, 1, q.truth, q.image, before)
+                ties |= blur_ties
+        ratio = np.abs(a.image.astype(np.float64) - b.image) / np.where(bound > 0, bound, np.inf)
+        return float(ratio[~ties].max())
     return run
-
-
-def _lit(c: Context) -> float:
-    """The demo's lighting alone on the bulge, exact, camera 1: the largest |Δgrey| off the
-    coverage ties in units of bounds.renderer_lit."""
-    scene = demo_effects(bulge_scene(size=BULGE_SIZE, steps=1))
-    g, o = c.pair("lighting", dataclasses.replace(scene, optics=None, noise=None))
-    a, b = g.render(1, 1, mode="exact"), o.render(1, 1, mode="exact", truth=True)
-    unlit = bounds.renderer_grey(o, "exact", 1, 1, 1, bounds.FLOAT64, b.truth)
-    bound = bounds.renderer_lit(o, "exact", 1, 1, b.truth, unlit)
-    ratio = np.abs(a.image.astype(np.float64) - b.image) / np.where(bound > 0, bound, np.inf)
-    return float(ratio[~bounds.renderer_ties(g, "exact", 1, 1)].max())
-
-
-def _noise(c: Context) -> float:
-    """The demo's noise alone on the bulge, exact, camera 1: the largest |Δgrey| off the coverage
-    ties in units of bounds.renderer_noise (from the oracle's noise-free image and its bound)."""
-    scene = demo_effects(bulge_scene(size=BULGE_SIZE, steps=1))
-    scene = dataclasses.replace(scene, optics=None, lighting=None)
-    g, o = c.pair("noise", scene)
-    _, plain = c.pair("noise-free", dataclasses.replace(scene, noise=None))
-    a, b, q = g.render(1, 1, mode="exact"), o.render(1, 1, mode="exact"), plain.render(1, 1, mode="exact", truth=True)
-    before = np.where(q.truth.mask, bounds.renderer_grey(plain, "exact", 1, 1, 1, bounds.FLOAT64, q.truth), 0.0)
-    bound = bounds.renderer_noise(o, 1, 1, q.image, before)
-    ratio = np.abs(a.image.astype(np.float64) - b.image) / bound
-    return float(ratio[~bounds.renderer_ties(g, "exact", 1, 1)].max())
 
 
 def _motion(c: Context) -> float:
@@ -328,7 +317,6 @@ def _stages(c: Context) -> float:
 
 
 FLOAT64 = "glsim.evaluation.bounds: float64, 1e-9 px or mm"
-OFF_TIES = "px > 0.5 grey of 8 bit off coverage ties"   # (bounds.renderer_ties)
 GREY = ("glsim.evaluation.bounds.renderer_grey off coverage ties (bounds.renderer_ties): the float32 reference "
         "sample and box filter, the samples' shift through the interpolant's gradient")
 CAMERA = "glsim.evaluation.bounds.camera_passes: float32 passes on GL's own image"
@@ -361,11 +349,13 @@ CHECKS = (
           "(deform.frag) as fragment passes and as compute passes (glsim.backends.gl.plan); images and "
           "truth of the bulge pair, every mode, 1 and 4 spp", _stages),
     Check("lighting, exact: grey per pixel", 1, "× bound", "glsim.evaluation.bounds.renderer_lit off coverage ties: the unlit "
-          "grey's bound through the combine, shade.glsl's float32 arithmetic and light_at's point and normal", _lit),
-    Check("depth of field, exact", 0, OFF_TIES, "as tests/test_effects.py (ties grown by the blur's reach)",
-          _effect("optics")),
+          "grey's bound through the combine, shade.glsl's float32 arithmetic and light_at's point and normal",
+          _effect("lighting")),
+    Check("depth of field, exact: grey per pixel", 1, "× bound", "glsim.evaluation.bounds.renderer_dof off coverage "
+          "and σ ties: the window's source bound, the expansion scheme's tolerance and rounding, σ's float32 error "
+          "through the gather", _effect("optics")),
     Check("noise, exact: grey per pixel", 1, "× bound", "glsim.evaluation.bounds.renderer_noise off coverage ties: "
-          "the noise-free image's bound through I + σ(I)·z and the noise pass's float32 error", _noise),
+          "the noise-free image's bound through I + σ(I)·z and the noise pass's float32 error", _effect("noise")),
     Check("motion: exposure and rolling shutter, exact", 0, "px > 0.5 grey of 8 bit", "the same sub-frames "
           "as the oracle (docs/motion.md: |GL − oracle| ≤ the sub-frames' + 2^-24)", _motion),
     Check("camera passes: Gaussian PSF, vignetting, fixed pattern", 1, "× bound", CAMERA,
