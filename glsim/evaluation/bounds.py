@@ -399,34 +399,51 @@ def renderer_grey(oracle, mode: str, cam: int, step: int, spp: int, shift, truth
     ``step`` in ``mode`` at ``spp``, GL's reference points within ``shift`` px (a number or per
     pixel) of the oracle's, with the interpolant's gradient at the oracle's sample reference
     points: at 1 spp the pixel centres' (``truth``: the oracle's truth of that image); fast at
-    s × s spp the oracle's truth on a camera added to the scene whose pixel centres are those
-    samples (scaled_camera by s; camera 0, which sets the speckle's scale, kept); exact and q4,
-    whose points move by float64 rounding only, the interpolant's largest gradient."""
-    import dataclasses
-
-    from glsim.render import Renderer
-    from glsim.stages import interp
-    from glsim.workflows.preview.layout import scaled_camera
-
-    method = oracle.scene.render.interpolation
-    coeffs = interp.prepare(oracle.reference.image, method, np.float64)
-    M = float(np.abs(coeffs).max())
+    s × s spp its samples' (:func:`sample_truth`); exact and q4, whose points move by float64
+    rounding only, the interpolant's largest gradient."""
+    method, coeffs, M = _reference(oracle)
     s = int(round(np.sqrt(spp)))
     if s == 1:
         grad = sample_gradient(method, coeffs, truth.ref_uv, truth.mask)
     elif mode == "fast":
-        cams = oracle.scene.cameras
-        fine = dataclasses.replace(scaled_camera(cams[cam], s), name=f"glsim-samples-{cam}")
-        with Renderer(oracle.scene.replace(cameras=cams + (fine,)), "cpu", mesh=oracle.mesh) as r:
-            t = r.render(len(cams), step, truth=True, mode=mode).truth
+        t = sample_truth(oracle, mode, cam, step, spp)[1]
         grad = sample_gradient(method, coeffs, t.ref_uv, t.mask, s)
     else:
         grad = gradient_max(method) * M
     return grey(method, M, grad, shift, spp)
 
 
-def _pixel_points(oracle, cam: int, step: int, truth, who: str):
-    """The oracle's covered pixels of camera ``cam`` at ``step`` (``truth`` of that view, 1 spp):
+def _reference(oracle):
+    """The oracle's interpolation, its coefficients of the reference image (float64) and their
+    largest |value|."""
+    from glsim.stages import interp
+
+    method = oracle.scene.render.interpolation
+    coeffs = interp.prepare(oracle.reference.image, method, np.float64)
+    return method, coeffs, float(np.abs(coeffs).max())
+
+
+def sample_truth(oracle, mode: str, cam: int, step: int, spp: int):
+    """(camera, truth): the oracle's truth at the s × s samples of camera ``cam`` at ``step`` in
+    ``mode`` — at 1 spp its own; else that of a camera added to the scene whose pixel centres
+    are those samples (scaled_camera by s, named glsim-samples-cam; camera 0, which sets the
+    speckle's scale, kept)."""
+    import dataclasses
+
+    from glsim.render import Renderer
+    from glsim.workflows.preview.layout import scaled_camera
+
+    s = int(round(np.sqrt(spp)))
+    cams = oracle.scene.cameras
+    if s == 1:
+        return cams[cam], oracle.render(cam, step, truth=True, mode=mode).truth
+    fine = dataclasses.replace(scaled_camera(cams[cam], s), name=f"glsim-samples-{cam}")
+    with Renderer(oracle.scene.replace(cameras=cams + (fine,)), "cpu", mesh=oracle.mesh) as r:
+        return fine, r.render(len(cams), step, truth=True, mode=mode).truth
+
+
+def _pixel_points(oracle, camera, step: int, truth, who: str):
+    """The oracle's covered pixels of ``camera`` at ``step`` (``truth`` of that view, 1 spp):
     their elements, the shape functions at their (ξ, η) (n, 4), their elements' corners and
     points in the camera's frame (n, 4, 3), (n, 3), mm; linear elements only (``who`` refuses)."""
     from glsim.scene import bilinear as bl
@@ -435,8 +452,7 @@ def _pixel_points(oracle, cam: int, step: int, truth, who: str):
     mesh = oracle.mesh
     if mesh.is_quadratic:
         raise ValueError(f"{who}: linear elements only (a quadratic mesh's point lies on its curved patch)")
-    view = make_view(oracle.scene.cameras[cam], oracle.reference.camera, mesh.nodes, mesh.deformed(step),
-                     mesh.quads, warn=False)
+    view = make_view(camera, oracle.reference.camera, mesh.nodes, mesh.deformed(step), mesh.quads, warn=False)
     m = truth.mask
     e = truth.element[m]
     w = bl.shape_functions(truth.xi[m], truth.eta[m])
@@ -444,29 +460,35 @@ def _pixel_points(oracle, cam: int, step: int, truth, who: str):
     return e, w, P, np.einsum("ni,nik->nk", w, P)
 
 
-def renderer_lit(oracle, mode: str, cam: int, step: int, truth, unlit) -> np.ndarray:
-    """Per pixel (H, W), how far a GL renderer's lit image (1 spp, linear elements) may lie from
-    the oracle renderer ``oracle``'s of camera ``cam`` at ``step`` in ``mode`` (``truth``: the
-    oracle's truth of that view), first order in u = 2^-24: the unlit grey g's own bound
-    ``unlit`` (:func:`renderer_grey`) through the combine (additive: 1, multiplicative: |I|);
-    shade.glsl's float32 lighting and combine on float32 inputs (:func:`phong`); and those
-    inputs' own errors through |∂I/∂X|, |∂I/∂N| (glsim.effects.lighting.phong_gradient) —
-    deform.frag's light_at: the point Σ wᵢ Pᵢ from the nodes in the camera frame as float32 (each
-    node, weight, product and sum rounded: 8u·Σ|wᵢ||Pᵢ|), the normal Σ wᵢ nᵢ of the float32
-    corner normals turned by the float32 rotation (12u) and normalised (16u); in fast the
-    (ξ, η) it interpolates, within fast's vertex bound (:func:`fast_px`) times the point's and
-    the normal's change per image pixel (:func:`per_pixel`). 0 off the oracle's mask."""
+def renderer_lit(oracle, mode: str, cam: int, step: int, spp: int = 1) -> np.ndarray:
+    """Per pixel (H, W), how far a GL renderer's lit image (linear elements) may lie from the
+    oracle renderer ``oracle``'s of camera ``cam`` at ``step`` in ``mode`` at ``spp``, first order
+    in u = 2^-24, per sample (the oracle's, :func:`sample_truth`): the unlit sample's bound
+    (:func:`grey` at GL's reference points within :func:`mapping` of the oracle's) through the
+    combine (additive: 1, multiplicative: |I|); shade.glsl's float32 lighting and combine on
+    float32 inputs (:func:`phong`); and those inputs' own errors through |∂I/∂X|, |∂I/∂N|
+    (glsim.effects.lighting.phong_gradient) — deform.frag's light_at: the point Σ wᵢ Pᵢ from the
+    nodes in the camera frame as float32 (each node, weight, product and sum rounded:
+    8u·Σ|wᵢ||Pᵢ|), the normal Σ wᵢ nᵢ of the float32 corner normals turned by the float32
+    rotation (12u) and normalised (16u); in fast the (ξ, η) it interpolates, within fast's
+    vertex bound (:func:`fast_px`) times the point's and the normal's change per sample
+    (:func:`per_pixel`). At n = s² > 1 spp a pixel takes its samples' largest and the box
+    filter's n − 1 float32 adds and division, (n + 4)u of the largest lit value."""
     from glsim.effects import lighting as shade
     from glsim.effects import prepare
 
-    u, camera, lit = FLOAT32_ROUNDOFF, oracle.scene.cameras[cam], oracle.scene.lighting
-    e, w, P, X = _pixel_points(oracle, cam, step, truth, "renderer_lit")
-    fx = prepare(oracle.scene, oracle.mesh.deformed(step), oracle.mesh.quads, camera, cam, step, np.empty(0))
+    u, lit = FLOAT32_ROUNDOFF, oracle.scene.lighting
+    camera, truth = sample_truth(oracle, mode, cam, step, spp)
+    method, coeffs, M = _reference(oracle)
     m = truth.mask
+    shift = mapping(mode, camera.fx, truth.ref_uv, m)
+    unlit = grey(method, M, sample_gradient(method, coeffs, truth.ref_uv, m), shift)
+    e, w, P, X = _pixel_points(oracle, camera, step, truth, "renderer_lit")
+    fx = prepare(oracle.scene, oracle.mesh.deformed(step), oracle.mesh.quads, camera, cam, step, np.empty(0))
     N = np.einsum("ni,nik->nk", w, fx.normals[e])
     args = (fx.lights, lit.ambient, lit.diffuse, lit.specular, lit.shininess)
     I, dI_X, dI_N, _ = shade.phong_gradient(X, N, *args)
-    g = oracle.backend.sampler(oracle.scene.render.interpolation)(truth.ref_uv[m])
+    g = oracle.backend.sampler(method)(truth.ref_uv[m])
     dX = 8 * u * np.einsum("ni,ni->n", np.abs(w), np.linalg.norm(P, axis=-1))
     dN = 28 * u * np.einsum("ni,ni->n", np.abs(w), np.linalg.norm(fx.normals[e], axis=-1))
     if mode == "fast":   # GL's (ξ, η) interpolated over its float32 triangles
@@ -478,20 +500,28 @@ def renderer_lit(oracle, mode: str, cam: int, step: int, truth, unlit) -> np.nda
         dX, dN = dX + moved(X), dN + moved(N)
     multiplicative = lit.combine == "multiplicative"
     out = np.zeros(m.shape)
-    out[m] = ((np.abs(I) if multiplicative else 1.0) * unlit[m]
+    out[m] = ((np.abs(I) if multiplicative else 1.0) * (unlit[m] if np.ndim(unlit) else unlit)
               + phong(X, N, *args, grey=g, model=lit.combine)
               + (np.abs(g) if multiplicative else 1.0) * (np.linalg.norm(dI_X, axis=-1) * dX
                                                          + np.linalg.norm(dI_N, axis=-1) * dN))
-    return out
+    s = int(round(np.sqrt(spp)))
+    if s == 1:
+        return out
+    top = float(np.abs(g * I if multiplicative else g + I).max(initial=0.0))
+    Hs, Ws = m.shape
+    return out.reshape(Hs // s, s, Ws // s, s).max(axis=(1, 3)) + (spp + 4) * u * top
 
 
-def renderer_dof(oracle, mode: str, cam: int, step: int, truth, sharp: np.ndarray, before) -> tuple[np.ndarray, np.ndarray]:
+def renderer_dof(oracle, mode: str, cam: int, step: int, sharp: np.ndarray, before,
+                 spp: int = 1) -> tuple[np.ndarray, np.ndarray]:
     """How far a GL renderer's depth-of-field image may lie from the oracle renderer ``oracle``'s
-    of camera ``cam`` at ``step`` (Gaussian kernel; ``truth``: the oracle's truth of that view,
-    1 spp), given the oracle's image before the blur ``sharp`` (H, W) and the bound ``before``
-    of GL's against it there. Returns (bound, ties), per pixel (H, W): where a pixel's σ (=
-    CoC/2 from its depth) may be decided the other way — within its own error of the in-focus
-    threshold or of a window step R = ceil(3σ) — it is a tie; elsewhere, first order in u:
+    of camera ``cam`` at ``step`` in ``mode`` at ``spp`` (Gaussian kernel), given the oracle's
+    image before the blur ``sharp`` (H, W) and the bound ``before`` of GL's against it there.
+    A pixel's depth is its sample's, or the mean of its covered samples' (dof.pixel_depth, from
+    the oracle's samples: :func:`sample_truth`). Returns (bound, ties), per pixel (H, W): where
+    a pixel's σ (= CoC/2 from its depth) may be decided the other way — within its own error
+    of the in-focus threshold or of a window step R = ceil(3σ) — it is a tie; elsewhere, first
+    order in u:
 
     - the gathered source: a normalised average moves by at most its window's largest ``before``;
     - GL's scheme against the exact gather on the same source and σ: its rounding (:func:`blur`,
@@ -508,15 +538,24 @@ def renderer_dof(oracle, mode: str, cam: int, step: int, truth, sharp: np.ndarra
     scheme = dof.blur_scheme(optics)
     if scheme in ("separable", "disk"):
         raise ValueError(f"renderer_dof: the {scheme} scheme is not derived here")
-    u, m = FLOAT32_ROUNDOFF, truth.mask
-    Z = np.zeros(m.shape)
-    Z[m] = _pixel_points(oracle, cam, step, truth, "renderer_dof")[3][:, 2]
-    dZ = u * np.abs(Z)
+    u = FLOAT32_ROUNDOFF
+    fine, truth = sample_truth(oracle, mode, cam, step, spp)
+    z = np.zeros(truth.mask.shape)
+    z[truth.mask] = _pixel_points(oracle, fine, step, truth, "renderer_dof")[3][:, 2]
+    s = int(round(np.sqrt(spp)))
+    Z = dof.pixel_depth(z, camera.height, camera.width, s)
+    m = Z > 0
+    dZ = (spp + 4) * u * np.abs(Z)   # the samples' float32 depths and their float32 mean
     if mode == "fast":
         dZ = dZ + per_pixel(Z[..., None], m) * fast_px(camera.fx)
     sigma = dof.blur_sigma(Z, optics)
     c = np.where(m, dof.coc_px(np.where(m, Z, 2 * optics.focal_length + 1.0), optics), 0.0)
-    dcoc = np.where(m, c * coc(np.where(m, Z, 1.0), optics) + 2 * np.abs(dof.size_derivative(Z, optics)) * dZ, 0.0)
+    f, N, D, p = (float(getattr(optics, k)) for k in ("focal_length", "f_number", "focus_distance", "pixel_pitch"))
+    slope = np.where(m, f * f * (D - f) / (N * D * np.where(m, Z - f, 1.0) ** 2 * p), 0.0)   # |∂CoC/∂Z|, px/mm
+    with np.errstate(divide="ignore", invalid="ignore"):
+        own = c * coc(np.where(m, Z, 1.0), optics)   # relative to CoC; at Z = D exactly its limit: the slope·δD
+    own = np.where(np.isfinite(own), own, slope * (_f32_error(D) + u * np.abs(Z)))
+    dcoc = np.where(m, own + slope * dZ, 0.0)
     dsigma = dcoc / 2
     R = dof.kernel_radius(sigma)
     threshold = getattr(optics, "coc_px", 1.0)

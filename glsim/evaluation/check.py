@@ -243,19 +243,17 @@ def _effect(effect: str) -> Callable[[Context], float]:
         g, o = c.pair(effect, scene)
         a = g.render(1, 1, mode="exact")
         ties = bounds.renderer_ties(g, "exact", 1, 1)
+        b = o.render(1, 1, mode="exact")
         if effect == "lighting":
-            b = o.render(1, 1, mode="exact", truth=True)
-            unlit = bounds.renderer_grey(o, "exact", 1, 1, 1, bounds.FLOAT64, b.truth)
-            bound = bounds.renderer_lit(o, "exact", 1, 1, b.truth, unlit)
+            bound = bounds.renderer_lit(o, "exact", 1, 1)
         else:
-            b = o.render(1, 1, mode="exact")
             _, plain = c.pair(f"{effect}-free", dataclasses.replace(scene, **{effect: None}))
             q = plain.render(1, 1, mode="exact", truth=True)
             before = np.where(q.truth.mask, bounds.renderer_grey(plain, "exact", 1, 1, 1, bounds.FLOAT64, q.truth), 0.0)
             if effect == "noise":
                 bound = bounds.renderer_noise(o, 1, 1, q.image, before)
             else:
-                bound, blur_ties = bounds.renderer_dof(o, "exact", 1, 1, q.truth, q.image, before)
+                bound, blur_ties = bounds.renderer_dof(o, "exact", 1, 1, q.image, before)
                 ties |= blur_ties
         ratio = np.abs(a.image.astype(np.float64) - b.image) / np.where(bound > 0, bound, np.inf)
         return float(ratio[~ties].max())
