@@ -526,9 +526,11 @@ def renderer_dof(oracle, mode: str, cam: int, step: int, sharp: np.ndarray, befo
     - the gathered source: a normalised average moves by at most its window's largest ``before``;
     - GL's scheme against the exact gather on the same source and σ: its rounding (:func:`blur`,
       the gather's) and, for the default expansion, dof.EXPANSION_TOL of the source's grey range;
-    - σ's own error δσ: shaders/dof.glsl's CoC in float32 (:func:`coc`) and the depth GL reads —
-      the sample's Z as float32 (u|Z|), in fast also interpolated (|∂Z/∂uv|·:func:`fast_px`) —
-      through ∂σ/∂Z; through the gather |∂out/∂σ| ≤ (2R²/σ³)·(the window's grey range).
+    - σ's own error δσ: shaders/dof.glsl's CoC in float32 (:func:`coc`; at Z = D, where that
+      relative error has no limit, the CoC's slope times D's rounding) and the depth GL reads —
+      its samples' Z as float32 and their float32 mean ((n + 4)u|Z|), in fast also
+      interpolated (|∂Z/∂uv|·:func:`fast_px`) — through |∂CoC/∂Z|; through the gather
+      |∂out/∂σ| ≤ (2R²/σ³)·(the window's grey range).
     The separable scheme, inexact where σ varies, and the disk kernel are not derived here."""
     import cv2
 
@@ -569,8 +571,8 @@ def renderer_dof(oracle, mode: str, cam: int, step: int, sharp: np.ndarray, befo
     M, F = float(np.abs(src).max()), float(np.ptp(src))
     scheme_err = blur("gather", sigma, M) + (dof.EXPANSION_TOL * F if scheme == "expansion" else 0.0)
     with np.errstate(divide="ignore", invalid="ignore"):
-        slope = np.where(sigma > 0, 2 * R.astype(np.float64) ** 2 / sigma ** 3, 0.0)
-    bound = np.where(sigma > 0, moved + scheme_err + slope * spread * dsigma, before)
+        per_sigma = np.where(sigma > 0, 2 * R.astype(np.float64) ** 2 / sigma ** 3, 0.0)   # |∂out/∂σ| / range
+    bound = np.where(sigma > 0, moved + scheme_err + per_sigma * spread * dsigma, before)
     return bound, ties
 
 
