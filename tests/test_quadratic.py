@@ -710,50 +710,11 @@ def test_missing_nodes_are_refused():
         Mesh(mesh.nodes, mesh.quads, mesh.node_labels, mesh.element_labels, patches=bad[:, :8])
 
 
-def _lit_bound(c: Renderer, mesh, mode: str) -> np.ndarray:
-    """Per pixel (H, W), how far GL's lit grey may lie from the oracle's (its float32 arithmetic,
-    first order in u = 2^-24): the grey g' = g·I (multiplicative) takes the bspline3 sample's
-    float32 error I·δg (glsim.evaluation.bounds.interpolation over its coefficients) and
-    g·δI: shade.glsl's own (glsim.evaluation.bounds.phong) plus its inputs — the point
-    X = Σ N_i X_i summed in float32 from the patch's nine nodes (each node, weight, product and sum
-    rounded: 12u·Σ|N_i||X_i|) and the normal interpolated in float32 over the piece's corners
-    (6u) — through |∂I/∂X|, |∂I/∂N| (glsim.effects.lighting.phong_gradient); and each image's
-    float32 rounding, 2u·|g'|."""
-    from glsim.backends.cpu import rasterize_quadratic
-    from glsim.effects import lighting as shade
-    from glsim.effects import prepare
-    from glsim.scene import bilinear as bl
-    from glsim.stages import interp
-    from glsim.stages.quadview import make_quad_view
-
-    u, cam, lit = bounds.FLOAT32_ROUNDOFF, c.scene.cameras[0], c.scene.lighting
-    deformed = mesh.deformed(1)
-    pieces_def = c.pieces.mesh.at_grid(deformed)
-    view = make_quad_view(cam, c.reference.camera, mesh.nodes, deformed, mesh.patches, warn=False, mode=mode,
-                          pieces=c.pieces, pieces_def=pieces_def)
-    raster = rasterize_quadratic(view, mode, 1)
-    hit = raster["element"] >= 0
-    e, xi, eta = raster["element"][hit], raster["xi"][hit], raster["eta"][hit]
-    fx = prepare(c.scene, pieces_def, c.pieces.mesh.quads, cam, 0, 1, np.empty(0))
-    X = qd.evaluate(view.Pd[e], xi, eta)
-    piece, xs, ys = qd.piece_of(e, xi, eta, view.pieces)
-    N = bl.bilinear(fx.normals[piece], xs, ys)
-    args = (fx.lights, lit.ambient, lit.diffuse, lit.specular, lit.shininess)
-    I, dI_X, dI_N, _ = shade.phong_gradient(X, N, *args)
-    coeffs = interp.prepare(c.reference.image, "bspline3", np.float64)
-    g = c.backend.sampler("bspline3")(raster["ref_uv"][hit])
-    dX = 12 * u * np.einsum("nk,nkd->nd", np.abs(qd.shape_functions(xi, eta)), np.abs(view.Pd[e])).max(-1)
-    dI = bounds.phong(X, N, *args) + np.linalg.norm(dI_X, axis=-1) * dX + np.linalg.norm(dI_N, axis=-1) * 6 * u
-    out = np.zeros(hit.shape)
-    out[hit] = np.abs(I) * bounds.interpolation("bspline3", np.abs(coeffs).max()) + np.abs(g) * dI + 2 * u * np.abs(g * I)
-    return out.reshape(cam.height, cam.width)
-
-
 @pytest.mark.parametrize("backend", BACKENDS)
 def test_lighting_on_curved_patches(backend, ctx_for):
     """Lighting in exact / q4: the point on the curved patch, the normal interpolated over the
     linear piece holding it (the pieces' corner normals, as fast mode). GL equals the oracle
-    within _lit_bound per pixel (its float32 arithmetic), and both draw the same pixels; the lit
+    within bounds.renderer_lit per pixel (its float32 arithmetic), and both draw the same pixels; the lit
     exact image is within 1e-3 mean of the lit fast one."""
     sc = scene().replace(lighting={"lights": [{"position": [30, -20, 0]}], "ambient": 0.2, "specular": 0.3,
                                    "shininess": 8.0, "combine": "multiplicative"})
@@ -762,7 +723,7 @@ def test_lighting_on_curved_patches(backend, ctx_for):
         for mode in ("exact", "q4"):
             a, b = r.render(0, 1, mode=mode), c.render(0, 1, mode=mode)
             assert np.isfinite(a.image).all()
-            assert np.all(np.abs(a.image.astype(float) - b.image) <= _lit_bound(c, mesh, mode))
+            assert np.all(np.abs(a.image.astype(float) - b.image) <= bounds.renderer_lit(c, mode, 0, 1))
             assert "light" in b.stages
         lit = c.render(0, 1, mode="exact").image
         assert np.abs(lit - c.render(0, 1, mode="fast").image).mean() <= 1e-3

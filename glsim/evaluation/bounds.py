@@ -461,8 +461,8 @@ def _pixel_points(oracle, camera, step: int, truth, who: str):
 
 
 def renderer_lit(oracle, mode: str, cam: int, step: int, spp: int = 1) -> np.ndarray:
-    """Per pixel (H, W), how far a GL renderer's lit image (linear elements) may lie from the
-    oracle renderer ``oracle``'s of camera ``cam`` at ``step`` in ``mode`` at ``spp``, first order
+    """Per pixel (H, W), how far a GL renderer's lit image may lie from the oracle renderer
+    ``oracle``'s of camera ``cam`` at ``step`` in ``mode`` at ``spp``, first order
     in u = 2^-24, per sample (the oracle's, :func:`sample_truth`): the unlit sample's bound
     (:func:`grey` at GL's reference points within :func:`mapping` of the oracle's) through the
     combine (additive: 1, multiplicative: |I|); shade.glsl's float32 lighting and combine on
@@ -470,26 +470,46 @@ def renderer_lit(oracle, mode: str, cam: int, step: int, spp: int = 1) -> np.nda
     (glsim.effects.lighting.phong_gradient) — deform.frag's light_at: the point Σ wᵢ Pᵢ from the
     nodes in the camera frame as float32 (each node, weight, product and sum rounded:
     8u·Σ|wᵢ||Pᵢ|), the normal Σ wᵢ nᵢ of the float32 corner normals turned by the float32
-    rotation (12u) and normalised (16u); in fast the (ξ, η) it interpolates, within fast's
-    vertex bound (:func:`fast_px`) times the point's and the normal's change per sample
-    (:func:`per_pixel`). At n = s² > 1 spp a pixel takes its samples' largest and the box
+    rotation (12u) and normalised (16u); on a quadratic mesh (exact, q4) the point on the
+    curved patch from its nine nodes (12u·Σ|Nᵢ||Pᵢ|) and the normal over the linear piece holding
+    it; in fast the (ξ, η) it interpolates, within fast's vertex bound (:func:`fast_px`) times
+    the point's and the normal's change per sample (:func:`per_pixel`). At n = s² > 1 spp a pixel takes its samples' largest and the box
     filter's n − 1 float32 adds and division, (n + 4)u of the largest lit value."""
     from glsim.effects import lighting as shade
     from glsim.effects import prepare
 
-    u, lit = FLOAT32_ROUNDOFF, oracle.scene.lighting
+    u, lit, mesh = FLOAT32_ROUNDOFF, oracle.scene.lighting, oracle.mesh
     camera, truth = sample_truth(oracle, mode, cam, step, spp)
     method, coeffs, M = _reference(oracle)
     m = truth.mask
     shift = mapping(mode, camera.fx, truth.ref_uv, m)
     unlit = grey(method, M, sample_gradient(method, coeffs, truth.ref_uv, m), shift)
-    e, w, P, X = _pixel_points(oracle, camera, step, truth, "renderer_lit")
-    fx = prepare(oracle.scene, oracle.mesh.deformed(step), oracle.mesh.quads, camera, cam, step, np.empty(0))
+    if mesh.is_quadratic:   # the point on the curved patch (9 nodes), the normal over its piece
+        if mode == "fast":
+            raise ValueError("renderer_lit: a quadratic mesh in fast mode (its pieces' lighting) is not derived here")
+        from glsim.scene import bilinear as bl
+        from glsim.scene import quadratic as qd
+        from glsim.stages.quadview import make_quad_view
+
+        deformed = mesh.deformed(step)
+        drawn = oracle.pieces.mesh.at_grid(deformed)
+        view = make_quad_view(camera, oracle.reference.camera, mesh.nodes, deformed, mesh.patches, warn=False,
+                              pieces=oracle.pieces, pieces_def=drawn, mode=mode)
+        e, xi, eta = truth.element[m], truth.xi[m], truth.eta[m]
+        P, wq = view.Pd[e], qd.shape_functions(xi, eta)
+        X = qd.evaluate(P, xi, eta)
+        piece, xs, ys = qd.piece_of(e, xi, eta, view.pieces)
+        fx = prepare(oracle.scene, drawn, oracle.pieces.mesh.quads, camera, cam, step, np.empty(0))
+        e, w = piece, bl.shape_functions(xs, ys)
+        dX = 12 * u * np.einsum("ni,ni->n", np.abs(wq), np.linalg.norm(P, axis=-1))
+    else:
+        e, w, P, X = _pixel_points(oracle, camera, step, truth, "renderer_lit")
+        fx = prepare(oracle.scene, mesh.deformed(step), mesh.quads, camera, cam, step, np.empty(0))
+        dX = 8 * u * np.einsum("ni,ni->n", np.abs(w), np.linalg.norm(P, axis=-1))
     N = np.einsum("ni,nik->nk", w, fx.normals[e])
     args = (fx.lights, lit.ambient, lit.diffuse, lit.specular, lit.shininess)
     I, dI_X, dI_N, _ = shade.phong_gradient(X, N, *args)
     g = oracle.backend.sampler(method)(truth.ref_uv[m])
-    dX = 8 * u * np.einsum("ni,ni->n", np.abs(w), np.linalg.norm(P, axis=-1))
     dN = 28 * u * np.einsum("ni,ni->n", np.abs(w), np.linalg.norm(fx.normals[e], axis=-1))
     if mode == "fast":   # GL's (ξ, η) interpolated over its float32 triangles
 
