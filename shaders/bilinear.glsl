@@ -44,19 +44,23 @@ void edge_functions_2d(real2 p[4], real2 q, out real E[4], out real2 m[4]) {
     }
 }
 
+// The edge function of the plane through the origin, a and b at the ray (xn, 1): E = (xn, 1) .
+// (a x b), and its gradient m in xn; `precise` (no fused multiply-add), so that E(a, b) and
+// E(b, a) are exactly opposite.
+void edge_function(real3 a, real3 b, real2 xn, out real E, out real2 m) {
+    precise real mx = a.y * b.z - a.z * b.y;
+    precise real my = a.z * b.x - a.x * b.z;
+    precise real mz = a.x * b.y - a.y * b.x;
+    precise real e = (xn.x * mx + xn.y * my) + mz;
+    E = e;
+    m = real2(mx, my);
+}
+
 // Edge functions of patch P for the ray (xn, 1): E = (xn, 1) . (P_i x P_j), and the gradient in xn.
 // With pinhole_corners(P) and the sample's pixel point for xn, the same in pixel space.
 void edge_functions_ray(real3 P[4], real2 xn, out real E[4], out real2 m[4]) {
     #pragma unroll
-    for (int k = 0; k < 4; ++k) {
-        const int j = (k + 1) & 3;
-        precise real mx = P[k].y * P[j].z - P[k].z * P[j].y;
-        precise real my = P[k].z * P[j].x - P[k].x * P[j].z;
-        precise real mz = P[k].x * P[j].y - P[k].y * P[j].x;
-        precise real e = (xn.x * mx + xn.y * my) + mz;
-        E[k] = e;
-        m[k] = real2(mx, my);
-    }
+    for (int k = 0; k < 4; ++k) edge_function(P[k], P[(k + 1) & 3], xn, E[k], m[k]);
 }
 
 #ifndef FP64
@@ -73,13 +77,12 @@ void edge_functions_ray_ordered(real3 P[4], ivec4 q, real2 xn, out real E[4], ou
         bool back = q[k] > q[j];
         real3 a = back ? P[j] : P[k];
         precise real3 d = (back ? P[k] : P[j]) - a;
-        precise real mx = a.y * d.z - a.z * d.y;
-        precise real my = a.z * d.x - a.x * d.z;
-        precise real mz = a.x * d.y - a.y * d.x;
-        precise real e = (xn.x * mx + xn.y * my) + mz;
+        real e;
+        real2 g;
+        edge_function(a, d, xn, e, g);
         real s = back ? -1.0 : 1.0;
         E[k] = s * e;
-        m[k] = s * real2(mx, my);
+        m[k] = s * g;
     }
 }
 #endif

@@ -52,18 +52,15 @@ def assert_after_matches(g, c, a, b, mode, effect):
     """GL's image ``a`` (camera 1, step 1, 1 spp) with noise or depth of field against the
     oracle's ``b`` (renderer ``c``): every pixel off the coverage ties within the effect's bound
     from the image before it (the oracle without the effect, and its bound there:
-    bounds.renderer_grey) — bounds.renderer_noise (I + σ(I)·z and the noise pass's float32
+    bounds.without) — bounds.renderer_noise (I + σ(I)·z and the noise pass's float32
     error) or bounds.renderer_dof (the window's source bound, the scheme's error, σ's float32
     error through the gather; pixels whose σ may switch window or focus are ties too)."""
-    with Renderer(dataclasses.replace(c.scene, **{effect: None}), "cpu") as plain:
-        q = plain.render(1, 1, mode=mode, truth=True)
-        shift = bounds.mapping(mode, c.scene.cameras[1].fx, q.truth.ref_uv, q.truth.mask)
-        before = np.where(q.truth.mask, bounds.renderer_grey(plain, mode, 1, 1, 1, shift, q.truth), 0.0)
+    image, before = bounds.without(c, effect, mode, 1, 1)
     ties = bounds.renderer_ties(g, mode, 1, 1)
     if effect == "noise":
-        bound = bounds.renderer_noise(c, 1, 1, q.image, before)
+        bound = bounds.renderer_noise(c, 1, 1, image, before)
     else:
-        bound, blur_ties = bounds.renderer_dof(c, mode, 1, 1, q.image, before)
+        bound, blur_ties = bounds.renderer_dof(c, mode, 1, 1, image, before)
         ties |= blur_ties
     over = np.abs(a.image.astype(np.float64) - b.image) > bound
     assert not (over & ~ties).any(), over.sum()
@@ -99,10 +96,7 @@ def test_newton_subsamples_with_effects_match_the_oracle(effects_scene, effect, 
         if effect == "lighting":   # per sub-sample (Newton's within 1e-9 px of the oracle's), then the box filter
             bound = bounds.renderer_lit(c, "exact", 1, 1, spp=4)
         else:                      # from the oracle's 4 spp image without the blur and its bound
-            with Renderer(dataclasses.replace(c.scene, optics=None), "cpu") as plain:
-                sharp = plain.render(1, 1, mode="exact", samples_per_pixel=4).image
-                before = bounds.renderer_grey(plain, "exact", 1, 1, 4, bounds.FLOAT64)
-            bound, blur_ties = bounds.renderer_dof(c, "exact", 1, 1, sharp, before, spp=4)
+            bound, blur_ties = bounds.renderer_dof(c, "exact", 1, 1, *bounds.without(c, "optics", "exact", 1, 1, 4), spp=4)
             ties |= blur_ties
         over = np.abs(a.image.astype(np.float64) - b.image) > bound
         assert not (over & ~ties).any(), over.sum()

@@ -321,9 +321,7 @@ def test_gl_noise_pass_matches_numpy(gl_ctx, tmp_path, model, bits):
     assert gl.tobytes() == again.tobytes()  # reproducible on GL too
     diff = np.abs(gl.astype(np.float64) - ref)
     # per pixel within what float32 and GLSL's functions allow (glsim.evaluation.bounds.noise)
-    index = np.arange(H * W, dtype=np.uint32).reshape(H, W)
-    z = noise.standard_normal(index, np.uint32(seed))
-    dz = bounds.standard_normal(*(noise.uniform01(index, np.uint32(seed), noise.STREAM_U1 + k) for k in (0, 1)))
+    z, dz = bounds.normal_field(seed, (H, W))
     sigma = noise.noise_sigma(img, p, bits, table)
     bound = bounds.noise(img, z, dz, sigma, p, bits, table)
     print(f"{model} {bits} bit: max |GL − numpy| = {diff.max():.3g} of full scale, {(diff / bound).max():.3g} of its bound")

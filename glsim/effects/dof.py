@@ -327,15 +327,22 @@ def gather_linearization(image, size_map, kernel: str = "gaussian"):
     return C, d
 
 
-def size_derivative(Z, optics):
-    """∂(blur σ or disk radius)/∂Z (px per mm) at camera-frame depths Z (mm): of CoC_px/2 =
-    f²|Z − D| / (2 N (Z − f) D · pitch), i.e. sign(Z − D)·f²(D − f) / (2 N D (Z − f)² · pitch),
-    where the pixel is blurred (:func:`blur_sigma` > 0), else 0."""
+def coc_slope(Z, optics):
+    """|∂CoC_px/∂Z| (px per mm) at camera-frame depths Z > f (mm): of f²|Z − D| / (N (Z − f) D ·
+    pitch), f²(D − f) / (N D (Z − f)² · pitch) on either side of the focus."""
     Z = np.asarray(Z, dtype=np.float64)
     f, D, N, pitch = (_param(optics, k) for k in ("focal_length", "focus_distance", "f_number", "pixel_pitch"))
+    return f * f * abs(D - f) / (N * D * (Z - f) ** 2 * pitch)
+
+
+def size_derivative(Z, optics):
+    """∂(blur σ or disk radius)/∂Z (px per mm) at camera-frame depths Z (mm): of CoC_px/2,
+    sign(Z − D)·:func:`coc_slope`/2, where the pixel is blurred (:func:`blur_sigma` > 0), else 0."""
+    Z = np.asarray(Z, dtype=np.float64)
+    f, D = _param(optics, "focal_length"), _param(optics, "focus_distance")
     blurred = _blur_size(Z, optics) > 0
     Zs = np.where(blurred, Z, 2 * f + 1.0)
-    return np.where(blurred, np.sign(Zs - D) * f * f * (D - f) / (2 * N * D * (Zs - f) ** 2 * pitch), 0.0)
+    return np.where(blurred, np.sign(Zs - D) * coc_slope(Zs, optics) / 2, 0.0)
 
 
 def blur_exact(image, sigma_map):

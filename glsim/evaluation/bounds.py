@@ -532,6 +532,29 @@ def renderer_lit(oracle, mode: str, cam: int, step: int, spp: int = 1) -> np.nda
     return out.reshape(Hs // s, s, Ws // s, s).max(axis=(1, 3)) + (spp + 4) * u * top
 
 
+def without(oracle, effect: str, mode: str, cam: int, step: int, spp: int = 1) -> tuple[np.ndarray, np.ndarray]:
+    """The oracle renderer ``oracle``'s image of camera ``cam`` at ``step`` in ``mode`` at ``spp``
+    with ``effect`` ("noise" or "optics", the scene's only effect) left out, and the bound of a
+    GL renderer's against it per pixel (:func:`renderer_grey`: GL's reference points within
+    :func:`mapping` of the oracle's; at 1 spp 0 off the oracle's mask, the background both
+    draw): what :func:`renderer_noise` and :func:`renderer_dof` start from."""
+    import dataclasses
+
+    from glsim.render import Renderer
+
+    others = [e for e in ("lighting", "optics", "noise") if e != effect and getattr(oracle.scene, e) is not None]
+    if others or (spp > 1 and mode == "fast"):
+        raise ValueError(f"bounds.without: derived for {effect} alone, exact or q4 at several samples per pixel "
+                         f"(the scene has {others}, mode {mode!r} at {spp} spp)")
+    with Renderer(dataclasses.replace(oracle.scene, **{effect: None}), "cpu", mesh=oracle.mesh) as plain:
+        if spp > 1:
+            return plain.render(cam, step, mode=mode, samples_per_pixel=spp).image, \
+                renderer_grey(plain, mode, cam, step, spp, FLOAT64)
+        q = plain.render(cam, step, mode=mode, truth=True)
+        shift = mapping(mode, oracle.scene.cameras[cam].fx, q.truth.ref_uv, q.truth.mask)
+        return q.image, np.where(q.truth.mask, renderer_grey(plain, mode, cam, step, 1, shift, q.truth), 0.0)
+
+
 def renderer_dof(oracle, mode: str, cam: int, step: int, sharp: np.ndarray, before,
                  spp: int = 1) -> tuple[np.ndarray, np.ndarray]:
     """How far a GL renderer's depth-of-field image may lie from the oracle renderer ``oracle``'s
@@ -572,11 +595,10 @@ def renderer_dof(oracle, mode: str, cam: int, step: int, sharp: np.ndarray, befo
         dZ = dZ + per_pixel(Z[..., None], m) * fast_px(camera.fx)
     sigma = dof.blur_sigma(Z, optics)
     c = np.where(m, dof.coc_px(np.where(m, Z, 2 * optics.focal_length + 1.0), optics), 0.0)
-    f, N, D, p = (float(getattr(optics, k)) for k in ("focal_length", "f_number", "focus_distance", "pixel_pitch"))
-    slope = np.where(m, f * f * (D - f) / (N * D * np.where(m, Z - f, 1.0) ** 2 * p), 0.0)   # |∂CoC/∂Z|, px/mm
+    slope = np.where(m, dof.coc_slope(np.where(m, Z, 2 * optics.focal_length + 1.0), optics), 0.0)   # px/mm
     with np.errstate(divide="ignore", invalid="ignore"):
         own = c * coc(np.where(m, Z, 1.0), optics)   # relative to CoC; at Z = D exactly its limit: the slope·δD
-    own = np.where(np.isfinite(own), own, slope * (_f32_error(D) + u * np.abs(Z)))
+    own = np.where(np.isfinite(own), own, slope * (_f32_error(optics.focus_distance) + u * np.abs(Z)))
     dcoc = np.where(m, own + slope * dZ, 0.0)
     dsigma = dcoc / 2
     R = dof.kernel_radius(sigma)
@@ -596,6 +618,19 @@ def renderer_dof(oracle, mode: str, cam: int, step: int, sharp: np.ndarray, befo
     return bound, ties
 
 
+def normal_field(seed: int, shape: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:
+    """The noise's standard normal field of ``seed`` over an image of ``shape`` (H, W), as numpy
+    makes it (glsim.effects.noise.standard_normal at each flat pixel index), and the bound of
+    GLSL's against it per pixel (:func:`standard_normal`)."""
+    from glsim.effects import noise as nz
+
+    H, W = shape
+    index = np.arange(H * W, dtype=np.uint32).reshape(H, W)
+    seed = np.uint32(seed)
+    return (nz.standard_normal(index, seed),
+            standard_normal(*(nz.uniform01(index, seed, nz.STREAM_U1 + k) for k in (0, 1))))
+
+
 def renderer_noise(oracle, cam: int, step: int, image: np.ndarray, before) -> np.ndarray:
     """Per pixel (H, W), how far a GL renderer's noisy image may lie from the oracle renderer
     ``oracle``'s of camera ``cam`` at ``step``, given the oracle's image before the noise
@@ -608,11 +643,7 @@ def renderer_noise(oracle, cam: int, step: int, image: np.ndarray, before) -> np
     scene, camera = oracle.scene, oracle.scene.cameras[cam]
     params, bits = scene.noise, camera.bit_depth
     table = nz.load_variance_table(scene.resolve(params.variance_file), bits) if params.model == "heteroscedastic" else None
-    H, W = image.shape
-    index = np.arange(H * W, dtype=np.uint32).reshape(H, W)
-    seed = np.uint32(nz.stream_seed(scene.seed, cam, step))
-    z = nz.standard_normal(index, seed)
-    dz = standard_normal(*(nz.uniform01(index, seed, nz.STREAM_U1 + k) for k in (0, 1)))
+    z, dz = normal_field(nz.stream_seed(scene.seed, cam, step), image.shape)
     I = np.asarray(image, np.float64)
     sigma = nz.noise_sigma(I, params, bits, table)
     moved = np.maximum(*(np.abs(nz.noise_sigma(I + k * before, params, bits, table) - sigma) for k in (1, -1)))

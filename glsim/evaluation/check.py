@@ -239,22 +239,17 @@ def _effect(effect: str) -> Callable[[Context], float]:
     bounds.renderer_noise / renderer_dof from the oracle's image without the effect and its bound
     (the blur's σ ties left out too)."""
     def run(c: Context) -> float:
-        scene = _one_effect(effect)
-        g, o = c.pair(effect, scene)
+        g, o = c.pair(effect, _one_effect(effect))
         a = g.render(1, 1, mode="exact")
         ties = bounds.renderer_ties(g, "exact", 1, 1)
         b = o.render(1, 1, mode="exact")
         if effect == "lighting":
             bound = bounds.renderer_lit(o, "exact", 1, 1)
+        elif effect == "noise":
+            bound = bounds.renderer_noise(o, 1, 1, *bounds.without(o, effect, "exact", 1, 1))
         else:
-            _, plain = c.pair(f"{effect}-free", dataclasses.replace(scene, **{effect: None}))
-            q = plain.render(1, 1, mode="exact", truth=True)
-            before = np.where(q.truth.mask, bounds.renderer_grey(plain, "exact", 1, 1, 1, bounds.FLOAT64, q.truth), 0.0)
-            if effect == "noise":
-                bound = bounds.renderer_noise(o, 1, 1, q.image, before)
-            else:
-                bound, blur_ties = bounds.renderer_dof(o, "exact", 1, 1, q.image, before)
-                ties |= blur_ties
+            bound, blur_ties = bounds.renderer_dof(o, "exact", 1, 1, *bounds.without(o, effect, "exact", 1, 1))
+            ties |= blur_ties
         ratio = np.abs(a.image.astype(np.float64) - b.image) / np.where(bound > 0, bound, np.inf)
         return float(ratio[~ties].max())
     return run

@@ -98,23 +98,6 @@ def _edge_function(A, B, x: _F, y: _F) -> tuple[_F, np.ndarray]:
     return E, np.hypot(mx.v, my.v)
 
 
-def _image_extent(cam) -> tuple[float, float]:
-    """Bounds of |x|, |y| of a sample's undistorted normalized ray: its image border's (sampled
-    every pixel, half a pixel out) where undistortion holds there all round, else the model's
-    valid radius (rays.frag gives no ray beyond it)."""
-    from glsim.scene.camera import pixel_to_normalized, undistort, valid_radius
-
-    W, H = cam.size
-    u, v = np.arange(-0.5, W), np.arange(-0.5, H)
-    border = np.concatenate([np.stack([u, np.full_like(u, -0.5)], -1), np.stack([u, np.full_like(u, H - 0.5)], -1),
-                             np.stack([np.full_like(v, -0.5), v], -1), np.stack([np.full_like(v, W - 0.5), v], -1)])
-    xn, ok = undistort(pixel_to_normalized(border, cam.intrinsics), cam.distortion.coeffs)
-    if ok.all():
-        return float(np.abs(xn[:, 0]).max()), float(np.abs(xn[:, 1]).max())
-    r = valid_radius(cam.distortion.coeffs)
-    return r, r
-
-
 def edge_px(cam, Pa: np.ndarray, Pb: np.ndarray) -> np.ndarray:
     """Per edge a → b (camera-frame ends (K, 3), mm, float64; a the lower node index), the
     distance (px) within which a sample may be decided the other way (module text): what the
@@ -123,7 +106,7 @@ def edge_px(cam, Pa: np.ndarray, Pb: np.ndarray) -> np.ndarray:
     rounded; else P rounded, and the sample's ray rounded to its float32 high half) — plus the
     edge function's arithmetic on those float32 corners over |∇E|: through a pinhole
     (PIXEL_TIES) at the exact pixel point (|u| ≤ W, |v| ≤ H), in px; under distortion at the
-    ray (|x|, |y| at most the image's, :func:`_image_extent`), in normalized coordinates times
+    ray (|x|, |y| at most the image's largest ray, glsim.stages.view.ray_radius), in normalized coordinates times
     the largest ‖∂uv/∂xn‖ along the edge (fx, fy and the distortion's Jacobian at 9 points of
     its image). An edge with an end not in front of the camera (z ≤ 0, its image a half-line)
     takes the first-order bound of E with the corners' rounding in it, componentwise."""
@@ -144,9 +127,11 @@ def edge_px(cam, Pa: np.ndarray, Pb: np.ndarray) -> np.ndarray:
             moved = np.maximum(_end_px(A), _end_px(B))
             arith = np.where(np.minimum(A[2].v, B[2].v) > 0, moved + E.e / grad, whole.e / grad)
             return np.where(grad > 0, arith, np.inf)
-    xmax, ymax = _image_extent(cam)
-    x, y = _exact(xmax), _exact(ymax)
-    whole, grad = _edge_function(*(tuple(_comp(P, k) for k in range(3)) for P in (Pa, Pb)), _stored(xmax), _stored(ymax))
+    from glsim.stages.view import ray_radius
+
+    r = ray_radius(cam)   # |x|, |y| ≤ |xn| ≤ r for every sample's ray
+    x = y = _exact(r)
+    whole, grad = _edge_function(*(tuple(_comp(P, k) for k in range(3)) for P in (Pa, Pb)), _stored(r), _stored(r))
     E, _ = _edge_function(*(tuple(_comp(P, k, stored=False) for k in range(3)) for P in (Pa, Pb)), x, y)
     t = np.linspace(0.0, 1.0, 9)[:, None, None]
     P = Pa[None] * (1 - t) + Pb[None] * t                       # (9, K, 3)
@@ -155,7 +140,7 @@ def edge_px(cam, Pa: np.ndarray, Pb: np.ndarray) -> np.ndarray:
         xn = np.where(front[..., None], P[..., :2] / P[..., 2:], 0.0)
         gain = np.maximum(np.where(front, _gain(cam, xn), 0.0).max(axis=0), _gain(cam, np.zeros(2)))
         ends = [tuple(_comp(Q, k) for k in range(3)) for Q in (Pa, Pb)]
-        moved = np.maximum(*(_end_px(Q) for Q in ends)) + U * np.hypot(xmax, ymax)   # + the ray's rounding
+        moved = np.maximum(*(_end_px(Q) for Q in ends)) + U * r   # + the ray's rounding
         arith = np.where(np.minimum(Pa[:, 2], Pb[:, 2]) > 0, moved + E.e / grad, whole.e / grad)
         return np.where(grad > 0, arith * gain, np.inf)
 
