@@ -244,9 +244,8 @@ class Renderer:
             jac.check_request(scene, opts, self.reference.dots)
         self.check_size(camera, truth, opts)
         cam, ex = scene.camera(camera), scene.exposure
-        line = scene.sensor.line_time if scene.sensor is not None else 0.0
-        rows = list(enumerate(row_offsets(cam.height, line))) if line > 0 else [(None, 0.0)]
-        tl, taus = motion.timeline(ex, self.mesh, step), motion.sample_offsets(ex.time, ex.samples)
+        rows, tl, taus = self.exposure_schedule(cam, step)
+        rolling = rows[0][0] is not None
         one = opts.supersampling == 1   # (a sub-frame's own raster is its samples')
         images, truths, jacobians = [], [], []
         for row, t in rows:
@@ -274,20 +273,44 @@ class Renderer:
             image = noisemod.add_noise(image, fx.noise, fx.bit_depth, fx.noise_seed, fx.variance)
             stages += ("noise",)
         specimen = self._specimen(cam, tl.at(0.0, mesh.deformed), mesh.quads)   # (warns if unseen at mid-frame)
-        if line > 0:   # each row's own state
+        if rolling:   # each row's own state
             specimen = lambda: np.concatenate([coverage(motion.row_band(cam, row)[0], tl.at(t, mesh.deformed),  # noqa: E731
                                                         mesh.quads) for row, t in rows])
         derivatives = {}
         if jacobian:
             J = sparse.csr_matrix(sparse.vstack([j for j, _ in jacobians]))
             J_rig = sparse.csr_matrix(sparse.vstack([r for _, r in jacobians])) if rig else None
-            gain_term = None if line > 0 and self._banded else \
-                self._gain_term(cam, step, opts, rig, tl, taus, rows if line > 0 else None)   # (banded: per band)
-            derivatives = self._through_camera_effects(cam, J, J_rig, ("prnu",) if line > 0 and self._banded else None,
+            gain_term = None if rolling and self._banded else \
+                self._gain_term(cam, step, opts, rig, tl, taus, rows if rolling else None)   # (banded: per band)
+            derivatives = self._through_camera_effects(cam, J, J_rig, ("prnu",) if rolling and self._banded else None,
                                                        gain_term)
         return Result(image=quantize_image(image, cam.bit_depth) if quantize else image, camera=cam, step=step,
                       backend=self.backend_name, options=opts, seconds=time.perf_counter() - t0,
                       truth=self._stack(truths) if truth else None, stages=stages, specimen=specimen, **derivatives)
+
+    def exposure_schedule(self, camera: int | str | Camera, step: int):
+        """The sub-frames that make ``camera``'s image at ``step`` under the scene's [exposure]
+        (:mod:`glsim.effects.motion`): the rows of a rolling shutter, each with its exposure
+        centre (s from the step's time; [(None, 0.0)]: the whole frame at once), the step's
+        :class:`~glsim.effects.motion.Timeline` and the midpoint rule's offsets τ_i (s); each
+        row's image is the mean of its renders at centre + τ_i (:meth:`sub_frames`)."""
+        cam = camera if isinstance(camera, Camera) else self.scene.camera(camera)
+        ex, sensor = self.scene.exposure, self.scene.sensor
+        line = sensor.line_time if sensor is not None else 0.0
+        rows = list(enumerate(row_offsets(cam.height, line))) if line > 0 else [(None, 0.0)]
+        return rows, motion.timeline(ex, self.mesh, step), motion.sample_offsets(ex.time, ex.samples)
+
+    def sub_frames(self, camera: int | str, step: int, truth: bool = False, **options):
+        """The renders :meth:`render` averages for ``camera``'s image at ``step`` under the
+        scene's [exposure], in :meth:`exposure_schedule`'s order (rows, then τ_i): (row or None,
+        τ s from the step's time, the state's nodes (world mm, of the mesh drawn), the Raster —
+        the row's, cut from its band — without noise; ``truth``: with its samples)."""
+        cam, opts = self.scene.camera(camera), self._options(options)
+        rows, tl, taus = self.exposure_schedule(cam, step)
+        for row, t in rows:
+            for tau in taus:
+                yield row, t + tau, tl.at(t + tau, self.drawn_mesh.deformed), \
+                    self._frame(cam, step, t + tau, tl, opts, truth, row)[0]
 
     def _camera_index(self, cam: Camera) -> int:
         """``cam``'s index in the scene (a band camera's or a sample camera's: its camera's, by name)."""

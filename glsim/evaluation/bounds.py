@@ -180,6 +180,13 @@ def _mark(hit: np.ndarray, A: np.ndarray, B: np.ndarray, r: np.ndarray, s: int) 
         hit[row[ok & near], col[ok & near]] = True
 
 
+def units(error: np.ndarray, bound: np.ndarray) -> np.ndarray:
+    """``error`` in units of ``bound`` (arrays alike): 0 where both are 0, inf where only the
+    bound is (a pixel claimed exact, background both draw, that differs)."""
+    error, bound = np.asarray(error, np.float64), np.asarray(bound, np.float64)
+    return np.where(bound > 0, error / np.where(bound > 0, bound, 1.0), np.where(error > 0, np.inf, 0.0))
+
+
 def renderer_ties(renderer, mode: str, cam: int, step: int, spp: int = 1, radius=None) -> np.ndarray:
     """Camera ``cam``'s pixels at ``step`` where a GL renderer's image, mask or element map may
     differ from the oracle's by a sample decided the other way: :func:`near_edges` within
@@ -553,6 +560,54 @@ def without(oracle, effect: str, mode: str, cam: int, step: int, spp: int = 1) -
         q = plain.render(cam, step, mode=mode, truth=True)
         shift = mapping(mode, oracle.scene.cameras[cam].fx, q.truth.ref_uv, q.truth.mask)
         return q.image, np.where(q.truth.mask, renderer_grey(plain, mode, cam, step, 1, shift, q.truth), 0.0)
+
+
+def renderer_motion(gl, oracle, mode: str, cam: int, step: int, spp: int = 1) -> tuple[np.ndarray, np.ndarray]:
+    """How far the GL renderer ``gl``'s image of camera ``cam`` at ``step`` under the scene's
+    [exposure] (motion over the exposure, a rolling shutter; no other effect) may lie from the
+    oracle renderer ``oracle``'s, in ``mode`` at ``spp`` (fast: 1), per pixel: (bound, ties).
+    Both average the same sub-frames (:meth:`glsim.render.Renderer.sub_frames`: the states'
+    nodes are made once in float64 for both), in float64, and round the mean to float32:
+
+    - each sub-frame is a still render of its state (a rolling shutter's: of its row's
+      one-row camera, the same rays as the row): off its ties GL's lies within :func:`grey` of
+      the oracle's, its reference points within :func:`mapping` (at 1 spp from the oracle's
+      sub-frame raster, else exact and q4's largest gradient, :func:`renderer_grey`);
+    - the mean of differences is at most the mean of their bounds; the roundings of the two
+      means m to float32 add u·(|m_GL| + |m_oracle|) ≤ u·(2|m_oracle| + bound) (u = 2^-24);
+    - ties: the union of the sub-frames' (:func:`near_edges` within :func:`tie_px` of the
+      state's edges through the row's camera; a quadratic mesh's curved edges: none claimed,
+      both decide its coverage in float64, as in its still renders).
+    """
+    from glsim.effects import motion
+
+    scene = oracle.scene
+    others = [e for e in ("lighting", "optics", "psf", "vignetting", "noise") if getattr(scene, e) is not None]
+    if others or scene.exposure is None or (spp > 1 and mode == "fast"):
+        raise ValueError(f"bounds.renderer_motion: derived for [exposure] alone, fast at 1 sample per pixel "
+                         f"(the scene has {others}, exposure {scene.exposure is not None}, mode {mode!r} at {spp} spp)")
+    method, coeffs, M = _reference(oracle)
+    camera, u = scene.cameras[cam], FLOAT32_ROUNDOFF
+    radius = tie_px(mode, camera.fx, gl.backend.capabilities.subpixel_bits)
+    taus = oracle.exposure_schedule(cam, step)[2]
+    W, H = camera.size
+    total, mean, ties = np.zeros((H, W)), np.zeros((H, W)), np.zeros((H, W), bool)
+    for row, _, nodes, out in oracle.sub_frames(cam, step, truth=spp == 1, mode=mode, samples_per_pixel=spp):
+        band = camera if row is None else motion.row_band(camera, row)[0]
+        at = slice(None) if row is None else slice(row, row + 1)
+        mean[at] += out.image / len(taus)
+        if spp == 1:
+            h = band.height
+            mask = out.samples["element"].reshape(h, W) >= 0
+            ref_uv = out.samples["ref_uv"].reshape(h, W, 2)
+            grad = sample_gradient(method, coeffs, ref_uv, mask)
+            total[at] += np.where(mask, grey(method, M, grad, mapping(mode, camera.fx, ref_uv, mask)), 0.0)
+        else:
+            total[at] += grey(method, M, gradient_max(method) * M, FLOAT64, spp)
+        if not oracle.mesh.is_quadratic:
+            ties[at] |= near_edges(band, nodes, oracle.mesh.quads, radius, spp, exact=mode == "exact")
+    bound = total / len(taus)
+    return bound + u * (2 * np.abs(mean) + bound), ties
 
 
 def renderer_dof(oracle, mode: str, cam: int, step: int, sharp: np.ndarray, before,

@@ -15,8 +15,10 @@ Each bound says where it comes from (``why``):
   each is derived): float64 in exact and q4, float32 vertex projection in fast;
 - the same on curved quadratic elements (the Q8 paraboloid of ``glsim bench quadratic``):
   Newton on each patch in the shader, float64, exact and q4;
-- each optical effect on the bulge against the oracle: grey levels of 8 bit; the same for motion
-  over the exposure seen by a rolling shutter (one-row renders in their own states);
+- the float32 exact build's reference points and ties (glsim.evaluation.exact32);
+- each optical effect on the bulge against the oracle, per pixel in units of its derived bound
+  (bounds.renderer_lit, renderer_dof, renderer_noise); the same for motion over the exposure
+  seen by a rolling shutter (one-row renders in their own states: bounds.renderer_motion);
 - the camera passes (vignetting, Gaussian and Airy PSFs, fixed-pattern noise) on GL's own image
   against the oracle's stages on it, in units of their float32 bound.
 """
@@ -250,21 +252,22 @@ def _effect(effect: str) -> Callable[[Context], float]:
         else:
             bound, blur_ties = bounds.renderer_dof(o, "exact", 1, 1, *bounds.without(o, effect, "exact", 1, 1))
             ties |= blur_ties
-        ratio = np.abs(a.image.astype(np.float64) - b.image) / np.where(bound > 0, bound, np.inf)
-        return float(ratio[~ties].max())
+        return float(bounds.units(np.abs(a.image.astype(np.float64) - b.image), bound)[~ties].max())
     return run
 
 
 def _motion(c: Context) -> float:
-    """Pixels whose grey differs by more than 0.5 of 8 bit, exact mode, camera 1 of the bulge
-    rotating and moving over a 2-sample exposure seen by a rolling shutter (its rows rendered
-    by one-row cameras, each in its own state)."""
+    """Camera 1 of the bulge rotating and moving over a 2-sample exposure seen by a rolling
+    shutter (its rows rendered by one-row cameras, each in its own state), exact: the largest
+    |Δgrey| off the coverage ties in units of bounds.renderer_motion (the sub-frames' bounds,
+    averaged, and the mean's rounding)."""
     scene = bulge_scene(size=BULGE_SIZE, steps=1).replace(
         exposure={"time": 0.002, "samples": 2, "velocity": [300.0, 0.0, 0.0], "angular_velocity": [0.0, 0.0, 1.0]},
         sensor={"line_time": 2e-5})
     g, o = c.pair("motion", scene)
+    bound, ties = bounds.renderer_motion(g, o, "exact", 1, 1)
     a, b = g.render(1, 1, mode="exact"), o.render(1, 1, mode="exact")
-    return float((np.abs(a.image.astype(np.float64) - b.image) * 255 > 0.5).sum())
+    return float(bounds.units(np.abs(a.image.astype(np.float64) - b.image), bound)[~ties].max())
 
 
 def _camera_passes(effects: dict) -> Callable[[Context], float]:
@@ -349,8 +352,9 @@ CHECKS = (
           "through the gather", _effect("optics")),
     Check("noise, exact: grey per pixel", 1, "× bound", "glsim.evaluation.bounds.renderer_noise off coverage ties: "
           "the noise-free image's bound through I + σ(I)·z and the noise pass's float32 error", _effect("noise")),
-    Check("motion: exposure and rolling shutter, exact", 0, "px > 0.5 grey of 8 bit", "the same sub-frames "
-          "as the oracle (docs/motion.md: |GL − oracle| ≤ the sub-frames' + 2^-24)", _motion),
+    Check("motion: exposure and rolling shutter, exact: grey per pixel", 1, "× bound", "glsim.evaluation.bounds."
+          "renderer_motion off coverage ties: the same sub-frames as the oracle (docs/motion.md), each within its "
+          "still render's bound, averaged, and the mean's float32 rounding", _motion),
     Check("camera passes: Gaussian PSF, vignetting, fixed pattern", 1, "× bound", CAMERA,
           _camera_passes({"psf": {"kind": "gaussian", "sigma": 0.8}, "vignetting": {"natural": True, "radial": [0.3]},
                           "sensor": {"prnu": 1.0, "dsnu": 2.0}})),
