@@ -613,31 +613,34 @@ def renderer_motion(gl, oracle, mode: str, cam: int, step: int, spp: int = 1) ->
 def renderer_dof(oracle, mode: str, cam: int, step: int, sharp: np.ndarray, before,
                  spp: int = 1) -> tuple[np.ndarray, np.ndarray]:
     """How far a GL renderer's depth-of-field image may lie from the oracle renderer ``oracle``'s
-    of camera ``cam`` at ``step`` in ``mode`` at ``spp`` (Gaussian kernel), given the oracle's
+    of camera ``cam`` at ``step`` in ``mode`` at ``spp``, given the oracle's
     image before the blur ``sharp`` (H, W) and the bound ``before`` of GL's against it there.
     A pixel's depth is its sample's, or the mean of its covered samples' (dof.pixel_depth, from
     the oracle's samples: :func:`sample_truth`). Returns (bound, ties), per pixel (H, W): where
-    a pixel's σ (= CoC/2 from its depth) may be decided the other way — within its own error
-    of the in-focus threshold or of a window step R = ceil(3σ) — it is a tie; elsewhere, first
-    order in u:
+    a pixel's σ (= CoC/2 from its depth; the disk kernel's radius r is the same number) may be
+    decided the other way — within its own error of the in-focus threshold or, Gaussian, of a
+    window step R = ceil(3σ) (the disk's window ceil(r) only adds taps of weight 0) — it is a
+    tie; elsewhere, first order in u:
 
     - the gathered source: a normalised average moves by at most its window's largest ``before``;
-    - GL's scheme against the exact gather on the same source and σ: its rounding (:func:`blur`,
-      the gather's) and, for the default expansion, dof.EXPANSION_TOL of the source's grey range;
+    - GL's scheme against the exact gather on the same source and σ: its rounding (:func:`blur`:
+      the gather's, hybrid's, the disk's) and, for the Gaussian default expansion,
+      dof.EXPANSION_TOL of the source's grey range;
     - σ's own error δσ: shaders/dof.glsl's CoC in float32 (:func:`coc`; at Z = D, where that
       relative error has no limit, the CoC's slope times D's rounding) and the depth GL reads —
       its samples' Z as float32 and their float32 mean ((n + 4)u|Z|), in fast also
       interpolated (|∂Z/∂uv|·:func:`fast_px`) — through |∂CoC/∂Z|; through the gather
-      |∂out/∂σ| ≤ (2R²/σ³)·(the window's grey range).
-    The separable scheme, inexact where σ varies, and the disk kernel are not derived here."""
+      |∂out/∂σ| ≤ (2R²/σ³)·(the window's grey range); the disk's weights clamp(r + ½ − |d|, 0, 1)
+      move by δr on their ramp only: |Δout| ≤ δr·(taps within r ± (½ + δr))/Σw·(the range).
+    The separable scheme, inexact where σ varies, is not derived here."""
     import cv2
 
     from glsim.effects import dof
 
     optics, camera = oracle.scene.optics, oracle.scene.cameras[cam]
     scheme = dof.blur_scheme(optics)
-    if scheme in ("separable", "disk"):
-        raise ValueError(f"renderer_dof: the {scheme} scheme is not derived here")
+    if scheme == "separable":
+        raise ValueError("renderer_dof: the separable scheme is not derived here")
     u = FLOAT32_ROUNDOFF
     fine, truth = sample_truth(oracle, mode, cam, step, spp)
     z = np.zeros(truth.mask.shape)
@@ -656,9 +659,10 @@ def renderer_dof(oracle, mode: str, cam: int, step: int, sharp: np.ndarray, befo
     own = np.where(np.isfinite(own), own, slope * (_f32_error(optics.focus_distance) + u * np.abs(Z)))
     dcoc = np.where(m, own + slope * dZ, 0.0)
     dsigma = dcoc / 2
-    R = dof.kernel_radius(sigma)
+    disk = scheme == "disk"
+    R = dof.kernel_radius(sigma, "disk" if disk else "gaussian")
     threshold = getattr(optics, "coc_px", 1.0)
-    step_tie = (sigma > 0) & (np.abs(3 * sigma - np.round(3 * sigma)) <= 3 * dsigma)   # R = ceil(3σ) changes
+    step_tie = (sigma > 0) & (np.abs(3 * sigma - np.round(3 * sigma)) <= 3 * dsigma) & (not disk)   # R = ceil(3σ) changes
     ties = m & ((np.abs(c - threshold) <= dcoc) | step_tie)
     reach = int(R.max(initial=0))
     window = np.ones((2 * reach + 1, 2 * reach + 1), np.uint8)
@@ -666,11 +670,35 @@ def renderer_dof(oracle, mode: str, cam: int, step: int, sharp: np.ndarray, befo
     spread = cv2.dilate(src, window) - cv2.erode(src, window)
     moved = cv2.dilate(np.asarray(before, np.float64), window)
     M, F = float(np.abs(src).max()), float(np.ptp(src))
-    scheme_err = blur("gather", sigma, M) + (dof.EXPANSION_TOL * F if scheme == "expansion" else 0.0)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        per_sigma = np.where(sigma > 0, 2 * R.astype(np.float64) ** 2 / sigma ** 3, 0.0)   # |∂out/∂σ| / range
+    scheme_err = blur(scheme if scheme in ("hybrid", "disk") else "gather", sigma, M) \
+        + (dof.EXPANSION_TOL * F if scheme == "expansion" else 0.0)
+    if disk:
+        per_sigma = _disk_ramp(sigma, dsigma)
+    else:
+        with np.errstate(divide="ignore", invalid="ignore"):
+            per_sigma = np.where(sigma > 0, 2 * R.astype(np.float64) ** 2 / sigma ** 3, 0.0)   # |∂out/∂σ| / range
     bound = np.where(sigma > 0, moved + scheme_err + per_sigma * spread * dsigma, before)
     return bound, ties
+
+
+def _disk_ramp(r: np.ndarray, dr: np.ndarray) -> np.ndarray:
+    """Per pixel (radius ``r`` px, 0: copied; its error ``dr``): the disk gather's |Δout|/δr
+    per unit grey range of its window — the taps whose weight clamp(r + ½ − |d|, 0, 1) may
+    move with r within ±dr (r − ½ − dr < |d| < r + ½ + dr) over Σw at r, both over the window
+    clipped at the image border."""
+    from glsim.effects.dof import kernel_radius
+
+    H, W = r.shape
+    Rm = int(kernel_radius(r + dr, "disk").max(initial=0))
+    yy, xx = np.mgrid[0:H, 0:W]
+    wsum, ramp = np.zeros(r.shape), np.zeros(r.shape)
+    for dy in range(-Rm, Rm + 1):
+        for dx in range(-Rm, Rm + 1):
+            inside = (yy + dy >= 0) & (yy + dy < H) & (xx + dx >= 0) & (xx + dx < W)
+            d = np.hypot(dx, dy)
+            wsum += np.where(inside, np.clip(r + 0.5 - d, 0.0, 1.0), 0.0)
+            ramp += inside & (np.abs(d - r) < 0.5 + dr)
+    return np.where(r > 0, ramp / np.where(wsum > 0, wsum, 1.0), 0.0)
 
 
 def normal_field(seed: int, shape: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:
