@@ -11,14 +11,11 @@ layout(std430, binding = BINDING_NODES) readonly buffer Nodes { real nodes[]; };
 // element problems found on the GPU for the warnings: two bitsets of u_flag_words words
 // (grazing, does not project) and "any set" markers; cleared by the backend when read
 layout(std430, binding = BINDING_FLAGS) buffer Flags { uint flag_any[4]; uint flag_bits[]; };
-// per load step: zero-area, tiny and folded elements (not also named as grazing)
-layout(std430, binding = BINDING_EXCLUDED) readonly buffer Excluded { uint excluded_bits[]; };
 
 uniform real u_rot[9];       // R, row-major
 uniform real u_trans[3];     // R origin + t (mm)
 uniform real u_near;         // glsim.stages.view.NEAR_MM
 uniform real u_grazing_cos;  // glsim.stages.view.GRAZING_COS
-uniform int u_excluded;      // 1: excluded_bits holds this step's bitset
 uniform int u_flag_words;
 
 real3 node_camera(int n) {
@@ -64,11 +61,11 @@ void set_flag(int k, int e) {
     atomicOr(flag_bits[k * u_flag_words + (e >> 5)], 1u << uint(e & 31));
 }
 
-// The camera-dependent problems of element e: grazing (unless zero-area, tiny or folded), and
-// not projectable while not wholly behind the camera.
+// The camera-dependent problems of element e: grazing (the host leaves out zero-area, tiny and
+// folded elements: glsim.backends.gl.geometry), and not projectable while not wholly behind the
+// camera.
 void record_flags(int e, real3 P[4], bool projectable, bool behind) {
-    bool excluded = u_excluded != 0 && ((excluded_bits[e >> 5] >> uint(e & 31)) & 1u) != 0u;
-    if (!excluded && is_grazing(P)) set_flag(0, e);
+    if (is_grazing(P)) set_flag(0, e);
     if (!projectable && !behind) set_flag(1, e);
 }
 

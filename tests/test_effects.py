@@ -125,10 +125,11 @@ def test_programs_carry_only_the_scene_effects(effects_scene, gl_ctx, stage):
         # rays: exact mode's ray map; view.comp, candidates.comp, classify, resolve: its per-view
         # element pass (covers on the GPU), the candidate lists, their layers, and the indirect
         # draws or dispatches pass 1 enables (big covers' candidates.frag, resolve for pixels
-        # with several candidates, deform.frag's FALLBACK): compiled always, run where needed
+        # with several candidates, deform.frag's FALLBACK): compiled always, run where needed;
+        # shape.comp: the step's shape filter, once per load step
         passes = {files[-1] for files, _ in compiled} - {"deform.frag", "rays.frag", "view.comp", "candidates.comp",
                                                          "candidates.frag", f"classify.{ext}", f"resolve.{ext}",
-                                                         f"deform.{ext}"}
+                                                         f"deform.{ext}", "shape.comp"}
         assert passes == {"lighting": set(), "optics": {f"blur.{ext}"}, "noise": {f"noise.{ext}"}, None: set()}[effect]
         assert ("noise" in res.stages) == (effect == "noise")
 

@@ -93,6 +93,7 @@ EXACT_FLOAT_SOURCES = {
     "u_ref_size": "the reference image's width and height in px (integers)",
     "u_size": "the image's width and height in px (integers)",
     "hl": "fp64_probe.comp writes split_double's float32 halves out as doubles",
+    "f32": "shape.comp compares an area bound's float32 rounding with the double it rounds",
 }
 
 

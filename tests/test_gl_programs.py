@@ -226,19 +226,21 @@ def test_programs_compiled_only_with_what_the_scene_asks_for(gl_ctx, stage):
 @pytest.mark.gl
 @pytest.mark.parametrize("stage", ["fragment", "compute"])
 def test_fast_mode_compiles_no_double_arithmetic(gl_ctx, stage):
-    """Mode fast's programs are float32 only: its triangles (all that the fragment stage
-    compiles) and, in the compute stage, their indices' shading."""
+    """Mode fast's programs are float32 only: its step's shape filter from its float32 nodes
+    (shape.comp), its triangles (all else the fragment stage compiles) and, in the compute
+    stage, their indices' shading."""
     scene = bulge_scene(size=(203, 154), steps=1, mode="fast")
     with Renderer(scene, "gl", ctx=gl_ctx) as r:
         r.backend.stage = stage
         r.render(0, 1, truth=True)
         compiled = r.backend.programs.compiled
     plain = {"MODE_FAST", "INTERP_BSPLINE3", "SS", "TRUTH"}
+    shape = (("shape.comp",), set())
     if stage == "fragment":
-        assert [(files, set(d)) for files, d in compiled] == [(("deform.vert", "fast.geom", "deform.frag"), plain)]
+        assert [(files, set(d)) for files, d in compiled] == [shape, (("deform.vert", "fast.geom", "deform.frag"), plain)]
     else:
         assert [(files, set(d)) for files, d in compiled] == [
-            (("deform.vert", "fast.geom", "deform.frag"), plain | {"FAST_VISIBILITY"}), (("deform.comp",), plain)]
+            shape, (("deform.vert", "fast.geom", "deform.frag"), plain | {"FAST_VISIBILITY"}), (("deform.comp",), plain)]
 
 
 def test_missing_egl_gives_one_clear_error(monkeypatch):

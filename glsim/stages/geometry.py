@@ -120,6 +120,11 @@ class StepGeometry:
             self._shape = {k: (v if k == "excluded" else np.flatnonzero(v)) for k, v in problems.items()}
         return self._shape
 
+    @property
+    def shape_known(self) -> bool:
+        """Whether :meth:`shape` was computed."""
+        return self._shape is not None
+
     def problems(self) -> dict[str, np.ndarray]:
         """The shape problems some element has (zero, tiny, folded: sorted indices; read only),
         found once per step."""

@@ -33,7 +33,8 @@ from glsim.backends.contract import Capabilities, Raster, Request
 from glsim.stages.view import warn_dropped, warn_problems
 from glsim.backends.gl.bindings import image, sampler, storage
 from glsim.backends.gl.context import check_error, create_context, driver_info, software_renderer
-from glsim.backends.gl.geometry import DRAW_FALLBACK, DRAW_RESOLVE, LAYER_DISPATCH, LAYERS, GeometryBuffers, ViewSlot
+from glsim.backends.gl.geometry import (DRAW_FALLBACK, DRAW_RESOLVE, LAYER_DISPATCH, LAYERS, SHAPE_BYTES, GeometryBuffers,
+                                       ViewSlot)
 from glsim.backends.gl import timing
 from glsim.backends.gl.plan import aperture_literal, environment_stage, pixel_stage, plan
 from glsim.backends.gl.imagepasses import ImagePasses
@@ -440,13 +441,13 @@ class GLBackend(ImagePasses):
 
     def _view_uniforms(self, view: ViewSpec, geo, fp64: bool, sag: float) -> tuple[Uniforms, Uniforms]:
         """The uniforms every deformation program and view.comp read: its camera's
-        (:meth:`_camera_uniforms`) and the view's own — whether its step excludes elements
-        (:meth:`GeometryBuffers.view_values`), its far plane and ``sag`` (px: a quadratic mesh's
-        pieces' chord error at this view, else 0) —, made once per view (the last VIEWS_KEPT kept)."""
+        (:meth:`_camera_uniforms`) and the view's own — its far plane and ``sag`` (px: a
+        quadratic mesh's pieces' chord error at this view, else 0) —, made once per view (the
+        last VIEWS_KEPT kept)."""
         key = (id(view), id(geo), fp64, sag)
         hit = self._uniforms.get(key)
         if hit is None or hit[0] is not view or hit[1] is not geo:
-            values = {**geo.view_values(view, fp64), "u_far": view.far, "u_extra_sag": sag}
+            values = {"u_far": view.far, "u_extra_sag": sag}
             hit = keep(self._uniforms, key, (view, geo, Uniforms(values)), VIEWS_KEPT)
         return self._camera_uniforms(view, geo), hit[2]
 
@@ -598,8 +599,9 @@ class GLBackend(ImagePasses):
         return hit[1], hit[2]
 
     def _queue_report(self, view: ViewSpec, s: int, geo, warn: bool, key: tuple, refs: tuple):
-        """Copy the view's problem flags and dropped count on the GPU (read when the frame is
-        collected), clear them for the next view; returns what warns about them. A view
+        """Copy the view's problem flags, dropped count and its step's shape filter on the GPU
+        (read when the frame is collected), clear them for the next view; returns what warns
+        about them. A view
         reported before under the same record ``key`` (of the objects ``refs``, the view's
         among them) is not read again: the same commands on the same data mark the same flags
         and count the same samples (the last FRAMES_KEPT kept, without keeping their objects
@@ -609,7 +611,8 @@ class GLBackend(ImagePasses):
         known = self._reports.get((key, id(view))) if warn else None
         if known is not None and not still(known[0], refs):
             known = None
-        status = read_buffer(self._pack, [(flags, size), (dropped, 4)]) if warn and known is None else None
+        status = read_buffer(self._pack, [(flags, size), (dropped, 4), (geo.shape_buffer(view), SHAPE_BYTES)]) \
+            if warn and known is None else None
         geo.clear_status()     # (after the copy above: the GL orders them)
         dropped.write(bytes(4))
         cam = view.camera
@@ -619,7 +622,8 @@ class GLBackend(ImagePasses):
                 _, problems, count = known
             elif status is not None:
                 b = status.fetch(self._pack).tobytes()
-                problems, count = geo.problems(view, b[:size]), int(np.frombuffer(b[size:], np.uint32)[0])
+                problems = geo.problems(view, b[:size], b[size + 4:])
+                count = int(np.frombuffer(b[size:size + 4], np.uint32)[0])
                 keep(self._reports, (key, id(view)), (weak_refs(refs), problems, count), FRAMES_KEPT)
             else:
                 return

@@ -20,7 +20,7 @@ STORAGE = {
     "REF_XR": 8,        # per node: undeformed, reference camera frame (exact)
     "COVER": 9,         # per element: cover rectangle corners
     "FLAGS": 10,        # element problems (bitsets)
-    "EXCLUDED": 11,     # elements left out (bitset)
+    "SHAPE": 11,        # the step's shape filter (shape.comp)
     "TIGHT": 12,        # per element: tight rectangles (candidate lists)
     "LIST_FLAGS": 13,   # candidate lists: several candidates / overflow / big covers
     "REF_LOCAL": 14,    # float32 exact, pinhole reference: per-element reference-frame records

@@ -4,14 +4,17 @@ one compute dispatch (modes exact and q4) and one draw call.
 Buffers (std430 bindings, see ``shaders/view.glsl``): 5 connectivity (ivec4 per element),
 6 the step's deformed nodes relative to the mesh's origin, 7 reference-image coordinates per
 node, 8 undeformed nodes in the reference camera's frame, 10 the warnings' bitsets, 11 the
-step's zero-area/tiny/folded bitset; per view, written by ``view.comp``: 0 the element records
-deform.frag reads, 9 the cover rectangles exact.vert draws. Node data exist in float64 for
-FP64 programs and float32 for the others, each made when first needed.
+step's shape filter (``shaders/shape.comp``); per view, written by ``view.comp``: 0 the element
+records deform.frag reads, 9 the cover rectangles exact.vert draws. Node data exist in float64
+for FP64 programs and float32 for the others, each made when first needed.
 
-The CPU work per view hardly depends on the element count: uniforms, a dispatch, a draw with
-an index buffer made once, and the problem flags (16 bytes of "any problem" markers and two
-bits per element) copied on the GPU, fetched with the image and cleared; the bitsets are decoded
-only when a marker is set.
+The CPU work per view and per load step hardly depends on the element count: uniforms, a
+dispatch, a draw with an index buffer made once, and the problem flags (16 bytes of "any
+problem" markers and two bits per element) and the step's shape filter (its bounds on the
+elements' areas and folds, :func:`shape_candidates`) copied on the GPU, fetched with the image
+and cleared; the bitsets are decoded only when a marker is set, and the step's zero-area, tiny
+and folded elements classified in numpy (:meth:`glsim.stages.geometry.StepGeometry.shape`)
+only when the filter says some element may be one.
 """
 from __future__ import annotations
 
@@ -24,12 +27,14 @@ from glsim.backends.gl.bindings import image, sampler, storage
 from glsim.backends.gl.replay import replayed
 from glsim.backends.gl.uniforms import set_uniform
 from glsim.stages.geometry import STEPS_KEPT, MeshGeometry, ViewSpec
-from glsim.stages.view import GRAZING_COS, NEAR_MM, ray_radius
+from glsim.stages.view import GRAZING_COS, NEAR_MM, TINY_AREA_REL, ray_radius
 
 _CORNERS = np.array([0, 1, 2, 0, 2, 3], np.uint32)  # two triangles per element, as the oracle's fast mode
 _GROUP = 64          # view.comp's and candidates.comp's local size
 _MESH_BINDINGS = tuple(storage(n) for n in ("QUADS", "REF_UV", "REF_XR", "FLAGS"))   # (bind_mesh)
-_STEP_BINDINGS = tuple(storage(n) for n in ("NODES", "EXCLUDED"))                     # (bind_step)
+_NODES, _SHAPE = storage("NODES"), storage("SHAPE")
+SHAPE_BIAS, SHAPE_BINS = 150, 280   # shaders/shape.comp's histogram of area bounds' exponents
+SHAPE_BYTES = 4 * (4 + SHAPE_BINS)
 CANDIDATES = 8       # candidates.glsl: elements listed per pixel before it overflows
 # classify.frag's window depths: the full-screen pass 2 program run on each (lists.vert)
 LAYERS = {"deform.frag": 0.25, "resolve.frag": 0.5}
@@ -46,17 +51,28 @@ def _bitset_words(M: int) -> int:
     return max(1, (M + 31) // 32)
 
 
-def pack_bits(mask: np.ndarray) -> np.ndarray:
-    """A bool mask (M,) as little-endian uint32 words (bit e of word e // 32)."""
-    words = _bitset_words(len(mask))
-    out = np.zeros(words * 4, np.uint8)
-    packed = np.packbits(mask, bitorder="little")
-    out[:len(packed)] = packed
-    return out.view("<u4")
-
-
 def unpack_bits(words: bytes, M: int) -> np.ndarray:
     return np.unpackbits(np.frombuffer(words, np.uint8), bitorder="little")[:M].astype(bool)
+
+
+def shape_candidates(words: np.ndarray, M: int) -> bool:
+    """Whether some element of a step may be zero-area, tiny or folded as
+    :func:`glsim.stages.view.classify_shapes` finds them, from shaders/shape.comp's ``words``
+    (uint32) for its ``M`` elements: some n1·n2 may be negative, or the least lower bound on an
+    area is at most TINY_AREA_REL × U, U bounding numpy's median area from above — numpy's
+    median of M positive areas is at most its (M // 2 + 1)-th smallest, hence at most the
+    same order statistic of the upper bounds, which lies below the power of two U that ends
+    its histogram bin. Otherwise every area exceeds TINY_AREA_REL × the median (so all are
+    positive and none is zero or tiny) and no n1·n2 is negative: no element is excluded."""
+    if M == 0:
+        return False
+    hist = words[4:4 + SHAPE_BINS]
+    if words[0] or int(hist.sum()) != M:
+        return True
+    b = int(np.searchsorted(np.cumsum(hist), M // 2 + 1))
+    U = np.inf if b >= SHAPE_BINS - 1 else 2.0 ** (b - SHAPE_BIAS)
+    low = float(np.array([~words[1]], np.uint32).view(np.float32)[0])
+    return not low > TINY_AREA_REL * U * (1 + 1e-9)   # (the product's rounding: 1e-9 ≫ 2^-53)
 
 
 _NOTHING_MARKED = bytes(16)   # the status header when no element was marked
@@ -137,7 +153,7 @@ class GeometryBuffers:
         self._bufs: dict = {}
         self._mesh: dict = {}       # fp64 → what _mesh_buffers returns (its buffers are in _bufs)
         self._vaos: dict = {}       # (id(program), indexed) → (program, attribute-less vertex array)
-        self._steps: OrderedDict = OrderedDict()     # (step, fp64) → (StepGeometry, (nodes, bits, any)) (_per_step)
+        self._steps: OrderedDict = OrderedDict()     # (step, fp64) → (StepGeometry, (nodes, shape)) (_per_step)
         self._normals: OrderedDict = OrderedDict()   # (step, flat) → (StepGeometry, buffer) (_per_step)
         self.uploads = {"mesh": 0, "step": 0}   # what was uploaded (tests)
         self.view_passes = 0
@@ -235,14 +251,27 @@ class GeometryBuffers:
         return value
 
     def _step_buffers(self, view: ViewSpec, fp64: bool):
-        """The step's nodes (float64 or float32) and excluded-element bits, and whether any is."""
+        """The step's nodes (float64 or float32) and its shape filter (SHAPE_BYTES, written by
+        shaders/shape.comp from those nodes when they are uploaded)."""
         def make():
-            sg = view.step_geo
-            nodes = self.ctx.buffer(np.ascontiguousarray(sg.local, np.float64 if fp64 else np.float32).tobytes())
-            excluded = sg.shape()["excluded"]
-            has = bool(excluded.any())
-            return nodes, self.ctx.buffer(pack_bits(excluded).tobytes() if has else bytes(4)), has
+            nodes = self.ctx.buffer(np.ascontiguousarray(view.step_geo.local, np.float64 if fp64 else np.float32))
+            shape = self.ctx.buffer(bytes(SHAPE_BYTES))
+            prog = self.programs.compute("shape.comp", {"FP64": None} if fp64 else {})
+            self._mesh_buffers(fp64)[0].bind_to_storage_buffer(storage("QUADS"))
+            nodes.bind_to_storage_buffer(_NODES)
+            shape.bind_to_storage_buffer(_SHAPE)
+            set_uniform(prog, "u_count", self.M)
+            self._per_element(prog)
+            return nodes, shape
         return self._per_step(self._steps, (view.step_geo.index, fp64), view.step_geo, make)
+
+    def shape_buffer(self, view: ViewSpec):
+        """The shape filter of the view's step (one made from either precision's nodes)."""
+        for fp64 in (True, False):
+            hit = self._steps.get((view.step_geo.index, fp64))
+            if hit is not None and hit[0] is view.step_geo:
+                return hit[1][1]
+        return self._step_buffers(view, True)[1]
 
     def normals(self, view: ViewSpec, flat: bool):
         """The step's unit corner normals in the world frame (the lighting's: per element for
@@ -266,15 +295,8 @@ class GeometryBuffers:
             buf.bind_to_storage_buffer(point)
 
     def bind_step(self, view: ViewSpec, fp64: bool) -> None:
-        """Bind the view's step's nodes and excluded-element bits (uploaded once per step)."""
-        for point, buf in zip(_STEP_BINDINGS, self._step_buffers(view, fp64)[:2]):
-            buf.bind_to_storage_buffer(point)
-
-    def view_values(self, view: ViewSpec, fp64: bool) -> dict:
-        """Whether the view's step excludes elements (uniform name → value); the rest of
-        view.glsl's are :meth:`camera_values` and the backend's."""
-        _, _, has = self._step_buffers(view, fp64)
-        return {"u_excluded": int(has)}
+        """Bind the view's step's nodes (uploaded once per step)."""
+        self._step_buffers(view, fp64)[0].bind_to_storage_buffer(_NODES)
 
     def camera_values(self, camera) -> dict:
         """view.glsl's constants for this mesh seen by ``camera`` (uniform name → value)."""
@@ -445,26 +467,33 @@ class GeometryBuffers:
         flags, size = self.status()
         flags.write(bytes(size))
 
-    def problems(self, view: ViewSpec, status: bytes) -> dict:
-        """This view's element problems: the step's shape problems and what the GPU marked
-        (grazing, does not project) in ``status`` (the bytes of :meth:`status` after its passes),
-        as sorted index arrays; only the problems some element has (read only: with nothing
-        marked, the step's own dict)."""
-        found = view.step_geo.problems()
+    def problems(self, view: ViewSpec, status: bytes, shape: bytes) -> dict:
+        """This view's element problems: the step's shape problems — classified in numpy only
+        where its shape filter (``shape``, the bytes of :meth:`shape_buffer`) says some element
+        may have one — and what the GPU marked (grazing, does not project) in ``status`` (the
+        bytes of :meth:`status` after its passes), grazing without the zero-area, tiny and
+        folded elements, as sorted index arrays; only the problems some element has (read
+        only: with nothing marked, the step's own dict)."""
+        sg = view.step_geo
+        shaped = sg.shape_known or shape_candidates(np.frombuffer(shape, np.uint32), self.M)
+        found = sg.problems() if shaped else {}
         if status[:16] == _NOTHING_MARKED:
             return found
         out = dict(found)
         any_, words = np.frombuffer(status[:16], np.uint32), self.words
         for k, name in enumerate(("grazing", "unprojectable")):
             if any_[k]:
-                out[name] = np.flatnonzero(unpack_bits(status[16 + 4 * words * k:16 + 4 * words * (k + 1)], self.M))
-        return out
+                bits = unpack_bits(status[16 + 4 * words * k:16 + 4 * words * (k + 1)], self.M)
+                if k == 0 and shaped:
+                    bits &= ~sg.shape()["excluded"]
+                out[name] = np.flatnonzero(bits)
+        return {k: v for k, v in out.items() if len(v)}
 
     def buffer_bytes(self) -> int:
         """The bytes of the storage buffers held: the mesh's, the kept steps' nodes, bits and
         normals (not the candidate lists' textures)."""
         held = [b for b in self._bufs.values() if not isinstance(b, tuple)]
-        held += [b for _, (nodes, bits, _) in self._steps.values() for b in (nodes, bits)]
+        held += [b for _, (nodes, shape) in self._steps.values() for b in (nodes, shape)]
         held += [b for _, b in self._normals.values()]
         return sum(b.size for b in held)
 
