@@ -251,6 +251,31 @@ def test_gl_matches_oracle_on_bulge(bulge_pair, mode, spp, camera):
 
 
 @pytest.mark.gl
+@pytest.mark.parametrize("camera", [0, 1])
+def test_gl_q4_float32_matches_the_oracle_on_bulge(bulge_pair, camera):
+    """q4's float32 build (precision = "fp32": view.comp and deform.frag in float32 from the
+    nodes in float32) maps each sample within bounds.q4_fp32_px of where the oracle's float64
+    q4 does, so off the samples that close to an edge (the ties): masks and element maps equal,
+    the reference points within that distance through the map's gradient and the float32
+    interpolation of the corners' (bounds.interpolated), and every pixel's grey within
+    bounds.grey at that bound."""
+    g, c = bulge_pair
+    a = g.render(camera, 1, truth=True, mode="q4", precision="fp32")
+    b = c.render(camera, 1, truth=True, mode="q4")
+    px, ties = bounds.renderer_q4_fp32(g, camera, 1)
+    both = a.truth.mask & b.truth.mask
+    assert both.sum() > 0.3 * both.size and ties.sum() < 0.05 * both.sum()
+    assert off_ties(a.truth.mask ^ b.truth.mask, ties) == 0
+    assert off_ties(both & (a.truth.element != b.truth.element), ties) == 0
+    shift = bounds.interpolated(px, b.truth.ref_uv, b.truth.mask)
+    same = both & ~ties
+    d = np.linalg.norm(a.truth.ref_uv - b.truth.ref_uv, axis=-1)
+    assert (d <= shift)[same].all(), (d / shift)[same].max()
+    over = np.abs(a.image.astype(np.float64) - b.image) > bounds.renderer_grey(c, "q4", camera, 1, 1, shift, b.truth)
+    assert off_ties(over, ties) == 0, over.sum()
+
+
+@pytest.mark.gl
 @pytest.mark.parametrize("spp", [4, 16])
 def test_newton_subsamples_match_the_oracle_on_bulge(bulge_pair, spp):
     """render.subsamples = "newton" (exact mode; sub-samples of single-candidate pixels placed

@@ -66,12 +66,12 @@ class Combo:
 
 
 def combinations(quick: bool) -> list[Combo]:
-    """The rows: GL every mode × interpolation × spp (+ exact fp32, + exact with Newton-placed
-    sub-samples at spp > 1); CPU a few at 1 spp."""
+    """The rows: GL every mode × interpolation × spp (+ exact and q4 fp32, + exact with
+    Newton-placed sub-samples at spp > 1); CPU a few at 1 spp."""
     interps = ("linear", "bspline3") if quick else INTERPOLATIONS
     spps = (1, 4) if quick else (1, 4, 16)
     gl = [Combo("gl", m, i, s) for m in MODES for i in interps for s in spps]
-    gl += [Combo("gl", "exact", i, s, "fp32") for i in interps for s in spps]
+    gl += [Combo("gl", m, i, s, "fp32") for m in ("q4", "exact") for i in interps for s in spps]
     gl += [Combo("gl", "exact", i, s, "fp64", "newton") for i in interps for s in spps if s > 1]
     cpu_interps = ("linear",) if quick else ("linear", "bspline3")
     return gl + [Combo("cpu", m, i, 1) for m in MODES for i in cpu_interps]

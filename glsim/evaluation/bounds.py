@@ -51,17 +51,51 @@ def per_pixel(field: np.ndarray, mask: np.ndarray) -> np.ndarray:
     return np.where(seen, out, out[seen].max() if seen.any() else 0.0)
 
 
+def interpolated(px, field: np.ndarray, mask: np.ndarray) -> np.ndarray:
+    """Per pixel: the bound of a quantity a float32 build interpolates over its elements' corners
+    (a reference point in px or a material point in mm; ``field`` the oracle's map of it,
+    (H, W, k)) against the oracle's, where its sample point in the image lies within ``px`` of
+    the oracle's: px·|∂field/∂(u, v)| (:func:`per_pixel`), plus the corners' values stored in
+    float32 and their weighted sum (Σ w = 1, w ≥ 0: within 4u of the largest |value|, u = 2^-24;
+    5u√k of the map's largest norm)."""
+    k = field.shape[-1]
+    top = float(np.linalg.norm(field[mask], axis=-1).max()) if mask.any() else 0.0
+    return px * per_pixel(field, mask) + 5 * FLOAT32_ROUNDOFF * np.sqrt(k) * top + FLOAT64
+
+
 def fast_bound(fx: float, field: np.ndarray, mask: np.ndarray) -> np.ndarray:
-    """Per pixel: the bound of a fast-mode quantity interpolated over the vertices (a reference
-    point in px or a material point in mm; ``field`` the oracle's map of it, (H, W, k)) against
-    the oracle's."""
-    return fast_px(fx) * per_pixel(field, mask) + FLOAT64
+    """Per pixel: the bound of a fast-mode quantity interpolated over the vertices against the
+    oracle's (:func:`interpolated` at the vertices' :func:`fast_px`)."""
+    return interpolated(fast_px(fx), field, mask)
+
+
+NEWTON_TOL_FP32 = 1e-6   # shaders/bilinear.glsl's NEWTON_TOL in a float32 build (ξ, η)
+
+
+def q4_fp32_px(cam, nodes: np.ndarray, quads: np.ndarray) -> float:
+    """Bound (px) of where a float32 q4 build maps a sample, against the oracle: its elements'
+    corners projected in float32 as fast's vertices (:func:`fast_px`); invert_newton's
+    coordinates relative to corner 0, p_i − p_0 and q − p_0, each rounded (u·|coordinate|, up to
+    the largest projected corner or image corner: 2u·P); its stopping step NEWTON_TOL_FP32 in
+    (ξ, η) times the largest element extent E in px, and its float32 residual on those
+    relative coordinates (4u·E). ``nodes`` (N, 3) world mm at the step."""
+    from glsim.scene.camera import project
+
+    uv, ok = project(nodes, cam)
+    corners = uv[quads][ok[quads].all(axis=1)]
+    if not len(corners):
+        return fast_px(cam.fx)
+    P = max(float(np.abs(corners).max()), float(np.hypot(*cam.size)))
+    E = float(np.linalg.norm(corners - corners[:, :1], axis=-1).max())
+    u = FLOAT32_ROUNDOFF
+    return fast_px(cam.fx) + 2 * u * P + NEWTON_TOL_FP32 * E + 4 * u * E
 
 
 def mapping(mode: str, fx: float, field: np.ndarray, mask: np.ndarray):
     """The bound of a GL map (reference points in px, material points in mm) against the
     oracle's in ``mode``: FLOAT64 in exact and q4, per pixel :func:`fast_bound` (``field`` the
-    oracle's map, camera focal length ``fx`` px) in fast."""
+    oracle's map, camera focal length ``fx`` px) in fast. (q4's float32 build:
+    :func:`interpolated` at :func:`q4_fp32_px`.)"""
     return fast_bound(fx, field, mask) if mode == "fast" else FLOAT64
 
 
@@ -399,6 +433,15 @@ def grey(method: str, coeffs_max: float, gradient, shift, spp: int = 1):
     if method == "linear":
         return base + gradient_max(method) * M * shift
     return base + np.asarray(gradient, np.float64) * shift + 0.5 * hessian(method) * M * shift ** 2
+
+
+def renderer_q4_fp32(renderer, cam: int, step: int) -> tuple[float, np.ndarray]:
+    """For a GL renderer's float32 q4 build, camera ``cam`` at ``step``: (:func:`q4_fp32_px`,
+    its ties — the pixels with a sample within that distance of an element edge, where its
+    coverage and element may differ from the oracle's: :func:`renderer_ties`)."""
+    camera, mesh = renderer.scene.cameras[cam], renderer.mesh
+    px = q4_fp32_px(camera, mesh.deformed(step), mesh.quads)
+    return px, renderer_ties(renderer, "q4", cam, step, radius=lambda Pa, Pb: np.full(len(Pa), px + FLOAT64))
 
 
 def renderer_grey(oracle, mode: str, cam: int, step: int, spp: int, shift, truth=None):

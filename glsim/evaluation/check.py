@@ -217,6 +217,22 @@ def _fp32_exact(what: str) -> Callable[[Context], float]:
     return run
 
 
+def _q4_fp32(c: Context) -> float:
+    """Over the bulge's cameras at step 1, GL's float32 q4 build (precision fp32) against the
+    oracle's q4: the largest |Δgrey| off its ties in units of bounds.renderer_grey at its
+    reference points' bound (bounds.interpolated at bounds.q4_fp32_px; the ties within that
+    distance of an edge: bounds.renderer_q4_fp32)."""
+    g, o = _bulge(c)
+    worst = 0.0
+    for cam in range(len(g.scene.cameras)):
+        a = g.render(cam, 1, mode="q4", precision="fp32")
+        b = o.render(cam, 1, truth=True, mode="q4")
+        px, ties = bounds.renderer_q4_fp32(g, cam, 1)
+        bound = bounds.renderer_grey(o, "q4", cam, 1, 1, bounds.interpolated(px, b.truth.ref_uv, b.truth.mask), b.truth)
+        worst = max(worst, float(bounds.units(np.abs(a.image.astype(np.float64) - b.image), bound)[~ties].max()))
+    return worst
+
+
 def _grey_ratio(g, o, a, b, mode: str, cam: int, spp: int) -> float:
     """The largest |Δgrey| of GL's image ``a`` (renderer ``g``, camera ``cam``, step 1) against
     the oracle's ``b`` (renderer ``o``; ``b``'s truth at 1 spp) where no sample lies at a
@@ -336,6 +352,9 @@ CHECKS = (
     Check("bulge exact fp32 1 spp: coverage and elements", 0, "px off ties", "each edge's float32 edge function "
           "(glsim.evaluation.exact32.edge_px, exact32.renderer_ties)", _fp32_exact("coverage")),
     Check("bulge q4 1 spp: reference point", 1, "× bound", FLOAT64, _mapping("q4", 1, "ref")),
+    Check("bulge q4 fp32 1 spp: grey per pixel", 1, "× bound", "glsim.evaluation.bounds.renderer_q4_fp32 "
+          "and interpolated: float32 corners as fast's vertices, invert_newton's relative coordinates and "
+          "stopping step, the corners' float32 values interpolated; off its ties", _q4_fp32),
     Check("bulge fast 1 spp: reference point", 1, "× bound", "glsim.evaluation.bounds.fast_bound: float32 vertex "
           "projection, fx·12·2^-24 px times the reference pixels per image pixel", _mapping("fast", 1, "ref")),
     Check("quadratic Q8 exact 1 spp: reference point", 1, "× bound", FLOAT64, _mapping("exact", 1, "ref", _curved)),

@@ -9,7 +9,7 @@ from glsim.evaluation.report import machine_line
 
 # ---- accuracy.json ---------------------------------------------------------------------------
 EXCERPT = (("gl", "fast", "linear", 1, "fp64"), ("gl", "fast", "bspline3", 1, "fp64"),
-           ("gl", "q4", "bspline3", 1, "fp64"), ("gl", "exact", "bspline3", 1, "fp64"),
+           ("gl", "q4", "bspline3", 1, "fp64"), ("gl", "q4", "bspline3", 1, "fp32"), ("gl", "exact", "bspline3", 1, "fp64"),
            ("gl", "exact", "bspline3", 4, "fp64"), ("gl", "exact", "bspline3", 4, "fp64", "newton"),
            ("gl", "exact", "bspline3", 1, "fp32"),
            ("gl", "exact", "procedural", 1, "fp64"), ("gl", "exact", "procedural", 4, "fp64"),

@@ -69,7 +69,7 @@ def plot_frontier(accuracy: dict, sweep: dict | None, path: str | Path) -> Path:
         for rec, (x, y) in zip(recs, pts):
             c = INTERP_COLOURS.get(rec["interpolation"], "k")
             cpu = rec["backend"] == "cpu"
-            fp32 = rec["backend"] == "gl" and rec["mode"] == "exact" and rec.get("precision") == "fp32"
+            fp32 = rec["backend"] == "gl" and rec.get("precision") == "fp32"
             ax.scatter([x], [y], s=18 + 5 * rec["spp"], marker=MODE_MARKERS.get(rec["mode"], "d"),
                        facecolors="none" if cpu else c, edgecolors=c, linewidths=0.6 if fp32 else 1.2,
                        alpha=0.45 if fp32 else 0.9)
