@@ -15,7 +15,10 @@ Each bound says where it comes from (``why``):
   each is derived): float64 in exact and q4, float32 vertex projection in fast;
 - the same on curved quadratic elements (the Q8 paraboloid of ``glsim bench quadratic``):
   Newton on each patch in the shader, float64, exact and q4;
-- the float32 exact build's reference points and ties (glsim.evaluation.exact32);
+- the float32 exact build's reference points and ties (glsim.evaluation.exact32), the float32
+  q4 build's image (bounds.renderer_q4_fp32);
+- the GPU's shape filter: every step with a zero-area, tiny or folded element flagged
+  (glsim.evaluation.shapefilter);
 - each optical effect on the bulge against the oracle, per pixel in units of its derived bound
   (bounds.renderer_lit, renderer_dof, renderer_noise); the same for motion over the exposure
   seen by a rolling shutter (one-row renders in their own states: bounds.renderer_motion);
@@ -233,6 +236,15 @@ def _q4_fp32(c: Context) -> float:
     return worst
 
 
+def _shape_filter(c: Context) -> float:
+    """Steps in which numpy finds a zero-area, tiny or folded element that the GPU's shape
+    filter (shaders/shape.comp) does not flag, in either build, over 20 random meshes of each
+    kind where float32's rounding decides (glsim.evaluation.shapefilter)."""
+    from glsim.evaluation.shapefilter import misses
+
+    return float(misses(c.ctx)[0])
+
+
 def _grey_ratio(g, o, a, b, mode: str, cam: int, spp: int) -> float:
     """The largest |Δgrey| of GL's image ``a`` (renderer ``g``, camera ``cam``, step 1) against
     the oracle's ``b`` (renderer ``o``; ``b``'s truth at 1 spp) where no sample lies at a
@@ -360,6 +372,9 @@ CHECKS = (
     Check("quadratic Q8 exact 1 spp: reference point", 1, "× bound", FLOAT64, _mapping("exact", 1, "ref", _curved)),
     Check("quadratic Q8 exact 1 spp: truth X", 1, "× bound", FLOAT64, _mapping("exact", 1, "X", _curved)),
     Check("quadratic Q8 q4 1 spp: reference point", 1, "× bound", FLOAT64, _mapping("q4", 1, "ref", _curved)),
+    Check("shape filter: excluded elements flagged", 0, "steps missed", "shaders/shape.comp's bounds on each "
+          "element's area and fold against numpy's (float64 and float32 builds), so that a step it leaves "
+          "unflagged has none: glsim.backends.gl.geometry.shape_candidates", _shape_filter),
     Check("pixel stages: compute against fragment", 0, "values differing in any bit", "the same code "
           "(deform.frag) as fragment passes and as compute passes (glsim.backends.gl.plan); images and "
           "truth of the bulge pair, every mode, 1 and 4 spp", _stages),
