@@ -360,15 +360,12 @@ def blur(scheme: str, size: np.ndarray, M: float) -> np.ndarray:
     H, W = s.shape
     if scheme == "disk":
         R = kernel_radius(s, "disk")
-        Rm = int(R.max(initial=0))
-        yy, xx = np.mgrid[0:H, 0:W]
         wsum, dsum, taps = np.zeros(s.shape), np.zeros(s.shape), np.zeros(s.shape)
-        for dy in range(-Rm, Rm + 1):
-            for dx in range(-Rm, Rm + 1):
-                ok = (np.abs(dx) <= R) & (np.abs(dy) <= R) & (yy + dy >= 0) & (yy + dy < H) & (xx + dx >= 0) & (xx + dx < W)
-                wsum += np.where(ok, np.clip(s + 0.5 - np.hypot(dx, dy), 0.0, 1.0), 0.0)
-                dsum += np.where(ok, (14 * s + 13) * u, 0.0)
-                taps += ok
+        for dx, dy, d, inside in _disk_taps(s.shape, int(R.max(initial=0))):
+            ok = inside & (abs(dx) <= R) & (abs(dy) <= R)
+            wsum += np.where(ok, np.clip(s + 0.5 - d, 0.0, 1.0), 0.0)
+            dsum += np.where(ok, (14 * s + 13) * u, 0.0)
+            taps += ok
         return np.where(s > 0, 2 * M * dsum / np.where(wsum > 0, wsum, 1.0) + (2 * taps + 5) * u * M, 0.0)
     R = kernel_radius(s)
     n = 2 * R + 1
@@ -608,7 +605,9 @@ def without(oracle, effect: str, mode: str, cam: int, step: int, spp: int = 1) -
 def renderer_motion(gl, oracle, mode: str, cam: int, step: int, spp: int = 1) -> tuple[np.ndarray, np.ndarray]:
     """How far the GL renderer ``gl``'s image of camera ``cam`` at ``step`` under the scene's
     [exposure] (motion over the exposure, a rolling shutter; no other effect) may lie from the
-    oracle renderer ``oracle``'s, in ``mode`` at ``spp`` (fast: 1), per pixel: (bound, ties).
+    oracle renderer ``oracle``'s, in ``mode`` at ``spp`` (fast: 1, global shutter: its bound
+    takes the map's gradient from neighbouring pixels, which a one-row band lacks), per pixel:
+    (bound, ties).
     Both average the same sub-frames (:meth:`glsim.render.Renderer.sub_frames`: the states'
     nodes are made once in float64 for both), in float64, and round the mean to float32:
 
@@ -626,13 +625,14 @@ def renderer_motion(gl, oracle, mode: str, cam: int, step: int, spp: int = 1) ->
 
     scene = oracle.scene
     others = [e for e in ("lighting", "optics", "psf", "vignetting", "noise") if getattr(scene, e) is not None]
-    if others or scene.exposure is None or (spp > 1 and mode == "fast"):
-        raise ValueError(f"bounds.renderer_motion: derived for [exposure] alone, fast at 1 sample per pixel "
-                         f"(the scene has {others}, exposure {scene.exposure is not None}, mode {mode!r} at {spp} spp)")
+    rows, _, taus = oracle.exposure_schedule(cam, step)
+    if others or scene.exposure is None or (mode == "fast" and (spp > 1 or rows[0][0] is not None)):
+        raise ValueError(f"bounds.renderer_motion: derived for [exposure] alone, fast at 1 sample per pixel and "
+                         f"a global shutter (the scene has {others}, exposure {scene.exposure is not None}, "
+                         f"mode {mode!r} at {spp} spp, rolling shutter {rows[0][0] is not None})")
     method, coeffs, M = _reference(oracle)
     camera, u = scene.cameras[cam], FLOAT32_ROUNDOFF
     radius = tie_px(mode, camera.fx, gl.backend.capabilities.subpixel_bits)
-    taus = oracle.exposure_schedule(cam, step)[2]
     W, H = camera.size
     total, mean, ties = np.zeros((H, W)), np.zeros((H, W)), np.zeros((H, W), bool)
     for row, _, nodes, out in oracle.sub_frames(cam, step, truth=spp == 1, mode=mode, samples_per_pixel=spp):
@@ -731,17 +731,21 @@ def _disk_ramp(r: np.ndarray, dr: np.ndarray) -> np.ndarray:
     clipped at the image border."""
     from glsim.effects.dof import kernel_radius
 
-    H, W = r.shape
-    Rm = int(kernel_radius(r + dr, "disk").max(initial=0))
-    yy, xx = np.mgrid[0:H, 0:W]
     wsum, ramp = np.zeros(r.shape), np.zeros(r.shape)
-    for dy in range(-Rm, Rm + 1):
-        for dx in range(-Rm, Rm + 1):
-            inside = (yy + dy >= 0) & (yy + dy < H) & (xx + dx >= 0) & (xx + dx < W)
-            d = np.hypot(dx, dy)
-            wsum += np.where(inside, np.clip(r + 0.5 - d, 0.0, 1.0), 0.0)
-            ramp += inside & (np.abs(d - r) < 0.5 + dr)
+    for _, _, d, inside in _disk_taps(r.shape, int(kernel_radius(r + dr, "disk").max(initial=0))):
+        wsum += np.where(inside, np.clip(r + 0.5 - d, 0.0, 1.0), 0.0)
+        ramp += inside & (np.abs(d - r) < 0.5 + dr)
     return np.where(r > 0, ramp / np.where(wsum > 0, wsum, 1.0), 0.0)
+
+
+def _disk_taps(shape: tuple[int, int], reach: int):
+    """Every tap offset (dx, dy) within ``reach`` px (per axis) of the pixels of an image of
+    ``shape`` (H, W): with its distance |d| and, per pixel, whether the tap lies in the image."""
+    H, W = shape
+    yy, xx = np.mgrid[0:H, 0:W]
+    for dy in range(-reach, reach + 1):
+        for dx in range(-reach, reach + 1):
+            yield dx, dy, float(np.hypot(dx, dy)), (yy + dy >= 0) & (yy + dy < H) & (xx + dx >= 0) & (xx + dx < W)
 
 
 def normal_field(seed: int, shape: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:
