@@ -296,6 +296,9 @@ class Renderer:
         row's image is the mean of its renders at centre + τ_i (:meth:`sub_frames`)."""
         cam = camera if isinstance(camera, Camera) else self.scene.camera(camera)
         ex, sensor = self.scene.exposure, self.scene.sensor
+        if ex is None:
+            raise SceneError("exposure", "the scene has no [exposure] table, so each image is one render",
+                             "add [exposure] (time, samples, velocity …) to average sub-frames")
         line = sensor.line_time if sensor is not None else 0.0
         rows = list(enumerate(row_offsets(cam.height, line))) if line > 0 else [(None, 0.0)]
         return rows, motion.timeline(ex, self.mesh, step), motion.sample_offsets(ex.time, ex.samples)

@@ -326,6 +326,11 @@ def test_validation_names_the_key_and_the_fix(table, key):
     assert err.value.key == key and " — " in str(err.value)
 
 
+def test_sub_frames_need_an_exposure(tmp_path):
+    with Renderer(edge_scene(tmp_path, ramp), "cpu") as r, pytest.raises(SceneError, match=r"exposure.*\[exposure\]"):
+        list(r.sub_frames(0, 0))
+
+
 def test_unordered_solver_times_are_refused():
     with pytest.raises(SceneError, match="do not increase"):
         motion.step_times((0.0, 2.0, 1.0), 3, 1.0)

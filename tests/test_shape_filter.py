@@ -41,7 +41,7 @@ def test_elements_near_the_area_thresholds_are_flagged(gl_ctx, threshold, factor
     filter bounds the median by a power of two)."""
     base, quads0 = grid(3, z)
     nodes, quads = with_element(base, quads0, rectangle(10.0, 1e-3, z))
-    a = _areas(nodes, quads)
+    a = mesh_element_areas(nodes, quads)[0]
     median = float(np.median(a[a > 0]))   # (the added element lies below it whatever its size)
     nodes, quads = with_element(base, quads0, rectangle(10.0, factor * threshold * median / 10.0, z))
     f64, f32, shape = classify(gl_ctx, nodes, quads)
@@ -73,10 +73,6 @@ def test_elements_at_float32s_resolution_are_flagged(gl_ctx):
     The float32 areas and folds alone miss some of them."""
     missed, found = misses(gl_ctx, 40)
     assert found == 80 and missed == 0
-
-
-def _areas(nodes, quads):
-    return mesh_element_areas(nodes, quads)[0]
 
 
 def test_a_clean_mesh_is_not_classified_on_the_host(gl_ctx):
