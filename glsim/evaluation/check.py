@@ -231,8 +231,8 @@ def _q4_fp32(c: Context) -> float:
         a = g.render(cam, 1, mode="q4", precision="fp32")
         b = o.render(cam, 1, truth=True, mode="q4")
         px, ties = bounds.renderer_q4_fp32(g, cam, 1)
-        bound = bounds.renderer_grey(o, "q4", cam, 1, 1, bounds.interpolated(px, b.truth.ref_uv, b.truth.mask), b.truth)
-        worst = max(worst, float(bounds.units(np.abs(a.image.astype(np.float64) - b.image), bound)[~ties].max()))
+        worst = max(worst, _grey_ratio(g, o, a, b, "q4", cam, 1, bounds.interpolated(px, b.truth.ref_uv, b.truth.mask),
+                                       ties))
     return worst
 
 
@@ -245,15 +245,18 @@ def _shape_filter(c: Context) -> float:
     return float(misses(c.ctx)[0])
 
 
-def _grey_ratio(g, o, a, b, mode: str, cam: int, spp: int) -> float:
+def _grey_ratio(g, o, a, b, mode: str, cam: int, spp: int, shift=None, ties=None) -> float:
     """The largest |Δgrey| of GL's image ``a`` (renderer ``g``, camera ``cam``, step 1) against
     the oracle's ``b`` (renderer ``o``; ``b``'s truth at 1 spp) where no sample lies at a
-    coverage tie (bounds.renderer_ties), in units of bounds.renderer_grey: GL's reference
-    points within float64's bound (exact, q4) or fast's per pixel of the oracle's."""
-    shift = bounds.mapping(mode, a.camera.fx, b.truth.ref_uv, b.truth.mask)
+    coverage tie (``ties``, by default bounds.renderer_ties), in units of bounds.renderer_grey:
+    GL's reference points within ``shift`` of the oracle's (by default bounds.mapping: float64's
+    bound in exact and q4, fast's per pixel)."""
+    if shift is None:
+        shift = bounds.mapping(mode, a.camera.fx, b.truth.ref_uv, b.truth.mask)
+    if ties is None:
+        ties = bounds.renderer_ties(g, mode, cam, 1, spp)
     bound = bounds.renderer_grey(o, mode, cam, 1, spp, shift, b.truth)
-    d = np.abs(a.image.astype(np.float64) - b.image)
-    return float((d / bound)[~bounds.renderer_ties(g, mode, cam, 1, spp)].max())
+    return float(bounds.units(np.abs(a.image.astype(np.float64) - b.image), bound)[~ties].max())
 
 
 def _one_effect(effect: str) -> Scene:

@@ -51,7 +51,7 @@ def classify(ctx, nodes: np.ndarray, quads: np.ndarray):
     view = geo.view(CAMERA, 0)
     buffers = GeometryBuffers(ctx, ProgramCache(ctx), geo)
     try:
-        found = [shape_candidates(np.frombuffer(buffers._step_buffers(view, fp64)[1].read(), np.uint32), len(quads))
+        found = [shape_candidates(np.frombuffer(buffers.shape_buffer(view, fp64).read(), np.uint32), len(quads))
                  for fp64 in (True, False)]
     finally:
         buffers.release()

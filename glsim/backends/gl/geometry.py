@@ -265,8 +265,11 @@ class GeometryBuffers:
             return nodes, shape
         return self._per_step(self._steps, (view.step_geo.index, fp64), view.step_geo, make)
 
-    def shape_buffer(self, view: ViewSpec):
-        """The shape filter of the view's step (one made from either precision's nodes)."""
+    def shape_buffer(self, view: ViewSpec, fp64: bool | None = None):
+        """The shape filter of the view's step, from its float64 or float32 nodes (``fp64``;
+        None: one already made from either, else from float64)."""
+        if fp64 is not None:
+            return self._step_buffers(view, fp64)[1]
         for fp64 in (True, False):
             hit = self._steps.get((view.step_geo.index, fp64))
             if hit is not None and hit[0] is view.step_geo:
