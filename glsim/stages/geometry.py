@@ -16,8 +16,7 @@
 from __future__ import annotations
 
 from collections import OrderedDict
-from dataclasses import dataclass
-from functools import cached_property
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -137,7 +136,7 @@ def _farthest(points: np.ndarray, centre: np.ndarray) -> float:
     """The largest distance of ``points`` (N, 3) from ``centre``, column by column (numpy's
     arithmetic on rows of 3 loops over 3 at a time)."""
     d2 = sum((points[:, k] - centre[k]) ** 2 for k in range(3))
-    return float(np.sqrt(d2.max()))
+    return float(np.sqrt(np.maximum.reduce(d2)))
 
 
 def _frozen(a: np.ndarray) -> np.ndarray:
@@ -158,19 +157,18 @@ class ViewSpec:
     mesh_geo: MeshGeometry
     step_geo: StepGeometry
 
-    @cached_property
-    def rotation(self) -> np.ndarray:
-        return _frozen(self.camera.rotation)
+    rotation: np.ndarray = field(init=False)
+    translation: np.ndarray = field(init=False)
+    far: float = field(init=False)
 
-    @cached_property
-    def translation(self) -> np.ndarray:
-        """The camera-frame position of the local origin, R·origin + t (float64)."""
-        return _frozen(self.camera.rotation @ self.mesh_geo.origin + self.camera.translation)
-
-    @cached_property
-    def far(self) -> float:
-        zc = float(self.rotation[2] @ self.step_geo.centre + self.translation[2])
-        return max(zc + self.step_geo.radius, NEAR_MM) * 1.5
+    def __post_init__(self):
+        # (made here, not as cached properties: a view's uniforms need all three at once)
+        R, t = self.camera.rotation, self.camera.translation
+        translation = _frozen(R @ self.mesh_geo.origin + t)   # R·origin + t: the local origin in the camera frame
+        zc = float(R[2] @ self.step_geo.centre + translation[2])
+        object.__setattr__(self, "rotation", _frozen(R))
+        object.__setattr__(self, "translation", translation)
+        object.__setattr__(self, "far", max(zc + self.step_geo.radius, NEAR_MM) * 1.5)
 
     def corner_depths(self) -> np.ndarray:
         """Camera-frame Z (mm) of every node the elements use: the same extremes as every

@@ -420,7 +420,11 @@ def extent(points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """The per-coordinate minimum and maximum of points (N, d), column by column: numpy's
     reduction over axis 0 of a narrow array runs d at a time, ~20× slower (exact either way)."""
     cols = [points[:, k] for k in range(points.shape[1])]
-    return np.array([c.min() for c in cols]), np.array([c.max() for c in cols])
+    return np.array(list(map(np.minimum.reduce, cols))), np.array(list(map(np.maximum.reduce, cols)))
+
+
+_BOX_CORNERS = np.array(list(itertools.product((0, 1), repeat=3)))   # a box's 8 corners: lo (0) or hi (1) per axis
+_XYZ = np.arange(3)
 
 
 def warn_unseen(cam: Camera, nodes: np.ndarray, quads: np.ndarray, stacklevel: int = 3, box=None) -> bool:
@@ -431,13 +435,13 @@ def warn_unseen(cam: Camera, nodes: np.ndarray, quads: np.ndarray, stacklevel: i
     image (:func:`ray_radius`) — else from :func:`coverage`. A box that may be seen is not
     looked at more closely. ``box``: the nodes' :func:`extent`, if known."""
     lo, hi = extent(nodes) if box is None else box
-    box = to_camera(np.array(list(itertools.product(*zip(lo, hi)))), cam)   # the box's 8 corners
+    box = to_camera(np.array((lo, hi))[_BOX_CORNERS, _XYZ], cam)   # the box's 8 corners
     z = box[:, 2]
-    if (z <= 0).all():
+    if np.maximum.reduce(z) <= 0:
         why = "the specimen lies behind it"
-    elif (z > 0).all():
+    elif np.minimum.reduce(z) > 0:
         xn = box[:, :2] / z[:, None]
-        gap = np.maximum(np.maximum(xn.min(0), -xn.max(0)), 0.0)   # per axis: the rectangle's distance from the axis
+        gap = np.maximum(np.maximum(np.minimum.reduce(xn), -np.maximum.reduce(xn)), 0.0)   # per axis: the rectangle's distance from the axis
         if not np.hypot(*gap) > ray_radius(cam):
             return True
         why = "the specimen lies outside its field of view"

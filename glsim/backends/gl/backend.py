@@ -148,6 +148,7 @@ class GLBackend(ImagePasses):
         self._dropped = None                    # deform.frag's count of samples mapping outside the reference
         self._visibility = None                 # mode fast's triangle-index target, compute stage (_visibility_target)
         self._uniforms: dict[tuple, tuple] = {}  # the last views' uniform values (_view_uniforms)
+        self._view_layouts: dict[int, tuple] = {}  # the programs' view uniforms (Uniforms' layouts, shared)
         self._camera_values: dict[tuple, tuple] = {}   # and their cameras' (_camera_uniforms)
         self._reports: dict[tuple, tuple] = {}  # the last views' problems and dropped counts (_queue_report)
         self.frames = Frames()                  # deformation passes recorded for replay
@@ -225,6 +226,7 @@ class GLBackend(ImagePasses):
         self._vaos.clear()
         self._ray_host.clear()
         self._uniforms.clear()
+        self._view_layouts.clear()
         self._camera_values.clear()
         self._reports.clear()
         self.frames.clear()
@@ -448,7 +450,7 @@ class GLBackend(ImagePasses):
         hit = self._uniforms.get(key)
         if hit is None or hit[0] is not view or hit[1] is not geo:
             values = {"u_far": view.far, "u_extra_sag": sag}
-            hit = keep(self._uniforms, key, (view, geo, Uniforms(values)), VIEWS_KEPT)
+            hit = keep(self._uniforms, key, (view, geo, Uniforms(values, self._view_layouts)), VIEWS_KEPT)
         return self._camera_uniforms(view, geo), hit[2]
 
     def _camera_uniforms(self, view: ViewSpec, geo) -> Uniforms:

@@ -69,9 +69,9 @@ def shape_candidates(words: np.ndarray, M: int) -> bool:
     hist = words[4:4 + SHAPE_BINS]
     if words[0] or int(hist.sum()) != M:
         return True
-    b = int(np.searchsorted(np.cumsum(hist), M // 2 + 1))
+    b = int(hist.cumsum().searchsorted(M // 2 + 1))
     U = np.inf if b >= SHAPE_BINS - 1 else 2.0 ** (b - SHAPE_BIAS)
-    low = float(np.array([~words[1]], np.uint32).view(np.float32)[0])
+    low = float((~words[1:2]).view(np.float32)[0])
     return not low > TINY_AREA_REL * U * (1 + 1e-9)   # (the product's rounding: 1e-9 ≫ 2^-53)
 
 

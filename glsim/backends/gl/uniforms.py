@@ -34,24 +34,26 @@ def _bytes(fmt: str, length: int, value) -> bytes:
 
 
 class Uniforms:
-    """Values of uniforms by name; :meth:`write` sets those a program has (others are ignored)."""
+    """Values of uniforms by name; :meth:`write` sets those a program has (others are ignored).
+    ``layouts``: where each program's uniforms of these names are kept (id(program) → (program,
+    its uniforms, their types)), a dict shared by the Uniforms of the same names (a camera's
+    views: a new view's values then make only their bytes)."""
 
-    def __init__(self, values: dict):
+    def __init__(self, values: dict, layouts: dict | None = None):
         self.values = values
         self._names = tuple(values)
-        self._made: dict[int, tuple] = {}
+        self._made = {} if layouts is None else layouts
         self._data: dict[tuple, tuple] = {}   # a layout's types → their bytes, shared by programs
 
     def write(self, prog) -> None:
         made = self._made.get(id(prog))
         if made is None or made[0] is not prog:
-            uniforms, types = _layout(prog, self._names)
-            data = self._data.get(types)
-            if data is None:
-                data = self._data[types] = tuple(_bytes(fmt, n, self.values[name]) for name, fmt, n in types)
-            made = self._made[id(prog)] = (prog, tuple(zip(uniforms, data)))
-        for u, data in made[1]:
-            u.write(data)   # (looked up each time: glsim.backends.gl.timing counts it as a GL call)
+            made = self._made[id(prog)] = (prog, *_layout(prog, self._names))
+        data = self._data.get(made[2])
+        if data is None:
+            data = self._data[made[2]] = tuple(_bytes(fmt, n, self.values[name]) for name, fmt, n in made[2])
+        for u, d in zip(made[1], data):
+            u.write(d)   # (looked up each time: glsim.backends.gl.timing counts it as a GL call)
 
 
 def _layout(prog, names: tuple) -> tuple[tuple, tuple]:
