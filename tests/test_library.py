@@ -882,15 +882,20 @@ def test_reduced_benchmark_writes_its_tables(tmp_path):
 
 
 def test_writer_sigterm_in_a_finalizer_is_kept_for_the_loop_not_printed(monkeypatch):
-    """The writer process's SIGTERM handler raises SystemExit(143) in ordinary code; inside a
-    ``__del__`` (where Python would print it with a traceback and drop it) it keeps the status,
-    which the loop raises before its next message."""
+    """The writer process's SIGTERM handler raises SystemExit(143) in ordinary code, once (a
+    second SIGTERM while that exit unwinds is ignored); inside a ``__del__`` (where Python would
+    print it with a traceback and drop it) it keeps the status, which the loop raises before
+    its next message."""
     from glsim.workflows.library import writer
 
     monkeypatch.setattr(writer, "_stopped", [])
+    monkeypatch.setattr(writer, "_exiting", [])
     with pytest.raises(SystemExit) as stop:
         writer._stop(signal.SIGTERM, sys._getframe())
     assert stop.value.code == 143 and writer._stopped == []
+    assert writer._stop(signal.SIGTERM, sys._getframe()) is None   # (its exit is unwinding)
+
+    monkeypatch.setattr(writer, "_exiting", [])
 
     class Pipe:
         def __del__(self):
@@ -905,6 +910,38 @@ def test_writer_sigterm_in_a_finalizer_is_kept_for_the_loop_not_printed(monkeypa
             "writer._stopped.append(143); a, b = Pipe(); writer.serve(a, b, os.getppid())")
     r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60)
     assert r.returncode == 143 and "Traceback" not in r.stderr, r.stderr
+
+
+def test_writer_sigterms_at_any_moment_end_it_quietly():
+    """A writer whose parent died as it started gets its lifeline's SIGTERM at once (and, on
+    Linux, may get the kernel's parent-death signal too); more SIGTERMs come while it stops
+    (a run's own cleanup). However they fall once it handles SIGTERM — before its loop, in it,
+    in the interpreter's shutdown — it ends with 143 or by the signal (after Python restored
+    the default action) and prints nothing: no traceback. (Before the fix about one start in
+    30 printed one: a second SIGTERM in the shutdown after the first had exited before the
+    handler's try.)"""
+    code = ("import os; from multiprocessing.connection import Pipe; from glsim.workflows.library import writer; "
+            "a, b = Pipe(); writer.serve(a, b, os.getppid() + 10**7)")   # no such parent: the lifeline fires
+
+    def handles_sigterm(pid: int) -> bool:
+        with open(f"/proc/{pid}/status") as f:
+            caught = next(int(line.split()[1], 16) for line in f if line.startswith("SigCgt:"))
+        return bool(caught >> (signal.SIGTERM - 1) & 1)
+
+    if not Path("/proc/self/status").is_file():
+        pytest.skip("needs /proc to see when the writer handles SIGTERM")
+    for _ in range(30):
+        p = subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        try:
+            while p.poll() is None and not handles_sigterm(p.pid):
+                time.sleep(0.0002)
+            while p.poll() is None:
+                os.kill(p.pid, signal.SIGTERM)
+                time.sleep(0.0005)
+        except (ProcessLookupError, FileNotFoundError, StopIteration):   # it ended between the looks
+            pass
+        err = p.communicate(timeout=60)[1]
+        assert p.returncode in (143, -signal.SIGTERM) and err == "", (p.returncode, err)
 
 
 @pytest.mark.parametrize("flag", ["--reps", "--images", "--max-workers"])

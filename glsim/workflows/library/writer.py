@@ -212,16 +212,24 @@ class ProcessWriter:
 
 
 _stopped: list[int] = []   # the writer process's exit status, when a SIGTERM came in a finalizer
+_exiting: list[int] = []   # the exit status, once a SIGTERM raised it
 
 
 def _stop(signum, frame):
     """SIGTERM in the writer process: SystemExit, so that a write in progress removes its
-    temporaries (atomic_paths). Raised inside a finalizer (``__del__``, such as a pipe's being
-    collected), Python would print it as "Exception ignored" with a traceback and go on: there
-    the status is kept and the loop raises it before its next message."""
+    temporaries (atomic_paths). Raised once: a SIGTERM while that exit unwinds (the kernel's
+    parent-death signal and the lifeline's can both come, at once where the parent died as the
+    writer started) is ignored — raised in the temporaries' removal or in the interpreter's
+    shutdown, it would cut the one short and print a traceback in the other. Raised inside a
+    finalizer (``__del__``, such as a pipe's being collected), Python would print it as
+    "Exception ignored" with a traceback and go on: there the status is kept and the loop
+    raises it before its next message."""
+    if _exiting:
+        return
     if frame is not None and frame.f_code.co_name == "__del__":
         _stopped.append(128 + signum)
         return
+    _exiting.append(128 + signum)
     raise SystemExit(128 + signum)
 
 
@@ -234,10 +242,10 @@ def serve(conn, replies, parent: int) -> None:
     from glsim.workflows.library.lifeline import die_with_parent
 
     signal.signal(signal.SIGINT, signal.SIG_IGN)       # Ctrl-C is the parent's to handle
-    signal.signal(signal.SIGTERM, _stop)
-    die_with_parent(parent)
     blocks: dict[int, tuple] = {}                      # slot → (serial, mmap)
     try:
+        signal.signal(signal.SIGTERM, _stop)
+        die_with_parent(parent)
         while not _stopped and (msg := conn.recv()) is not None:
             slot, (serial, fd, size), layout, args = msg
             if blocks.get(slot, (None,))[0] != serial:
