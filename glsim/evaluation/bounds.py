@@ -605,16 +605,17 @@ def without(oracle, effect: str, mode: str, cam: int, step: int, spp: int = 1) -
 def renderer_motion(gl, oracle, mode: str, cam: int, step: int, spp: int = 1) -> tuple[np.ndarray, np.ndarray]:
     """How far the GL renderer ``gl``'s image of camera ``cam`` at ``step`` under the scene's
     [exposure] (motion over the exposure, a rolling shutter; no other effect) may lie from the
-    oracle renderer ``oracle``'s, in ``mode`` at ``spp`` (fast: 1, global shutter: its bound
-    takes the map's gradient from neighbouring pixels, which a one-row band lacks), per pixel:
-    (bound, ties).
+    oracle renderer ``oracle``'s, in ``mode`` at ``spp`` (fast: 1), per pixel: (bound, ties).
     Both average the same sub-frames (:meth:`glsim.render.Renderer.sub_frames`: the states'
     nodes are made once in float64 for both), in float64, and round the mean to float32:
 
     - each sub-frame is a still render of its state (a rolling shutter's: of its row's
       one-row camera, the same rays as the row): off its ties GL's lies within :func:`grey` of
       the oracle's, its reference points within :func:`mapping` (at 1 spp from the oracle's
-      sub-frame raster, else exact and q4's largest gradient, :func:`renderer_grey`);
+      sub-frame raster, else exact and q4's largest gradient, :func:`renderer_grey`); fast's
+      takes the map's gradient from neighbouring pixels, which a one-row band lacks: a rolling
+      shutter's row takes it from the oracle's map of the rows around it in the row's state
+      (:func:`_row_fast_bound`);
     - the mean of differences is at most the mean of their bounds; the roundings of the two
       means m to float32 add u·(|m_GL| + |m_oracle|) ≤ u·(2|m_oracle| + bound) (u = 2^-24);
     - ties: the union of the sub-frames' (:func:`near_edges` within :func:`tie_px` of the
@@ -626,10 +627,9 @@ def renderer_motion(gl, oracle, mode: str, cam: int, step: int, spp: int = 1) ->
     scene = oracle.scene
     others = [e for e in ("lighting", "optics", "psf", "vignetting", "noise") if getattr(scene, e) is not None]
     rows, _, taus = oracle.exposure_schedule(cam, step)
-    if others or scene.exposure is None or (mode == "fast" and (spp > 1 or rows[0][0] is not None)):
-        raise ValueError(f"bounds.renderer_motion: derived for [exposure] alone, fast at 1 sample per pixel and "
-                         f"a global shutter (the scene has {others}, exposure {scene.exposure is not None}, "
-                         f"mode {mode!r} at {spp} spp, rolling shutter {rows[0][0] is not None})")
+    if others or scene.exposure is None or (mode == "fast" and spp > 1):
+        raise ValueError(f"bounds.renderer_motion: derived for [exposure] alone, fast at 1 sample per pixel "
+                         f"(the scene has {others}, exposure {scene.exposure is not None}, mode {mode!r} at {spp} spp)")
     method, coeffs, M = _reference(oracle)
     camera, u = scene.cameras[cam], FLOAT32_ROUNDOFF
     radius = tie_px(mode, camera.fx, gl.backend.capabilities.subpixel_bits)
@@ -644,13 +644,32 @@ def renderer_motion(gl, oracle, mode: str, cam: int, step: int, spp: int = 1) ->
             mask = out.samples["element"].reshape(h, W) >= 0
             ref_uv = out.samples["ref_uv"].reshape(h, W, 2)
             grad = sample_gradient(method, coeffs, ref_uv, mask)
-            total[at] += np.where(mask, grey(method, M, grad, mapping(mode, camera.fx, ref_uv, mask)), 0.0)
+            moved = (_row_fast_bound(oracle, camera, row, nodes) if mode == "fast" and row is not None
+                     else mapping(mode, camera.fx, ref_uv, mask))
+            total[at] += np.where(mask, grey(method, M, grad, moved), 0.0)
         else:
             total[at] += grey(method, M, gradient_max(method) * M, FLOAT64, spp)
         if not oracle.mesh.is_quadratic:
             ties[at] |= near_edges(band, nodes, oracle.mesh.quads, radius, spp, exact=mode == "exact")
     bound = total / len(taus)
     return bound + u * (2 * np.abs(mean) + bound), ties
+
+
+def _row_fast_bound(oracle, camera, row: int, nodes: np.ndarray) -> np.ndarray:
+    """:func:`fast_bound` of a rolling shutter's ``row`` of ``camera`` (1, W) with the nodes of
+    its state (world mm): from the oracle's fast map of the rows around it (the band of
+    :func:`glsim.effects.motion.row_band` ± 1 row, the same rays), so that its gradient has
+    the row's neighbours above and below."""
+    from glsim.backends.cpu import rasterize
+    from glsim.effects.motion import row_band
+    from glsim.stages.view import make_view
+
+    band, at = row_band(camera, row, 1)
+    mesh = oracle.drawn_mesh
+    r = rasterize(make_view(band, oracle.reference.camera, mesh.nodes, nodes, mesh.quads, warn=False), "fast")
+    W, h = band.size
+    field = r["ref_uv"].reshape(h, W, 2)
+    return fast_bound(camera.fx, field, r["element"].reshape(h, W) >= 0)[at:at + 1]
 
 
 def renderer_dof(oracle, mode: str, cam: int, step: int, sharp: np.ndarray, before,
