@@ -40,6 +40,5 @@ void main() {
     memoryBarrierShared();
     barrier();
     uint w = uint(pix.x) | (uint(pix.y) << 16);
-    if (layer == 0u) pixels[s_base[0] + k] = w;
-    else if (layer == 1u) pixels[uint(pixels.length()) - 1u - (s_base[1] + k)] = w;
+    if (layer < 2u) pixels[LIST_SLOT(layer, s_base[layer] + k)] = w;
 }

@@ -532,7 +532,7 @@ void main() {
     uint i = gl_GlobalInvocationID.y * gl_NumWorkGroups.x * uint(LIST_LOCAL) + gl_GlobalInvocationID.x;
     uint j = i / uint(SS * SS), k = i % uint(SS * SS);
     if (j >= layer_count[layer]) return;
-    uint w = pixels[layer == 0u ? j : uint(pixels.length()) - 1u - j];
+    uint w = pixels[LIST_SLOT(layer, j)];
     shade_sample(ivec2(w & 0xFFFFu, w >> 16) * SS + ivec2(k % uint(SS), k / uint(SS)));
 }
 #endif

@@ -11,3 +11,10 @@ layout(std430, binding = BINDING_PIXEL_LISTS) buffer PixelLists {
     uint layer_count[2];
     uint pixels[];
 };
+// The place of a layer's j-th pixel in `pixels`, whose W·H entries end where the candidate counts'
+// image (u_cand_count, W × H: candidates.glsl, declared before the macro is used) says, not where
+// pixels.length() does: zink (Mesa 22.3, on lavapipe) gave the float32 exact resolve.comp a wrong
+// length, so that its samples read other entries (glsim check's pixel-stage row found it); code
+// that needs no .length() depends on no driver's.
+#define LIST_END uint(imageSize(u_cand_count).x * imageSize(u_cand_count).y)
+#define LIST_SLOT(layer, j) ((layer) == 0u ? (j) : LIST_END - 1u - (j))

@@ -434,6 +434,20 @@ def test_every_packaged_sampler_has_its_fixed_unit():
     assert all(f"#define SAMPLER_{n[2:].upper()} {u}" in defines() for n, u in SAMPLERS.items())
 
 
+def test_no_packaged_shader_reads_a_runtime_arrays_length():
+    """No packaged shader takes .length() of a runtime-sized array: zink (Mesa 22.3, GL on
+    lavapipe) gave the float32 exact resolve.comp a wrong one, and its samples read other list
+    entries (glsim check's pixel-stage row: 2.6e5 values off). The compute stage's lists end
+    where their W × H count image says (pixellists.glsl's LIST_END)."""
+    from importlib import resources
+
+    used = [(f.name, n) for f in resources.files("glsim.shaders").iterdir() if f.name.endswith((".glsl", ".frag",
+                                                                                             ".comp", ".vert", ".geom"))
+            for n, line in enumerate(f.read_text().splitlines(), 1)
+            if ".length()" in line.split("//")[0]]
+    assert used == []
+
+
 @pytest.mark.gl
 @pytest.mark.parametrize("mode", ["fast", "exact"])
 def test_linked_samplers_read_their_table_units(gl_ctx, mode):
