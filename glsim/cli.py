@@ -154,7 +154,7 @@ DELEGATED = {"bench": "benchmarks: glsim bench {accuracy,effects,library,preview
              "verify": "independent stereo-DIC verification: glsim verify run …",
              "preview": "interactive preview window: glsim preview SCENE.toml [--screenshot out.png]",
              "docs": "README/docs figures from bench/results: glsim docs [--check]",
-             "check": "GL against the oracle and closed forms on this machine's driver: glsim check [--json F]",
+             "check": "GL against the oracle and closed forms on this machine's driver: glsim check [--json F] [--skip TEXT]",
              "library": "image libraries from a spec: glsim library SPEC.toml -o DIR [--workers N] …"}
 
 

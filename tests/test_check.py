@@ -32,6 +32,28 @@ def test_a_failing_check_fails_the_command(monkeypatch, tmp_path, capsys):
     assert json.loads((tmp_path / "c.json").read_text())["passed"] is False
 
 
+@pytest.mark.gl
+def test_skipped_checks_are_not_run_and_are_named(monkeypatch, tmp_path, capsys):
+    """--skip TEXT leaves out the checks whose name holds it (a driver that cannot build their
+    programs); the report names them, the README's table marks them "not run"; a TEXT that
+    matches no check is refused with the list of names, before anything runs."""
+    from glsim.evaluation.docs_bench import check_drivers
+
+    ran = []
+    checks = tuple(check.Check(n, 1.0, "units", "test", lambda c, n=n: ran.append(n) or 0.5) for n in ("alpha one", "beta two"))
+    monkeypatch.setattr(check, "CHECKS", checks)
+    with pytest.raises(SystemExit):
+        check.main(["--skip", "gamma"])
+    assert "--skip 'gamma' matches no check's name; the checks are: alpha one; beta two" in capsys.readouterr().err
+    assert ran == []
+    assert check.main(["--skip", "beta", "--json", str(tmp_path / "c.json")]) == 0
+    report = json.loads((tmp_path / "c.json").read_text())
+    assert ran == ["alpha one"] and report["skipped"] == ["beta two"] and [r["name"] for r in report["checks"]] == ["alpha one"]
+    assert "(1 not run: --skip)" in capsys.readouterr().out
+    full = dict(report, checks=report["checks"] + [dict(report["checks"][0], name="beta two")])
+    assert check_drivers(full, report).splitlines()[-1] == "| beta two | 1.0 units | 0.50 ✓ | not run |"
+
+
 def test_a_failing_checks_detail_names_what_failed():
     """A check's detail (the float64 primitives' per-primitive counts) is printed where it fails,
     naming only what differed."""
