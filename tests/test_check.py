@@ -10,7 +10,7 @@ from glsim.evaluation import check
 @pytest.mark.gl
 def test_glsim_check_passes_here_and_writes_its_report(tmp_path, capsys):
     out = tmp_path / "check.json"
-    assert check.main(["--json", str(out)]) == 0
+    assert check.main(["--in-process", "--json", str(out)]) == 0
     report = json.loads(out.read_text())
     assert report["passed"] and [r["name"] for r in report["checks"]] == [c.name for c in check.CHECKS]
     assert all(r["passed"] is not False and r["value"] <= r["bound"] for r in report["checks"] if r["value"] is not None)
@@ -27,7 +27,7 @@ def test_glsim_check_passes_here_and_writes_its_report(tmp_path, capsys):
 def test_a_failing_check_fails_the_command(monkeypatch, tmp_path, capsys):
     wrong = check.Check("a grey level off", 0.0, "grey levels", "a deliberately failing check", lambda c: 1.0)
     monkeypatch.setattr(check, "CHECKS", (wrong,))
-    assert check.main(["--json", str(tmp_path / "c.json")]) == 1
+    assert check.main(["--in-process", "--json", str(tmp_path / "c.json")]) == 1
     assert "FAIL  a grey level off: 1 ≤ 0 grey levels" in capsys.readouterr().out
     assert json.loads((tmp_path / "c.json").read_text())["passed"] is False
 
@@ -46,12 +46,48 @@ def test_skipped_checks_are_not_run_and_are_named(monkeypatch, tmp_path, capsys)
         check.main(["--skip", "gamma"])
     assert "--skip 'gamma' matches no check's name; the checks are: alpha one; beta two" in capsys.readouterr().err
     assert ran == []
-    assert check.main(["--skip", "beta", "--json", str(tmp_path / "c.json")]) == 0
+    assert check.main(["--in-process", "--skip", "beta", "--json", str(tmp_path / "c.json")]) == 0
     report = json.loads((tmp_path / "c.json").read_text())
     assert ran == ["alpha one"] and report["skipped"] == ["beta two"] and [r["name"] for r in report["checks"]] == ["alpha one"]
     assert "(1 not run: --skip)" in capsys.readouterr().out
     full = dict(report, checks=report["checks"] + [dict(report["checks"][0], name="beta two")])
     assert check_drivers(full, report).splitlines()[-1] == "| beta two | 1.0 units | 0.50 ✓ | not run |"
+
+
+_CRASHING = """
+import os, signal, sys
+from glsim.evaluation import check
+def crash(c):
+    os.kill(os.getpid(), signal.SIGSEGV)
+def fail(c):
+    raise RuntimeError("a bug in the check")
+check.CHECKS = tuple(check.Check(n, 1.0, "units", "test", f) for n, f in (
+    ("alpha", lambda c: 0.5), ("bravo", crash), ("charlie", lambda c: 0.25), ("delta", fail), ("echo", lambda c: 2.0)))
+sys.exit(check.main(["--json", sys.argv[1]]))
+"""
+
+
+@pytest.mark.gl
+def test_a_driver_crash_in_one_check_still_gives_the_whole_report(tmp_path):
+    """By default each check runs in a child process: a check that kills it (as a driver's
+    segfault would) or raises is reported failed with how its process ended, and the checks
+    after it still run in a new child; the command exits 1 with every row in the report."""
+    import subprocess
+    import sys
+
+    out = tmp_path / "c.json"
+    r = subprocess.run([sys.executable, "-c", _CRASHING, str(out)], capture_output=True, text=True, timeout=120)
+    assert r.returncode == 1, r.stderr
+    report = json.loads(out.read_text())
+    rows = {x["name"]: x for x in report["checks"]}
+    assert list(rows) == ["alpha", "bravo", "charlie", "delta", "echo"] and not report["passed"]
+    assert [rows[n]["passed"] for n in rows] == [True, False, True, False, False]
+    assert rows["bravo"]["value"] is None and rows["bravo"]["detail"] == {"crashed": "the process was killed by SIGSEGV"}
+    assert rows["delta"]["detail"]["crashed"].startswith("an error ended the process (exit status 1")
+    assert "RuntimeError: a bug in the check" in r.stderr and report["machine"]["gl"]["renderer"]
+    assert "FAIL  bravo: – ≤ 1 units" in r.stdout and "crashed: the process was killed by SIGSEGV" in r.stdout
+    from glsim.evaluation.docs_bench import check_drivers
+    assert "| bravo | 1.0 units | crashed **✗** |" in check_drivers(report)
 
 
 def test_a_failing_checks_detail_names_what_failed():

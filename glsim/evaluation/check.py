@@ -3,7 +3,8 @@
 A fixed set of small scenes is rendered on the GL backend and compared with the CPU oracle
 (numpy float64) or a closed form. Each check prints its bound, the measured value and
 pass/fail; the command names the driver, exits 1 on a failure and writes the report as JSON.
-Each bound says where it comes from (``why``):
+It runs them in child processes (:func:`run_isolated`), so that a driver that crashes in one
+still gives the whole report. Each bound says where it comes from (``why``):
 
 - float64 primitives bit for bit: the double path's building blocks against their numpy twins
   (a driver that contracts or folds where ``precise`` forbids it, or computes doubles in float,
@@ -29,6 +30,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import os
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -400,8 +402,9 @@ CHECKS = (
 )
 
 
-def run_checks(ctx=None, checks=CHECKS, progress=print) -> dict:
-    """Run ``checks`` on the GL context ``ctx`` (a new one if None); the report as a dict."""
+def run_checks(ctx=None, checks=CHECKS, progress=print, on_machine=None, on_row=None) -> dict:
+    """Run ``checks`` on the GL context ``ctx`` (a new one if None); the report as a dict.
+    ``on_machine(machine)`` is called once the driver is known, ``on_row(row)`` after each check."""
     from glsim.backends.gl.context import create_context, info
     from glsim.evaluation.report import machine_info
 
@@ -411,6 +414,9 @@ def run_checks(ctx=None, checks=CHECKS, progress=print) -> dict:
     rows = []
     t_all = time.perf_counter()
     try:
+        machine = machine_info(info(ctx))
+        if on_machine is not None:
+            on_machine(machine)
         for ch in checks:
             t0 = time.perf_counter()
             value = ch.run(c)
@@ -422,20 +428,81 @@ def run_checks(ctx=None, checks=CHECKS, progress=print) -> dict:
                 row["detail"] = c.detail.pop(ch.name)
             rows.append(row)
             progress(check_row(row))
-        machine = machine_info(info(ctx))
+            if on_row is not None:
+                on_row(row)
     finally:
         c.close()
         if own:
             ctx.release()
+    return _report(machine, rows, t_all)
+
+
+def _report(machine: dict | None, rows: list[dict], t_all: float) -> dict:
     return {"machine": machine, "date": time.strftime("%Y-%m-%d"), "seconds": round(time.perf_counter() - t_all, 1),
             "passed": all(r["passed"] is not False for r in rows), "checks": rows}
+
+
+def run_isolated(checks=CHECKS, progress=print) -> dict:
+    """:func:`run_checks` in child processes (forked before this process makes any GL context):
+    a driver that crashes the process in a check (a segfault building or running its program)
+    ends only the child. The checks it finished are kept, the one it was in is reported failed
+    with how the child ended, and a new child goes on after it; so the report is whole however
+    the driver behaves. Each child ends with this process (lifeline)."""
+    import signal
+    import traceback
+
+    from glsim.workflows.library.lifeline import die_with_parent
+
+    rows, machine, todo, t_all = [], None, list(checks), time.perf_counter()
+    while todo:
+        parent = os.getpid()
+        read, write = os.pipe()
+        pid = os.fork()
+        if pid == 0:   # the child: report each row (and the driver) as a JSON line
+            status = 0
+            try:
+                os.close(read)
+                die_with_parent(parent)
+                with os.fdopen(write, "w") as out:
+                    def send(key, value, out=out):
+                        out.write(json.dumps({key: value}) + "\n")
+                        out.flush()
+                    run_checks(checks=todo, progress=progress, on_machine=lambda m: send("machine", m),
+                               on_row=lambda r: send("row", r))
+            except BaseException:   # noqa: BLE001 — printed; the parent reports the check as failed
+                traceback.print_exc()
+                status = 1
+            finally:
+                os._exit(status)
+        os.close(write)
+        t0, done = time.perf_counter(), 0
+        with os.fdopen(read) as inp:
+            for line in inp:
+                msg = json.loads(line)
+                if "machine" in msg:
+                    machine = msg["machine"]
+                else:
+                    rows.append(msg["row"])
+                    done += 1
+                    t0 = time.perf_counter()
+        status = os.waitstatus_to_exitcode(os.waitpid(pid, 0)[1])
+        todo = todo[done:]
+        if todo:   # the child ended inside todo[0]
+            ch = todo.pop(0)
+            how = (f"the process was killed by {signal.Signals(-status).name}" if status < 0
+                   else f"an error ended the process (exit status {status}; its traceback above)")
+            row = {"name": ch.name, "bound": ch.bound, "unit": ch.unit, "why": ch.why, "value": None,
+                   "passed": False, "seconds": round(time.perf_counter() - t0, 2), "detail": {"crashed": how}}
+            rows.append(row)
+            progress(check_row(row))
+    return _report(machine, rows, t_all)
 
 
 def check_row(r: dict) -> str:
     state = "skipped (no float64)" if r["passed"] is None else "pass" if r["passed"] else "FAIL"
     value = "–" if r["value"] is None else f"{r['value']:.3g}"
     detail = "" if r["passed"] is not False or not r.get("detail") else \
-        " — " + ", ".join(f"{k} {v}" for k, v in r["detail"].items() if v)
+        " — " + ", ".join(f"{k}: {v}" if k == "crashed" else f"{k} {v}" for k, v in r["detail"].items() if v)
     return f"{state:>6}  {r['name']}: {value} ≤ {r['bound']:.3g} {r['unit']}  ({r['seconds']} s){detail}"
 
 
@@ -448,6 +515,9 @@ def main(argv: list[str]) -> int:
 
     ap = argparse.ArgumentParser(prog="glsim check", description=__doc__.split("\n\n")[0])
     ap.add_argument("--json", help="also write the report here (bench/results/check-<driver>.json for the README)")
+    ap.add_argument("--in-process", action="store_true",
+                    help="run the checks in this process (by default each runs in a child process, so that a "
+                         "driver that crashes in one still gives the whole report; here a crash ends the run)")
     ap.add_argument("--skip", action="append", default=[], metavar="TEXT",
                     help="leave out the checks whose name contains TEXT (repeatable): for a driver that cannot "
                          "build or crashes on their programs; the report lists them as not run")
@@ -457,7 +527,8 @@ def main(argv: list[str]) -> int:
     if unknown:
         ap.error(f"--skip {unknown[0]!r} matches no check's name; the checks are: "
                  + "; ".join(c.name for c in CHECKS))
-    report = run_checks(checks=tuple(c for c in CHECKS if c.name not in skipped))
+    chosen = tuple(c for c in CHECKS if c.name not in skipped)
+    report = run_checks(checks=chosen) if args.in_process or not hasattr(os, "fork") else run_isolated(chosen)
     report["skipped"] = skipped
     print(f"glsim check on {machine_line(report['machine'])}: "
           f"{'all passed' if report['passed'] else 'FAILED'} in {report['seconds']} s"

@@ -191,7 +191,7 @@ def quadratic_fast(q: dict) -> str:
 def check_drivers(*reports: dict) -> str:
     """README: the drivers `glsim check` was run on (bench/results/check-*.json), check by check
     (the first report's, by name; "—" where a run predates a check, "not run" where it was
-    skipped on that driver: ``glsim check --skip``)."""
+    skipped on that driver: ``glsim check --skip``; "crashed" where the driver ended its process)."""
     lines = ["| check | bound | " + " | ".join(machine_line(r["machine"]) + f", {r['date']}, {sig(r['seconds'])} s" for r in reports) + " |",
              "|---|---|" + "---|" * len(reports)]
     for row in reports[0]["checks"]:
@@ -200,6 +200,7 @@ def check_drivers(*reports: dict) -> str:
             c = next((c for c in r["checks"] if c["name"] == name), None)
             cells.append(("not run" if name in r.get("skipped", ()) else "—") if c is None else
                          "skipped" if c["passed"] is None else
+                         "crashed **✗**" if c["value"] is None else
                          f"{sig(c['value'])} {'✓' if c['passed'] else '**✗**'}")
         lines.append(f"| {name} | {sig(row['bound'])} {row['unit']} | " + " | ".join(cells) + " |")
     return "\n".join(lines)
