@@ -224,7 +224,8 @@ MESHES = {"subpixel": lambda: perturbed_grid(120, 90, 12.0, 9.0, 0.3, 1),   # 0.
 def test_no_holes_on_subpixel_and_sliver_meshes(backend, mode, mesh, ctx_for):
     """Every pixel centre farther than 1e-6 px inside the plate's projected outline is
     covered, none farther than 1e-6 px outside (GL fast: its tie distance, bounds.tie_px: the
-    float32 vertices snapped to GL_SUBPIXEL_BITS)."""
+    float32 vertices snapped to GL_SUBPIXEL_BITS). The plate holds 501 pixel centres; the band
+    leaves all but a few of them to the test (zink reports 4 sub-pixel bits: 0.063 px)."""
     nodes, quads = MESHES[mesh]()
     w, h = np.ptp(nodes[:, 0]), np.ptp(nodes[:, 1])
     corners = tilted(np.array([[-w / 2, -h / 2, 0], [w / 2, -h / 2, 0], [w / 2, h / 2, 0], [-w / 2, h / 2, 0]]))
@@ -235,7 +236,7 @@ def test_no_holes_on_subpixel_and_sliver_meshes(backend, mode, mesh, ctx_for):
         band = (bounds.tie_px(mode, TILT_CAM.fx, r.backend.capabilities.subpixel_bits)
                 if (mode == "fast" and backend == "gl") else 1e-6)
     d = outline_distance(corners, TILT_CAM)
-    assert (d > band).sum() > 500
+    assert (d > 1e-6).sum() > 500 and (d > band).sum() >= 0.95 * (d > 1e-6).sum()
     assert t.mask[d > band].all(), int((~t.mask[d > band]).sum())
     assert not t.mask[d < -band].any(), int(t.mask[d < -band].sum())
 
