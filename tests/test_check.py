@@ -86,6 +86,7 @@ def test_a_driver_crash_in_one_check_still_gives_the_whole_report(tmp_path):
     assert rows["delta"]["detail"]["crashed"].startswith("an error ended the process (exit status 1")
     assert "RuntimeError: a bug in the check" in r.stderr and report["machine"]["gl"]["renderer"]
     assert "FAIL  bravo: – ≤ 1 units" in r.stdout and "crashed: the process was killed by SIGSEGV" in r.stdout
+    assert "pass  alpha: 0.5 ≤ 1 units" in r.stdout and "pass  charlie: 0.25 ≤ 1 units" in r.stdout   # (the children's)
     from glsim.evaluation.docs_bench import check_drivers
     assert "| bravo | 1.0 units | crashed **✗** |" in check_drivers(report)
 

@@ -449,6 +449,7 @@ def run_isolated(checks=CHECKS, progress=print) -> dict:
     with how the child ended, and a new child goes on after it; so the report is whole however
     the driver behaves. Each child ends with this process (lifeline)."""
     import signal
+    import sys
     import traceback
 
     from glsim.workflows.library.lifeline import die_with_parent
@@ -472,7 +473,9 @@ def run_isolated(checks=CHECKS, progress=print) -> dict:
             except BaseException:   # noqa: BLE001 — printed; the parent reports the check as failed
                 traceback.print_exc()
                 status = 1
-            finally:
+            finally:   # (os._exit skips the interpreter's flush of the rows printed)
+                sys.stdout.flush()
+                sys.stderr.flush()
                 os._exit(status)
         os.close(write)
         t0, done = time.perf_counter(), 0
