@@ -195,15 +195,21 @@ def check_drivers(*reports: dict) -> str:
     lines = ["| check | bound | " + " | ".join(machine_line(r["machine"]) + f", {r['date']}, {sig(r['seconds'])} s" for r in reports) + " |",
              "|---|---|" + "---|" * len(reports)]
     for row in reports[0]["checks"]:
-        name, cells = row["name"], []
-        for r in reports:
-            c = next((c for c in r["checks"] if c["name"] == name), None)
-            cells.append(("not run" if name in r.get("skipped", ()) else "—") if c is None else
-                         "skipped" if c["passed"] is None else
-                         "crashed **✗**" if c["value"] is None else
-                         f"{sig(c['value'])} {'✓' if c['passed'] else '**✗**'}")
+        name = row["name"]
+        cells = [_check_cell(r, next((c for c in r["checks"] if c["name"] == name), None), name) for r in reports]
         lines.append(f"| {name} | {sig(row['bound'])} {row['unit']} | " + " | ".join(cells) + " |")
     return "\n".join(lines)
+
+
+def _check_cell(report: dict, c: dict | None, name: str) -> str:
+    """One driver's cell of :func:`check_drivers`: check ``name``'s row ``c`` of ``report``."""
+    if c is None:
+        return "not run" if name in report.get("skipped", ()) else "—"
+    if c["passed"] is None:
+        return "skipped"
+    if c["value"] is None:
+        return "crashed **✗**"
+    return f"{sig(c['value'])} {'✓' if c['passed'] else '**✗**'}"
 
 
 def jacobian(report: dict) -> str:

@@ -493,8 +493,8 @@ class GeometryBuffers:
         return {k: v for k, v in out.items() if len(v)}
 
     def buffer_bytes(self) -> int:
-        """The bytes of the storage buffers held: the mesh's, the kept steps' nodes, bits and
-        normals (not the candidate lists' textures)."""
+        """The bytes of the storage buffers held: the mesh's, the kept steps' nodes, shape filters
+        and normals (not the candidate lists' textures)."""
         held = [b for b in self._bufs.values() if not isinstance(b, tuple)]
         held += [b for _, (nodes, shape) in self._steps.values() for b in (nodes, shape)]
         held += [b for _, b in self._normals.values()]
