@@ -48,5 +48,10 @@ class ShaderError(GlsimError, RuntimeError):
     """A GLSL program failed to compile or link; the message names file and line."""
 
 
+class RendererClosedError(GlsimError, RuntimeError):
+    """A :class:`glsim.render.Renderer` was asked to render after ``close()`` (or its ``with``
+    block) released its backend."""
+
+
 class RenderWarning(UserWarning):
     """A render went on but masked pixels or dropped elements (the message names them)."""

@@ -28,7 +28,7 @@ from typing import NamedTuple
 import numpy as np
 from scipy import sparse
 
-from glsim.errors import SceneError
+from glsim.errors import RendererClosedError, SceneError
 from glsim.limits import check_gl_target, check_image_size, check_memory, keep
 from glsim.scene import quadratic as qd
 from glsim.scene.bilinear import bilinear
@@ -142,6 +142,13 @@ class Renderer:
         self._closed = True
         self.backend.close()
 
+    def _require_open(self) -> None:
+        """Refuse to render once closed: the GL backend's objects are released (moderngl would
+        fail deep inside with an unrelated AttributeError) and the CPU's would go on regardless."""
+        if self._closed:
+            raise RendererClosedError("this renderer is closed (its `with` block ended or close() was called) "
+                                      "— render inside the `with` block, or make a new Renderer")
+
     @property
     def pieces(self) -> qd.Pieces | None:
         """For a quadratic mesh, its linear pieces (what the fast mode draws); None otherwise."""
@@ -189,6 +196,7 @@ class Renderer:
         ``jacobian``: also ``Result.jacobian``, the noise-free image's derivative with respect to
         the nodal displacements (:mod:`glsim.stages.jacobian`; refused by name where it cannot be made);
         ``rig``: that and ``Result.rig_jacobian``, with respect to the camera's pose and intrinsics."""
+        self._require_open()
         jacobian = jacobian or rig
         if self.scene.exposure is not None:   # motion over the exposure, a rolling shutter
             return self._moving(camera, step, truth, quantize, jacobian, rig, options)
@@ -308,6 +316,7 @@ class Renderer:
         scene's [exposure], in :meth:`exposure_schedule`'s order (rows, then τ_i): (row or None,
         τ s from the step's time, the state's nodes (world mm, of the mesh drawn), the Raster —
         the row's, cut from its band — without noise; ``truth``: with its samples)."""
+        self._require_open()
         cam, opts = self.scene.camera(camera), self._options(options)
         rows, tl, taus = self.exposure_schedule(cam, step)
         for row, t in rows:
@@ -466,11 +475,13 @@ class Renderer:
         ``quantize``, render options) or a ``(camera, step)`` pair. The same images and truth,
         bit for bit, as :meth:`render`. ``Result.seconds``: the host time of the job's submit and
         collect (a collect waits for the GPU if it has not finished)."""
+        self._require_open()
         if depth < 1:
             raise SceneError("depth", f"{depth!r} is not a positive integer", "give 1 (no overlap) or more")
         pending: collections.deque = collections.deque()
         try:
             for job in jobs:
+                self._require_open()   # (closed between two of its Results)
                 args = dict(job) if isinstance(job, Mapping) else dict(zip(("camera", "step"), job))
                 if self.scene.exposure is not None or args.get("jacobian") or args.get("rig"):
                     while pending:   # (in order) then several renders per image (glsim.effects.motion), or a
