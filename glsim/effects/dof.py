@@ -202,12 +202,6 @@ def gaussian_weights(d, sigma):
     return np.where(sigma > 0, w, (d == 0).astype(np.float64))
 
 
-def disk_weights(d, radius):
-    """Antialiased uniform-aperture weight clamp(r + 0.5 − |d|, 0, 1); r = 0 is the identity."""
-    d, r = np.broadcast_arrays(np.asarray(d, dtype=np.float64), np.asarray(radius, dtype=np.float64))
-    return np.where(r > 0, np.clip(r + 0.5 - np.abs(d), 0.0, 1.0), (d == 0).astype(np.float64))
-
-
 def _check(image, size_map, what):
     img = np.asarray(image, dtype=np.float64)
     s = np.asarray(size_map, dtype=np.float64)

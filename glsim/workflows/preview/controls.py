@@ -253,9 +253,6 @@ class Model:
                 Control("screenshot", "save screenshot PNG", "button", scene=False)]
         return out
 
-    def light_values(self, p: Params, index: int) -> tuple[float, tuple[float, float, float]]:
-        return p.light_intensity, (p.light_x, p.light_y, p.light_z)
-
     def scene(self, p: Params, lights: list[Light]) -> Scene:
         """The edited scene (poses, lens, effects, speckle) — before the speckle is pinned."""
         s = self.base

@@ -9,7 +9,7 @@ import cv2
 import numpy as np
 
 from glsim.effects import dof
-from glsim.scene import Optics, Scene
+from glsim.scene import Optics
 from glsim.scene.camera import Camera, project, to_camera
 from glsim.scene.speckle import speckle_stats
 
@@ -162,8 +162,3 @@ def nice_ticks(lo: float, hi: float, n: int = 5) -> np.ndarray:
     mag = 10 ** math.floor(math.log10(raw))
     step = min((m * mag for m in (1, 2, 2.5, 5, 10) if m * mag >= raw), default=10 * mag)
     return np.arange(math.ceil(lo / step) * step, hi + step * 1e-9, step)
-
-
-def scene_scale(scene: Scene, cam: Camera, nodes: np.ndarray) -> float:
-    """mm per px of ``cam`` at the specimen's nodes (for the colour bar's px scale)."""
-    return mm_per_px(cam, nodes)
