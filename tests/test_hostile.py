@@ -285,7 +285,7 @@ def rewrite_truth(path: Path, header=None, blobs=None) -> None:
         head["blobs"][name] = [pos, len(b)]
         pos += len(b)
     text = json.dumps(head).encode()
-    path.write_bytes(C.MAGIC + struct.pack("<Q", len(text)) + text + b"".join(parts.values()))
+    path.write_bytes(C.container(text, b"".join(parts.values())))
 
 
 def vouch(lib: Path) -> None:
@@ -325,7 +325,7 @@ def test_verify_decodes_truth_files_and_names_a_damaged_one(library, tmp_path, c
     path = next(lib.rglob("*.truth"))
     if blobs is None:         # a header that is not even a table of blobs: write it by hand
         text = json.dumps({**T.read(path).header, **header}).encode()
-        path.write_bytes(C.MAGIC + struct.pack("<Q", len(text)) + text)
+        path.write_bytes(C.container(text, b""))
     else:
         rewrite_truth(path, header, blobs)
     vouch(lib)

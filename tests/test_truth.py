@@ -38,6 +38,9 @@ def test_lossless_coder_round_trips_bit_for_bit():
     for v in (xi.ravel()[idx], eta.ravel()[idx], rng.integers(-2**63, 2**63 - 1, len(idx)).view(np.float64)):
         back = C.decode_local(C.encode_local(v, same1, same2), same1, same2)
         np.testing.assert_array_equal(back.view(np.int64), v.view(np.int64))
+    # a file holds element-local coordinates only (finite, within ±LOCAL_BOUND), bit for bit
+    xi, eta = np.clip(np.nan_to_num(xi), -1, 1), np.clip(np.nan_to_num(eta), -1, 1)
+    eta[mask.nonzero()[0][0], mask.nonzero()[1][0]] = -0.0
     data = C.encode(element, xi, eta, {"mode": "exact", "step": 0, "geometry": "g.npz", "geometry_sha256": ""})
     t = T.CompactTruth(None, *_split(data))
     np.testing.assert_array_equal(t.element, element)
@@ -51,8 +54,8 @@ def test_lossless_coder_round_trips_bit_for_bit():
 def _split(data: bytes):
     import json
     import struct
-    (n,) = struct.unpack("<Q", data[8:16])
-    return json.loads(data[16:16 + n]), data[16 + n:]
+    (n,) = struct.unpack("<Q", data[C.PREFIX - 8:C.PREFIX])
+    return json.loads(data[C.PREFIX:C.PREFIX + n]), data[C.PREFIX + n:]
 
 
 # two cameras, the second placed by a stereo pose, before a tilted 40×30 mm plate that moves at step 1
@@ -161,25 +164,23 @@ def test_at_points_on_an_analytic_plate(tmp_path):
     assert not far.valid[0] and np.isnan(far.displacement).all()
 
 
-def test_header_names_camera0_and_old_files_with_camera1_still_read(tmp_path):
-    """Issue 29: the header key for camera 0 was "camera1"; files written so still read."""
+def test_header_names_camera0_and_version1_files_are_refused_with_the_fix(tmp_path):
+    """The header names camera 0 "camera0"; files of format version 1 (no checksum, camera 0
+    then "camera1" in the oldest) are refused, telling the user to re-render."""
     import json
     import struct
 
     scene = plate_scene(**STEREO_PLATE)
     with Renderer(scene) as r:
         c, _, path = _compact(tmp_path, r, "cam1", 1)
-    assert "camera0" in c.header and "camera1" not in c.header
+    assert "camera0" in c.header and "camera1" not in c.header and c.camera0 == scene.cameras[0]
     data = path.read_bytes()
-    (n,) = struct.unpack("<Q", data[8:16])
-    header = json.loads(data[16:16 + n])
-    header["camera1"] = header.pop("camera0")
+    (n,) = struct.unpack("<Q", data[C.PREFIX - 8:C.PREFIX])
+    header = {**json.loads(data[C.PREFIX:C.PREFIX + n]), "version": 1}
     text = json.dumps(header, sort_keys=True).encode()
-    (tmp_path / "old.truth").write_bytes(data[:8] + struct.pack("<Q", len(text)) + text + data[16 + n:])
-    old = T.load(tmp_path / "old.truth")
-    assert old.camera0 == c.camera0 == scene.cameras[0]
-    pts = [[30.0, 25.0], [40.5, 20.25]]
-    np.testing.assert_array_equal(old.at(pts).X_deformed, c.at(pts).X_deformed)
+    (tmp_path / "old.truth").write_bytes(b"GLTRUTH1" + struct.pack("<Q", len(text)) + text + data[C.PREFIX + n:])
+    with pytest.raises(GlsimError, match="format version 1 .*without a checksum.*re-render it.*--force"):
+        T.load(tmp_path / "old.truth")
 
 
 def test_render_truth_npz_loads_with_maps_and_at(tmp_path):
@@ -222,8 +223,10 @@ def test_damaged_files_are_named_with_the_fix(tmp_path):
     for name, bad in (("quads", arrays["quads"] + 1000), ("displacements", arrays["displacements"][:, :-1]),
                       ("patches", np.zeros((len(arrays["quads"]), 8), np.int64))):
         (tmp_path / "g.npz").write_bytes(G.geometry_bytes({**arrays, name: bad}))
-        with pytest.raises(GlsimError, match=f"g.npz: a damaged geometry file \\({name} .*--verify"):
+        with pytest.raises(GlsimError, match="g.npz: the geometry file fails the SHA-256 its truth file's header gives"):
             T.load(path).maps()
+        with pytest.raises(GlsimError, match=f"g.npz: .*a damaged geometry file \\({name} .*"):
+            G.read_geometry(tmp_path / "g.npz")
     (tmp_path / "g.npz").unlink()
     with pytest.raises(GlsimError, match="geometry file .* is missing"):
         T.load(path).maps()

@@ -3,11 +3,13 @@ undeformed nodes, quads, element labels, the displacements of the rendered load 
 quadratic mesh's patches — what, with a truth file's (element, ξ, η), gives every position."""
 from __future__ import annotations
 
+import os
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
+from glsim.io.hashes import sha256_bytes
 from glsim.io.truthcodec import TruthFileError
 
 
@@ -60,15 +62,37 @@ class Geometry:
         return self.nodes + self.displacements[self.steps.index(step)]
 
 
-def read_geometry(path: str | Path) -> Geometry:
+GEOMETRY_ARRAYS = ("nodes", "quads", "steps", "displacements", "element_labels")
+
+
+def read_geometry(path: str | Path, sha256: str | None = None) -> Geometry:
+    """The geometry file at ``path``, read once: its bytes checked against ``sha256`` (a truth
+    header's) when given, before anything in them is parsed; its arrays' declared sizes against
+    the memory this process may use (:func:`glsim.io.npzfile.read_npz`) before they are made."""
+    from glsim.io.npzfile import NpzError, read_npz
+    from glsim.limits import memory_budget
+
     path = Path(path)
+    again = "re-run the library command on its directory to write it"
     try:
-        with np.load(path, allow_pickle=False) as z:
-            a = {k: z[k] for k in ("nodes", "quads", "steps", "displacements", "element_labels")}
-            patches = z["patches"] if "patches" in z.files else None
-    except (OSError, ValueError, KeyError) as exc:
-        raise TruthFileError(f"{path}: not a readable glsim geometry file ({exc}); re-run the library "
-                             "command on its directory to write it again") from None
+        size = os.stat(path).st_size
+        if size > memory_budget():
+            raise TruthFileError(f"{path}: a geometry file of {size / 2**30:.3g} GiB, more than the "
+                                 f"{memory_budget() / 2**30:.3g} GiB this process may use; {again}")
+        with open(path, "rb") as f:
+            data = f.read(size + 1)
+    except OSError as exc:
+        raise TruthFileError(f"{path}: cannot be read ({exc.strerror or exc}); check the path") from None
+    if sha256 is not None and sha256_bytes(data) != sha256:
+        raise TruthFileError(f"{path}: the geometry file fails the SHA-256 its truth file's header gives (not "
+                             "the library's geometry, or damaged); run `glsim library DIR --verify`, then the "
+                             "library command again to write it")
+    try:
+        arrays = read_npz(data, GEOMETRY_ARRAYS, ("patches",), check=_declared_problem, label=str(path))
+    except NpzError as exc:
+        raise TruthFileError(f"{exc}; not a readable glsim geometry file — {again}") from None
+    a = {k: arrays[k] for k in GEOMETRY_ARRAYS}
+    patches = arrays.get("patches")
     problem = _inconsistent(a, patches)
     if problem:
         raise TruthFileError(f"{path}: a damaged geometry file ({problem}); run `glsim library DIR --verify`, "
@@ -77,13 +101,19 @@ def read_geometry(path: str | Path) -> Geometry:
                     a["element_labels"], patches)
 
 
-def _inconsistent(a: dict, patches) -> str:
+def _declared_problem(members: dict) -> str:
+    """:func:`_inconsistent` on the arrays' declared shapes and kinds, before they are read."""
+    problem = _inconsistent({k: members[k] for k in GEOMETRY_ARRAYS}, members.get("patches"), indices=False)
+    return f"a damaged geometry file ({problem})" if problem else ""
+
+
+def _inconsistent(a: dict, patches, indices: bool = True) -> str:
     """What in a geometry file's arrays does not fit together ("" if nothing): their shapes,
-    kinds and the node indices of the quads and patches (a patch's centre may be a derived-centre
-    code, < 0)."""
-    N, M = len(a["nodes"]), len(a["quads"])
-    shapes = {"nodes": (N, 3), "quads": (M, 4), "steps": (len(a["steps"]),),
-              "displacements": (len(a["steps"]), N, 3), "element_labels": (M,)}
+    kinds and (``indices``) the node indices of the quads and patches (a patch's centre may be a
+    derived-centre code, < 0)."""
+    first = lambda x: x.shape[0] if x.shape else -1  # noqa: E731   (arrays, or npzfile.Member: shape and dtype)
+    N, M, S = first(a["nodes"]), first(a["quads"]), first(a["steps"])
+    shapes = {"nodes": (N, 3), "quads": (M, 4), "steps": (S,), "displacements": (S, N, 3), "element_labels": (M,)}
     if patches is not None:
         shapes["patches"] = (M, 9)
     arrays = {**a, "patches": patches}
@@ -91,6 +121,8 @@ def _inconsistent(a: dict, patches) -> str:
         kind = "iu" if name in ("quads", "steps", "element_labels", "patches") else "f"
         if arrays[name].shape != shape or arrays[name].dtype.kind not in kind:
             return f"{name} is {arrays[name].dtype} {arrays[name].shape}, not {shape}"
+    if not indices:
+        return ""
     for name, idx in (("quads", a["quads"]), ("patches", None if patches is None else patches[:, :8])):
         if idx is not None and idx.size and (idx.min() < 0 or idx.max() >= N):
             return f"{name} refer to nodes {idx.min()}…{idx.max()} of {N}"

@@ -19,6 +19,7 @@ The file format and its coder: :mod:`glsim.io.truthcodec`; geometry files:
 from __future__ import annotations
 
 import dataclasses
+import hashlib
 import json
 import os
 import struct
@@ -37,9 +38,11 @@ from glsim.scene.bilinear import bilinear, intersect_ray_patch
 from glsim.io.cameras import camera_from_dict
 from glsim.scene.camera import Camera, pixel_to_normalized, project_camera_frame, to_camera, undistort
 from glsim.scene.optional import motion_centre, rigid_state, row_offsets
-from glsim.io.truthcodec import (DTYPES, FORMAT, MAGIC, VERSION, TruthFileError, _runs,
-                                 _unshuffle, _zstd, decode_local)
+from glsim.io.truthcodec import (DIGEST, DTYPES, FORMAT, LOCAL_BOUND, MAGIC, MAX_HEADER, OLD_MAGIC, PREFIX,
+                                 VERSION, TruthFileError, _runs, _unshuffle, _zstd, decode_local, local_problem,
+                                 zstd_bound)
 from glsim.io.geometryfile import Geometry, read_geometry
+from glsim.io.npzfile import NpzError, read_npz
 
 
 # ---- the truth maps (what Renderer.render(..., truth=True) returns, and maps() decodes) ------------
@@ -155,7 +158,7 @@ class CompactTruth:
     @cached_property
     def camera0(self) -> Camera:
         """Camera 0, the frame of the positions."""
-        return self._camera("camera0" if "camera0" in self.header else "camera1")   # "camera1": older files
+        return self._camera("camera0")
 
     @cached_property
     def reference_camera(self) -> Camera:
@@ -206,7 +209,12 @@ class CompactTruth:
             v = _unshuffle(raw, np.float32, 2 * n).astype(np.float64)
             vals = [v[:n], v[n:]]
         out = []
-        for v in vals:
+        for name, v in zip(("ξ", "η"), vals):
+            k = local_problem(v)
+            if k >= 0:
+                raise TruthFileError(f"{self.path}: its {name} at pixel ({idx[k] % W}, {idx[k] // W}) is {v[k]!r}, "
+                                     f"outside the element's local coordinates [−1, 1] widened to ±{LOCAL_BOUND:g}"
+                                     f"{DAMAGED}")
             a = np.full(H * W, np.nan)
             a[idx] = v
             out.append(a.reshape(H, W))
@@ -223,13 +231,15 @@ class CompactTruth:
     # -- geometry
     @property
     def geometry(self) -> Geometry:
+        """The geometry file the header names, confined to the library (:func:`geometry_path`) and
+        verified against the header's SHA-256 before it is parsed."""
         if self._geometry is None:
-            path = self.path.parent / self.header["geometry"]
+            path = geometry_path(self.path, self.header["geometry"])
             if not_a_file(path):
                 raise TruthFileError(f"{self.path}: its geometry file {path} is missing; keep the library's "
                                      "geometry/ folder beside the variant folders, or re-run the library "
                                      "command on the directory to write it")
-            self._geometry = read_geometry(path)
+            self._geometry = read_geometry(path, self.header["geometry_sha256"])
         return self._geometry
 
     def maps(self) -> Truth:
@@ -511,30 +521,62 @@ def _candidates(lo, hi, xn, ok, cells: int = 64):
     return pe[keep], p[keep]
 
 
+def geometry_path(truth_path: Path, rel) -> Path:
+    """The geometry file ``rel`` (a truth header's ``geometry``) of the truth file at
+    ``truth_path``, refused (TruthFileError) unless it stays in the library: a relative path,
+    either in the truth file's folder or ``../geometry/NAME`` (the library's geometry folder beside
+    its truth folder: what the library writes), no other ``..``, and inside that folder's library
+    once symbolic links are followed."""
+    parts = PurePosixPath(rel).parts if isinstance(rel, str) and rel and "\\" not in rel else ()
+    up = parts[:2] == ("..", "geometry")
+    inner = parts[2:] if up else parts
+    root = truth_path.parent.parent if up else truth_path.parent
+    where = truth_path.parent.joinpath(*parts) if parts else truth_path.parent
+    if (not inner or PurePosixPath(rel).is_absolute() or any(p in ("..", ".") for p in inner)
+            or not Path(os.path.realpath(where)).is_relative_to(os.path.realpath(root))):
+        raise TruthFileError(f"{truth_path}: its header names the geometry file {rel!r}, outside the library "
+                             f"(not followed){DAMAGED}")
+    return where
+
+
 def read(path: str | Path, geometry: Geometry | None = None) -> CompactTruth:
     """Read a ``.truth`` file (the maps are decoded when first used). Its header is checked first:
     the sizes it declares against :mod:`glsim.limits` and the file's length, before anything
-    is decompressed (with its output bounded to the declared size)."""
+    more is read; then the whole file against its SHA-256, before anything is decompressed (with
+    its output bounded to the declared size)."""
     path = Path(path)
     why = not_a_file(path)
     if why:
         raise TruthFileError(f"{path}: cannot be read ({why}); check the path")
     try:
         with open(path, "rb") as f:
-            head = f.read(16)
-            if head[:8] != MAGIC or len(head) < 16:
+            head = f.read(PREFIX)
+            if head[:len(OLD_MAGIC)] == OLD_MAGIC:
+                raise TruthFileError(f"{path}: a compact truth file of format version 1 (written by an older glsim, "
+                                     "without a checksum), which this glsim does not read; re-render it: run the "
+                                     "library command with --force (glsim library SPEC -o DIR --force)")
+            if head[:len(MAGIC)] != MAGIC or len(head) < PREFIX:
                 raise TruthFileError(f"{path}: not a glsim compact truth file (it does not start with {MAGIC!r}); "
                                      "give a library's .truth file, or a *_truth.npz of glsim render --truth")
-            (n,) = struct.unpack("<Q", head[8:])
-            room = os.fstat(f.fileno()).st_size - 16
-            header = _header(path, f.read(min(n, room)) if n <= room else b"")
+            (n,) = struct.unpack("<Q", head[-8:])
+            room = os.fstat(f.fileno()).st_size - PREFIX
+            if n > min(room, MAX_HEADER):
+                raise TruthFileError(f"{path}: {'truncated' if n > room else 'damaged'} (its header length {n:,} "
+                                     f"exceeds the {min(room, MAX_HEADER):,} bytes it may have){DAMAGED}")
+            text = f.read(n)
+            header = _header(path, text)
             end = max(o + k for o, k in header["blobs"].values())
-            if room - n < end:
-                raise TruthFileError(f"{path}: truncated ({room - n} of {end} data bytes); re-render it with the "
-                                     "library command (it re-renders files that fail their checksum)")
+            if room - n != end:
+                raise TruthFileError(f"{path}: {'truncated' if room - n < end else 'damaged'} ({room - n} data bytes "
+                                     f"where its header gives {end}){DAMAGED}")
             blobs = f.read(end)
     except OSError as exc:
         raise TruthFileError(f"{path}: cannot be read ({exc.strerror or exc}); check the path") from None
+    digest = hashlib.sha256(head[-8:])
+    digest.update(text)
+    digest.update(blobs)
+    if digest.digest() != head[len(MAGIC):len(MAGIC) + DIGEST]:
+        raise TruthFileError(f"{path}: fails its checksum (SHA-256){DAMAGED}")
     return CompactTruth(path, header, blobs, geometry)
 
 
@@ -570,6 +612,11 @@ def _header(path: Path, text: bytes) -> dict:
     if header["covered"] > size[0] * size[1]:
         raise TruthFileError(f"{path}: its header's covered {header['covered']} exceeds its {size[0]} × {size[1]} "
                              f"px{DAMAGED}")
+    sizes = {"element": 4 * size[0] * size[1], "local": 2 * header["covered"] * np.dtype(header["dtype"]).itemsize}
+    for name, (_, n) in blobs.items():
+        if n > zstd_bound(sizes[name]):    # (bounded before it is read)
+            raise TruthFileError(f"{path}: its header's blob {name!r} has {n:,} bytes, more than zstd makes of the "
+                                 f"{sizes[name]:,} bytes its size gives{DAMAGED}")
     return header
 
 
@@ -583,12 +630,26 @@ def load(path: str | Path, geometry: Geometry | None = None) -> CompactTruth | M
     if why:
         raise TruthFileError(f"{path}: cannot be read ({why}); check the path")
     try:
-        with np.load(path, allow_pickle=False) as z:
-            arrays = {k: z[k] for k in Truth.FIELDS + tuple(m for m in Truth.MOTION if m in z)}
-    except (OSError, ValueError, KeyError) as exc:
-        raise TruthFileError(f"{path}: not a truth file of glsim render --truth ({exc}); give a *_truth.npz it "
-                             "wrote, or a library's .truth file") from None
+        arrays = read_npz(path, Truth.FIELDS, Truth.MOTION, check=_maps_problem)
+    except NpzError as exc:
+        raise TruthFileError(f"{exc}; give a *_truth.npz that glsim render --truth wrote, or a library's .truth "
+                             "file") from None
     return MapTruth(path, arrays)
+
+
+def _maps_problem(members: dict) -> str:
+    """What in a ``*_truth.npz``'s declared arrays (name → :class:`~glsim.io.npzfile.Member`)
+    does not fit a truth of one image ("" if nothing): every map (H, W) or (H, W, k ≤ 3), one
+    size for all, within the image limits."""
+    H, W = members["mask"].shape[:2] if len(members["mask"].shape) == 2 else (0, 0)
+    for m in members.values():
+        if m.shape[:2] != (H, W) or len(m.shape) > 3 or (len(m.shape) == 3 and m.shape[2] > 3):
+            return f"{m.name} is {m.shape}, not a map of the mask's {H} × {W} px"
+    try:
+        check_image_size("mask", W, H, "the image", "")
+    except SceneError as exc:
+        return str(exc)
+    return ""
 
 
 def relpath(target: str | Path, start: str | Path) -> str:

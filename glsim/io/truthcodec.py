@@ -2,23 +2,29 @@
 (ξ, η), stored losslessly in a fraction of the space of the full float64 maps (read back by
 :mod:`glsim.io.truth`).
 
-File layout (version 1), little endian::
+File layout (version 2), little endian::
 
-    b"GLTRUTH1"  uint64 header length  header (UTF-8 JSON)  blobs…
+    b"GLTRUTH2"  SHA-256 (32 bytes)  uint64 header length  header (UTF-8 JSON)  blobs…
 
-The header names the image's camera (``camera``), camera 0 (``camera0``, the frame of the
-positions; files written before glsim numbered cameras from 0 everywhere call it ``camera1``),
-the reference camera, the render mode, the load step, the geometry file (relative path and SHA-256) and the
-blobs (offset and length after the header). Blob ``element``: the (H, W) int32 element map
-(−1 = background), zstd. Blob ``local``: (ξ, η) of the covered pixels in raster order. For
+The SHA-256 is of everything after it (header length, header, blobs): the reader verifies it
+before it believes a byte, so a flipped bit, a cut or an inserted byte is refused, never
+decoded into other maps. Version 1 files (``b"GLTRUTH1"``, no checksum) are refused with the
+fix (re-render them). The header names the image's camera (``camera``), camera 0 (``camera0``,
+the frame of the positions), the reference camera, the render mode, the load step, the geometry
+file (relative path and SHA-256) and the blobs (offset and length after the header). Blob
+``element``: the (H, W) int32 element map (−1 = background), zstd. Blob ``local``: (ξ, η) of
+the covered pixels in raster order. For
 ``dtype = "float64"`` (default, lossless) each value's IEEE bits, as int64, are predicted along
 the row from the previous two pixels of the same element (second difference; first difference
 or none at the start of a run), the residuals zigzag-coded, byte-shuffled and zstd-compressed:
 decoding is exact integer arithmetic, so the values come back bit for bit. ``dtype =
 "float32"`` stores the values rounded to float32 (|Δξ| ≤ 3e-8), byte-shuffled and zstd'd.
+ξ and η are element-local coordinates: finite and within ±LOCAL_BOUND, checked when written and
+when read.
 """
 from __future__ import annotations
 
+import hashlib
 import json
 import struct
 
@@ -28,11 +34,18 @@ from glsim.errors import GlsimError
 from glsim.io.cameras import camera_to_dict
 from glsim.scene.camera import Camera
 
-MAGIC = b"GLTRUTH1"
+MAGIC = b"GLTRUTH2"
+OLD_MAGIC = b"GLTRUTH1"       # version 1: no checksum, refused
 FORMAT = "glsim-compact-truth"
-VERSION = 1
+VERSION = 2
+DIGEST = 32                   # bytes of the SHA-256 after the magic
+PREFIX = len(MAGIC) + DIGEST + 8   # magic, digest, header length
+MAX_HEADER = 1 << 20          # bytes of JSON header at most (three cameras and a motion: a few kB)
 DTYPES = ("float64", "float32")
 ZSTD_LEVEL = 3
+LOCAL_BOUND = 2.0             # |ξ|, |η| at most: the element's domain [−1, 1] widened by 1, far beyond what
+#                               the renderer gives (float64 Newton: within 1e-6 of the domain; the fast mode
+#                               with one linear piece per curved side of a quadratic element: 2 % outside)
 
 
 class TruthFileError(GlsimError):
@@ -144,6 +157,12 @@ def encode_compact(el: np.ndarray, xs: np.ndarray, es: np.ndarray, header: dict,
     n = len(idx)
     if len(xs) != n or len(es) != n:
         raise ValueError(f"{len(xs)} ξ and {len(es)} η values for {n} covered pixels")
+    for name, v in (("ξ", xs), ("η", es)):
+        k = local_problem(v)
+        if k >= 0:    # (a file the reader would refuse is never written)
+            raise TruthFileError(f"the truth's {name} at pixel ({idx[k] % W}, {idx[k] // W}) of element {el.flat[idx[k]]} "
+                                 f"is {v[k]!r}, outside the element's local coordinates [−1, 1] widened to "
+                                 f"±{LOCAL_BOUND:g} — the element is degenerate or folded: check the mesh there")
     cz = _zstd().ZstdCompressor(level=ZSTD_LEVEL)
     if dtype == "float64":
         local = np.empty(2 * n, np.uint64)
@@ -154,15 +173,41 @@ def encode_compact(el: np.ndarray, xs: np.ndarray, es: np.ndarray, header: dict,
         local = np.empty(2 * n, np.float32)
         local[:n], local[n:] = xs, es
         codec = "float32+shuffle+zstd"
-    blobs = [("element", cz.compress(np.ascontiguousarray(el, np.int32))), ("local", cz.compress(_shuffle(local)))]
+    blobs = {"element": cz.compress(np.ascontiguousarray(el, np.int32)), "local": cz.compress(_shuffle(local))}
+    head = {"format": FORMAT, "version": VERSION, "size": [W, H], "covered": int(n), "dtype": dtype,
+            "codec": {"element": "int32+zstd", "local": codec}, **header}
+    return assemble(head, blobs)
+
+
+def assemble(header: dict, blobs: dict[str, bytes]) -> bytes:
+    """A truth file's bytes from its header (``blobs`` offsets added) and its blobs, in order."""
     offsets, pos = {}, 0
-    for name, b in blobs:
+    for name, b in blobs.items():
         offsets[name] = [pos, len(b)]
         pos += len(b)
-    head = {"format": FORMAT, "version": VERSION, "size": [W, H], "covered": int(n), "dtype": dtype,
-            "codec": {"element": "int32+zstd", "local": codec}, **header, "blobs": offsets}
-    text = json.dumps(head, sort_keys=True).encode()
-    return b"".join([MAGIC, struct.pack("<Q", len(text)), text] + [b for _, b in blobs])
+    text = json.dumps({**header, "blobs": offsets}, sort_keys=True).encode()
+    return container(text, b"".join(blobs.values()))
+
+
+def container(text: bytes, payload: bytes) -> bytes:
+    """MAGIC, the SHA-256 of what follows it, the header length, ``text`` (the header) and ``payload``."""
+    length = struct.pack("<Q", len(text))
+    digest = hashlib.sha256(length)
+    digest.update(text)
+    digest.update(payload)
+    return b"".join([MAGIC, digest.digest(), length, text, payload])
+
+
+def zstd_bound(n: int) -> int:
+    """The most bytes zstd compresses ``n`` bytes into (ZSTD_COMPRESSBOUND): a blob longer than
+    this for the size its header gives is refused before it is read."""
+    return n + (n >> 8) + (((128 << 10) - n) >> 11 if n < 128 << 10 else 0)
+
+
+def local_problem(values: np.ndarray) -> int:
+    """The index of the first of ``values`` (n,) that is not finite or exceeds ±LOCAL_BOUND; −1 if none."""
+    bad = ~(np.abs(values) <= LOCAL_BOUND)          # NaN compares False: bad
+    return int(np.argmax(bad)) if bad.any() else -1
 
 
 def image_header(camera: Camera, camera0: Camera, reference_camera: Camera, mode: str, step: int,
