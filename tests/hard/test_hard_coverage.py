@@ -15,43 +15,21 @@ import warnings
 
 import numpy as np
 import pytest
+from _shapes import (
+    BACKENDS,
+    custom,
+    grid_mesh,
+    outline_distance,
+    perturbed_grid,
+    plane_truth,
+    rotation,
+)
 
 from glsim.errors import RenderWarning
 from glsim.evaluation import bounds
 from glsim.render import Renderer
 from glsim.scene import Plate, Scene, Specimen
 from glsim.scene.camera import Camera
-from glsim.scene.mesh import Mesh
-
-BACKENDS = ["cpu", pytest.param("gl", marks=pytest.mark.gl)]
-
-
-def rotation(ax_deg, ay_deg, az_deg):
-    ax, ay, az = np.radians([ax_deg, ay_deg, az_deg])
-    Rx = np.array([[1, 0, 0], [0, np.cos(ax), -np.sin(ax)], [0, np.sin(ax), np.cos(ax)]])
-    Ry = np.array([[np.cos(ay), 0, np.sin(ay)], [0, 1, 0], [-np.sin(ay), 0, np.cos(ay)]])
-    Rz = np.array([[np.cos(az), -np.sin(az), 0], [np.sin(az), np.cos(az), 0], [0, 0, 1]])
-    return Rz @ Ry @ Rx
-
-
-def grid_mesh(xs, ys):
-    """Flat grid mesh (z = 0) on node columns xs and rows ys (mm), FE corner order CCW from +z."""
-    x, y = np.meshgrid(xs, ys)
-    nodes = np.column_stack([x.ravel(), y.ravel(), np.zeros(x.size)])
-    idx = np.arange(x.size).reshape(x.shape)
-    quads = np.stack([idx[:-1, :-1], idx[:-1, 1:], idx[1:, 1:], idx[1:, :-1]], -1).reshape(-1, 4)
-    return nodes, quads
-
-
-def custom(nodes, quads, cam, steps=()):
-    """A scene with camera ``cam`` and the given mesh (world frame, mm); ``steps``: deformed
-    node arrays of load steps 1, 2, …"""
-    scene = Scene(cameras=(cam,), specimen=Specimen(plate=Plate(width=1, height=1, nx=1, ny=1)))
-    disp = (np.zeros_like(nodes), *(np.asarray(s, float) - nodes for s in steps)) if steps else ()
-    mesh = Mesh(nodes=nodes, quads=np.asarray(quads), node_labels=np.arange(1, len(nodes) + 1),
-                element_labels=np.arange(1, len(quads) + 1), displacements=disp)
-    return scene, mesh
-
 
 # --------------------------------------------------------------------------------------------
 # 1. Rigid sub-pixel shifts of a pixel-aligned plate: coverage and ownership in closed form
@@ -176,34 +154,6 @@ def tilted(nodes, R=rotation(25, 35, 20), t=(0.2, -0.1, 400.0)):
     return nodes @ R.T + np.asarray(t)
 
 
-def outline_distance(corners_world, cam):
-    """Signed distance (px) of every pixel centre to the pinhole projection of a flat convex
-    outline (corners CCW from +z), positive inside: the closed-form coverage."""
-    X = corners_world
-    uv = np.column_stack([cam.fx * X[:, 0] / X[:, 2] + cam.cx, cam.fy * X[:, 1] / X[:, 2] + cam.cy])
-    W, H = cam.size
-    q = np.stack(np.meshgrid(np.arange(W, dtype=float), np.arange(H, dtype=float)), -1)
-    cross = lambda a, b: a[..., 0] * b[..., 1] - a[..., 1] * b[..., 0]  # noqa: E731
-    area = sum(cross(uv[k], uv[(k + 1) % 4]) for k in range(4))
-    d = np.full((H, W), np.inf)
-    for k in range(4):
-        a, b = uv[k], uv[(k + 1) % 4]
-        e = b - a
-        d = np.minimum(d, np.sign(area) * cross(e, q - a) / np.linalg.norm(e))
-    return d
-
-
-def perturbed_grid(nx, ny, w, h, amount, seed):
-    """nx × ny grid over w × h mm, interior nodes moved in-plane by up to ``amount`` elements."""
-    nodes, quads = grid_mesh(np.linspace(-w / 2, w / 2, nx + 1), np.linspace(-h / 2, h / 2, ny + 1))
-    rng = np.random.default_rng(seed)
-    x, y = nodes[:, 0], nodes[:, 1]
-    interior = (np.abs(x) < w / 2 - 1e-9) & (np.abs(y) < h / 2 - 1e-9)
-    step = np.array([w / nx, h / ny])
-    nodes[interior, :2] += rng.uniform(-amount, amount, (interior.sum(), 2)) * step
-    return nodes, quads
-
-
 def sliver_grid(w, h):
     """1 mm elements with sliver columns and rows of 1e-4 … 1e-9 mm (≈ 4e-4 … 4e-9 px) between."""
     def axis(n, L):
@@ -262,17 +212,6 @@ def test_subpixel_mesh_gl_coverage_equals_oracle(mode, gl_ctx):
 
 # --------------------------------------------------------------------------------------------
 # 3. Truth in float64 from GL, and truth that describes the image in fast mode
-
-def plane_truth(cam, R, t, shift, H, W):
-    """Closed form for a flat plate (plane z = 0 of the pose R, t) moved rigidly by ``shift``:
-    each pixel's ray meets the moved plane at X_deformed; X_undeformed = X_deformed − shift."""
-    n = R[:, 2]
-    c = n @ (np.asarray(t) + shift)
-    q = np.stack(np.meshgrid(np.arange(W, dtype=float), np.arange(H, dtype=float)), -1)
-    d = np.concatenate([(q[..., :1] - cam.cx) / cam.fx, (q[..., 1:] - cam.cy) / cam.fy,
-                        np.ones((H, W, 1))], -1)
-    Xd = d * (c / (d @ n))[..., None]
-    return Xd - shift, Xd
 
 
 @pytest.mark.gl

@@ -14,11 +14,21 @@ is checked.
 """
 import numpy as np
 import pytest
+from _shapes import (
+    BACKENDS,
+    band_px,
+    custom,
+    finite_where_covered,
+    outline_distance,
+    perturbed_grid,
+    rays,
+    render,
+    rotation,
+    x_err_ok,
+)
 from hypothesis import HealthCheck, Phase, given, settings
 from hypothesis import strategies as st
 
-from test_hard_coverage import BACKENDS, custom, outline_distance, perturbed_grid, rotation  # noqa: F401
-from test_hard_geometry import band_px, finite_where_covered, render, rays, x_err_ok
 from glsim.scene.camera import Camera
 
 # no shrinking: a failure reports its drawn case at once (shrinking took 5 min on the 2-core VM)

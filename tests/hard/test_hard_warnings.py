@@ -4,12 +4,11 @@ import warnings
 
 import numpy as np
 import pytest
+from _shapes import custom, grid_mesh
 
 from glsim.errors import RenderWarning
 from glsim.render import Renderer
 from glsim.scene.camera import Camera
-
-from test_hard_coverage import custom, grid_mesh
 
 CAM = Camera(name="c", size=(96, 72), fx=1500.0, fy=1500.0, cx=47.5, cy=35.5)
 
