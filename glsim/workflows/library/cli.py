@@ -166,6 +166,8 @@ def main(argv: list[str] | None = None) -> int:
     args = parser().parse_args(argv)
     src = Path(args.source)
     try:
+        if args.workers is not None and args.workers < 1:    # (refused before anything is read or written)
+            raise GlsimError(f"--workers {args.workers}: must be ≥ 1 — give the number of worker processes")
         if src.is_dir():
             if args.dry_run or args.output:
                 raise GlsimError(f"{src} is a library directory: --dry-run and -o take a spec file — give the "

@@ -38,6 +38,7 @@ import io as _io
 import json
 from pathlib import Path
 
+from glsim.errors import GlsimError
 from glsim.io import images as io
 from glsim.limits import parse_nested
 
@@ -73,24 +74,59 @@ def write_manifest(out: Path, plan, records: dict) -> Path:
     return io.write_text(out / MANIFEST, manifest_text(plan, records))
 
 
-def read_manifest(out: Path) -> dict:
-    """(variant, camera, step) → record, from ``manifest.csv`` (empty if there is none)."""
+class ManifestError(GlsimError):
+    """``manifest.csv`` cannot be read as text rows (the message names the file, where, and the fix)."""
+
+
+def manifest_rows(out: Path) -> list[dict]:
+    """The rows of ``manifest.csv`` as the CSV holds them (column → text; empty if there is no
+    manifest), each with ``_line``, its (last) line number (the header is line 1). ManifestError for a
+    file that is not UTF-8 text or not CSV (a field over the csv module's 128 KiB limit)."""
     path = Path(out) / MANIFEST
     if not path.is_file():
-        return {}
+        return []
+    fix = ("the manifest is damaged: restore it, or delete it and run the library command again (its images "
+           "are then rendered again)")
+    try:
+        text = path.read_bytes().decode("utf-8")
+    except UnicodeDecodeError as exc:
+        raise ManifestError(f"{path}: is not UTF-8 text (byte 0x{exc.object[exc.start]:02x} at offset {exc.start}) "
+                            f"— {fix}") from None
+    except OSError as exc:
+        raise ManifestError(f"{path}: cannot be read ({exc.strerror or exc})") from None
+    reader = csv.DictReader(_io.StringIO(text, newline=""))
+    rows = []
+    try:
+        for row in reader:
+            rows.append({**row, "_line": reader.line_num})
+    except csv.Error as exc:
+        raise ManifestError(f"{path}: line {reader.line_num} is not CSV ({exc}) — {fix}") from None
+    return rows
+
+
+def record(row: dict) -> dict:
+    """A manifest row as a record: step and sizes as int, the time columns as float (NaN if
+    empty). ValueError, KeyError or TypeError for a row that does not read so."""
+    rec = {k: v for k, v in row.items() if k != "_line"}
+    rec["step"] = int(rec["step"])
+    rec["bytes"] = int(rec["bytes"])
+    rec["truth_bytes"] = int(rec["truth_bytes"] or 0)
+    for c in TIME_COLUMNS:
+        rec[c] = float(rec[c]) if rec.get(c) not in (None, "") else float("nan")
+    return rec
+
+
+def read_manifest(out: Path) -> dict:
+    """(variant, camera, step) → record, from ``manifest.csv`` (empty if there is none; rows
+    that do not read are left out: their images are rendered again). ManifestError as
+    :func:`manifest_rows`."""
     records = {}
-    with open(path, newline="", encoding="utf-8") as f:
-        for row in csv.DictReader(f):
-            try:
-                rec = dict(row)
-                rec["step"] = int(rec["step"])
-                rec["bytes"] = int(rec["bytes"])
-                rec["truth_bytes"] = int(rec["truth_bytes"] or 0)
-                for c in TIME_COLUMNS:
-                    rec[c] = float(rec[c]) if rec.get(c) not in (None, "") else float("nan")
-            except (KeyError, ValueError, TypeError):
-                continue
-            records[(rec["variant"], rec["camera"], rec["step"])] = rec
+    for row in manifest_rows(out):
+        try:
+            rec = record(row)
+        except (KeyError, ValueError, TypeError):
+            continue
+        records[(rec["variant"], rec["camera"], rec["step"])] = rec
     return records
 
 
@@ -125,7 +161,9 @@ class _Params:
 
 
 def write_library_info(out: Path, info: dict) -> Path:
-    return io.write_text(out / LIBRARY, json.dumps(info, indent=1, sort_keys=True) + "\n")
+    """``library.json``, its tables in the order given: the spec's [vary] keys keep their order,
+    which the variants' expansion (and so the fingerprint a resume compares) follows."""
+    return io.write_text(out / LIBRARY, json.dumps(info, indent=1) + "\n")
 
 
 def read_library_info(out: Path) -> dict | None:

@@ -105,6 +105,10 @@ def _first_difference(old: dict, plan: Plan) -> str:
     for a, b in zip(ov, nv):
         if a != b:
             return f"variant {b['id']} has {json.dumps(a.get('params'))} there, {json.dumps(b['params'])} now"
+    oj, nj = old.get("jobs", []), new["jobs"]
+    if oj != nj and [j[:4] for j in oj] == [j[:4] for j in nj]:
+        return ("its truth files are of another compact-truth format (written by another glsim version; "
+                "--force re-renders them with this one)")
     return "the base scene differs"
 
 
@@ -496,8 +500,11 @@ def run(plan: Plan, out: str | Path, workers: int | None = None, scheduler: str 
     from glsim.backends.gl.plan import environment_stage
 
     out = Path(out)
+    if workers is not None and workers < 1:
+        raise LibraryError(f"--workers {workers}: must be ≥ 1 — give the number of worker processes")
     outdir.inside(out, [rel for job in plan.jobs for rel in (job.image, job.truth) if rel], "output.pattern")
     environment_stage()   # (this process's: a worker elsewhere refuses its own bad value per image)
+    check_references(plan)
     client = connect(scheduler) if scheduler else None
     try:
         with _interrupt_once(), outdir.locked(out):
@@ -505,6 +512,24 @@ def run(plan: Plan, out: str | Path, workers: int | None = None, scheduler: str 
     finally:
         if client is not None:
             client.close()
+
+
+def check_references(plan: Plan) -> None:
+    """Read every distinct reference image file of the plan's variants (``speckle.image``) as a
+    render would, so that a missing, damaged or oversized one is refused before the library's
+    directory is made (SceneError naming the variant and the key)."""
+    from glsim.scene.speckle import load_reference
+
+    seen = set()
+    for v in plan.variants:
+        image = v.scene.speckle.image
+        if not image or str(v.scene.resolve(image)) in seen:
+            continue
+        seen.add(str(v.scene.resolve(image)))
+        try:
+            load_reference(v.scene.resolve(image))
+        except GlsimError as exc:
+            raise LibraryError(f"variant {v.id}: {exc}") from None
 
 
 @contextlib.contextmanager
@@ -538,12 +563,12 @@ def _run(plan: Plan, out: Path, workers, client, force: bool, progress: bool, fl
     t0 = time.perf_counter()
     fingerprint = plan.fingerprint()
     resume = _prepare_directory(out, plan, fingerprint, force)
+    rows = mf.read_manifest(out) if resume else {}       # (a damaged one is refused before anything is written)
     _check_writable(out)
     sweep_temporaries(out)
     geometry = _write_setup(out, plan, fingerprint)
     records, truths, todo = {}, {}, list(plan.jobs)
     if resume:
-        rows = mf.read_manifest(out)
         records, problems, truths = check_records(out, plan, rows)
         todo = [job for job, what in problems if what != TRUTH_BAD]
         pending = {job.truth for job in todo}
@@ -556,8 +581,6 @@ def _run(plan: Plan, out: Path, workers, client, force: bool, progress: bool, fl
                 todo.append(job)
                 pending.add(job.truth)
     workers = default_workers() if workers is None else workers
-    if workers < 1:
-        raise LibraryError(f"--workers {workers}: must be ≥ 1 — give the number of worker processes")
     summary = Summary(out=str(out), total=len(plan.jobs), kept=len(records),
                       workers=min(workers, max(1, len(todo))), engine="dask" if client else "local")
     tasks = _tasks(out, plan, todo, geometry, truths)
@@ -606,35 +629,116 @@ def _run(plan: Plan, out: Path, workers, client, force: bool, progress: bool, fl
 # ---- verify --------------------------------------------------------------------------------------------
 
 def verify(out: str | Path) -> tuple[int, list[str]]:
-    """Check every image and truth file of the library in ``out`` against its manifest row
-    (and the geometry files against the truth headers' SHA-256). Returns (good, problems)."""
+    """Check the library in ``out``: ``library.json`` and every variant's ``scene.json`` against
+    the expansion of the spec it stores, the manifest's rows (one per image, its value columns
+    the expansion's), every image and truth file against its manifest row, and the geometry
+    files against the truth headers' SHA-256. Returns (good images, problems)."""
     out = Path(out)
     info = mf.read_library_info(out)
     if info is None:
         raise LibraryError(f"{out}: holds no library (no library.json, or a damaged one) — give a directory that "
                            "`glsim library SPEC -o DIR` wrote")
-    plan = mf.StoredPlan(info)
-    good, problems, _ = check_records(out, plan, mf.read_manifest(out))
-    lines = [f"{job.image}: {what}" for job, what in problems]
+    stored = mf.StoredPlan(info)
+    lines = _spec_problems(out, info)
+    try:
+        rows = mf.manifest_rows(out)
+    except mf.ManifestError as exc:
+        lines.append(str(exc))
+        rows = []
+    lines += _manifest_problems(out, stored, rows)
+    records = {}
+    for row in rows:
+        with contextlib.suppress(KeyError, ValueError, TypeError):    # (named by _manifest_problems)
+            rec = mf.record(row)
+            records.setdefault((rec["variant"], rec["camera"], rec["step"]), rec)
+    good, problems, _ = check_records(out, stored, records)
+    lines += [f"{job.image}: {what}" for job, what in problems]
     seen = set()
     for rec in good.values():
         if not rec.get("truth_file") or rec["truth_file"] in seen:
             continue
         seen.add(rec["truth_file"])
+        path = out / rec["truth_file"]
         try:
-            t = truthio.read(out / rec["truth_file"])
+            t = truthio.read(path)
             t.xi          # decoded: the element map and (ξ, η), not only the header
+            geo = truthio.geometry_path(path, t.header["geometry"])
         except GlsimError as exc:
             lines.append(str(exc))
             continue
-        geo = ((out / rec["truth_file"]).parent / t.header["geometry"]).resolve()
-        if not geo.is_relative_to(out.resolve()):
-            lines.append(f"{out / rec['truth_file']}: its header names the geometry file {t.header['geometry']!r}, "
-                         "outside the library (not followed)")
+        if geo.resolve() in seen:
             continue
-        if geo in seen:
-            continue
-        seen.add(geo)
+        seen.add(geo.resolve())
         if not geo.is_file() or sha256_file(geo) != t.header["geometry_sha256"]:
             lines.append(f"{geo}: geometry file missing or fails its SHA-256")
     return len(good), lines
+
+
+def _spec_problems(out: Path, info: dict) -> list[str]:
+    """What in ``library.json`` and the variants' ``scene.json`` files is not the expansion of
+    the spec library.json stores (a resume would refuse the directory, or write them again)."""
+    from glsim.workflows.library.spec import expand
+
+    where = out / mf.LIBRARY
+    try:
+        plan = expand(info["spec"], info["base_dir"])
+    except (GlsimError, OSError, ValueError) as exc:
+        return [f"{where}: its spec does not expand here ({exc}) — a resume would fail the same way; the files "
+                "were checked against library.json's own list only"]
+    fingerprint = plan.fingerprint()
+    if fingerprint != info.get("fingerprint"):
+        return [f"{where}: its spec expands to another library than the one it records "
+                f"({_first_difference(info, plan)}) — a resume refuses the directory: restore library.json, or "
+                "render the library again with --force"]
+    expected = json.loads(json.dumps(mf.library_info(plan, fingerprint)))
+    lines = [f"{where}: its {key} is not the spec's expansion — restore library.json, or run the library command "
+             "on the directory (it writes library.json again)"
+             for key in sorted(set(expected) | set(info)) if info.get(key) != expected.get(key)][:1]
+    for v in plan.variants:
+        path = out / v.id / "scene.json"
+        try:
+            same = path.read_bytes() == v.scene.to_json().encode()
+        except OSError as exc:
+            lines.append(f"{path}: cannot be read ({exc.strerror or exc}) — run the library command on the "
+                         "directory to write it again")
+            continue
+        if not same:
+            lines.append(f"{path}: is not the scene the spec gives variant {v.id} (edited?) — run the library "
+                         "command on the directory to write it again")
+    return lines
+
+
+def _manifest_problems(out: Path, plan, rows: list[dict]) -> list[str]:
+    """The manifest's columns against the library's, and each row: readable, an image of the
+    library, named once, its value columns the variant's parameters (as library.json, which
+    :func:`_spec_problems` checks against the spec)."""
+    path = out / mf.MANIFEST
+    lines = []
+    columns = mf.columns(plan.keys)
+    if rows and [c for c in rows[0] if c != "_line"] != columns:
+        lines.append(f"{path}: its columns are {', '.join(c for c in rows[0] if c != '_line')}, not the library's "
+                     f"{', '.join(columns)} — restore it, or delete it and run the library command again")
+    images = {(j.variant, j.camera, str(j.step)) for j in plan.jobs}
+    first: dict[tuple, int] = {}
+    for row in rows:
+        line, key = row["_line"], (row.get("variant"), row.get("camera"), row.get("step"))
+        if key not in images:
+            lines.append(f"{path}: line {line} ({', '.join(map(str, key))}) is not an image of the library")
+            continue
+        if key in first:
+            lines.append(f"{path}: line {line} repeats the row of {key[0]} {key[1]} step {key[2]} (line {first[key]})")
+            continue
+        first[key] = line
+        params = plan.variant(key[0]).params
+        for k in plan.keys:
+            if row.get(k) != json.dumps(params[k]):
+                lines.append(f"{path}: line {line} gives {k} = {row.get(k)} for {key[0]}, whose value is "
+                             f"{json.dumps(params[k])} — restore the manifest, or delete it and run the library "
+                             "command again")
+                break
+        else:
+            try:
+                mf.record(row)
+            except (KeyError, ValueError, TypeError) as exc:
+                lines.append(f"{path}: line {line} cannot be read ({type(exc).__name__}: {exc})")
+    return lines
