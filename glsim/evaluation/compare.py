@@ -5,8 +5,11 @@ RESULT is a CSV (fields separated by ``,``, ``;``, tabs or spaces, as the header
 reference image) and ``X, Y, Z`` (measured positions at the load step, mm, camera 0's frame)
 and/or ``U, V, W`` (measured displacements from the reference state, mm); an optional ``valid``
 column (0/1). The ``measured_*.npz`` that ``glsim verify`` keeps from pyvale is read too
-(``ss_x``, ``ss_y``, ``X``/``U`` per state, ``valid``). DIR is what ``glsim render`` or a library
-variant wrote: its ``scene.json`` gives the mesh, the displacements and camera 0.
+(``ss_x``, ``ss_y``, ``X``/``U`` per state, ``valid``; its arrays' sizes are checked against their
+headers and the memory before they are read). Every u, v must be a finite number, and so must
+every measured value of a valid point (mark a point invalid rather than write NaN into a valid
+one). DIR is what ``glsim render`` or a library variant wrote: its ``scene.json`` gives the
+mesh, the displacements and camera 0.
 
 The truth at each subset centre is exact: camera 0's ray through (u, v) met with the undeformed
 mesh, that material point moved with the FE displacement of the step
@@ -24,6 +27,7 @@ import numpy as np
 
 from glsim.errors import GlsimError
 from glsim.io import images as io
+from glsim.io.npzfile import NpzError, read_npz
 from glsim.io.truth import mesh_geometry, points_truth
 from glsim.scene import load_scene
 from glsim.io.fe import specimen_mesh
@@ -39,17 +43,7 @@ def read_result(path: str | Path, state: int = -1) -> dict[str, np.ndarray]:
         raise GlsimError(f"{path}: DIC result not found; give a CSV (u, v, X, Y, Z and/or U, V, W) or a "
                          "measured_*.npz from glsim verify")
     if path.suffix == ".npz":
-        with np.load(path) as z:
-            missing = [k for k in ("ss_x", "ss_y", "valid") if k not in z]
-            if missing:
-                raise GlsimError(f"{path}: has no {', '.join(missing)}; give a measured_*.npz written by "
-                                 "verify/dic.py, or a CSV")
-            out = {"uv": np.stack([z["ss_x"], z["ss_y"]], axis=1).astype(np.float64),
-                   "valid": np.asarray(z["valid"])[state].astype(bool)}
-            for key in ("X", "U"):
-                if key in z:
-                    out[key] = np.asarray(z[key][state], np.float64)
-        return out
+        return _finite(_read_npz(path, state), path, lambda i: f"point {i}")
     rows, sep = _read_rows(path)
     if not rows:
         raise GlsimError(f"{path}: empty; give a header row u, v, X, Y, Z and/or U, V, W")
@@ -74,18 +68,66 @@ def read_result(path: str | Path, state: int = -1) -> dict[str, np.ndarray]:
     for key, names in COMPONENTS.items():
         if set(names) <= set(col):
             out[key] = data[:, [col[n] for n in names]]
+    return _finite(out, path, lambda i: f"data row {i + 1}")
+
+
+def _finite(result: dict, path: Path, where) -> dict:
+    """``result``, refused (GlsimError naming ``where(i)`` of the first point and the column) if a
+    u, v or a valid point's measured value is not a finite number."""
+    checks = [("u, v", result["uv"], np.ones(len(result["uv"]), bool))]
+    checks += [("/".join(COMPONENTS[k]), result[k], result["valid"]) for k in COMPONENTS if k in result]
+    for name, values, rows in checks:
+        bad = rows & ~np.isfinite(values).all(axis=1)
+        if bad.any():
+            i = int(np.argmax(bad))
+            raise GlsimError(f"{path}: {where(i)} has {name} = {', '.join(f'{v:g}' for v in values[i])}, not finite "
+                             "numbers — give finite values, or mark the point invalid (valid = 0; u, v stay finite)")
+    return result
+
+
+NPZ_ARRAYS = ("ss_x", "ss_y", "valid")
+
+
+def _read_npz(path: Path, state: int) -> dict[str, np.ndarray]:
+    """:func:`read_result` of verify's ``measured_*.npz``: ``ss_x``, ``ss_y`` (n,), ``valid`` (S, n)
+    and ``X``/``U`` (S, n, 3), their sizes checked before they are read."""
+    def problem(members: dict) -> str:
+        n = members["ss_x"].shape if len(members["ss_x"].shape) == 1 else (-1,)
+        want = {"ss_x": n, "ss_y": n, "valid": (members["valid"].shape[:1] or (0,)) + n}
+        want.update({k: want["valid"] + (3,) for k in ("X", "U") if k in members})
+        bad = next((k for k in want if members[k].shape != want[k] or members[k].dtype.kind not in "biuf"), None)
+        return f"{bad} is {members[bad].dtype} {members[bad].shape}, not numbers of shape {want[bad]}" if bad else ""
+
+    try:
+        z = read_npz(path, NPZ_ARRAYS, COMPONENTS, check=problem)
+    except NpzError as exc:
+        raise GlsimError(f"{exc}; give a measured_*.npz written by verify/dic.py, or a CSV") from None
+    states = len(z["valid"])
+    if not -states <= state < states:
+        raise GlsimError(f"{path}: has {states} states; state {state} is not one of them")
+    out = {"uv": np.stack([z["ss_x"], z["ss_y"]], axis=1).astype(np.float64), "valid": z["valid"][state].astype(bool)}
+    out.update({key: np.asarray(z[key][state], np.float64) for key in COMPONENTS if key in z})
     return out
 
 
 def _read_rows(path: Path) -> tuple[list[list[str]], str | None]:
     """The non-blank rows of a CSV and its separator, the first of ``;``, tab, ``,`` in the header
-    row (None: whitespace)."""
-    with open(path, newline="", encoding="utf-8-sig") as f:
-        lines = [line for line in f.read().splitlines() if line.strip()]
+    row (None: whitespace). GlsimError for a file that is not UTF-8 text or not CSV."""
+    try:
+        text = path.read_bytes().decode("utf-8-sig")
+    except UnicodeDecodeError as exc:
+        raise GlsimError(f"{path}: is not UTF-8 text (byte 0x{exc.object[exc.start]:02x} at offset {exc.start}) — "
+                         "save the DIC result as UTF-8 (or ASCII) CSV") from None
+    lines = [line for line in text.splitlines() if line.strip()]
     sep = next((s for s in (";", "\t", ",") if lines and s in lines[0]), None)
     if sep is None:
         return [line.split() for line in lines], None
-    return [r for r in csv.reader(lines, delimiter=sep)], sep
+    reader = csv.reader(lines, delimiter=sep)
+    try:
+        return list(reader), sep
+    except csv.Error as exc:
+        raise GlsimError(f"{path}: line {reader.line_num} of its non-blank lines is not CSV ({exc}) — give one "
+                         "number per field") from None
 
 
 def truth_at(truth_dir: str | Path, uv: np.ndarray, step: int):
@@ -155,13 +197,22 @@ def plot_map(result: dict, truth, path: Path) -> Path:
 
 
 def run(result_path: str | Path, truth_dir: str | Path, step: int, out: str | Path | None) -> dict:
-    """Read, compare, write ``compare.json``, ``compare.md`` and ``compare.png`` to ``out``."""
+    """Read, compare, write ``compare.json``, ``compare.md`` and ``compare.png`` to ``out`` (a
+    directory; checked before anything is read)."""
+    out = Path(out) if out else Path(result_path).parent / "compare"
+    if out.exists() and not out.is_dir():
+        raise GlsimError(f"-o {out}: is a file, not a directory — give a directory for compare.json, compare.md "
+                         "and compare.png")
     result = read_result(result_path)
     truth, cam = truth_at(truth_dir, result["uv"], step)
     res = compare(result, truth, cam)
-    out = Path(out) if out else Path(result_path).parent / "compare"
     text = markdown(res, str(result_path), str(truth_dir))
-    io.write_text(out / "compare.json", json.dumps(res, indent=2) + "\n")
-    io.write_text(out / "compare.md", text)
-    plot_map(result, truth, out / "compare.png")
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+        io.write_text(out / "compare.json", json.dumps(res, indent=2) + "\n")
+        io.write_text(out / "compare.md", text)
+        plot_map(result, truth, out / "compare.png")
+    except OSError as exc:
+        raise GlsimError(f"-o {out}: cannot be written ({exc.strerror or exc}) — give a writable directory"
+                         + (" with free space" if exc.errno == 28 else "")) from None
     return {**res, "markdown": text, "out": str(out)}
