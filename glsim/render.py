@@ -114,9 +114,8 @@ class Renderer:
         self.backend = make_backend(self.backend_name, self.reference, ctx)
         self._geometry: MeshGeometry | None = None
         self._closed = False
-        self._seen: dict[tuple, tuple] = {}   # (id(camera), step) → (camera, seen) (Renderer._specimen)
+        self._seen: dict[tuple, bool] = {}    # (camera, step) → whether it sees the specimen (_specimen)
         self._jobs: dict[tuple, tuple] = {}   # (camera, truth, options) → (scene, Render, Camera, index) (_job_setup)
-        self._equal: dict[tuple, object] = {}  # (Render or Camera, its repr) → the first such object (_first_equal)
         self._ref_coeffs: dict[str, np.ndarray] = {}   # float64 interpolant coefficients (the Jacobian's gradient)
         if limit := self.backend.capabilities.max_size:   # the reference image is one texture
             H, W = self.reference.image.shape
@@ -510,11 +509,10 @@ class Renderer:
         hit = self._jobs.get(key) if key is not None else None
         if hit is not None and hit[0] is self.scene:
             return hit[1:]
-        opts = self._first_equal(self._options(options))
+        opts = self._options(options)
         self.check_size(camera, truth, opts)
         cam = self.scene.camera(camera)
         index = self.scene.cameras.index(cam)
-        cam = self._first_equal(cam)
         if key is not None:
             keep(self._jobs, key, (self.scene, opts, cam, index), SEEN_KEPT)
         return opts, cam, index
@@ -540,15 +538,6 @@ class Renderer:
                              "a renderer cuts its quadratic mesh once", "give pieces in the scene's [render] table "
                              "(a Renderer of scene.replace(render={'pieces': n}))")
         return opts
-
-    def _first_equal(self, value):
-        """The first object met equal to ``value`` to the bit (the same repr: 0.0 is not −0.0),
-        so that what is kept per camera or options object (a camera's views, their uniforms and
-        replayed passes) carries over a new scene that leaves them as they were (a library's
-        next variant); the last SEEN_KEPT kept."""
-        key = (value, repr(value))
-        hit = self._equal.get(key)
-        return hit if hit is not None else keep(self._equal, key, value, SEEN_KEPT)
 
     def _submit(self, camera, step: int, truth: bool, quantize: bool, options: dict, polish: bool = True) -> "_Submitted":
         t0 = time.perf_counter()
@@ -585,11 +574,11 @@ class Renderer:
         makes its pixel mask on demand. ``step``: a view of this camera object found seen at
         that step is not looked at again (an unseen one warns each time); ``box``: the nodes'
         extent, if known."""
-        key = (id(cam), step)   # (the entry holds the camera: the id stays its own)
-        if step is None or not self._seen.get(key, (None, False))[1]:
+        key = (cam, step)
+        if step is None or not self._seen.get(key, False):
             seen = warn_unseen(cam, deformed, quads, stacklevel=6, box=box)
             if step is not None:
-                keep(self._seen, key, (cam, seen), SEEN_KEPT)
+                keep(self._seen, key, seen, SEEN_KEPT)
         return lambda: coverage(cam, deformed, quads)
 
     def _fast_to_patches(self, raster: dict) -> dict:

@@ -120,9 +120,7 @@ def test_bench_throughput_quick(tmp_path):
     other = {"fragment": "compute", "compute": "fragment"}[report["stage"]]   # (llvmpipe: fragment; a GPU: compute)
     assert {r["other_stage"] for r in rows} == {other} and all(r["other_pairs_per_s"] > 0 for r in rows)
     assert all(r["pipelined_pairs_per_s"] > 0 and r["single_pairs_per_s"] > 0 and r["passes"] for r in rows)
-    assert all(r["fresh_host_ms"] > 0 for r in rows) and report["counting"]["reps"] >= 1   # (timings: not tested)
-    # (counts, not timings) the same views again replay their passes: less Python than a new step's
-    assert all(0 < r["host_opcodes"] < r["fresh_host_opcodes"] for r in rows)
+    assert all(r["fresh_host_ms"] > 0 for r in rows)   # (timings: not tested)
     text = (tmp_path / "throughput.md").read_text()
     assert text.startswith("# glsim throughput benchmark") and report["machine"]["gl"]["renderer"] in text
 

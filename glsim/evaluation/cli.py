@@ -288,8 +288,8 @@ def bench_main(argv: list[str]) -> int:
                                     else (tp.SPPS, args.reps, args.pairs, tp.ELEMENTS))
             full = size == tp.FULL_SIZE and not quick and reps >= tp.REPS and pairs >= tp.PAIRS
             out = results_dir(args.out, full, "throughput")
-            print(tp.write(tp.throughput(size, reps, pairs, spps, n, log=lambda m: print(m, file=sys.stderr, flush=True),
-                                         counting_reps=1 if quick else tp.COUNTING_REPS), out))
+            print(tp.write(tp.throughput(size, reps, pairs, spps, n, log=lambda m: print(m, file=sys.stderr, flush=True)),
+                           out))
             return 0
         if args.command == "effects" and args.only:
             old = out / "effects.json"

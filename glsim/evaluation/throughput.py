@@ -7,35 +7,18 @@ exact at 1, 4 and 16 samples per pixel, each image quantised to uint8 on the GPU
 (``quantize=True``), in two ways: one render at a time (``Renderer.render``), and pipelined
 (``Renderer.render_many``, depth 2: the next image's passes are queued before this one's
 read-back is mapped). Each repetition renders PAIRS stereo pairs each way for every row in turn
-(interleaved), after two warm-up pairs; per row the median over repetitions. These pairs are the
-same views again, so their deformation passes are replayed (:mod:`glsim.backends.gl.replay`: the
-first warm-up pair makes what they need, the second records them); the new-step pairs replay
-their camera's record with their own step's buffers and view's uniforms.
+(interleaved), after two warm-up pairs; per row the median over repetitions.
 
 - **pairs/s**: stereo pairs (cameras 0 and 1) delivered to numpy per wall second.
 - **host ms / image**: one at a time, pipelined, and pipelined with each pair a load step not
   rendered before (the plate moved by STEP_MM: what a library over a time series does; the
   step's geometry, shape checks and uploads are made then; on a second renderer on the same
   context, so that the first keeps step 0's views cached, after two such pairs of warm-up).
-  The rendering thread's CPU time outside moderngl calls (and so outside the driver: submissions, waits, on llvmpipe the
-  shaders themselves), less what counting them costs
-  (:func:`glsim.backends.gl.timing.driver_time`) — the Python and numpy work per image. The
-  JSON also keeps the wall time outside the driver (``*_host_wall_ms``): on llvmpipe it adds
-  the waits for a core that the driver's render threads hold. Counting reads the thread's CPU
-  clock (a system call) twice per moderngl call; the host figures take off what it adds outside
-  the counted spans as measured on a no-op. **counting**: what it costs per GL call in all,
-  in place — the CPU time of a pipelined exact stream on the plate at COUNTING_SIZE counted
-  less uncounted, over COUNTING_REPS interleaved repetitions (a small plate, so that the
-  driver's own time varies less than the difference; at full size the thread's CPU time per
-  image varies by more than the counting costs) — beside the same on the no-op. Where it
-  costs more in place, the host figures likely hold some of the excess: read them as upper
-  bounds.
-- **GL calls / image**: moderngl calls per image (pipelined; calls made inside another count
-  once) — the driver work the host issues, independent of the machine's speed.
-- **host opcodes / image**: Python bytecode instructions executed per image outside moderngl
-  (:func:`glsim.backends.gl.timing.host_opcodes`; one pair, pipelined, after the repetitions;
-  and one pair of new steps): the host work of the host ms column as a count that a loaded or
-  slower machine does not change.
+  The rendering thread's CPU time outside its waits for the GPU's read-backs
+  (:func:`glsim.backends.gl.timing.driver_time`) — the Python and numpy work per image and the
+  driver's command setup. The JSON also keeps the wall time outside those waits
+  (``*_host_wall_ms``): on llvmpipe it adds the waits for a core that the driver's render
+  threads hold.
 - **other pixel stage**: pairs/s pipelined with the pixel stage the driver does not get by
   default (:mod:`glsim.backends.gl.plan`: exact and q4's samples as fragment passes on depth
   layers or compute passes over pixel lists, the box filter and quantisation as fragment or
@@ -76,9 +59,6 @@ GOALS = {("exact", 1): 300, ("exact", 4): 150, ("fast", 1): 1000}
 GOAL_HOST_MS = 1.0
 GOAL_RILEY_EXACT_4 = 10.0     # riley-raster on all cores at least this many times slower (exact, 4 spp)
 STEP_MM = 0.001               # the plate's translation per load step (new-step pairs)
-COUNTING_SIZE = (96, 72)      # the counting-cost measurement: plate size (px), elements, repetitions
-COUNTING_ELEMENTS = 200
-COUNTING_REPS = 15
 
 
 def _scene(size: tuple[int, int], elements: int, steps: int = 0):
@@ -121,10 +101,10 @@ def _riley(size: tuple[int, int], spp: int, elements: int):
 
 
 def throughput(size=FULL_SIZE, reps: int = REPS, pairs: int = PAIRS, spps=SPPS, elements: int = ELEMENTS,
-               log=print, counting_reps: int = COUNTING_REPS) -> dict:
+               log=print) -> dict:
     """Measure every row (see the module text); returns the report."""
     from glsim.backends.gl.plan import PIXEL_STAGES
-    from glsim.backends.gl.timing import driver_time, host_opcodes
+    from glsim.backends.gl.timing import driver_time
     from glsim.evaluation.report import gl_info, machine_info
     from glsim.render import Renderer
 
@@ -143,14 +123,14 @@ def throughput(size=FULL_SIZE, reps: int = REPS, pairs: int = PAIRS, spps=SPPS, 
                 jobs = _jobs(pairs, mode, spp)
                 riley, riley_name = _riley(tuple(size), spp, elements)
                 ways = ("single", "pipelined", "fresh", "other")
-                for _ in range(2):   # warm-up: programs, targets, ray maps; then the passes recorded
+                for _ in range(2):   # warm-up: programs, targets, ray maps
                     list(r.render_many(_jobs(1, mode, spp)))
                     list(new.render_many(_jobs(1, mode, spp, [next(fresh)])))
                     with r.backend.in_stage(other):
                         list(r.render_many(_jobs(1, mode, spp)))
                 row = {"mode": mode, "spp": spp, "single_s": [], "pipelined_s": [], "single_host_ms": [],
                        "pipelined_host_ms": [], "single_host_wall_ms": [], "pipelined_host_wall_ms": [],
-                       "single_calls": [], "pipelined_calls": [], "fresh_s": [], "fresh_host_ms": [],
+                       "fresh_s": [], "fresh_host_ms": [],
                        "other_s": [], "other_stage": other,
                        "riley_s": [], "riley": riley_name, "same_bytes": True}
                 if riley is not None:
@@ -178,7 +158,6 @@ def throughput(size=FULL_SIZE, reps: int = REPS, pairs: int = PAIRS, spps=SPPS, 
                         if way == "fresh":
                             continue
                         row[f"{way}_host_wall_ms"].append(host_wall / len(todo) * 1e3)
-                        row[f"{way}_calls"].append(d.calls / len(todo))
                         if way == "single":
                             single = [x.image for x in out]
                         else:
@@ -192,56 +171,22 @@ def throughput(size=FULL_SIZE, reps: int = REPS, pairs: int = PAIRS, spps=SPPS, 
                     list(r.render_many(_jobs(1, mode, spp)))
                     row["passes_wall_s"] = time.perf_counter() - t
                 row["passes"] = dict(p)
-                with host_opcodes() as n:
-                    list(r.render_many(_jobs(1, mode, spp)))
-                row["host_opcodes"] = n[0] / 2
-                with host_opcodes() as n:
-                    list(new.render_many(_jobs(1, mode, spp, [next(fresh)])))
-                row["fresh_host_opcodes"] = n[0] / 2
                 rows.append(_summary(row, pairs))
                 log(f"throughput: {mode} {spp} spp: {rows[-1]['pipelined_pairs_per_s']:.3g} pairs/s pipelined")
-    counting = _counting_cost(counting_reps)
     return {"size": list(size), "elements": elements, "pairs": pairs, "reps": reps, "depth": DEPTH, "warmup": 2,
             "stage": stage,
-            "counting": counting, "machine": machine, "date": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
+            "machine": machine, "date": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
             "rows": rows}
 
 
-def _counting_cost(reps: int) -> dict:
-    """What :func:`~glsim.backends.gl.timing.driver_time` costs per GL call in all: in place
-    (a pipelined exact stream of PAIRS pairs on the plate at COUNTING_SIZE, counted and
-    uncounted in turn ``reps`` times, the median of the CPU time's difference per call) and on
-    a no-op (:func:`~glsim.backends.gl.timing.noop_cost`)."""
-    from glsim.backends.gl.timing import driver_time, noop_cost
-    from glsim.render import Renderer
-
-    jobs = _jobs(PAIRS, "exact", 1)
-    extra = []
-    with Renderer(_scene(COUNTING_SIZE, COUNTING_ELEMENTS), "gl") as r:
-        list(r.render_many(jobs))
-        for _ in range(reps):
-            c = time.thread_time()
-            list(r.render_many(jobs, depth=DEPTH))
-            uncounted = time.thread_time() - c
-            with driver_time() as d:
-                c = time.thread_time()
-                list(r.render_many(jobs, depth=DEPTH))
-                counted = time.thread_time() - c
-            extra.append((counted - uncounted) / d.calls * 1e6)
-    return {"size": list(COUNTING_SIZE), "elements": COUNTING_ELEMENTS, "reps": reps,
-            "in_place_us": statistics.median(extra), "noop_us": noop_cost()[1] * 1e6, "in_place_all_us": extra}
-
-
 def _summary(row: dict, pairs: int) -> dict:
-    out = {k: row[k] for k in ("mode", "spp", "riley", "same_bytes", "passes", "passes_wall_s", "host_opcodes",
-                               "fresh_host_opcodes")}
+    out = {k: row[k] for k in ("mode", "spp", "riley", "same_bytes", "passes", "passes_wall_s")}
     for way in ("single", "pipelined"):
         s = statistics.median(row[f"{way}_s"])
         out[f"{way}_pairs_per_s"] = pairs / s
         out[f"{way}_images_per_s"] = 2 * pairs / s
         out[f"{way}_host_ms"] = statistics.median(row[f"{way}_host_ms"])
         out[f"{way}_host_wall_ms"] = statistics.median(row[f"{way}_host_wall_ms"])
-        out[f"{way}_calls"] = statistics.median(row[f"{way}_calls"])
         out[f"{way}_s_all"] = row[f"{way}_s"]
     out["fresh_pairs_per_s"] = pairs / statistics.median(row["fresh_s"])
     out["other_stage"] = row["other_stage"]
@@ -263,9 +208,8 @@ def table(report: dict) -> str:
     lines = [f"{machine_line(report['machine'])}; {report['date']}", "",
              "| mode | spp | pairs/s one at a time | pairs/s pipelined | images/s pipelined | pipelined / one "
              "at a time | pairs/s pipelined, other pixel stage | host ms / image (one / pipelined / new step) | "
-             "host opcodes / image (pipelined / new step) | GL calls / image | "
              "same bytes | glsim / riley per image | largest passes (ms) and rest |",
-             "|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
+             "|---|---|---|---|---|---|---|---|---|---|---|"]
     for r in report["rows"]:
         passes = sorted(r["passes"].items(), key=lambda kv: -kv[1])
         rest = r["passes_wall_s"] - sum(r["passes"].values())
@@ -275,8 +219,6 @@ def table(report: dict) -> str:
                      f"{r['pipelined_images_per_s']:.3g} | {r['pipelined_pairs_per_s'] / r['single_pairs_per_s']:.2f} | "
                      f"{_other(r)} | "
                      f"{r['single_host_ms']:.2g} / {r['pipelined_host_ms']:.2g} / {_cell(r, 'fresh_host_ms', '.2g')} | "
-                     f"{_cell(r, 'host_opcodes', ',.0f')} / {_cell(r, 'fresh_host_opcodes', ',.0f')} | "
-                     f"{_cell(r, 'pipelined_calls', '.0f')} | "
                      f"{'yes' if r['same_bytes'] else 'NO'} | "
                      f"{ratio} | {shown} |")
     riley = next((r["riley"] for r in report["rows"]), "—")
@@ -284,17 +226,9 @@ def table(report: dict) -> str:
               f"both cameras of the 30° rig; {report['pairs']} pairs per way and repetition, {report['reps']} "
               f"interleaved repetitions after {report['warmup']} warm-up pairs, medians; pipelined: `render_many` "
               f"depth {report['depth']}; new step: as pipelined, each pair a load step not rendered before. "
-              "One at a time and pipelined render the same views again: their deformation passes are "
-              "replayed (`glsim.backends.gl.replay`), those of new steps replayed from their camera's record "
-              f"with their own buffers and uniforms. Pixel stage: {report.get('stage', 'fragment')}, "
+              f"Pixel stage: {report.get('stage', 'fragment')}, "
               "the driver's (`glsim.backends.gl.plan`); the other one in its own column. "
               f"Peer: {riley}, camera 0 only."]
-    c = report.get("counting")
-    if c:
-        lines += ["", f"Counting the driver's calls costs {c['in_place_us']:.2g} µs per GL call in place (exact, "
-                  f"{c['size'][0]}×{c['size'][1]} px, median of {c['reps']} repetitions) and {c['noop_us']:.2g} µs "
-                  f"on a no-op, whose share outside the counted spans the host figures take off: where the first "
-                  f"is larger, read the host ms as upper bounds."]
     return "\n".join(lines)
 
 

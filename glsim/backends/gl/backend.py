@@ -23,24 +23,21 @@ from typing import NamedTuple
 
 import numpy as np
 
-from glsim.limits import keep
 from glsim.stages import interp
 from glsim.effects import Effects
 from glsim.stages import truth
-from glsim.stages.geometry import VIEWS_KEPT, ViewSpec
+from glsim.stages.geometry import ViewSpec
 from glsim.stages.quadview import patch_data, pieces_to_patches
 from glsim.backends.contract import Capabilities, Raster, Request
 from glsim.stages.view import warn_dropped, warn_problems
 from glsim.backends.gl.bindings import image, sampler, storage
 from glsim.backends.gl.context import check_error, create_context, driver_info, software_renderer
-from glsim.backends.gl.geometry import (DRAW_FALLBACK, DRAW_RESOLVE, LAYER_DISPATCH, LAYERS, SHAPE_BYTES, GeometryBuffers,
-                                       ViewSlot)
+from glsim.backends.gl.geometry import DRAW_FALLBACK, DRAW_RESOLVE, LAYER_DISPATCH, LAYERS, SHAPE_BYTES, GeometryBuffers
 from glsim.backends.gl import timing
 from glsim.backends.gl.plan import aperture_literal, environment_stage, pixel_stage, plan
 from glsim.backends.gl.imagepasses import ImagePasses
 from glsim.backends.gl.programs import ProgramCache
 from glsim.backends.gl.readback import PackBuffers, Pending, read_buffer, read_texture
-from glsim.backends.gl.replay import FRAMES_KEPT, Frames, still, weak_refs
 from glsim.backends.gl.uniforms import Uniforms, set_uniform
 
 
@@ -86,12 +83,6 @@ def _light_uniforms(fx) -> dict:
             "u_ks": np.float32(lit.specular), "u_shininess": np.float32(lit.shininess)}
 
 
-@functools.lru_cache(maxsize=16)
-def _one_sample(opts):
-    """``opts`` at 1 sample per pixel (the truth pass of s > 1), the same object each time."""
-    return replace(opts, samples_per_pixel=1)
-
-
 _NO_EFFECTS = Effects()
 
 
@@ -135,7 +126,7 @@ class GLBackend(ImagePasses):
         self._textures: dict[str, object] = {}
         self._targets: dict[tuple, tuple] = {}
         self._rays: dict[tuple, object] = {}
-        self._curved: dict[int, dict] = {}        # per quadratic mesh: glsim.stages.quadview.patch_data's cache
+        self._curved: tuple = (None, {})          # (quadratic mesh, glsim.stages.quadview.patch_data's cache)
         self._patch_cache: dict[tuple, object] = {}   # the patches' GL buffers (_patch_buffers)
         self.geometry: GeometryBuffers | None = None  # the mesh's buffers (one mesh at a time)
         self._pack = PackBuffers(self.ctx)
@@ -147,12 +138,6 @@ class GLBackend(ImagePasses):
         self._ray_host: dict[tuple, np.ndarray] = {}   # the float64 ray maps' bits on the host (truth polish)
         self._dropped = None                    # deform.frag's count of samples mapping outside the reference
         self._visibility = None                 # mode fast's triangle-index target, compute stage (_visibility_target)
-        self._uniforms: dict[tuple, tuple] = {}  # the last views' uniform values (_view_uniforms)
-        self._view_layouts: dict[int, tuple] = {}  # the programs' view uniforms (Uniforms' layouts, shared)
-        self._camera_values: dict[tuple, tuple] = {}   # and their cameras' (_camera_uniforms)
-        self._reports: dict[tuple, tuple] = {}  # the last views' problems and dropped counts (_queue_report)
-        self.frames = Frames()                  # deformation passes recorded for replay
-        self._slot = ViewSlot(self._view_uniforms, self._patch_buffers)   # the view a deformation pass draws (_deform)
 
     # ---- resources -------------------------------------------------------------------------
     def _reference_texture(self, method: str):
@@ -225,13 +210,8 @@ class GLBackend(ImagePasses):
         self._lent.clear()
         self._vaos.clear()
         self._ray_host.clear()
-        self._uniforms.clear()
-        self._view_layouts.clear()
-        self._camera_values.clear()
-        self._reports.clear()
-        self.frames.clear()
         self._dropped = None
-        self._curved.clear()
+        self._curved = (None, {})
         self._targets.clear()
         self._textures.clear()
         self._rays.clear()
@@ -290,7 +270,9 @@ class GLBackend(ImagePasses):
         v, opts, c = request.view, request.options, request.curved
         patches = None
         if c is not None:
-            patches = patch_data(c, v, opts.mode, self._curved.setdefault(id(c.mesh), {}))
+            if self._curved[0] is not c.mesh:
+                self._curved = (c.mesh, {})
+            patches = patch_data(c, v, opts.mode, self._curved[1])
         self._make_current()
         return self._render_view(v, opts, request.truth, request.effects, patches,
                                  request.quantize if self.fp64 else None, c, request.polish)
@@ -331,7 +313,7 @@ class GLBackend(ImagePasses):
         image = read_texture(self._pack, grey, _DTYPES[grey.dtype])
         self._recycle(temps)
         if truth and s > 1:
-            one = _one_sample(opts)
+            one = replace(opts, samples_per_pixel=1)
             p1 = plan(one, True, self.fp64, _NO_EFFECTS, view.camera, view.ref_camera, pieces, self.stage)
             raster = self._deform(view, one, p1, 1, True, _NO_EFFECTS, patches, warn=False, polish=polish)[3]
         return Frame(image, raster or (lambda: None), report, tuple(stages), curved, view.camera, opts.mode)
@@ -347,23 +329,16 @@ class GLBackend(ImagePasses):
         ``truth``; its reads queued; ``polish``: Request.polish) and what reports the view's
         problems (its flags copied on the GPU; nothing if not ``warn``)."""
         geo = self._buffers(view)
-        self._slot.set(view, geo, "FP64" in p.define_dict, patches)
         lit = None if fx.lighting is None else (fx.lighting.normals == "flat", _light_uniforms(fx))
         quantize = None if p.image_effects else quantize
-        refs = (view.camera, view.ref_camera, geo, opts, p)   # one record per camera
-        key = (*map(id, refs), s, truth, fx.aperture, quantize,
-               lit and (lit[0], *(v.tobytes() for v in lit[1].values())))
-
-        def make():
-            color = self._deform_passes(view, opts, s, truth, p, geo, patches, lit, fx.aperture)
-            return color, self._pixel_passes(color, view.camera.size, s, p, quantize)
-
-        color, (grey, depth) = self.frames.run(key, refs, make, view)
+        uniforms = self._view_uniforms(view, geo, patches)
+        color = self._deform_passes(view, opts, s, truth, p, geo, patches, lit, fx.aperture, uniforms)
+        grey, depth = self._pixel_passes(color, view.camera.size, s, p, quantize)
         if opts.mode != "fast":
             geo.view_passes += 1
         check_error(self.ctx, f"deformation pass ({opts.mode})")
         self.ctx.memory_barrier()  # shader storage writes visible to the read-backs
-        report = self._queue_report(view, s, geo, warn, key, (*refs, view))
+        report = self._queue_report(view, s, geo, warn)
         raster = self._queue_raster(view, opts.mode, color, p, patches, polish) if truth else None
         return color, grey, depth, raster, report
 
@@ -378,19 +353,20 @@ class GLBackend(ImagePasses):
             grey = self._quantized(grey, quantize)
         return grey, depth
 
-    def _deform_passes(self, view: ViewSpec, opts, s: int, truth: bool, p, geo, patches, lit, aperture: float):
+    def _deform_passes(self, view: ViewSpec, opts, s: int, truth: bool, p, geo, patches, lit, aperture: float,
+                       uniforms):
         """The deformation pass's GL commands (what a replay repeats: everything they depend on
         is an argument — ``lit``: (flat normals, the lights' uniforms) or None; ``aperture``:
         √ fill factor —, cached with the objects they name, or the view's own in ``self._slot``);
         returns the color textures."""
         W, H = view.camera.size
-        bind, setup = self._deform_bindings(view, opts, s, lit, aperture, patches, p, geo)
+        bind, setup = self._deform_bindings(view, opts, s, lit, aperture, patches, p, geo, uniforms)
         if opts.mode != "fast":   # pass 1: element records, covers, the candidate lists
             grow = 0.5 - 0.5 / s
             if p.camera_local:
-                geo.view_pass(self._slot, opts.mode, True, grow, local=True)
+                geo.view_pass(view, uniforms, opts.mode, True, grow, local=True)
             else:
-                geo.view_pass(self._slot, opts.mode, "FP64" in p.define_dict, grow=grow)
+                geo.view_pass(view, uniforms, opts.mode, "FP64" in p.define_dict, grow=grow)
             geo.candidates_pass(W, H, s)
         bind()
         pixels = self._newton_pixels(view, opts, p, geo, setup) if p.subsamples else None
@@ -401,14 +377,14 @@ class GLBackend(ImagePasses):
             color = pixels
         return color
 
-    def _deform_bindings(self, view: ViewSpec, opts, s: int, lit, aperture: float, patches, p, geo):
+    def _deform_bindings(self, view: ViewSpec, opts, s: int, lit, aperture: float, patches, p, geo, uniforms):
         """What the deformation programs read: ``bind()`` (the storage buffers of pass 2, bound
         once before it: pass 1 may bind the float64 nodes at the same points) and
         ``setup(prog)`` (the textures and uniforms of deform.frag and its vertex shaders: the
         view's and its camera's, ``self._slot``'s). The values are made once per view and
         camera; every uniform is written on every use: programs are shared per context, so a
         value left by another renderer (a quadratic mesh's sag) must not carry over."""
-        cam, slot = view.camera, self._slot
+        cam = view.camera
         fp64 = "FP64" in p.define_dict
         dropped = self._dropped_counter()
         # lit: the lights' uniforms; the step's world-frame corner normals are the slot's
@@ -422,17 +398,19 @@ class GLBackend(ImagePasses):
         rays = self._ray_map(cam, s, p.rays, aperture) if p.rays is not None else None
 
         def bind():
-            slot.bind(fp64)
+            geo.bind_mesh(fp64)
+            geo.bind_step(view, fp64)
             if ref_storage is not None:
                 ref_storage.bind_to_storage_buffer(storage(p.ref))
             dropped.bind_to_storage_buffer(storage("DROPPED"))
             if patches is not None:
-                slot.bind_patches(opts.mode)
+                for name, buf in zip(("PATCH_NODES", "PATCH_REF"), self._patch_buffers(patches, opts.mode, fp64)):
+                    buf.bind_to_storage_buffer(storage(name))
             if lighting is not None:
-                slot.bind_normals(lit[0])
+                geo.normals(view, lit[0]).bind_to_storage_buffer(storage("NORMALS"))
 
         def setup(prog):
-            slot.write_uniforms(prog)
+            uniforms.write(prog)
             if lighting is not None:
                 lighting.write(prog)
             textures(prog)
@@ -441,37 +419,21 @@ class GLBackend(ImagePasses):
 
         return bind, setup
 
-    def _view_uniforms(self, view: ViewSpec, geo, fp64: bool, sag: float) -> tuple[Uniforms, Uniforms]:
-        """The uniforms every deformation program and view.comp read: its camera's
-        (:meth:`_camera_uniforms`) and the view's own — its far plane and ``sag`` (px: a
-        quadratic mesh's pieces' chord error at this view, else 0) —, made once per view (the
-        last VIEWS_KEPT kept)."""
-        key = (id(view), id(geo), fp64, sag)
-        hit = self._uniforms.get(key)
-        if hit is None or hit[0] is not view or hit[1] is not geo:
-            values = {"u_far": view.far, "u_extra_sag": sag}
-            hit = keep(self._uniforms, key, (view, geo, Uniforms(values, self._view_layouts)), VIEWS_KEPT)
-        return self._camera_uniforms(view, geo), hit[2]
-
-    def _camera_uniforms(self, view: ViewSpec, geo) -> Uniforms:
-        """What the views of ``view``'s camera share (their bytes made once for all of its steps,
-        written as part of a recorded pass): the camera and reference models, the transform of
-        the mesh's local frame to the camera's (``view.rotation``, ``view.translation``: the
-        camera's and the mesh's origin only), the sizes and view.glsl's constants for the mesh
-        (:meth:`GeometryBuffers.camera_values`); the last VIEWS_KEPT kept."""
+    @staticmethod
+    def _view_uniforms(view: ViewSpec, geo, patches) -> Uniforms:
+        """The uniforms every deformation program and view.comp read: the camera and reference
+        models, the transform of the mesh's local frame to the camera's (``view.rotation``,
+        ``view.translation``), the sizes, view.glsl's constants for the mesh
+        (:meth:`GeometryBuffers.camera_values`), the view's far plane and the sag (px: a quadratic
+        mesh's pieces' chord error at this view, else 0)."""
         cam, ref = view.camera, view.ref_camera
-        key = (id(cam), id(ref), id(geo))
-        hit = self._camera_values.get(key)
-        if hit is not None and hit[0] is cam and hit[1] is geo and hit[2] is ref:
-            return hit[3]
-        u = Uniforms({**geo.camera_values(cam), "u_rot": view.rotation.ravel(), "u_trans": view.translation,
-                      "u_intr": cam.intrinsics, "u_dist": cam.distortion.coeffs,
-                      "u_valid_r2": cam.distortion.valid_radius() ** 2,
-                      "u_ref_intr": ref.intrinsics, "u_ref_dist": ref.distortion.coeffs,
-                      "u_ref_valid_r2": ref.distortion.valid_radius() ** 2, "u_size": cam.size,
-                      "u_ref_size": ref.size})
-        keep(self._camera_values, key, (cam, geo, ref, u), VIEWS_KEPT)
-        return u
+        return Uniforms({**geo.camera_values(cam), "u_rot": view.rotation.ravel(), "u_trans": view.translation,
+                         "u_intr": cam.intrinsics, "u_dist": cam.distortion.coeffs,
+                         "u_valid_r2": cam.distortion.valid_radius() ** 2,
+                         "u_ref_intr": ref.intrinsics, "u_ref_dist": ref.distortion.coeffs,
+                         "u_ref_valid_r2": ref.distortion.valid_radius() ** 2, "u_size": cam.size,
+                         "u_ref_size": ref.size, "u_far": view.far,
+                         "u_extra_sag": patches.extra_sag_px if patches is not None else 0.0})
 
     def _list_program(self, view: ViewSpec, frag: str, defines: dict, setup, geo, target, layer: float,
                       textures=None, uniforms=None, indirect: int | None = None) -> None:
@@ -600,38 +562,26 @@ class GLBackend(ImagePasses):
                                       ids, depth)
         return hit[1], hit[2]
 
-    def _queue_report(self, view: ViewSpec, s: int, geo, warn: bool, key: tuple, refs: tuple):
+    def _queue_report(self, view: ViewSpec, s: int, geo, warn: bool):
         """Copy the view's problem flags, dropped count and its step's shape filter on the GPU
         (read when the frame is collected), clear them for the next view; returns what warns
-        about them. A view
-        reported before under the same record ``key`` (of the objects ``refs``, the view's
-        among them) is not read again: the same commands on the same data mark the same flags
-        and count the same samples (the last FRAMES_KEPT kept, without keeping their objects
-        alive)."""
+        about them (nothing if not ``warn``)."""
         flags, size = geo.status()
         dropped = self._dropped_counter()
-        known = self._reports.get((key, id(view))) if warn else None
-        if known is not None and not still(known[0], refs):
-            known = None
         status = read_buffer(self._pack, [(flags, size), (dropped, 4), (geo.shape_buffer(view), SHAPE_BYTES)]) \
-            if warn and known is None else None
+            if warn else None
         geo.clear_status()     # (after the copy above: the GL orders them)
         dropped.write(bytes(4))
         cam = view.camera
 
         def report():
-            if known is not None:
-                _, problems, count = known
-            elif status is not None:
-                b = status.fetch(self._pack).tobytes()
-                problems = geo.problems(view, b[:size], b[size + 4:])
-                count = int(np.frombuffer(b[size:size + 4], np.uint32)[0])
-                keep(self._reports, (key, id(view)), (weak_refs(refs), problems, count), FRAMES_KEPT)
-            else:
+            if status is None:
                 return
+            b = status.fetch(self._pack).tobytes()
+            problems = geo.problems(view, b[:size], b[size + 4:])
             if problems:
                 warn_problems(cam, problems, view.mesh_geo.labels, stacklevel=5)
-            warn_dropped(cam, count, s)
+            warn_dropped(cam, int(np.frombuffer(b[size:size + 4], np.uint32)[0]), s)
         return report
 
     def _queue_raster(self, view: ViewSpec, mode: str, color, p, patches, polish: bool = True):

@@ -6,7 +6,6 @@ import ctypes.util
 from dataclasses import dataclass
 from typing import Iterator
 
-from glsim.backends.gl.replay import replayed
 from glsim.errors import GLUnavailableError
 
 EGL_PACKAGES = "libegl1 libegl-mesa0 libgl1-mesa-dri libgbm1"
@@ -69,7 +68,6 @@ def software_renderer(ctx) -> bool:
     return "llvmpipe" in renderer or "softpipe" in renderer
 
 
-@replayed
 def check_error(ctx, where) -> None:
     """Raise if the GL error flag is set (ctx.error reads and clears it); ``where``: what ran,
     a string or what makes it (called only on an error)."""

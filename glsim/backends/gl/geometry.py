@@ -24,7 +24,6 @@ from collections import OrderedDict
 import numpy as np
 
 from glsim.backends.gl.bindings import image, sampler, storage
-from glsim.backends.gl.replay import replayed
 from glsim.backends.gl.uniforms import set_uniform
 from glsim.stages.geometry import STEPS_KEPT, MeshGeometry, ViewSpec
 from glsim.stages.view import GRAZING_COS, NEAR_MM, TINY_AREA_REL, ray_radius
@@ -77,61 +76,6 @@ def shape_candidates(words: np.ndarray, M: int) -> bool:
 
 _NOTHING_MARKED = bytes(16)   # the status header when no element was marked
 DRAW_BIG, DRAW_FALLBACK, DRAW_RESOLVE = 0, 1, 2   # the list flags' indirect draw commands (candidates.glsl)
-
-
-class ViewSlot:
-    """The view a deformation pass draws, :meth:`set` before each pass: ``view``, the mesh's
-    ``geo`` (GeometryBuffers), a quadratic mesh's ``patches`` (PatchData of the view, or None)
-    and their uniforms — its camera's (with the transform) and its own (far plane, excluded flag, the
-    patches' sagitta), as :class:`~glsim.backends.gl.uniforms.Uniforms` made by
-    ``uniforms(view, geo, fp64, sag)`` when first written. What differs between the views of
-    one camera (a time series' steps) is bound and written by the methods marked
-    ``@replayed(view=True)``, which a recording keeps as calls (glsim.backends.gl.replay): a
-    pass recorded for one step of a camera replays for another with that step's buffers and
-    values. ``patch_buffers(patches, mode, fp64)`` gives the patches' storage buffers."""
-
-    def __init__(self, uniforms, patch_buffers):
-        self._uniforms_of, self._patch_buffers = uniforms, patch_buffers
-        self.view = self.geo = self.patches = self._fp64 = self._uniforms = None
-
-    def set(self, view: ViewSpec, geo, fp64: bool, patches=None) -> None:
-        self.view, self.geo, self.patches, self._fp64, self._uniforms = view, geo, patches, fp64, None
-
-    def _values(self):
-        if self._uniforms is None:
-            sag = self.patches.extra_sag_px if self.patches is not None else 0.0
-            self._uniforms = self._uniforms_of(self.view, self.geo, self._fp64, sag)
-        return self._uniforms
-
-    def bind(self, fp64: bool) -> None:
-        """Bind the mesh's storage buffers and the view's step's (uploaded once per step)."""
-        self.geo.bind_mesh(fp64)
-        self.bind_step(fp64)
-
-    @replayed(view=True)
-    def bind_step(self, fp64: bool) -> None:
-        self.geo.bind_step(self.view, fp64)
-
-    @replayed(view=True)
-    def bind_patches(self, mode: str) -> None:
-        """Bind the patches' control points at the view's step and their reference data for
-        ``mode`` (PATCH_NODES, PATCH_REF; uploaded once per step)."""
-        for name, buf in zip(("PATCH_NODES", "PATCH_REF"), self._patch_buffers(self.patches, mode, self._fp64)):
-            buf.bind_to_storage_buffer(storage(name))
-
-    @replayed(view=True)
-    def bind_normals(self, flat: bool) -> None:
-        """Bind the step's corner normals (NORMALS, lit passes; made once per step)."""
-        self.geo.normals(self.view, flat).bind_to_storage_buffer(storage("NORMALS"))
-
-    def write_uniforms(self, prog) -> None:
-        """Write the camera's uniforms and the view's own that ``prog`` has."""
-        self._values()[0].write(prog)
-        self.write_view(prog)
-
-    @replayed(view=True)
-    def write_view(self, prog) -> None:
-        self._values()[1].write(prog)
 
 
 def _release(value) -> None:
@@ -308,16 +252,18 @@ class GeometryBuffers:
                 "u_flag_words": self.words, "u_count": self.M}
 
     # ---- the per-view pass -----------------------------------------------------------------
-    def view_pass(self, slot: ViewSlot, mode: str, fp64: bool, grow: float = 0.0, local: bool = False) -> None:
-        """view.comp on ``slot``'s view: element records (binding ELEMENTS), cover rectangles
-        (COVER, grown by ``grow`` px for pass 1 at pixel resolution) and tight rectangles
-        (TIGHT); with ``local`` (exact, float64) also the float32 records of deform.frag's
-        CAMERA_LOCAL (LOCAL)."""
+    def view_pass(self, view: ViewSpec, uniforms, mode: str, fp64: bool, grow: float = 0.0,
+                  local: bool = False) -> None:
+        """view.comp on ``view`` (its camera's and its own ``uniforms``): element records
+        (binding ELEMENTS), cover rectangles (COVER, grown by ``grow`` px for pass 1 at pixel
+        resolution) and tight rectangles (TIGHT); with ``local`` (exact, float64) also the float32
+        records of deform.frag's CAMERA_LOCAL (LOCAL)."""
         defines = {f"MODE_{mode.upper()}": None, **({"FP64": None} if fp64 else {}),
                    **({"RECORD_LOCAL": None} if local else {})}
         prog = self.programs.compute("view.comp", defines)
-        slot.bind(fp64)
-        slot.write_uniforms(prog)
+        self.bind_mesh(fp64)
+        self.bind_step(view, fp64)
+        uniforms.write(prog)
         if prog.get("u_cover_grow", None) is not None:
             set_uniform(prog, "u_cover_grow", float(grow))
         size = 8 if fp64 else 4

@@ -13,6 +13,8 @@ from typing import NamedTuple
 
 import numpy as np
 
+from glsim.backends.gl.timing import waiting
+
 
 class PackBuffers:
     """Pixel-pack buffers of one context, kept by size for reuse."""
@@ -38,8 +40,7 @@ class PackBuffers:
 
 
 class Pending(NamedTuple):
-    """A read queued into ``buffer``: an array of ``shape`` and ``dtype`` once fetched (a tuple:
-    made per read, in fewer steps than a frozen dataclass)."""
+    """A read queued into ``buffer``: an array of ``shape`` and ``dtype`` once fetched."""
     buffer: object
     shape: tuple[int, ...]
     dtype: np.dtype
@@ -47,7 +48,8 @@ class Pending(NamedTuple):
     def fetch(self, pool: PackBuffers) -> np.ndarray:
         """The array (waits for the GPU if it is still writing); the buffer goes back to ``pool``."""
         out = np.empty(self.shape, self.dtype)
-        self.buffer.read_into(out)
+        with waiting():
+            self.buffer.read_into(out)
         pool.give(self.buffer)
         return out
 
