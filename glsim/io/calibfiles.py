@@ -14,6 +14,7 @@ from pathlib import Path
 import numpy as np
 
 from glsim.errors import GlsimError, SceneError
+from glsim.limits import not_a_file
 from glsim.io import images as io
 from glsim.scene.camera import Camera
 
@@ -76,14 +77,27 @@ def read_rig_yaml(path) -> dict[str, np.ndarray]:
     """The matrices of a rig YAML (K1 D1 K2 D2 R T image_size), as written by write_rig_yaml."""
     import cv2
     path = Path(path)
-    if not path.is_file():
-        raise SceneError(str(path), "file not found", "give a calibration YAML written by glsim calib")
-    fs = cv2.FileStorage(str(path), cv2.FILE_STORAGE_READ)
-    out = {k: fs.getNode(k).mat() for k in ("K1", "D1", "K2", "D2", "R", "T", "image_size")}
-    fs.release()
+    fix = "give a calibration YAML written by glsim calib"
+    text = rig_text(path, fix)
+    if not text.strip():   # cv2.FileStorage fails on it with a SystemError
+        raise SceneError(str(path), "is empty", fix)
+    try:
+        fs = cv2.FileStorage(str(path), cv2.FILE_STORAGE_READ)
+        out = {k: fs.getNode(k).mat() for k in ("K1", "D1", "K2", "D2", "R", "T", "image_size")}
+        fs.release()
+    except (cv2.error, SystemError) as exc:   # cv2 raises its error inside the constructor as a SystemError
+        why = exc.__context__ if isinstance(exc, SystemError) and exc.__context__ is not None else exc
+        detail = str(getattr(why, "func", "") or getattr(why, "err", "") or why).strip() or type(why).__name__
+        raise SceneError(str(path), f"is not an OpenCV FileStorage YAML file (OpenCV: {detail[:200]})", fix) from None
     missing = [k for k, v in out.items() if v is None]
     if missing:
-        raise SceneError(str(path), f"has no {', '.join(missing)}", "give a calibration YAML written by glsim calib")
+        raise SceneError(str(path), f"has no {', '.join(missing)}", fix)
+    for k, sizes in (("K1", (9,)), ("K2", (9,)), ("R", (9,)), ("T", (3,)), ("image_size", (2,)),
+                     ("D1", (4, 5, 8, 12, 14)), ("D2", (4, 5, 8, 12, 14))):
+        if out[k].size not in sizes or not np.isfinite(out[k]).all():
+            raise SceneError(f"{path}: {k}", f"holds {out[k].size} values ({out[k].shape}), not {' or '.join(map(str, sizes))} "
+                             "finite numbers", fix)
+    out["K1"], out["K2"], out["R"] = (out[k].reshape(3, 3) for k in ("K1", "K2", "R"))
     out["D1"], out["D2"], out["T"] = out["D1"].ravel(), out["D2"].ravel(), out["T"].ravel()
     out["image_size"] = tuple(int(v) for v in out["image_size"].ravel())
     return out
@@ -101,6 +115,7 @@ def opencv_distortion(cam: Camera) -> np.ndarray:
 # store camera 1 relative to camera 0 (OpenCV YAML, MatchID, pyvale) read back with camera 0 as the
 # world frame; DICe's XML stores each camera's world→camera pose and reads back unchanged.
 FORMATS = {"opencv": ".yaml", "matchid": ".caldat", "dice": ".xml", "pyvale": ".json"}
+MAX_RIG_BYTES = 1 << 20   # a rig file holds two cameras: a few kB; larger is not one
 _BROWN5 = ("k1", "k2", "p1", "p2", "k3")            # what MatchID and pyvale can hold
 
 
@@ -143,9 +158,27 @@ def _relative_rig(K_a, D_a, K_b, D_b, R, T, size, names=("cam0", "cam1")) -> tup
     return cam(names[0], K_a, D_a, np.eye(3), np.zeros(3)), cam(names[1], K_b, D_b, R, T)
 
 
+def rig_text(path: Path, fix: str) -> str:
+    """The text of the rig file ``path``, checked before any parser sees it: a regular file of at
+    most MAX_RIG_BYTES, UTF-8 without NUL bytes; else SceneError(path) with ``fix``."""
+    why = not_a_file(path)
+    if why:
+        raise SceneError(str(path), "file not found" if why == "not found" else why, fix)
+    size = path.stat().st_size
+    if size > MAX_RIG_BYTES:
+        raise SceneError(str(path), f"is {size:,} bytes, more than a rig file's {MAX_RIG_BYTES:,}", fix)
+    try:
+        text = path.read_bytes().decode("utf-8")
+    except UnicodeDecodeError as exc:
+        raise SceneError(str(path), f"is not UTF-8 text ({exc.reason} at byte {exc.start})", fix) from None
+    if "\0" in text:
+        raise SceneError(str(path), f"holds a NUL byte at character {text.index(chr(0))}: it is not text", fix)
+    return text
+
+
 def _key_value_lines(path: Path) -> dict[str, str]:
     out = {}
-    for i, line in enumerate(path.read_text(encoding="utf-8").splitlines(), 1):
+    for i, line in enumerate(rig_text(path, "give a MatchID .caldat file").splitlines(), 1):
         if line.strip():
             if ";" not in line:
                 raise SceneError(f"{path}:{i}", f"{line.strip()!r} is not a 'key;value' line",
@@ -297,7 +330,7 @@ def read_pyvale(path, image_size=None) -> tuple[Camera, Camera]:
 
     path = Path(path)
     try:
-        d = json.loads(path.read_text(encoding="utf-8"))
+        d = json.loads(rig_text(path, "give a file written by glsim rig export --format pyvale"))
         Ks = [[[c["fx"], c["fs"], c["cx"]], [0, c["fy"], c["cy"]], [0, 0, 1]] for c in (d["cam0"], d["cam1"])]
         Ds = [d["cam0"]["distortion"], d["cam1"]["distortion"]]
         R, T = rotation_xyz(*d["rotation"]), d["translation"]
@@ -331,8 +364,9 @@ def import_rig(path, fmt: str | None = None, image_size=None) -> tuple[Camera, C
     at the world origin; ``image_size`` (W, H) is needed for MatchID files, which hold none."""
     path = Path(path)
     fmt = _format_of(path, fmt)
-    if not path.is_file():
-        raise SceneError(str(path), "file not found", "check the path")
+    why = not_a_file(path)
+    if why:
+        raise SceneError(str(path), "file not found" if why == "not found" else why, "check the path")
     if fmt == "opencv":
         y = read_rig_yaml(path)
         return _relative_rig(y["K1"], y["D1"], y["K2"], y["D2"], y["R"], y["T"], y["image_size"])

@@ -18,7 +18,8 @@ from dataclasses import dataclass, field, fields
 
 import numpy as np
 
-from glsim.errors import SceneError
+from glsim.errors import SceneError, check
+from glsim.limits import MAX_COORDINATE_MM, MAX_DISTORTION, MAX_FOCAL_PX
 
 # Radius up to which valid_radius() checks monotonicity: tan(84.3°).
 MAX_CHECKED_RADIUS = 10.0
@@ -337,6 +338,32 @@ class Camera:
     def center(self) -> np.ndarray:
         """Camera centre in world coordinates (mm), ``−Rᵀt``."""
         return -self.rotation.T @ self.translation
+
+
+def check_ranges(cam: Camera, key: str) -> None:
+    """SceneError naming ``key.fx`` (``key.distortion.k1``, ``key.pose``, …) where a scene camera's
+    intrinsics, distortion or centre lie outside glsim's ranges (:mod:`glsim.limits`). Finite is not
+    enough: fx = 1e300 or k1 = 1e300 overflow the projection, and the backends would fail differently.
+    Only the scene's own cameras are checked: internal ones (the reference camera) have their own
+    scale."""
+    for name in ("fx", "fy"):
+        v = getattr(cam, name)
+        check(v <= MAX_FOCAL_PX, f"{key}.{name}", f"{v:g} px is more than glsim's limit of {MAX_FOCAL_PX:g} px",
+              "give the focal length in pixels: the lens's focal length over the pixel pitch, "
+              "e.g. 30 mm / 0.0044 mm = 6818")
+    for name, what in (("cx", "the principal point's u, near (W − 1)/2"), ("cy", "the principal point's v, "
+                       "near (H − 1)/2"), ("skew", "K[0, 1], usually 0")):
+        v = getattr(cam, name)
+        check(abs(v) <= MAX_FOCAL_PX, f"{key}.{name}", f"{v:g} px lies beyond glsim's limit of ±{MAX_FOCAL_PX:g} px",
+              f"give {what}, in pixels")
+    for name, v in zip(_DISTORTION_NAMES, cam.distortion.values):
+        check(abs(v) <= MAX_DISTORTION, f"{key}.distortion.{name}",
+              f"{v:g} lies beyond glsim's limit of ±{MAX_DISTORTION:g}",
+              "give OpenCV's dimensionless coefficients (calibrations give |k| below 100)")
+    far = float(np.abs(cam.center).max())
+    check(far <= MAX_COORDINATE_MM, f"{key}.pose", f"puts camera {cam.name} {far:g} mm from the world origin "
+          f"along an axis, beyond glsim's limit of {MAX_COORDINATE_MM:g} mm",
+          "give the pose in mm (t, look_at, stereo Tx Ty Tz) with the specimen near the world origin")
 
 
 def _is_int(v) -> bool:

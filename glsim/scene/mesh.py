@@ -25,6 +25,7 @@ from typing import Sequence
 import numpy as np
 
 from glsim.errors import SceneError
+from glsim.limits import MAX_COORDINATE_MM
 
 UNITS_TO_MM = {"mm": 1.0, "m": 1000.0, "cm": 10.0, "um": 1e-3, "in": 25.4}
 
@@ -66,6 +67,8 @@ class Mesh:
         if not np.isfinite(nodes).all():
             raise SceneError("mesh.nodes", f"{np.count_nonzero(~np.isfinite(nodes))} coordinates are not finite",
                              "remove NaN/inf coordinates")
+        check_bounded(nodes, self.node_labels, "mesh.nodes", "node label {label} lies at {row} mm", "coordinates (after specimen.mesh.unit and "
+                      "specimen.pose)")
         n = len(nodes)
         quads = np.asarray(self.quads)
         if quads.ndim != 2 or quads.shape[1] != 4 or len(quads) == 0:
@@ -88,6 +91,8 @@ class Mesh:
                 raise SceneError(f"mesh.displacements[{k}]", f"load step {k} has shape {u.shape}, not ({n}, 3)",
                                  "give one (N, 3) array (ux, uy, uz per node) per step")
             check_finite(u, np.asarray(self.node_labels), f"mesh.displacements[{k}]", f"load step {k}")
+            check_bounded(u, self.node_labels, f"mesh.displacements[{k}]", f"load step {k} moves node label {{label}} by {{row}} mm",
+                          "displacements (in specimen.mesh.unit)")
         if np.any(np.asarray(steps[0]) != 0):
             raise SceneError("mesh.displacements[0]", "step 0 is not all zeros",
                              "step 0 is the undeformed state; use with_displacements() to prepend it")
@@ -158,6 +163,21 @@ def check_finite(u: np.ndarray, node_labels: np.ndarray, key: str, what: str) ->
         raise SceneError(key, f"{what} has non-finite (NaN or inf) displacements at {int(bad.sum())} of "
                          f"{len(u)} nodes, first at node label {int(label)}: {np.asarray(u)[first].tolist()}",
                          "give finite numbers for every node (0 where a node does not move)")
+
+
+def check_bounded(a: np.ndarray, node_labels, key: str, what: str, fix: str) -> None:
+    """Raise SceneError naming the first node whose row of the finite (N, 3) array ``a`` (mm) has an
+    entry beyond ±MAX_COORDINATE_MM (:mod:`glsim.limits`): e.g. 1e300 mm, whose squares overflow.
+    ``what`` says it, with ``{label}`` and ``{row}`` filled in."""
+    a = np.asarray(a, dtype=np.float64)
+    if not len(a) or float(np.abs(a).max()) <= MAX_COORDINATE_MM:
+        return
+    bad = np.abs(a).max(axis=1) > MAX_COORDINATE_MM
+    first = int(np.flatnonzero(bad)[0])
+    label = node_labels[first] if np.shape(node_labels) == (len(a),) else first + 1
+    raise SceneError(key, what.format(label=int(label), row=a[first].tolist()) + f" ({int(bad.sum())} of {len(a)} "
+                     f"nodes beyond glsim's limit of ±{MAX_COORDINATE_MM:g} mm)",
+                     f"check the {fix}: the specimen must lie within {MAX_COORDINATE_MM:g} mm of the world origin")
 
 
 def with_displacements(mesh: Mesh, steps: Sequence[np.ndarray]) -> Mesh:

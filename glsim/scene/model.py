@@ -14,12 +14,12 @@ from pathlib import Path
 
 import numpy as np
 
-from glsim.scene.camera import Camera
+from glsim.scene.camera import Camera, check_ranges
 from glsim.errors import SceneError, check
 from glsim.limits import (MAX_ELEMENTS, MAX_PIECES, MAX_SAMPLES_PER_PIXEL, MAX_STEPS, check_gl_target, check_image_size,
                           refuse_count, require_file)
 from glsim.scene.mesh import UNITS_TO_MM
-from glsim.scene.tables import Vec3, build, reject_unknown
+from glsim.scene.tables import Vec3, build, check_length, reject_unknown
 from glsim.scene.optional import Exposure, Lighting, Noise, Optics, Psf, Sensor, Vignetting
 
 MODES = ("fast", "q4", "exact")
@@ -81,6 +81,8 @@ class Speckle:
               "remove it, or remove speckle.camera")
         check(len(self.centre) in (0, 2, 3), "speckle.centre", f"must have 2 or 3 entries, got {list(self.centre)}",
               "give the image centre in specimen mm, [X, Y] or [X, Y, Z]")
+        check_length(self.mm_per_px, "speckle.mm_per_px", "the reference image's scale (mm per pixel)")
+        check_length(self.centre or 0.0, "speckle.centre", "the image centre")
         check(not self.centre or bool(self.image), "speckle.centre", "places a speckle.image; the generated "
               "pattern is always centred on the specimen", "remove centre, or give an image")
         check(len(self.normal) in (0, 3), "speckle.normal", f"must have 3 entries, got {list(self.normal)}",
@@ -121,6 +123,7 @@ class Plate:
         for k in ("width", "height"):
             check(getattr(self, k) > 0, f"specimen.plate.{k}", f"must be > 0, got {getattr(self, k)}",
                   "give it in mm")
+            check_length(getattr(self, k), f"specimen.plate.{k}", "the plate's size")
         for k in ("nx", "ny"):
             check(getattr(self, k) >= 1, f"specimen.plate.{k}", f"must be ≥ 1, got {getattr(self, k)}",
                   "the number of elements along that side")
@@ -129,6 +132,7 @@ class Plate:
         for i, tr in enumerate(self.translations):
             check(np.shape(tr) == (3,), f"specimen.plate.translations[{i}]", "must have 3 entries",
                   "give [dx, dy, dz] in mm")
+            check_length(tr, f"specimen.plate.translations[{i}]", f"load step {i + 1}'s rigid translation")
 
 
 @dataclass(frozen=True)
@@ -145,6 +149,8 @@ class Bulge:
         for k in ("radius", "thickness"):
             check(getattr(self, k) > 0, f"specimen.bulge.{k}", f"must be > 0, got {getattr(self, k)}",
                   "give it in mm")
+        for k in ("radius", "thickness", "w0"):
+            check_length(getattr(self, k), f"specimen.bulge.{k}", f"the bulge's {k}")
         for k in ("steps", "n_core", "n_ring"):
             check(getattr(self, k) >= 1, f"specimen.bulge.{k}", f"must be ≥ 1, got {getattr(self, k)}",
                   "a count")
@@ -224,6 +230,7 @@ class Specimen:
         check(len(given) == 1, "specimen",
               f"exactly one of mesh, plate, bulge must be given, got {', '.join(given) or 'none'}",
               "keep one of [specimen.bulge], [specimen.plate], [specimen.mesh] path = 'model.inp'")
+        check_length(self.t, "specimen.pose.t", "the specimen's placement")
 
 
 @dataclass(frozen=True)
@@ -364,6 +371,10 @@ class Scene:
                   f"{name!r} is already the name of cameras[{names.index(name)}]",
                   "give each camera a unique name")
         self._check_sizes()
+        for i, cam in enumerate(self.cameras):
+            check_ranges(cam, f"cameras[{i}]")
+        if self.speckle.camera is not None:
+            check_ranges(self.speckle.camera, "speckle.camera")
         self._check_motion()
         check(self.sensor is None or self.sensor.fill_factor == 1 or self.render.mode != "fast"
               or self.render.samples_per_pixel == 1, "sensor.fill_factor",

@@ -14,9 +14,11 @@ from dataclasses import MISSING, dataclass
 import numpy as np
 
 from glsim.errors import SceneError, check
+from glsim.limits import MAX_COORDINATE_MM
 from glsim.scene.camera import Camera, check_rotation, look_at, rodrigues, stereo_pose
 
 Vec3 = tuple[float, float, float]
+INT64 = (-2 ** 63, 2 ** 63)   # [low, high) of a TOML integer
 Mat3 = tuple[Vec3, Vec3, Vec3]
 
 
@@ -31,6 +33,10 @@ class Stereo:
     Phi: float
     Psi: float
 
+    def __post_init__(self):
+        for k in ("Tx", "Ty", "Tz"):
+            check_length(getattr(self, k), k, "camera 1's offset from camera 0")
+
 
 @dataclass(frozen=True)
 class LookAt:
@@ -40,6 +46,8 @@ class LookAt:
     up: Vec3 = (0.0, -1.0, 0.0)
 
     def __post_init__(self):
+        for k in ("eye", "target"):
+            check_length(getattr(self, k), k, "a point in the world frame")
         look_at(self.eye, self.target, self.up)  # raises SceneError("target" or "up") if degenerate
 
 
@@ -70,6 +78,8 @@ class Pose:
                   f"or give the rotation as R")
         if self.R is not None:
             check_rotation(self.R)
+        if self.t is not None:
+            check_length(self.t, "t", "the translation")
 
     def matrices(self, first: Camera | None, camera: bool) -> tuple[np.ndarray, np.ndarray]:
         """(R, t): world→camera for a camera (``first`` is the first camera, None for itself),
@@ -86,6 +96,19 @@ class Pose:
         R = np.eye(3) if self.R is None else np.array(self.R, float)
         t = np.zeros(3) if self.t is None else np.array(self.t, float)
         return (R if self.rvec is None else rodrigues(self.rvec)), t
+
+
+def check_length(value, key: str, what: str) -> None:
+    """SceneError(key) unless every entry of the length or point ``value`` (mm) lies within
+    ±MAX_COORDINATE_MM (:mod:`glsim.limits`): 1e308 is finite, but its products are not."""
+    far = float(np.max(np.abs(value)))
+    check(far <= MAX_COORDINATE_MM, key, f"{_number(value)} mm lies beyond glsim's limit of ±{MAX_COORDINATE_MM:g} mm",
+          f"give {what} in mm (the specimen within {MAX_COORDINATE_MM:g} mm of the world origin)")
+
+
+def _number(value) -> str:
+    """A number or a list of numbers, compactly (%g)."""
+    return f"{value:g}" if np.ndim(value) == 0 else "[" + ", ".join(f"{v:g}" for v in value) + "]"
 
 
 def _radians(degrees) -> str:
@@ -144,6 +167,9 @@ def coerce(value, hint, key: str):
         if isinstance(value, bool) or not isinstance(value, int if hint is int else (int, float)):
             raise SceneError(key, f"expected {'an integer' if hint is int else 'a number'}, got {value!r}",
                              "write e.g. 4" if hint is int else "write e.g. 1.0")
+        if isinstance(value, int) and not INT64[0] <= value < INT64[1]:   # TOML's integers are 64-bit; float() overflows
+            raise SceneError(key, f"{str(value)[:24]}… ({len(str(value))} digits) is beyond 64-bit integers",
+                             "give a number within ±9.2e18")
         if not math.isfinite(value):
             raise SceneError(key, f"must be finite, got {value}", "give a finite number")
         return hint(value)

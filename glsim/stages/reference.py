@@ -13,9 +13,12 @@ from glsim.scene import speckle
 from glsim.scene.camera import Camera, project_camera_frame, to_camera
 from glsim.errors import RenderWarning, SceneError
 from glsim.limits import MIN_DOTS_ACROSS, check_image_size
+from glsim.stages.view import extent, mesh_element_areas
 from glsim.scene import Scene
 
 MARGIN_PX = 8  # reference-image border around the specimen's projection
+FLAT_REL = 1e-12  # largest element area ≤ this × the nodes' box diagonal²: the specimen has no area (float
+#                   rounding of collinear corners gives ~2e-16 of it)
 
 
 @dataclass(frozen=True, eq=False)
@@ -50,9 +53,14 @@ class Placement:
 def surface_normal(points: np.ndarray, weights: np.ndarray) -> np.ndarray:
     """Unit normal of the weighted points' best-fit plane (the direction of least second
     moment), snapped to the nearest coordinate axis when within 1e-12 of it, sign not fixed."""
-    c = weights @ points / weights.sum()
+    total = weights.sum()
+    c = weights @ points / (total if total > 0 else 1.0)
     d = points - c
-    _, vecs = np.linalg.eigh(np.einsum("n,ni,nj->ij", weights, d, d))
+    moments = np.einsum("n,ni,nj->ij", weights, d, d)
+    if not (total > 0 and np.isfinite(moments).all()):   # eigh would fail with LinAlgError
+        raise SceneError("specimen", "has no surface to fit a plane to (no area, or coordinates too large)",
+                         "check the mesh's node coordinates and connectivity")
+    _, vecs = np.linalg.eigh(moments)
     n = vecs[:, 0]
     i = int(np.argmax(np.abs(n)))
     if abs(n[i]) > 1 - 1e-12:
@@ -212,6 +220,7 @@ def make_reference(scene: Scene, mesh: meshmod.Mesh) -> Reference:
     Raises SceneError when the reference image leaves part of the specimen without pattern."""
     sp = scene.speckle
     cam1 = scene.cameras[0]
+    require_area(mesh, "specimen.mesh.path" if scene.specimen.mesh is not None else "specimen")
     if sp.image:
         image = speckle.load_reference(scene.resolve(sp.image))
         if sp.camera is not None:
@@ -230,12 +239,16 @@ def make_reference(scene: Scene, mesh: meshmod.Mesh) -> Reference:
     R, t = specimen_frame(scene)
     pl = placement(scene, mesh)
     cam_mm_per_px = pattern_scale(cam1, pl, (mesh.nodes - t) @ R, R, t)
+    if not cam_mm_per_px > 0:
+        _refuse_facing(cam1, R @ pl.C + t)
     mm_per_px = sp.mm_per_px or cam_mm_per_px / sp.oversample
     cam = sp.camera or placement_camera(pl, mesh.nodes, R, t, mm_per_px, None)
     if sp.camera is not None:
         require_coverage(mesh, cam, "speckle.camera")
     check_image_size("speckle.mm_per_px" if sp.mm_per_px else "speckle.oversample", cam.width, cam.height,
-                     "the generated reference image", "give a larger mm_per_px or a smaller oversample")
+                     f"the generated reference image (camera {cam1.name} sees {cam_mm_per_px:.3g} mm per px on the "
+                     f"specimen, over speckle.oversample = {sp.oversample:g})",
+                     "give a larger mm_per_px or a smaller oversample, or check cameras[0].fx and its distance")
     dot_mm = sp.dot_diameter_px * cam_mm_per_px
     edge_mm = min(sp.edge_px * cam_mm_per_px, dot_mm)
     dot = dot_mm / mm_per_px
@@ -246,6 +259,40 @@ def make_reference(scene: Scene, mesh: meshmod.Mesh) -> Reference:
         speckle.pattern_args(dot, sp.density, edge_mm / mm_per_px)   # at least 2 reference px, as draw_dots
         dots = _surface_dots(pl, cam, mm_per_px, dot_mm, edge_mm, sp)
     return Reference(speckle.rasterize(dots), cam, dots)
+
+
+def _refuse_facing(cam: Camera, centre) -> None:
+    """The SceneError for a camera 0 that does not face the specimen (its scale at the specimen,
+    which sizes the generated dots, is not positive): ``centre`` (world mm) is the point of the
+    specimen the scale was taken at."""
+    z = float(to_camera(centre, cam)[2])
+    why = (f"looks away from the specimen: the specimen's centre lies {-z:.4g} mm behind it" if z < 0 else
+           "sees the specimen edge-on or not at all: the specimen's centre lies 0 mm in front of it (in the plane "
+           "through the camera's centre square to its optical axis)")
+    raise SceneError("cameras[0]", f"camera {cam.name} {why}, so the built-in speckle generator cannot size its "
+                     "dots in this camera's pixels", "turn it to the specimen (cameras[0].pose, e.g. look_at) or move "
+                     "the specimen in front of it (specimen.pose.t: +z is in front of a camera without a pose), "
+                     "or give a speckle.image with speckle.mm_per_px")
+
+
+def require_area(mesh: meshmod.Mesh, key: str) -> None:
+    """SceneError(key) when no element of the undeformed ``mesh`` has an area — its nodes all
+    equal, on one line, or every element collapsed — rather than a failed plane fit: the
+    reference image could not be laid on it and no pixel would see it. An element counts as
+    having none at or below FLAT_REL of the nodes' bounding box's diagonal squared."""
+    lo, hi = extent(mesh.nodes)
+    area, _ = mesh_element_areas(mesh.nodes - (lo + hi) / 2, mesh.quads)
+    span = hi - lo
+    largest = float(area.max())
+    if largest > FLAT_REL * float(span @ span):
+        return
+    d = (mesh.nodes - (lo + hi) / 2) / max(float(span.max()), 1e-300)
+    sv = np.linalg.svd(d.T @ d, compute_uv=False)
+    why = ("all its nodes coincide" if not span.any() else "all its nodes lie on one line"
+           if sv[1] <= FLAT_REL * sv[0] else "every element is collapsed (corners coincide or lie on one line)")
+    raise SceneError(key, f"no element has an area: {why} (the largest element area is {largest:.3g} mm², the "
+                     f"{len(mesh.nodes)} nodes span {' × '.join(f'{v:.4g}' for v in span)} mm)",
+                     "check the mesh's node coordinates and element connectivity (and specimen.mesh.unit)")
 
 
 def _check_dot(dot: float, cam: Camera, camera_px: float) -> None:

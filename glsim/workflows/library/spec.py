@@ -56,6 +56,7 @@ LISTS = ("range", "linspace")
 DRAWS = ("uniform", "normal", "integers", "choice")
 GENERATORS = LISTS + DRAWS
 TRUTH_DTYPES = ("float64", "float32")
+INT64 = (-2 ** 63, 2 ** 63)   # integers draws: [low, high) within numpy's int64
 
 
 class SpecError(GlsimError):
@@ -215,10 +216,15 @@ def _plain(v):
     return v
 
 
+def _finite(x) -> bool:
+    """A finite float, or an integer within int64 (TOML's integers; math.isfinite overflows on larger ones)."""
+    return INT64[0] <= x < INT64[1] if isinstance(x, int) else math.isfinite(x)
+
+
 def _numbers(key: str, name: str, value, count: int | tuple) -> list:
     counts = count if isinstance(count, tuple) else (count,)
     if (not isinstance(value, list) or len(value) not in counts
-            or not all(isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x) for x in value)):
+            or not all(isinstance(x, (int, float)) and not isinstance(x, bool) and _finite(x) for x in value)):
         want = " or ".join(map(str, counts))
         _fail(f"vary.{key}.{name}", f"expected a list of {want} numbers, got {value!r}",
               {"range": "write range = [start, stop] or [start, stop, step]",
@@ -260,6 +266,8 @@ class _Key:
                 start, stop, step = a[0], a[1], (a[2] if len(a) == 3 else 1)
                 if step == 0 or (stop - start) / step <= 0:
                     _fail(f"{key}.range", f"{arg} gives no values", "give start < stop with a positive step")
+                if not math.isfinite((stop - start) / step):   # float overflow: math.ceil would raise
+                    _fail(f"{key}.range", f"{arg} spans more than a float can hold", "give a narrower range")
                 count = math.ceil((stop - start) / step - 1e-9)
                 _limit(f"{key}.range", count, MAX_VALUES, "values", "use a larger step or a narrower range")
                 integer = all(isinstance(x, int) for x in (start, stop, step))
@@ -269,6 +277,8 @@ class _Key:
                 if not (isinstance(a[2], int) and a[2] >= 1):
                     _fail(f"{key}.linspace", f"count {a[2]!r} is not an integer ≥ 1", "write linspace = [2, 8, 4]")
                 _limit(f"{key}.linspace", a[2], MAX_VALUES, "values", "give a smaller count")
+                if not math.isfinite(a[1] - a[0]):   # float overflow: the values would be NaN
+                    _fail(f"{key}.linspace", f"{arg} spans more than a float can hold", "give a narrower range")
                 self.values = [float(x) for x in np.linspace(a[0], a[1], a[2])]
             return
         self.kind = "draw"
@@ -279,11 +289,18 @@ class _Key:
             a = _numbers(path, name, arg, 2)
             if name == "uniform" and not a[0] < a[1]:
                 _fail(f"{key}.uniform", f"low {a[0]} is not below high {a[1]}", "write uniform = [low, high]")
+            if name == "uniform" and not math.isfinite(a[1] - a[0]):   # numpy's OverflowError
+                _fail(f"{key}.uniform", f"{a} spans more than a float can hold", "give a narrower range")
             if name == "normal" and a[1] < 0:
                 _fail(f"{key}.normal", f"std {a[1]} is negative", "write normal = [mean, std] with std ≥ 0")
+            if name == "normal" and not math.isfinite(abs(a[0]) + 64 * a[1]):   # draws would overflow to inf
+                _fail(f"{key}.normal", f"{a} reaches beyond what a float can hold", "give a smaller mean and std")
             if name == "integers" and not (all(isinstance(x, int) for x in a) and a[0] < a[1]):
                 _fail(f"{key}.integers", f"{a} is not [low, high) with integers low < high",
                       "write integers = [0, 1000] (high excluded)")
+            if name == "integers" and not (INT64[0] <= a[0] and a[1] <= INT64[1]):   # numpy draws int64
+                _fail(f"{key}.integers", f"{a} reaches beyond 64-bit integers ({INT64[0]} … {INT64[1]}, "
+                      "high excluded)", "give a narrower range, e.g. integers = [0, 1000]")
         self.draw = (name, arg)
         if seed is None:
             _fail("seed", f"is required: vary.{path} is a random draw",
