@@ -25,6 +25,7 @@ MAX_VALUES = 1_000_000        # values of one library [vary] key (range, linspac
 MAX_IMAGES = 4_000_000        # images of one library (variants × cameras × steps)
 MIN_DOTS_ACROSS = 2           # speckle dots across the reference image's shorter side: fewer is warned of
 MAX_NESTING = 64              # nested tables and lists in a scene or spec file
+MAX_NAME_BYTES = 255          # a file name's bytes (NAME_MAX): output.pattern's format widths, checked before formatting
 MAX_COORDINATE_MM = 1e9       # |x|, |y|, |z| of a node, a displacement, a pose's t, a camera centre (1000 km):
 #                               far inside float64's range, so no product of lengths overflows in either backend
 MAX_FOCAL_PX = 1e7            # fx, fy of a scene camera (a 10 m lens on 1 µm pixels), and |cx|, |cy|, |skew|
@@ -89,18 +90,35 @@ def check_memory(key: str, size, spp: int, truth: bool) -> None:
                          "use a smaller camera size or fewer samples per pixel" + (", or no truth" if truth else ""))
 
 
-def parse_steps(text: str, key: str) -> list[int]:
-    """'0,2,5' or '0-3' → load steps, counted before the list is made (at most MAX_STEPS)."""
-    parts = []
+def _step_range(part: str, text: str, key: str) -> tuple[int, int]:
+    """'3' → (3, 3), '0-3' → (0, 3); SceneError(key) for anything else ('0-' named as open)."""
+    a, dash, b = part.partition("-")
+    if dash and a.strip() and not b.strip():
+        raise SceneError(key, f"the range {part.strip()!r} in {text!r} has no last step",
+                         "give its last step too, e.g. 0-3")
     try:
-        for part in text.split(","):
-            a, _, b = part.partition("-")
-            parts.append((int(a), int(b) if b else int(a)))
+        return int(a), int(b) if dash else int(a)
     except ValueError:
-        raise SceneError(key, f"cannot read {text!r}", "write e.g. 0,2,5 or 0-3") from None
-    refuse_count(key, sum(max(0, b - a + 1) for a, b in parts), MAX_STEPS, "load steps",
+        raise SceneError(key, f"cannot read {text!r}", "write e.g. 0,2,5 or 0-3 (closed ranges, first-last)") from None
+
+
+def parse_steps(text: str, key: str) -> list[int]:
+    """'0,2,5' or '0-3' → load steps, counted before the list is made (at most MAX_STEPS). A range
+    must be closed and ascending ('3-1' and '0-' are refused) and no step may be asked for twice."""
+    parts = [_step_range(part, text, key) for part in text.split(",")]
+    for a, b in parts:
+        if b < a:
+            raise SceneError(key, f"the range {a}-{b} in {text!r} runs backwards", f"write it first-last: {b}-{a}")
+    refuse_count(key, sum(b - a + 1 for a, b in parts), MAX_STEPS, "load steps",
                  "select the load steps to render, e.g. 0-3 or 0,10,20")
-    return [s for a, b in parts for s in range(a, b + 1)]
+    steps, seen = [], set()
+    for a, b in parts:
+        for s in range(a, b + 1):
+            if s in seen:
+                raise SceneError(key, f"{text!r} asks for step {s} twice", "name each load step once, e.g. 0-2,5")
+            seen.add(s)
+            steps.append(s)
+    return steps
 
 
 _DEEP = (f"nests tables or lists more than {MAX_NESTING} deep", "flatten the file")

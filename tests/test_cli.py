@@ -24,8 +24,9 @@ def test_demo_writes_a_stereo_sequence(tmp_path, capsys):
     out = tmp_path / "demo"
     assert main(["demo", "-o", str(out), "--size", "203", "154", "--n-steps", "1", "-q"]) == 0
     files = sorted(p.name for p in out.iterdir())
-    assert files == ["cam0_0000.tif", "cam0_0001.tif", "cam1_0000.tif", "cam1_0001.tif", "scene.json"]
-    for name in files[:-1]:
+    assert files == ["cam0_0000.tif", "cam0_0001.tif", "cam1_0000.tif", "cam1_0001.tif", "render-manifest.jsonl",
+                     "scene.json"]
+    for name in files[:4]:
         img = io.read_image(out / name)
         assert img.shape == (154, 203) and img.dtype == np.uint8
         covered = img > 0

@@ -120,7 +120,8 @@ def test_force_replaces_the_render_and_keeps_other_files(tmp_path, capsys):
     renamed.write_text(text.replace('name = "cam0"', 'name = "left"'))
     assert _render(renamed, out, "--steps", "0-1", "--force") == 0
     assert "--force: removed 7 images and truth files" in capsys.readouterr().out
-    assert sorted(snapshot(out)) == ["left_0000.tif", "left_0001.tif", "notes.txt", "scene.json"]
+    assert sorted(snapshot(out)) == ["left_0000.tif", "left_0001.tif", "notes.txt", "render-manifest.jsonl",
+                                     "scene.json"]
     assert load_scene(out / "scene.json").cameras[0].name == "left"
 
 
@@ -170,13 +171,13 @@ def test_an_interrupt_between_image_and_truth_leaves_neither(tmp_path, monkeypat
     monkeypatch.setattr(io, "_image_file", interrupted)
     assert _render(scene_file, out, "--truth") == 130
     assert "run the same command again to resume" in capsys.readouterr().err
-    assert sorted(snapshot(out)) == ["cam0_0000.tif", "cam0_0000_truth.npz", "scene.json"]
+    assert sorted(snapshot(out)) == ["cam0_0000.tif", "cam0_0000_truth.npz", "render-manifest.jsonl", "scene.json"]
     monkeypatch.undo()
     assert _render(scene_file, out, "--truth") == 0
     assert "resumed: kept 1 images" in capsys.readouterr().out
     files = sorted(snapshot(out))
     assert files == ["cam0_0000.tif", "cam0_0000_truth.npz", "cam0_0001.tif", "cam0_0001_truth.npz",
-                     "cam0_0002.tif", "cam0_0002_truth.npz", "scene.json"]
+                     "cam0_0002.tif", "cam0_0002_truth.npz", "render-manifest.jsonl", "scene.json"]
 
 
 def test_truth_is_renamed_before_its_image(tmp_path, monkeypatch):

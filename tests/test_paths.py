@@ -87,9 +87,12 @@ def test_inside_resolves_each_name_against_the_output_directory(tmp_path):
     assert outdir.inside(out, ["a.tif", "cam0/0001.tif"], "k") == [out / "a.tif", out / "cam0" / "0001.tif"]
     out.mkdir()
     os.symlink(tmp_path, out / "link")                   # a folder that leads out
-    for rel in ("../a.tif", "a/../../b.tif", str(tmp_path / "a.tif"), "link/a.tif", "a/.."):
+    for rel in ("../a.tif", "a/../../b.tif", str(tmp_path / "a.tif"), "a/.."):
         with pytest.raises(SceneError, match=r"^k: .* not inside the output directory .* without '\.\.'"):
             outdir.inside(out, ["ok.tif", rel], "k")
+    with pytest.raises(SceneError, match=rf"^{out / 'link'}: is a symbolic link to {tmp_path}, outside the output "
+                                         r"directory .* — remove the link"):
+        outdir.inside(out, ["ok.tif", "link/a.tif"], "k")            # the folder named, not the key
 
 
 # ---- one run at a time --------------------------------------------------------------------------------

@@ -37,7 +37,8 @@ def test_vtk_truth_and_mesh_series(tmp_path):
     w = write_sequence(scene, tmp_path, cameras=[1], truth=True, truth_format="vtk")
     assert sorted(p.name for p in tmp_path.iterdir()) == [
         "cam1_0000.tif", "cam1_0000_truth.vti", "cam1_0001.tif", "cam1_0001_truth.vti", "cam1_0002.tif",
-        "cam1_0002_truth.vti", "mesh.pvd", "mesh_0000.vtu", "mesh_0001.vtu", "mesh_0002.vtu", "scene.json"]
+        "cam1_0002_truth.vti", "mesh.pvd", "mesh_0000.vtu", "mesh_0001.vtu", "mesh_0002.vtu", "render-manifest.jsonl",
+        "scene.json"]
     assert len(w.truth) == 3
     with Renderer(scene) as r:
         truth = r.render(1, 2, truth=True).truth

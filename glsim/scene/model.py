@@ -8,6 +8,7 @@ import dataclasses
 import json
 import math
 import re
+import string
 import typing
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -16,7 +17,7 @@ import numpy as np
 
 from glsim.scene.camera import Camera, check_ranges
 from glsim.errors import SceneError, check
-from glsim.limits import (MAX_ELEMENTS, MAX_PIECES, MAX_SAMPLES_PER_PIXEL, MAX_STEPS, check_gl_target, check_image_size,
+from glsim.limits import (MAX_ELEMENTS, MAX_NAME_BYTES, MAX_PIECES, MAX_SAMPLES_PER_PIXEL, MAX_STEPS, check_gl_target, check_image_size,
                           refuse_count, require_file)
 from glsim.scene.mesh import UNITS_TO_MM
 from glsim.scene.tables import Vec3, build, check_length, reject_unknown
@@ -286,6 +287,10 @@ class Output:
     def __post_init__(self):
         check(self.format in FORMATS, "output.format", f"{self.format!r} is not one of {FORMATS}",
               "use 'tiff' (8/16-bit) or 'png'")
+        why = _pattern_problem(self.pattern)
+        check(not why, "output.pattern", f"{_shown(self.pattern)} {why}",
+              f"use only the fields {{camera}}, {{step}} and {{ext}}, with widths of at most {MAX_NAME_BYTES}, e.g. "
+              "'{camera}_{step:04d}.{ext}'")
         try:
             names = {self.pattern.format(camera=c, step=k, ext="tif") for c in ("cam0", "cam1") for k in (0, 1)}
         except (KeyError, IndexError, ValueError) as exc:
@@ -299,6 +304,43 @@ class Output:
             check(not why, "output.pattern", f"{_shown(self.pattern)} gives {_shown(name)}, which {why}",
                   "give names relative to the output directory: subfolders as 'a/b', no '..', no leading '/' or "
                   "'.', no backslash or control character, e.g. '{camera}_{step:04d}.{ext}'")
+
+
+def _pattern_problem(pattern: str) -> str:
+    """Why ``pattern`` cannot be formatted safely ("" if it can): checked before it is formatted,
+    so that no format spec allocates more than a file name holds (``{step:2000000000}``)."""
+    try:
+        fields = [(f, spec) for _, f, spec, _ in string.Formatter().parse(pattern) if f is not None]
+    except ValueError as exc:
+        return f"cannot be formatted ({exc})"
+    for name, spec in fields:
+        if name not in ("camera", "step", "ext"):
+            return f"has the field {{{name}}}" if name else "has an unnamed field {}"
+        if "{" in spec:
+            return f"nests a field in the format of {{{name}:{spec[:20]}}}"
+        wide = [d for d in re.findall(r"[1-9]\d*", spec) if len(d) > 3 or int(d) > MAX_NAME_BYTES]
+        if wide:
+            return (f"asks for {_shown(wide[0], 12)[1:-1]} characters in {{{name}:{_shown(spec, 20)[1:-1]}}}, more "
+                    f"than a file name holds ({MAX_NAME_BYTES} bytes)")
+    return ""
+
+
+def check_output_names(pattern: str, files) -> None:
+    """SceneError("output.pattern") if two of ``files`` — (file name relative to the output
+    directory, what it holds) pairs: every file a render writes, its images named by ``pattern``
+    for the scene's real cameras and steps — have the same name, or a name would leave (or hide in)
+    the output directory."""
+    seen = {}
+    for name, what in files:
+        why = _outside(name)
+        check(not why, "output.pattern", f"{_shown(pattern)} gives {_shown(name)} for {what}, which {why}",
+              "give names relative to the output directory: subfolders as 'a/b', no '..', no leading '/' or "
+              "'.', no backslash or control character, e.g. '{camera}_{step:04d}.{ext}'")
+        if name in seen:
+            raise SceneError("output.pattern", f"{_shown(pattern)} gives {seen[name]} and {what} the same file name "
+                             f"{_shown(name)}", "include both {camera} and {step} in full, e.g. "
+                             "'{camera}_{step:04d}.{ext}' (a format such as {step:.0e} or {camera:.4} cuts them)")
+        seen[name] = what
 
 
 NAME_MAX = 64

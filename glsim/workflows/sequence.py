@@ -18,16 +18,20 @@ Rules of the output directory (README "Output directory"):
 """
 from __future__ import annotations
 
+import contextlib
+import errno
 import json
 import os
 import re
+import stat
 import string
 from dataclasses import dataclass
 from pathlib import Path
 
 from glsim.errors import SceneError
+from glsim.io import atomic, outdir, rendermanifest
 from glsim.io import images as io
-from glsim.io import outdir
+from glsim.scene.model import check_output_names
 from glsim.render import Renderer, Truth
 from glsim.scene import Scene
 
@@ -36,7 +40,8 @@ from glsim.scene import Scene
 @dataclass(frozen=True)
 class Written:
     """What :func:`write_sequence` wrote: image paths, truth paths and seconds per render;
-    ``kept``: images of an earlier run of the same scene that were already there."""
+    ``kept``: images of an earlier run of the same scene that were already there (their bytes
+    those recorded in its manifest)."""
     images: tuple[str, ...]
     truth: tuple[str, ...]
     seconds: tuple[float, ...]
@@ -44,6 +49,17 @@ class Written:
     scene_json: str
     kept: tuple[str, ...] = ()
     removed: tuple[str, ...] = ()     # files of an earlier render removed by force=True
+    redone: tuple[str, ...] = ()      # "image: why": rendered again, a file there not matching the manifest
+    swept: tuple[str, ...] = ()       # temporaries an interrupted run left, removed
+
+
+@dataclass(frozen=True)
+class _Image:
+    """One image to write: its camera, step, path and its truth files' paths."""
+    camera: str
+    step: int
+    path: Path
+    truth: tuple[Path, ...]
 
 
 def write_sequence(scene: Scene, directory: str | None = None, steps=None, cameras=None,
@@ -71,7 +87,6 @@ def _write(scene: Scene, out: Path, steps, cameras, truth: bool, progress, truth
            force: bool) -> Written:
     """:func:`write_sequence` holding the lock of ``out``."""
     resume = _check_directory(out, scene, force)
-    ext = io.EXTENSIONS[scene.output.format]
     with Renderer(scene) as r:                      # reads and checks mesh, steps' files, reference
         n = r.mesh.n_steps
         steps = list(range(n)) if steps is None else list(steps)
@@ -80,46 +95,163 @@ def _write(scene: Scene, out: Path, steps, cameras, truth: bool, progress, truth
                 raise SceneError("steps", f"step {s} does not exist (the scene has steps 0…{n - 1})",
                                  f"use steps from 0…{n - 1}, e.g. --steps 0-{n - 1}")
         cams = [scene.camera(c) for c in (cameras if cameras is not None else range(len(scene.cameras)))]
+        _once("steps", "step", steps)
+        _once("cameras", "camera", [c.name for c in cams])
         _check_effect_inputs(scene, cams)
         for cam in cams:
             r.check_size(cam.name, truth)
-        keys = [(step, cam.name) for step in steps for cam in cams]
-        paths = dict(zip(keys, outdir.inside(out, [scene.output.pattern.format(camera=c, step=s, ext=ext)
-                                                   for s, c in keys], "output.pattern")))
-        # Everything is read and checked: from here on files are written.
-        removed = _remove_previous(out, scene) if force and not resume else []
-        scene_json = io.write_text(out / "scene.json", scene.to_json())
-        if scene.vignetting is not None and scene.vignetting.flat_field:   # each camera's gain: {camera}_flatfield.tif
-            from glsim.effects.vignetting import flat_field
-            for cam in cams:
-                io.write_truth_tiff(out / cam.name, {"flatfield": flat_field(cam, scene.vignetting)})
-        if truth and truth_format == "vtk":         # the FE mesh beside the .vti truth, for ParaView
-            from glsim.io.vtkfiles import write_mesh_series
-            write_mesh_series(out, r.mesh, scene.cameras[0])
-        if r.mesh.step_times:                       # a time series: the solver's time of each step
-            io.write_text(out / "steps.json", json.dumps({"steps": [
-                {"step": k, "time": t} for k, t in enumerate(r.mesh.step_times)]}))
-        images, truths, seconds, saturated, kept = [], [], [], [], []
-        total = len(cams) * len(steps)
         maps = Truth.FIELDS + (Truth.MOTION if scene.exposure is not None else ())   # the maps a truth file holds
-        for step in steps:
-            for cam in cams:
-                path = paths[step, cam.name]
-                want = io.truth_paths(path, maps, truth_format) if truth else []
-                if resume and path.is_file() and all(p.is_file() for p in want):
-                    kept.append(str(path))
+        todo, others = _plan(scene, out, steps, cams, maps if truth else None, truth_format, r.mesh)
+        # Everything is read and checked: from here on files are written.
+        with _writing(out):
+            removed = _remove_previous(out, scene) if force and not resume else []
+            if force and not resume and os.path.lexists(out / rendermanifest.NAME):   # its record goes with it
+                os.unlink(out / rendermanifest.NAME)
+            swept = _sweep(out, [i.path for i in todo] + [p for i in todo for p in i.truth] + others)
+        kept_files, redone = _verify(out, todo) if resume else (set(), [])
+        with _writing(out / "scene.json"):
+            scene_json = io.write_text(out / "scene.json", scene.to_json())
+        with _writing(out):
+            _write_extras(scene, out, cams, r.mesh, truth and truth_format == "vtk")
+        images, truths, seconds, saturated, kept = [], [], [], [], []
+        with _writing(out / rendermanifest.NAME), rendermanifest.appending(out) as record:
+            for k, item in enumerate(todo):
+                if item.path in kept_files:
+                    kept.append(str(item.path))
                 else:
-                    res = r.render(cam.name, step, truth=truth)
-                    img, tps = io.write_image_with_truth(path, res.image, cam.bit_depth, scene.output.format,
-                                                         res.truth.as_dict() if truth else None, truth_format)
+                    res = r.render(item.camera, item.step, truth=truth)
+                    cam = scene.camera(item.camera)
+                    with _writing(item.path):
+                        img, tps = io.write_image_with_truth(item.path, res.image, cam.bit_depth, scene.output.format,
+                                                             res.truth.as_dict() if truth else None, truth_format)
+                        record([*tps, img])
                     images.append(str(img))
                     truths += map(str, tps)
                     seconds.append(res.seconds)
                     saturated.append(res.saturated)
                 if progress:
-                    progress(len(images) + len(kept), total, str(path))
+                    progress(k + 1, len(todo), str(item.path))
     return Written(tuple(images), tuple(truths), tuple(seconds), tuple(saturated), str(scene_json),
-                   tuple(kept), tuple(map(str, removed)))
+                   tuple(kept), tuple(map(str, removed)), tuple(redone), tuple(map(str, swept)))
+
+
+def _once(key: str, what: str, items) -> None:
+    """SceneError(key) if an item is asked for twice (it would be rendered twice into one file)."""
+    seen = set()
+    for item in items:
+        if item in seen:
+            raise SceneError(key, f"{what} {item} is asked for twice", f"name each {what} once")
+        seen.add(item)
+
+
+def _plan(scene: Scene, out: Path, steps, cams, maps, truth_format: str, mesh) -> tuple[list[_Image], list[Path]]:
+    """The images to write (step by step, camera by camera; ``maps``: the truth maps, None for no
+    truth) and the other files a render writes, their names checked: none shared by two files
+    (output.pattern formatted with the real cameras and steps), none leaving ``out``, none where
+    something other than a regular file is (a link, a directory)."""
+    ext = io.EXTENSIONS[scene.output.format]
+    files, todo = [], []
+    for step in steps:
+        for cam in cams:
+            rel = scene.output.pattern.format(camera=cam.name, step=step, ext=ext)
+            tps = [p.as_posix() for p in io.truth_paths(rel, maps, truth_format)] if maps is not None else []
+            files += [(rel, f"the image of camera {cam.name} at step {step}")]
+            files += [(t, f"the truth of camera {cam.name} at step {step} ({Path(t).name})") for t in tps]
+            todo.append((cam.name, step, rel, tps))
+    files += [(name, f"{name} (glsim's own)") for name in _own_files(scene, cams, mesh, truth_format, maps)]
+    check_output_names(scene.output.pattern, files)
+    paths = dict(zip([f for f, _ in files], outdir.inside(out, [f for f, _ in files], "output.pattern")))
+    for rel, what in files:
+        _check_target(paths[rel], what)
+    images = [_Image(c, s, paths[rel], tuple(paths[t] for t in tps)) for c, s, rel, tps in todo]
+    return images, [paths[f] for f in _own_files(scene, cams, mesh, truth_format, maps)]
+
+
+def _own_files(scene: Scene, cams, mesh, truth_format: str, maps) -> list[str]:
+    """The names of the files a render writes besides images and truth."""
+    names = ["scene.json", rendermanifest.NAME]
+    if scene.vignetting is not None and scene.vignetting.flat_field:
+        names += [p.as_posix() for cam in cams for p in io.truth_tiff_paths(cam.name, ["flatfield"])]
+    if maps is not None and truth_format == "vtk":
+        names += [f"mesh_{k:04d}.vtu" for k in range(mesh.n_steps)] + ["mesh.pvd"]
+    if mesh.step_times:
+        names.append("steps.json")
+    return names
+
+
+def _check_target(path: Path, what: str) -> None:
+    """SceneError naming ``path`` if something other than a regular file is there (a link, a
+    directory, a FIFO): glsim neither writes through nor replaces it."""
+    try:
+        mode = os.lstat(path).st_mode
+    except FileNotFoundError:
+        return
+    if not stat.S_ISREG(mode):
+        raise SceneError(str(path), f"is {atomic.kind(mode)}, where glsim writes {what}",
+                         "remove it, or write to another directory (-o)")
+
+
+def _write_extras(scene: Scene, out: Path, cams, mesh, vtk: bool) -> None:
+    """Flat fields, the FE mesh for ParaView, the steps' times: what a render writes besides images."""
+    if scene.vignetting is not None and scene.vignetting.flat_field:   # each camera's gain: {camera}_flatfield.tif
+        from glsim.effects.vignetting import flat_field
+        for cam in cams:
+            io.write_truth_tiff(out / cam.name, {"flatfield": flat_field(cam, scene.vignetting)})
+    if vtk:                                         # the FE mesh beside the .vti truth, for ParaView
+        from glsim.io.vtkfiles import write_mesh_series
+        write_mesh_series(out, mesh, scene.cameras[0])
+    if mesh.step_times:                             # a time series: the solver's time of each step
+        io.write_text(out / "steps.json", json.dumps({"steps": [
+            {"step": k, "time": t} for k, t in enumerate(mesh.step_times)]}))
+
+
+def _verify(out: Path, todo) -> tuple[set[Path], list[str]]:
+    """The images of ``todo`` to keep on resuming — each of their files a regular file whose bytes
+    match the render's manifest — and "image: why" of those there that do not (rendered again)."""
+    groups = [(i.path, [*i.truth, i.path]) for i in todo]
+    present = [(image, fs) for image, fs in groups if all(os.path.isfile(f) for f in fs)]
+    records = rendermanifest.read(out, [f.relative_to(out).as_posix() for _, fs in present for f in fs])
+    keep, redone = set(), []
+    for image, fs in present:
+        why = next((f"{f.relative_to(out).as_posix()}: {w}" for f in fs
+                    if (w := rendermanifest.mismatch(f, records.get(f.relative_to(out).as_posix())))), "")
+        if why:
+            redone.append(why)
+        else:
+            keep.add(image)
+    return keep, redone
+
+
+def _sweep(out: Path, paths) -> list[Path]:
+    """Remove the temporaries (:func:`glsim.io.atomic.temporary_of`) of ``paths`` that an
+    interrupted run left: only those, in their folders; no other file."""
+    names: dict[Path, set[str]] = {}
+    for p in paths:
+        names.setdefault(p.parent, set()).add(p.name)
+    swept = []
+    for folder, wanted in names.items():
+        if not folder.is_dir():
+            continue
+        for entry in os.scandir(folder):
+            if atomic.temporary_of(entry.name) in wanted and entry.is_file(follow_symlinks=False):
+                os.unlink(entry.path)
+                swept.append(Path(entry.path))
+    return sorted(swept)
+
+
+@contextlib.contextmanager
+def _writing(path: Path):
+    """An OSError while writing (a full disk, a read-only filesystem) as a WriteError naming the
+    file — the temporary's final name — and how to go on."""
+    try:
+        yield
+    except OSError as exc:
+        name = Path(exc.filename2 or exc.filename or path)
+        name = name.with_name(atomic.temporary_of(name.name) or name.name)
+        full = exc.errno in (errno.ENOSPC, errno.EDQUOT)
+        raise outdir.WriteError(f"{name}: cannot be written ({outdir.problem(exc)}) — "
+                                + ("free space" if full else "check that the output directory is writable")
+                                + ", then run the same command again to resume") from None
 
 
 def _check_effect_inputs(scene: Scene, cams) -> None:
@@ -144,7 +276,7 @@ FORCE_FIX = ("write to a new directory (-o), or pass --force (force=True) to rep
 def _check_directory(out: Path, scene: Scene, force: bool) -> bool:
     """True to resume a render of the same scene in ``out``; False for a new render. Raises
     SceneError for a directory holding something else, unless ``force``."""
-    if not outdir.entries(out):
+    if not [p for p in outdir.entries(out) if atomic.temporary_of(p.name) is None]:   # a run killed at once: new
         return False
     old = _read_json(out / "scene.json")
     new = json.loads(scene.to_json())
