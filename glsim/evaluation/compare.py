@@ -29,6 +29,7 @@ from glsim.errors import GlsimError
 from glsim.io import images as io
 from glsim.io.npzfile import NpzError, read_npz
 from glsim.io.truth import mesh_geometry, points_truth
+from glsim.workflows.library.manifest import counted
 from glsim.scene import load_scene
 from glsim.io.fe import specimen_mesh
 
@@ -122,11 +123,11 @@ def _read_rows(path: Path) -> tuple[list[list[str]], str | None]:
     sep = next((s for s in (";", "\t", ",") if lines and s in lines[0]), None)
     if sep is None:
         return [line.split() for line in lines], None
-    reader = csv.reader(lines, delimiter=sep)
+    source = counted(lines)
     try:
-        return list(reader), sep
+        return list(csv.reader(source, delimiter=sep)), sep
     except csv.Error as exc:
-        raise GlsimError(f"{path}: line {reader.line_num} of its non-blank lines is not CSV ({exc}) — give one "
+        raise GlsimError(f"{path}: line {source.count} of its non-blank lines is not CSV ({exc}) — give one "
                          "number per field") from None
 
 

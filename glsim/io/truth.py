@@ -212,7 +212,7 @@ class CompactTruth:
         for name, v in zip(("ξ", "η"), vals):
             k = local_problem(v)
             if k >= 0:
-                raise TruthFileError(f"{self.path}: its {name} at pixel ({idx[k] % W}, {idx[k] // W}) is {v[k]!r}, "
+                raise TruthFileError(f"{self.path}: its {name} at pixel ({idx[k] % W}, {idx[k] // W}) is {float(v[k])!r}, "
                                      f"outside the element's local coordinates [−1, 1] widened to ±{LOCAL_BOUND:g}"
                                      f"{DAMAGED}")
             a = np.full(H * W, np.nan)

@@ -161,7 +161,7 @@ def encode_compact(el: np.ndarray, xs: np.ndarray, es: np.ndarray, header: dict,
         k = local_problem(v)
         if k >= 0:    # (a file the reader would refuse is never written)
             raise TruthFileError(f"the truth's {name} at pixel ({idx[k] % W}, {idx[k] // W}) of element {el.flat[idx[k]]} "
-                                 f"is {v[k]!r}, outside the element's local coordinates [−1, 1] widened to "
+                                 f"is {float(v[k])!r}, outside the element's local coordinates [−1, 1] widened to "
                                  f"±{LOCAL_BOUND:g} — the element is degenerate or folded: check the mesh there")
     cz = _zstd().ZstdCompressor(level=ZSTD_LEVEL)
     if dtype == "float64":

@@ -94,14 +94,30 @@ def manifest_rows(out: Path) -> list[dict]:
                             f"— {fix}") from None
     except OSError as exc:
         raise ManifestError(f"{path}: cannot be read ({exc.strerror or exc})") from None
-    reader = csv.DictReader(_io.StringIO(text, newline=""))
+    lines = counted(text.splitlines(keepends=True))
+    reader = csv.DictReader(lines)
     rows = []
     try:
         for row in reader:
-            rows.append({**row, "_line": reader.line_num})
+            rows.append({**row, "_line": lines.count})
     except csv.Error as exc:
-        raise ManifestError(f"{path}: line {reader.line_num} is not CSV ({exc}) — {fix}") from None
+        raise ManifestError(f"{path}: line {lines.count} is not CSV ({exc}) — {fix}") from None
     return rows
+
+
+class counted:
+    """An iterator over ``lines`` that counts those taken (the line a csv reader is on)."""
+
+    def __init__(self, lines):
+        self.lines, self.count = iter(lines), 0
+
+    def __iter__(self):
+        return self
+
+    def __next__(self):
+        line = next(self.lines)
+        self.count += 1
+        return line
 
 
 def record(row: dict) -> dict:
