@@ -75,12 +75,12 @@ def write_rig_yaml(path, K1, D1, K2, D2, R, T, image_size, **extra) -> Path:
 
 def read_rig_yaml(path) -> dict[str, np.ndarray]:
     """The matrices of a rig YAML (K1 D1 K2 D2 R T image_size), as written by write_rig_yaml."""
-    import cv2
     path = Path(path)
     fix = "give a calibration YAML written by glsim calib"
     text = rig_text(path, fix)
     if not text.strip():   # cv2.FileStorage fails on it with a SystemError
         raise SceneError(str(path), "is empty", fix)
+    import cv2             # (after the checks: a refusal needs no OpenCV)
     try:
         fs = cv2.FileStorage(str(path), cv2.FILE_STORAGE_READ)
         out = {k: fs.getNode(k).mat() for k in ("K1", "D1", "K2", "D2", "R", "T", "image_size")}

@@ -168,8 +168,9 @@ def coerce(value, hint, key: str):
             raise SceneError(key, f"expected {'an integer' if hint is int else 'a number'}, got {value!r}",
                              "write e.g. 4" if hint is int else "write e.g. 1.0")
         if isinstance(value, int) and not INT64[0] <= value < INT64[1]:   # TOML's integers are 64-bit; float() overflows
-            raise SceneError(key, f"{str(value)[:24]}… ({len(str(value))} digits) is beyond 64-bit integers",
-                             "give a number within ±9.2e18")
+            digits = str(value)
+            shown = digits if len(digits) <= 24 else f"{digits[:24]}… ({len(digits)} digits)"
+            raise SceneError(key, f"{shown} is beyond 64-bit integers", "give a number within ±2⁶³ (±9.2e18)")
         if not math.isfinite(value):
             raise SceneError(key, f"must be finite, got {value}", "give a finite number")
         return hint(value)

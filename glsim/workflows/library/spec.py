@@ -56,7 +56,7 @@ LISTS = ("range", "linspace")
 DRAWS = ("uniform", "normal", "integers", "choice")
 GENERATORS = LISTS + DRAWS
 TRUTH_DTYPES = ("float64", "float32")
-INT64 = (-2 ** 63, 2 ** 63)   # integers draws: [low, high) within numpy's int64
+INT64 = (-2 ** 63, 2 ** 63)   # the integers a spec may give: numpy draws integers = [low, high) in int64
 
 
 class SpecError(GlsimError):
@@ -216,13 +216,22 @@ def _plain(v):
     return v
 
 
+def _digits(n: int) -> str:
+    """A long integer shown by its first 24 digits and its length."""
+    text = str(n)
+    return text if len(text) <= 24 else f"{text[:24]}… ({len(text)} digits)"
+
+
 def _finite(x) -> bool:
-    """A finite float, or an integer within int64 (TOML's integers; math.isfinite overflows on larger ones)."""
-    return INT64[0] <= x < INT64[1] if isinstance(x, int) else math.isfinite(x)
+    """A finite float, or an integer within ±2⁶³ (TOML's integers; math.isfinite overflows on larger ones)."""
+    return INT64[0] <= x <= INT64[1] if isinstance(x, int) else math.isfinite(x)
 
 
 def _numbers(key: str, name: str, value, count: int | tuple) -> list:
     counts = count if isinstance(count, tuple) else (count,)
+    big = next((x for x in value if isinstance(x, int) and not _finite(x)), None) if isinstance(value, list) else None
+    if big is not None:
+        _fail(f"vary.{key}.{name}", f"{_digits(big)} is beyond 64-bit integers", "give numbers within ±2⁶³ (±9.2e18)")
     if (not isinstance(value, list) or len(value) not in counts
             or not all(isinstance(x, (int, float)) and not isinstance(x, bool) and _finite(x) for x in value)):
         want = " or ".join(map(str, counts))
@@ -298,9 +307,6 @@ class _Key:
             if name == "integers" and not (all(isinstance(x, int) for x in a) and a[0] < a[1]):
                 _fail(f"{key}.integers", f"{a} is not [low, high) with integers low < high",
                       "write integers = [0, 1000] (high excluded)")
-            if name == "integers" and not (INT64[0] <= a[0] and a[1] <= INT64[1]):   # numpy draws int64
-                _fail(f"{key}.integers", f"{a} reaches beyond 64-bit integers ({INT64[0]} … {INT64[1]}, "
-                      "high excluded)", "give a narrower range, e.g. integers = [0, 1000]")
         self.draw = (name, arg)
         if seed is None:
             _fail("seed", f"is required: vary.{path} is a random draw",
