@@ -31,6 +31,7 @@ from pathlib import Path
 from glsim.errors import SceneError
 from glsim.io import atomic, outdir, rendermanifest
 from glsim.io import images as io
+from glsim.limits import parse_nested
 from glsim.scene.model import check_output_names
 from glsim.render import Renderer, Truth
 from glsim.scene import Scene
@@ -295,11 +296,24 @@ def _check_directory(out: Path, scene: Scene, force: bool) -> bool:
     raise SceneError(str(out), problem, FORCE_FIX)
 
 
+MAX_SCENE_JSON = 1 << 24      # bytes of a scene.json read to compare (glsim's are a few kB)
+
+
 def _read_json(path: Path):
+    """The table in the regular file ``path`` (not followed if a link; at most MAX_SCENE_JSON
+    bytes, nested at most MAX_NESTING deep), else None."""
     try:
-        data = json.loads(path.read_text(encoding="utf-8"))
-    except (OSError, ValueError, UnicodeDecodeError):
+        fd = os.open(path, os.O_RDONLY | os.O_NOFOLLOW | os.O_NONBLOCK | os.O_CLOEXEC)
+    except OSError:
         return None
+    with os.fdopen(fd, "rb") as f:
+        st = os.fstat(fd)
+        if not stat.S_ISREG(st.st_mode) or st.st_size > MAX_SCENE_JSON:
+            return None
+        try:
+            data = parse_nested(json.loads, f.read(MAX_SCENE_JSON).decode("utf-8"), str(path))
+        except (OSError, ValueError):         # SceneError and UnicodeDecodeError are ValueErrors
+            return None
     return data if isinstance(data, dict) else None
 
 
