@@ -172,28 +172,48 @@ def require_file(path, key: str, fix: str) -> Path:
 
 
 def check_image_file(path: str | Path, key: str) -> None:
-    """SceneError(key) if the image file's header declares more pixels than glsim's limits
-    (:mod:`glsim.limits`): read before the image is decoded. An unreadable header is left to the reader."""
-    import logging
-    import struct
+    """SceneError(key) if the reference image file's header declares more pixels than glsim's
+    limits, colour, several pages, a pixel type other than 8/16-bit or float, or more memory to read
+    than this process may use (REFERENCE_BYTES_PER_PIXEL): read before the image is decoded. An
+    unreadable header is left to the reader."""
+    from glsim.io.images import check_image_header
 
-    log = logging.getLogger("tifffile")       # it logs a patched header's inconsistencies
-    quiet, log.disabled = log.disabled, True
-    try:
-        with open(path, "rb") as f:
-            head = f.read(24)
-        if head[:8] == b"\x89PNG\r\n\x1a\n":
-            W, H = struct.unpack(">II", head[16:24])
-        elif str(path).lower().endswith((".tif", ".tiff")):
-            import tifffile
-            with tifffile.TiffFile(path) as tf:
-                W, H = tf.pages[0].imagewidth, tf.pages[0].imagelength
-        else:
-            from PIL import Image
-            with Image.open(path) as im:
-                W, H = im.size
-    except Exception:  # noqa: BLE001 — the reader that decodes it names the problem
-        return
-    finally:
-        log.disabled = quiet
-    check_image_size(key, W, H, f"{path} (as its header declares)", "give a smaller reference image")
+    check_image_header(path, key, "greyscale image", "give a smaller reference image", MAX_IMAGE_SIDE,
+                       REFERENCE_DTYPES, REFERENCE_BYTES_PER_PIXEL)
+
+
+# ---- files read from disk: what their headers declare, bounded before anything is read ----------
+
+REFERENCE_BYTES_PER_PIXEL = 32   # memory estimate of reading a reference image: per pixel, besides its
+#                                  decoded bytes (the float64 temporary of the scaling, the float32 image
+#                                  kept and its copies in the render: a 4096² 16-bit one peaks at 26 B/px);
+#                                  refused above the machine's memory
+REFERENCE_DTYPES = ("uint8", "uint16", "float16", "float32", "float64")   # pixel types a reference may hold
+MESH_BYTES_PER_NODE = 1024       # memory estimate of a mesh file, from the counts it declares: per node …
+MESH_BYTES_PER_ELEMENT = 3072    # … and per element (reading, surface, the render's per-element work: a
+#                                  250,000-quad .vtu renders in 0.79 GB, 2.7 KB a quad with its node, so a
+#                                  10⁶-element mesh is estimated at 4 GB); refused above the machine's memory
+MESH_BYTES_PER_TEXT_BYTE = 64    # … of a text mesh file that declares no counts (Abaqus), per byte of text
+MAX_INCLUDE_DEPTH = 16           # Abaqus *INCLUDE files nested in each other
+
+
+def check_need(key: str, need: int, what: str, fix: str) -> None:
+    """SceneError(key) "``what`` need(s) about … GiB" if ``need`` bytes exceed :func:`memory_budget`."""
+    budget = memory_budget()
+    if need > budget:
+        raise SceneError(key, f"{what} about {need / 2**30:.3g} GiB, more than the {budget / 2**30:.3g} GiB this "
+                         "process may use", fix)
+
+
+MESH_FIX = "give a coarser mesh (or only the visible surface), or run on a machine with more memory"
+
+
+def check_mesh_memory(key: str, nodes: int, elements: int, extra_bytes: int = 0, what: str = "") -> None:
+    """SceneError(key) if a mesh of ``nodes`` and ``elements`` (as a file declares them; negative
+    counts refused), plus ``extra_bytes`` of its other data, needs more memory than
+    :func:`memory_budget` (estimate: MESH_BYTES_PER_NODE, MESH_BYTES_PER_ELEMENT)."""
+    if nodes < 0 or elements < 0:
+        raise SceneError(key, f"declares {nodes:,} nodes and {elements:,} elements{what}",
+                         "write or export the mesh file again")
+    check_need(key, nodes * MESH_BYTES_PER_NODE + elements * MESH_BYTES_PER_ELEMENT + extra_bytes,
+               f"declares {nodes:,} nodes and {elements:,} elements{what}, which need", MESH_FIX)

@@ -90,8 +90,12 @@ def airy_kernel(wavelength_nm: float, f_number: float, pixel_pitch: float) -> np
 
 def image_kernel(path: Path) -> np.ndarray:
     """A measured PSF file as a kernel: odd sides, centred, ≥ 0, normalised (SceneError otherwise)."""
-    from glsim.io.images import read_image
+    from glsim.io.images import check_image_header, read_image
+    from glsim.limits import require_file
 
+    side = 2 * MAX_RADIUS + 1
+    require_file(path, "psf.image", "give a greyscale TIFF or PNG file (path relative to the scene file)")
+    check_image_header(path, "psf.image", "PSF image", f"crop the PSF to at most {side} px a side", side)
     try:
         a = np.asarray(read_image(path), np.float64)
     except (OSError, ValueError) as exc:

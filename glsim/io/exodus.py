@@ -25,7 +25,11 @@ the file's own node and element numbers.
 A classic netCDF file (CDF-1, CDF-2, CDF-5; not the HDF5-based netCDF-4) is checked before it is
 read: every variable, and every stored step of the record variables, must lie inside the file,
 so that a truncated file (netCDF reads the missing bytes as zeros) or a damaged record count
-is refused naming the step, instead of giving a wrong image or a huge allocation.
+is refused naming the step, instead of giving a wrong image or a huge allocation. Every file,
+netCDF-4 (HDF5) included, whose length bounds nothing, is then bounded by its dimensions: the
+mesh they declare must fit in memory (:func:`~glsim.limits.check_mesh_memory`) and each variable's
+shape must match them before it is read. A declared block without its ``connect{i}``, coordinates
+never written (netCDF's fill value) or not finite, and a non-finite time are refused by name.
 """
 from __future__ import annotations
 
@@ -38,6 +42,7 @@ from typing import Iterator
 import numpy as np
 
 from glsim.errors import SceneError
+from glsim.limits import check_mesh_memory
 from glsim.io.series import QUADRATIC_FIX, Series
 from glsim.io.meshfiles import SOLID_FIX
 
@@ -58,6 +63,8 @@ _QUADRATIC = {("QUAD", 8): "quad8", ("SHELL", 8): "quad8", ("QUADRILATERAL", 8):
 EXODUS_TO_VTK = {"hexahedron20": np.r_[0:12, 16:20, 12:16],
                  "hexahedron27": np.r_[0:12, 16:20, 12:16, 23, 24, 25, 26, 21, 22, 20],
                  "wedge15": np.r_[0:9, 12:15, 9:12]}
+MAX_NAME_LENGTH = 4096      # chars of one name (eb_names, name_nod_var): Exodus writes 33 or 256
+_NC_FILL_DOUBLE = 9.969209968386869e36    # netCDF's default fill value: a variable never written
 _IGNORED = ("BAR", "BEAM", "TRUSS", "EDGE", "SPHERE", "CIRCLE", "POINT", "NULL", "SUPERELEMENT")
 
 
@@ -70,9 +77,14 @@ def _netcdf4():
     return netCDF4
 
 
-def _strings(ds, name: str) -> list[str] | None:
+def _strings(ds, name: str, rows: int, where: str) -> list[str] | None:
+    """The names in the char variable ``name`` (rows × length), its shape checked before it is read."""
     if name not in ds.variables:
         return None
+    shape = tuple(ds.variables[name].shape)
+    if len(shape) not in (1, 2) or (len(shape) == 2 and shape[0] != rows) or shape[-1] > MAX_NAME_LENGTH:
+        raise SceneError(where, f"variable {name!r} has shape {shape}, not ({rows}, at most {MAX_NAME_LENGTH})",
+                         "write the file again (as an Exodus II writer does)")
     raw = np.asarray(ds.variables[name][:])
     if raw.ndim == 1:
         raw = raw[None]
@@ -86,6 +98,33 @@ def _dim(ds, name: str, default: int | None = None) -> int:
     if default is None:
         raise KeyError(name)
     return default
+
+
+def _variable(ds, name: str, shape: tuple, where: str, dtype=np.float64) -> np.ndarray:
+    """Variable ``name`` read as ``dtype``, after its declared shape is checked against ``shape``
+    (from the dimensions, which the memory estimate has bounded): nothing larger is read."""
+    var = ds.variables[name]
+    if math.prod(var.shape) != math.prod(shape):
+        raise SceneError(where, f"variable {name!r} has shape {tuple(var.shape)}, where its dimensions give "
+                         f"{shape}", "write the file again (as an Exodus II writer does)")
+    try:
+        return np.asarray(var[:], dtype=dtype).reshape(shape)
+    except (RuntimeError, OSError, IndexError) as exc:   # HDF5's errors for a damaged netCDF-4 file
+        raise SceneError(where, f"variable {name!r} cannot be read ({exc})", "write or copy the file again") from None
+
+
+def _check_written(values: np.ndarray, var, name: str, labels: np.ndarray, where: str) -> None:
+    """SceneError naming ``name`` if it holds non-finite values or its fill value (never written)."""
+    fill = getattr(var, "_FillValue", None)
+    fill = float(np.asarray(fill).ravel()[0]) if fill is not None else _NC_FILL_DOUBLE
+    bad = ~np.isfinite(values) | (values == fill) | (np.abs(values) >= _NC_FILL_DOUBLE)
+    if bad.any():
+        rows = np.flatnonzero(bad.reshape(len(labels), -1).any(axis=1))
+        value = values.reshape(len(labels), -1)[rows[0]]
+        what = "the netCDF fill value (never written)" if np.isfinite(value).all() else "non-finite values"
+        raise SceneError(where, f"variable {name!r} holds {what} at {len(rows):,} nodes (first: node "
+                         f"{labels[rows[0]]}, {', '.join(f'{x:g}' for x in value)})",
+                         "write every node's coordinates as finite numbers")
 
 
 def element_type(elem_type: str, nodes_per_element: int, where: str, block: str) -> str | None:
@@ -137,14 +176,37 @@ def open_exodus(path) -> Iterator[Series]:
         ds.close()
 
 
-def _series(ds, path: Path) -> Series:
-    where = str(path)
+def _block_label(i: int, names: list[str], ids: list) -> str:
+    block_id = ids[i] if i < len(ids) else i + 1
+    return f"element block {names[i]!r} (id {block_id})" if i < len(names) and names[i] else f"element block id {block_id}"
+
+
+def _declared(ds, where: str) -> tuple[int, int, list[int], int]:
+    """Nodes, dimensions, elements per block and stored times as the file's dimensions declare
+    them, refused (SceneError) where they cannot be, or cannot fit in memory, before any variable
+    is read: a netCDF-4 (HDF5) file is not bounded by its length as a classic one is."""
     try:
         n_nodes, n_dim = _dim(ds, "num_nodes"), _dim(ds, "num_dim")
     except KeyError as exc:
         raise SceneError(where, f"has no dimension {exc.args[0]!r}, so is not an Exodus II file "
                          f"(dimensions: {', '.join(ds.dimensions) or 'none'})",
                          "give an Exodus II result (.e/.exo)") from None
+    if n_dim not in (2, 3):
+        raise SceneError(where, f"declares {n_dim} dimensions (num_dim)", "give 2-D or 3-D nodes")
+    n_blocks = _dim(ds, "num_el_blk", 0)
+    if n_blocks > len(ds.dimensions):       # each block declares its own num_el_in_blk{i}
+        raise SceneError(where, f"declares {n_blocks:,} element blocks (num_el_blk) but has only "
+                         f"{len(ds.dimensions)} dimensions", "write or copy the file again")
+    counts = [_dim(ds, f"num_el_in_blk{i}", 0) for i in range(1, n_blocks + 1)]
+    per_element = sum(c * _dim(ds, f"num_nod_per_el{i}", 0) for i, c in enumerate(counts, 1))
+    n_times = _dim(ds, "time_step", 0)
+    check_mesh_memory(where, n_nodes, sum(counts), 16 * per_element + 64 * n_times,
+                      f" ({n_blocks} element blocks, {n_times:,} stored times)")
+    return n_nodes, n_dim, counts, n_times
+
+
+def _coordinates(ds, n_nodes: int, n_dim: int, labels: np.ndarray, where: str) -> np.ndarray:
+    """(n_nodes, n_dim) coordinates; unwritten (fill value) or non-finite ones refused by variable."""
     v = ds.variables
     if "coordx" in v:
         axes = ["coordx", "coordy", "coordz"][:n_dim]
@@ -152,46 +214,65 @@ def _series(ds, path: Path) -> Series:
         if missing:
             raise SceneError(where, f"has no coordinate variable {missing[0]!r} for its {n_dim} dimensions",
                              "write coordx, coordy (and coordz in 3-D)")
-        coords = np.stack([np.asarray(v[a][:], dtype=np.float64) for a in axes], axis=1)
-    elif "coord" in v:
-        coords = np.asarray(v["coord"][:], dtype=np.float64).reshape(n_dim, n_nodes).T
-    else:
-        raise SceneError(where, "has no coordinates (neither coordx/coordy/coordz nor coord)",
-                         "give an Exodus II file with its nodes")
-    if coords.shape != (n_nodes, n_dim) or n_dim not in (2, 3):
-        raise SceneError(where, f"coordinates of shape {coords.shape} for {n_nodes} nodes in {n_dim} dimensions",
-                         "give 2-D or 3-D nodes")
-    points = np.pad(coords, ((0, 0), (0, 3 - n_dim)))
-    node_labels = (np.asarray(v["node_num_map"][:], dtype=np.int64) if "node_num_map" in v
-                   else np.arange(1, n_nodes + 1))
+        columns = [_variable(ds, a, (n_nodes,), where) for a in axes]
+        for a, column in zip(axes, columns):
+            _check_written(column, v[a], a, labels, where)
+        return np.stack(columns, axis=1)
+    if "coord" in v:
+        coords = _variable(ds, "coord", (n_dim, n_nodes), where)
+        _check_written(coords.T, v["coord"], "coord", labels, where)
+        return coords.T
+    raise SceneError(where, "has no coordinates (neither coordx/coordy/coordz nor coord)",
+                     "give an Exodus II file with its nodes")
 
-    n_blocks = _dim(ds, "num_el_blk", 0)
-    names = _strings(ds, "eb_names") or [""] * n_blocks
-    ids = np.asarray(v["eb_prop1"][:]).tolist() if "eb_prop1" in v else list(range(1, n_blocks + 1))
-    counts = [_dim(ds, f"num_el_in_blk{i}", 0) for i in range(1, n_blocks + 1)]
-    n_elem = sum(counts)
-    elem_labels = (np.asarray(v["elem_num_map"][:], dtype=np.int64) if "elem_num_map" in v
+
+def _times(ds, n_times: int, where: str) -> np.ndarray:
+    """The stored times (time_whole; 0, 1, … without it); a non-finite one refused naming its step."""
+    if "time_whole" not in ds.variables:
+        return np.arange(n_times, dtype=np.float64)
+    var = ds.variables["time_whole"]
+    if len(var.shape) != 1 or var.shape[0] < n_times:
+        raise SceneError(where, f"variable 'time_whole' has shape {tuple(var.shape)} for {n_times} stored times",
+                         "write the file again (as an Exodus II writer does)")
+    times = np.asarray(var[:n_times], dtype=np.float64).reshape(-1)
+    bad = np.flatnonzero(~np.isfinite(times))
+    if len(bad):
+        raise SceneError(where, f"time_whole holds {times[bad[0]]} at stored step {bad[0]} ({len(bad)} such steps)",
+                         "write finite times (the solver's output was damaged?)")
+    return times
+
+
+def _series(ds, path: Path) -> Series:
+    where = str(path)
+    n_nodes, n_dim, counts, n_times = _declared(ds, where)
+    n_blocks, n_elem = len(counts), sum(counts)
+    v = ds.variables
+    node_labels = (_variable(ds, "node_num_map", (n_nodes,), where, np.int64) if "node_num_map" in v
+                   else np.arange(1, n_nodes + 1))
+    points = np.pad(_coordinates(ds, n_nodes, n_dim, node_labels, where), ((0, 0), (0, 3 - n_dim)))
+    names = _strings(ds, "eb_names", n_blocks, where) or [""] * n_blocks
+    ids = _variable(ds, "eb_prop1", (n_blocks,), where, np.int64).tolist() if "eb_prop1" in v else []
+    elem_labels = (_variable(ds, "elem_num_map", (n_elem,), where, np.int64) if "elem_num_map" in v
                    else np.arange(1, n_elem + 1))
-    if len(elem_labels) != n_elem:
-        raise SceneError(where, f"elem_num_map has {len(elem_labels)} numbers for {n_elem} elements",
-                         "write one number per element")
-    if len(node_labels) != n_nodes:
-        raise SceneError(where, f"node_num_map has {len(node_labels)} numbers for {n_nodes} nodes",
-                         "write one number per node")
     offsets = np.cumsum([0] + counts)
     cells, cell_labels, block_names = [], [], []
     for i, count in enumerate(counts):
-        block_id = ids[i] if i < len(ids) else i + 1
-        label = (f"element block {names[i]!r} (id {block_id})" if i < len(names) and names[i]
-                 else f"element block id {block_id}")
-        if count == 0 or f"connect{i + 1}" not in v:
+        label = _block_label(i, names, ids)
+        if count == 0:
             continue
+        if f"connect{i + 1}" not in v:
+            raise SceneError(where, f"{label} declares {count:,} element{'s' * (count != 1)} (num_el_in_blk{i + 1}) but the file has "
+                             f"no connect{i + 1}, so they cannot be read", "write the file again with every "
+                             "block's connectivity (a damaged or partly written result?)")
         conn_var = v[f"connect{i + 1}"]
-        elem_type = getattr(conn_var, "elem_type", "")
-        conn = np.asarray(conn_var[:], dtype=np.int64).reshape(count, -1)
-        kind = element_type(elem_type, conn.shape[1], where, label)
+        shape = tuple(conn_var.shape)
+        if len(shape) != 2 or shape[0] != count:
+            raise SceneError(where, f"{label}: connect{i + 1} has shape {shape} for {count:,} elements",
+                             "write the file again (as an Exodus II writer does)")
+        kind = element_type(getattr(conn_var, "elem_type", ""), shape[1], where, label)
         if kind is None:
             continue
+        conn = _variable(ds, f"connect{i + 1}", shape, where, np.int64)
         if conn.min() < 1 or conn.max() > n_nodes:
             raise SceneError(where, f"{label} refers to nodes {conn.min()}..{conn.max()}, outside 1..{n_nodes}",
                              "connectivity is 1-based node positions")
@@ -201,22 +282,25 @@ def _series(ds, path: Path) -> Series:
         cell_labels.append(elem_labels[offsets[i]:offsets[i + 1]])
         block_names.append(label)
 
-    n_times = _dim(ds, "time_step", 0)
-    times = (np.asarray(v["time_whole"][:], dtype=np.float64).reshape(-1)[:n_times] if "time_whole" in v
-             else np.arange(n_times, dtype=np.float64))
-    index = {name: j for j, name in enumerate(_strings(ds, "name_nod_var") or []) if name}
+    times = _times(ds, n_times, where)
+    n_vars = _dim(ds, "num_nod_var", 0)
+    index = {name: j for j, name in enumerate(_strings(ds, "name_nod_var", n_vars, where) or []) if name}
     fields = {name: 1 for name in index}   # Exodus nodal variables are scalars (disp_x, disp_y, …)
 
     def read(name: str, k: int) -> np.ndarray:
         j = index[name]
-        try:
-            if f"vals_nod_var{j + 1}" in v:
-                return np.asarray(v[f"vals_nod_var{j + 1}"][k, :], dtype=np.float64)
-            if "vals_nod_var" in v:
-                return np.asarray(v["vals_nod_var"][k, j, :], dtype=np.float64)
-        except (RuntimeError, OSError, IndexError) as exc:   # HDF5's errors for a damaged netCDF-4 file
-            raise SceneError(where, f"stored step {k} of nodal variable {name!r} cannot be read ({exc})",
-                             "write or copy the file again") from None
+        for var, shape, at in ((f"vals_nod_var{j + 1}", (n_times, n_nodes), (k, slice(None))),
+                               ("vals_nod_var", (n_times, n_vars, n_nodes), (k, j, slice(None)))):
+            if var not in v:
+                continue
+            if tuple(v[var].shape) != shape:       # checked before a step is read: nothing larger is
+                raise SceneError(where, f"variable {var!r} has shape {tuple(v[var].shape)}, where its "
+                                 f"dimensions give {shape}", "write the file again (as an Exodus II writer does)")
+            try:
+                return np.asarray(v[var][at], dtype=np.float64)
+            except (RuntimeError, OSError, IndexError) as exc:   # HDF5's errors for a damaged netCDF-4 file
+                raise SceneError(where, f"stored step {k} of nodal variable {name!r} cannot be read ({exc})",
+                                 "write or copy the file again") from None
         raise SceneError(where, f"names nodal variable {name!r} but stores no values for it "
                          f"(no vals_nod_var{j + 1} or vals_nod_var)", "write the file with its nodal values")
 

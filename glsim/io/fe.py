@@ -77,16 +77,17 @@ def load_series(path, unit: str = "mm", R=None, t=None, displacement: str | Sequ
 
 def load_mesh(path, unit: str = "mm", R=None, t=None, point_data_steps: Sequence[str] | None = None,
               displacement_files: Sequence | None = None, csv_files: Sequence | None = None,
-              field: str | None = None) -> Mesh:
+              field: str | None = None, roots: Sequence = ()) -> Mesh:
     """Any FE mesh file as a world-frame Mesh: a time series (Exodus II, .pvd, XDMF) with every
     stored time as a load step (:func:`load_series`, fields found by name), any other file through
-    :func:`glsim.io.meshfiles.read_mesh_file` with the displacement source given."""
+    :func:`glsim.io.meshfiles.read_mesh_file` with the displacement source given (``roots``: the
+    folders besides the file's own that an Abaqus ``*INCLUDE`` may read from)."""
     if is_time_series(path):
         if any(s is not None for s in (point_data_steps, displacement_files, csv_files)):
             raise SceneError(str(path), "holds its own time steps", "read it with glsim.io.fe.load_series("
                              "path, displacement=…, times=…) or give no displacement source")
         return load_series(path, unit, R, t)
-    return read_mesh_file(path, unit, R, t, point_data_steps, displacement_files, csv_files, field)
+    return read_mesh_file(path, unit, R, t, point_data_steps, displacement_files, csv_files, field, roots)
 
 
 def specimen_mesh(scene: Scene) -> meshmod.Mesh:
@@ -113,5 +114,6 @@ def specimen_mesh(scene: Scene) -> meshmod.Mesh:
                 scene.resolve(f.path), unit=f.unit,
                 point_data_steps=list(f.point_data) or None,
                 displacement_files=[scene.resolve(x) for x in f.files] or None,
-                csv_files=[scene.resolve(x) for x in f.csv] or None, field=f.field or None)
+                csv_files=[scene.resolve(x) for x in f.csv] or None, field=f.field or None,
+                roots=[scene.base_dir])
     return meshmod.place_mesh(m, "mm", np.asarray(sp.R, float), np.asarray(sp.t, float))

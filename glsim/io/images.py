@@ -5,6 +5,7 @@ truncated file. An image and its truth maps are written as one group
 image last, so an image on disk always has its complete truth beside it."""
 from __future__ import annotations
 
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -155,3 +156,120 @@ def read_image(path: str | Path) -> np.ndarray:
         return tifffile.imread(path)
     import imageio.v3 as iio
     return iio.imread(path)
+
+
+# ---- image headers: what a file declares, read before it is decoded ----------------------------
+
+@dataclass(frozen=True)
+class ImageHeader:
+    """What an image file's header declares: width × height px, samples per pixel (1: grey),
+    pages (or frames), depth (a volume's slices), and the pixel type (None where not known)."""
+    width: int
+    height: int
+    samples: int = 1
+    pages: int = 1
+    depth: int = 1
+    dtype: np.dtype | None = None
+
+    @property
+    def decoded_bytes(self) -> int:
+        """Bytes its decoded pixels take (8 per sample where the type is not known)."""
+        item = self.dtype.itemsize if self.dtype is not None else 8
+        return self.width * self.height * self.samples * self.pages * self.depth * item
+
+
+_PNG_SAMPLES = {0: 1, 2: 3, 3: 3, 4: 2, 6: 4}      # IHDR colour type → samples decoded (palette → RGB)
+_PIL_GREY = {"1": np.bool_, "L": np.uint8, "I;16": np.uint16, "I;16B": np.uint16, "I;16L": np.uint16,
+             "I;16N": np.uint16, "I": np.int32, "F": np.float32}
+
+
+def image_header(path: str | Path) -> ImageHeader | None:
+    """The header of a PNG, TIFF or other (Pillow-readable) image file, read without decoding its
+    pixels; None where it cannot be read (the reader that decodes the file then names the problem)."""
+    import logging
+
+    log = logging.getLogger("tifffile")       # it logs a patched header's inconsistencies
+    quiet, log.disabled = log.disabled, True
+    try:
+        with open(path, "rb") as f:
+            head = f.read(26)
+        if head[:8] == b"\x89PNG\r\n\x1a\n":
+            return _png_header(path, head)
+        if str(path).lower().endswith((".tif", ".tiff")):
+            return _tiff_header(path)
+        return _pil_header(path)
+    except Exception:  # noqa: BLE001 — the reader that decodes it names the problem
+        return None
+    finally:
+        log.disabled = quiet
+
+
+def _png_header(path, head: bytes) -> ImageHeader:
+    import struct
+    W, H = struct.unpack(">II", head[16:24])
+    bits, colour = head[24], head[25]
+    return ImageHeader(W, H, _PNG_SAMPLES.get(colour, 4), _png_frames(path),
+                       dtype=np.dtype(np.uint16 if bits == 16 else np.uint8))
+
+
+def _png_frames(path) -> int:
+    """Frames of a PNG: an animated PNG's acTL chunk (before the first IDAT) says how many."""
+    import struct
+    with open(path, "rb") as f:
+        f.seek(8)
+        while True:
+            head = f.read(8)
+            if len(head) < 8 or head[4:] == b"IDAT":
+                return 1
+            n = struct.unpack(">I", head[:4])[0]
+            if head[4:] == b"acTL":
+                return max(1, struct.unpack(">I", f.read(4))[0])
+            f.seek(n + 4, 1)                          # the chunk's data and CRC
+
+
+def _tiff_header(path) -> ImageHeader:
+    import tifffile
+    with tifffile.TiffFile(path) as tf:
+        page = tf.pages.first
+        return ImageHeader(page.imagewidth, page.imagelength, page.samplesperpixel, len(tf.pages),
+                           page.imagedepth, page.dtype)
+
+
+def _pil_header(path) -> ImageHeader:
+    from PIL import Image
+    with Image.open(path) as im:
+        W, H = im.size
+        grey = im.mode in _PIL_GREY
+        return ImageHeader(W, H, 1 if grey else len(im.getbands()), getattr(im, "n_frames", 1),
+                           dtype=np.dtype(_PIL_GREY[im.mode]) if grey else None)
+
+
+def check_image_header(path: str | Path, key: str, what: str, fix: str, max_side: int,
+                       dtypes: tuple = (), bytes_per_pixel: int = 0) -> ImageHeader | None:
+    """SceneError(key) if the header of the image at ``path`` declares more than ``max_side`` px a
+    side (or :data:`~glsim.limits.MAX_IMAGE_PIXELS`), colour, more than one page or slice, a pixel
+    type not named in ``dtypes`` (any where empty), or — with ``bytes_per_pixel``, the reader's own
+    temporaries per pixel — more memory than :func:`~glsim.limits.memory_budget`: all before a
+    pixel is decoded. An unreadable header is left to the reader (None)."""
+    from glsim.limits import check_image_size, memory_budget
+
+    h = image_header(path)
+    if h is None:
+        return None
+    check_image_size(key, h.width, h.height, f"{path} (as its header declares)", fix, max_side)
+    if h.samples != 1:
+        raise SceneError(key, f"{path} is a colour image (its header declares {h.samples} samples per pixel)",
+                         f"convert it to a single-channel greyscale {what} before use")
+    if h.pages != 1 or h.depth != 1:
+        raise SceneError(key, f"{path} is not a single greyscale image (its header declares "
+                         f"{h.pages * h.depth} pages or slices)", f"give a single-page, single-channel {what}")
+    if dtypes and h.dtype is not None and h.dtype.name not in dtypes:
+        raise SceneError(key, f"{path} has unsupported pixel type {h.dtype} (as its header declares)",
+                         "save it as 8-bit, 16-bit or float greyscale")
+    need = h.decoded_bytes + h.width * h.height * bytes_per_pixel
+    budget = memory_budget()
+    if bytes_per_pixel and need > budget:
+        raise SceneError(key, f"{path} ({h.width} × {h.height} px, as its header declares) needs about "
+                         f"{need / 2**30:.3g} GiB to read, more than the {budget / 2**30:.3g} GiB this process may use",
+                         fix)
+    return h

@@ -9,6 +9,9 @@ from __future__ import annotations
 import contextlib
 import io
 import json
+import mmap
+import re
+import struct
 from pathlib import Path
 from typing import Sequence
 
@@ -16,7 +19,8 @@ import meshio
 import numpy as np
 
 from glsim.errors import SceneError
-from glsim.limits import require_file
+from glsim.limits import (MAX_INCLUDE_DEPTH, MESH_BYTES_PER_TEXT_BYTE, MESH_FIX, check_mesh_memory, check_need,
+                          not_a_file, require_file)
 from glsim.scene import quadratic as qd
 from glsim.scene.mesh import Mesh, check_finite, place_mesh, quad_normals, with_displacements
 
@@ -72,13 +76,143 @@ _NODES_PER_CELL = {"quad8": 8, "quad9": 9, "triangle6": 6, "hexahedron20": 20, "
                    "wedge15": 15}
 QUADRATIC_CELLS = tuple(_NODES_PER_CELL)
 
+# ---- what a mesh file declares, bounded before meshio allocates it ----------------------------------
+
+def check_mesh_file(path: Path, roots: Sequence[Path] = ()) -> None:
+    """SceneError naming the file (or the culprit in it) if the counts a mesh file declares cannot be
+    true of its length or cannot fit in memory (:func:`~glsim.limits.check_mesh_memory`), read from its
+    headers before meshio allocates them: Gmsh's $Nodes/$Elements, legacy VTK's POINTS/CELLS, a VTU's
+    pieces and data-array headers (:func:`glsim.io.vtkfiles.check_vtu`); an Abaqus file's text with its
+    ``*INCLUDE`` files, which must be regular files inside ``roots`` or the file's own folder. A
+    header that cannot be read is left to meshio, which names the problem."""
+    suffix = path.suffix.lower()
+    if suffix == ".inp":
+        total = _abaqus_bytes(path, [path.parent.resolve(), *(Path(r).resolve() for r in roots)], [])
+        check_need(str(path), total * MESH_BYTES_PER_TEXT_BYTE, f"its {total:,} bytes of text (with its "
+                   "*INCLUDE files) need", MESH_FIX)
+    elif suffix == ".msh":
+        _check_gmsh(path)
+    elif suffix == ".vtk":
+        _check_legacy_vtk(path)
+    elif suffix == ".vtu":
+        from glsim.io.vtkfiles import check_vtu
+        check_vtu(path)
+
+
+def _abaqus_bytes(path: Path, roots: list[Path], chain: list[Path]) -> int:
+    """Bytes of the Abaqus file ``path`` and of the files it includes (``*INCLUDE, INPUT=``), each
+    resolved as meshio resolves it (the working directory first, then the including file's folder)
+    and refused (SceneError) unless a regular file inside ``roots``, at most MAX_INCLUDE_DEPTH deep,
+    not including itself."""
+    total = path.stat().st_size
+    check_need(str(path), total * MESH_BYTES_PER_TEXT_BYTE, f"its {total:,} bytes of text need", MESH_FIX)
+    with _text(path) as f:
+        lines = [line for line in f if line.startswith("*") and not line.startswith("**")
+                 and line.partition(",")[0].strip().replace("*", "").upper() == "INCLUDE"]
+    for line in lines:
+        name = line.split("=")[-1].strip()
+        where = f"{path}: *INCLUDE, INPUT={name}"
+        target = Path(name) if Path(name).exists() else path.parent / name
+        why = not_a_file(target)
+        if why:
+            raise SceneError(where, f"{target} {why}", "include a regular file beside the mesh file")
+        real = target.resolve()
+        if not any(real.is_relative_to(root) for root in roots):
+            raise SceneError(where, f"{real} lies outside the mesh and scene folders (not read)",
+                             "keep included files in the mesh file's folder")
+        if real in chain or len(chain) >= MAX_INCLUDE_DEPTH:
+            raise SceneError(where, f"includes nest more than {MAX_INCLUDE_DEPTH} deep or include themselves "
+                             f"({' → '.join(p.name for p in [*chain, real])})", "include each file once")
+        total += _abaqus_bytes(target, roots, [*chain, real])
+    return total
+
+
+# Gmsh: the fewest bytes a node or an element takes in the file (ASCII: "1 0 0 0\n"; binary: a
+# 4-byte tag and 3 doubles; an element's tag and one node), which bounds what a header may declare
+_GMSH_MIN_BYTES = {False: (8, 4), True: (28, 8)}
+
+
+def _section(mm, name: bytes) -> int:
+    """Where the data after the line ``name`` (e.g. b"$Nodes") starts in the mapped file; -1: none."""
+    found = re.search(rb"(?:^|\n)" + re.escape(name) + rb"\r?\n", mm)
+    return found.end() if found else -1
+
+
+def _gmsh_header(mm, name: bytes, version: float, binary: bool, data_size: int) -> tuple[int, int, int]:
+    """(entity blocks, entries, largest tag) a Gmsh section header declares (MSH 2: blocks 1, tag 0)."""
+    at = _section(mm, name)
+    if at < 0:
+        return 0, 0, 0
+    wide = 4 if version >= 4.1 else 2                   # MSH 4.0 declares no tags in the header
+    if version >= 4 and binary:
+        fields = struct.unpack_from(f"<{wide}{'Q' if data_size == 8 else 'I'}", mm, at)
+    else:
+        mm.seek(at)
+        fields = [int(x) for x in mm.readline().split()[:wide]]
+    if version < 4:
+        return 1, fields[0], 0
+    return fields[0], fields[1], fields[3] if wide == 4 else 0
+
+
+def _check_gmsh(path: Path) -> None:
+    """Gmsh's declared node and element counts (and MSH 4.1's largest node tag, which sizes meshio's
+    tag table) against the file's length and the memory estimate, before meshio allocates them."""
+    size = path.stat().st_size
+    if size == 0:
+        return
+    with open(path, "rb") as f, mmap.mmap(f.fileno(), 0, access=mmap.ACCESS_READ) as mm:
+        try:
+            if mm.readline().strip() != b"$MeshFormat":
+                return
+            version, binary, data_size = mm.readline().split()[:3]
+            version, binary, data_size = float(version), binary == b"1", int(data_size)
+            nodes = _gmsh_header(mm, b"$Nodes", version, binary, data_size)
+            elements = _gmsh_header(mm, b"$Elements", version, binary, data_size)
+        except (ValueError, IndexError, struct.error):
+            return                                       # meshio names it
+    for name, (blocks, n, _), least in zip(("$Nodes", "$Elements"), (nodes, elements), _GMSH_MIN_BYTES[binary]):
+        if min(n, blocks) < 0 or max(n, blocks) * least > size:
+            raise SceneError(str(path), f"its {name} section declares {n:,} entries in {blocks:,} blocks, more than "
+                             f"its {size:,} bytes can hold (at least {least} bytes each)",
+                             "write or export the file again (damaged or truncated?)")
+    check_mesh_memory(str(path), nodes[1], elements[1], 16 * max(nodes[2], 0), " (its $Nodes and $Elements)")
+
+
+# legacy VTK: a count keyword, its count, and the fewest bytes one counted item takes (ASCII or binary)
+_VTK_COUNTS = re.compile(rb"(?:^|\n)[ \t]*(POINTS|CELLS|CELL_TYPES|POINT_DATA|CELL_DATA)"
+                         rb"[ \t]+(-?\d+)(?:[ \t]+(-?\d+))?")
+
+
+def _check_legacy_vtk(path: Path) -> None:
+    """Legacy VTK's declared counts (POINTS, CELLS, …) against the file's length (each item takes at
+    least 2 bytes of text, or 4 of binary) and the memory estimate, before meshio allocates them."""
+    size = path.stat().st_size
+    if size == 0:
+        return
+    with open(path, "rb") as f, mmap.mmap(f.fileno(), 0, access=mmap.ACCESS_READ) as mm:
+        binary = b"\nBINARY" in mm[:1024].upper()
+        declared = {}
+        for m in _VTK_COUNTS.finditer(mm):
+            keyword, n = m.group(1).decode(), int(m.group(2))
+            items = max(n, int(m.group(3) or 0)) * (3 if keyword == "POINTS" else 1)   # CELLS n size: size ints
+            if n < 0 or items * (4 if binary else 2) > size:
+                raise SceneError(str(path), f"{keyword} declares {n:,} items, more than its {size:,} bytes can hold",
+                                 "write or export the file again (damaged or truncated?)")
+            declared.setdefault(keyword, n)
+    check_mesh_memory(str(path), declared.get("POINTS", 0), declared.get("CELLS", declared.get("CELL_TYPES", 0)),
+                      what=" (its POINTS and CELLS)")
+
+
 def require_input_file(path) -> Path:
     return require_file(path, str(path), "check the path (relative paths start at the working directory)")
 
 
-def meshio_read(path):
-    """``meshio.read``, its printed messages captured: for a file it cannot read it prints why and
-    calls ``sys.exit``, which here raises meshio.ReadError with those words instead."""
+def meshio_read(path, roots: Sequence[Path] = ()):
+    """``meshio.read``, after :func:`check_mesh_file` has bounded what the file declares; its
+    printed messages captured: for a file it cannot read it prints why and calls ``sys.exit``,
+    which here raises meshio.ReadError with those words instead. ``roots``: the folders an Abaqus
+    ``*INCLUDE`` may read from besides the file's own."""
+    check_mesh_file(Path(path), roots)
     said = io.StringIO()
     try:
         with contextlib.redirect_stdout(said), contextlib.redirect_stderr(said):
@@ -88,10 +222,12 @@ def meshio_read(path):
         raise meshio.ReadError("; ".join(filter(None, lines)) or "meshio gave up") from None
 
 
-def _read_meshio(path):
+def _read_meshio(path, roots: Sequence[Path] = ()):
     path = require_input_file(path)
     try:
-        raw = meshio_read(path)
+        raw = meshio_read(path, roots)
+    except SceneError:
+        raise
     except Exception as exc:  # meshio's readers raise many types; wrap their words once
         if isinstance(exc, KeyError) and "wedge15" in str(exc):
             raise SceneError(str(path), "meshio cannot read its wedge15 cells (meshio 5.3's table of cell "
@@ -221,6 +357,20 @@ def _quadratic_block(path: Path, kind: str, cells: np.ndarray, nodes: np.ndarray
     return _outward_patches(nodes, rows, nodes[cells[parent, :corners]].mean(axis=1)), parent
 
 
+def _check_node_range(path: Path, cells: np.ndarray, n: int, kind: str, labels: np.ndarray) -> None:
+    """SceneError naming the first element of ``cells`` that refers to a node outside the file's ``n``
+    (checked before any face or centroid is indexed)."""
+    if cells.size == 0:
+        return
+    bad = np.flatnonzero(((cells < 0) | (cells >= n)).reshape(len(cells), -1).any(axis=1))
+    if len(bad):
+        row = cells[bad[0]]
+        label = labels[bad[0]] if bad[0] < len(labels) else bad[0] + 1
+        raise SceneError(str(path), f"{kind} element {label} refers to node {row[(row < 0) | (row >= n)][0] + 1} "
+                         f"(1-based position), outside the file's {n:,} nodes ({len(bad):,} such elements)",
+                         "give every element's nodes from the file's node list")
+
+
 def surface_from_cells(path: Path, raw, nodes: np.ndarray, element_labels: list[np.ndarray]):
     """Surface quads (M,4), their element labels and, for quadratic elements, the 9-node
     patches (M,9) (else None) from meshio's cell blocks."""
@@ -228,6 +378,7 @@ def surface_from_cells(path: Path, raw, nodes: np.ndarray, element_labels: list[
     linear, quadratic = [], []
     for k, (block, block_labels) in enumerate(zip(raw.cells, element_labels)):
         cells = np.asarray(block.data, dtype=np.int64)
+        _check_node_range(path, cells, len(nodes), block.type, block_labels)
         if block.type in QUADRATIC_CELLS:
             rows, parent = _quadratic_block(path, block.type, cells, nodes, f"cell block {k + 1}")
             patches.append(rows)
@@ -354,7 +505,7 @@ def _csv_step(path, node_labels: np.ndarray, step: int = 1) -> np.ndarray:
 
 def read_mesh_file(path, unit: str = "mm", R=None, t=None, point_data_steps: Sequence[str] | None = None,
               displacement_files: Sequence | None = None, csv_files: Sequence | None = None,
-              field: str | None = None) -> Mesh:
+              field: str | None = None, roots: Sequence = ()) -> Mesh:
     """Read a mesh file (Abaqus .inp, VTK .vtk/.vtu, Gmsh .msh, … via meshio) as a world-frame Mesh.
 
     quad → Q4; triangle → collapsed Q4; hexahedron / tetra → their outer faces, CCW seen
@@ -367,14 +518,15 @@ def read_mesh_file(path, unit: str = "mm", R=None, t=None, point_data_steps: Seq
     3-vector array) or csv_files (one `label;ux;uy;uz` file per step). Each step's
     displacement is the total from the reference (step 0), not an increment, with 3
     components per node (2-component arrays are refused). Coordinates and displacements are
-    in `unit`, then placed by place(…, unit, R, t). Single-state files only: use
+    in `unit`, then placed by place(…, unit, R, t). An Abaqus ``*INCLUDE`` is read only from the
+    file's own folder or ``roots`` (the scene's folder). Single-state files only: use
     :func:`glsim.io.fe.load_mesh`, which also reads time series.
     """
     sources = [s for s in (point_data_steps, displacement_files, csv_files) if s is not None]
     if len(sources) > 1:
         raise SceneError("specimen", "more than one displacement source given",
                          "use only one of point_data_steps, displacement_files, csv_files")
-    raw = _read_meshio(path)
+    raw = _read_meshio(path, [Path(r) for r in roots])
     path = Path(path)
     nodes = as_xyz(raw.points)
     node_labels, element_labels = _labels(path, raw)
