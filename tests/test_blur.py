@@ -419,12 +419,9 @@ def test_gl_blur_schemes_match_their_numpy_mirrors(gl_ctx, scheme, stage):
     img, sigma = src32.astype(np.float64), blur.blur_sigma(Z.astype(np.float64), OPTICS)
     backend = _backend(gl_ctx)
     backend.stage = stage
-    temps, stages = [], []
     out = backend.blur_passes(src32, Z, SimpleNamespace(**vars(OPTICS), scheme=scheme), float(sigma.max()),
-                              shape[::-1], temps, stages)
+                              shape[::-1])
     got = backend.read(out)
-    for tex in temps:
-        tex.release()
     backend.close()
     mirror = {"separable": blur.blur_separable, "hybrid": blur.blur_hybrid, "gather": blur.blur_exact,
               "expansion": blur.blur_expansion}[scheme](img, sigma)
@@ -440,8 +437,6 @@ def test_gl_blur_schemes_match_their_numpy_mirrors(gl_ctx, scheme, stage):
         assert np.abs(mirror - exact).max() <= 1e-12
     keep = sigma == 0            # in focus and background: the source texel, bit for bit
     assert np.array_equal(got[keep].view(np.uint32), src32[keep].view(np.uint32))
-    assert stages == {"separable": ["blur_horizontal", "blur_vertical"], "hybrid": ["blur_horizontal", "blur_hybrid"],
-                      "gather": ["blur_gather"], "expansion": ["blur_rows", "blur_columns"]}[scheme]
 
 
 @pytest.mark.parametrize("kernel", ["gaussian", "disk"])

@@ -76,7 +76,7 @@ def test_a_stream_stopped_early_collects_what_it_queued(gl_ctx):
         stream = r.render_many(_jobs(), depth=3)
         next(stream)
         stream.close()                          # two frames were still queued
-        assert not r.backend._lent
+        assert not r.backend.resources.lent
         again = r.render("c", 0, truth=True)    # the renderer goes on as before
         _same(again, next(iter(r.render_many([{"camera": "c", "step": 0, "truth": True}]))))
 

@@ -1,11 +1,11 @@
 """The GL render plan (glsim.backends.gl.plan) without GL: the #defines and passes follow from
-the request alone; and with GL: the passes a render runs are the plan's."""
+the request alone; and with GL: the passes a render executes are the plan's, in its order."""
 import dataclasses
 
 import numpy as np
 import pytest
 
-from glsim.backends.gl.plan import Pass, plan
+from glsim.backends.gl.plan import plan
 from glsim.effects import Effects, prepare as prepare_effects
 from glsim.io.fe import specimen_mesh
 from glsim.render import Renderer
@@ -57,35 +57,49 @@ def test_effects_add_their_passes_only():
     p = plan(Render(mode="exact", samples_per_pixel=4, subsamples="newton"), False, True, fx, PIN, PIN)
     assert {"LIGHTING", "DEPTH_OUT"} <= set(p.define_dict) and p.subsamples
     assert shaders(p)[-5:] == ["downsample.frag", "downsample.frag", "blur.frag", "blur.frag", "noise.frag"]
-    assert [x.variant for x in p.passes if x.variant] == ["BLUR_ROWS", "BLUR_COLUMNS"]   # "auto": expansion
-    assert Pass("subsamples.frag") in p.passes
+    assert [x.variant for x in p.passes if x.variant] == ["COVERED_MEAN", "BLUR_ROWS", "BLUR_COLUMNS"]   # "auto": expansion
+    assert "subsamples.frag" in shaders(p)
     bare = plan(Render(mode="exact"), False, True, None, PIN, PIN)
     assert not {"LIGHTING", "DEPTH_OUT"} & set(bare.define_dict) and "noise.frag" not in shaders(bare)
-    # passes on the pixels before quantisation (which then leaves the replayed pass: backend._deform)
+    # passes on the pixels between their integration and quantisation
     assert p.image_effects and not bare.image_effects
+    quantized = plan(Render(mode="exact"), False, True, None, PIN, PIN, quantize=True)
+    assert shaders(quantized)[-1] == "quantize.frag" and not quantized.image_effects
     assert not plan(Render(mode="fast", samples_per_pixel=4), False, True, Effects(aperture=0.5), PIN, PIN).image_effects
 
 
 @pytest.mark.gl
 @pytest.mark.parametrize("stage", ["fragment", "compute"])
-@pytest.mark.parametrize("options", [dict(mode="fast"), dict(mode="q4"), dict(mode="exact", samples_per_pixel=4),
+@pytest.mark.parametrize("options", [dict(mode="fast"), dict(mode="q4", truth=True, quantize=True),
+                                     dict(mode="exact", samples_per_pixel=4, truth=True),
                                      dict(mode="exact", samples_per_pixel=4, subsamples="newton")])
-def test_a_render_runs_the_plans_passes(options, stage, gl_ctx):
-    """Every pass that ran is in the plan; every unconditional pass of the plan ran (either
-    pixel stage)."""
+def test_a_render_executes_the_plans_passes_in_order(options, stage, gl_ctx):
+    """The passes a render executes are its plan's, in the plan's order (either pixel stage;
+    truth at s > 1: then those of the same render's plan at 1 spp, without effects), and pass
+    timing names them."""
     scene = demo_effects(bulge_scene(size=(96, 72), steps=1))
+    render = {k: v for k, v in options.items() if k not in ("truth", "quantize")}
+    truth, quantize = options.get("truth", False), options.get("quantize", False)
     with Renderer(scene, "gl", ctx=gl_ctx) as r:
         r.backend.stage = stage
-        r.render(0, 1, **options)                       # programs built, ray map made
-        with r.backend.pass_times() as ran:
+        r.render(0, 1, **options)
+        with r.backend.pass_times() as timed:
             r.render(0, 1, **options)
+        ran = r.backend.last_passes
         view = r.geometry.view(scene.cameras[0], 1)
         fx = prepare_effects(scene, view.step_geo.deformed, r.drawn_mesh.quads, scene.cameras[0], 0, 1,
                              view.corner_depths())
-    p = plan(dataclasses.replace(scene.render, **options), False, True, fx, scene.cameras[0], r.reference.camera,
-             stage=stage)
-    assert set(ran) <= set(shaders(p)), (sorted(ran), shaders(p))
-    assert {x.shader for x in p.passes if not x.when} <= set(ran), (sorted(ran), shaders(p))
+        fp64 = r.backend.fp64
+    opts = dataclasses.replace(scene.render, **render)
+    spp = opts.samples_per_pixel
+    p = plan(opts, truth and spp == 1, fp64, fx, scene.cameras[0], r.reference.camera, stage=stage,
+             quantize=quantize and fp64)
+    want = shaders(p)
+    if truth and spp > 1:
+        want += shaders(plan(dataclasses.replace(opts, samples_per_pixel=1), True, fp64, None, scene.cameras[0],
+                             r.reference.camera, stage=stage))
+    assert list(ran) == want
+    assert set(timed) == set(want)
 
 
 def test_the_pixel_stage_is_the_drivers_and_fast_draws_its_triangles_in_both():

@@ -192,13 +192,16 @@ def test_camera_effect_toggles_switch_their_table_and_render(fresh):
 def test_pose_change_keeps_the_speckle_and_renders_like_the_saved_scene(fresh, tmp_path):
     pv = fresh
     pv.refine()
-    textures = dict(pv.renderer.backend._textures)
+    def references():
+        return {k: v for k, v in pv.renderer.backend.resources._named.items() if k[0] == "reference"}
+
+    textures = references()
     for name, value in (("stereo_angle", 34.0), ("distance", 640.0), ("focal_length", 32.0), ("dof", True),
                         ("lighting", True), ("noise", True), ("step", 1)):
         pv.set(name, value)
     pv.refine()
     assert pv.reference_uploads == 1
-    assert {k: id(v) for k, v in pv.renderer.backend._textures.items()} == {k: id(v) for k, v in textures.items()}
+    assert references() == textures and textures   # the same texture objects
     path = pv.save(tmp_path / "edited.toml")
     loaded = load_scene(path)
     assert loaded.speckle.camera is not None and loaded.lighting and loaded.optics and loaded.noise

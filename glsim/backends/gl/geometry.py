@@ -96,7 +96,7 @@ class GeometryBuffers:
         self.words = _bitset_words(self.M)   # uint32 words of one problem bitset
         self._bufs: dict = {}
         self._mesh: dict = {}       # fp64 → what _mesh_buffers returns (its buffers are in _bufs)
-        self._vaos: dict = {}       # (id(program), indexed) → (program, attribute-less vertex array)
+        self._vaos: dict = {}       # (program, indexed) → its attribute-less vertex array
         self._steps: OrderedDict = OrderedDict()     # (step, fp64) → (StepGeometry, (nodes, shape)) (_per_step)
         self._normals: OrderedDict = OrderedDict()   # (step, flat) → (StepGeometry, buffer) (_per_step)
         self.uploads = {"mesh": 0, "step": 0}   # what was uploaded (tests)
@@ -324,9 +324,9 @@ class GeometryBuffers:
     def candidates_pass(self, W: int, H: int, s: int) -> None:
         """Pass 1: list, per pixel, the elements whose tight rectangle meets its s×s samples:
         candidates.comp, one invocation per element over its cover's box (the rectangles written
-        by :meth:`view_pass`); then, only if some box was too large for it, candidates.frag over
-        those elements' cover rectangles."""
-        count, lists, clear, empty, flags = self._lists(W, H)
+        by :meth:`view_pass`); :meth:`big_covers_pass` then lists the elements whose box was too
+        large for it."""
+        clear, flags = self._lists(W, H)[2], self._lists(W, H)[4]
         clear.clear(0.0, 0.0, 0.0, 0.0)
         flags.write(self._draw_commands)
         flags.bind_to_storage_buffer(storage("LIST_FLAGS"))
@@ -338,7 +338,11 @@ class GeometryBuffers:
         set_uniform(prog, "u_half", 0.5 - 0.5 / s)
         self._per_element(prog)
         self.ctx.memory_barrier()
-        # the elements candidates.comp left to their cover triangles: drawn only if there are any
+
+    def big_covers_pass(self, W: int, H: int, s: int) -> None:
+        """Pass 1's second part: the elements candidates.comp left to their cover triangles
+        (candidates.frag), drawn only if there are any (an indirect draw pass 1 set)."""
+        empty, flags = self._lists(W, H)[3:]
         prog = self.programs.program("exact.vert", "candidates.frag", defines={"BIG_ONLY": None})
         set_uniform(prog, "u_size", (float(W), float(H)))
         set_uniform(prog, "u_half", 0.5 - 0.5 / s)
@@ -400,11 +404,11 @@ class GeometryBuffers:
 
     def _vao(self, prog, indexed: bool):
         """A program's attribute-less vertex array (with the index buffer if ``indexed``), made once."""
-        key = (id(prog), indexed)
+        key = (prog, indexed)
         if key not in self._vaos:
             index = {"index_buffer": self.index_buffer(), "index_element_size": 4} if indexed else {}
-            self._vaos[key] = (prog, self.ctx.vertex_array(prog, [], **index))
-        return self._vaos[key][1]
+            self._vaos[key] = self.ctx.vertex_array(prog, [], **index)
+        return self._vaos[key]
 
     def status(self) -> tuple[object, int]:
         """The problem flags' buffer and its size in bytes: a 16-byte header (whether anything was
@@ -447,7 +451,7 @@ class GeometryBuffers:
         return sum(b.size for b in held)
 
     def release(self) -> None:
-        for _, vao in self._vaos.values():
+        for vao in self._vaos.values():
             vao.release()
         self._vaos.clear()
         for b in self._bufs.values():

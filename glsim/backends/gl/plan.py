@@ -35,10 +35,15 @@ PLANS_KEPT = 64   # plans kept by :func:`plan` (one per kind of render; a librar
 @dataclass(frozen=True)
 class Pass:
     """A draw or dispatch: its program's last shader file, the condition it runs on (module
-    docstring), and a variant's name (the blur pass's #define)."""
+    docstring), a variant's name (the blur and PSF passes' #define), the executor's ``step``
+    that issues it (GLBackend.STEPS), and for the image passes the frame's textures it reads
+    (``inputs``: sampler → texture name) and writes (``outputs``)."""
     shader: str
     when: str = ""
     variant: str = ""
+    step: str = ""
+    inputs: tuple[tuple[str, str], ...] = ()
+    outputs: tuple[str, ...] = ()
 
 
 @dataclass(frozen=True)
@@ -66,7 +71,7 @@ class Plan:
     def image_effects(self) -> bool:
         """Whether full-screen passes work on the pixels between their integration (the
         deformation pass, the box filter) and quantisation: blur, camera effects, noise."""
-        return any(p.shader not in PIXEL_PASSES for p in self.passes)
+        return any(p.shader not in PIXEL_PASSES and p.step != "quantize" for p in self.passes)
 
 
 class EffectsShape(NamedTuple):
@@ -174,24 +179,42 @@ def pixel_stage(software: bool) -> str:
 # the depth-of-field passes of each scheme (glsim.effects.dof.blur_scheme), in order
 BLUR_PASSES = {"disk": ("BLUR_DISK",), "gather": ("BLUR_GATHER",), "expansion": ("BLUR_ROWS", "BLUR_COLUMNS"),
                "separable": ("BLUR_HORIZONTAL", "BLUR_VERTICAL"), "hybrid": ("BLUR_HORIZONTAL", "BLUR_HYBRID")}
+# each blur pass's samplers → the frame's textures they read (all read u_depth), and what it writes
+_BLUR_IO = {"BLUR_DISK": ({"u_src": "grey"}, ("grey",)), "BLUR_GATHER": ({"u_src": "grey"}, ("grey",)),
+            "BLUR_HORIZONTAL": ({"u_src": "grey"}, ("rows",)), "BLUR_VERTICAL": ({"u_src": "rows"}, ("grey",)),
+            "BLUR_HYBRID": ({"u_src": "rows", "u_image": "grey"}, ("grey",)),
+            "BLUR_ROWS": ({"u_src": "grey"}, ("moments", "rows")),
+            "BLUR_COLUMNS": ({"u_image": "grey", "u_moments": "moments", "u_rows": "rows"}, ("grey",))}
+
+
+def blur_passes(scheme: str, ext: str = "frag") -> list[Pass]:
+    """The depth-of-field passes of ``scheme`` (in the pixel stage of ``ext``)."""
+    return [Pass(f"blur.{ext}", "", name, "blur", (*_BLUR_IO[name][0].items(), ("u_depth", "depth")),
+                 _BLUR_IO[name][1]) for name in BLUR_PASSES[scheme]]
+
+
+def _image_pass(shader: str, variant: str = "") -> Pass:
+    """A camera or noise pass: grey in, grey out."""
+    return Pass(shader, "", variant, shader.split(".")[0], (("u_src", "grey"),), ("grey",))
 
 
 def plan(opts, truth: bool, fp64_driver: bool, fx, camera, ref_camera, pieces: int | None = None,
-         stage: str = "fragment") -> Plan:
+         stage: str = "fragment", quantize: bool = False) -> Plan:
     """The plan of one render at ``opts.supersampling`` (the deformation program writes the
     truth maps only at 1 spp): ``opts`` the [render] options, ``truth`` whether the pixel-centre
     raster is asked for, ``fp64_driver`` whether the driver has GL_ARB_gpu_shader_fp64, ``fx`` the
     effects (or None), the view's and the reference's cameras, ``pieces`` the pieces per side of
-    curved elements (exact, q4) or None, ``stage`` the pixel stage (module docstring). With
+    curved elements (exact, q4) or None, ``stage`` the pixel stage (module docstring),
+    ``quantize`` whether the image is quantised on the GPU (its last pass). With
     truth at s > 1 the executor runs the plan of the same render at 1 spp for it. Made once per distinct argument (:func:`_plan` sees only what
     a plan depends on, so a kept plan cannot go stale)."""
     return _plan(opts, truth, fp64_driver, EffectsShape.of(fx), camera.distortion.is_zero,
-                 ref_camera.distortion.is_zero, pieces, stage)
+                 ref_camera.distortion.is_zero, pieces, stage, quantize)
 
 
 @functools.lru_cache(maxsize=PLANS_KEPT)
 def _plan(opts, truth: bool, fp64_driver: bool, fx: EffectsShape, pinhole: bool, ref_pinhole: bool,
-          pieces: int | None, stage: str) -> Plan:
+          pieces: int | None, stage: str, quantize: bool) -> Plan:
     """:func:`plan` over its dependencies: ``pinhole`` / ``ref_pinhole`` whether the view's /
     the reference camera's distortion is zero."""
     s = opts.supersampling
@@ -215,32 +238,43 @@ def _plan(opts, truth: bool, fp64_driver: bool, fx: EffectsShape, pinhole: bool,
     rays = ("bits" if fp64 else "split" if camera_local else "float") if opts.mode == "exact" else None
     sub = newton_subsamples(opts, s, pieces is not None)
     blur = fx.blur
+    comp = stage == "compute"
+    ext = "comp" if comp else "frag"   # the full-screen passes' in either stage
     passes: list[Pass] = []
     if opts.mode == "fast":   # deform.vert, fast.geom: the element triangles (compute: their indices only)
-        passes += [Pass("deform.frag")] + [Pass("deform.comp")] * (stage == "compute")
+        passes += ([Pass("deform.frag", step="fast_ids"), Pass("deform.comp", step="fast_shade")] if comp
+                   else [Pass("deform.frag", step="fast")])
     else:
         if rays:
-            passes.append(Pass("rays.frag", "uncached"))
-        passes += [Pass("view.comp"), Pass("candidates.comp"), Pass("candidates.frag", "big")]
+            passes.append(Pass("rays.frag", "uncached", step="rays"))
+        passes += [Pass("view.comp", step="view"), Pass("candidates.comp", step="candidates"),
+                   Pass("candidates.frag", "big", step="big_covers")]
         if sub:
-            passes += [Pass("classify.frag"), Pass("rays.frag", "uncached"), Pass("subsamples.frag")]
-        if stage == "compute":
-            passes += [Pass("classify.comp"), Pass("deform.comp"), Pass("resolve.comp", "several")]
+            passes += [Pass("classify.frag", step="newton_layers"), Pass("rays.frag", "uncached", step="centre_rays"),
+                       Pass("subsamples.frag", step="newton")]
+        if comp:
+            passes += [Pass("classify.comp", step="pixel_lists"), Pass("deform.comp", step="listed"),
+                       Pass("resolve.comp", "several", step="listed")]
         else:
-            passes += [Pass("classify.frag"), Pass("deform.frag"), Pass("resolve.frag", "several")]
-        passes.append(Pass("deform.frag", "overflow"))
+            passes += [Pass("classify.frag", step="layers"), Pass("deform.frag", step="layer"),
+                       Pass("resolve.frag", "several", step="layer")]
+        passes.append(Pass("deform.frag", "overflow", step="overflow"))
     if s > 1:   # grey, and the covered samples' mean depth
-        passes += [Pass("downsample.comp" if stage == "compute" else "downsample.frag")] * (1 + blur)
-    ext = "comp" if stage == "compute" else "frag"   # the image effects' passes in either stage
+        passes.append(Pass(f"downsample.{ext}", step="box", inputs=(("u_samples", "samples"),), outputs=("grey",)))
+        if blur:
+            passes.append(Pass(f"downsample.{ext}", variant="COVERED_MEAN", step="box",
+                               inputs=(("u_samples", "sample_depth"),), outputs=("depth",)))
     if blur:
-        passes += [Pass(f"blur.{ext}", "", name) for name in BLUR_PASSES[fx.scheme]]
+        passes += blur_passes(fx.scheme, ext)
     if fx.vignette:
-        passes.append(Pass(f"vignette.{ext}"))
+        passes.append(_image_pass(f"vignette.{ext}"))
     if fx.psf is not None:
-        passes += [Pass(f"psf.{ext}", "", v) for v in (("PSF_ROWS", "PSF_COLUMNS") if fx.psf == "separable"
-                                                         else ("PSF_2D",))]
+        passes += [_image_pass(f"psf.{ext}", v) for v in (("PSF_ROWS", "PSF_COLUMNS") if fx.psf == "separable"
+                                                           else ("PSF_2D",))]
     if fx.fixed_pattern:
-        passes.append(Pass(f"fpn.{ext}"))
+        passes.append(_image_pass(f"fpn.{ext}"))
     if fx.noise:
-        passes.append(Pass(f"noise.{ext}"))
+        passes.append(_image_pass(f"noise.{ext}"))
+    if quantize:
+        passes.append(Pass(f"quantize.{ext}", step="quantize", inputs=(("u_src", "grey"),), outputs=("grey",)))
     return Plan(tuple(sorted(d.items())), rays, ref, camera_local, sub, stage, tuple(passes))

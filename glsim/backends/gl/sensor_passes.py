@@ -22,22 +22,3 @@ def fpn_uniforms(fx, width: int) -> dict:
     """fpn.frag's uniforms: the camera's seed, the image width, σ of the gain and the offset."""
     return {"u_seed": int(fx.fpn_seed), "u_width": int(width), "u_prnu": fx.sensor.prnu / 100.0,
             "u_dsnu": fx.sensor.dsnu / ((1 << fx.bit_depth) - 1)}
-
-
-def camera_passes(backend, grey, fx, size: tuple[int, int], scratch: list, stages: list):
-    """Run the passes ``fx`` asks for on the grey texture (textures on loan in ``scratch``,
-    as GLBackend.fullscreen_pass lends them; names appended to ``stages``); returns the result."""
-    if fx.vignette is not None:
-        grey = backend.fullscreen_pass("vignette.frag", {}, {"u_src": grey, "u_gain": fx.vignette}, {}, size,
-                                       scratch=scratch)
-        stages.append("vignette")
-    if fx.psf is not None:
-        for defines, arrays, uniforms in psf_passes(fx.psf):
-            grey = backend.fullscreen_pass("psf.frag", defines, {"u_src": grey, **arrays}, uniforms, size,
-                                           scratch=scratch)
-        stages.append("psf")
-    if fx.fixed_pattern:
-        grey = backend.fullscreen_pass("fpn.frag", {}, {"u_src": grey}, fpn_uniforms(fx, size[0]), size,
-                                       scratch=scratch)
-        stages.append("fixed_pattern")
-    return grey

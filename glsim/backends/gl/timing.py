@@ -6,15 +6,11 @@ through :func:`waiting`) while the block runs; the rest of the block's wall time
 own work — Python, numpy and the driver's command setup: the "CPU side" of a render that the
 scaling and throughput benchmarks report. On llvmpipe the wait includes executing the shaders.
 
-``with pass_times(ctx, name_of) as p: ...`` times each draw and dispatch in the block on its
-own (``p``: pass name → seconds, summed over its calls), with the driver finished before
-and after each, so that no pass hides behind another: a breakdown of one render, not its
-pipelined wall time.
+Pass by pass timing is the executor's own: :meth:`glsim.backends.gl.backend.GLBackend.pass_times`.
 """
 from __future__ import annotations
 
 import contextlib
-import functools
 import threading
 import time
 
@@ -66,37 +62,3 @@ def waiting():
             t.seconds += wall
             t.cpu_seconds += cpu
             t.calls += 1
-
-
-@contextlib.contextmanager
-def pass_times(ctx, name_of):
-    """Patch moderngl's draw and dispatch calls for the block's duration: ``ctx.finish()``
-    before and after each, its time added to the yielded dict under ``name_of(program)``."""
-    import moderngl
-
-    seconds: dict[str, float] = {}
-
-    def timed(fn, program_of):
-        @functools.wraps(fn)
-        def inner(self, *args, **kwargs):
-            name = name_of(program_of(self))
-            ctx.finish()
-            t0 = time.perf_counter()
-            out = fn(self, *args, **kwargs)
-            ctx.finish()
-            seconds[name] = seconds.get(name, 0.0) + time.perf_counter() - t0
-            return out
-        return inner
-
-    calls = [(moderngl.VertexArray, "render", lambda vao: vao.program),
-             (moderngl.VertexArray, "render_indirect", lambda vao: vao.program),   # (drawn where pass 1 said)
-             (moderngl.ComputeShader, "run", lambda c: c),
-             (moderngl.ComputeShader, "run_indirect", lambda c: c)]   # (as many groups as pass 1 listed)
-    saved = [(cls, name, getattr(cls, name)) for cls, name, _ in calls]
-    for cls, name, program_of in calls:
-        setattr(cls, name, timed(getattr(cls, name), program_of))
-    try:
-        yield seconds
-    finally:
-        for cls, name, fn in saved:
-            setattr(cls, name, fn)
