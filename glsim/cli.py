@@ -78,8 +78,8 @@ def cmd_info(args) -> int:
 
 def cmd_demo(args) -> int:
     if not all(1 <= n <= MAX_IMAGE_SIDE for n in args.size):
-        raise SceneError("--size", f"must be two image sides of 1…{MAX_IMAGE_SIDE} px, got {args.size[0]} {args.size[1]}",
-                         "e.g. --size 1624 1234")
+        raise SceneError("--size", f"must be two image sides of 1…{MAX_IMAGE_SIDE} px, got "
+                         f"{args.size[0]} {args.size[1]}", "e.g. --size 1624 1234")
     if not 1 <= args.n_steps < MAX_STEPS:
         raise SceneError("--n-steps", f"must be 1…{MAX_STEPS - 1} load steps, got {args.n_steps}", "e.g. --n-steps 3")
     scene = _overrides(bulge_scene(size=tuple(args.size), steps=args.n_steps), args)

@@ -25,7 +25,7 @@ MAX_VALUES = 1_000_000        # values of one library [vary] key (range, linspac
 MAX_IMAGES = 4_000_000        # images of one library (variants × cameras × steps)
 MIN_DOTS_ACROSS = 2           # speckle dots across the reference image's shorter side: fewer is warned of
 MAX_NESTING = 64              # nested tables and lists in a scene or spec file
-MAX_NAME_BYTES = 255          # a file name's bytes (NAME_MAX): output.pattern's format widths, checked before formatting
+MAX_NAME_BYTES = 255          # a file name's bytes (NAME_MAX): output.pattern's format widths, checked first
 MAX_COORDINATE_MM = 1e9       # |x|, |y|, |z| of a node, a displacement, a pose's t, a camera centre (1000 km):
 #                               far inside float64's range, so no product of lengths overflows in either backend
 MAX_FOCAL_PX = 1e7            # fx, fy of a scene camera (a 10 m lens on 1 µm pixels), and |cx|, |cy|, |skew|

@@ -294,7 +294,8 @@ def test_resume_without_a_readable_manifest_renders_everything_again(tmp_path, c
     scene = scene_file(tmp_path / "in")
     out = tmp_path / "out"
     assert render(scene, out) == 0
-    for damage in (lambda p: p.unlink(), lambda p: p.write_bytes(b"\xff\xfe{not json\n" + b"x" * 10000 + b"\n[1, 2]\n")):
+    garbage = b"\xff\xfe{not json\n" + b"x" * 10000 + b"\n[1, 2]\n"
+    for damage in (lambda p: p.unlink(), lambda p: p.write_bytes(garbage)):
         damage(out / rendermanifest.NAME)
         capsys.readouterr()
         assert render(scene, out) == 0

@@ -158,8 +158,9 @@ def problem(exc: OSError) -> str:
     words = {errno.ENAMETOOLONG: "the name is too long for the filesystem (a name over 255 bytes, or a path over "
                                  "4096)",
              errno.EROFS: "the filesystem is read-only", errno.ENOSPC: "the disk is full",
-             errno.EDQUOT: "the disk quota is used up", errno.EFBIG: "a file would exceed the size this process may "
-                                                                "write (ulimit -f)", errno.ENOTDIR: "a part of the path is a file, not a folder"}
+             errno.EDQUOT: "the disk quota is used up",
+             errno.EFBIG: "a file would exceed the size this process may write (ulimit -f)",
+             errno.ENOTDIR: "a part of the path is a file, not a folder"}
     where = f" ({exc.filename})" if exc.filename and exc.errno in (errno.EACCES, errno.EPERM, errno.ENOTDIR) else ""
     return words.get(exc.errno, exc.strerror or str(exc)).rstrip(".") + where
 

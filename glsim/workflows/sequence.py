@@ -7,9 +7,15 @@ Rules of the output directory (README "Output directory"):
   reference image, noise table) has been read and checked, and the steps and cameras asked for
   exist: an error leaves the directory as it was (and creates none).
 * A directory that is not empty must hold a render of the same scene (its ``scene.json`` equal
-  to this one): the render then resumes, keeping the images (with their truth) already there.
-  Anything else is refused unless ``force``: then the images and truth of the render there are
-  removed first (other files are kept) and everything is rendered anew.
+  to this one): the render then resumes, keeping the images (with their truth) already there
+  whose bytes match what ``render-manifest.jsonl`` recorded as written
+  (:mod:`glsim.io.rendermanifest`); any other is rendered again, and the temporaries of its own
+  files that a killed run left are removed. Anything else is refused unless ``force``: then the
+  images and truth of the render there are removed first (other files are kept) and everything
+  is rendered anew.
+* Every file name is checked before the first is written: ``output.pattern`` formatted with the
+  real cameras and steps gives no two files one name, none leaves the directory, and nothing but
+  a regular file (no link, directory or FIFO) is where a file goes.
 * An image and its truth maps appear together or not at all (see
   :func:`glsim.io.images.write_image_with_truth`).
 * One run writes a directory at a time, and only inside it (:mod:`glsim.io.outdir`).
@@ -32,10 +38,9 @@ from glsim.errors import SceneError
 from glsim.io import atomic, outdir, rendermanifest
 from glsim.io import images as io
 from glsim.limits import parse_nested
-from glsim.scene.model import check_output_names
 from glsim.render import Renderer, Truth
 from glsim.scene import Scene
-
+from glsim.scene.model import check_output_names
 
 
 @dataclass(frozen=True)
@@ -105,35 +110,41 @@ def _write(scene: Scene, out: Path, steps, cameras, truth: bool, progress, truth
         todo, others = _plan(scene, out, steps, cams, maps if truth else None, truth_format, r.mesh)
         # Everything is read and checked: from here on files are written.
         with _writing(out):
-            removed = _remove_previous(out, scene) if force and not resume else []
-            if force and not resume and os.path.lexists(out / rendermanifest.NAME):   # its record goes with it
-                os.unlink(out / rendermanifest.NAME)
+            removed = _clear(out, scene) if force and not resume else []
             swept = _sweep(out, [i.path for i in todo] + [p for i in todo for p in i.truth] + others)
-        kept_files, redone = _verify(out, todo) if resume else (set(), [])
+        keep, redone = _verify(out, todo) if resume else (set(), [])
         with _writing(out / "scene.json"):
             scene_json = io.write_text(out / "scene.json", scene.to_json())
         with _writing(out):
             _write_extras(scene, out, cams, r.mesh, truth and truth_format == "vtk")
-        images, truths, seconds, saturated, kept = [], [], [], [], []
-        with _writing(out / rendermanifest.NAME), rendermanifest.appending(out) as record:
-            for k, item in enumerate(todo):
-                if item.path in kept_files:
-                    kept.append(str(item.path))
-                else:
-                    res = r.render(item.camera, item.step, truth=truth)
-                    cam = scene.camera(item.camera)
-                    with _writing(item.path):
-                        img, tps = io.write_image_with_truth(item.path, res.image, cam.bit_depth, scene.output.format,
-                                                             res.truth.as_dict() if truth else None, truth_format)
-                        record([*tps, img])
-                    images.append(str(img))
-                    truths += map(str, tps)
-                    seconds.append(res.seconds)
-                    saturated.append(res.saturated)
-                if progress:
-                    progress(k + 1, len(todo), str(item.path))
-    return Written(tuple(images), tuple(truths), tuple(seconds), tuple(saturated), str(scene_json),
-                   tuple(kept), tuple(map(str, removed)), tuple(redone), tuple(map(str, swept)))
+        done = _render_images(r, scene, out, todo, keep, truth, truth_format, progress)
+    return Written(*done, str(scene_json), tuple(str(i.path) for i in todo if i.path in keep),
+                   tuple(map(str, removed)), tuple(redone), tuple(map(str, swept)))
+
+
+def _render_images(r: Renderer, scene: Scene, out: Path, todo, keep, truth: bool, truth_format: str, progress):
+    """Render and write each image of ``todo`` not in ``keep`` (with its truth), each recorded in the
+    render's manifest once written; (images, truth files, seconds, saturated fractions)."""
+    images, truths, seconds, saturated = [], [], [], []
+    with contextlib.ExitStack() as stack:
+        with _writing(out / rendermanifest.NAME):
+            record = stack.enter_context(rendermanifest.appending(out))
+        for k, item in enumerate(todo):
+            if item.path not in keep:
+                res = r.render(item.camera, item.step, truth=truth)
+                with _writing(item.path):
+                    img, tps = io.write_image_with_truth(item.path, res.image, scene.camera(item.camera).bit_depth,
+                                                         scene.output.format, res.truth.as_dict() if truth else None,
+                                                         truth_format)
+                with _writing(out / rendermanifest.NAME):
+                    record([*tps, img])
+                images.append(str(img))
+                truths += map(str, tps)
+                seconds.append(res.seconds)
+                saturated.append(res.saturated)
+            if progress:
+                progress(k + 1, len(todo), str(item.path))
+    return tuple(images), tuple(truths), tuple(seconds), tuple(saturated)
 
 
 def _once(key: str, what: str, items) -> None:
@@ -159,13 +170,14 @@ def _plan(scene: Scene, out: Path, steps, cams, maps, truth_format: str, mesh) -
             files += [(rel, f"the image of camera {cam.name} at step {step}")]
             files += [(t, f"the truth of camera {cam.name} at step {step} ({Path(t).name})") for t in tps]
             todo.append((cam.name, step, rel, tps))
-    files += [(name, f"{name} (glsim's own)") for name in _own_files(scene, cams, mesh, truth_format, maps)]
+    own = _own_files(scene, cams, mesh, truth_format, maps)
+    files += [(name, f"{name} (glsim's own)") for name in own]
     check_output_names(scene.output.pattern, files)
     paths = dict(zip([f for f, _ in files], outdir.inside(out, [f for f, _ in files], "output.pattern")))
     for rel, what in files:
         _check_target(paths[rel], what)
     images = [_Image(c, s, paths[rel], tuple(paths[t] for t in tps)) for c, s, rel, tps in todo]
-    return images, [paths[f] for f in _own_files(scene, cams, mesh, truth_format, maps)]
+    return images, [paths[f] for f in own]
 
 
 def _own_files(scene: Scene, cams, mesh, truth_format: str, maps) -> list[str]:
@@ -209,13 +221,13 @@ def _write_extras(scene: Scene, out: Path, cams, mesh, vtk: bool) -> None:
 def _verify(out: Path, todo) -> tuple[set[Path], list[str]]:
     """The images of ``todo`` to keep on resuming — each of their files a regular file whose bytes
     match the render's manifest — and "image: why" of those there that do not (rendered again)."""
+    rel = lambda f: f.relative_to(out).as_posix()  # noqa: E731
     groups = [(i.path, [*i.truth, i.path]) for i in todo]
     present = [(image, fs) for image, fs in groups if all(os.path.isfile(f) for f in fs)]
-    records = rendermanifest.read(out, [f.relative_to(out).as_posix() for _, fs in present for f in fs])
+    records = rendermanifest.read(out, [rel(f) for _, fs in present for f in fs])
     keep, redone = set(), []
     for image, fs in present:
-        why = next((f"{f.relative_to(out).as_posix()}: {w}" for f in fs
-                    if (w := rendermanifest.mismatch(f, records.get(f.relative_to(out).as_posix())))), "")
+        why = next((f"{rel(f)}: {w}" for f in fs if (w := rendermanifest.mismatch(f, records.get(rel(f))))), "")
         if why:
             redone.append(why)
         else:
@@ -365,6 +377,15 @@ def _is_output(rel: str, regexes) -> bool:
     if sep:
         candidates += [f"{stem}.{e}" for e in io.EXTENSIONS.values()]
     return any(rx.fullmatch(f"{parent}/{c}" if parent else c) for rx in regexes for c in candidates)
+
+
+def _clear(out: Path, scene: Scene) -> list[Path]:
+    """What ``force`` removes: the images and truth of the render in ``out`` (returned) and its
+    manifest."""
+    removed = _remove_previous(out, scene)
+    if os.path.lexists(out / rendermanifest.NAME):          # (a regular file: checked with the targets)
+        os.unlink(out / rendermanifest.NAME)
+    return removed
 
 
 def _remove_previous(out: Path, scene: Scene) -> list[Path]:
