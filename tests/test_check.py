@@ -2,6 +2,7 @@
 bound; a failing check makes the command exit 1."""
 import json
 
+import numpy as np
 import pytest
 
 from glsim.evaluation import check
@@ -21,6 +22,8 @@ def test_glsim_check_passes_here_and_writes_its_report(tmp_path, capsys):
     assert report["machine"]["gl"]["renderer"] in text.splitlines()[-1]     # the driver is named
     for r in report["checks"]:
         assert f"{r['name']}: " in text and f"≤ {r['bound']:.3g} {r['unit']}" in text
+        if r["unit"] == "× bound" and r["value"] is not None:   # and the bound it is in units of
+            assert check.check_row(r) in text and f" {r['absolute_bound']['unit']})  (" in check.check_row(r)
 
 
 @pytest.mark.gl
@@ -49,7 +52,9 @@ def test_skipped_checks_are_not_run_and_are_named(monkeypatch, tmp_path, capsys)
     assert check.main(["--in-process", "--skip", "beta", "--json", str(tmp_path / "c.json")]) == 0
     report = json.loads((tmp_path / "c.json").read_text())
     assert ran == ["alpha one"] and report["skipped"] == ["beta two"] and [r["name"] for r in report["checks"]] == ["alpha one"]
-    assert "(1 not run: --skip)" in capsys.readouterr().out
+    out = capsys.readouterr().out
+    assert out.splitlines()[0] == "not run (--skip beta): beta two"            # said before the run
+    assert out.splitlines()[-1].endswith("all passed in " + f"{report['seconds']} s; not run (--skip beta): beta two")
     full = dict(report, checks=report["checks"] + [dict(report["checks"][0], name="beta two")])
     assert check_drivers(full, report).splitlines()[-1] == "| beta two | 1.0 units | 0.50 ✓ | not run |"
 
@@ -89,6 +94,23 @@ def test_a_driver_crash_in_one_check_still_gives_the_whole_report(tmp_path):
     assert "pass  alpha: 0.5 ≤ 1 units" in r.stdout and "pass  charlie: 0.25 ≤ 1 units" in r.stdout   # (the children's)
     from glsim.evaluation.docs_bench import check_drivers
     assert "| bravo | 1.0 units | crashed **✗** |" in check_drivers(report)
+
+
+@pytest.mark.gl
+def test_a_relative_checks_row_prints_its_absolute_bound(gl_ctx):
+    """A check in units of a derived bound prints that bound beside it: one value, or the range
+    of a per-pixel bound over the pixels compared."""
+    def run(c):
+        c.bound(np.array([[2e-5, 4e-5], [9.0, 3e-5]]), np.array([[True, True], [False, True]]), "px")
+        c.bound(1e-9, np.ones((2, 2), bool), "px")
+        return 0.5
+    report = check.run_checks(checks=(check.Check("ranged", 1, "× bound", "test", run),
+                                      check.Check("plain", 0, "px off", "test", lambda c: 0.0)),
+                              ctx=gl_ctx, progress=lambda line: None)
+    ranged, plain = report["checks"]
+    assert ranged["absolute_bound"] == {"min": 1e-9, "max": 4e-5, "unit": "px"} and "absolute_bound" not in plain
+    assert "0.5 ≤ 1 × bound (bound 1e-09 … 4e-05 px)  (" in check.check_row(ranged)
+    assert "0 ≤ 0 px off  (" in check.check_row(plain)
 
 
 def test_a_failing_checks_detail_names_what_failed():

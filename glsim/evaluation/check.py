@@ -44,6 +44,7 @@ from glsim.scene import Plate, Scene, Specimen, bulge_scene, demo_effects
 from glsim.scene import bilinear as bl
 from glsim.scene.camera import Camera, distort, normalized_to_pixel, pixel_to_normalized
 
+FULL_SCALE = "of full scale"   # grey levels as Result.image holds them
 SHIFTS = [0.0] + [s * m for m in (1e-7, 1e-6, 1e-5, 1e-4, 9e-4, 1 / 256, 1e-2) for s in (1, -1)]
 BULGE_SIZE = (406, 308)
 CURVED_SIZE = (160, 128)   # the Q8 paraboloid: 12 elements of about 36 px
@@ -66,6 +67,14 @@ class Context:
     ctx: object
     _pairs: dict = dataclasses.field(default_factory=dict)
     detail: dict = dataclasses.field(default_factory=dict)
+    absolute: list = dataclasses.field(default_factory=list)   # the running check's (lowest, highest, unit)
+
+    def bound(self, bound, where, unit: str) -> None:
+        """Note the absolute bound a "× bound" check divided by (a number, or per pixel: its
+        pixels ``where`` compared), so that its row reports the range beside the ratio."""
+        b = np.broadcast_to(np.asarray(bound, np.float64), np.shape(where))[where]
+        if b.size:
+            self.absolute.append((float(b.min()), float(b.max()), unit))
 
     def pair(self, name: str, scene: Scene, mesh=None) -> tuple[Renderer, Renderer]:
         if name not in self._pairs:
@@ -184,11 +193,12 @@ def _mapping(mode: str, spp: int, what: str, pair=_bulge) -> Callable[[Context],
             b = o.render(cam, 1, truth=True, mode=mode, samples_per_pixel=spp)
             both = a.truth.mask & b.truth.mask
             if what == "grey":
-                v = _grey_ratio(g, o, a, b, mode, cam, spp)
+                v = _grey_ratio(c, g, o, a, b, mode, cam, spp)
             else:
                 field = b.truth.ref_uv if what == "ref" else b.truth.X_deformed
                 other = a.truth.ref_uv if what == "ref" else a.truth.X_deformed
                 bound = bounds.mapping(mode, a.camera.fx, field, b.truth.mask)
+                c.bound(bound, both, "px" if what == "ref" else "mm")
                 v = (np.linalg.norm(other - field, axis=-1) / bound)[both].max()
             worst = max(worst, float(v))
         return worst
@@ -214,6 +224,7 @@ def _fp32_exact(what: str) -> Callable[[Context], float]:
             off = ~exact32.renderer_ties(g, cam, 1)
             if what == "ref":
                 bound = exact32.renderer_mapping(g, b, cam, 1) + bounds.FLOAT64
+                c.bound(bound, a.mask & b.mask & off, "px")
                 v = (np.linalg.norm(a.ref_uv - b.ref_uv, axis=-1) / bound)[a.mask & b.mask & off].max()
             else:
                 v = (((a.mask ^ b.mask) | (a.mask & b.mask & (a.element != b.element))) & off).sum()
@@ -233,7 +244,7 @@ def _q4_fp32(c: Context) -> float:
         a = g.render(cam, 1, mode="q4", precision="fp32")
         b = o.render(cam, 1, truth=True, mode="q4")
         px, ties = bounds.renderer_q4_fp32(g, cam, 1)
-        worst = max(worst, _grey_ratio(g, o, a, b, "q4", cam, 1, bounds.interpolated(px, b.truth.ref_uv, b.truth.mask),
+        worst = max(worst, _grey_ratio(c, g, o, a, b, "q4", cam, 1, bounds.interpolated(px, b.truth.ref_uv, b.truth.mask),
                                        ties))
     return worst
 
@@ -247,7 +258,7 @@ def _shape_filter(c: Context) -> float:
     return float(misses(c.ctx)[0])
 
 
-def _grey_ratio(g, o, a, b, mode: str, cam: int, spp: int, shift=None, ties=None) -> float:
+def _grey_ratio(c: Context, g, o, a, b, mode: str, cam: int, spp: int, shift=None, ties=None) -> float:
     """The largest |Δgrey| of GL's image ``a`` (renderer ``g``, camera ``cam``, step 1) against
     the oracle's ``b`` (renderer ``o``; ``b``'s truth at 1 spp) where no sample lies at a
     coverage tie (``ties``, by default bounds.renderer_ties), in units of bounds.renderer_grey:
@@ -258,6 +269,7 @@ def _grey_ratio(g, o, a, b, mode: str, cam: int, spp: int, shift=None, ties=None
     if ties is None:
         ties = bounds.renderer_ties(g, mode, cam, 1, spp)
     bound = bounds.renderer_grey(o, mode, cam, 1, spp, shift, b.truth)
+    c.bound(bound, ~ties, FULL_SCALE)
     return float(bounds.units(np.abs(a.image.astype(np.float64) - b.image), bound)[~ties].max())
 
 
@@ -285,6 +297,7 @@ def _effect(effect: str) -> Callable[[Context], float]:
         else:
             bound, blur_ties = bounds.renderer_dof(o, "exact", 1, 1, *bounds.without(o, effect, "exact", 1, 1))
             ties |= blur_ties
+        c.bound(bound, ~ties, FULL_SCALE)
         return float(bounds.units(np.abs(a.image.astype(np.float64) - b.image), bound)[~ties].max())
     return run
 
@@ -300,6 +313,7 @@ def _motion(c: Context) -> float:
     g, o = c.pair("motion", scene)
     bound, ties = bounds.renderer_motion(g, o, "exact", 1, 1)
     a, b = g.render(1, 1, mode="exact"), o.render(1, 1, mode="exact")
+    c.bound(bound, ~ties, FULL_SCALE)
     return float(bounds.units(np.abs(a.image.astype(np.float64) - b.image), bound)[~ties].max())
 
 
@@ -319,7 +333,9 @@ def _camera_passes(effects: dict) -> Callable[[Context], float]:
         fx = prepare(scene, np.zeros((1, 3)), np.zeros((0, 4), np.int64), scene.cameras[0], 0, 1, np.empty(0),
                      normals=False)
         want = camera_stages(plain.astype(np.float64), fx, [])
-        return float(np.abs(image.astype(np.float64) - want).max() / bounds.camera_passes(fx, plain))
+        bound = bounds.camera_passes(fx, plain)
+        c.bound(bound, True, FULL_SCALE)
+        return float(np.abs(image.astype(np.float64) - want).max() / bound)
     return run
 
 
@@ -419,11 +435,15 @@ def run_checks(ctx=None, checks=CHECKS, progress=print, on_machine=None, on_row=
             on_machine(machine)
         for ch in checks:
             t0 = time.perf_counter()
+            c.absolute.clear()
             value = ch.run(c)
             row = {"name": ch.name, "bound": ch.bound, "unit": ch.unit, "why": ch.why,
                    "value": None if np.isnan(value) else value,
                    "passed": None if np.isnan(value) else bool(value <= ch.bound),
                    "seconds": round(time.perf_counter() - t0, 2)}
+            if c.absolute:   # over the cameras and images the check compared
+                row["absolute_bound"] = {"min": min(a[0] for a in c.absolute), "max": max(a[1] for a in c.absolute),
+                                         "unit": c.absolute[0][2]}
             if ch.name in c.detail:
                 row["detail"] = c.detail.pop(ch.name)
             rows.append(row)
@@ -506,7 +526,16 @@ def check_row(r: dict) -> str:
     value = "–" if r["value"] is None else f"{r['value']:.3g}"
     detail = "" if r["passed"] is not False or not r.get("detail") else \
         " — " + ", ".join(f"{k}: {v}" if k == "crashed" else f"{k} {v}" for k, v in r["detail"].items() if v)
-    return f"{state:>6}  {r['name']}: {value} ≤ {r['bound']:.3g} {r['unit']}  ({r['seconds']} s){detail}"
+    return f"{state:>6}  {r['name']}: {value} ≤ {r['bound']:.3g} {r['unit']}{_absolute(r)}  ({r['seconds']} s){detail}"
+
+
+def _absolute(r: dict) -> str:
+    """The absolute bound beside a "× bound" row: one value, or the range of a per-pixel bound."""
+    a = r.get("absolute_bound")
+    if not a:
+        return ""
+    span = f"{a['min']:.2g}" if a["min"] == a["max"] else f"{a['min']:.2g} … {a['max']:.2g}"
+    return f" (bound {span} {a['unit']})"
 
 
 def main(argv: list[str]) -> int:
@@ -516,7 +545,9 @@ def main(argv: list[str]) -> int:
     from glsim.evaluation.report import machine_line
     from glsim.io import images as io
 
-    ap = argparse.ArgumentParser(prog="glsim check", description=__doc__.split("\n\n")[0])
+    ap = argparse.ArgumentParser(prog="glsim check", description="glsim check: does the GL path give the oracle's "
+                                 "answer on this machine's driver? Prints each check's bound, value and pass/fail; "
+                                 "exits 1 on a failure.")
     ap.add_argument("--json", help="also write the report here (bench/results/check-<driver>.json for the README)")
     ap.add_argument("--in-process", action="store_true",
                     help="run the checks in this process (by default each runs in a child process, so that a "
@@ -531,11 +562,16 @@ def main(argv: list[str]) -> int:
         ap.error(f"--skip {unknown[0]!r} matches no check's name; the checks are: "
                  + "; ".join(c.name for c in CHECKS))
     chosen = tuple(c for c in CHECKS if c.name not in skipped)
+    left_out = f"not run ({' '.join(f'--skip {t}' for t in args.skip)}): {'; '.join(skipped)}"
+    if skipped:
+        print(left_out)
     report = run_checks(checks=chosen) if args.in_process or not hasattr(os, "fork") else run_isolated(chosen)
     report["skipped"] = skipped
+    no_fp64 = [r["name"] for r in report["checks"] if r["passed"] is None]
     print(f"glsim check on {machine_line(report['machine'])}: "
           f"{'all passed' if report['passed'] else 'FAILED'} in {report['seconds']} s"
-          + (f" ({len(skipped)} not run: --skip)" if skipped else ""))
+          + (f"; {left_out}" if skipped else "")
+          + (f"; skipped (no float64): {'; '.join(no_fp64)}" if no_fp64 else ""))
     if args.json:
         Path(args.json).parent.mkdir(parents=True, exist_ok=True)
         io.write_text(Path(args.json), json.dumps(report, indent=2) + "\n")
