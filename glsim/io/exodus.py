@@ -64,6 +64,7 @@ EXODUS_TO_VTK = {"hexahedron20": np.r_[0:12, 16:20, 12:16],
                  "hexahedron27": np.r_[0:12, 16:20, 12:16, 23, 24, 25, 26, 21, 22, 20],
                  "wedge15": np.r_[0:9, 12:15, 9:12]}
 MAX_NAME_LENGTH = 4096      # chars of one name (eb_names, name_nod_var): Exodus writes 33 or 256
+MAX_NAMES = 100_000         # nodal variables named without a num_nod_var dimension
 _NC_FILL_DOUBLE = 9.969209968386869e36    # netCDF's default fill value: a variable never written
 _IGNORED = ("BAR", "BEAM", "TRUSS", "EDGE", "SPHERE", "CIRCLE", "POINT", "NULL", "SUPERELEMENT")
 
@@ -77,14 +78,16 @@ def _netcdf4():
     return netCDF4
 
 
-def _strings(ds, name: str, rows: int, where: str) -> list[str] | None:
-    """The names in the char variable ``name`` (rows × length), its shape checked before it is read."""
+def _strings(ds, name: str, rows: int | None, where: str) -> list[str] | None:
+    """The names in the char variable ``name`` (``rows`` × length; rows None: its own, at most
+    MAX_NAMES), its shape checked before it is read."""
     if name not in ds.variables:
         return None
     shape = tuple(ds.variables[name].shape)
+    rows = shape[0] if rows is None and len(shape) == 2 and shape[0] <= MAX_NAMES else rows
     if len(shape) not in (1, 2) or (len(shape) == 2 and shape[0] != rows) or shape[-1] > MAX_NAME_LENGTH:
-        raise SceneError(where, f"variable {name!r} has shape {shape}, not ({rows}, at most {MAX_NAME_LENGTH})",
-                         "write the file again (as an Exodus II writer does)")
+        raise SceneError(where, f"variable {name!r} has shape {shape}, not ({rows if rows is not None else MAX_NAMES},"
+                         f" at most {MAX_NAME_LENGTH})", "write the file again (as an Exodus II writer does)")
     raw = np.asarray(ds.variables[name][:])
     if raw.ndim == 1:
         raw = raw[None]
@@ -284,7 +287,8 @@ def _series(ds, path: Path) -> Series:
 
     times = _times(ds, n_times, where)
     n_vars = _dim(ds, "num_nod_var", 0)
-    index = {name: j for j, name in enumerate(_strings(ds, "name_nod_var", n_vars, where) or []) if name}
+    named = _strings(ds, "name_nod_var", n_vars if "num_nod_var" in ds.dimensions else None, where) or []
+    index = {name: j for j, name in enumerate(named) if name}
     fields = {name: 1 for name in index}   # Exodus nodal variables are scalars (disp_x, disp_y, …)
 
     def read(name: str, k: int) -> np.ndarray:
