@@ -3,7 +3,8 @@ Gmsh, …): Q4 quads, T3 triangles (collapsed quads), the outer faces of hex8/te
 per-step displacements from point data, one file per step, or ``label;ux;uy;uz`` CSV files.
 Quadratic elements (quad8, quad9, triangle6 shells; the outer faces of hexahedron20,
 hexahedron27, tetra10, wedge15 solids) become 9-node patches (``Mesh.patches``,
-:mod:`glsim.scene.quadratic`); a file mixing linear and quadratic elements is refused."""
+:mod:`glsim.scene.quadratic`); a file mixing linear and quadratic elements is refused. What a
+file declares is bounded before meshio allocates it (:func:`check_mesh_file`)."""
 from __future__ import annotations
 
 import contextlib

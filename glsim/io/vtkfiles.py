@@ -9,6 +9,7 @@
 - :func:`write_mesh_series`: the FE mesh in camera 0's frame, one ``.vtu`` per load step (points
   at the undeformed positions, ``displacement`` as point data, so ParaView's *Warp By Vector*
   shows each step) and a ``.pvd`` collection over the steps (the solver's times where known).
+- :func:`check_vtu`: a ``.vtu`` to be read, its declared sizes bounded before meshio decodes it.
 """
 from __future__ import annotations
 
