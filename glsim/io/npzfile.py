@@ -67,7 +67,7 @@ def read_npz(source: str | Path | bytes, names, optional=(), budget: int | None 
             missing = [n for n in names if n not in present]
             if missing:
                 raise NpzError(f"{label}: has no {', '.join(missing)} (it holds {', '.join(sorted(present)) or 'none'})")
-            members, starts = {}, {}
+            members = {}
             for name in [*names, *(n for n in optional if n in present)]:
                 m, start = _header(z, name)
                 if m.dtype.hasobject:
