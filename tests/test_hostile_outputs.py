@@ -421,3 +421,19 @@ def test_a_file_size_limit_while_rendering_is_a_named_error(tmp_path):
 ])
 def test_demo_arguments_are_refused_by_flag_before_anything_is_written(tmp_path, capsys, args, culprit):
     refused(tmp_path, capsys, ["demo", "-o", str(tmp_path / "demo"), "-q", "--backend", "cpu", *args], culprit)
+
+
+def test_resume_keeps_images_with_other_names_and_appends_to_no_other_file(tmp_path, capsys):
+    """Images hard-linked into a backup (cp -al) are read, not refused; a manifest with another name
+    is not appended to (it would write into that other file) but refused by name."""
+    scene = scene_file(tmp_path / "in")
+    out, backup = tmp_path / "out", tmp_path / "backup"
+    assert render(scene, out) == 0
+    backup.mkdir()
+    for name in ("cam0_0000.tif", "cam0_0001.tif"):
+        os.link(out / name, backup / name)
+    capsys.readouterr()
+    assert render(scene, out) == 0 and "resumed: kept 2 images" in capsys.readouterr().out
+    os.link(out / rendermanifest.NAME, backup / rendermanifest.NAME)
+    refused(tmp_path, capsys, ["render", str(scene), "-o", str(out), "-q"],
+            f"{out / rendermanifest.NAME}: is a file with 2 names (hard links), not a file glsim wrote")

@@ -40,11 +40,11 @@ def kind(mode: int) -> str:
     return next((k for test, k in kinds if test(mode)), "not a regular file")
 
 
-def open_regular(path: str | Path, flags: int, fix: str, mode: int = 0o666) -> int:
+def open_regular(path: str | Path, flags: int, fix: str, mode: int = 0o666, one_link: bool = True) -> int:
     """``os.open(path, flags)`` without following a symbolic link (O_NOFOLLOW, O_CLOEXEC; O_NONBLOCK
-    so that a FIFO does not wait): the descriptor of a regular file with one link. SceneError naming
-    ``path``, what is there instead and ``fix`` otherwise (a link, a directory, a FIFO, a file with
-    another name elsewhere)."""
+    so that a FIFO does not wait): the descriptor of a regular file with one link (any number with
+    ``one_link=False``, for reading). SceneError naming ``path``, what is there instead and ``fix``
+    otherwise (a link, a directory, a FIFO, a file with another name elsewhere)."""
     try:
         fd = os.open(path, flags | os.O_NOFOLLOW | os.O_CLOEXEC | os.O_NONBLOCK, mode)
     except OSError as exc:
@@ -53,7 +53,7 @@ def open_regular(path: str | Path, flags: int, fix: str, mode: int = 0o666) -> i
             raise
         raise SceneError(str(path), f"is {found[exc.errno]}, not a file glsim wrote", fix) from None
     st = os.fstat(fd)
-    if stat.S_ISREG(st.st_mode) and st.st_nlink == 1:
+    if stat.S_ISREG(st.st_mode) and (st.st_nlink == 1 or not one_link):
         return fd
     os.close(fd)
     what = kind(st.st_mode) if not stat.S_ISREG(st.st_mode) else f"a file with {st.st_nlink} names (hard links)"

@@ -27,8 +27,8 @@ FIX = f"remove it ({NAME} is glsim's record of what it wrote: without it the fil
 def sha256(path: Path) -> str:
     """The digest of the regular file at ``path`` (opened without following a link)."""
     h = hashlib.sha256()
-    with os.fdopen(atomic.open_regular(path, os.O_RDONLY, "remove it, or write to another directory (-o)"),
-                   "rb") as f:
+    fd = atomic.open_regular(path, os.O_RDONLY, "remove it, or write to another directory (-o)", one_link=False)
+    with os.fdopen(fd, "rb") as f:
         while block := f.read(1 << 20):
             h.update(block)
     return h.hexdigest()

@@ -108,11 +108,11 @@ def _write(scene: Scene, out: Path, steps, cameras, truth: bool, progress, truth
             r.check_size(cam.name, truth)
         maps = Truth.FIELDS + (Truth.MOTION if scene.exposure is not None else ())   # the maps a truth file holds
         todo, others = _plan(scene, out, steps, cams, maps if truth else None, truth_format, r.mesh)
+        keep, redone = _verify(out, todo) if resume else (set(), [])
         # Everything is read and checked: from here on files are written.
         with _writing(out):
             removed = _clear(out, scene) if force and not resume else []
             swept = _sweep(out, [i.path for i in todo] + [p for i in todo for p in i.truth] + others)
-        keep, redone = _verify(out, todo) if resume else (set(), [])
         with _writing(out / "scene.json"):
             scene_json = io.write_text(out / "scene.json", scene.to_json())
         with _writing(out):
