@@ -115,6 +115,12 @@ SCENES = {
     "camera centre on the specimen plane": (text_case(t="[0.0, 0.0, 0.0]"),
                                             "cameras[0]: camera cam0 sees the specimen edge-on or not at all"),
     "seed of 401 digits": (text_case(top=f"seed = 1{'0' * 400}\n"), "seed: 1000"),
+    "exposure velocity 1e308": (lambda d: write(d / "s.toml", scene_text() + "[exposure]\ntime = 1.0\nsamples = 4\n"
+                                                "velocity = [1e308, 0.0, 0.0]\n"),
+                                "exposure.velocity: [1e+308, 0.0, 0.0] mm/s moves the specimen 5e+307 mm"),
+    "optics focal length 1e300": (lambda d: write(d / "s.toml", scene_text() + "[optics]\nfocal_length = 1e300\n"
+                                                  "f_number = 2.0\nfocus_distance = 1e308\npixel_pitch = 0.005\n"),
+                                  "optics.focal_length: 1e+300 mm lies beyond"),
 }
 # messages that blamed another key before: they must not come back
 WRONG = {"camera looking away": "fx:", "camera centre on the specimen plane": "fx:", "fx 1e300": "speckle",

@@ -17,7 +17,7 @@ import numpy as np
 
 from glsim.scene.camera import Camera, check_ranges
 from glsim.errors import SceneError, check
-from glsim.limits import (MAX_ELEMENTS, MAX_NAME_BYTES, MAX_PIECES, MAX_SAMPLES_PER_PIXEL, MAX_STEPS, check_gl_target, check_image_size,
+from glsim.limits import (MAX_COORDINATE_MM, MAX_ELEMENTS, MAX_NAME_BYTES, MAX_PIECES, MAX_SAMPLES_PER_PIXEL, MAX_STEPS, check_gl_target, check_image_size,
                           refuse_count, require_file)
 from glsim.scene.mesh import UNITS_TO_MM
 from glsim.scene.tables import Vec3, build, check_length, reject_unknown
@@ -441,6 +441,14 @@ class Scene:
         check(not rolling or self.exposure is not None, "sensor.line_time",
               "delays each row, but the scene gives no motion to expose it at",
               "add an [exposure] table (velocity, or load steps to interpolate between), or remove line_time")
+        ex = self.exposure
+        if ex is not None and ex.velocity is not None:   # the farthest a rigid motion carries the specimen
+            rows = max(c.height for c in self.cameras) - 1
+            tau = ex.time / 2 + (rows / 2 * self.sensor.line_time if rolling else 0.0)
+            moved = float(np.abs(ex.velocity).max()) * tau
+            check(moved <= MAX_COORDINATE_MM, "exposure.velocity", f"{list(ex.velocity)} mm/s moves the specimen "
+                  f"{moved:.3g} mm within the exposure, beyond glsim's limit of {MAX_COORDINATE_MM:g} mm",
+                  "give the velocity in mm/s and the exposure time in s")
 
     def _check_sizes(self) -> None:
         """Image sizes against glsim's limits (:mod:`glsim.limits`), and a speckle dot camera 0 can show."""

@@ -11,7 +11,7 @@ import numpy as np
 
 from glsim.errors import check
 from glsim.limits import refuse_count
-from glsim.scene.tables import Vec3
+from glsim.scene.tables import Vec3, check_length
 
 
 LIGHT_COMBINE = ("additive", "multiplicative")
@@ -97,6 +97,8 @@ class Optics:
         for name in ("focal_length", "f_number", "pixel_pitch", "coc_px"):
             check(getattr(self, name) > 0, f"optics.{name}", f"must be > 0, got {getattr(self, name)}",
                   "give a positive value")
+        for name in ("focal_length", "focus_distance", "pixel_pitch"):
+            check_length(getattr(self, name), f"optics.{name}", f"the {name.replace('_', ' ')}")
         check(self.focus_distance > self.focal_length, "optics.focus_distance",
               f"must exceed the focal length ({self.focal_length} mm), got {self.focus_distance}",
               "the focused distance in mm")
@@ -240,6 +242,8 @@ class Exposure:
             v = getattr(self, k)
             check(v is None or (np.shape(v) == (3,) and bool(np.isfinite(v).all())), f"exposure.{k}",
                   f"must be 3 finite numbers, got {v!r}", "give [x, y, z] in the world frame")
+        if self.centre is not None:
+            check_length(self.centre, "exposure.centre", "the rotation's centre")
         check(self.centre is None or self.angular_velocity is not None, "exposure.centre",
               "is the centre of a rotation, but angular_velocity is not given",
               "give angular_velocity (rad/s), or remove centre")

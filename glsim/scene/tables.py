@@ -103,7 +103,7 @@ def check_length(value, key: str, what: str) -> None:
     ±MAX_COORDINATE_MM (:mod:`glsim.limits`): 1e308 is finite, but its products are not."""
     far = float(np.max(np.abs(value)))
     check(far <= MAX_COORDINATE_MM, key, f"{_number(value)} mm lies beyond glsim's limit of ±{MAX_COORDINATE_MM:g} mm",
-          f"give {what} in mm (the specimen within {MAX_COORDINATE_MM:g} mm of the world origin)")
+          f"give {what} in mm (glsim's lengths and positions lie within ±{MAX_COORDINATE_MM:g} mm)")
 
 
 def _number(value) -> str:
