@@ -5,8 +5,9 @@ relative to the checkout). A block marked in the markdown, on the line before it
     <!-- not-run: why -->    is only compiled (kept few: NOT_RUN_MAX);
     <!-- needs: NAME -->     runs after the test has made NAME in its directory (SETUPS).
 
-A block that uses no renderer runs with EGL unable to find a driver, so one that needs GL and
-is not marked `gl` here fails rather than passing only where a GPU or llvmpipe happens to be."""
+A block whose code uses no renderer runs with EGL unable to find a driver, so one that needs GL
+and is not taken as drawing here fails rather than passing only where a GPU or llvmpipe happens
+to be; a test is marked `gl` where its block or its setup draws."""
 from __future__ import annotations
 
 import ast
@@ -44,8 +45,14 @@ class Block:
         return f"{self.file}:{self.line}"
 
     @property
-    def gl(self) -> bool:
+    def draws(self) -> bool:
+        """Whether the block's own code renders (else it runs with no EGL driver to find)."""
         return bool(GL_USE.search(self.code))
+
+    @property
+    def gl(self) -> bool:
+        """Whether the test needs GL: the block draws, or its setup does (every setup renders)."""
+        return self.draws or self.needs is not None
 
 
 def find_blocks() -> list[Block]:
@@ -109,7 +116,7 @@ def test_every_block_runs(block, tmp_path):
         SETUPS[block.needs](tmp_path)
     (tmp_path / "example.py").write_text(block.code)
     env = {**os.environ, "MPLBACKEND": "Agg"}
-    if not block.gl:   # (libglvnd then finds no EGL driver)
+    if not block.draws:   # (libglvnd then finds no EGL driver)
         env["__EGL_VENDOR_LIBRARY_FILENAMES"] = str(tmp_path / "no-egl-vendor.json")
     done = subprocess.run([sys.executable, "example.py"], cwd=tmp_path, env=env, capture_output=True, text=True,
                           timeout=TIMEOUT_S)
