@@ -50,27 +50,37 @@ def pyvale_calibration(cam_a: Camera, cam_b: Camera) -> dict:
             "translation": T.tolist(), "rotation": euler_xyz(R).tolist()}
 
 
-def write_rig_yaml(path, K1, D1, K2, D2, R, T, image_size, **extra) -> Path:
+def write_rig_yaml(path, K1, D1, K2, D2, R, T, image_size, *, atomic: bool = True, **extra) -> Path:
     """OpenCV FileStorage YAML: image_size [W, H], K1 D1 K2 D2 (D = k1 k2 p1 p2 k3 …), R, T
     (X_cam1 = R·X_cam0 + T, mm), the same extrinsics as MatchID's Tx Ty Tz (mm) and
-    Theta Phi Psi (deg), then ``extra`` (matrices or numbers). Written atomically."""
-    import cv2
+    Theta Phi Psi (deg), then ``extra`` (matrices or numbers). Written atomically, or with
+    ``atomic`` False straight to ``path`` (a temporary that the caller renames: renaming one
+    temporary onto another would replace the caller's file)."""
     path = Path(path)
+    if not atomic:
+        _rig_yaml(path, K1, D1, K2, D2, R, T, image_size, extra)
+        return path
     with io.atomic_path(path) as tmp:
-        fs = cv2.FileStorage(str(tmp), cv2.FILE_STORAGE_WRITE)
-        fs.write("image_size", np.asarray(image_size, np.int32).reshape(1, 2))
-        for name, m in (("K1", K1), ("D1", D1), ("K2", K2), ("D2", D2), ("R", R), ("T", T)):
-            fs.write(name, np.asarray(m, np.float64).reshape(-1, 3) if name in ("K1", "K2", "R")
-                     else np.asarray(m, np.float64).reshape(1, -1) if name.startswith("D")
-                     else np.asarray(m, np.float64).reshape(3, 1))
-        for name, v in zip(("Tx", "Ty", "Tz"), np.ravel(T)):
-            fs.write(name, float(v))
-        for name, v in zip(("Theta", "Phi", "Psi"), euler_xyz(R)):
-            fs.write(name, v)
-        for name, v in extra.items():
-            fs.write(name, np.asarray(v, np.float64) if np.ndim(v) else float(v))
-        fs.release()
+        _rig_yaml(tmp, K1, D1, K2, D2, R, T, image_size, extra)
     return path
+
+
+def _rig_yaml(path: Path, K1, D1, K2, D2, R, T, image_size, extra: dict) -> None:
+    """:func:`write_rig_yaml`'s file, written at ``path``."""
+    import cv2
+    fs = cv2.FileStorage(str(path), cv2.FILE_STORAGE_WRITE)
+    fs.write("image_size", np.asarray(image_size, np.int32).reshape(1, 2))
+    for name, m in (("K1", K1), ("D1", D1), ("K2", K2), ("D2", D2), ("R", R), ("T", T)):
+        fs.write(name, np.asarray(m, np.float64).reshape(-1, 3) if name in ("K1", "K2", "R")
+                 else np.asarray(m, np.float64).reshape(1, -1) if name.startswith("D")
+                 else np.asarray(m, np.float64).reshape(3, 1))
+    for name, v in zip(("Tx", "Ty", "Tz"), np.ravel(T)):
+        fs.write(name, float(v))
+    for name, v in zip(("Theta", "Phi", "Psi"), euler_xyz(R)):
+        fs.write(name, v)
+    for name, v in extra.items():
+        fs.write(name, np.asarray(v, np.float64) if np.ndim(v) else float(v))
+    fs.release()
 
 
 def read_rig_yaml(path) -> dict[str, np.ndarray]:

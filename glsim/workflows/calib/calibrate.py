@@ -9,6 +9,7 @@ epipolar-distance map over camera 1's field of view, like the paper's Fig. 14).
 """
 from __future__ import annotations
 
+import contextlib
 import csv
 import io as _io
 import json
@@ -97,9 +98,11 @@ def calibrate(object_points: list[np.ndarray], points1: list[np.ndarray], points
                              pairs=tuple(range(len(obj)) if pairs is None else pairs), image_size=tuple(image_size))
 
 
-def write_yaml(path, c: StereoCalibration) -> Path:
-    """The calibration as OpenCV YAML: :func:`~glsim.io.calibfiles.write_rig_yaml`'s keys plus E, F and rms."""
-    return write_rig_yaml(path, c.K1, c.D1, c.K2, c.D2, c.R, c.T, c.image_size, E=c.E, F=c.F, rms=c.rms)
+def write_yaml(path, c: StereoCalibration, atomic: bool = True) -> Path:
+    """The calibration as OpenCV YAML: :func:`~glsim.io.calibfiles.write_rig_yaml`'s keys plus E, F and rms
+    (``atomic`` False: straight to ``path``, a temporary the caller renames)."""
+    return write_rig_yaml(path, c.K1, c.D1, c.K2, c.D2, c.R, c.T, c.image_size, atomic=atomic, E=c.E, F=c.F,
+                          rms=c.rms)
 
 
 def rotation_angle(Ra: np.ndarray, Rb: np.ndarray) -> float:
@@ -186,8 +189,9 @@ def pyplot():
     return plt
 
 
-def write_epipolar_png(path, u, v, d, title: str = "") -> Path:
-    """The epipolar-distance map as a colour image with a scale (matplotlib)."""
+def write_epipolar_png(path, u, v, d, title: str = "", atomic: bool = True) -> Path:
+    """The epipolar-distance map as a colour image with a scale (matplotlib); ``atomic`` False:
+    straight to ``path``, a temporary the caller renames."""
     plt = pyplot()
     fig, ax = plt.subplots(figsize=(6.4, 5.0), dpi=120)
     step = u[0, 1] - u[0, 0] if u.shape[1] > 1 else 1
@@ -198,7 +202,7 @@ def write_epipolar_png(path, u, v, d, title: str = "") -> Path:
     ax.set_ylabel("v [px]")
     ax.set_title(title or f"max {np.nanmax(d):.3g} px")
     path = Path(path)
-    with io.atomic_path(path) as tmp:
+    with contextlib.nullcontext(path) if not atomic else io.atomic_path(path) as tmp:
         fig.savefig(tmp, format="png", bbox_inches="tight")
     plt.close(fig)
     return path
@@ -514,8 +518,8 @@ def run(library_dir, out_dir=None, model: str = "k1k2p1p2k3", min_points: int | 
     # finished calibration, last): an error or an interrupt leaves the directory as it was
     names = ("calibration.yaml", "epipolar.png", "residuals.csv", "report.json")
     with atomic_paths([out / n for n in names]) as (t_yaml, t_png, t_csv, t_report):
-        write_yaml(t_yaml, c)
-        write_epipolar_png(t_png, u, v, d, f"epipolar distance, max {np.nanmax(d):.3g} px")
+        write_yaml(t_yaml, c, atomic=False)
+        write_epipolar_png(t_png, u, v, d, f"epipolar distance, max {np.nanmax(d):.3g} px", atomic=False)
         Path(t_csv).write_text(residuals)
         Path(t_report).write_text(json.dumps(report, indent=1))
     return report
