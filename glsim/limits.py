@@ -171,17 +171,6 @@ def require_file(path, key: str, fix: str) -> Path:
     return Path(path)
 
 
-def check_image_file(path: str | Path, key: str) -> None:
-    """SceneError(key) if the reference image file's header declares more pixels than glsim's
-    limits, colour, several pages, a pixel type other than 8/16-bit or float, or more memory to read
-    than this process may use (REFERENCE_BYTES_PER_PIXEL): read before the image is decoded. An
-    unreadable header is left to the reader."""
-    from glsim.io.images import check_image_header
-
-    check_image_header(path, key, "greyscale image", "give a smaller reference image", MAX_IMAGE_SIDE,
-                       REFERENCE_DTYPES, REFERENCE_BYTES_PER_PIXEL)
-
-
 # ---- files read from disk: what their headers declare, bounded before anything is read ----------
 
 REFERENCE_BYTES_PER_PIXEL = 32   # memory estimate of reading a reference image: per pixel, besides its

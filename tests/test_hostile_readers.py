@@ -17,6 +17,7 @@ import pytest
 
 from glsim.cli import main
 from glsim.errors import SceneError
+from glsim.io import images
 from glsim.io.fe import load_mesh, open_series
 
 netCDF4 = pytest.importorskip("netCDF4")
@@ -335,8 +336,8 @@ def test_the_reference_estimate_covers_its_float64_temporaries(tmp_path, monkeyp
     from glsim import limits
     path = tiff(tmp_path / "ref.tif", np.zeros((8, 8), np.uint16), 16384)
     monkeypatch.setattr(limits, "memory_budget", lambda: 16 << 30)
-    limits.check_image_file(path, "speckle.image")
+    images.check_image_file(path, "speckle.image")
     monkeypatch.setattr(limits, "memory_budget", lambda: 8 << 30)
     with pytest.raises(SceneError, match=r"speckle.image: .*ref.tif \(16384 × 16384 px, as its header declares\) "
                                          r"needs about 8.5 GiB to read, more than the 8 GiB"):
-        limits.check_image_file(path, "speckle.image")
+        images.check_image_file(path, "speckle.image")

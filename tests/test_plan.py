@@ -212,7 +212,7 @@ def test_compute_lists_longer_than_a_row_of_work_groups(gl_ctx):
         images = []
         for r.backend.stage in ("fragment", "compute"):
             images.append(r.render(0, 0, mode="q4", samples_per_pixel=4, quantize=True).image)
-        lists = r.backend.geometry._bufs["pixel_lists", *size]
+        lists = r.backend.geometry._bufs[("pixel_lists", *size)]
         args = np.frombuffer(lists.read(size=32), np.uint32)
     assert args[6] * 4 > 65_535 * 64 and args[0] == 65_535 and args[1] == 2   # (layer 0: one candidate)
     np.testing.assert_array_equal(images[0], images[1])

@@ -2,7 +2,6 @@
 (bench/same_bytes.py) hash as recorded before the refactor. The hashes hold on the machine that
 recorded them (llvmpipe's code follows the CPU), so elsewhere the test says so and skips."""
 import importlib.util
-import os
 from pathlib import Path
 
 import pytest

@@ -5,6 +5,7 @@ import numpy as np
 import pytest
 import tifffile
 
+from glsim.io import images
 from glsim.scene import speckle
 from glsim.errors import SceneError
 
@@ -98,7 +99,7 @@ def test_load_8bit_tiff_and_png(tmp_path, grey):
     for name in ("ref.tif", "ref.png"):
         path = tmp_path / name
         (tifffile.imwrite if name.endswith(".tif") else iio.imwrite)(path, u8)
-        img = speckle.load_reference(path)
+        img = images.load_reference(path)
         assert img.dtype == np.float32 and img.shape == (40, 60)
         np.testing.assert_array_equal(np.round(img * 255).astype(np.uint8), u8)
 
@@ -108,21 +109,21 @@ def test_load_16bit_tiff_and_png(tmp_path, grey):
     for name in ("ref16.tiff", "ref16.png"):
         path = tmp_path / name
         (tifffile.imwrite if name.endswith(".tiff") else iio.imwrite)(path, u16)
-        img = speckle.load_reference(str(path))
+        img = images.load_reference(str(path))
         np.testing.assert_allclose(img, u16 / 65535.0, rtol=0, atol=1e-7)
 
 
 def test_load_float_tiff(tmp_path, grey):
     path = tmp_path / "ref_f.tif"
     tifffile.imwrite(path, grey.astype(np.float32))
-    np.testing.assert_array_equal(speckle.load_reference(path), grey.astype(np.float32))
+    np.testing.assert_array_equal(images.load_reference(path), grey.astype(np.float32))
 
 
 def test_rgb_rejected(tmp_path, grey):
     path = tmp_path / "rgb.png"
     iio.imwrite(path, np.repeat((grey[..., None] * 255).astype(np.uint8), 3, axis=-1))
     with pytest.raises(SceneError, match="colour image.*greyscale") as info:
-        speckle.load_reference(path)
+        images.load_reference(path)
     assert str(path) in str(info.value) and info.value.key == "speckle.image"
 
 
@@ -130,18 +131,18 @@ def test_out_of_range_float_rejected(tmp_path, grey):
     path = tmp_path / "hdr.tif"
     tifffile.imwrite(path, (grey * 2).astype(np.float32))
     with pytest.raises(SceneError, match=r"outside \[0, 1\].*scale the image"):
-        speckle.load_reference(path)
+        images.load_reference(path)
 
 
 def test_missing_and_unreadable_files_rejected(tmp_path):
     missing = tmp_path / "nope.tif"
     with pytest.raises(SceneError, match="file not found") as info:
-        speckle.load_reference(missing, key="cameras[0].reference")
+        images.load_reference(missing, key="cameras[0].reference")
     assert str(missing) in str(info.value) and info.value.key == "cameras[0].reference"
     junk = tmp_path / "junk.png"
     junk.write_bytes(b"not an image")
     with pytest.raises(SceneError, match="cannot read image") as info:
-        speckle.load_reference(junk)
+        images.load_reference(junk)
     assert str(junk) in str(info.value)
 
 

@@ -8,8 +8,12 @@ from __future__ import annotations
 from dataclasses import dataclass
 from pathlib import Path
 
+import os
+import warnings
+
 import numpy as np
 
+from glsim import limits
 from glsim.errors import SceneError
 from glsim.io.atomic import atomic_path, atomic_paths
 
@@ -273,3 +277,63 @@ def check_image_header(path: str | Path, key: str, what: str, fix: str, max_side
                          f"{need / 2**30:.3g} GiB to read, more than the {budget / 2**30:.3g} GiB this process may use",
                          fix)
     return h
+
+
+def check_image_file(path: str | Path, key: str) -> None:
+    """SceneError(key) if the reference image file's header declares more pixels than glsim's
+    limits, colour, several pages, a pixel type other than 8/16-bit or float, or more memory to read
+    than this process may use (REFERENCE_BYTES_PER_PIXEL): read before the image is decoded. An
+    unreadable header is left to the reader."""
+    check_image_header(path, key, "greyscale image", "give a smaller reference image", limits.MAX_IMAGE_SIDE,
+                       limits.REFERENCE_DTYPES, limits.REFERENCE_BYTES_PER_PIXEL)
+
+
+def load_reference(path, key="speckle.image"):
+    """Greyscale reference image from file as float32 (H, W) in [0, 1] of full scale.
+
+    8-bit / 16-bit integer images are scaled by 1/255 / 1/65535; float images are kept
+    as they are and must lie in [0, 1]. TIFF files are read with tifffile, others with
+    imageio. Colour, multi-page or unreadable files raise SceneError(key, ...) naming the path.
+    """
+    path = os.fspath(path)
+    if not os.path.isfile(path):
+        raise SceneError(key, f"file not found: {path}",
+                         "give an existing image file (path relative to the scene file)")
+    check_image_file(path, key)
+    import imageio.v3 as iio
+    import tifffile
+
+    try:
+        if path.lower().endswith((".tif", ".tiff")):
+            img = tifffile.imread(path)
+        else:
+            with warnings.catch_warnings():  # imageio's plugin probing warns about deprecated plugins
+                warnings.simplefilter("ignore", DeprecationWarning)
+                img = iio.imread(path)
+    except Exception as exc:  # any reader failure is a bad input file
+        raise SceneError(key, f"cannot read image {path}: {exc}",
+                         "give a greyscale TIFF or PNG (8-bit, 16-bit or float)") from None
+    img = np.asarray(img)
+    if img.ndim == 3 and img.shape[-1] == 1:
+        img = img[..., 0]
+    if img.ndim == 3 and img.shape[-1] in (2, 3, 4):
+        raise SceneError(key, f"{path} is a colour image (shape {img.shape})",
+                         "convert it to a single-channel greyscale image before use")
+    if img.ndim != 2:
+        raise SceneError(key, f"{path} is not a single greyscale image (shape {img.shape})",
+                         "give a single-page, single-channel greyscale image")
+    if img.dtype == np.uint8:
+        return (img / 255.0).astype(np.float32)
+    if img.dtype == np.uint16:
+        return (img / 65535.0).astype(np.float32)
+    if np.issubdtype(img.dtype, np.floating):
+        img = img.astype(np.float32)
+        if not np.all(np.isfinite(img)):
+            raise SceneError(key, f"{path} has NaN or infinite grey levels", "give finite grey levels in [0, 1]")
+        if img.min() < 0 or img.max() > 1:
+            raise SceneError(key, f"{path} has float grey levels outside [0, 1] "
+                             f"(min {img.min():g}, max {img.max():g})",
+                             "scale the image to [0, 1] of full scale, or save it as 8- or 16-bit")
+        return img
+    raise SceneError(key, f"{path} has unsupported pixel type {img.dtype}",
+                     "save it as 8-bit, 16-bit or float (in [0, 1]) greyscale")

@@ -8,6 +8,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from glsim.io import images
 from glsim.scene import mesh as meshmod
 from glsim.scene import speckle
 from glsim.scene.camera import Camera, project_camera_frame, to_camera
@@ -222,7 +223,7 @@ def make_reference(scene: Scene, mesh: meshmod.Mesh) -> Reference:
     cam1 = scene.cameras[0]
     require_area(mesh, "specimen.mesh.path" if scene.specimen.mesh is not None else "specimen")
     if sp.image:
-        image = speckle.load_reference(scene.resolve(sp.image))
+        image = images.load_reference(scene.resolve(sp.image))
         if sp.camera is not None:
             cam = sp.camera
             if (cam.width, cam.height) != image.shape[::-1]:

@@ -518,7 +518,7 @@ def check_references(plan: Plan) -> None:
     """Read every distinct reference image file of the plan's variants (``speckle.image``) as a
     render would, so that a missing, damaged or oversized one is refused before the library's
     directory is made (SceneError naming the variant and the key)."""
-    from glsim.scene.speckle import load_reference
+    from glsim.io.images import load_reference
 
     seen = set()
     for v in plan.variants:
