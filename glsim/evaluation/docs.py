@@ -38,9 +38,11 @@ from glsim.evaluation.docs_verify import (sweep, sweep_facts, sweep_frontier, sw
                                           verify_timing)
 from glsim.io import images as io
 
-FILES = ("README.md", "docs/calib.md", "docs/verify.md", "docs/library.md", "docs/preview.md", "docs/effects.md",
-         "docs/scaling.md", "docs/scene.md", "docs/fe_bulge.md", "docs/hard_cases.md", "docs/rig_files.md",
-         "docs/quadratic.md", "docs/camera.md", "docs/motion.md", "docs/jacobian.md")
+def markdown_files(root: Path) -> tuple[str, ...]:
+    """Every page that may hold a generated region: the README and docs/*.md."""
+    return ("README.md",) + tuple(f"docs/{p.name}" for p in sorted((Path(root) / "docs").glob("*.md")))
+
+
 REGION = re.compile(r"(<!-- generated: (?P<name>[\w-]+) from (?P<sources>[^>]+?) -->\n)(?P<body>.*?)(<!-- end generated -->)",
                     re.S)
 
@@ -92,10 +94,10 @@ def regenerate(text: str, root: Path) -> str:
     return REGION.sub(sub, text)
 
 
-def check(root: Path, files=FILES) -> list[str]:
+def check(root: Path, files=None) -> list[str]:
     """A diff per file whose generated regions differ from their results files (empty: all agree)."""
     out = []
-    for f in files:
+    for f in files or markdown_files(root):
         path = root / f
         if not path.is_file():
             continue
@@ -106,10 +108,10 @@ def check(root: Path, files=FILES) -> list[str]:
     return out
 
 
-def write(root: Path, files=FILES) -> list[str]:
+def write(root: Path, files=None) -> list[str]:
     """Rewrite the generated regions in place; the files that changed."""
     changed = []
-    for f in files:
+    for f in files or markdown_files(root):
         path = root / f
         if path.is_file() and (new := regenerate(text := path.read_text(), root)) != text:
             io.write_text(path, new)
