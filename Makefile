@@ -6,7 +6,7 @@ STAMP  := $(VENV)/.glsim-installed
 EGL_PKGS := libegl1 libegl-mesa0 libgl1-mesa-dri libgbm1
 X11_PKGS := xvfb xdotool x11-apps chromium glslang-tools
 
-.PHONY: demo test test-gl bench venv egl x11 clean readme-check
+.PHONY: demo test test-fast test-gl bench venv egl x11 clean readme-check
 
 demo: venv
 	$(BIN)/glsim demo
@@ -18,9 +18,14 @@ test: venv x11 readme-check
 	# the GL tier again in the pixel stage a GPU gets (llvmpipe's own is fragment)
 	GLSIM_PIXEL_STAGE=compute $(BIN)/python -m pytest -q -ra -n 2 -m gl
 
+# the loop while changing code: every in-process test (GL included), none that starts another
+# process (library worker pools, CLI subprocesses, forked checks, Xvfb, a browser, a cluster)
+test-fast: venv
+	$(BIN)/python -m pytest -q -ra -n 2 -m "not process"
+
 # every measured figure in README.md and docs/ equals what its bench/results file gives
 readme-check: venv
-	$(BIN)/glsim docs --check
+	$(BIN)/python -m tools.docs --check
 
 test-gl: venv
 	$(BIN)/python -m pytest -q -m gl

@@ -84,6 +84,7 @@ def test_keys_page_and_wrap(library):
         assert pg.quit_requested
 
 
+@pytest.mark.process
 def test_screenshot_through_the_cli_and_named_errors(library, tmp_path):
     import imageio.v3 as iio
     out = tmp_path / "page.png"
@@ -105,6 +106,7 @@ def test_screenshot_through_the_cli_and_named_errors(library, tmp_path):
         LibraryPager(broken).frame()
 
 
+@pytest.mark.process
 def test_window_pages_under_xvfb(library, preview_window):
     """A real window on a virtual X server: a real key press turns the page (the frame log says
     which pair is shown and how many points each camera found)."""

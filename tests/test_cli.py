@@ -140,6 +140,7 @@ def test_quantize_rounds_and_clips():
     assert io.quantize(np.array([1.0]), 12).tolist() == [4095]
 
 
+@pytest.mark.process
 @pytest.mark.gl
 def test_wheel_ships_shaders_and_renders(tmp_path):
     """A non-editable install of the built wheel renders with its packaged GLSL."""

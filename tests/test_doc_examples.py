@@ -105,6 +105,7 @@ def test_every_block_compiles(block):
     compile(block.code, block.id, "exec", ast.PyCF_ONLY_AST)
 
 
+@pytest.mark.process
 @pytest.mark.parametrize("block", [pytest.param(b, id=b.id, marks=[pytest.mark.gl] if b.gl else [])
                                    for b in BLOCKS if b.not_run is None])
 def test_every_block_runs(block, tmp_path):

@@ -211,6 +211,7 @@ def test_a_hostile_input_is_refused_by_name_quickly_writing_nothing(tmp_path, ca
     assert files(d) == before and not (d / "out").exists()
 
 
+@pytest.mark.process
 def test_the_heavy_cases_are_refused_under_a_500_MB_address_space_limit(tmp_path):
     cases = {}
     for i, case in enumerate(HEAVY):

@@ -172,6 +172,7 @@ def test_a_pattern_is_bounded_before_it_is_formatted(tmp_path, capsys, pattern, 
     refused(tmp_path, capsys, ["render", str(scene), "-o", str(tmp_path / "out"), "-q"], "output.pattern: ", culprit)
 
 
+@pytest.mark.process
 def test_a_giant_format_width_is_refused_under_a_500_MB_address_space_limit(tmp_path):
     argv = [["render", str(scene_file(tmp_path / f"in{i}", pattern=p)), "-o", str(tmp_path / f"out{i}"), "-q"]
             for i, p in enumerate(["{step:2000000000}", "{camera}_{step:.2000000000f}.{ext}",
@@ -317,6 +318,7 @@ sys.exit(main(sys.argv[1:]))
 """
 
 
+@pytest.mark.process
 @pytest.mark.slow
 def test_a_render_killed_mid_write_is_resumed_and_its_temporaries_swept(tmp_path):
     scene = scene_file(tmp_path / "in", steps=2)
@@ -397,6 +399,7 @@ def test_a_full_disk_while_rendering_is_named_and_resumes(tmp_path, capsys, monk
     assert render(scene, out, "--truth") == 0 and "resumed: kept 1 image" in capsys.readouterr().out
 
 
+@pytest.mark.process
 @pytest.mark.slow
 def test_a_file_size_limit_while_rendering_is_a_named_error(tmp_path):
     """A real OSError from the kernel (EFBIG under RLIMIT_FSIZE: Python ignores SIGXFSZ)."""

@@ -259,6 +259,7 @@ def test_a_hostile_file_is_refused_by_name_writing_nothing(tmp_path, capsys, nam
     assert "Traceback" not in err and " — " in err          # the fix follows the problem
 
 
+@pytest.mark.process
 def test_every_case_is_refused_under_a_500_MB_address_space_limit(tmp_path):
     cases = {**CASES, **CAPPED}
     argvs = []

@@ -312,6 +312,7 @@ def test_a_directory_or_fifo_named_as_a_rig_file_is_named_as_such(tmp_path, caps
 
 # ---- the command line, in its own process --------------------------------------------------------------
 
+@pytest.mark.process
 @pytest.mark.slow
 def test_the_cli_exits_2_without_a_traceback_under_a_500_MB_limit(tmp_path):
     """`glsim` in a fresh process (address space capped at 500 MB): exit status 2, the named error on

@@ -266,6 +266,7 @@ print(json.dumps(out))
 """
 
 
+@pytest.mark.process
 def test_npz_bombs_are_refused_by_their_headers_under_a_500_MB_address_space_limit(lib, tmp_path):
     # a geometry bomb its (forged, checksummed) truth file vouches for
     nodes = array_member((50_000_000, 3))

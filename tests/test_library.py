@@ -201,6 +201,7 @@ def test_a_rolling_shutter_library_with_truth_between_load_steps_is_refused(tmp_
     assert "sensor.line_time: a rolling shutter" in err and "rigid motion" in err and not (tmp_path / "never").exists()
 
 
+@pytest.mark.process
 def test_a_rolling_shutter_library_stores_each_rows_truth(tmp_path):
     """A rolling shutter with a rigid motion (a rotation about a given centre and a velocity):
     the images are the renderer's and the truth file's maps its rows' truth, bit for bit
@@ -235,6 +236,7 @@ def test_a_rolling_shutter_library_stores_each_rows_truth(tmp_path):
         damaged.maps().X_deformed
 
 
+@pytest.mark.process
 def test_a_library_with_an_exposure_stores_the_mid_exposure_truth(tmp_path):
     """[exposure] with a global shutter: the images are the renderer's, and a truth file holds
     the mid-exposure state's (the load step's) element, ξ and η, its positions made from them as
@@ -248,6 +250,7 @@ def test_a_library_with_an_exposure_stores_the_mid_exposure_truth(tmp_path):
     assert res.truth.uv_start is not None and maps.uv_start is None
 
 
+@pytest.mark.process
 def test_missing_scene_file_and_directory_rules(tmp_path, reference_library):
     with pytest.raises(SpecError, match=r"scene: file .*nope.toml not found — check the path"):
         load_plan(_spec(tmp_path, "scene = 'nope.toml'\n"))
@@ -268,6 +271,7 @@ def test_missing_scene_file_and_directory_rules(tmp_path, reference_library):
 
 # ---- the library --------------------------------------------------------------------------------------
 
+@pytest.mark.process
 def test_layout_manifest_images_and_truth(reference_library, tmp_path):
     spec, lib = reference_library
     rows = _manifest_rows(lib, drop=())
@@ -301,6 +305,7 @@ pixel_pitch = 0.005
 """
 
 
+@pytest.mark.process
 def test_variants_differing_only_in_noise_lighting_optics_speckle_or_format_share_one_truth_file(tmp_path):
     """Truth is content-addressed: one file per truth key, rendered once; every variant's own
     render gives that file's (element, ξ, η) bit for bit (GL)."""
@@ -377,6 +382,7 @@ def test_every_truth_key_ingredient_changes_the_key(monkeypatch):
     assert truth_keys(v.scene, plan.meshes[next(iter(plan.meshes))], ["cam0"], [0], "float64") != before
 
 
+@pytest.mark.process
 def test_a_reused_renderer_gives_the_bytes_of_a_fresh_one(tmp_path):
     """Variants that differ only in noise and camera 2 share one renderer (its scene swapped)."""
     from glsim.workflows.library import worker
@@ -403,6 +409,7 @@ def test_a_reused_renderer_gives_the_bytes_of_a_fresh_one(tmp_path):
             assert (tmp_path / "x.tif").read_bytes() == (tmp_path / "lib" / "v0003" / f"{cam}_0002.tif").read_bytes()
 
 
+@pytest.mark.process
 def test_a_reused_renderer_goes_round_four_load_steps_again(tmp_path):
     """Variant after variant over four load steps on one renderer (see the work-around in
     glsim/workflows/library/worker.py:renderer_for)."""
@@ -413,6 +420,7 @@ def test_a_reused_renderer_goes_round_four_load_steps_again(tmp_path):
     assert s.written == 16 and verify(tmp_path / "lib")[1] == []
 
 
+@pytest.mark.process
 def test_float32_truth_png_images_and_no_truth(tmp_path):
     spec = _spec(tmp_path, "steps = [1]\ncameras = ['cam1']\ntruth_dtype = 'float32'\n" + SCENE
                  + "[scene.output]\nformat = 'png'\npattern = '{camera}/{step:02d}.{ext}'\n[vary]\nnoise.sigma = [1.0]\n")
@@ -430,6 +438,7 @@ def test_float32_truth_png_images_and_no_truth(tmp_path):
     assert not list((tmp_path / "off").rglob("*.truth")) and not (tmp_path / "off" / "geometry").exists()
 
 
+@pytest.mark.process
 def test_one_and_two_workers_give_the_same_bytes_and_resume_renders_only_what_is_bad(reference_library, tmp_path,
                                                                                     capsys):
     spec, ref = reference_library
@@ -455,6 +464,7 @@ def test_one_and_two_workers_give_the_same_bytes_and_resume_renders_only_what_is
     assert r.returncode == 0 and "16 images good, 0 problems" in r.stdout
 
 
+@pytest.mark.process
 def test_kill_and_resume_gives_the_bytes_of_an_uninterrupted_run(reference_library, tmp_path):
     spec, ref = reference_library
     lib = tmp_path / "killed"
@@ -519,6 +529,7 @@ def _pool_workers(pid: int) -> list[int]:
     return out
 
 
+@pytest.mark.process
 def test_a_killed_pool_worker_is_replaced_and_the_library_completes(reference_library, tmp_path):
     spec, ref = reference_library
     if not Path("/proc/self/task").is_dir():
@@ -567,6 +578,7 @@ def _alive(pid: int) -> bool:
         return False
 
 
+@pytest.mark.process
 @pytest.mark.parametrize("sig", [signal.SIGKILL, signal.SIGTERM])
 def test_no_worker_outlives_the_command_however_it_ends(tmp_path, sig):
     """The command killed (SIGKILL: no chance to stop its workers) or terminated (SIGTERM: as
@@ -594,6 +606,7 @@ def test_no_worker_outlives_the_command_however_it_ends(tmp_path, sig):
         assert not [f for f in lib.rglob("*") if ".part" in f.name]
 
 
+@pytest.mark.process
 def test_an_unreachable_scheduler_writes_nothing(tmp_path, monkeypatch):
     pytest.importorskip("distributed")
     from glsim.workflows.library import runner
@@ -604,6 +617,7 @@ def test_an_unreachable_scheduler_writes_nothing(tmp_path, monkeypatch):
     assert not (tmp_path / "lib").exists()
 
 
+@pytest.mark.process
 def test_a_worker_killed_while_tasks_are_handed_out_is_replaced(reference_library, tmp_path, monkeypatch):
     """The pool breaks inside submit (a worker died before all tasks were queued): the runner starts a
     fresh pool for what is left instead of letting BrokenProcessPool escape."""
@@ -631,6 +645,7 @@ def test_a_worker_killed_while_tasks_are_handed_out_is_replaced(reference_librar
     assert _files(tmp_path / "lib") == _files(ref)
 
 
+@pytest.mark.process
 @pytest.mark.parametrize("spawn_error", [OSError("handle is closed"), ValueError("bad value(s) in fds_to_keep"),
                                          RuntimeError("cannot schedule new futures after shutdown")],
                          ids=["handle-closed", "fds-to-keep", "shut-down"])
@@ -661,6 +676,7 @@ def test_a_worker_death_inside_submit_is_replaced(reference_library, tmp_path, m
     assert _files(tmp_path / "lib") == _files(ref)
 
 
+@pytest.mark.process
 def test_an_os_error_in_submit_of_a_sound_pool_is_not_taken_for_a_death(reference_library, tmp_path, monkeypatch):
     """An OSError while the pool is not broken (no processes left to spawn, say) is not retried: it is
     named, with the fix."""
@@ -685,6 +701,7 @@ def test_examples_expand(tmp_path):
     np.testing.assert_allclose(phis, [10, 20, 30, 40], atol=1e-9)
 
 
+@pytest.mark.process
 def test_disk_full_is_a_clear_error_and_resumes(reference_library, tmp_path, monkeypatch):
     spec, ref = reference_library
     from glsim.workflows.library import writer
@@ -709,6 +726,7 @@ def test_disk_full_is_a_clear_error_and_resumes(reference_library, tmp_path, mon
     assert (s.written, s.kept) == (16 - kept, kept) and _files(lib) == _files(ref)
 
 
+@pytest.mark.process
 def test_the_writer_process_reports_a_file_it_cannot_write(reference_library, tmp_path):
     """An error in the writer process stops the run with the file and the fix, in the render
     thread; the images written before are kept, and resuming completes the library."""
@@ -724,6 +742,7 @@ def test_the_writer_process_reports_a_file_it_cannot_write(reference_library, tm
     assert (s.written, s.kept) == (1, 15) and _files(lib) == _files(ref)
 
 
+@pytest.mark.process
 def test_a_writer_process_that_died_is_an_error_not_a_hang(tmp_path):
     from glsim.workflows.library import writer
     w = writer.ProcessWriter()
@@ -741,6 +760,7 @@ def test_a_writer_process_that_died_is_an_error_not_a_hang(tmp_path):
     assert not w.alive()
 
 
+@pytest.mark.process
 def test_dry_run_prints_the_table_and_writes_nothing(tmp_path):
     spec = _spec(tmp_path)
     out = tmp_path / "spec"
@@ -764,6 +784,7 @@ def test_the_dry_run_estimate_counts_truth_once_per_file_and_set_up_once_per_ref
     assert seconds == pytest.approx(1.0 + 4 * (0.05 + 0.5) + 4 * 0.1) and size == 8 * 1000 + 4 * 5000
 
 
+@pytest.mark.process
 def test_camera_that_sees_no_specimen_warns_and_the_manifest_says_covered(tmp_path):
     """Issue 29: stereo angles 90° and 200° gave black images without a word, and `saturated`
     counted the noisy background (0.257 on every image)."""
@@ -811,6 +832,7 @@ def _free_port() -> int:
         return s.getsockname()[1]
 
 
+@pytest.mark.process
 def test_dask_cluster_with_a_worker_killed_gives_the_same_library(reference_library, tmp_path):
     pytest.importorskip("distributed")
     spec, ref = reference_library
@@ -865,6 +887,7 @@ def test_dask_cluster_with_a_worker_killed_gives_the_same_library(reference_libr
 
 # ---- benchmark ------------------------------------------------------------------------------------------
 
+@pytest.mark.process
 def test_reduced_benchmark_writes_its_tables(tmp_path):
     out = tmp_path / "bench"
     r = subprocess.run(GLSIM + ["bench", "library", "--size", "64", "48", "--images", "16", "--max-workers", "2",
@@ -881,6 +904,7 @@ def test_reduced_benchmark_writes_its_tables(tmp_path):
     assert "images/s" in (out / "library.md").read_text() and "(reduced run)" in (out / "library.md").read_text()
 
 
+@pytest.mark.process
 def test_writer_sigterm_in_a_finalizer_is_kept_for_the_loop_not_printed(monkeypatch):
     """The writer process's SIGTERM handler raises SystemExit(143) in ordinary code, once (a
     second SIGTERM while that exit unwinds is ignored); inside a ``__del__`` (where Python would
@@ -912,6 +936,7 @@ def test_writer_sigterm_in_a_finalizer_is_kept_for_the_loop_not_printed(monkeypa
     assert r.returncode == 143 and "Traceback" not in r.stderr, r.stderr
 
 
+@pytest.mark.process
 def test_writer_sigterms_at_any_moment_end_it_quietly():
     """A writer whose parent died as it started gets its lifeline's SIGTERM at once (and, on
     Linux, may get the kernel's parent-death signal too); more SIGTERMs come while it stops
@@ -944,6 +969,7 @@ def test_writer_sigterms_at_any_moment_end_it_quietly():
         assert p.returncode in (143, -signal.SIGTERM) and err == "", (p.returncode, err)
 
 
+@pytest.mark.process
 @pytest.mark.parametrize("flag", ["--reps", "--images", "--max-workers"])
 def test_benchmark_counts_below_one_are_refused_by_name(tmp_path, flag):
     r = subprocess.run(GLSIM + ["bench", "library", flag, "0", "--out", str(tmp_path / "bench")],
@@ -952,6 +978,7 @@ def test_benchmark_counts_below_one_are_refused_by_name(tmp_path, flag):
     assert not (tmp_path / "bench").exists()
 
 
+@pytest.mark.process
 @pytest.mark.parametrize("interrupt", [True, False])
 def test_a_clean_up_failing_inside_an_interrupt_ends_as_the_interrupt(tmp_path, monkeypatch, capsys, interrupt):
     """Ctrl-C can land inside library code whose own clean-up then fails (zipfile, closing a

@@ -221,6 +221,7 @@ def _reference_scene(d, size_px):
     return write_scene(d, extra="[speckle]\nimage = 'ref.tif'\nmm_per_px = 0.1\n")
 
 
+@pytest.mark.process
 def test_a_reference_image_smaller_than_the_specimen_is_refused(tmp_path, capsys):
     """The user's case: a 40 × 30 mm image on a 100 × 50 mm plate was silently cropped; then
     warned about; now refused before anything is written, naming the uncovered extent (issue 16)."""

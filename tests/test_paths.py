@@ -123,6 +123,7 @@ def holder():
             p.wait()
 
 
+@pytest.mark.process
 def test_a_second_run_into_a_directory_in_use_is_refused_naming_the_holder(tmp_path, capsys, holder):
     """The user's case: `glsim library A -o D &` then `glsim library C -o D --force` mixed the two."""
     scene = write_scene(tmp_path / "in")
@@ -141,6 +142,7 @@ def test_a_second_run_into_a_directory_in_use_is_refused_naming_the_holder(tmp_p
     assert not d.exists()                                # the lock file gone, and the folder it made
 
 
+@pytest.mark.process
 def test_a_lock_left_by_a_dead_run_is_taken_over(tmp_path):
     dead = subprocess.Popen(["true"])
     dead.wait()

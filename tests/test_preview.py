@@ -405,6 +405,7 @@ def small_toml(tmp_path_factory):
     return save_scene(small_scene(), tmp_path_factory.mktemp("scene") / "bulge_small.toml")
 
 
+@pytest.mark.process
 def test_screenshot_without_display_equals_the_core_frame(small_toml, tmp_path, gl_ctx):
     out = tmp_path / "shot.png"
     r = _glsim("preview", small_toml, "--screenshot", out, "--size", *SIZE, "--step", 1, "--overlay", "edges",
@@ -419,6 +420,7 @@ def test_screenshot_without_display_equals_the_core_frame(small_toml, tmp_path, 
         assert np.array_equal(shot, pv.refine())
 
 
+@pytest.mark.process
 def test_no_display_and_bad_input_are_named(tmp_path):
     r = _glsim("preview", ROOT / "examples/bulge.toml", env={"DISPLAY": "", "WAYLAND_DISPLAY": ""})
     assert r.returncode == 2 and "no display" in r.stderr and "--screenshot" in r.stderr and "Widget" in r.stderr
@@ -510,6 +512,7 @@ def _xwd(path):
 
 
 
+@pytest.mark.process
 def test_window_under_xvfb(preview_window, small_toml, tmp_path, gl_ctx):
     with preview_window(str(small_toml), "--size", *map(str, SIZE), "--log-frames", "--no-timings",
                         cwd=tmp_path) as (app, env):
@@ -567,6 +570,7 @@ def test_window_under_xvfb(preview_window, small_toml, tmp_path, gl_ctx):
 
 
 # ---- glsim bench preview ------------------------------------------------------------------------------
+@pytest.mark.process
 def test_reduced_bench_never_writes_the_committed_results(tmp_path):
     results = ROOT / "bench/results/preview.json"
     before = results.read_bytes() if results.is_file() else None
@@ -597,6 +601,7 @@ print("ok")
 """
 
 
+@pytest.mark.process
 def test_own_context_draws_from_any_thread():
     """Jupyter calls get_frame from another thread than the cell that made the widget."""
     r = subprocess.run([sys.executable, "-c", THREADS], capture_output=True, text=True, timeout=120, cwd=ROOT)
@@ -618,6 +623,7 @@ def _chromium():
     return shutil.which("chromium") or shutil.which("chromium-browser")
 
 
+@pytest.mark.process
 def test_widget_in_jupyterlab_with_headless_chromium(tmp_path, gl_ctx):
     """The notebook runs in JupyterLab; Chromium shows the widget; the frame image in the page
     equals the offscreen frame of the same settings (lossless PNG frames)."""
