@@ -17,7 +17,7 @@
 #     check` and the full throughput benchmark (all by default;
 #     name some to split them over calls, each then shorter than a call's limit) with the kit installed the
 #     same way; commit its results beside the llvmpipe ones: bench/results/check-<gpu>.json (add
-#     it to the sources of README's "check-drivers" region, then `glsim docs`: a column of that
+#     it to the sources of README's "check-drivers" region, then `python -m tools.docs`: a column of that
 #     table) and bench/results/throughput-<gpu>.{json,md}. QUICK=1: the benchmark's --quick (a dry run on
 #     llvmpipe, with the kit's Python 3.12 first on PATH).
 set -uo pipefail

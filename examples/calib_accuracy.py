@@ -27,7 +27,7 @@ from calib_detection import TARGETS, make_library  # noqa: E402
 
 from glsim.backends.gl.context import create_context, info  # noqa: E402
 
-from glsim.evaluation.report import machine_info, machine_line  # noqa: E402
+from glsim.bench.report import machine_info, machine_line  # noqa: E402
 from glsim.io import images as io  # noqa: E402
 from glsim.workflows.calib import calibrate as cal  # noqa: E402
 from glsim.workflows.calib import library  # noqa: E402

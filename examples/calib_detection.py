@@ -20,8 +20,8 @@ from pathlib import Path
 import numpy as np
 
 from glsim.backends.gl.context import create_context, info
-from glsim.evaluation.report import machine_line
-from glsim.evaluation.report import machine_info
+from glsim.bench.report import machine_line
+from glsim.bench.report import machine_info
 from glsim.io import images as io
 from glsim.scene import Noise
 from glsim.workflows.calib import detect, detection, dotcentres, dotfit, dotgrid, library

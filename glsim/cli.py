@@ -126,7 +126,7 @@ def cmd_rig_export(args) -> int:
 
 
 def cmd_compare(args) -> int:
-    from glsim.evaluation.compare import run
+    from glsim.workflows.compare import run
 
     res = run(args.result, args.truth, args.step, args.output)
     print(res["markdown"], end="")
@@ -147,21 +147,19 @@ def cmd_jacobian(args) -> int:
 
 
 def _delegated(name: str, argv: list[str]) -> int:
-    """`glsim bench|calib|verify|docs …`: their own argument parsers take the rest of the line."""
+    """`glsim bench|calib|check|library|preview|verify …`: their own argument parsers take the rest of the line."""
     if name == "bench":
-        from glsim.evaluation.cli import bench_main as run
+        from glsim.bench.cli import main as run
     elif name == "calib":
         from glsim.workflows.calib.cli import main as run
-    elif name == "docs":
-        from glsim.evaluation.cli import docs_main as run
     elif name == "check":
-        from glsim.evaluation.check import main as run
+        from glsim.check.runner import main as run
     elif name == "library":
         from glsim.workflows.library.cli import main as run
     elif name == "preview":
         from glsim.workflows.preview.cli import main as run
     else:
-        from glsim.evaluation.cli import verify_main as run
+        from glsim.dic.cli import main as run
     return run(argv)
 
 
@@ -169,7 +167,6 @@ DELEGATED = {"bench": "benchmarks: glsim bench {accuracy,effects,library,preview
              "calib": "calibration targets: glsim calib {library,run,study} …",
              "verify": "independent stereo-DIC verification: glsim verify run …",
              "preview": "interactive preview window: glsim preview SCENE.toml [--screenshot out.png]",
-             "docs": "README/docs figures from bench/results: glsim docs [--check]",
              "check": "GL against the oracle and closed forms on this machine's driver: glsim check [--json F] [--skip TEXT]",
              "library": "image libraries from a spec: glsim library SPEC.toml -o DIR [--workers N] …"}
 

@@ -4,7 +4,8 @@ import math
 
 import pytest
 
-from glsim.evaluation import accuracy, bounds, cli
+from glsim.bench import accuracy, cli
+from glsim.check import closed_forms
 
 SIZE = ("203", "154")  # a very small image: the whole quick run takes a few seconds on llvmpipe
 
@@ -19,7 +20,7 @@ def _numbers(record):
 
 @pytest.mark.gl
 def test_quick_accuracy_report(tmp_path, capsys):
-    rc = cli.bench_main(["accuracy", "--quick", "--size", *SIZE, "--reps", "1", "--out", str(tmp_path)])
+    rc = cli.main(["accuracy", "--quick", "--size", *SIZE, "--reps", "1", "--out", str(tmp_path)])
     assert rc == 0
     report = json.loads((tmp_path / "accuracy.json").read_text())
     assert (tmp_path / "accuracy.md").read_text() in capsys.readouterr().out
@@ -33,7 +34,7 @@ def test_quick_accuracy_report(tmp_path, capsys):
         assert r["reps"] >= 1 and r["seconds"] > 0
     exact = next(r for r in records if r["backend"] == "gl" and r["mode"] == "exact" and r["precision"] == "fp64")
     if exact["arithmetic"] == "fp64":
-        assert exact["map_max_px"] < bounds.FLOAT64
+        assert exact["map_max_px"] < closed_forms.FLOAT64
     else:   # a driver without GL_ARB_gpu_shader_fp64: float32, no derived bound; still above the approximations
         approx = [r["map_max_px"] for r in records if r["backend"] == "gl" and r["mode"] in ("fast", "q4")]
         assert exact["map_max_px"] < min(approx), (exact["map_max_px"], approx)
@@ -44,7 +45,7 @@ def test_quick_accuracy_report(tmp_path, capsys):
 
 @pytest.mark.gl
 def test_bench_effects_quick(tmp_path):
-    assert cli.bench_main(["effects", "--size", *SIZE, "--reps", "1", "--out", str(tmp_path)]) == 0
+    assert cli.main(["effects", "--size", *SIZE, "--reps", "1", "--out", str(tmp_path)]) == 0
     report = json.loads((tmp_path / "effects.json").read_text())
     rows = {(r["backend"], r["effects"]): r for r in report["records"]}
     assert set(rows) == {(b, e) for b in ("gl", "cpu") for e in ("none", "lighting", "optics", "noise", "all")}
@@ -72,10 +73,10 @@ def test_reduced_runs_never_overwrite_the_committed_results(tmp_path, capsys, mo
     --out it goes to build/bench. The targets table says what a reduced run did not measure."""
     committed = cli.RESULTS / "accuracy.json"
     before = committed.read_bytes() if committed.exists() else None
-    assert cli.bench_main(["accuracy", "--quick", "--out", str(cli.RESULTS)]) == 2
+    assert cli.main(["accuracy", "--quick", "--out", str(cli.RESULTS)]) == 2
     err = capsys.readouterr().err
     assert "--out bench/results" in err and "build/bench" in err and "full size" in err
-    assert cli.bench_main(["effects", "--size", *SIZE, "--out", str(cli.RESULTS)]) == 2
+    assert cli.main(["effects", "--size", *SIZE, "--out", str(cli.RESULTS)]) == 2
     assert (committed.read_bytes() if committed.exists() else None) == before
     assert cli.results_dir(None, full=False, command="accuracy") == cli.SCRATCH
     assert cli.results_dir(None, full=True, command="accuracy") == cli.RESULTS
@@ -91,9 +92,9 @@ def test_bench_quadratic_reduced(tmp_path, capsys):
     """`glsim bench quadratic` at a reduced size: every mode of both backends against the closed
     form (exact to rounding, fast's chord error falling with the piece count), written beside
     the run's machine; aimed at bench/results it is refused."""
-    assert cli.bench_main(["quadratic", "--size", "96", "80", "--out", str(cli.RESULTS)]) == 2
+    assert cli.main(["quadratic", "--size", "96", "80", "--out", str(cli.RESULTS)]) == 2
     assert "would overwrite the committed" in capsys.readouterr().err
-    assert cli.bench_main(["quadratic", "--size", "96", "80", "--out", str(tmp_path)]) == 0
+    assert cli.main(["quadratic", "--size", "96", "80", "--out", str(tmp_path)]) == 0
     report = json.loads((tmp_path / "quadratic.json").read_text())
     assert report["machine"]["gl"]["renderer"] and [m["kind"] for m in report["meshes"]] == ["quad8", "triangle6"]
     for m in report["meshes"]:
@@ -111,8 +112,8 @@ def test_bench_throughput_quick(tmp_path):
     """`glsim bench throughput --quick`: every mode at 1 and 4 spp, one at a time and pipelined,
     and pipelined in the other pixel stage, those images bit for bit the single ones; aimed at
     bench/results it is refused."""
-    assert cli.bench_main(["throughput", "--quick", "--out", str(cli.RESULTS)]) == 2
-    assert cli.bench_main(["throughput", "--quick", "--size", "96", "72", "--out", str(tmp_path)]) == 0
+    assert cli.main(["throughput", "--quick", "--out", str(cli.RESULTS)]) == 2
+    assert cli.main(["throughput", "--quick", "--size", "96", "72", "--out", str(tmp_path)]) == 0
     report = json.loads((tmp_path / "throughput.json").read_text())
     rows = report["rows"]
     assert [(r["mode"], r["spp"]) for r in rows] == [(m, s) for m in ("fast", "q4", "exact") for s in (1, 4)]
@@ -130,10 +131,10 @@ def test_bench_jacobian_quick(tmp_path):
     """`glsim bench jacobian --quick`: every row of ROWS, the Jacobian's shape per row (the
     lighting's holds the normals' 1-ring: more non-zeros than the plain render's; the linear
     camera effects' the same pattern), the table in the markdown; aimed at bench/results it is refused."""
-    from glsim.evaluation import jacobian_bench as jbm
+    from glsim.bench import jacobian as jbm
 
-    assert cli.bench_main(["jacobian", "--quick", "--out", str(cli.RESULTS)]) == 2
-    assert cli.bench_main(["jacobian", "--size", "96", "72", "--reps", "1", "--out", str(tmp_path)]) == 0
+    assert cli.main(["jacobian", "--quick", "--out", str(cli.RESULTS)]) == 2
+    assert cli.main(["jacobian", "--size", "96", "72", "--reps", "1", "--out", str(tmp_path)]) == 0
     report = json.loads((tmp_path / "jacobian.json").read_text())
     rows = {(r["backend"], r["spp"], r["adds"]): r for r in report["rows"]}
     assert list(rows) == list(jbm.ROWS)

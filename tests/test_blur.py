@@ -8,7 +8,7 @@ import pytest
 from scipy import ndimage
 
 from glsim.effects import dof as blur
-from glsim.evaluation import bounds
+from glsim.check import closed_forms
 
 # f = 30 mm, N = 8, c = 4.4 µm (one 4.4 µm pixel), focused at D = 600 mm
 F, N, PITCH, D = 30.0, 8.0, 0.0044, 600.0
@@ -348,15 +348,15 @@ def test_gl_coc_and_sigma_match_numpy(gl_ctx, tmp_path):
     z64 = Z.astype(np.float64)
     ref_c = blur.coc_px(np.maximum(z64, 40.0), OPTICS)
     ref_s = blur.blur_sigma(z64, OPTICS)
-    # per depth within what float32 allows (glsim.evaluation.bounds.coc: the uniforms' rounding,
+    # per depth within what float32 allows (glsim.check.closed_forms.coc: the uniforms' rounding,
     # the operations', the cancellation in |Z − D| near focus; Z clamped to ≥ 40 mm as the shader)
     zc = np.maximum(z64, 40.0)
-    bound = bounds.coc(zc, OPTICS)
+    bound = closed_forms.coc(zc, OPTICS)
     off = zc != D                                   # (in focus CoC = 0: |Z − D| = 0 exactly, in both)
     assert np.all(np.abs(got_c - ref_c)[off] <= bound[off] * ref_c[off]) and np.all(got_c[~off] == 0)
     # σ = CoC/2 beyond the in-focus threshold, 0 within it: but where CoC is within its bound of
     # the threshold, float32 may decide either way
-    tie = np.abs(ref_c - OPTICS.coc_px) <= bounds.coc(zc, OPTICS) * ref_c
+    tie = np.abs(ref_c - OPTICS.coc_px) <= closed_forms.coc(zc, OPTICS) * ref_c
     keep = ~tie & (z64 > F)
     assert np.all(np.abs(got_s - ref_s)[keep] <= 0.5 * bound[keep] * ref_c[keep])
     assert np.all(got_s[z64 <= 0] == 0)
@@ -389,10 +389,10 @@ def test_gl_blur_matches_numpy_mirror(gl_ctx):
     ref_g = blur.blur_separable(img, sigma)
     ref_d = blur.blur_disk(img, radius)
     # float32 against the float64 mirror, per pixel within what GLSL 4.50 allows the passes
-    # (glsim.evaluation.bounds.blur)
+    # (glsim.check.closed_forms.blur)
     M = float(np.abs(src32).max())
-    assert np.all(np.abs(gauss - ref_g) <= bounds.blur("separable", sigma, M))
-    assert np.all(np.abs(disk - ref_d) <= bounds.blur("disk", radius, M))
+    assert np.all(np.abs(gauss - ref_g) <= closed_forms.blur("separable", sigma, M))
+    assert np.all(np.abs(disk - ref_d) <= closed_forms.blur("disk", radius, M))
     # in focus and background: the source texel, bit for bit
     keep = sigma == 0
     assert np.array_equal(gauss[keep].view(np.uint32), src32[keep].view(np.uint32))
@@ -407,7 +407,7 @@ def test_gl_blur_schemes_match_their_numpy_mirrors(gl_ctx, scheme, stage):
     """Each GL scheme's passes (GLBackend.blur_passes) against its float64 mirror, and the exact
     schemes against the oracle's 2-D gather, on a float32 tilted-plate depth (ties removed)
     with a no-surface strip: separable, hybrid and gather per pixel within what float32 allows
-    them (glsim.evaluation.bounds.blur); expansion within its tolerance of the exact gather
+    them (glsim.check.closed_forms.blur); expansion within its tolerance of the exact gather
     (EXPANSION_TOL of the grey range, its remainder bound) plus the gather's rounding, and so
     within twice that of its mirror (a row's bound test near its threshold may go either way in
     float32). Either pixel stage (fragment or compute passes)."""
@@ -427,7 +427,7 @@ def test_gl_blur_schemes_match_their_numpy_mirrors(gl_ctx, scheme, stage):
               "expansion": blur.blur_expansion}[scheme](img, sigma)
     exact = blur.blur_exact(img, sigma)
     M, F = float(np.abs(src32).max()), float(np.ptp(src32))
-    rounding = bounds.blur("gather" if scheme == "expansion" else scheme, sigma, M)
+    rounding = closed_forms.blur("gather" if scheme == "expansion" else scheme, sigma, M)
     if scheme == "expansion":
         assert np.all(np.abs(got - exact) <= blur.EXPANSION_TOL * F + rounding)
         assert np.all(np.abs(got - mirror) <= 2 * blur.EXPANSION_TOL * F + rounding)

@@ -16,7 +16,7 @@ from glsim.backends.gl.plan import plan
 from glsim.effects import Effects
 from glsim.effects import noise, psf
 from glsim.effects.vignetting import flat_field
-from glsim.evaluation import bounds
+from glsim.check import closed_forms
 from glsim.errors import SceneError
 from glsim.render import Renderer
 from glsim.scene import Plate, Psf, Scene, Sensor, scene_from_dict
@@ -222,7 +222,7 @@ GL_CASES = {
 def test_gl_camera_passes_match_the_oracle(case, gl_ctx):
     """GL's image with the effect against the oracle's camera stages applied (float64) to GL's
     own image without it — the same input, so only the passes' arithmetic differs — within
-    :func:`glsim.evaluation.bounds.camera_passes`; and the passes run are those of the plan."""
+    :func:`glsim.check.closed_forms.camera_passes`; and the passes run are those of the plan."""
     base = plate_scene(size=(96, 72), fx=300.0, samples_per_pixel=4)
     scene = base.replace(**GL_CASES[case])
     with Renderer(base, "gl", ctx=gl_ctx) as r0, Renderer(scene, "gl", ctx=gl_ctx) as r:
@@ -236,7 +236,7 @@ def test_gl_camera_passes_match_the_oracle(case, gl_ctx):
     want = camera_stages(plain.astype(np.float64), fx, stages)
     assert list(res.stages[-len(stages):]) == stages
     d = np.abs(res.image.astype(np.float64) - want).max()
-    bound = bounds.camera_passes(fx, plain)
+    bound = closed_forms.camera_passes(fx, plain)
     print(f"{case}: max |GL − oracle| {d:.3g} of full scale, bound {bound:.3g}")
     assert d <= bound and bound <= 0.5 / 255
 
@@ -363,7 +363,7 @@ def test_render_writes_the_flat_field_on_request(tmp_path):
 @pytest.mark.gl
 def test_gl_measured_psf_is_not_flipped(gl_ctx, tmp_path):
     """An asymmetric measured PSF (a comet to the right and down): GL's 2-D pass against the
-    oracle's convolution of the same GL input, within the 2-D bound of :func:`glsim.evaluation.bounds.camera_passes` — a
+    oracle's convolution of the same GL input, within the 2-D bound of :func:`glsim.check.closed_forms.camera_passes` — a
     kernel applied flipped would miss by the image's contrast."""
     import tifffile
     from glsim.effects import prepare
@@ -381,7 +381,7 @@ def test_gl_measured_psf_is_not_flipped(gl_ctx, tmp_path):
     want = camera_stages(plain.astype(np.float64), fx, [])
     flipped = psf.apply(plain, dataclasses.replace(fx.psf, kernel=fx.psf.kernel[::-1, ::-1])).astype(np.float32)
     d = np.abs(img - want).max()
-    assert d <= bounds.camera_passes(fx, plain) and np.abs(flipped - want).max() > 100 * bounds.camera_passes(fx, plain), d
+    assert d <= closed_forms.camera_passes(fx, plain) and np.abs(flipped - want).max() > 100 * closed_forms.camera_passes(fx, plain), d
 
 
 def test_render_refuses_a_bad_measured_psf_before_writing(tmp_path):

@@ -153,6 +153,7 @@ def test_wheel_ships_shaders_and_renders(tmp_path):
     assert "glsim/shaders/deform.frag" in names and "glsim/shaders/camera.glsl" in names
     packages = {str(f.relative_to(ROOT)) for f in (ROOT / "glsim").rglob("__init__.py")}
     assert packages <= set(names), f"add {sorted(packages - set(names))} to pyproject's packages"
+    assert not [n for n in names if n.startswith("tools/")], "the repository's tools/ is not part of the wheel"
     target = tmp_path / "site"
     subprocess.run([sys.executable, "-m", "pip", "install", "-q", "--no-deps", "--target", str(target), str(wheel)],
                    check=True)

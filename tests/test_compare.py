@@ -69,7 +69,7 @@ def test_compare_names_what_is_missing(rendered, tmp_path, capsys):
 @pytest.mark.parametrize("sep", [";", "\t", " ", ","])
 def test_compare_reads_the_separators_dic_programs_write(sep, tmp_path):
     """Issue 29: a MatchID-style ';' export (decimal commas too) was refused."""
-    from glsim.evaluation.compare import read_result
+    from glsim.workflows.compare import read_result
 
     rows = [["u", "v", "U", "V", "W"], ["48", "36.5", "0.25", "-0.1", "0"], ["50", "30", "1e-3", "0", "0"]]
     text = "\n".join(sep.join(r) for r in rows) + "\n"
@@ -95,10 +95,10 @@ def test_compare_map_colour_bar_shows_the_errors_without_an_offset(tmp_path, mon
     """Issue 29: errors of 1e-2 ± 1e-13 mm were labelled "1e-13 + 1e-2"."""
     from types import SimpleNamespace
 
-    from glsim.evaluation import compare, report
+    from glsim.workflows import compare
 
     figs = []
-    monkeypatch.setattr(report, "save_figure", lambda fig, path, dpi: figs.append(fig) or path)
+    monkeypatch.setattr(compare, "save_figure", lambda fig, path, dpi: figs.append(fig) or path)
     n = 20
     U = np.zeros((n, 3))
     U[:, 0] = 1e-2 + np.linspace(0, 1e-13, n)

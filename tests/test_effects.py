@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from glsim.effects.dof import blur_sigma
-from glsim.evaluation import bounds
+from glsim.check import closed_forms, oracle_maps
 from glsim.scene.camera import Camera
 from glsim.render import Renderer
 from glsim.scene import Light, Lighting, Noise, Optics, Plate, Scene, Specimen, bulge_scene, demo_effects
@@ -40,27 +40,27 @@ EFFECTS = ("lighting", "noise", "optics")
 
 def assert_lit_matches(g, c, a, mode):
     """GL's lit image ``a`` (camera 1, step 1, 1 spp) against the oracle renderer ``c``'s: every
-    pixel off the coverage ties within bounds.renderer_lit — the unlit grey's bound (GL's
-    reference points within bounds.mapping of the oracle's) through the combine, shade.glsl's
+    pixel off the coverage ties within oracle_maps.renderer_lit — the unlit grey's bound (GL's
+    reference points within closed_forms.mapping of the oracle's) through the combine, shade.glsl's
     float32 arithmetic and its inputs' (the point and normal light_at makes in float32)."""
     b = c.render(1, 1, mode=mode)
-    over = np.abs(a.image.astype(np.float64) - b.image) > bounds.renderer_lit(c, mode, 1, 1)
-    assert not (over & ~bounds.renderer_ties(g, mode, 1, 1)).any(), over.sum()
+    over = np.abs(a.image.astype(np.float64) - b.image) > oracle_maps.renderer_lit(c, mode, 1, 1)
+    assert not (over & ~oracle_maps.renderer_ties(g, mode, 1, 1)).any(), over.sum()
 
 
 def assert_after_matches(g, c, a, b, mode, effect):
     """GL's image ``a`` (camera 1, step 1, 1 spp) with noise or depth of field against the
     oracle's ``b`` (renderer ``c``): every pixel off the coverage ties within the effect's bound
     from the image before it (the oracle without the effect, and its bound there:
-    bounds.without) — bounds.renderer_noise (I + σ(I)·z and the noise pass's float32
-    error) or bounds.renderer_dof (the window's source bound, the scheme's error, σ's float32
+    oracle_maps.without) — oracle_maps.renderer_noise (I + σ(I)·z and the noise pass's float32
+    error) or oracle_maps.renderer_dof (the window's source bound, the scheme's error, σ's float32
     error through the gather; pixels whose σ may switch window or focus are ties too)."""
-    image, before = bounds.without(c, effect, mode, 1, 1)
-    ties = bounds.renderer_ties(g, mode, 1, 1)
+    image, before = oracle_maps.without(c, effect, mode, 1, 1)
+    ties = oracle_maps.renderer_ties(g, mode, 1, 1)
     if effect == "noise":
-        bound = bounds.renderer_noise(c, 1, 1, image, before)
+        bound = oracle_maps.renderer_noise(c, 1, 1, image, before)
     else:
-        bound, blur_ties = bounds.renderer_dof(c, mode, 1, 1, image, before)
+        bound, blur_ties = oracle_maps.renderer_dof(c, mode, 1, 1, image, before)
         ties |= blur_ties
     over = np.abs(a.image.astype(np.float64) - b.image) > bound
     assert not (over & ~ties).any(), over.sum()
@@ -86,17 +86,17 @@ def test_gl_matches_oracle_per_effect(effects_scene, gl_ctx, effect, mode):
 def test_newton_subsamples_with_effects_match_the_oracle(effects_scene, effect, gl_ctx):
     """Lighting per sub-sample and depth of field from the sub-samples' mean depth, with
     render.subsamples = "newton" at 4 spp, against the oracle: every pixel off the ties within
-    the effect's derived bound at 4 spp (bounds.renderer_lit, renderer_dof)."""
+    the effect's derived bound at 4 spp (oracle_maps.renderer_lit, renderer_dof)."""
     g, c = pair(only(effects_scene, effect), gl_ctx)
     with g, c:
         a = g.render(1, 1, mode="exact", samples_per_pixel=4, subsamples="newton")
         b = c.render(1, 1, mode="exact", samples_per_pixel=4)
         assert "subsamples" in a.stages
-        ties = bounds.renderer_ties(g, "exact", 1, 1, 4)
+        ties = oracle_maps.renderer_ties(g, "exact", 1, 1, 4)
         if effect == "lighting":   # per sub-sample (Newton's within 1e-9 px of the oracle's), then the box filter
-            bound = bounds.renderer_lit(c, "exact", 1, 1, spp=4)
+            bound = oracle_maps.renderer_lit(c, "exact", 1, 1, spp=4)
         else:                      # from the oracle's 4 spp image without the blur and its bound
-            bound, blur_ties = bounds.renderer_dof(c, "exact", 1, 1, *bounds.without(c, "optics", "exact", 1, 1, 4), spp=4)
+            bound, blur_ties = oracle_maps.renderer_dof(c, "exact", 1, 1, *oracle_maps.without(c, "optics", "exact", 1, 1, 4), spp=4)
             ties |= blur_ties
         over = np.abs(a.image.astype(np.float64) - b.image) > bound
         assert not (over & ~ties).any(), over.sum()
@@ -172,15 +172,15 @@ def test_lambert_on_a_tilted_plate_end_to_end(backend, request):
 def _lambert_bound(r, scene, truth) -> np.ndarray:
     """Per lit pixel, how far GL's lit − unlit grey may lie from I_i·k_r·cos θ (first order in
     u = 2^-24): shade.glsl's float32 lighting and the additive combine on float32 inputs
-    (bounds.phong), the inputs' own float32 errors — the point X (12u·|X|) and the normal, a
+    (closed_forms.phong), the inputs' own float32 errors — the point X (12u·|X|) and the normal, a
     float32 world normal turned by the float32 rotation in deform.frag (8u) — through
     |∂I/∂X|, |∂I/∂N| (lighting.phong_gradient), the two renders' float32 samples of the
-    reference at the same float64 point (2·bounds.interpolation) and the float64 formula's
+    reference at the same float64 point (2·closed_forms.interpolation) and the float64 formula's
     distance from I_i·k_r·cos θ (the light 1e9 mm away, not at infinity)."""
     from glsim.effects import corner_normals
     from glsim.effects import lighting as shade
 
-    u, cam, lighting = bounds.FLOAT32_ROUNDOFF, scene.cameras[0], scene.lighting
+    u, cam, lighting = closed_forms.FLOAT32_ROUNDOFF, scene.cameras[0], scene.lighting
     m = truth.mask
     X = truth.X_deformed[m]
     mesh = r.mesh
@@ -190,10 +190,10 @@ def _lambert_bound(r, scene, truth) -> np.ndarray:
     f32 = [a.astype(np.float32).astype(np.float64) for a in (X, N)]
     I, dI_X, dI_N, _ = shade.phong_gradient(X, N, *args)
     M = np.abs(r.reference.image).max()   # the grey, a linear sample of the reference, is at most M
-    out = (bounds.phong(*f32, *args, grey=np.full(len(X), M))
+    out = (closed_forms.phong(*f32, *args, grey=np.full(len(X), M))
            + np.linalg.norm(dI_X, axis=-1) * 12 * u * np.linalg.norm(X, axis=-1)
            + np.linalg.norm(dI_N, axis=-1) * 8 * u
-           + 2 * bounds.interpolation("linear", M)
+           + 2 * closed_forms.interpolation("linear", M)
            + np.abs(I - 0.3 * 0.5 * np.cos(np.radians(40.0))))
     return out
 
@@ -250,8 +250,8 @@ DOF_GOAL = 2e-3   # of full scale: half a grey level of 8 bit (issue 16)
 @pytest.fixture(scope="module")
 def dof_oracle():
     """The oracle's render (with truth) of each hard depth-of-field scene and kernel, made once,
-    and its image without the blur with the bound of GL's there (bounds.without)."""
-    from glsim.evaluation.effects import dof_scenes, with_dof
+    and its image without the blur with the bound of GL's there (oracle_maps.without)."""
+    from glsim.bench.effects import dof_scenes, with_dof
 
     cache = {}
 
@@ -260,7 +260,7 @@ def dof_oracle():
             scene, mesh = dof_scenes(160)[name]
             with Renderer(with_dof(scene, kernel, "auto"), "cpu", mesh=mesh) as r:
                 cache[name, kernel] = (r.render(0, 0, truth=True), mesh, scene,
-                                       bounds.without(r, "optics", scene.render.mode, 0, 0))
+                                       oracle_maps.without(r, "optics", scene.render.mode, 0, 0))
         return cache[name, kernel]
     return get
 
@@ -273,9 +273,9 @@ def test_gl_depth_of_field_matches_the_exact_gather(dof_oracle, gl_ctx, name, ke
     """GL against the oracle's exact 2-D gather at every pixel, ≤ 2e-3 of full scale (issue
     16's goal), on a tilted plate whose outline is blurred, a plate with a hole, two plates at
     different depths and a plate that the in-focus threshold crosses (160×120 px); and off the
-    coverage and σ ties per pixel within bounds.renderer_dof (the unblurred image's bound through
+    coverage and σ ties per pixel within oracle_maps.renderer_dof (the unblurred image's bound through
     the gather, the scheme's rounding and tolerance, the blur size's float32 error)."""
-    from glsim.evaluation.effects import with_dof
+    from glsim.bench.effects import with_dof
 
     oracle, mesh, scene, (sharp, before) = dof_oracle(name, kernel)
     m = oracle.truth.mask
@@ -289,12 +289,12 @@ def test_gl_depth_of_field_matches_the_exact_gather(dof_oracle, gl_ctx, name, ke
     mode = scene.render.mode
     with Renderer(blurred, "gl", ctx=gl_ctx, mesh=mesh) as r, Renderer(blurred, "cpu", mesh=mesh) as c:
         gl = r.render(0, 0)
-        bound, ties = bounds.renderer_dof(c, mode, 0, 0, sharp, before)
-        ties |= bounds.renderer_ties(r, mode, 0, 0)
+        bound, ties = oracle_maps.renderer_dof(c, mode, 0, 0, sharp, before)
+        ties |= oracle_maps.renderer_ties(r, mode, 0, 0)
     d = np.abs(gl.image.astype(np.float64) - oracle.image)
     assert d.max() <= DOF_GOAL, (d.max(), (d > DOF_GOAL).sum())
     assert (m & ~ties).sum() > 0.9 * m.sum()
-    assert bounds.units(d, bound)[~ties].max() <= 1
+    assert closed_forms.units(d, bound)[~ties].max() <= 1
     assert any(s.startswith("blur") for s in gl.stages)
 
 
@@ -305,7 +305,7 @@ def test_the_separable_pair_misses_the_goal_where_sigma_varies(dof_oracle, gl_ct
     writes; kept as optics.scheme = "separable") errs by 0.058 (outline), 0.18 (hole), 0.14
     (steps) and 0.068 (threshold) of full scale there (measured), next to the outline, the hole,
     the depth step and the in-focus contour."""
-    from glsim.evaluation.effects import with_dof
+    from glsim.bench.effects import with_dof
 
     oracle, mesh, scene, _ = dof_oracle(name, "gaussian")
     with Renderer(with_dof(scene, "gaussian", "separable"), "gl", ctx=gl_ctx, mesh=mesh) as r:

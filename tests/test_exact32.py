@@ -1,4 +1,4 @@
-"""glsim.evaluation.exact32's bounds against the float32 build's arithmetic replayed in numpy
+"""glsim.check.exact32's bounds against the float32 build's arithmetic replayed in numpy
 float32 (each operation rounded once, in the shaders' order: bilinear.glsl's edge functions and
 Newton step, deform.frag's projected_corners and exact_reference) on random elements: the
 float32 results lie within the bounds, which are not vacuous: small, and within a factor of
@@ -6,7 +6,7 @@ float32 results lie within the bounds, which are not vacuous: small, and within 
 import numpy as np
 import pytest
 
-from glsim.evaluation import exact32
+from glsim.check import exact32
 from glsim.scene import bilinear as bl
 from glsim.scene.camera import Camera, Distortion
 

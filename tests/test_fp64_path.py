@@ -127,7 +127,7 @@ def fp64_programs(gl_ctx):
     below 1, float32 samples over float64 records, lit quadratic Q8 and T6 patches in both
     stages), and the probe of glsim check."""
     from _plates import plate_scene
-    from glsim.evaluation import quadratic
+    from glsim.bench import quadratic
 
     built = [(("fp64_probe.comp",), {"FP64": None})]
     with Renderer(bulge_scene(size=(96, 72), steps=1), "gl", ctx=gl_ctx) as r:
@@ -204,10 +204,10 @@ def test_float64_programs_index_their_double_arrays_by_constants_only(fp64_progr
 @pytest.mark.gl
 def test_double_path_primitives_are_bit_for_bit_numpys(gl_ctx):
     """split_double, pixel_to_normalized, pinhole_corners, the ray edge functions, distort and
-    normalized_to_pixel against numpy on 4096 random inputs (glsim.evaluation.check.fp64_probe, also `glsim check`'s first
+    normalized_to_pixel against numpy on 4096 random inputs (glsim.check.runner.fp64_probe, also `glsim check`'s first
     check): equal bit for bit — the driver honours `precise` and computes doubles in double."""
     from glsim.backends.gl.backend import GLBackend
-    from glsim.evaluation.check import fp64_probe
+    from glsim.check.runner import fp64_probe
 
     if not GLBackend(np.zeros((8, 8), np.float32), ctx=gl_ctx).fp64:
         pytest.skip("the driver has no GL_ARB_gpu_shader_fp64")

@@ -127,15 +127,15 @@ def test_bad_method_and_image_rejected(image):
 
 @pytest.mark.parametrize("method", ["linear", "cubic", "bspline3", "bspline5"])
 def test_kernel_sums_behind_the_grey_bounds(method):
-    """glsim.evaluation.bounds' per-axis Σ|w|, Σ|w'| and Σ|w''| of each interpolant (the
+    """glsim.check.closed_forms' per-axis Σ|w|, Σ|w'| and Σ|w''| of each interpolant (the
     largest over the texel fraction t; they make gradient_max, hessian and grey) against the
     weights and their derivatives here on 20,000 fractions (w'' by differences of w'): each
     table value is the largest, to its stated digits, and bounds it."""
-    from glsim.evaluation import bounds
+    from glsim.check import closed_forms
 
     t = np.linspace(0.0, 1.0, 20001)[:-1]
     w, dw = np.asarray(interp.weights(t, method)), np.asarray(interp.weight_derivatives(t, method))
     d2w = np.gradient(dw, t, axis=1)[:, 1:-1]   # (one-sided at the ends: left out)
-    _, s0, s1, s2 = bounds._INTERP[method]
+    _, s0, s1, s2 = closed_forms._INTERP[method]
     for table, got in ((s0, np.abs(w).sum(0).max()), (s1, np.abs(dw).sum(0).max()), (s2, np.abs(d2w).sum(0).max())):
         assert got <= table * (1 + 1e-3) + 1e-9 and got >= table * 0.99 - 1e-9, (method, table, got)

@@ -1,11 +1,13 @@
 """The package layout the README's "Layout" section states: layers import only downwards (or
 within their own folder), no module imports itself through others (no circles, lazy imports
-included), and only the GL backend imports moderngl."""
+included), only the GL backend imports moderngl, and nothing in the package imports the
+repository's tools/ (which the wheel leaves out)."""
 import ast
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1] / "glsim"
-LAYERS = ("errors", "limits", "scene", "io", "stages", "effects", "backends", "render", "workflows", "evaluation", "cli")
+LAYERS = ("errors", "limits", "scene", "io", "stages", "effects", "backends", "render", "workflows", "bench", "check",
+          "dic", "cli")
 
 
 def _imports(path: Path) -> set[str]:
@@ -24,16 +26,19 @@ def _layer(module: str) -> str:
 
 
 def test_layers_import_only_downwards_and_gl_alone_imports_moderngl():
-    upward, moderngl = [], []
+    upward, moderngl, tools = [], [], []
     for f in ROOT.rglob("*.py"):
         mod = ".".join(("glsim",) + f.relative_to(ROOT).with_suffix("").parts)
         own = _layer(mod) or "cli"
         for name in _imports(f):
             if name.split(".")[0] == "moderngl" and not mod.startswith("glsim.backends.gl"):
                 moderngl.append(mod)
+            if name.split(".")[0] == "tools":
+                tools.append(f"{mod} imports {name}")
             if name.startswith("glsim.") and LAYERS.index(_layer(name)) > LAYERS.index(own.removesuffix(".py")):
                 upward.append(f"{mod} imports {name}")
     assert not moderngl, f"moderngl imported outside glsim.backends.gl: {moderngl}"
+    assert not tools, f"the package imports the repository's tools/, which the wheel leaves out: {tools}"
     assert not upward, "imports against the layer order " + " → ".join(LAYERS) + ":\n" + "\n".join(sorted(upward))
 
 

@@ -13,7 +13,7 @@ import pytest
 from _plates import plate_scene
 from glsim.errors import SceneError
 from glsim.effects import motion
-from glsim.evaluation import bounds
+from glsim.check import closed_forms, oracle_maps
 from glsim.io.images import write_truth
 from glsim.io.truth import load as load_truth
 from glsim.render import Renderer
@@ -214,25 +214,25 @@ ROLLING = {"exposure": {"time": 0.002, "samples": 2, "velocity": [600.0, 0.0, 0.
 def test_gl_matches_the_oracle(tmp_path, sections, mode):
     """GL and the oracle render the same sub-frames (their node states are made once, in numpy
     float64, for both) and average them alike: off the coverage ties, every pixel within
-    glsim.evaluation.bounds.renderer_motion (each sub-frame's still-render bound, averaged, and
+    glsim.check.oracle_maps.renderer_motion (each sub-frame's still-render bound, averaged, and
     the mean's float32 rounding)."""
     assert_gl_within_its_bound(edge_scene(tmp_path, ramp, **sections), mode)
 
 
 def assert_gl_within_its_bound(scene, mode, mesh=None, step=0):
-    """GL's image of camera 0 at ``step`` in ``mode`` within bounds.renderer_motion of the
+    """GL's image of camera 0 at ``step`` in ``mode`` within oracle_maps.renderer_motion of the
     oracle's off its ties (which leave most of the specimen)."""
     with Renderer(scene, "cpu", mesh=mesh) as c, Renderer(scene, "gl", mesh=mesh) as g:
-        bound, ties = bounds.renderer_motion(g, c, mode, 0, step)
+        bound, ties = oracle_maps.renderer_motion(g, c, mode, 0, step)
         d = np.abs(g.render(0, step, mode=mode).image.astype(np.float64) - c.render(0, step, mode=mode).image)
         specimen = bound > 0
     assert specimen.sum() > 300 and (ties & specimen).sum() < 0.1 * specimen.sum()
-    assert bounds.units(d, bound)[~ties].max() <= 1
+    assert closed_forms.units(d, bound)[~ties].max() <= 1
 
 
 @pytest.mark.usefixtures("gl_ctx")
 def test_gl_matches_the_oracle_where_no_bound_is_derived(tmp_path):
-    """A rolling shutter that bounds.renderer_motion does not cover: with depth of field, each
+    """A rolling shutter that oracle_maps.renderer_motion does not cover: with depth of field, each
     row rendered as the band of rows its blur reaches, blurred and cut to the row
     (renderer_dof holds for whole frames; a band's is not derived). The composition alone:
     |GL − oracle| ≤ the largest |GL − oracle| of its sub-frames + 2⁻²⁴ (the mean of differences
@@ -250,10 +250,10 @@ def test_gl_matches_the_oracle_where_no_bound_is_derived(tmp_path):
 
 # ---- quadratic elements ----------------------------------------------------------------------------
 def q8_moving(velocity, taus):
-    """The Q8 paraboloid of glsim.evaluation.quadratic (96 × 72 px) and the same mesh with load
+    """The Q8 paraboloid of glsim.bench.quadratic (96 × 72 px) and the same mesh with load
     steps 1…S translated by velocity·τ_i: step 0's states during the exposure, as nodes to the bit
     (nodes + v·τ, the timeline's own sum)."""
-    from glsim.evaluation import quadratic
+    from glsim.bench import quadratic
     from glsim.scene.mesh import Mesh
 
     q8 = quadratic.mesh("quad8", 4, 3)

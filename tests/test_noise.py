@@ -8,7 +8,7 @@ import pytest
 from scipy import stats
 
 from glsim.effects import noise
-from glsim.evaluation import bounds
+from glsim.check import closed_forms
 from glsim.errors import SceneError
 from glsim.effects.noise import NoiseParams
 
@@ -239,7 +239,7 @@ def test_plain_mapping_parameters():
     assert a.tobytes() == b.tobytes()
 
 
-# ---- GL against numpy (bounds from GLSL 4.50's precision rules: glsim.evaluation.bounds) ---------
+# ---- GL against numpy (bounds from GLSL 4.50's precision rules: glsim.check.closed_forms) ---------
 
 CHECK_COMP = """
 #include "noise.glsl"
@@ -263,7 +263,7 @@ void main() {
 @pytest.mark.gl
 def test_glsl_generator_matches_numpy(gl_ctx, tmp_path):
     """Hash and uniforms bit for bit; the normal within what GLSL's log, sqrt and cos allow
-    (glsim.evaluation.bounds.standard_normal, per sample)."""
+    (glsim.check.closed_forms.standard_normal, per sample)."""
     from glsim.backends.gl.programs import ProgramCache
 
     (tmp_path / "noise_check.comp").write_text(CHECK_COMP)
@@ -289,7 +289,7 @@ def test_glsl_generator_matches_numpy(gl_ctx, tmp_path):
     assert np.array_equal(uni[:, 0], noise.uniform01(i, seed, 0))
     assert np.array_equal(uni[:, 1], noise.uniform01(i, seed, 1))
     ref = noise.standard_normal(i, seed)
-    bound = bounds.standard_normal(uni[:, 0], uni[:, 1])
+    bound = closed_forms.standard_normal(uni[:, 0], uni[:, 1])
     print(f"|z_GL − z| / bound: max {(np.abs(z - ref) / bound).max():.3g}")
     assert np.all(np.abs(z - ref) <= bound)
 
@@ -320,10 +320,10 @@ def test_gl_noise_pass_matches_numpy(gl_ctx, tmp_path, model, bits):
     ref = noise.add_noise(img, p, bits, seed, table)
     assert gl.tobytes() == again.tobytes()  # reproducible on GL too
     diff = np.abs(gl.astype(np.float64) - ref)
-    # per pixel within what float32 and GLSL's functions allow (glsim.evaluation.bounds.noise)
-    z, dz = bounds.normal_field(seed, (H, W))
+    # per pixel within what float32 and GLSL's functions allow (glsim.check.closed_forms.noise)
+    z, dz = closed_forms.normal_field(seed, (H, W))
     sigma = noise.noise_sigma(img, p, bits, table)
-    bound = bounds.noise(img, z, dz, sigma, p, bits, table)
+    bound = closed_forms.noise(img, z, dz, sigma, p, bits, table)
     print(f"{model} {bits} bit: max |GL − numpy| = {diff.max():.3g} of full scale, {(diff / bound).max():.3g} of its bound")
     assert np.all(diff <= bound)
     # the noise itself (not just the image) agrees: GL's σz against numpy's, relative to σ

@@ -7,7 +7,9 @@ import math
 
 import pytest
 
-from glsim.evaluation import bounds, cli, docs, peer
+from glsim.bench import cli, peer
+from glsim.check import closed_forms
+from tools.docs import regions
 
 SIZE = ("203", "154")
 RILEY = importlib.util.find_spec("riley") is not None
@@ -15,8 +17,8 @@ RILEY = importlib.util.find_spec("riley") is not None
 
 @pytest.mark.gl
 def test_reduced_peer_bench(tmp_path, capsys):
-    assert cli.bench_main(["peer", "--size", *SIZE, "--reps", "1", "--out", str(cli.RESULTS)]) == 2  # reduced: refused
-    assert cli.bench_main(["peer", "--size", *SIZE, "--reps", "1", "--out", str(tmp_path)]) == 0
+    assert cli.main(["peer", "--size", *SIZE, "--reps", "1", "--out", str(cli.RESULTS)]) == 2  # reduced: refused
+    assert cli.main(["peer", "--size", *SIZE, "--reps", "1", "--out", str(tmp_path)]) == 0
     report = json.loads((tmp_path / "peer.json").read_text())
     text = (tmp_path / "peer.md").read_text()
     assert text in capsys.readouterr().out and text.startswith("# glsim peer benchmark")
@@ -33,16 +35,16 @@ def test_reduced_peer_bench(tmp_path, capsys):
     for k1 in peer.K1S:
         exact = rows["glsim GL exact fp64", k1]
         # float64 ray/patch intersection against the float64 oracle: within float64's bound
-        assert exact["map_max_px"] <= bounds.FLOAT64 and exact["grey_max"] < 0.01
+        assert exact["map_max_px"] <= closed_forms.FLOAT64 and exact["grey_max"] < 0.01
         # sub-samples placed by Newton from the pixel centre: the oracle's image as closely
         assert rows["glsim GL exact fp64 newton", k1]["grey_max"] < 0.01
         assert rows["glsim GL fast fp32", k1]["map_max_px"] < 0.01  # float32 and straight pieces
     # without distortion a face-on plate projects affinely: q4's inverse mapping is exact there
-    assert rows["glsim GL q4 fp64", 0.0]["map_max_px"] <= bounds.FLOAT64
+    assert rows["glsim GL q4 fp64", 0.0]["map_max_px"] <= closed_forms.FLOAT64
     assert rows["glsim GL q4 fp64", -0.1]["map_max_px"] > 1e-6
     if RILEY:  # riley's ξ, η against the oracle (its element taken from the oracle's)
         assert rows["riley-raster", 0.0]["map_max_px"] < 1e-6 and rows["riley-raster", -0.1]["map_max_px"] < 1e-3
         assert rows["riley-raster", 0.0]["grey_max"] < 0.01    # its image against its texture at the oracle's points
     assert len(report["goals"]) == 3 and all((g["met"] is None) != RILEY for g in report["goals"])
-    readme = docs.peer_rows(report)                               # the README region from the same file
+    readme = regions.peer_rows(report)                               # the README region from the same file
     assert readme.count("| glsim GL ") == len(modes) * len(peer.K1S) and f"{W}×{H}" in readme

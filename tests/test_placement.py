@@ -76,7 +76,7 @@ def test_a_uniform_and_a_graded_mesh_of_one_plate_give_the_same_image(tmp_path, 
     (the image centre sat on the node centroid, its axes came from the nodes' SVD). Now the
     reference camera is the same bit for bit and the images agree to float32 rounding: the
     reference points within 1e-8 px (float64 through different elements), the grey within the
-    float32 sample's bound twice (glsim.evaluation.bounds.interpolation; the CPU's float64 sample
+    float32 sample's bound twice (glsim.check.closed_forms.interpolation; the CPU's float64 sample
     is stored as float32 alike) plus the gradient's share of 1e-8 px."""
     ctx = request.getfixturevalue("gl_ctx") if backend == "gl" else None
     images, cams = [], []
@@ -92,14 +92,14 @@ def test_a_uniform_and_a_graded_mesh_of_one_plate_give_the_same_image(tmp_path, 
     assert np.linalg.norm(nodes[0].mean(axis=0) - nodes[1].mean(axis=0)) > 8.5      # the old anchor: 8.8 mm
     assert cams[0] == cams[1]
     assert np.array_equal(uniform.truth.mask, graded.truth.mask) and uniform.truth.mask.mean() > 0.3
-    from glsim.evaluation import bounds
+    from glsim.check import closed_forms
     from glsim.stages import interp
 
     with Renderer(scene, "cpu") as r:
         method = r.scene.render.interpolation
         M = float(np.abs(interp.prepare(r.reference.image, method, np.float64)).max())
-    assert np.abs(uniform.image - graded.image).max() <= 2 * (bounds.interpolation(method, M)
-                                                              + bounds.FLOAT32_ROUNDOFF * M) + 4 * M * 1e-8
+    assert np.abs(uniform.image - graded.image).max() <= 2 * (closed_forms.interpolation(method, M)
+                                                              + closed_forms.FLOAT32_ROUNDOFF * M) + 4 * M * 1e-8
     m = uniform.truth.mask
     assert np.abs(uniform.truth.ref_uv[m] - graded.truth.ref_uv[m]).max() < 1e-8
 

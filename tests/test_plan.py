@@ -205,7 +205,7 @@ def test_compute_lists_longer_than_a_row_of_work_groups(gl_ctx):
     """A layer with more samples than one row of indirect work groups holds (65,535 × 64:
     pixellists.glsl) is dispatched as rows of them: the scaling plate at 1624×1234, q4, 4 spp
     (about 1.4 Mpx of single-candidate pixels) gives the fragment stage's bytes."""
-    from glsim.evaluation.scaling import plate_scene
+    from glsim.bench.scaling import plate_scene
 
     size = (1624, 1234)
     with Renderer(plate_scene(size, 2000), "gl", ctx=gl_ctx) as r:

@@ -23,7 +23,7 @@ import meshio
 import numpy as np
 import pytest
 
-from glsim.evaluation import bounds
+from glsim.check import closed_forms, oracle_maps
 from glsim.errors import RenderWarning, SceneError
 from glsim.io.fe import load_mesh, load_series
 from glsim.render import Renderer
@@ -322,9 +322,9 @@ def test_gl_fast_matches_the_oracle_fast(gl_ctx):
     same = both & (a.truth.element == b.truth.element)
     assert both.sum() > 3000 and same.sum() >= 0.995 * both.sum()
     # GL's fast truth starts from its float32 reference point: X within fast's float32 bound
-    # (glsim.evaluation.bounds) per pixel
+    # (glsim.check.closed_forms) per pixel
     dX = np.linalg.norm(a.truth.X_deformed - b.truth.X_deformed, axis=-1)
-    assert (dX <= bounds.fast_bound(a.camera.fx, b.truth.X_deformed, b.truth.mask))[same].all(), dX[same].max()
+    assert (dX <= closed_forms.fast_bound(a.camera.fx, b.truth.X_deformed, b.truth.mask))[same].all(), dX[same].max()
     d = np.abs(a.image.astype(float) - b.image.astype(float))
     assert d.mean() <= 1e-4 and (d > 1e-3).mean() <= 0.005, (d.mean(), (d > 1e-3).mean())
     check = closed_form()[3]
@@ -337,7 +337,7 @@ def test_gl_fast_matches_the_oracle_fast(gl_ctx):
 def test_gl_curved_modes_match_the_oracle(gl_ctx, kind, mode):
     """GL exact / q4 (Newton on the patch's 9 nodes in the fragment shader, from the piece's
     roots): the same coverage and elements as the oracle on every pixel, X within 1e-9 mm of
-    it (and, exact, of the closed form); grey levels within glsim.evaluation.bounds.grey: what
+    it (and, exact, of the closed form); grey levels within glsim.check.closed_forms.grey: what
     float32 allows the reference sample at the same point (both images stored as float32) in
     fp64 builds, plus the box filter's float32 mean at 2×2 samples; fp32 builds, whose reference
     points move by their own Δ (the truth maps'): plus |∇I|·|Δ| and a second-order term."""
@@ -348,7 +348,7 @@ def test_gl_curved_modes_match_the_oracle(gl_ctx, kind, mode):
         method = c.scene.render.interpolation
         coeffs = interp.prepare(c.reference.image, method, np.float64)
         M = float(np.abs(coeffs).max())
-        sample = bounds.grey(method, M, 0.0, 0.0)   # (the same points)
+        sample = closed_forms.grey(method, M, 0.0, 0.0)   # (the same points)
         for step in (0, 1):
             a = g.render(0, step, truth=True, mode=mode)
             b = c.render(0, step, truth=True, mode=mode)
@@ -361,12 +361,12 @@ def test_gl_curved_modes_match_the_oracle(gl_ctx, kind, mode):
             if mode == "exact":
                 check_against_closed_form(a.truth, 1e-9, deformed=step == 1)
         a, b = g.render(0, 1, mode=mode, samples_per_pixel=4), c.render(0, 1, mode=mode, samples_per_pixel=4)
-        assert np.abs(a.image.astype(float) - b.image).max() <= bounds.grey(method, M, 0.0, 0.0, 4)
+        assert np.abs(a.image.astype(float) - b.image).max() <= closed_forms.grey(method, M, 0.0, 0.0, 4)
         a, b = g.render(0, 1, truth=True, mode=mode, precision="fp32"), c.render(0, 1, truth=True, mode=mode)
         m = a.truth.mask & b.truth.mask
         d = np.linalg.norm(a.truth.ref_uv - b.truth.ref_uv, axis=-1)
-        grad = bounds.sample_gradient(method, coeffs, b.truth.ref_uv, m)
-        assert np.all((np.abs(a.image.astype(float) - b.image) <= bounds.grey(method, M, grad, d))[m])
+        grad = closed_forms.sample_gradient(method, coeffs, b.truth.ref_uv, m)
+        assert np.all((np.abs(a.image.astype(float) - b.image) <= closed_forms.grey(method, M, grad, d))[m])
 
 
 @pytest.mark.gl
@@ -714,7 +714,7 @@ def test_missing_nodes_are_refused():
 def test_lighting_on_curved_patches(backend, ctx_for):
     """Lighting in exact / q4: the point on the curved patch, the normal interpolated over the
     linear piece holding it (the pieces' corner normals, as fast mode). GL equals the oracle
-    within bounds.renderer_lit per pixel (its float32 arithmetic), and both draw the same pixels; the lit
+    within oracle_maps.renderer_lit per pixel (its float32 arithmetic), and both draw the same pixels; the lit
     exact image is within 1e-3 mean of the lit fast one."""
     sc = scene().replace(lighting={"lights": [{"position": [30, -20, 0]}], "ambient": 0.2, "specular": 0.3,
                                    "shininess": 8.0, "combine": "multiplicative"})
@@ -723,7 +723,7 @@ def test_lighting_on_curved_patches(backend, ctx_for):
         for mode in ("exact", "q4"):
             a, b = r.render(0, 1, mode=mode), c.render(0, 1, mode=mode)
             assert np.isfinite(a.image).all()
-            assert np.all(np.abs(a.image.astype(float) - b.image) <= bounds.renderer_lit(c, mode, 0, 1))
+            assert np.all(np.abs(a.image.astype(float) - b.image) <= oracle_maps.renderer_lit(c, mode, 0, 1))
             assert "light" in b.stages
         lit = c.render(0, 1, mode="exact").image
         assert np.abs(lit - c.render(0, 1, mode="fast").image).mean() <= 1e-3
@@ -749,7 +749,7 @@ def test_point_truth_is_the_closed_form(kind, tmp_path, monkeypatch):
     """`glsim compare`'s truth at any camera-0 pixel of the reference state: the ray met with
     the curved undeformed patch (Newton) — the closed-form material point within 1e-9 mm, its
     displacement at step 1 the analytic u(x, y); points off the footprint not valid."""
-    from glsim.evaluation import compare
+    from glsim.workflows import compare
 
     monkeypatch.setattr(compare, "load_scene", lambda path: scene())
     monkeypatch.setattr(compare, "specimen_mesh", lambda sc: surface_mesh(kind))
@@ -1020,8 +1020,8 @@ def test_glsim_compare_on_a_quadratic_render(tmp_path):
 
 
 def test_coverage_ties_are_not_claimed_for_curved_elements():
-    """bounds.renderer_ties draws element edges straight between corners: a quadratic mesh's
+    """oracle_maps.renderer_ties draws element edges straight between corners: a quadratic mesh's
     are curved in space, so it refuses one instead of giving a wrong tie set."""
     with Renderer(scene(), "cpu", mesh=surface_mesh("quad8")) as c:
         with pytest.raises(ValueError, match="quadratic mesh"):
-            bounds.renderer_ties(c, "exact", 0, 0)
+            oracle_maps.renderer_ties(c, "exact", 0, 0)

@@ -1,9 +1,9 @@
 """Rendering tiers 1–2: analytic mappings (against OpenCV) and GL versus the CPU oracle.
 
-Tolerances are stated per test, each derived (glsim.evaluation.bounds): reference points
+Tolerances are stated per test, each derived (glsim.check.closed_forms, glsim.check.oracle_maps): reference points
 within their mode's bound, and images, masks and element maps the same but where a sample lies
 within the mode's coverage tie distance of an element edge or the silhouette
-(bounds.renderer_ties: float64 in exact and q4, fast's float32 vertices snapped to
+(oracle_maps.renderer_ties: float64 in exact and q4, fast's float32 vertices snapped to
 GL_SUBPIXEL_BITS), where the two may legitimately decide it the other way.
 """
 import dataclasses
@@ -15,8 +15,8 @@ import pytest
 
 from glsim.scene.camera import Camera, Distortion
 from glsim.errors import RenderWarning
-from glsim.evaluation import bounds
-from glsim.evaluation.accuracy import TARGET_MAP_MAX_PX
+from glsim.check import closed_forms, oracle_maps
+from glsim.bench.accuracy import TARGET_MAP_MAX_PX
 from glsim.scene.mesh import Mesh
 from glsim.render import Renderer
 from glsim.scene import Plate, Scene, Specimen, bulge_scene
@@ -47,11 +47,11 @@ def backend_renderer(scene, backend, ctx_for):
 
 def exact_tol(r: Renderer) -> float:
     """Exact mode's reference points against an analytic map (px): float64's bound
-    (bounds.FLOAT64) on the oracle and on a driver with float64 — the check that a GPU's
+    (closed_forms.FLOAT64) on the oracle and on a driver with float64 — the check that a GPU's
     float64 path stays float64 (an H200 once gave 4.6e-5 px); a driver without it computes in
     float32, held to issue 12's requirement (accuracy.TARGET_MAP_MAX_PX: a goal; no bound is
     derived for float32 exact)."""
-    return bounds.FLOAT64 if r.backend.capabilities.float64 else TARGET_MAP_MAX_PX
+    return closed_forms.FLOAT64 if r.backend.capabilities.float64 else TARGET_MAP_MAX_PX
 
 
 # --------------------------------------------------------------------------------------------
@@ -169,7 +169,7 @@ def _random_mesh():
 
 @pytest.mark.parametrize("spp", [1, 4])
 def test_near_edges_against_every_sample_and_segment(spp):
-    """bounds.near_edges walks each segment's sample columns or rows; against the distance of
+    """closed_forms.near_edges walks each segment's sample columns or rows; against the distance of
     every sample to every projected edge of :func:`_random_mesh`: the same pixels; with
     ``exact``, edges crossing the camera plane too, as the image of their front part (to within
     1e-6 of the crossing, projected far beyond the image), which fast and q4 drop."""
@@ -179,7 +179,7 @@ def test_near_edges_against_every_sample_and_segment(spp):
     uv, _ = project(nodes, cam)
     ends = np.stack([uv[quads], uv[np.roll(quads, -1, axis=1)]], 2).reshape(-1, 2, 2)
     for radius in (0.02, 0.3, 2.0):
-        got = bounds.near_edges(cam, nodes, quads, radius, spp)
+        got = closed_forms.near_edges(cam, nodes, quads, radius, spp)
         assert np.array_equal(got, _brute_near(cam, ends, radius, spp)) and got.any()
     behind = nodes.copy()
     behind[[9, 11]] = [[5.0, 3.0, -20.0], [-8.0, 1.0, -5.0]]     # edges crossing the camera plane
@@ -195,9 +195,9 @@ def test_near_edges_against_every_sample_and_segment(spp):
                            np.stack([project(P, cam)[0], project(far, cam)[0]], 1)])
     assert crossing.sum() >= 4
     for radius in (0.02, 0.3):
-        got = bounds.near_edges(cam, behind, quads, radius, spp, exact=True)
+        got = closed_forms.near_edges(cam, behind, quads, radius, spp, exact=True)
         assert np.array_equal(got, _brute_near(cam, ends, radius, spp))
-        assert (got & ~bounds.near_edges(cam, behind, quads, radius, spp)).any()
+        assert (got & ~closed_forms.near_edges(cam, behind, quads, radius, spp)).any()
 
 
 def test_near_edges_of_exact_edges_under_distortion():
@@ -214,16 +214,16 @@ def test_near_edges_of_exact_edges_under_distortion():
                        nodes[np.roll(quads, -1, axis=1)][..., None, :] * t[None]).reshape(-1, 3), bent)
     pts = pts.reshape(-1, 65, 2)[ok.reshape(-1, 65).all(1)]
     dense = np.stack([pts[:, :-1], pts[:, 1:]], 2).reshape(-1, 2, 2)
-    coarse = pts[:, ::64 // bounds.EDGE_PIECES]                  # near_edges' polyline points
+    coarse = pts[:, ::64 // closed_forms.EDGE_PIECES]                  # near_edges' polyline points
     bend = np.linalg.norm(coarse[:, :-2] - 2 * coarse[:, 1:-1] + coarse[:, 2:], axis=-1).max()
-    got = bounds.near_edges(bent, nodes, quads, 0.1, exact=True)
+    got = closed_forms.near_edges(bent, nodes, quads, 0.1, exact=True)
     assert not (_brute_near(bent, dense, 0.1, 1) & ~got).any() and got.any() and bend > 1e-3
     assert not (got & ~_brute_near(bent, dense, 0.1 + 2 * bend, 1)).any()
 
 
 def ref_bound(mode, cam, oracle):
-    """The bound of GL's reference points against the oracle's (px, per pixel): bounds.mapping."""
-    return np.broadcast_to(bounds.mapping(mode, cam.fx, oracle.ref_uv, oracle.mask), oracle.mask.shape)
+    """The bound of GL's reference points against the oracle's (px, per pixel): closed_forms.mapping."""
+    return np.broadcast_to(closed_forms.mapping(mode, cam.fx, oracle.ref_uv, oracle.mask), oracle.mask.shape)
 
 
 @pytest.mark.gl
@@ -231,21 +231,21 @@ def ref_bound(mode, cam, oracle):
 @pytest.mark.parametrize("mode,spp", MODES_SPP)
 def test_gl_matches_oracle_on_bulge(bulge_pair, mode, spp, camera):
     """Masks and element maps equal, reference points within their bound, and every pixel's
-    grey within bounds.grey (the float32 reference sample, the box filter, and the reference
+    grey within closed_forms.grey (the float32 reference sample, the box filter, and the reference
     points' shift through the interpolant's gradient) — but at the coverage ties
-    (bounds.renderer_ties)."""
+    (oracle_maps.renderer_ties)."""
     g, c = bulge_pair
     a = g.render(camera, 1, truth=True, mode=mode, samples_per_pixel=spp)
     b = c.render(camera, 1, truth=True, mode=mode, samples_per_pixel=spp)
     both = a.truth.mask & b.truth.mask
     assert both.sum() > 0.3 * both.size
-    centre = bounds.renderer_ties(g, mode, camera, 1)
+    centre = oracle_maps.renderer_ties(g, mode, camera, 1)
     assert off_ties(a.truth.mask ^ b.truth.mask, centre) == 0
     shift = ref_bound(mode, a.camera, b.truth)
     d = np.linalg.norm(a.truth.ref_uv[both] - b.truth.ref_uv[both], axis=-1)
     assert (d <= shift[both]).all(), d.max()
-    over = np.abs(a.image.astype(np.float64) - b.image) > bounds.renderer_grey(c, mode, camera, 1, spp, shift, b.truth)
-    assert off_ties(over, bounds.renderer_ties(g, mode, camera, 1, spp)) == 0, over.sum()
+    over = np.abs(a.image.astype(np.float64) - b.image) > oracle_maps.renderer_grey(c, mode, camera, 1, spp, shift, b.truth)
+    assert off_ties(over, oracle_maps.renderer_ties(g, mode, camera, 1, spp)) == 0, over.sum()
     # a different element (the same mapping on a shared edge) only at a tie
     assert off_ties(both & (a.truth.element != b.truth.element), centre) == 0
 
@@ -254,24 +254,24 @@ def test_gl_matches_oracle_on_bulge(bulge_pair, mode, spp, camera):
 @pytest.mark.parametrize("camera", [0, 1])
 def test_gl_q4_float32_matches_the_oracle_on_bulge(bulge_pair, camera):
     """q4's float32 build (precision = "fp32": view.comp and deform.frag in float32 from the
-    nodes in float32) maps each sample within bounds.q4_fp32_px of where the oracle's float64
+    nodes in float32) maps each sample within closed_forms.q4_fp32_px of where the oracle's float64
     q4 does, so off the samples that close to an edge (the ties): masks and element maps equal,
     the reference points within that distance through the map's gradient and the float32
-    interpolation of the corners' (bounds.interpolated), and every pixel's grey within
-    bounds.grey at that bound."""
+    interpolation of the corners' (closed_forms.interpolated), and every pixel's grey within
+    closed_forms.grey at that bound."""
     g, c = bulge_pair
     a = g.render(camera, 1, truth=True, mode="q4", precision="fp32")
     b = c.render(camera, 1, truth=True, mode="q4")
-    px, ties = bounds.renderer_q4_fp32(g, camera, 1)
+    px, ties = oracle_maps.renderer_q4_fp32(g, camera, 1)
     both = a.truth.mask & b.truth.mask
     assert both.sum() > 0.3 * both.size and ties.sum() < 0.05 * both.sum()
     assert off_ties(a.truth.mask ^ b.truth.mask, ties) == 0
     assert off_ties(both & (a.truth.element != b.truth.element), ties) == 0
-    shift = bounds.interpolated(px, b.truth.ref_uv, b.truth.mask)
+    shift = closed_forms.interpolated(px, b.truth.ref_uv, b.truth.mask)
     same = both & ~ties
     d = np.linalg.norm(a.truth.ref_uv - b.truth.ref_uv, axis=-1)
     assert (d <= shift)[same].all(), (d / shift)[same].max()
-    over = np.abs(a.image.astype(np.float64) - b.image) > bounds.renderer_grey(c, "q4", camera, 1, 1, shift, b.truth)
+    over = np.abs(a.image.astype(np.float64) - b.image) > oracle_maps.renderer_grey(c, "q4", camera, 1, 1, shift, b.truth)
     assert off_ties(over, ties) == 0, over.sum()
 
 
@@ -280,25 +280,25 @@ def test_gl_q4_float32_matches_the_oracle_on_bulge(bulge_pair, camera):
 def test_newton_subsamples_match_the_oracle_on_bulge(bulge_pair, spp):
     """render.subsamples = "newton" (exact mode; sub-samples of single-candidate pixels placed
     by Newton from the pixel centre) against the oracle, which maps every sub-sample on its
-    ray: every pixel off the coverage ties within the exact mode's grey bound (bounds.grey with
+    ray: every pixel off the coverage ties within the exact mode's grey bound (closed_forms.grey with
     the points 1e-9 px apart — Newton stops after a step of at most 1e-7 in (ξ, η), and
     converges quadratically — and the interpolant's largest gradient)."""
     g, c = bulge_pair
     a = g.render(0, 1, mode="exact", samples_per_pixel=spp, subsamples="newton")
     b = c.render(0, 1, mode="exact", samples_per_pixel=spp, subsamples="newton")
     assert "subsamples" in a.stages and "subsamples" not in b.stages
-    over = np.abs(a.image.astype(np.float64) - b.image) > bounds.renderer_grey(c, "exact", 0, 1, spp, bounds.FLOAT64)
-    assert off_ties(over, bounds.renderer_ties(g, "exact", 0, 1, spp)) == 0, over.sum()
+    over = np.abs(a.image.astype(np.float64) - b.image) > oracle_maps.renderer_grey(c, "exact", 0, 1, spp, closed_forms.FLOAT64)
+    assert off_ties(over, oracle_maps.renderer_ties(g, "exact", 0, 1, spp)) == 0, over.sum()
 
 
 @pytest.mark.gl
 def test_gl_fp32_exact_is_bounded(bulge_pair):
     """float32 arithmetic in the exact mode, the camera-side problem and the reference projection
     relative to each element's centre (CAMERA_LOCAL, REF_LOCAL): reference points within the
-    derived bound per pixel (glsim.evaluation.exact32.renderer_mapping), masks and element maps
+    derived bound per pixel (glsim.check.exact32.renderer_mapping), masks and element maps
     equal but within each edge's float32 tie distance (exact32.renderer_ties);
     its records need a driver with float64."""
-    from glsim.evaluation import exact32
+    from glsim.check import exact32
 
     g, c = bulge_pair
     if not g.backend.fp64:
@@ -306,7 +306,7 @@ def test_gl_fp32_exact_is_bounded(bulge_pair):
     a = g.render(0, 1, truth=True, mode="exact", precision="fp32")
     b = c.render(0, 1, truth=True, mode="exact")
     ties = exact32.renderer_ties(g, 0, 1)
-    bound = exact32.renderer_mapping(g, b.truth, 0, 1) + bounds.FLOAT64
+    bound = exact32.renderer_mapping(g, b.truth, 0, 1) + closed_forms.FLOAT64
     assert off_ties(a.truth.mask ^ b.truth.mask, ties) == 0
     both = a.truth.mask & b.truth.mask
     assert off_ties(both & (a.truth.element != b.truth.element), ties) == 0
@@ -446,19 +446,19 @@ def test_elements_behind_and_crossing_camera_plane(backend, ctx_for):
 @pytest.mark.gl
 def test_crossing_camera_plane_gl_matches_oracle(gl_ctx):
     """Exact mode on elements crossing the camera plane: masks and element maps equal but at
-    the coverage ties (bounds.renderer_ties: the crossing edges imaged as half-lines), the
+    the coverage ties (oracle_maps.renderer_ties: the crossing edges imaged as half-lines), the
     reference points within float64's bound."""
     scene, mesh = crossing_scene()
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", RenderWarning)
         with Renderer(scene, "gl", ctx=gl_ctx, mesh=mesh) as g:
             a = g.render(0, 1, truth=True, mode="exact").truth
-            tie = bounds.renderer_ties(g, "exact", 0, 1)
+            tie = oracle_maps.renderer_ties(g, "exact", 0, 1)
         b = render_custom(scene, mesh, "cpu", None, step=1, mode="exact").truth
     both = a.mask & b.mask
     assert both.sum() > 100 and off_ties(a.mask ^ b.mask, tie) == 0
     assert off_ties(both & (a.element != b.element), tie) == 0
-    assert np.abs(a.ref_uv[both] - b.ref_uv[both]).max() <= bounds.FLOAT64
+    assert np.abs(a.ref_uv[both] - b.ref_uv[both]).max() <= closed_forms.FLOAT64
 
 
 def modes_against_exact_oracle(scene, backend, ctx_for):
@@ -572,7 +572,7 @@ def test_pixels_exactly_on_edges_and_nodes_leave_no_holes(backend, mode, ctx_for
 @pytest.mark.parametrize("backend", ["cpu", pytest.param("gl", marks=pytest.mark.gl)])
 def test_procedural_grey_equals_the_speckle_at_the_analytic_point(backend, ctx_for):
     """Rigid shift: each pixel's grey is the speckle model's value at the analytic reference
-    point (OpenCV), evaluated independently of the renderer: within bounds.procedural (GL's
+    point (OpenCV), evaluated independently of the renderer: within closed_forms.procedural (GL's
     float32 evaluation, or the oracle's float32 image) at points exact_tol apart."""
     from glsim.scene import speckle
 
@@ -580,7 +580,7 @@ def test_procedural_grey_equals_the_speckle_at_the_analytic_point(backend, ctx_f
     with backend_renderer(scene, backend, ctx_for) as r:
         res = r.render(0, 1, truth=True)
         expected = speckle.evaluate(r.reference.dots, opencv_ref_uv(r, 300.0, SHIFT))
-        tol = bounds.procedural(r.reference.dots, exact_tol(r), glsl=backend == "gl",
+        tol = closed_forms.procedural(r.reference.dots, exact_tol(r), glsl=backend == "gl",
                                 float64=r.backend.capabilities.float64)
     m = res.truth.mask
     assert m.sum() > 0.3 * m.size
@@ -613,16 +613,16 @@ def test_procedural_needs_the_generator(tmp_path):
 @pytest.mark.gl
 @pytest.mark.parametrize("mode", MODES)
 def test_gl_procedural_matches_oracle(bulge_pair, mode):
-    """Every pixel off the coverage ties within bounds.procedural: GL's float32 evaluation of
+    """Every pixel off the coverage ties within closed_forms.procedural: GL's float32 evaluation of
     the dots (a float64 build in exact and q4, float32 in fast) at reference points within the
-    mode's mapping bound of the oracle's (bounds.mapping)."""
+    mode's mapping bound of the oracle's (closed_forms.mapping)."""
     g, c = bulge_pair
     a = g.render(1, 1, mode=mode, interpolation="procedural")
     b = c.render(1, 1, mode=mode, interpolation="procedural", truth=True)
-    shift = bounds.mapping(mode, c.scene.cameras[1].fx, b.truth.ref_uv, b.truth.mask)
-    bound = bounds.procedural(c.reference.dots, shift, float64=mode != "fast" and g.backend.fp64)
+    shift = closed_forms.mapping(mode, c.scene.cameras[1].fx, b.truth.ref_uv, b.truth.mask)
+    bound = closed_forms.procedural(c.reference.dots, shift, float64=mode != "fast" and g.backend.fp64)
     over = np.abs(a.image.astype(np.float64) - b.image) > bound
-    assert off_ties(over, bounds.renderer_ties(g, mode, 1, 1)) == 0, over.sum()
+    assert off_ties(over, oracle_maps.renderer_ties(g, mode, 1, 1)) == 0, over.sum()
 
 
 def test_shape_median_is_numpys():

@@ -15,7 +15,7 @@ import glsim.render
 import glsim.stages.geometry
 import glsim.stages.view
 from glsim.errors import RenderWarning
-from glsim.evaluation import bounds
+from glsim.check import closed_forms, oracle_maps
 from glsim.render import Renderer
 from glsim.scene import Plate, Scene, Specimen, bulge_scene
 from glsim.scene.camera import Camera, Distortion
@@ -87,13 +87,13 @@ def test_lighting_normals_once_per_step_not_per_view(gl_ctx, monkeypatch, flat):
     monkeypatch.setattr(glsim.effects, "corner_normals", per_view)
     with Renderer(scene, "gl", ctx=gl_ctx) as g:
         images = [g.render(cam, 1).image for cam in (0, 1)]
-        ties = [bounds.renderer_ties(g, scene.render.mode, cam, 1) for cam in (0, 1)]
+        ties = [oracle_maps.renderer_ties(g, scene.render.mode, cam, 1) for cam in (0, 1)]
         assert per_view.calls == 0 and g.geometry.step_builds == 1
         assert g.backend.geometry.uploads["step"] == 2          # nodes and normals, once
     mode = scene.render.mode
     with Renderer(scene, "cpu") as c:
         for cam, a, tie in zip((0, 1), images, ties):   # within the lit image's bound but at coverage ties
-            over = np.abs(a.astype(float) - c.render(cam, 1).image) > bounds.renderer_lit(c, mode, cam, 1)
+            over = np.abs(a.astype(float) - c.render(cam, 1).image) > oracle_maps.renderer_lit(c, mode, cam, 1)
             assert not (over & ~tie).any()
 
 
@@ -269,8 +269,8 @@ def test_candidate_lists_and_their_overflow_give_the_oracle(gl_ctx, mode, layers
     """Pixels with several candidates (resolve.frag or .comp) and with more than the lists hold
     (the fallback over the cover rectangles) show the nearest layer, as the oracle, in either
     pixel stage: the same mask; elements differ only on the coverage ties (pixel centres on a
-    shared edge, within float64's tie distance, bounds.renderer_ties), both giving the same
-    point; grey levels within the mode's bound (bounds.renderer_grey) off the ties."""
+    shared edge, within float64's tie distance, oracle_maps.renderer_ties), both giving the same
+    point; grey levels within the mode's bound (oracle_maps.renderer_grey) off the ties."""
     scene, mesh = stacked_plates(layers)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", RenderWarning)
@@ -287,13 +287,13 @@ def test_candidate_lists_and_their_overflow_give_the_oracle(gl_ctx, mode, layers
 def agree_off_ties(g, c, a, b, mode):
     """GL's render ``a`` (renderer ``g``, camera 0, step 0, 1 spp) and the oracle's ``b``
     (renderer ``c``): the same mask; elements differing only on the coverage ties
-    (bounds.renderer_ties), both giving the same point there; grey levels within
-    bounds.renderer_grey off the ties. Returns the ties."""
-    ties = bounds.renderer_ties(g, mode, 0, 0)
-    grey = bounds.renderer_grey(c, mode, 0, 0, 1, bounds.FLOAT64, b.truth)
+    (oracle_maps.renderer_ties), both giving the same point there; grey levels within
+    oracle_maps.renderer_grey off the ties. Returns the ties."""
+    ties = oracle_maps.renderer_ties(g, mode, 0, 0)
+    grey = oracle_maps.renderer_grey(c, mode, 0, 0, 1, closed_forms.FLOAT64, b.truth)
     assert np.array_equal(a.truth.mask, b.truth.mask)
     differ = a.truth.element != b.truth.element
-    assert np.abs(a.truth.X_deformed[differ] - b.truth.X_deformed[differ]).max(initial=0) <= bounds.FLOAT64
+    assert np.abs(a.truth.X_deformed[differ] - b.truth.X_deformed[differ]).max(initial=0) <= closed_forms.FLOAT64
     assert not (differ & ~ties).any()
     assert not ((np.abs(a.image.astype(float) - b.image) > grey) & ~ties).any()
     return ties
@@ -329,15 +329,15 @@ def test_bench_scaling_reduced_run_writes_elsewhere(tmp_path, capsys, gl_ctx):
 
     from glsim.backends.gl.context import software_renderer
     from glsim.backends.gl.plan import environment_stage, pixel_stage
-    from glsim.evaluation import cli
+    from glsim.bench import cli
 
     # the pixel stage its processes get on this driver (the passes are named by their shaders)
     ext = {"fragment": "frag", "compute": "comp"}[environment_stage() or pixel_stage(software_renderer(gl_ctx))]
 
-    assert cli.bench_main(["scaling", "--elements", "50", "--out", str(cli.RESULTS)]) == 2
+    assert cli.main(["scaling", "--elements", "50", "--out", str(cli.RESULTS)]) == 2
     assert "--out bench/results" in capsys.readouterr().err
     assert cli.results_dir(None, full=False, command="scaling") == cli.SCRATCH
-    rc = cli.bench_main(["scaling", "--elements", "20", "300", "--sizes", "96x72", "--size-elements", "40",
+    rc = cli.main(["scaling", "--elements", "20", "300", "--sizes", "96x72", "--size-elements", "40",
                          "--reps", "1", "--no-oracle", "--out", str(tmp_path)])
     assert rc == 0
     report = json.loads((tmp_path / "scaling.json").read_text())

@@ -11,7 +11,7 @@ from glsim.effects import lighting as shade
 from glsim.errors import SceneError
 from glsim.backends.gl.programs import ProgramCache
 from glsim.effects.lighting import LightArrays
-from glsim.evaluation import bounds
+from glsim.check import closed_forms
 
 GLSL_DIR = Path(__file__).parent / "glsl"
 
@@ -460,7 +460,7 @@ def test_glsl_phong_and_combine_match_numpy(gl_ctx, shininess, model):
     """shade.glsl (float32) against shade.py (float64) on the float32-rounded inputs, 20 000
     points (half near light 0's highlight, a quarter back-facing), 3 lights (point, smooth spot
     with 13 % of the points on its edge, hard spot with 28 % outside it): per point within what
-    GLSL 4.50's precision rules allow (glsim.evaluation.bounds.phong, of I and after combine).
+    GLSL 4.50's precision rules allow (glsim.check.closed_forms.phong, of I and after combine).
     Points within 1e-5 of a switch (flip, N·L = 0, hard spot edge) are left out (about 20 of
     20 000)."""
     rng = np.random.default_rng(11)
@@ -476,15 +476,15 @@ def test_glsl_phong_and_combine_match_numpy(gl_ctx, shininess, model):
     keep = ~_near_a_switch(X32, N32, lights32)
     assert keep.sum() > 0.99 * len(X)
     assert np.isfinite(I_gl).all() and np.isfinite(lit_gl).all()
-    assert np.all((np.abs(I_gl - I) <= bounds.phong(X32, N32, lights32, *args))[keep])
-    assert np.all((np.abs(lit_gl - lit) <= bounds.phong(X32, N32, lights32, *args, grey=g32, model=model))[keep])
+    assert np.all((np.abs(I_gl - I) <= closed_forms.phong(X32, N32, lights32, *args))[keep])
+    assert np.all((np.abs(lit_gl - lit) <= closed_forms.phong(X32, N32, lights32, *args, grey=g32, model=model))[keep])
     assert np.ptp(I) > 0.5                                       # the scene is not trivially dark
 
 
 @pytest.mark.gl
 def test_glsl_specular_at_shininess_400_stays_within_its_bound(gl_ctx):
     """The specular term alone (I_a = k_r = 0), shininess 400 — the shader's exp(r·log(1 − s))
-    with s = |R − V|²/2, the form whose float32 error glsim.evaluation.bounds.phong follows — per
+    with s = |R − V|²/2, the form whose float32 error glsim.check.closed_forms.phong follows — per
     point within that bound, over a thousand points above half the peak."""
     rng = np.random.default_rng(11)
     X, N, lights = _random_scene(rng, 20000)
@@ -495,5 +495,5 @@ def test_glsl_specular_at_shininess_400_stays_within_its_bound(gl_ctx):
     I = shade.phong(X32, N32, lights32, 0.0, 0.0, 1.0, 400.0)
     keep = ~_near_a_switch(X32, N32, lights32)
     assert (keep & (I > 0.5 * I.max())).sum() > 1000                # many points at the highlight
-    bound = bounds.phong(X32, N32, lights32, 0.0, 0.0, 1.0, 400.0)
+    bound = closed_forms.phong(X32, N32, lights32, 0.0, 0.0, 1.0, 400.0)
     assert np.all((np.abs(I_gl - I) <= bound)[keep])

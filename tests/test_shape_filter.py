@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from glsim.errors import RenderWarning
-from glsim.evaluation.shapefilter import CAMERA, classify, grid, mesh, misses, with_element
+from glsim.check.shapefilter import CAMERA, classify, grid, mesh, misses, with_element
 from glsim.render import Renderer
 from glsim.scene import Plate, Scene, Specimen
 from glsim.stages.view import TINY_AREA_REL, ZERO_AREA_REL, mesh_element_areas
@@ -66,7 +66,7 @@ def test_elements_near_a_fold_are_flagged(gl_ctx, eps, z):
 
 
 def test_elements_at_float32s_resolution_are_flagged(gl_ctx):
-    """Where the float32 build's own rounding decides (glsim.evaluation.shapefilter.
+    """Where the float32 build's own rounding decides (glsim.check.shapefilter.
     at_float32_resolution: a tiny element 0.1–10 % below the threshold at a few float32 ulps of
     height under a tight bound on the median, or corner 3 up to a float32 ulp across the
     diagonal), 40 random ones of each kind: every one numpy excludes is flagged by both builds.

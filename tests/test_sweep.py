@@ -10,7 +10,7 @@ import pytest
 import tifffile
 
 from glsim.scene import speckle
-from glsim.evaluation import cli, frontier, sweep, sweep_report
+from glsim.dic import cli, frontier, sweep, sweep_report
 from glsim.scene.camera import project
 from glsim.render import Renderer
 
@@ -199,12 +199,12 @@ def test_analyse_report_and_frontier(exchange, tmp_path):
 def test_frontier_from_synthetic_accuracy(tmp_path):
     """`frontier` needs only accuracy.json (the sweep panel is added when sweep.json exists)."""
     (tmp_path / "accuracy.json").write_text(json.dumps(_accuracy()))
-    assert cli.verify_main(["frontier", "--results", str(tmp_path)]) == 0
+    assert cli.main(["frontier", "--results", str(tmp_path)]) == 0
     assert (tmp_path / "frontier.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     md = (tmp_path / "sweep.md").read_text()
     assert "Pareto" in md and "S-curve" in md          # title only: no sweep measured
     assert "## S-curve amplitudes" not in md
-    assert cli.verify_main(["frontier", "--results", str(tmp_path / "none")]) == 2   # no accuracy.json
+    assert cli.main(["frontier", "--results", str(tmp_path / "none")]) == 2   # no accuracy.json
 
 
 def test_pareto():
@@ -213,7 +213,7 @@ def test_pareto():
 
 
 def test_verify_cli_has_sweep_and_frontier():
-    ap = cli.verify_parser()
+    ap = cli.parser()
     a = ap.parse_args(["sweep", "--size", "256", "256", "--exchange", "x"])
     assert (a.command, a.size, a.exchange, a.results) == ("sweep", [256, 256], "x", "bench/results")
     a = ap.parse_args(["frontier", "--accuracy", "acc.json"])
@@ -236,6 +236,6 @@ def test_backend_agreement_reports_the_largest_differences():
 
 
 def test_too_small_sweep_is_refused_with_the_fix(capsys):
-    assert cli.verify_main(["sweep", "--size", "160", "160", "--exchange", "/nonexistent/x"]) == 2
+    assert cli.main(["sweep", "--size", "160", "160", "--exchange", "/nonexistent/x"]) == 2
     err = capsys.readouterr().err
     assert "--size 160 160" in err and "--size 512 512" in err

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 import tifffile
 
-from glsim.evaluation import cli, verify
+from glsim.dic import cli, verify
 from glsim.io import calibfiles
 from glsim.scene.camera import Camera, Distortion, project, rotation_xyz, stereo_pose, to_camera
 from glsim.errors import GlsimError
@@ -213,7 +213,7 @@ def test_report_on_a_synthetic_measurement(exchange, tmp_path):
 
 def test_cli_compare_and_missing_dic_environment(exchange, tmp_path, capsys):
     _synthetic_measurement(exchange, np.zeros(3))
-    assert cli.verify_main(["compare", str(exchange), "--results", str(tmp_path)]) == 0
+    assert cli.main(["compare", str(exchange), "--results", str(tmp_path)]) == 0
     assert (tmp_path / "verify.md").exists()
     with pytest.raises(GlsimError, match="make verify"):
         verify.run_dic(exchange, python=tmp_path / "no-python")

@@ -37,7 +37,7 @@ class Capabilities:
     full-screen passes (``fullscreen_pass``); ``max_size``: the largest texture and render-target
     side the device takes (px; GL_MAX_TEXTURE_SIZE and GL_MAX_RENDERBUFFER_SIZE), None where there
     is none; ``subpixel_bits``: the rasterizer's sub-pixel precision (GL_SUBPIXEL_BITS: fast mode's
-    vertices are snapped to 2^-bits px, glsim.evaluation.bounds.tie_px), None where coverage is
+    vertices are snapped to 2^-bits px, glsim.check.closed_forms.tie_px), None where coverage is
     decided in float64."""
     device_geometry: bool
     float64: bool

@@ -9,7 +9,7 @@ import pytest
 
 from glsim.backends.gl.context import driver_info
 from glsim.errors import RenderWarning
-from glsim.evaluation import bounds
+from glsim.check import closed_forms
 from glsim.render import Renderer
 from glsim.scene import Plate, Scene, Specimen
 from glsim.scene.camera import Camera
@@ -85,24 +85,24 @@ def plane_truth(cam, R, t, shift, H, W):
     return Xd - shift, Xd
 
 
-X_TOL = bounds.FLOAT64   # mm: truth of an exact mode against a float64 closed form
+X_TOL = closed_forms.FLOAT64   # mm: truth of an exact mode against a float64 closed form
 
 
 def x_err_ok(backend, mode, fx, X, closed):
     """Truth X (H, W, 3) within its bound of the closed form ``closed`` where covered: float64,
-    or GL fast's float32 bound per pixel (bounds.fast_bound over the closed form's map)."""
+    or GL fast's float32 bound per pixel (closed_forms.fast_bound over the closed form's map)."""
     mask = np.isfinite(X).all(-1) & np.isfinite(closed).all(-1)
     err = np.linalg.norm(np.where(mask[..., None], X - closed, 0.0), axis=-1)
-    bound = bounds.fast_bound(fx, closed, mask) if (backend == "gl" and mode == "fast") else X_TOL
+    bound = closed_forms.fast_bound(fx, closed, mask) if (backend == "gl" and mode == "fast") else X_TOL
     return bool((err <= bound)[mask].all()), float(err[mask].max(initial=0.0))
 
 
 def band_px(backend, mode, fx, ctx):
     """Distance from the outline (px) within which a pixel centre's coverage is not asserted:
-    GL fast's tie distance (glsim.evaluation.bounds.tie_px: float32 vertices, focal length
+    GL fast's tie distance (glsim.check.closed_forms.tie_px: float32 vertices, focal length
     ``fx`` px, snapped to the GL context ``ctx``'s GL_SUBPIXEL_BITS), else 1e-6."""
     if backend == "gl" and mode == "fast":
-        return bounds.tie_px(mode, fx, driver_info(ctx)["GL_SUBPIXEL_BITS"])
+        return closed_forms.tie_px(mode, fx, driver_info(ctx)["GL_SUBPIXEL_BITS"])
     return 1e-6
 
 

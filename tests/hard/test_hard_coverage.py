@@ -26,7 +26,7 @@ from _shapes import (
 )
 
 from glsim.errors import RenderWarning
-from glsim.evaluation import bounds
+from glsim.check import closed_forms, oracle_maps
 from glsim.render import Renderer
 from glsim.scene import Plate, Scene, Specimen
 from glsim.scene.camera import Camera
@@ -173,7 +173,7 @@ MESHES = {"subpixel": lambda: perturbed_grid(120, 90, 12.0, 9.0, 0.3, 1),   # 0.
 @pytest.mark.parametrize("backend", BACKENDS)
 def test_no_holes_on_subpixel_and_sliver_meshes(backend, mode, mesh, ctx_for):
     """Every pixel centre farther than 1e-6 px inside the plate's projected outline is
-    covered, none farther than 1e-6 px outside (GL fast: its tie distance, bounds.tie_px: the
+    covered, none farther than 1e-6 px outside (GL fast: its tie distance, closed_forms.tie_px: the
     float32 vertices snapped to GL_SUBPIXEL_BITS). The plate holds 501 pixel centres; the band
     leaves all but a few of them to the test (zink reports 4 sub-pixel bits: 0.063 px)."""
     nodes, quads = MESHES[mesh]()
@@ -183,7 +183,7 @@ def test_no_holes_on_subpixel_and_sliver_meshes(backend, mode, mesh, ctx_for):
     with Renderer(scene, backend, ctx=ctx_for(backend), mesh=m) as r, warnings.catch_warnings():
         warnings.simplefilter("ignore", RenderWarning)  # the slivers are named as tiny elements
         t = r.render(0, 0, truth=True, mode=mode).truth
-        band = (bounds.tie_px(mode, TILT_CAM.fx, r.backend.capabilities.subpixel_bits)
+        band = (closed_forms.tie_px(mode, TILT_CAM.fx, r.backend.capabilities.subpixel_bits)
                 if (mode == "fast" and backend == "gl") else 1e-6)
     d = outline_distance(corners, TILT_CAM)
     assert (d > 1e-6).sum() > 500 and (d > band).sum() >= 0.95 * (d > 1e-6).sum()
@@ -196,14 +196,14 @@ def test_no_holes_on_subpixel_and_sliver_meshes(backend, mode, mesh, ctx_for):
 def test_subpixel_mesh_gl_coverage_equals_oracle(mode, gl_ctx):
     """Generic (non-aligned) sub-pixel mesh: GL's mask equals the oracle's exactly; element
     ownership may differ only where a centre lies within float64 rounding of an edge
-    (glsim.evaluation.bounds.renderer_ties)."""
+    (glsim.check.oracle_maps.renderer_ties)."""
     nodes, quads = MESHES["subpixel"]()
     scene, m = custom(tilted(nodes), quads, TILT_CAM)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", RenderWarning)
         with Renderer(scene, "gl", ctx=gl_ctx, mesh=m) as r:
             a = r.render(0, 0, truth=True, mode=mode).truth
-            tie = bounds.renderer_ties(r, mode, 0, 0)
+            tie = oracle_maps.renderer_ties(r, mode, 0, 0)
         with Renderer(scene, "cpu", mesh=m) as r:
             b = r.render(0, 0, truth=True, mode=mode).truth
     assert np.array_equal(a.mask, b.mask)

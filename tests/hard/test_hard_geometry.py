@@ -10,15 +10,15 @@ independently of glsim's own geometry code.
 - A twisted (non-planar) bilinear patch that many rays pierce twice: the ray/patch quadratic
   is solved here and the nearer root must be the one rendered.
 - GL against the oracle on the same scenes, in every mode: masks, element maps and grey levels
-  within derived bounds off the coverage ties (glsim.evaluation.bounds).
+  within derived bounds off the coverage ties (glsim.check.closed_forms, glsim.check.oracle_maps).
 
 Each test states what it compares and its tolerance. The closed forms are exact up to float64
 rounding, so the truth tolerance is 1e-9 mm wherever the mode is exact
-(glsim.evaluation.bounds.FLOAT64). GL's fast mode projects its vertices in float32, so its truth
+(glsim.check.closed_forms.FLOAT64). GL's fast mode projects its vertices in float32, so its truth
 is held per pixel to that projection's bound times the closed form's mm per image pixel
-(bounds.fast_bound: about 1/cos of the angle at grazing views). A mask is compared exactly with the closed form on pixel centres farther than 1e-6 px
+(closed_forms.fast_bound: about 1/cos of the angle at grazing views). A mask is compared exactly with the closed form on pixel centres farther than 1e-6 px
 (or 1e-6 of an element) from the outline. GL's fast mode uses its tie distance
-(bounds.tie_px: the float32 vertex bound plus the rasterizer's snapping, 2^-GL_SUBPIXEL_BITS
+(closed_forms.tie_px: the float32 vertex bound plus the rasterizer's snapping, 2^-GL_SUBPIXEL_BITS
 px), as in test_hard_coverage.
 """
 import warnings
@@ -44,7 +44,7 @@ from _shapes import (
 )
 
 from glsim.errors import RenderWarning
-from glsim.evaluation import bounds
+from glsim.check import closed_forms, oracle_maps
 from glsim.render import Renderer
 from glsim.scene.camera import Camera, Distortion
 
@@ -344,26 +344,26 @@ HARD_SCENES = {"grazing-60": lambda: grazing_plate(60)[:2], "grazing-89": lambda
 
 def ties(scene, mesh, mode, ctx, spp=1):
     """Camera 0's pixels at step 1 where GL may decide a sample the other way than the oracle
-    (glsim.evaluation.bounds.renderer_ties: within the mode's tie distance of an element edge
+    (glsim.check.oracle_maps.renderer_ties: within the mode's tie distance of an element edge
     or the outline — float64 in exact and q4, fast's float32 vertices snapped to
     GL_SUBPIXEL_BITS)."""
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", RenderWarning)
         with Renderer(scene, "gl", ctx=ctx, mesh=mesh) as r:
-            return bounds.renderer_ties(r, mode, 0, 1, spp)
+            return oracle_maps.renderer_ties(r, mode, 0, 1, spp)
 
 
 def agreement(a, b, mode, fx, tie):
     """GL truth ``a`` against the oracle's ``b`` of the same view: the mask XOR and the
     element-map differences where both cover, outside the tie pixels ``tie`` (:func:`ties`),
     and the pixels (where both cover, and for X with the same element) whose |Δref_uv| or
-    |ΔX_deformed| exceeds its bound (glsim.evaluation.bounds: float64 in exact and q4, fast's
+    |ΔX_deformed| exceeds its bound (glsim.check.closed_forms: float64 in exact and q4, fast's
     float32 bound per pixel), with the largest of each."""
     both = a.mask & b.mask
     same = both & (a.element == b.element)
     d = np.linalg.norm(a.ref_uv - b.ref_uv, axis=-1)
     dX = np.linalg.norm(a.X_deformed - b.X_deformed, axis=-1)
-    ref_bound, X_bound = (bounds.mapping(mode, fx, f, b.mask) for f in (b.ref_uv, b.X_deformed))
+    ref_bound, X_bound = (closed_forms.mapping(mode, fx, f, b.mask) for f in (b.ref_uv, b.X_deformed))
     return dict(covered=int(both.sum()), xor=int(((a.mask ^ b.mask) & ~tie).sum()),
                 element=int((both & (a.element != b.element) & ~tie).sum()),
                 ref_over=int((d > ref_bound)[both].sum()), ref_max=float(d[both].max()),
@@ -399,7 +399,7 @@ def image(scene, mesh, backend, ctx, **options):
 def test_gl_subsamples_agree_with_the_oracle_on_hard_scenes(case, subsamples, gl_ctx):
     """Exact mode at 4 samples per pixel, each sub-sample mapped on its ray or placed by Newton
     from the pixel centre (render.subsamples), against the oracle, which maps every sample:
-    every pixel within the exact mode's grey bound (bounds.grey: the samples' reference points
+    every pixel within the exact mode's grey bound (closed_forms.grey: the samples' reference points
     1e-9 px apart — Newton's too, see test_render — and the interpolant's largest gradient) but
     where a sub-sample lies at a tie (:func:`ties`: a silhouette sub-sample decided differently
     moves a pixel by up to 255/4)."""
@@ -409,7 +409,7 @@ def test_gl_subsamples_agree_with_the_oracle_on_hard_scenes(case, subsamples, gl
     b = image(scene, mesh, "cpu", None, **options)
     assert ("subsamples" in a.stages) == (subsamples == "newton")
     with Renderer(scene, "cpu", mesh=mesh) as c:
-        bound = bounds.renderer_grey(c, "exact", 0, 1, 4, bounds.FLOAT64)
+        bound = oracle_maps.renderer_grey(c, "exact", 0, 1, 4, closed_forms.FLOAT64)
     over = (np.abs(a.image.astype(np.float64) - b.image) > bound) & ~ties(scene, mesh, "exact", gl_ctx, 4)
     assert not over.any(), int(over.sum())
 
@@ -420,10 +420,10 @@ def test_gl_float32_exact_on_hard_scenes(case, gl_ctx):
     """precision = "fp32" in exact mode against the float64 oracle: the same coverage and
     elements but within each edge's float32 tie distance (exact32.renderer_ties: its edge
     function), and every reference point within its derived bound
-    (glsim.evaluation.exact32.renderer_mapping). Float32 keeps this by working relative to each
+    (glsim.check.exact32.renderer_mapping). Float32 keeps this by working relative to each
     element's centre with the per-element records and the rays made in float64 (CAMERA_LOCAL),
     which needs a driver with float64."""
-    from glsim.evaluation import exact32
+    from glsim.check import exact32
 
     scene, mesh = HARD_SCENES[case]()
     b = render(scene, mesh, "cpu", None, "exact").truth
@@ -434,7 +434,7 @@ def test_gl_float32_exact_on_hard_scenes(case, gl_ctx):
                 pytest.skip("float32 relative to the element centre needs GL_ARB_gpu_shader_fp64 for its records")
             a = g.render(0, 1, truth=True, mode="exact", precision="fp32").truth
             tie = exact32.renderer_ties(g, 0, 1)
-            bound = exact32.renderer_mapping(g, b, 0, 1) + bounds.FLOAT64
+            bound = exact32.renderer_mapping(g, b, 0, 1) + closed_forms.FLOAT64
     s = agreement(a, b, "exact", scene.cameras[0].fx, tie)
     assert s["covered"] > 500 and s["xor"] == 0 and s["element"] == 0, s
     d = np.linalg.norm(a.ref_uv - b.ref_uv, axis=-1)
