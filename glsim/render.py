@@ -415,9 +415,9 @@ class Renderer:
         shading = None
         if self.scene.lighting is not None:   # the drawn mesh's normals (a quadratic mesh's pieces')
             shading = shading_terms(self.scene, drawn, self.drawn_mesh.quads, cam, value, None if pieces else self.pieces)
-        J, J_rig, depth = jac.image_jacobian(cam, s, self.reference.camera, of.nodes, drawn if pieces else deformed,
-                                             of.quads, opts.mode, raster, gradient, rig, of.patches, shading,
-                                             self.scene.optics is not None, aperture)
+        J, J_rig, depth = jac.image_jacobian(
+            cam, self.reference.camera, jac.MeshState(of.nodes, drawn if pieces else deformed, of.quads, of.patches),
+            raster, gradient, jac.JacobianOptions(opts.mode, s, aperture, rig, self.scene.optics is not None), shading)
         if pieces:   # the pieces' nodes as weights of the mesh's (PiecesMesh.grid_matrix)
             G = sparse.kron(self.drawn_mesh.grid_matrix(), sparse.identity(3), format="csr")
             J = J @ G

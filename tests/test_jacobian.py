@@ -376,8 +376,9 @@ def test_fast_depth_derivative_matches_central_differences():
         coeffs = interp.prepare(r.reference.image, "cubic", np.float64)
         grad = functools.partial(interp.gradient, coeffs, method="cubic")
         raster = depth(mesh.deformed(1))[2]
-        _, _, (z, J_z, _) = jac.image_jacobian(cam, s, r.reference.camera, mesh.nodes, mesh.deformed(1), mesh.quads,
-                                               "fast", raster, grad, depth=True)
+        _, _, (z, J_z, _) = jac.image_jacobian(cam, r.reference.camera,
+                                               jac.MeshState(mesh.nodes, mesh.deformed(1), mesh.quads), raster, grad,
+                                               jac.JacobianOptions(mode="fast", samples=s, depth=True))
     hit = raster["element"] >= 0
     assert np.abs(z[hit] - raster["depth"][hit]).max() <= 1e-12 * z.max()
     _against_central_differences(J_z.tocsc(), mesh, lambda nodes: depth(nodes)[:2], seed=3)

@@ -308,26 +308,45 @@ def sample_rays(cam: Camera, q: np.ndarray) -> np.ndarray:
     return undistort(pixel_to_normalized(q, cam.intrinsics), cam.distortion.coeffs)[0]
 
 
-def image_jacobian(cam: Camera, s: int, ref_cam: Camera, nodes: np.ndarray, deformed: np.ndarray,
-                   quads: np.ndarray, mode: str, raster: dict, grad, rig: bool = False, patches=None,
-                   shading=None, depth: bool = False, aperture: float = 1.0):
+@dataclasses.dataclass(frozen=True)
+class MeshState:
+    """The mesh differentiated: ``nodes`` and ``deformed`` (N, 3) world mm, its ``quads`` and a
+    quadratic mesh's ``patches`` (its (ξ, η) are the patches'; None for linear elements)."""
+    nodes: np.ndarray
+    deformed: np.ndarray
+    quads: np.ndarray
+    patches: np.ndarray | None = None
+
+
+@dataclasses.dataclass(frozen=True)
+class JacobianOptions:
+    """How :func:`image_jacobian` reads its raster and what it returns beside J."""
+    mode: str = "exact"       # exact or q4: (ξ, η) through the mapping; fast: the sample's triangle
+    samples: int = 1          # s: the raster's samples per pixel along each axis
+    aperture: float = 1.0     # √ of a fill factor: the samples' offsets' scale (:func:`sample_points`)
+    rig: bool = False         # also the derivative with respect to the camera's parameters
+    depth: bool = False       # also each sample's depth and the pixels' depth derivatives
+
+
+def image_jacobian(cam: Camera, ref_cam: Camera, mesh: MeshState, raster: dict, grad,
+                   options: JacobianOptions = JacobianOptions(), shading=None):
     """The image Jacobian (W·H × 3·nodes, CSR, grey levels per mm) of ``cam`` from ``raster``:
     flat ``element``, ``xi``, ``eta`` (float64) over the (W·s)·(H·s) samples of
-    :func:`sample_camera` (element −1: background); the reference point is recomputed from them
-    (``mode`` exact or q4; in fast from the element's triangle at the sample point,
-    :func:`fast_sensitivities`: its (ξ, η) are not used).
-    ``nodes``, ``deformed`` (N, 3) world mm; ``patches``: a quadratic mesh's (its (ξ, η) are the
-    patches'); ``grad(uv)`` the reference interpolant's gradient
-    (grey per px). A pixel's row is the mean of its s² samples' derivatives. ``shading``: the
-    lighting's :class:`glsim.effects.lighting.ShadingTerms` (:func:`lit_sensitivities`). Returns
-    it; if ``rig``, the W·H × 23 CSR Jacobian with respect to ``cam``'s parameters
-    (:func:`rig_derivatives`), else None; if ``depth``, (z, J_z, J_z rig): each sample's
-    camera-frame depth (flat, 0 on the background; mm) and the derivative of each pixel's depth —
-    the mean of its covered samples', what the depth of field blurs with — with respect to the
-    nodal displacements (W·H × 3·nodes, CSR, mm per mm) and, if ``rig``, the camera's parameters
-    (W·H × 23), else None. ``aperture`` < 1 (√ of a fill factor): the samples lie at
-    c + aperture·((k + ½)/s − ½) of their pixel c (:func:`sample_points`; the raster in the sample
-    camera's order, :func:`shifted_cameras`)."""
+    :func:`sample_camera` (element −1: background; s = ``options.samples``); the reference point
+    is recomputed from them (mode exact or q4; in fast from the element's triangle at the sample
+    point, :func:`fast_sensitivities`: its (ξ, η) are not used). ``grad(uv)`` the reference
+    interpolant's gradient (grey per px). A pixel's row is the mean of its s² samples'
+    derivatives. ``shading``: the lighting's :class:`glsim.effects.lighting.ShadingTerms`
+    (:func:`lit_sensitivities`). Returns it; if ``options.rig``, the W·H × 23 CSR Jacobian with
+    respect to ``cam``'s parameters (:func:`rig_derivatives`), else None; if ``options.depth``,
+    (z, J_z, J_z rig): each sample's camera-frame depth (flat, 0 on the background; mm) and the
+    derivative of each pixel's depth — the mean of its covered samples', what the depth of field
+    blurs with — with respect to the nodal displacements (W·H × 3·nodes, CSR, mm per mm) and, if
+    rig, the camera's parameters (W·H × 23), else None. ``options.aperture`` < 1: the samples
+    lie at c + aperture·((k + ½)/s − ½) of their pixel c (:func:`sample_points`; the raster in
+    the sample camera's order, :func:`shifted_cameras`)."""
+    mode, s, aperture, rig, depth = options.mode, options.samples, options.aperture, options.rig, options.depth
+    nodes, deformed, quads, patches = mesh.nodes, mesh.deformed, mesh.quads, mesh.patches
     W, H = cam.size
     scam = sample_camera(cam, s)
     R = cam.rotation
