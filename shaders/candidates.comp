@@ -3,8 +3,7 @@
 // samples (the square of half-width u_half around its centre). An element whose box is too
 // large sets LIST_BIG and is listed by its cover triangles instead (exact.vert BIG_ONLY +
 // candidates.frag). A pixel with more than CANDIDATES entries is left to the fallback.
-#define LIST_WRITER
-#include "candidates.glsl"
+#include "list_writer.glsl"
 #include "cover.glsl"
 
 layout(local_size_x = 64) in;

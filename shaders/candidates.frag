@@ -2,8 +2,7 @@
 // box is too large for one invocation): at pixel resolution over their cover rectangles
 // (exact.vert BIG_ONLY), each fragment lists its element where the element's tight rectangle
 // meets the pixel's samples (the square of half-width u_half around its centre).
-#define LIST_WRITER
-#include "candidates.glsl"
+#include "list_writer.glsl"
 
 flat in int v_elem;
 uniform float u_half;   // 0.5 - 0.5 / SS: the pixel's samples lie within this of its centre

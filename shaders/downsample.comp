@@ -1,3 +1,10 @@
-// The box filter as a compute pass (the pixel stage "compute"); downsample.frag holds the code.
-#define COMPUTE_PIXELS
-#include "downsample.frag"
+// The box filter (box.glsl) as a compute pass.
+#include "comp_grey.glsl"
+#include "box.glsl"
+
+void main() {
+    if (PASS_OUTSIDE) return;
+    float value;
+    if (!box_filter(PASS_PIXEL, value)) PASS_SKIP;
+    PASS_WRITE(value);
+}

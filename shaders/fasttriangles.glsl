@@ -1,12 +1,10 @@
-// Mode fast's triangle records in the compute pixel stage (glsim.backends.gl.plan): fast.geom
-// keeps each triangle's (with FAST_VISIBILITY; draw order, two per element) and deform.comp
+// Mode fast's triangle records in the compute pixel stage (glsim.backends.gl.plan):
+// fast_records.geom keeps each triangle's (draw order, two per element) and fast_shade.comp
 // reads the one a sample shows: its projected vertices (px), reference points, (xi, eta) and
 // depths, and its element (bits), FAST_RECORD floats each.
 #define FAST_RECORD 24
-#if defined(FAST_VISIBILITY) || defined(COMPUTE_PIXELS)
 layout(std430, binding = BINDING_FAST_TRIANGLES) buffer FastTriangles { float fast_rec[]; };
-#endif
-#ifdef COMPUTE_PIXELS
+
 void fast_triangle(int t, out vec2 uv[3], out vec2 ref[3], out vec2 xe[3], out float z[3], out int elem) {
     int b = FAST_RECORD * t;
     for (int i = 0; i < 3; ++i) {
@@ -17,4 +15,3 @@ void fast_triangle(int t, out vec2 uv[3], out vec2 ref[3], out vec2 xe[3], out f
     }
     elem = floatBitsToInt(fast_rec[b + 21]);
 }
-#endif

@@ -1,3 +1,8 @@
-// noise.frag as a compute pass (the pixel stage "compute"; pixelpass.glsl).
-#define COMPUTE_PIXELS
-#include "noise.frag"
+// Sensor noise (sensor_noise.glsl) as a compute pass.
+#include "comp_grey.glsl"
+#include "sensor_noise.glsl"
+
+void main() {
+    if (PASS_OUTSIDE) return;
+    PASS_WRITE(noisy(PASS_PIXEL));
+}

@@ -1,17 +1,7 @@
-// Sensor noise pass (full screen): out = I + noise_sigma(I) * z, z the standard normal of
-// the flat pixel index v * W + u and the image's seed. Not clipped (quantisation clips).
-#define GREY_PASS
-#include "pixelpass.glsl"
-#include "noise.glsl"
-
-layout(binding = SAMPLER_SRC) uniform sampler2D u_src;
-uniform uint u_seed;
-uniform int u_width;
+// Sensor noise (sensor_noise.glsl) as a fragment pass.
+#include "frag_grey.glsl"
+#include "sensor_noise.glsl"
 
 void main() {
-    if (PASS_OUTSIDE) return;
-    ivec2 p = PASS_PIXEL;  // framebuffer row v = image row v (no flip)
-    float I = texelFetch(u_src, p, 0).r;
-    uint index = uint(p.y) * uint(u_width) + uint(p.x);
-    PASS_WRITE(I + noise_sigma(I) * standard_normal(index, u_seed));
+    PASS_WRITE(noisy(PASS_PIXEL));
 }

@@ -1,3 +1,8 @@
-// psf.frag as a compute pass (the pixel stage "compute"; pixelpass.glsl).
-#define COMPUTE_PIXELS
-#include "psf.frag"
+// The lens PSF (psf.glsl) as a compute pass.
+#include "comp_grey.glsl"
+#include "psf.glsl"
+
+void main() {
+    if (PASS_OUTSIDE) return;
+    PASS_WRITE(psf(PASS_PIXEL));
+}

@@ -3,7 +3,10 @@
 // Compile-time: QUADRATIC, PIECES (the linear pieces per element side that the element
 // records, covers and candidate lists are made of: piece e belongs to patch e / PIECES^2 and
 // spans the patch's cell (e % PIECES, (e / PIECES) % PIECES) of its PIECES x PIECES grid).
-// Needs view.glsl (u_rot, u_trans), camera.glsl and bilinear.glsl (invert_closed).
+// Uses view.glsl (u_rot, u_trans), camera.glsl and bilinear.glsl (invert_closed).
+#include "camera.glsl"
+#include "bilinear.glsl"
+#include "view.glsl"
 #ifdef FP64
 #define Q_TOL 1e-13lf          // stop once max(|dxi|, |deta|) <= Q_TOL ...
 #define Q_RESIDUAL 1e-9lf      // ... or after Q_MAX_ITER accept a residual <= this x the patch size

@@ -10,8 +10,10 @@
 // pixels write the box-filtered grey (and mean depth) and mark their count LIST_DONE; the
 // others are left to the per-sample passes, which skip done pixels, and then to the box filter
 // (downsample.frag with SKIP_DONE), which leaves done pixels as this pass wrote them.
-#define PIXEL_LOOP
-#include "deform.frag"
+layout(early_fragment_tests) in;
+#include "sample_map.glsl"
+#include "shading.glsl"
+#include "frag_targets.glsl"
 
 #ifdef FP64
 #define SUBSAMPLE_TOL 1e-7lf
@@ -67,10 +69,7 @@ void main() {
             real2 ref;
             float grey = u_background;
             if (exact_reference(e, xi, eta, ref) && inside_reference(ref)) {
-                grey = sample_ref(ref);
-#ifdef LIGHTING
-                grey = combine(grey, light_at(e, xi, eta));
-#endif
+                grey = shade_sample(e, xi, eta, ref);
                 zacc += float(Z);
                 zn += 1.0;
             } else {

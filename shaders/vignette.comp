@@ -1,3 +1,8 @@
-// vignette.frag as a compute pass (the pixel stage "compute"; pixelpass.glsl).
-#define COMPUTE_PIXELS
-#include "vignette.frag"
+// Vignetting (vignette.glsl) as a compute pass.
+#include "comp_grey.glsl"
+#include "vignette.glsl"
+
+void main() {
+    if (PASS_OUTSIDE) return;
+    PASS_WRITE(vignette(PASS_PIXEL));
+}

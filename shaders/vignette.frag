@@ -1,11 +1,7 @@
-// Vignetting (glsim/effects/vignetting.py): the irradiance times the camera's gain, per pixel.
-#define GREY_PASS
-#include "pixelpass.glsl"
-layout(binding = SAMPLER_SRC) uniform sampler2D u_src;
-layout(binding = SAMPLER_GAIN) uniform sampler2D u_gain;   // R32F (H, W): the float64 gain rounded to float32
+// Vignetting (vignette.glsl) as a fragment pass.
+#include "frag_grey.glsl"
+#include "vignette.glsl"
 
 void main() {
-    if (PASS_OUTSIDE) return;
-    ivec2 p = PASS_PIXEL;
-    PASS_WRITE(texelFetch(u_src, p, 0).r * texelFetch(u_gain, p, 0).r);
+    PASS_WRITE(vignette(PASS_PIXEL));
 }

@@ -150,7 +150,7 @@ def test_wheel_ships_shaders_and_renders(tmp_path):
     wheel, = wheel_dir.glob("glsim-*.whl")
     import zipfile
     names = zipfile.ZipFile(wheel).namelist()
-    assert "glsim/shaders/deform.frag" in names and "glsim/shaders/camera.glsl" in names
+    assert "glsim/shaders/single.frag" in names and "glsim/shaders/camera.glsl" in names
     packages = {str(f.relative_to(ROOT)) for f in (ROOT / "glsim").rglob("__init__.py")}
     assert packages <= set(names), f"add {sorted(packages - set(names))} to pyproject's packages"
     assert not [n for n in names if n.startswith("tools/")], "the repository's tools/ is not part of the wheel"

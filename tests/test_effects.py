@@ -118,18 +118,18 @@ def test_programs_carry_only_the_scene_effects(effects_scene, gl_ctx, stage):
             r.backend.stage = stage
             res = r.render(0, 1, mode="exact")
             compiled = r.backend.programs.compiled
-        deform = [d for files, d in compiled if files[-1] == f"deform.{ext}" and "FALLBACK" not in d]
+        deform = [d for files, d in compiled if files[-1] == f"single.{ext}"]
         assert len(deform) == 1
-        extra = set(deform[0]) - {"MODE_EXACT", "INTERP_BSPLINE3", "SS", "FP64", "EARLY_TESTS", "REF_PINHOLE", "PIXEL_TIES"}
+        extra = set(deform[0]) - {"MODE_EXACT", "INTERP_BSPLINE3", "SS", "FP64", "REF_PINHOLE", "PIXEL_TIES"}
         assert extra == expect, effect
         # rays: exact mode's ray map; view.comp, candidates.comp, classify, resolve: its per-view
         # element pass (covers on the GPU), the candidate lists, their layers, and the indirect
         # draws or dispatches pass 1 enables (big covers' candidates.frag, resolve for pixels
-        # with several candidates, deform.frag's FALLBACK): compiled always, run where needed;
+        # with several candidates, overflow.frag): compiled always, run where needed;
         # shape.comp: the step's shape filter, once per load step
-        passes = {files[-1] for files, _ in compiled} - {"deform.frag", "rays.frag", "view.comp", "candidates.comp",
+        passes = {files[-1] for files, _ in compiled} - {"overflow.frag", "rays.frag", "view.comp", "candidates.comp",
                                                          "candidates.frag", f"classify.{ext}", f"resolve.{ext}",
-                                                         f"deform.{ext}", "shape.comp"}
+                                                         f"single.{ext}", "shape.comp"}
         assert passes == {"lighting": set(), "optics": {f"blur.{ext}"}, "noise": {f"noise.{ext}"}, None: set()}[effect]
         assert ("noise" in res.stages) == (effect == "noise")
 

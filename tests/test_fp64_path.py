@@ -34,7 +34,7 @@ FLOAT32_LITERALS = {
     ("quadratic.glsl", "1e-6"): "Q_TOL of float32 builds",
     ("quadratic.glsl", "1e-5"): "Q_RESIDUAL of float32 builds",
     ("subsamples.frag", "1e-4"): "SUBSAMPLE_TOL of float32 builds",
-    ("blur.frag", "3.194528"): "a float constant of the float32 blur",
+    ("blur_expansion.glsl", "3.194528"): "a float constant of the float32 blur",
     ("noise.glsl", "6.283185307179586"): "2π in the float32 noise",
     ("shade.glsl", "0.2"): "a float32 series coefficient of the Phong shading",
     ("raymap.glsl", "1e30"): "NO_RAY test of float32 builds (any value ≥ 1e30 is NO_RAY)",
@@ -89,7 +89,7 @@ def test_double_literals_are_thresholds_only():
 # holds values float32 represents exactly
 EXACT_FLOAT_SOURCES = {
     "gl_FragCoord": "half-integer pixel coordinates (< 2^23)",
-    "at": "the compute pixel stage's sample (deform.frag's FRAG_COORD: vec2(at) + 0.5, as gl_FragCoord)",
+    "at": "pass 2's sample texel (owners.glsl's locate_sample: vec2(at) + 0.5, gl_FragCoord in a fragment pass)",
     "u_ref_size": "the reference image's width and height in px (integers)",
     "u_size": "the image's width and height in px (integers)",
     "hl": "fp64_probe.comp writes split_double's float32 halves out as doubles",

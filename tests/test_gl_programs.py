@@ -20,12 +20,14 @@ GLSL_DIR = Path(__file__).parent / "glsl"
 
 
 def test_assemble_resolves_includes_once_and_maps_lines():
-    src = assemble("deform.frag", {"MODE_EXACT": None, "INTERP_LINEAR": None, "SS": 2})
+    src = assemble("single.frag", {"MODE_EXACT": None, "INTERP_LINEAR": None, "SS": 2})
     assert src.text.startswith("#version 450 core\n")
     assert "#define SS 2" in src.text and "#include" not in src.text
-    assert src.text.count("real2 distort(real2 xn") == 1       # camera.glsl included once
+    assert src.text.count("real2 distort(real2 xn") == 1       # camera.glsl included once (by several files)
     line = src.text.splitlines().index("void main() {") + 1
-    assert src.locate(line).startswith("deform.frag:")
+    assert src.locate(line).startswith("single.frag:")
+    line = next(i for i, t in enumerate(src.text.splitlines(), 1) if t.startswith("bool map_single("))
+    assert src.locate(line).startswith("owners.glsl:")
 
 
 _LOOPS = """#define N 3
@@ -204,22 +206,19 @@ def test_glsl_invert_closed_matches_the_oracle(gl_ctx):
 @pytest.mark.parametrize("stage", ["fragment", "compute"])
 def test_programs_compiled_only_with_what_the_scene_asks_for(gl_ctx, stage):
     """The GL program's #defines are exactly the scene's choices: mode, interpolation,
-    supersampling and precision (and EARLY_TESTS, which every full-screen pass 2 program of the
-    fragment stage has; the overflow fallback's program adds FALLBACK); a scene without truth
-    maps compiles no truth outputs."""
+    supersampling and precision (the pass is the entry file: single.frag or single.comp on the
+    single-candidate pixels, overflow.frag on the overflowed lists; no define selects a role);
+    a scene without truth maps compiles no truth outputs."""
     scene = bulge_scene(size=(203, 154), steps=1, mode="q4", interpolation="cubic", samples_per_pixel=4)
     with Renderer(scene, "gl", ctx=gl_ctx) as r:
         r.backend.stage = stage
         r.render(0, 1)
         compiled = r.backend.programs.compiled
     scene_defines = {"MODE_Q4": None, "INTERP_CUBIC": None, "SS": 2, "FP64": None}
-    deform = [d for files, d in compiled if "deform.frag" in files]
-    if stage == "fragment":
-        assert deform == [{**scene_defines, "EARLY_TESTS": None}, {**scene_defines, "FALLBACK": None}]
-    else:
-        assert deform == [{**scene_defines, "FALLBACK": None}]
-        assert [d for files, d in compiled if files == ("deform.comp",)] == [scene_defines]
     ext = {"fragment": "frag", "compute": "comp"}[stage]
+    for entry in (f"single.{ext}", "overflow.frag"):
+        assert [d for files, d in compiled if files[-1] == entry] == [scene_defines]
+    assert [files for files, d in compiled if files[-1] == "overflow.frag"] == [("exact.vert", "overflow.frag")]
     assert [d for files, d in compiled if f"downsample.{ext}" in files] == [{"SS": 2}]
 
 
@@ -234,13 +233,13 @@ def test_fast_mode_compiles_no_double_arithmetic(gl_ctx, stage):
         r.backend.stage = stage
         r.render(0, 1, truth=True)
         compiled = r.backend.programs.compiled
-    plain = {"MODE_FAST", "INTERP_BSPLINE3", "SS", "TRUTH"}
+    plain = {"INTERP_BSPLINE3", "SS", "TRUTH"}
     shape = (("shape.comp",), set())
     if stage == "fragment":
-        assert [(files, set(d)) for files, d in compiled] == [shape, (("deform.vert", "fast.geom", "deform.frag"), plain)]
+        assert [(files, set(d)) for files, d in compiled] == [shape, (("deform.vert", "fast.geom", "fast.frag"), plain)]
     else:
         assert [(files, set(d)) for files, d in compiled] == [
-            shape, (("deform.vert", "fast.geom", "deform.frag"), plain | {"FAST_VISIBILITY"}), (("deform.comp",), plain)]
+            shape, (("deform.vert", "fast_records.geom", "fast_ids.frag"), plain), (("fast_shade.comp",), plain)]
 
 
 def test_missing_egl_gives_one_clear_error(monkeypatch):
@@ -447,3 +446,36 @@ def test_a_table_sampler_without_its_layout_is_refused(gl_ctx, tmp_path):
                                           r"layout\(binding = SAMPLER_SRC\)"):
         cache.program("fullscreen.vert", "bad.frag")
     cache.release()
+
+
+def _packaged():
+    from importlib import resources
+
+    return {f.name: f.read_text() for f in resources.files("glsim.shaders").iterdir()
+            if f.name.endswith((".glsl", ".frag", ".comp", ".vert", ".geom"))}
+
+
+def test_every_packaged_entry_file_is_one_entry_point():
+    """Each packaged .frag, .comp, .vert and .geom has one main and includes only the .glsl
+    library (no entry file includes another); no .glsl has a main; each fragment entry has its
+    program in programs.PROGRAMS; and no shader file is over 250 lines."""
+    from glsim.backends.gl.programs import PROGRAMS
+
+    files = _packaged()
+    for name, text in files.items():
+        mains = len(re.findall(r"^\s*void\s+main\s*\(", text, re.M))
+        assert mains == (0 if name.endswith(".glsl") else 1), (name, mains)
+        included = re.findall(r'^\s*#include\s+"([^"]+)"', text, re.M)
+        assert all(f.endswith(".glsl") and f in files for f in included), (name, included)
+        assert len(text.splitlines()) <= 250, (name, len(text.splitlines()))
+    assert {n for n in files if n.endswith(".frag")} == set(PROGRAMS)
+    assert all(set(stages) <= set(files) for stages in PROGRAMS.values())
+
+
+def test_no_define_selects_a_shader_role():
+    """The pass is the entry file: none of the defines that once chose a role inside a shared
+    file (the pixel stage, the pass 2 variant, the list reader or writer) is left."""
+    gone = ("COMPUTE_PIXELS", "EARLY_TESTS", "FALLBACK", "RESOLVE", "PIXEL_LOOP", "FAST_VISIBILITY",
+            "CANDIDATE_TEXTURES", "LIST_WRITER", "GREY_PASS", "MODE_FAST")
+    used = {(name, d) for name, text in _packaged().items() for d in gone if re.search(rf"\b{d}\b", text)}
+    assert not used, sorted(used)

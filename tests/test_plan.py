@@ -26,7 +26,7 @@ def test_exact_float64_plan():
     assert {"MODE_EXACT", "FP64", "TRUTH", "TRUTH_LO", "REF_PINHOLE", "PIXEL_TIES"} <= set(d) and d["SS"] == 1
     assert p.rays == "bits" and p.ref == "REF_PINHOLE" and not p.camera_local and not p.subsamples
     assert shaders(p) == ["rays.frag", "view.comp", "candidates.comp", "candidates.frag", "classify.frag",
-                          "deform.frag", "resolve.frag", "deform.frag"]
+                          "single.frag", "resolve.frag", "overflow.frag"]
     assert [x.when for x in p.passes if x.when] == ["uncached", "big", "several", "overflow"]
 
 
@@ -40,7 +40,7 @@ def test_float32_exact_and_drivers_without_float64():
 
 def test_fast_q4_and_curved_plans():
     fast = plan(Render(mode="fast", samples_per_pixel=4), True, True, None, PIN, PIN)
-    assert shaders(fast) == ["deform.frag", "downsample.frag"] and "FP64" not in fast.define_dict
+    assert shaders(fast) == ["fast.frag", "downsample.frag"] and "FP64" not in fast.define_dict
     assert "TRUTH" not in fast.define_dict      # truth maps only at 1 spp (a second render)
     q4 = plan(Render(mode="q4"), False, True, None, PIN, PIN, pieces=4)
     assert {"MODE_Q4", "FP64", "QUADRATIC"} <= set(q4.define_dict) and q4.define_dict["PIECES"] == 4
@@ -109,11 +109,11 @@ def test_the_pixel_stage_is_the_drivers_and_fast_draws_its_triangles_in_both():
     assert pixel_stage(True) == "fragment" and pixel_stage(False) == "compute"
     p = plan(Render(mode="exact", samples_per_pixel=4), True, True, None, PIN, PIN, stage="compute")
     assert p.stage == "compute" and "classify.frag" not in shaders(p)
-    assert shaders(p)[-5:] == ["classify.comp", "deform.comp", "resolve.comp", "deform.frag",   # (overflow: covers)
+    assert shaders(p)[-5:] == ["classify.comp", "single.comp", "resolve.comp", "overflow.frag",   # (overflow: covers)
                                "downsample.comp"]
     assert p.define_dict == plan(Render(mode="exact", samples_per_pixel=4), True, True, None, PIN, PIN).define_dict
     fast = plan(Render(mode="fast", samples_per_pixel=4), False, True, None, PIN, PIN, stage="compute")
-    assert shaders(fast) == ["deform.frag", "deform.comp", "downsample.comp"]   # (the triangles' indices, then shaded)
+    assert shaders(fast) == ["fast_ids.frag", "fast_shade.comp", "downsample.comp"]   # (the triangles' indices, then shaded)
 
 
 @pytest.mark.gl
@@ -189,12 +189,12 @@ def test_the_compute_pixel_stage_gives_the_fragment_stages_bytes(gl_ctx):
 
     fragment, ran_f = renders("fragment")
     compute, ran_c = renders("compute")
-    assert {"classify.comp", "deform.comp", "resolve.comp", "downsample.comp", "quantize.comp"} <= ran_c
-    assert not {"classify.comp", "deform.comp", "resolve.comp", "downsample.comp", "quantize.comp"} & ran_f
+    assert {"classify.comp", "single.comp", "resolve.comp", "downsample.comp", "quantize.comp"} <= ran_c
+    assert not {"classify.comp", "single.comp", "resolve.comp", "downsample.comp", "quantize.comp"} & ran_f
     assert "classify.frag" in ran_f and "classify.frag" in ran_c   # (compute: Newton's pixels at 1 spp only)
     assert {"blur.comp", "noise.comp", "vignette.comp", "psf.comp", "fpn.comp"} <= ran_c
-    assert not {x for x in ran_c if x.endswith(".frag")} - {"deform.frag", "classify.frag", "subsamples.frag",
-                                                           "rays.frag", "candidates.frag"}
+    assert not {x for x in ran_c if x.endswith(".frag")} - {"overflow.frag", "classify.frag", "subsamples.frag",
+                                                           "rays.frag", "candidates.frag", "fast_ids.frag"}
     assert len(fragment) == len(compute)
     for a, b in zip(fragment, compute):
         np.testing.assert_array_equal(a, b)

@@ -348,8 +348,9 @@ def test_bench_scaling_reduced_run_writes_elsewhere(tmp_path, capsys, gl_ctx):
             assert row["median_s"] > 0 and row["host_ms"] >= 0 and row["coverage"] > 0.3
             # the render timed pass by pass: every pass named by its shader, within its wall time
             assert 0 < sum(row["passes"].values()) <= row["passes_wall_s"]
-        assert {"view.comp", "candidates.comp", f"classify.{ext}", f"deform.{ext}"} <= set(r["renderers"]["exact"]["passes"])
-        assert set(r["renderers"]["fast"]["passes"]) == {"deform.frag", "deform.comp"} if ext == "comp" else {"deform.frag"}
+        assert {"view.comp", "candidates.comp", f"classify.{ext}", f"single.{ext}"} <= set(r["renderers"]["exact"]["passes"])
+        assert set(r["renderers"]["fast"]["passes"]) == ({"fast_ids.frag", "fast_shade.comp"} if ext == "comp"
+                                                         else {"fast.frag"})
         assert r["peak_rss_mb"] > 0
     assert [g["met"] for g in report["goals"]][:3] == [None, None, None]   # 128k and 2k not measured
     md = (tmp_path / "scaling.md").read_text()

@@ -165,7 +165,7 @@ class GLBackend(ImagePasses):
         return lambda prog: tex.use(_REF_UNIT)
 
     def dropped_counter(self):
-        """deform.frag's count of samples mapping outside the reference (zero at each frame's start)."""
+        """Pass 2's count of samples mapping outside the reference (zero at each frame's start)."""
         return self.resources.get(("dropped",), lambda: self.ctx.buffer(bytes(4)))
 
     def patch_buffers(self, patches, mode: str, fp64: bool):

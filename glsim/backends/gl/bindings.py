@@ -9,7 +9,7 @@ below 8, its least number per compute shader."""
 from __future__ import annotations
 
 STORAGE = {
-    "ELEMENTS": 0,      # per-view element records (view.comp → deform.frag)
+    "ELEMENTS": 0,      # per-view element records (view.comp → pass 2: sample_map.glsl)
     "NORMALS": 1,       # the step's corner normals (lighting)
     "DOTS": 2,          # procedural speckle: dots
     "DOT_CELLS": 3,     # procedural speckle: its grid cells
@@ -28,13 +28,13 @@ STORAGE = {
     "LOCAL": 16,        # float32 exact: per-element camera-frame records (CAMERA_LOCAL)
     "REF_PINHOLE": 17,  # float64 exact, pinhole reference: per-element blends
     "PATCH_NODES": 18,  # quadratic patches: the step's control points
-    "PIXEL_LISTS": 19,  # the compute pixel stage's pixels by layer (classify.comp → deform.comp)
-    "FAST_TRIANGLES": 20,  # the compute pixel stage's fast triangles (fast.geom → deform.comp)
+    "PIXEL_LISTS": 19,  # the compute pixel stage's pixels by layer (classify.comp → single.comp, resolve.comp)
+    "FAST_TRIANGLES": 20,  # the compute pixel stage's fast triangles (fast_records.geom → fast_shade.comp)
 }
 IMAGES = {"CAND_COUNT": 0, "CAND_LIST": 1,   # candidate lists (candidates.glsl)
-          # the deformation target written by the compute pixel stage (deform.comp, resolve.comp)
+          # the deformation target written by the compute pixel stage (single.comp, resolve.comp, fast_shade.comp)
           "GREY": 2, "MAP": 3, "EXTRA": 4, "LO": 5, "DEPTH": 6,
-          "PASS_OUT": 7,   # a full-screen pass's output in the compute stage (pixelpass.glsl)
+          "PASS_OUT": 7,   # a full-screen pass's output in the compute stage (comp_pass.glsl)
           "PASS_OUT_B": 6}  # its second (blur.frag's row moments): DEPTH's unit, never bound in the same pass
 SAMPLERS = {           # by the sampler's uniform name (SAMPLER_<name without u_, upper case>)
     "u_ref": 0,        # the reference speckle image (interp.glsl)

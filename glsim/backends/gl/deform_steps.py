@@ -5,7 +5,7 @@
 Pass 1 (exact, q4): view.comp's element records and covers, the candidate lists
 (candidates.comp, then candidates.frag for covers too large for it). Pass 2 at s×s samples per
 pixel into the deformation target: in mode fast the element triangles with a depth test (compute
-stage: their indices, then deform.comp shading each sample); in exact and q4 the full-screen
+stage: their indices, then fast_shade.comp shading each sample); in exact and q4 the full-screen
 programs on classify.frag's depth layers (compute stage: over classify.comp's pixel lists,
 dispatched indirectly) and the overflow fallback's cover rectangles. With Newton sub-samples,
 subsamples.frag at W×H first finishes the single-candidate pixels.
@@ -82,7 +82,7 @@ def target(b, width: int, height: int, truth: bool, lo: bool, depth_out: bool):
 def bindings(b, st: FrameState, lit) -> None:
     """Set ``st.bind()`` (the storage buffers of pass 2, bound once before it: pass 1 may bind
     the float64 nodes at the same points) and ``st.setup(prog)`` (the textures and uniforms of
-    deform.frag and its vertex shaders). Every uniform is written on every use: programs are
+    pass 2's programs). Every uniform is written on every use: programs are
     shared per context, so a value left by another renderer must not carry over. ``lit``:
     (flat normals, the lights' uniforms) or None."""
     view, p, geo, patches = st.view, st.plan, st.geo, st.patches
@@ -120,11 +120,11 @@ def bindings(b, st: FrameState, lit) -> None:
 
 def list_program(b, st: FrameState, frag: str, target_fbo, layer: float, textures=None, uniforms=None,
                  indirect: int | None = None) -> None:
-    """One full-screen program of pass 2 (lists.vert at window depth ``layer``, early depth
-    tests) into ``target_fbo``; ``indirect``: drawn by that command of pass 1's draws (only where
+    """One full-screen program of pass 2 (lists.vert at window depth ``layer``; the entry file
+    ``frag`` tests depth early) into ``target_fbo``; ``indirect``: drawn by that command of pass 1's draws (only where
     pass 1 found work for it)."""
     W, H = st.size
-    prog = b.programs.program("lists.vert", frag, defines={**st.defines, "EARLY_TESTS": None})
+    prog = b.programs.entry(frag, st.defines)
     st.setup(prog)
     st.geo.bind_lists(W, H, textures=True)
     for name, tex in (textures or {}).items():
@@ -183,7 +183,7 @@ def newton(b, st, ps) -> None:
     """The single-candidate pixels done from their centre by Newton (subsamples.frag)."""
     ctx, (W, H) = b.ctx, st.size
     fbo = target(b, W, H, False, False, "DEPTH_OUT" in st.defines)[0]
-    list_program(b, st, "subsamples.frag", fbo, LAYERS["deform.frag"], {"u_centre_rays": st.centre_rays},
+    list_program(b, st, "subsamples.frag", fbo, LAYERS["single.frag"], {"u_centre_rays": st.centre_rays},
                  {"u_background": float(st.opts.background)})
     ctx.depth_func, fbo.depth_mask = "<", True
     ctx.memory_barrier()   # its LIST_DONE marks seen by the passes below
@@ -209,7 +209,7 @@ def _sample_target(b, st):
 
 
 def _target_images(st) -> tuple[int, ...]:
-    """The image units deform.comp writes the deformation target's textures through, in the
+    """The image units single.comp, resolve.comp and fast_shade.comp write the deformation target's textures through, in the
     order of :func:`target`'s colors."""
     d = st.defines
     names = ["GREY", *(["MAP", "EXTRA"] if st.truth else []), *(["LO"] if "TRUTH_LO" in d else []),
@@ -221,7 +221,7 @@ def fast(b, st, ps) -> None:
     """Mode fast: the element triangles, projected in the vertex stage, with a depth test."""
     st.bind()
     _sample_target(b, st)
-    prog = b.programs.program("deform.vert", "deform.frag", defines=st.defines, geometry="fast.geom")
+    prog = b.programs.entry("fast.frag", st.defines)
     st.setup(prog)
     b.ctx.enable(b.ctx.DEPTH_TEST)
     st.geo.draw(prog)
@@ -230,8 +230,8 @@ def fast(b, st, ps) -> None:
 
 def fast_ids(b, st, ps) -> None:
     """Mode fast in the compute pixel stage: the element triangles drawn as in the fragment
-    stage (the same depth test and discards) into a target of triangle indices, fast.geom
-    keeping their records (FAST_VISIBILITY)."""
+    stage (the same depth test and discards) into a target of triangle indices,
+    fast_records.geom keeping their records (fast_ids.frag)."""
     ctx, (W, H), s = b.ctx, st.size, st.s
     st.bind()
     _sample_target(b, st)
@@ -245,8 +245,7 @@ def fast_ids(b, st, ps) -> None:
     fbo.use()
     fbo.viewport = (0, 0, w, h)
     st.geo.fast_records().bind_to_storage_buffer(storage("FAST_TRIANGLES"))
-    prog = b.programs.program("deform.vert", "deform.frag", defines={**st.defines, "FAST_VISIBILITY": None},
-                              geometry="fast.geom")
+    prog = b.programs.entry("fast_ids.frag", st.defines)
     st.setup(prog)
     ctx.enable(ctx.DEPTH_TEST)
     st.geo.draw(prog)
@@ -255,15 +254,15 @@ def fast_ids(b, st, ps) -> None:
 
 
 def fast_shade(b, st, ps) -> None:
-    """deform.comp shading every sample from its triangle's record."""
+    """fast_shade.comp shading every sample from its triangle's record."""
     w, h = st.size[0] * st.s, st.size[1] * st.s
     ids = b.resources.latest("visibility", (w, h), None)[1]
-    comp = b.programs.compute("deform.comp", st.defines)
+    comp = b.programs.compute("fast_shade.comp", st.defines)
     st.setup(comp)
     ids.use(sampler("u_visibility"))
     for unit, tex in zip(_target_images(st), st.color):
         tex.bind_to_image(unit, read=False, write=True)
-    comp.run((w + 15) // 16, (h + 7) // 8)   # deform.frag's work groups in mode fast
+    comp.run((w + 15) // 16, (h + 7) // 8)   # fast_shade.comp's work groups
     b.ctx.memory_barrier()
 
 
@@ -279,7 +278,7 @@ def pixel_lists(b, st, ps) -> None:
 
 
 def listed(b, st, ps) -> None:
-    """deform.comp or resolve.comp over their pixel list, dispatched indirectly."""
+    """single.comp or resolve.comp over their pixel list, dispatched indirectly."""
     prog = b.programs.compute(ps.shader, st.defines)
     st.setup(prog)
     prog.run_indirect(st.textures["lists"], LAYER_DISPATCH[ps.shader])
@@ -297,7 +296,7 @@ def layers(b, st, ps) -> None:
 
 
 def layer(b, st, ps) -> None:
-    """deform.frag on the single-candidate layer, or resolve.frag on the several-candidate one
+    """single.frag on the single-candidate layer, or resolve.frag on the several-candidate one
     (drawn only where pass 1 found such pixels)."""
     W, H, s = *st.size, st.s
     fbo = target(b, W * s, H * s, st.truth, "TRUTH_LO" in st.defines, "DEPTH_OUT" in st.defines)[0]
@@ -311,7 +310,7 @@ def overflow(b, st, ps) -> None:
     """Pixels with more candidates than the lists hold: the cover rectangles (drawn only where
     pass 1 found such pixels)."""
     ctx, (W, H) = b.ctx, st.size
-    prog = b.programs.program("exact.vert", "deform.frag", defines={**st.defines, "FALLBACK": None})
+    prog = b.programs.entry("overflow.frag", st.defines)
     st.setup(prog)
     st.geo.bind_lists(W, H, textures=True)
     ctx.enable(ctx.DEPTH_TEST)

@@ -5,7 +5,7 @@ Buffers (std430 bindings, see ``shaders/view.glsl``): 5 connectivity (ivec4 per 
 6 the step's deformed nodes relative to the mesh's origin, 7 reference-image coordinates per
 node, 8 undeformed nodes in the reference camera's frame, 10 the warnings' bitsets, 11 the
 step's shape filter (``shaders/shape.comp``); per view, written by ``view.comp``: 0 the element
-records deform.frag reads, 9 the cover rectangles exact.vert draws. Node data exist in float64
+records pass 2 reads (sample_map.glsl), 9 the cover rectangles exact.vert draws. Node data exist in float64
 for FP64 programs and float32 for the others, each made when first needed.
 
 The CPU work per view and per load step hardly depends on the element count: uniforms, a
@@ -36,10 +36,10 @@ SHAPE_BIAS, SHAPE_BINS = 150, 280   # shaders/shape.comp's histogram of area bou
 SHAPE_BYTES = 4 * (4 + SHAPE_BINS)
 CANDIDATES = 8       # candidates.glsl: elements listed per pixel before it overflows
 # classify.frag's window depths: the full-screen pass 2 program run on each (lists.vert)
-LAYERS = {"deform.frag": 0.25, "resolve.frag": 0.5}
+LAYERS = {"single.frag": 0.25, "resolve.frag": 0.5}
 # the compute stage's layers: their dispatch commands' byte offsets in the lists' buffer, and
 # what the buffer starts as (pixellists.glsl: no groups yet, lengths 0)
-LAYER_DISPATCH = {"deform.comp": 0, "resolve.comp": 12}
+LAYER_DISPATCH = {"single.comp": 0, "resolve.comp": 12}
 _LAYERS_START = np.array([0, 1, 1, 0, 1, 1, 0, 0], np.uint32).tobytes()
 _MAX_GROUPS = 65535  # per dispatch dimension
 _CAND_COUNT, _CAND_LIST, _TIGHT = image("CAND_COUNT"), image("CAND_LIST"), storage("TIGHT")
@@ -133,7 +133,7 @@ class GeometryBuffers:
         return np.asarray(Xr, np.float64).reshape(-1, 3)[np.asarray(self.geo.quads)]
 
     def ref_local_buffer(self, intrinsics: tuple):
-        """Per element, 20 float32 (binding REF_LOCAL, deform.frag): its undeformed corners in
+        """Per element, 20 float32 (binding REF_LOCAL, sample_map.glsl): its undeformed corners in
         the reference camera's frame relative to their centre X̄ (4 × 3, mm), X̄ (3), 0, and the
         reference pixel of X̄ as float32 hi (2) + lo (2) — all from float64, so that a float32
         shader projects X̄ + Δ as ū + J Δ-exact differences, not 600 mm positions (made once)."""
@@ -153,7 +153,7 @@ class GeometryBuffers:
         return self._bufs[key]
 
     def ref_pinhole_buffer(self, intrinsics: tuple):
-        """Per element, 12 float64 (binding REF_PINHOLE, deform.frag): its undeformed corners
+        """Per element, 12 float64 (binding REF_PINHOLE, sample_map.glsl): its undeformed corners
         in a pinhole reference camera's frame as (fx X + skew Y + cx Z, fy Y + cy Z, Z) (px·mm,
         px·mm, mm), so that the reference pixel of a point is their bilinear blend divided by
         its third component (made once)."""
@@ -223,7 +223,7 @@ class GeometryBuffers:
     def normals(self, view: ViewSpec, flat: bool):
         """The step's unit corner normals in the world frame (the lighting's: per element for
         ``flat``, else per node, area-weighted; float32, 12 per element), computed and uploaded
-        once per step (binding NORMALS when lit; kept as the step's nodes are); deform.frag
+        once per step (binding NORMALS when lit; kept as the step's nodes are); shading.glsl
         rotates them into the camera's frame."""
         def make():
             from glsim.effects import lighting as shade
@@ -257,7 +257,7 @@ class GeometryBuffers:
         """view.comp on ``view`` (its camera's and its own ``uniforms``): element records
         (binding ELEMENTS), cover rectangles (COVER, grown by ``grow`` px for pass 1 at pixel
         resolution) and tight rectangles (TIGHT); with ``local`` (exact, float64) also the float32
-        records of deform.frag's CAMERA_LOCAL (LOCAL)."""
+        records of sample_map.glsl's CAMERA_LOCAL (LOCAL)."""
         defines = {f"MODE_{mode.upper()}": None, **({"FP64": None} if fp64 else {}),
                    **({"RECORD_LOCAL": None} if local else {})}
         prog = self.programs.compute("view.comp", defines)
@@ -356,7 +356,7 @@ class GeometryBuffers:
         (classify.frag into ``depth_only``, the deformation target's depth buffer at s×s samples
         per pixel, cleared to 1; depth test on)."""
         prog = self.programs.program("lists.vert", "classify.frag", defines={
-            "SS": s, "LAYER_SINGLE": LAYERS["deform.frag"], "LAYER_MULTIPLE": LAYERS["resolve.frag"]})
+            "SS": s, "LAYER_SINGLE": LAYERS["single.frag"], "LAYER_MULTIPLE": LAYERS["resolve.frag"]})
         set_uniform(prog, "u_layer", 0.0)
         self.bind_lists(W, H)
         depth_only.use()

@@ -2,7 +2,7 @@
 depth-of-field blur, camera effects, noise, quantisation — drawn into the backend's textures or
 scratch textures lent per frame (:class:`ImagePasses`, a part of
 :class:`glsim.backends.gl.backend.GLBackend`); each also as a compute pass (the compute pixel
-stage: glsim.backends.gl.plan; shaders/pixelpass.glsl). :meth:`ImagePasses.image_step` runs one
+stage: glsim.backends.gl.plan; shaders/comp_pass.glsl). :meth:`ImagePasses.image_step` runs one
 plan pass over the frame's named textures.
 """
 from __future__ import annotations
@@ -70,7 +70,7 @@ class ImagePasses:
         if compute:
             for unit, tex in zip(_PASS_OUT, outs):
                 tex.bind_to_image(unit, read=False, write=True)
-            prog.run((W + 15) // 16, (H + 7) // 8)   # pixelpass.glsl's work groups
+            prog.run((W + 15) // 16, (H + 7) // 8)   # comp_pass.glsl's work groups
             ctx.memory_barrier()   # its image stores seen by the reads and passes after
         else:
             fbo.use()

@@ -10,12 +10,13 @@ indirect draws whose instance counts the candidate pass sets on the GPU (0: noth
 
 The pixel stage: "fragment" runs the exact and q4 modes' pass 2 as full-screen fragment
 programs on classify.frag's depth layers (early depth tests, so that each shades only its own
-samples) and every full-screen pass as a fragment pass; "compute" runs pass 2 as compute passes
-over classify.comp's lists of their pixels, dispatched indirectly (as many work groups as
-samples listed), and the box filter, the image effects and the quantisation as compute passes —
-the same code (deform.frag and each pass's shader with COMPUTE_PIXELS), the same bytes
-(tested). Mode fast draws its triangles in both; in the compute stage that fragment pass writes
-only each sample's triangle and deform.comp shades the samples from the triangles' records.
+samples: single.frag, resolve.frag) and every full-screen pass as a fragment pass; "compute"
+runs pass 2 as compute passes over classify.comp's lists of their pixels, dispatched indirectly
+(as many work groups as samples listed: single.comp, resolve.comp), and the box filter, the
+image effects and the quantisation as compute passes — each pass's .frag and .comp entry files
+share their code (the shaders' .glsl library), the same bytes (tested). Mode fast draws its
+triangles in both; in the compute stage that fragment pass (fast_ids.frag) writes only each
+sample's triangle and fast_shade.comp shades the samples from the triangles' records.
 :func:`pixel_stage` picks the stage per driver.
 """
 from __future__ import annotations
@@ -107,8 +108,9 @@ _NO_EFFECTS = EffectsShape()
 
 def deform_defines(opts, truth: bool, fp64: bool, fx: EffectsShape = _NO_EFFECTS) -> dict:
     """The #defines of the deformation program that follow from the options and effects alone."""
-    d = {f"MODE_{opts.mode.upper()}": None, f"INTERP_{opts.interpolation.upper()}": None,
-         "SS": opts.supersampling}
+    d = {f"INTERP_{opts.interpolation.upper()}": None, "SS": opts.supersampling}
+    if opts.mode != "fast":   # (mode fast's passes are its own entry files)
+        d[f"MODE_{opts.mode.upper()}"] = None
     if opts.precision == "fp64" and fp64 and opts.mode != "fast":
         d["FP64"] = None
     if truth:
@@ -147,8 +149,8 @@ def newton_subsamples(opts, s: int, quadratic: bool) -> bool:
 
 # the passes that integrate the pixels (the deformation pass's, the box filter)
 PIXEL_PASSES = {"rays.frag", "view.comp", "candidates.comp", "candidates.frag", "classify.frag", "subsamples.frag",
-                "deform.frag", "resolve.frag", "classify.comp", "deform.comp", "resolve.comp", "downsample.frag",
-                "downsample.comp"}
+                "fast.frag", "fast_ids.frag", "fast_shade.comp", "single.frag", "resolve.frag", "overflow.frag",
+                "classify.comp", "single.comp", "resolve.comp", "downsample.frag", "downsample.comp"}
 PIXEL_STAGES = ("fragment", "compute")
 
 
@@ -241,9 +243,9 @@ def _plan(opts, truth: bool, fp64_driver: bool, fx: EffectsShape, pinhole: bool,
     comp = stage == "compute"
     ext = "comp" if comp else "frag"   # the full-screen passes' in either stage
     passes: list[Pass] = []
-    if opts.mode == "fast":   # deform.vert, fast.geom: the element triangles (compute: their indices only)
-        passes += ([Pass("deform.frag", step="fast_ids"), Pass("deform.comp", step="fast_shade")] if comp
-                   else [Pass("deform.frag", step="fast")])
+    if opts.mode == "fast":   # the element triangles (compute: their indices only, then shaded)
+        passes += ([Pass("fast_ids.frag", step="fast_ids"), Pass("fast_shade.comp", step="fast_shade")] if comp
+                   else [Pass("fast.frag", step="fast")])
     else:
         if rays:
             passes.append(Pass("rays.frag", "uncached", step="rays"))
@@ -253,12 +255,12 @@ def _plan(opts, truth: bool, fp64_driver: bool, fx: EffectsShape, pinhole: bool,
             passes += [Pass("classify.frag", step="newton_layers"), Pass("rays.frag", "uncached", step="centre_rays"),
                        Pass("subsamples.frag", step="newton")]
         if comp:
-            passes += [Pass("classify.comp", step="pixel_lists"), Pass("deform.comp", step="listed"),
+            passes += [Pass("classify.comp", step="pixel_lists"), Pass("single.comp", step="listed"),
                        Pass("resolve.comp", "several", step="listed")]
         else:
-            passes += [Pass("classify.frag", step="layers"), Pass("deform.frag", step="layer"),
+            passes += [Pass("classify.frag", step="layers"), Pass("single.frag", step="layer"),
                        Pass("resolve.frag", "several", step="layer")]
-        passes.append(Pass("deform.frag", "overflow", step="overflow"))
+        passes.append(Pass("overflow.frag", "overflow", step="overflow"))
     if s > 1:   # grey, and the covered samples' mean depth
         passes.append(Pass(f"downsample.{ext}", step="box", inputs=(("u_samples", "samples"),), outputs=("grey",)))
         if blur:

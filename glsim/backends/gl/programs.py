@@ -30,6 +30,21 @@ _INCLUDE = re.compile(r'^\s*#include\s+"([^"]+)"\s*$')
 _UNROLL = re.compile(r"^\s*#pragma\s+unroll\s*$")
 _FOR = re.compile(r"^(\s*)for\s*\(\s*int\s+(\w+)\s*=\s*(\w+)\s*;\s*\2\s*(<=?)\s*(\w+)\s*;\s*(?:\+\+\2|\2\+\+)\s*\)\s*(.*)$")
 _INT_DEFINE = re.compile(r"^\s*#define\s+(\w+)\s+(-?\d+)\s*(?://.*)?$")
+# Each fragment entry file's program: the shader files before it (vertex, then geometry). Every
+# packaged .frag and .comp is one entry point (one main) that includes the .glsl library it
+# needs; a .comp is a program of its own.
+PROGRAMS = {
+    "fast.frag": ("deform.vert", "fast.geom"),
+    "fast_ids.frag": ("deform.vert", "fast_records.geom"),
+    "single.frag": ("lists.vert",),
+    "resolve.frag": ("lists.vert",),
+    "subsamples.frag": ("lists.vert",),
+    "overflow.frag": ("exact.vert",),
+    "classify.frag": ("lists.vert",),
+    "candidates.frag": ("exact.vert",),
+    **{f"{name}.frag": ("fullscreen.vert",) for name in ("rays", "downsample", "blur", "vignette", "psf", "fpn",
+                                                         "noise", "quantize")},
+}
 # Mesa: "0:12(5): error: ..."; NVIDIA: "0(12) : error C1008: ..."
 _LOG_LINE = re.compile(r"^\s*\d+[:(](\d+)\)?(?:\(\d+\))?\s*:\s*(.*)$")
 
@@ -235,6 +250,14 @@ class ProgramCache:
         """A compute shader."""
         return self._build((("source", name),), defines or {},
                            lambda source: self.ctx.compute_shader(source))
+
+    def entry(self, name: str, defines: dict | None = None):
+        """The program of the entry file ``name``: a compute shader (.comp), or a fragment shader
+        after the vertex (and geometry) shader :data:`PROGRAMS` gives it."""
+        if name.endswith(".comp"):
+            return self.compute(name, defines)
+        vertex, *geometry = PROGRAMS[name]
+        return self.program(vertex, name, defines, geometry[0] if geometry else None)
 
     def name_of(self, prog) -> str:
         """The file of ``prog``'s last stage (fragment or compute shader), "?" if not built here."""
