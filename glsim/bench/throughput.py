@@ -222,7 +222,7 @@ def table(report: dict) -> str:
                      f"{'yes' if r['same_bytes'] else 'NO'} | "
                      f"{ratio} | {shown} |")
     riley = next((r["riley"] for r in report["rows"]), "—")
-    lines += ["", f"Plate of issue 19 ({report['elements']} quad4, k1 = −0.1, Catmull–Rom cubic) at {W}×{H} px, "
+    lines += ["", f"The scaling plate ({report['elements']} quad4, k1 = −0.1, Catmull–Rom cubic) at {W}×{H} px, "
               f"both cameras of the 30° rig; {report['pairs']} pairs per way and repetition, {report['reps']} "
               f"interleaved repetitions after {report['warmup']} warm-up pairs, medians; pipelined: `render_many` "
               f"depth {report['depth']}; new step: as pipelined, each pair a load step not rendered before. "

@@ -105,7 +105,7 @@ def peer_rows(p: dict) -> str:
              "| grey RMS vs oracle |", "|---|---|---|---|---|---|---|"]
     lines += [f"| {r['renderer']} | {r['k1']:g} | {sig(r['glsim_over_riley'])} | {sig(r['riley_over_glsim'])} | "
               f"{sig(r['seconds'])} | {sig(r['map_rms_px'])} / {sig(r['map_max_px'])} | {sig(r['grey_rms'])} |" for r in ok]
-    lines += ["", "Issue 12's goals in that run:", "", "| goal | measured | met |", "|---|---|---|"]
+    lines += ["", "The peer goals in that run:", "", "| goal | measured | met |", "|---|---|---|"]
     lines += [f"| {g['goal']} | {g['measured']} | {'not measured' if g['met'] is None else 'yes' if g['met'] else 'no'} |"
               for g in p["goals"]]
     return "\n".join(lines)

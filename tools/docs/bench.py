@@ -61,7 +61,7 @@ def scaling_goals(sc: dict) -> str:
     pts = {r["elements"]: r for r in _sc_pts(sc)}
     t = lambda r, m: r["renderers"][m]["median_s"]
     big = [r for n, r in pts.items() if t(r, "exact") < t(r, "riley")]
-    lines = ["How the issue's goals fared on this machine (`goals` in scaling.json):", ""]
+    lines = ["How the scaling goals fared on this machine (`goals` in scaling.json):", ""]
     for g in sc["goals"]:
         lines.append(f"- **{g['goal']}: {'met' if g['met'] else 'not met' if g['met'] is False else 'not measured'}.** "
                      f"{g['measured']}.")
@@ -69,7 +69,7 @@ def scaling_goals(sc: dict) -> str:
         lines.append(f"- exact takes less time than riley from {min(r['elements'] for r in big):,} elements on ("
                      + ", ".join(ratio(t(r, 'exact'), t(r, 'riley')) for r in sorted(big, key=lambda r: r['elements']))
                      + "). Below that, the exact mode pays for its per-sample arithmetic: the float64 ray/patch "
-                     "intersection, the reference projection and the cubic taps (issue 12).")
+                     "intersection, the reference projection and the cubic taps.")
     sizes = _sc_pts(sc, "sizes")
     mpx = lambda r: r["size"][0] * r["size"][1] / 1e6
     lines += ["", "The host time grows with the pixel count instead: "
@@ -139,7 +139,7 @@ def preview(pre: dict) -> str:
             f"{machine_line(pre['machine'])} ({pre['date']}; load average about {load:.1f} on its "
             f"{pre['machine']['cores']} cores while it ran):\n\n" + "\n".join(f"- {p}" for p in parts) +
             f"\n\nDragging one parameter takes {ms(lo[1]['median_s'])} ({lo[0]}) to {ms(hi[1]['median_s'])} "
-            f"({hi[0]}, which makes a new reference) per frame (median). Goals of issue 11: ≥ {g['drag_fps']:g} frames/s "
+            f"({hi[0]}, which makes a new reference) per frame (median). The preview's goals: ≥ {g['drag_fps']:g} frames/s "
             f"dragging at 800×600 — {'met' if g['drag_met'] else 'not met'}; the 1624×1234 refinement within "
             f"{g['refine_s']:g} s — {'met' if g['refine_met'] else 'not met'}.")
 

@@ -157,7 +157,7 @@ def calibration_estimator_facts(det: dict) -> str:
     zero = _det_run(det, main)["methods"]
     return (f"The model fit's mean error is {sig(min(over_bound), 3)}–{sig(max(over_bound), 3)} times the Cramér–Rao bound at "
             f"{', '.join(format(r['noise_percent'], 'g') for r in noisy)} % noise, so at 2 % noise its "
-            f"{sig(two['methods']['fit']['mean'])} px is the information limit of these images: the issue's goal of "
+            f"{sig(two['methods']['fit']['mean'])} px is the information limit of these images: the detection goal of "
             "≤ 0.005 px mean sits on the bound, and nothing but sharper or less noisy images (or larger dots) goes "
             "below it. The grey-level centroid is exact without noise but takes in the noise of every pixel of its "
             "window, with the lever arm of its distance from the centre; the three 3 mm markers, smaller, suffer "
@@ -170,7 +170,7 @@ def calibration_estimator_facts(det: dict) -> str:
 
 
 def calibration_spread_facts(cal: dict) -> str:
-    """docs/calib.md: what the spread table says about the issue's goals, from calib_accuracy.json."""
+    """docs/calib.md: what the spread table says about the calibration goals, from calib_accuracy.json."""
     runs = cal["runs"]
     pp = ("cx1_px", "cy1_px", "cx2_px", "cy2_px")
     full, ten = runs["full"], runs["full_noise2"]
@@ -186,7 +186,7 @@ def calibration_spread_facts(cal: dict) -> str:
             f"{sig(full['detection']['centroid']['mean'])} px (mean); fed the *true* centroids it is exact (above). "
             f"With 2 % noise the detection is at its Cramér–Rao bound ({sig(s10['sigma_per_axis_px'])} px per axis), "
             f"and the spread table says what {ten['pairs']} pairs can then give: the same views with the true "
-            f"centroids plus Gaussian noise of the measured scatter. The issue's goals at 2 % and {ten['pairs']} pairs "
+            f"centroids plus Gaussian noise of the measured scatter. The calibration goals at 2 % and {ten['pairs']} pairs "
             "(cx, cy ≤ 0.05 px, |ΔT| ≤ 0.005 mm, rotation ≤ 0.001° together) are met by "
             f"{100 * s10['fraction_within_goals']:.0f} % of those {s10['draws']} draws; {own_text}.")
     for r in more:

@@ -1,5 +1,5 @@
 """Calibration targets, image libraries, detection, stereo calibration and Monte-Carlo studies
-(issue 4; see docs/calib.md).
+(see docs/calib.md).
 
 ``targets`` (DotGrid, Chessboard, Charuco as glsim specimens) → ``poses`` (roll, twist,
 plunge, translation, mixes over the field of view) → ``library`` (rendered stereo pairs, ground

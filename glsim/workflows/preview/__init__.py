@@ -1,4 +1,4 @@
-"""Interactive preview of a virtual stereo-DIC set-up (issue 11): :class:`Preview` (the
+"""Interactive preview of a virtual stereo-DIC set-up: :class:`Preview` (the
 headless core around one :class:`~glsim.render.Renderer`), ``Widget`` (Jupyter, jupyter-rfb)
 and the desktop window of ``glsim preview`` (glfw). See docs/preview.md."""
 from glsim.workflows.preview.core import Preview, draw_once
