@@ -93,9 +93,11 @@ class EffectsShape(NamedTuple):
 
     @classmethod
     def of(cls, fx) -> "EffectsShape":
-        """The shape of ``fx`` (an Effects or None: no effects)."""
+        """The shape of ``fx`` (an Effects, a shape, or None: no effects)."""
         if fx is None:
             return _NO_EFFECTS
+        if isinstance(fx, EffectsShape):
+            return fx
         lit, blur = fx.lighting, fx.blur
         return cls(None if lit is None else len(lit.lights), lit is not None and lit.combine == "multiplicative",
                    blur, blur_scheme(fx.optics) if blur else None, fx.aperture, fx.vignette is not None,
