@@ -1,6 +1,7 @@
 // Pass 2 of the exact and q4 modes: one triangle covering the viewport (as fullscreen.vert);
-// deform.frag finds each sample's elements in the candidate lists (v_elem unused). At window
-// depth u_layer: the pass runs where classify.frag put that layer (depth func EQUAL).
+// single.frag and resolve.frag find each sample's elements in the candidate lists (v_elem
+// unused). At window depth u_layer: the pass runs where classify.frag put that layer (depth
+// func EQUAL).
 flat out int v_elem;
 
 uniform float u_layer;

@@ -1,5 +1,5 @@
 // Per-view element pass (modes exact and q4): from the mesh uploaded once and the step's nodes,
-// each element's record for deform.frag, its conservative cover rectangle for exact.vert
+// each element's record for pass 2 (records.glsl), its conservative cover rectangle for exact.vert
 // (glsim.stages.view.cover_rectangles) and its problems for the warnings. Compile-time:
 // MODE_Q4 or MODE_EXACT, FP64, RECORD_LOCAL (with both: float32 records for CAMERA_LOCAL).
 #define COVER
@@ -17,9 +17,9 @@ layout(std430, binding = BINDING_ELEMENTS) writeonly buffer Elements { real elem
 layout(std430, binding = BINDING_COVER) writeonly buffer Cover { vec2 cover[]; };  // 4 corners per element (px)
 layout(std430, binding = BINDING_TIGHT) writeonly buffer Tight { vec4 tight[]; };  // 2 per element (candidates.glsl)
 #ifdef RECORD_LOCAL
-// float32 exact on a driver with float64 (deform.frag CAMERA_LOCAL), 32 float32 per element:
-// the corners (12, rounded), the corners relative to their centre C (12), C.z, 0, and
-// C.xy / C.z as hi (2) + lo (2), 0, 0 — made here in float64
+// float32 exact on a driver with float64 (sample_map.glsl's CAMERA_LOCAL), 32 float32 per
+// element: the corners (12, rounded), the corners relative to their centre C (12), C.z, 0,
+// and C.xy / C.z as hi (2) + lo (2), 0, 0 — made here in float64
 layout(std430, binding = BINDING_LOCAL) writeonly buffer Local { float elem_local[]; };
 #endif
 

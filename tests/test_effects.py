@@ -173,7 +173,7 @@ def _lambert_bound(r, scene, truth) -> np.ndarray:
     """Per lit pixel, how far GL's lit − unlit grey may lie from I_i·k_r·cos θ (first order in
     u = 2^-24): shade.glsl's float32 lighting and the additive combine on float32 inputs
     (closed_forms.phong), the inputs' own float32 errors — the point X (12u·|X|) and the normal, a
-    float32 world normal turned by the float32 rotation in deform.frag (8u) — through
+    float32 world normal turned by the float32 rotation in shading.glsl's light_at (8u) — through
     |∂I/∂X|, |∂I/∂N| (lighting.phong_gradient), the two renders' float32 samples of the
     reference at the same float64 point (2·closed_forms.interpolation) and the float64 formula's
     distance from I_i·k_r·cos θ (the light 1e9 mm away, not at infinity)."""

@@ -1,6 +1,6 @@
 """glsim.check.exact32's bounds against the float32 build's arithmetic replayed in numpy
-float32 (each operation rounded once, in the shaders' order: bilinear.glsl's edge functions and
-Newton step, deform.frag's projected_corners and exact_reference) on random elements: the
+float32 (each operation rounded once, in the shaders' order: ties.glsl's edge functions,
+bilinear.glsl's Newton step, sample_map.glsl's projected_corners and exact_reference) on random elements: the
 float32 results lie within the bounds, which are not vacuous: small, and within a factor of
 100 (the edge functions) or 20 (the mapping) of the errors somewhere."""
 import numpy as np
@@ -29,7 +29,7 @@ def random_elements(rng, n, z=(300.0, 900.0), size=(1.0, 8.0)):
 
 
 def edge_function32(A, B, x, y):
-    """bilinear.glsl's float32 edge function, edge_functions_ray_ordered: A × (B − A) from the
+    """ties.glsl's float32 edge function, edge_functions_ray_ordered: A × (B − A) from the
     edge's first corner (`precise`: no fused multiply-add)."""
     A, B, x, y = (np.asarray(v, f32) for v in (A, B, x, y))
     d = B - A
@@ -98,7 +98,7 @@ def newton32(p, xi, eta, steps=2):
 
 
 def reference32(R, K, xi, eta):
-    """deform.frag's exact_reference with REF_LOCAL in float32, and the truth hi + lo."""
+    """sample_map.glsl's exact_reference with REF_LOCAL in float32, and the truth hi + lo."""
     C = R.mean(axis=1)
     D = (R - C[:, None]).astype(f32)
     x, y = xi.astype(f32), eta.astype(f32)

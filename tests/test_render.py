@@ -253,7 +253,7 @@ def test_gl_matches_oracle_on_bulge(bulge_pair, mode, spp, camera):
 @pytest.mark.gl
 @pytest.mark.parametrize("camera", [0, 1])
 def test_gl_q4_float32_matches_the_oracle_on_bulge(bulge_pair, camera):
-    """q4's float32 build (precision = "fp32": view.comp and deform.frag in float32 from the
+    """q4's float32 build (precision = "fp32": view.comp and pass 2 in float32 from the
     nodes in float32) maps each sample within closed_forms.q4_fp32_px of where the oracle's float64
     q4 does, so off the samples that close to an edge (the ties): masks and element maps equal,
     the reference points within that distance through the map's gradient and the float32

@@ -11,13 +11,13 @@ sum's rounding within u(|a| + |b|).
 
 - :func:`edge_px`: how far (px) from an element edge a sample may be given to the other side
   than the oracle's float64 decision: the edge function E = (x, y, 1)·(Pᵢ × (Pⱼ − Pᵢ))
-  (bilinear.glsl's edge_functions_ray_ordered on the rounded camera-frame corners and the
+  (ties.glsl's edge_functions_ray_ordered on the rounded camera-frame corners and the
   sample's float32 ray; through a pinhole pinhole_corners' K·P and the exact pixel point) —
   the corners' rounding taken as the displacement of the edge's ends in the image, the
   arithmetic on them over |∇E|. Its (ξ, η), whose float32 error is far smaller, only chooses
   where the edge function is asked (NEAR_TOL, 1e-3).
 - :func:`mapping_px`: per pixel, the reference point's error: the camera-side problem's corners
-  p = (D.xy − x D.z) − C.z d (deform.frag's projected_corners) and the residual Σ Nᵢ pᵢ at the
+  p = (D.xy − x D.z) − C.z d (sample_map.glsl's projected_corners) and the residual Σ Nᵢ pᵢ at the
   solution, through the inverse of its Jacobian (the last Newton steps leave (ξ, η) where the
   float32 residual vanishes, plus the update's own rounding), then through ∂ref/∂(ξ, η); and
   REF_LOCAL's own arithmetic (exact_reference: the offset from the centre's pixel, kept as
@@ -86,7 +86,7 @@ def _comp(P: np.ndarray, k: int, stored: bool = True) -> _F:
 
 
 def _edge_function(A, B, x: _F, y: _F) -> tuple[_F, np.ndarray]:
-    """E = (x·mx + y·my) + mz with m = A × (B − A) (bilinear.glsl's float32
+    """E = (x·mx + y·my) + mz with m = A × (B − A) (ties.glsl's float32
     edge_functions_ray_ordered, `precise`; A the edge's first corner in node order), A, B as
     (3,) tuples of _F; returns E and |(mx, my)| (its gradient in (x, y)), exact."""
     d = [_sub(B[k], A[k]) for k in range(3)]

@@ -130,7 +130,7 @@ def renderer_lit(oracle, mode: str, cam: int, step: int, spp: int = 1) -> np.nda
     (:func:`grey` at GL's reference points within :func:`mapping` of the oracle's) through the
     combine (additive: 1, multiplicative: |I|); shade.glsl's float32 lighting and combine on
     float32 inputs (:func:`phong`); and those inputs' own errors through |∂I/∂X|, |∂I/∂N|
-    (glsim.effects.lighting.phong_gradient) — deform.frag's light_at: the point Σ wᵢ Pᵢ from the
+    (glsim.effects.lighting.phong_gradient) — shading.glsl's light_at: the point Σ wᵢ Pᵢ from the
     nodes in the camera frame as float32 (each node, weight, product and sum rounded:
     8u·Σ|wᵢ||Pᵢ|), the normal Σ wᵢ nᵢ of the float32 corner normals turned by the float32
     rotation (12u) and normalised (16u); on a quadratic mesh (exact, q4) the point on the

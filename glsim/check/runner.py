@@ -396,8 +396,8 @@ CHECKS = (
     Check("shape filter: excluded elements flagged", 0, "steps missed", "shaders/shape.comp's bounds on each "
           "element's area and fold against numpy's (float64 and float32 builds), so that a step it leaves "
           "unflagged has none: glsim.backends.gl.geometry.shape_candidates", _shape_filter),
-    Check("pixel stages: compute against fragment", 0, "values differing in any bit", "the same code "
-          "(deform.frag) as fragment passes and as compute passes (glsim.backends.gl.plan); images and "
+    Check("pixel stages: compute against fragment", 0, "values differing in any bit", "each pass's "
+          ".frag and .comp entry files on the same .glsl code (glsim.backends.gl.plan); images and "
           "truth of the bulge pair, every mode, 1 and 4 spp", _stages),
     Check("lighting, exact: grey per pixel", 1, "× bound", "glsim.check.oracle_maps.renderer_lit off coverage ties: the unlit "
           "grey's bound through the combine, shade.glsl's float32 arithmetic and light_at's point and normal",

@@ -1,7 +1,8 @@
 """Inverse bilinear (Q4) mapping and ray / bilinear-patch intersection, numpy float64.
 
-Mirrored function for function in ``shaders/bilinear.glsl``. Corners follow the FE order
-0:(ξ,η)=(−1,−1), 1:(1,−1), 2:(1,1), 3:(−1,1); the forward map is x = Σ Φᵢ(ξ,η) pᵢ.
+Mirrored function for function in ``shaders/bilinear.glsl`` (the tie rule: ``ties.glsl``).
+Corners follow the FE order 0:(ξ,η)=(−1,−1), 1:(1,−1), 2:(1,1), 3:(−1,1); the forward map is
+x = Σ Φᵢ(ξ,η) pᵢ.
 
 Coverage (which element owns a sample) follows one tie rule, the same here and in GLSL: a
 sample whose (ξ, η) lies within ``NEAR_TOL`` of an element edge is decided by that edge's

@@ -444,7 +444,7 @@ def pixel_grid(cam: Camera, spp: int = 1, aperture: float = 1.0):
     Sample i of s along an axis sits at offset (i + 0.5)/s − 0.5 from the
     pixel centre; with spp = 1 this is the pixel centres. ``aperture`` < 1 (√ of the sensor's
     fill factor) scales the offsets: pixel c's samples at c + aperture·((i + 0.5)/s − 0.5),
-    in float64 as shaders/rays.frag and deform.frag place them.
+    in float64 as shaders/rays.frag and owners.glsl place them.
     """
     s = math.isqrt(spp) if _is_int(spp) and spp > 0 else 0
     if s * s != spp or s == 0:
