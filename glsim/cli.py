@@ -147,7 +147,7 @@ def cmd_jacobian(args) -> int:
 
 
 def _delegated(name: str, argv: list[str]) -> int:
-    """`glsim bench|calib|check|library|preview|verify …`: their own argument parsers take the rest of the line."""
+    """`glsim bench|calib|check|design|library|preview|verify …`: their own argument parsers take the rest of the line."""
     if name == "bench":
         from glsim.bench.cli import main as run
     elif name == "calib":
@@ -158,6 +158,8 @@ def _delegated(name: str, argv: list[str]) -> int:
         from glsim.workflows.library.cli import main as run
     elif name == "preview":
         from glsim.workflows.preview.cli import main as run
+    elif name == "design":
+        from glsim.workflows.design.cli import main as run
     else:
         from glsim.dic.cli import main as run
     return run(argv)
@@ -168,7 +170,8 @@ DELEGATED = {"bench": "benchmarks: glsim bench {accuracy,effects,library,preview
              "verify": "independent stereo-DIC verification: glsim verify run …",
              "preview": "interactive preview window: glsim preview SCENE.toml [--screenshot out.png]",
              "check": "GL against the oracle and closed forms on this machine's driver: glsim check [--json F] [--skip TEXT]",
-             "library": "image libraries from a spec: glsim library SPEC.toml -o DIR [--workers N] …"}
+             "library": "image libraries from a spec: glsim library SPEC.toml -o DIR [--workers N] …",
+             "design": "what will my DIC measure? set-ups × DIC settings → error maps, ranking: glsim design SPEC.toml -o DIR"}
 
 
 def _common(p: argparse.ArgumentParser) -> None:

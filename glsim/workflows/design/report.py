@@ -1,0 +1,268 @@
+"""A design's results: per (set-up, DIC setting) maps and figures of merit, the ranking, the files.
+
+Per set-up and DIC setting, at every subset centre of the engine (pooled over the noise and speckle
+seeds, the realisations): the bias map (mean over realisations − truth) and the noise map (std over
+realisations, ddof = 1) of U and V in px and mm, the valid share, and the noise floor (the std of the
+static pair's measured U, V over subsets and realisations; the truth there is 0). Beside them the
+quick mode's Cramér–Rao σ (median over its subset grid, and at the engine's centres).
+"""
+from __future__ import annotations
+
+import base64
+import csv
+import html
+import io as stdio
+import json
+import math
+
+import numpy as np
+
+from glsim.io import images as io
+from glsim.workflows.design.spec import CRITERIA, Design
+
+P95 = 95
+
+
+def _rms(a: np.ndarray) -> float:
+    a = a[np.isfinite(a)]
+    return float(np.sqrt(np.mean(a ** 2))) if a.size else math.nan
+
+
+def _median(a: np.ndarray) -> float:
+    a = a[np.isfinite(a)]
+    return float(np.median(a)) if a.size else math.nan
+
+
+def _pct(a: np.ndarray, q: float) -> float:
+    a = a[np.isfinite(a)]
+    return float(np.percentile(a, q)) if a.size else math.nan
+
+
+def row_summary(r: dict) -> dict:
+    """One row's own figures (the rows CSV)."""
+    m = r["meta"]
+    out = {k: m[k] for k in ("key", "kind", "setup", "setting", "subset_size", "subset_step", "shape_function",
+                             "speckle_seed", "noise_seed")}
+    q = np.hypot(r["quick_sigma_u"], r["quick_sigma_v"]) / math.sqrt(2)
+    out.update(n_subsets=int(len(r["x"])), quick_sigma_px=_median(q), quick_sigma_mm=_median(q * r["scale"]),
+               seconds=round(float(m.get("seconds", math.nan)), 3))
+    if m["kind"] != "quick":
+        ok = r["valid"] & r["truth_valid"]
+        e = np.hypot(r["u"] - r["truth_u"], r["v"] - r["truth_v"])
+        s = r["static_valid"]
+        out.update(valid_share=float(np.mean(r["valid"])) if len(ok) else math.nan,
+                   p95_abs_error_px=_pct(e[ok], P95), p95_abs_error_mm=_pct((e * r["scale"])[ok], P95),
+                   mean_u_error_px=float(np.mean((r["u"] - r["truth_u"])[ok])) if ok.any() else math.nan,
+                   mean_v_error_px=float(np.mean((r["v"] - r["truth_v"])[ok])) if ok.any() else math.nan,
+                   static_std_u_px=float(np.std(r["static_u"][s])) if s.any() else math.nan,
+                   static_std_v_px=float(np.std(r["static_v"][s])) if s.any() else math.nan,
+                   engine_seconds=round(float(r["engine_seconds"]), 3))
+    return out
+
+
+def _stack(rows: list[dict]) -> dict | None:
+    """Engine rows of one (set-up, setting) on their common subset centres: (realisations, n)."""
+    if not rows:
+        return None
+    keys = [set(zip(np.round(r["x"], 3), np.round(r["y"], 3))) for r in rows]
+    common = sorted(set.intersection(*keys))
+    idx = []
+    for r in rows:
+        where = {xy: i for i, xy in enumerate(zip(np.round(r["x"], 3), np.round(r["y"], 3)))}
+        idx.append(np.array([where[c] for c in common], np.int64))
+    pick = lambda k: np.stack([r[k][i] for r, i in zip(rows, idx)])  # noqa: E731
+    return {"x": np.array([c[0] for c in common]), "y": np.array([c[1] for c in common]),
+            **{k: pick(k) for k in ("u", "v", "valid", "static_u", "static_v", "static_valid", "truth_u", "truth_v",
+                                    "truth_valid", "scale", "quick_sigma_u", "quick_sigma_v")}}
+
+
+def aggregate(design: Design, results: list[dict]) -> list[dict]:
+    """One entry per (set-up, DIC setting): figures of merit (``summary``) and maps (``maps``)."""
+    variants = {v.id: v for v in design.plan.variants}
+    out = []
+    for v in design.plan.variants:
+        for s in design.settings:
+            mine = [r for r in results if r["meta"]["setup"] == v.id and r["meta"]["setting"] == s.name]
+            quick = [r for r in mine if r["meta"]["kind"] == "quick"]
+            q = np.concatenate([np.hypot(r["quick_sigma_u"], r["quick_sigma_v"]) / math.sqrt(2) for r in quick])
+            qs = np.concatenate([r["scale"] for r in quick])
+            summary = {"setup": v.id, "params": variants[v.id].params, "setting": s.name,
+                       "subset_size": s.subset_size, "subset_step": s.subset_step,
+                       "shape_function": s.shape_function, "quick_sigma_px": _median(q),
+                       "quick_sigma_mm": _median(q * qs), "quick_subsets": int(len(q))}
+            maps = {"quick": quick[0]}
+            st = _stack([r for r in mine if r["meta"]["kind"] != "quick"])
+            if st is not None:
+                ok = st["valid"] & st["truth_valid"]
+                eu = np.where(ok, st["u"] - st["truth_u"], np.nan)
+                ev = np.where(ok, st["v"] - st["truth_v"], np.nan)
+                n_ok = ok.sum(axis=0)
+                with np.errstate(invalid="ignore", divide="ignore"):
+                    bias_u = np.where(n_ok > 0, np.nansum(eu, 0) / n_ok, np.nan)
+                    bias_v = np.where(n_ok > 0, np.nansum(ev, 0) / n_ok, np.nan)
+                    noise_u = np.sqrt(np.nansum((eu - bias_u) ** 2, 0) / (n_ok - 1))
+                    noise_v = np.sqrt(np.nansum((ev - bias_v) ** 2, 0) / (n_ok - 1))
+                noise_u[n_ok < 2], noise_v[n_ok < 2] = np.nan, np.nan
+                scale = np.nanmean(st["scale"], axis=0)
+                err = np.hypot(eu, ev)
+                sok = st["static_valid"]
+                su, sv = np.std(st["static_u"][sok]), np.std(st["static_v"][sok])
+                qe = np.nanmedian(np.hypot(st["quick_sigma_u"], st["quick_sigma_v"]) / math.sqrt(2), axis=0)
+                floor = float(math.sqrt((su ** 2 + sv ** 2) / 2)) if sok.any() else math.nan
+                summary.update(
+                    realisations=int(len(st["u"])), subsets=int(len(st["x"])), valid_share=float(st["valid"].mean()),
+                    p95_abs_error_px=_pct(err, P95), p95_abs_error_mm=_pct(err * scale, P95),
+                    rms_bias_px=_rms(np.hypot(bias_u, bias_v)), rms_bias_mm=_rms(np.hypot(bias_u, bias_v) * scale),
+                    median_noise_px=_median(np.hypot(noise_u, noise_v) / math.sqrt(2)),
+                    median_noise_mm=_median(np.hypot(noise_u, noise_v) / math.sqrt(2) * scale),
+                    noise_floor_u_px=float(su), noise_floor_v_px=float(sv), noise_floor_px=floor,
+                    noise_floor_mm=floor * _median(scale), quick_sigma_at_engine_px=_median(qe),
+                    noise_floor_over_quick=floor / _median(qe) if _median(qe) > 0 else math.nan)
+                maps.update(x=st["x"], y=st["y"], bias_u=bias_u, bias_v=bias_v, noise_u=noise_u, noise_v=noise_v,
+                            scale=scale, quick_engine=qe)
+            out.append({"summary": summary, "maps": maps})
+    return out
+
+
+def rank(entries: list[dict], by: str) -> list[dict]:
+    """Summaries sorted by criterion ``by`` (best first; NaN last), each with its ``rank``."""
+    smaller = CRITERIA[by][2]
+
+    def key(e):
+        v = e["summary"].get(by, math.nan)
+        return (not math.isfinite(v), v if smaller else -v) if isinstance(v, float) else (True, 0)
+    ranked = sorted(entries, key=key)
+    return [{"rank": i + 1, **e["summary"]} for i, e in enumerate(ranked)]
+
+
+# ---- files ----------------------------------------------------------------------------------------
+def clean(obj):
+    """``obj`` with NaN and ±∞ as None (strict JSON) and numpy scalars as Python numbers."""
+    if isinstance(obj, dict):
+        return {k: clean(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [clean(v) for v in obj]
+    if isinstance(obj, np.generic):
+        obj = obj.item()
+    return None if isinstance(obj, float) and not math.isfinite(obj) else obj
+
+
+def write_csv(path, rows: list[dict]) -> None:
+    cols = list(dict.fromkeys(k for r in rows for k in r))
+    buf = stdio.StringIO()
+    w = csv.DictWriter(buf, cols, lineterminator="\n")
+    w.writeheader()
+    for r in rows:
+        w.writerow({k: json.dumps(v, sort_keys=True) if isinstance(v, dict) else v for k, v in r.items()})
+    io.write_text(path, buf.getvalue())
+
+
+def _png(fig) -> str:
+    import matplotlib.pyplot as plt
+
+    buf = stdio.BytesIO()
+    fig.tight_layout()
+    fig.savefig(buf, format="png", dpi=80)
+    plt.close(fig)
+    return base64.b64encode(buf.getvalue()).decode()
+
+
+def _map(ax, x, y, values, title, shape, fig, cmap="viridis", symmetric=False):
+    ok = np.isfinite(values)
+    vmax = np.nanmax(np.abs(values[ok])) if ok.any() else 1.0
+    kw = {"vmin": -vmax, "vmax": vmax} if symmetric else {}
+    im = ax.scatter(x[ok], y[ok], c=values[ok], s=12, marker="s", cmap="RdBu_r" if symmetric else cmap, **kw)
+    ax.set_xlim(0, shape[1])
+    ax.set_ylim(shape[0], 0)
+    ax.set_aspect("equal")
+    ax.set_title(title, fontsize=9)
+    fig.colorbar(im, ax=ax, shrink=0.8)
+
+
+def entry_figure(entry: dict, image_shape) -> str:
+    """Error maps of one (set-up, setting): quick σ, and with an engine its noise and bias maps."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    m = entry["maps"]
+    q = m["quick"]
+    panels = 1 + (3 if "bias_u" in m else 0)
+    fig, axes = plt.subplots(1, panels, figsize=(3.3 * panels, 3.0), squeeze=False)
+    axes = axes[0]
+    _map(axes[0], q["x"], q["y"], np.hypot(q["quick_sigma_u"], q["quick_sigma_v"]) / math.sqrt(2),
+         "quick: Cramér–Rao σ (px)", image_shape, fig)
+    if "bias_u" in m:
+        _map(axes[1], m["x"], m["y"], np.hypot(m["noise_u"], m["noise_v"]) / math.sqrt(2),
+             "measured noise: std over realisations (px)", image_shape, fig)
+        _map(axes[2], m["x"], m["y"], m["bias_u"], "bias U: mean − truth (px)", image_shape, fig, symmetric=True)
+        _map(axes[3], m["x"], m["y"], m["bias_v"], "bias V: mean − truth (px)", image_shape, fig, symmetric=True)
+    return _png(fig)
+
+
+def trend_figure(entries: list[dict]) -> str:
+    """Noise versus subset size, one line per set-up and shape function: quick σ (dashed) and,
+    with an engine, the measured noise floor (solid)."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(6, 3.6))
+    groups: dict = {}
+    for e in entries:
+        s = e["summary"]
+        groups.setdefault((s["setup"], s["subset_step"], s["shape_function"]), []).append(s)
+    for i, ((setup, step, shape), ss) in enumerate(groups.items()):
+        ss = sorted(ss, key=lambda s: s["subset_size"])
+        size = [s["subset_size"] for s in ss]
+        colour = f"C{i % 10}"
+        label = f"{setup} {shape} step {step}"
+        ax.plot(size, [s["quick_sigma_px"] for s in ss], "--o", color=colour, label=f"{label}: quick σ")
+        if "noise_floor_px" in ss[0]:
+            ax.plot(size, [s["noise_floor_px"] for s in ss], "-s", color=colour, label=f"{label}: noise floor")
+    ax.set_xlabel("subset size (px)")
+    ax.set_ylabel("σ (px)")
+    ax.set_yscale("log")
+    ax.grid(True, which="both", alpha=0.3)
+    ax.legend(fontsize=7)
+    return _png(fig)
+
+
+def _cell(v) -> str:
+    if isinstance(v, float):
+        return "–" if not math.isfinite(v) else f"{v:.3g}"
+    if isinstance(v, dict):
+        return html.escape(", ".join(f"{k}={json.dumps(x)}" for k, x in v.items()) or "(base scene)")
+    return html.escape(str(v))
+
+
+RANK_COLUMNS = ("rank", "setup", "params", "setting", "p95_abs_error_px", "p95_abs_error_mm", "rms_bias_px",
+                "median_noise_px", "noise_floor_px", "quick_sigma_px", "quick_sigma_at_engine_px",
+                "noise_floor_over_quick", "valid_share")
+
+
+def html_report(design: Design, ranking: list[dict], entries: list[dict], image_shape, meta: dict) -> str:
+    cols = [c for c in RANK_COLUMNS if any(c in r for r in ranking)]
+    head = "".join(f"<th>{html.escape(c)}</th>" for c in cols)
+    body = "".join("<tr>" + "".join(f"<td>{_cell(r.get(c, math.nan))}</td>" for c in cols) + "</tr>" for r in ranking)
+    figs = "".join(f"<h3>{html.escape(e['summary']['setup'])} ({_cell(e['summary']['params'])}), "
+                   f"{html.escape(e['summary']['setting'])}</h3><img alt='error maps' src='data:image/png;base64,"
+                   f"{entry_figure(e, image_shape)}'>" for e in entries)
+    notes = "".join(f"<li>{html.escape(n)}</li>" for n in meta["notes"])
+    return f"""<!DOCTYPE html>
+<html lang="en"><head><meta charset="utf-8"><title>glsim design: {html.escape(meta['spec'])}</title>
+<style>body{{font-family:sans-serif;margin:1.5em;max-width:1400px}}table{{border-collapse:collapse;font-size:13px}}
+td,th{{border:1px solid #bbb;padding:3px 6px;text-align:right}}th{{background:#eee}}img{{max-width:100%}}</style>
+</head><body>
+<h1>What will my DIC measure?</h1>
+<p>Spec <code>{html.escape(meta['spec'])}</code>; engine <b>{html.escape(design.engine)}</b>; camera
+{html.escape(design.camera)}, step {design.step} against step 0; {len(design.plan.variants)} set-ups ×
+{len(design.settings)} DIC settings; noise seeds {list(design.noise_seeds)}, speckle seeds
+{[s for s in design.speckle_seeds if s is not None] or 'the scene’s own'}; calibration: {design.rig} rig.</p>
+<h2>Ranking by {html.escape(design.rank_by)}</h2><p>{html.escape(CRITERIA[design.rank_by][0])}</p>
+<table id="ranking"><tr>{head}</tr>{body}</table>
+<h2>Noise versus subset size</h2><img alt="noise versus subset size" src="data:image/png;base64,{trend_figure(entries)}">
+<h2>Maps per set-up and DIC setting</h2>{figs}
+<h2>Reading this report</h2><ul>{notes}</ul>
+</body></html>
+"""

@@ -1,0 +1,223 @@
+"""Design specs: candidate set-ups (a base scene and ``[vary]``, expanded as a library's), the DIC
+settings to compare, the realisations and the ranking, all checked before anything runs.
+
+A spec is a TOML file::
+
+    scene = "plate.toml"       # the base scene (relative to the spec) or an inline [scene] table
+    seed = 1                   # seeds [vary]'s random draws (as a library spec)
+    mode = "grid"              # [vary]'s expansion: grid, zip or random (with n)
+    camera = "cam0"            # the camera whose images are measured (2-D DIC); default the first
+    step = 1                   # the deformed load step, measured against step 0; default the last
+    engine = "quick"           # quick: the Cramér–Rao noise map only; pyvale2d: also pyvale's 2-D DIC
+    roi_margin = 4             # px: the ROI is the specimen's pixels at step 0 and at `step`, eroded
+
+    [vary]                     # candidate set-ups: dotted scene paths → values (docs/library.md)
+    noise.sigma = [1.0, 2.0]
+
+    [dic]                      # DIC settings: every combination of these lists
+    subset_size = [21, 31]     # px, odd
+    subset_step = 10           # px between subset centres (a number or a list)
+    shape_function = "affine"  # rigid (zero order), affine (first), quad (second); or a list
+
+    [realisations]
+    noise_seeds = [1, 2, 3]    # one noisy image set per seed (the scene's top-level seed)
+    speckle_seeds = [0]        # speckle patterns (speckle.seed): pattern-induced bias
+
+    [calibration]
+    rig = "exact"              # the scene's own cameras (the only choice so far)
+
+    [rank]
+    by = "p95_abs_error_px"    # see CRITERIA
+
+Nothing is rendered or written by :func:`load_design`.
+"""
+from __future__ import annotations
+
+import difflib
+import hashlib
+import itertools
+import json
+from dataclasses import dataclass
+from pathlib import Path
+
+from glsim.limits import MAX_VALUES
+from glsim.workflows.library.spec import Plan, SpecError, expand, read_spec
+
+TOP_KEYS = ("scene", "seed", "mode", "n", "camera", "step", "engine", "roi_margin", "vary", "dic",
+            "realisations", "calibration", "rank")
+ENGINES = ("quick", "pyvale2d")
+SHAPES = ("rigid", "affine", "quad")
+DIC_KEYS = ("subset_size", "subset_step", "shape_function")
+REAL_KEYS = ("noise_seeds", "speckle_seeds")
+RIGS = ("exact",)
+# criterion → (what it is, needs the engine, smaller is better)
+CRITERIA = {
+    "p95_abs_error_px": ("95th percentile over subsets and realisations of |(U, V) − truth| (px)", True, True),
+    "p95_abs_error_mm": ("the same in mm (through the camera scale at each subset)", True, True),
+    "rms_bias_px": ("RMS over subsets of the bias map |mean over realisations − truth| (px)", True, True),
+    "median_noise_px": ("median over subsets of the noise map (std over realisations of U and V, px)", True, True),
+    "noise_floor_px": ("std of the static pair's measured U, V over subsets and realisations (px)", True, True),
+    "valid_share": ("share of subsets converged above the ZNCC threshold (larger is better)", True, False),
+    "quick_sigma_px": ("median over subsets of the Cramér–Rao σ_u, σ_v (px), quick mode", False, True),
+    "quick_sigma_mm": ("the same in mm", False, True),
+}
+MAX_SUBSET = 301
+
+
+@dataclass(frozen=True)
+class DicSetting:
+    """One DIC setting: subset size and step (px) and the shape function."""
+    subset_size: int
+    subset_step: int
+    shape_function: str
+
+    @property
+    def name(self) -> str:
+        return f"s{self.subset_size}-st{self.subset_step}-{self.shape_function}"
+
+
+@dataclass(frozen=True)
+class Design:
+    """A checked design spec: the set-ups (a library :class:`Plan`), DIC settings, realisations."""
+    plan: Plan
+    camera: str
+    step: int
+    engine: str
+    roi_margin: int
+    settings: tuple[DicSetting, ...]
+    noise_seeds: tuple[int, ...]
+    speckle_seeds: tuple[int | None, ...]    # None: the set-up's own speckle.seed
+    rig: str
+    rank_by: str
+    source: dict
+
+    @property
+    def n_rows(self) -> int:
+        return len(self.plan.variants) * len(self.settings) * len(self.noise_seeds) * len(self.speckle_seeds)
+
+
+def _fail(key: str, problem: str, fix: str):
+    raise SpecError(f"{key}: {problem} — {fix}")
+
+
+def _unknown(key: str, got, allowed) -> None:
+    extra = sorted(set(got) - set(allowed))
+    if extra:
+        close = difflib.get_close_matches(extra[0], allowed, 1)
+        _fail(f"{key}{extra[0]}", "unknown key", (f"did you mean {close[0]!r}? " if close else "")
+              + f"allowed: {', '.join(allowed)}")
+
+
+def _int(x) -> bool:
+    return isinstance(x, int) and not isinstance(x, bool)
+
+
+def _list(table: dict, key: str, where: str, check, fix: str, default=None) -> tuple:
+    value = table.get(key, default)
+    if value is None:
+        _fail(f"{where}.{key}", "is required", fix)
+    values = value if isinstance(value, list) else [value]
+    if not values:
+        _fail(f"{where}.{key}", "is an empty list", fix)
+    if len(values) > MAX_VALUES:
+        _fail(f"{where}.{key}", f"has {len(values)} values, more than {MAX_VALUES}", "give fewer")
+    for v in values:
+        if not check(v):
+            _fail(f"{where}.{key}", f"{v!r} is not allowed", fix)
+    if len(set(map(json.dumps, values))) != len(values):
+        _fail(f"{where}.{key}", f"{values} repeats a value", "list each value once")
+    return tuple(values)
+
+
+def _table(spec: dict, key: str, allowed) -> dict:
+    t = spec.get(key, {})
+    if not isinstance(t, dict):
+        _fail(key, f"expected a table, got {t!r}", f"write [{key}]")
+    _unknown(f"{key}.", t, allowed)
+    return t
+
+
+def check_design(spec: dict, spec_dir: str | Path = ".") -> Design:
+    """Check a design spec table and expand its set-ups; raises SpecError naming the key."""
+    _unknown("", spec, TOP_KEYS)
+    engine = spec.get("engine", "quick")
+    if engine not in ENGINES:
+        _fail("engine", f"{engine!r} is not one of {ENGINES}", "quick: the a-priori noise map only; pyvale2d: "
+              "also pyvale's 2-D DIC (needs .venv-verify: make .venv-verify/.pyvale-installed)")
+    margin = spec.get("roi_margin", 4)
+    if not (_int(margin) and 0 <= margin <= 1000):
+        _fail("roi_margin", f"expected an integer 0…1000 px, got {margin!r}", "write roi_margin = 4")
+    dic = _table(spec, "dic", DIC_KEYS)
+    sizes = _list(dic, "subset_size", "dic", lambda v: _int(v) and 5 <= v <= MAX_SUBSET and v % 2 == 1,
+                  f"give odd subset sizes 5…{MAX_SUBSET} px, e.g. subset_size = [21, 31]")
+    steps = _list(dic, "subset_step", "dic", lambda v: _int(v) and 1 <= v <= 1000,
+                  "give subset steps of 1…1000 px, e.g. subset_step = 10", default=10)
+    shapes = _list(dic, "shape_function", "dic", lambda v: v in SHAPES, f"one or more of {SHAPES}",
+                   default="affine")
+    settings = tuple(DicSetting(a, b, c) for a, b, c in itertools.product(sizes, steps, shapes))
+    real = _table(spec, "realisations", REAL_KEYS)
+    seed_ok = lambda v: _int(v) and 0 <= v < 2 ** 32   # noqa: E731 (glsim's seeds are uint32 words)
+    noise_seeds = _list(real, "noise_seeds", "realisations", seed_ok, "give seeds 0…2³²−1, e.g. noise_seeds = "
+                        "[1, 2, 3]", default=[0])
+    # without speckle_seeds each set-up keeps its own scene's pattern (None)
+    speckle_seeds = _list(real, "speckle_seeds", "realisations", seed_ok, "give seeds 0…2³²−1, e.g. "
+                          "speckle_seeds = [0]") if "speckle_seeds" in real else (None,)
+    calib = _table(spec, "calibration", ("rig",))
+    rig = calib.get("rig", "exact")
+    if rig not in RIGS:
+        _fail("calibration.rig", f"{rig!r} is not supported", "only rig = \"exact\" (the scene's own cameras); "
+              "a calibration from a simulated target library is not modelled yet")
+    rank = _table(spec, "rank", ("by",))
+    by = rank.get("by", "p95_abs_error_px" if engine != "quick" else "quick_sigma_px")
+    if by not in CRITERIA:
+        _fail("rank.by", f"{by!r} is not a criterion", "one of " + ", ".join(CRITERIA))
+    if CRITERIA[by][1] and engine == "quick":
+        _fail("rank.by", f"{by!r} needs a measuring engine, and engine is \"quick\"",
+              "write engine = \"pyvale2d\", or rank by quick_sigma_px or quick_sigma_mm")
+
+    lib = {k: spec[k] for k in ("scene", "seed", "mode", "n", "vary") if k in spec}
+    lib["truth"] = False
+    if "camera" in spec:
+        cam = spec["camera"]
+        if not (isinstance(cam, str) or _int(cam)):
+            _fail("camera", f"expected a camera name or index, got {cam!r}", 'write camera = "cam0"')
+        lib["cameras"] = [cam]
+    plan = expand(lib, spec_dir)
+    for v in plan.variants:
+        names = [c.name for c in v.scene.cameras]
+        if len(names) != len(plan.variants[0].scene.cameras) or names != [c.name for c in plan.variants[0].scene.cameras]:
+            _fail("vary", f"variant {v.id} has cameras {names}", "vary camera settings, not the cameras' names")
+    camera = plan.cameras[0] if "camera" in spec else plan.variants[0].scene.cameras[0].name
+    n_steps = next(iter(plan.meshes.values())).n_steps
+    step = spec.get("step", n_steps - 1)
+    for m in plan.meshes.values():
+        if not (_int(step) and 1 <= step < m.n_steps):
+            _fail("step", f"{step!r} is not a deformed load step of the specimen (steps 1…{m.n_steps - 1})"
+                  if m.n_steps > 1 else "the specimen has only its undeformed step 0",
+                  "give the specimen a load step (e.g. [specimen.plate] translations) and step = 1")
+    for v in plan.variants:
+        for s in settings:
+            W, H = v.scene.camera(camera).size
+            if s.subset_size > min(W, H):
+                _fail("dic.subset_size", f"{s.subset_size} px is larger than the image ({W}×{H}, variant {v.id})",
+                      "give smaller subsets")
+    if engine == "pyvale2d":
+        for v in plan.variants:
+            W, H = v.scene.camera(camera).size
+            if min(W, H) < 256:
+                _fail(f"cameras.{camera}.size", f"{W}×{H} (variant {v.id}) is too small for pyvale's calculate_2d, "
+                      "which writes empty results below about 256 px a side", "give at least 256 × 256 px")
+    return Design(plan=plan, camera=camera, step=step, engine=engine, roi_margin=margin, settings=settings,
+                  noise_seeds=tuple(noise_seeds), speckle_seeds=tuple(speckle_seeds), rig=rig, rank_by=by,
+                  source=spec)
+
+
+def load_design(path: str | Path) -> Design:
+    """Read and check a design spec file."""
+    spec, spec_dir = read_spec(path)
+    return check_design(spec, spec_dir)
+
+
+def row_key(payload: dict) -> str:
+    """The cache key of a row: SHA-256 (first 20 hex digits) of its inputs as sorted JSON."""
+    return hashlib.sha256(json.dumps(payload, sort_keys=True).encode()).hexdigest()[:20]
