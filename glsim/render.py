@@ -12,42 +12,42 @@ backend (``Renderer.pieces``); ``exact`` and ``q4`` map every sample on the curv
 patch: the CPU oracle with :func:`glsim.backends.cpu.rasterize_quadratic`, GL over the same
 pieces' covers and candidate lists with Newton on the patch's 9 nodes (shaders/quadratic.glsl).
 Truth always reports the element's own (ξ, η) (for T6 those of the collapsed patch).
+
+What one Result is made of beyond a single render is composed in :mod:`glsim.compose`: the
+truth (a :class:`~glsim.compose.truth.TruthAssembler` given to the Renderer), the Jacobian chain
+(:mod:`glsim.compose.chain`) and an exposure's sub-frames and rolling-shutter rows
+(:mod:`glsim.compose.exposure`).
 """
 from __future__ import annotations
 
-import dataclasses
 import collections
+import dataclasses
 import functools
-import math
-from collections.abc import Callable, Iterable, Iterator, Mapping
 import time
-import warnings
+from collections.abc import Callable, Iterable, Iterator, Mapping
 from dataclasses import dataclass, field
 from typing import NamedTuple
 
 import numpy as np
-from scipy import sparse
 
-from glsim.errors import RendererClosedError, SceneError
-from glsim.limits import check_gl_target, check_image_size, check_memory, keep
-from glsim.scene import quadratic as qd
-from glsim.scene.bilinear import bilinear
-from glsim.scene.camera import Camera, to_camera
-from glsim.effects import (prepare as prepare_effects, shading_terms, spread as spread_rows, through_blur,
-                           through_camera_effects)
-from glsim.effects import dof, motion, noise as noisemod
-from glsim.stages.geometry import MeshGeometry, StepGeometry
-from glsim.io.images import quantize as quantize_image, saturated_fraction
-from glsim.io.truth import Truth, pixel_positions
-from glsim.stages.quadview import fast_local_coords as quadratic_fast_coords
-from glsim.stages.view import View, coverage, make_view, warn_unseen
 from glsim.backends import make_backend
-from glsim.backends.contract import Curved, Request
+from glsim.backends.contract import Request
+from glsim.compose import chain, exposure
+from glsim.compose.drawing import Drawing, curved_patches
+from glsim.compose.truth import PixelMaps, TruthAssembler, element_raster
+from glsim.effects import prepare as prepare_effects
+from glsim.errors import RendererClosedError, SceneError
 from glsim.io.fe import specimen_mesh
-from glsim.stages.reference import make_reference, require_dots
-from glsim.stages import interp, jacobian as jac
+from glsim.io.images import quantize as quantize_image, saturated_fraction
+from glsim.io.truth import Truth
+from glsim.limits import check_gl_target, check_image_size, check_memory, keep
 from glsim.scene import Render, Scene
-from glsim.scene.optional import row_offsets
+from glsim.scene import quadratic as qd
+from glsim.scene.camera import Camera
+from glsim.stages import jacobian as jac
+from glsim.stages.geometry import MeshGeometry, StepGeometry
+from glsim.stages.reference import make_reference
+from glsim.stages.view import View, coverage, make_view, warn_unseen
 
 SEEN_KEPT = 64              # (camera, step) views whose "seen" verdict is kept
 
@@ -87,8 +87,7 @@ class Result:
 
 
 class _Submitted(NamedTuple):
-    """A request handed to the backend (its token), with what finishing its Result needs (a
-    tuple: made per image, in fewer steps than a frozen dataclass)."""
+    """A request handed to the backend (its token), with what finishing its Result needs."""
     token: object
     camera: Camera
     step: int
@@ -103,10 +102,14 @@ class _Submitted(NamedTuple):
 class Renderer:
     """Renders one scene with one backend; holds the mesh, reference and backend resources."""
 
-    def __init__(self, scene: Scene, backend: str | None = None, ctx=None, mesh=None, reference=None):
+    def __init__(self, scene: Scene, backend: str | None = None, ctx=None, mesh=None, reference=None,
+                 truth_assembler: TruthAssembler | None = None):
         """``mesh`` / ``reference`` replace the scene's specimen mesh and reference image
-        (e.g. a calibration target made in code); ``ctx`` shares a GL context."""
+        (e.g. a calibration target made in code); ``ctx`` shares a GL context;
+        ``truth_assembler`` makes each render's truth from its raster (default: the per-pixel
+        maps, :class:`glsim.compose.truth.PixelMaps`)."""
         self.scene = scene
+        self.truth_assembler = truth_assembler if truth_assembler is not None else PixelMaps()
         self.mesh = mesh if mesh is not None else specimen_mesh(scene)
         self._pieces = None
         self.reference = reference if reference is not None else make_reference(scene, self.drawn_mesh)
@@ -124,7 +127,8 @@ class Renderer:
 
     def check_size(self, camera: int | str, truth: bool = False, opts: Render | None = None) -> None:
         """SceneError if rendering ``camera`` with ``opts`` (default: the scene's [render]) needs a device
-        target over the backend's limit (``capabilities.max_size``) or more memory than this process may use (:mod:`glsim.limits`)."""
+        target over the backend's limit (``capabilities.max_size``) or more memory than this process may
+        use (:mod:`glsim.limits`)."""
         cam = self.scene.camera(camera)
         spp = (opts or self.scene.render).samples_per_pixel
         if limit := self.backend.capabilities.max_size:
@@ -210,105 +214,36 @@ class Renderer:
                                         polish=truth or opts.mode != "fast"))   # (fast's Jacobian: elements only)
         raster = {"element": res.truth.element.ravel(), "xi": res.truth.xi.ravel(), "eta": res.truth.eta.ravel()} \
             if own else None
-        J, J_rig = self._jacobian(res.camera, step, opts, raster, rig)
         return dataclasses.replace(res, truth=res.truth if truth else None,
-                                   **self._through_camera_effects(res.camera, J, J_rig,
-                                                                  gain_term=self._gain_term(res.camera, step, opts, rig)))
+                                   **chain.jacobians(self._drawing(), res.camera, step, opts, raster, rig))
 
-    def _gain_term(self, cam: Camera, step: int, opts: Render, rig: bool, tl=None, taus=(0.0,), rows=None):
-        """The rig Jacobian's share of the vignetting gain's own change with the intrinsics and
-        distortion: diag(the image before vignetting) · ∂gain/∂params (W·H × 23, CSR), or None;
-        over an exposure (``tl``) the image is its sub-frames' (at ``taus``) mean; ``rows``: a
-        rolling shutter's (row, time offset) pairs, each row's image its own sub-frames' (one-row
-        cameras)."""
-        if not rig or self.scene.vignetting is None:
-            return None
-        from glsim.effects.vignetting import flat_field_rig_jacobian
-
-        parts = [(cam, 0.0)] if rows is None else [(motion.row_band(cam, row)[0], t) for row, t in rows]
-        before = np.concatenate([sum(self._image_before(c, step, opts, tl, t + tau, blur=True).ravel() for tau in taus)
-                                 for c, t in parts]) / len(taus)
-        return sparse.csr_matrix(before.reshape(-1, 1) * flat_field_rig_jacobian(cam, self.scene.vignetting))
-
-    def _through_camera_effects(self, cam: Camera, J, J_rig, stages=None, gain_term=None) -> dict:
-        """``jacobian`` and ``rig_jacobian`` of ``cam``'s image from the raster's: through the
-        camera effects that act on the image linearly (:func:`glsim.effects.through_camera_effects`;
-        ``stages``: only those; ``gain_term``: the rig Jacobian's vignetting-gain share)."""
-        index = self._camera_index(cam)
-        return {"jacobian": through_camera_effects(J, self.scene, cam, index, stages),
-                "rig_jacobian": None if J_rig is None else through_camera_effects(J_rig, self.scene, cam, index, stages,
-                                                                                  gain_term)}
+    def _drawing(self) -> Drawing:
+        """What the compositions of :mod:`glsim.compose` need of this renderer, for its current scene."""
+        return Drawing(self.scene, self.mesh, self.pieces, self.reference, self.backend, self.geometry,
+                       self._ref_coeffs)
 
     def _moving(self, camera, step: int, truth: bool, quantize: bool, jacobian: bool, rig: bool,
                 options: dict) -> Result:
-        """:meth:`render` with ``[exposure]`` (:mod:`glsim.effects.motion`): per row of a rolling
-        shutter (else once) the mean of the sub-frames, then fixed-pattern and temporal noise;
-        ``jacobian``: the mean of the sub-frames' Jacobians, each chained through its state's
-        derivative with respect to the step's nodes (:meth:`glsim.effects.motion.Timeline.derivative`)."""
-        t0, scene, mesh = time.perf_counter(), self.scene, self.drawn_mesh
+        """:meth:`render` with ``[exposure]``: :func:`glsim.compose.exposure.expose`."""
+        t0 = time.perf_counter()
         opts = self._options(options)
         if jacobian:
-            jac.check_request(scene, opts, self.reference.dots)
+            jac.check_request(self.scene, opts, self.reference.dots)
         self.check_size(camera, truth, opts)
-        cam, ex = scene.camera(camera), scene.exposure
-        rows, tl, taus = self.exposure_schedule(cam, step)
-        rolling = rows[0][0] is not None
-        one = opts.supersampling == 1   # (a sub-frame's own raster is its samples')
-        images, truths, jacobians = [], [], []
-        for row, t in rows:
-            frames = [self._frame(cam, step, t + tau, tl, opts, (truth and tau == 0) or (jacobian and one), row)
-                      for tau in taus]
-            images.append(sum(out.image.astype(np.float64) for out, _ in frames) / len(taus))
-            if jacobian:
-                Js, rigs = zip(*(self._sub_jacobian(cam, step, opts, out.samples if one else None, rig, tl, t + tau, row)
-                                 for (out, _), tau in zip(frames, taus)))
-                jacobians.append((sum(Js) / len(taus), sum(rigs) / len(taus) if rig else None))
-            if truth:
-                out = next((out for (out, _), tau in zip(frames, taus) if tau == 0), None) or \
-                    self._frame(cam, step, t, tl, opts, True, row)[0]
-                curved = self.mesh.is_quadratic and opts.mode != "fast"
-                raster = out.samples if curved or not self.mesh.is_quadratic else self._fast_to_patches(out.samples)
-                tr = self._truth(out.image.shape[::-1], tl.at(t, self.mesh.deformed), raster)
-                truths.append(self._motion_range(tr, cam, tl, t, ex.time))
-        (out, fx), image = frames[-1], np.concatenate(images).astype(np.float32)
-        stages = tuple(out.stages)
-        if fx.fixed_pattern:   # as the backends do, on the whole image
-            image = noisemod.fixed_pattern(image, fx.sensor.prnu, fx.sensor.dsnu, fx.bit_depth,
-                                           fx.fpn_seed).astype(np.float32)
-            stages += ("fixed_pattern",)
-        if fx.noise is not None:
-            image = noisemod.add_noise(image, fx.noise, fx.bit_depth, fx.noise_seed, fx.variance)
-            stages += ("noise",)
-        specimen = self._specimen(cam, tl.at(0.0, mesh.deformed), mesh.quads)   # (warns if unseen at mid-frame)
-        if rolling:   # each row's own state
-            specimen = lambda: np.concatenate([coverage(motion.row_band(cam, row)[0], tl.at(t, mesh.deformed),  # noqa: E731
-                                                        mesh.quads) for row, t in rows])
-        derivatives = {}
-        if jacobian:
-            J = sparse.csr_matrix(sparse.vstack([j for j, _ in jacobians]))
-            J_rig = sparse.csr_matrix(sparse.vstack([r for _, r in jacobians])) if rig else None
-            gain_term = None if rolling and self._banded else \
-                self._gain_term(cam, step, opts, rig, tl, taus, rows if rolling else None)   # (banded: per band)
-            derivatives = self._through_camera_effects(cam, J, J_rig, ("prnu",) if rolling and self._banded else None,
-                                                       gain_term)
-        return Result(image=quantize_image(image, cam.bit_depth) if quantize else image, camera=cam, step=step,
-                      backend=self.backend_name, options=opts, seconds=time.perf_counter() - t0,
-                      truth=self._stack(truths) if truth else None, stages=stages, specimen=specimen, **derivatives)
+        cam = self.scene.camera(camera)
+        out = exposure.expose(self._drawing(), cam, step, opts, truth, jacobian, rig, self.truth_assembler)
+        mesh = self.drawn_mesh
+        specimen = self._specimen(cam, mesh.deformed(step), mesh.quads)   # (warns if unseen at mid-frame)
+        return Result(image=quantize_image(out.image, cam.bit_depth) if quantize else out.image, camera=cam, step=step,
+                      backend=self.backend_name, options=opts, seconds=time.perf_counter() - t0, truth=out.truth,
+                      stages=out.stages, specimen=out.specimen or specimen, jacobian=out.jacobian,
+                      rig_jacobian=out.rig_jacobian)
 
     def exposure_schedule(self, camera: int | str | Camera, step: int):
-        """The sub-frames that make ``camera``'s image at ``step`` under the scene's [exposure]
-        (:mod:`glsim.effects.motion`): the rows of a rolling shutter, each with its exposure
-        centre (s from the step's time; [(None, 0.0)]: the whole frame at once), the step's
-        :class:`~glsim.effects.motion.Timeline` and the midpoint rule's offsets τ_i (s); each
-        row's image is the mean of its renders at centre + τ_i (:meth:`sub_frames`)."""
+        """The sub-frames that make ``camera``'s image at ``step`` under the scene's [exposure]:
+        (rows, the step's Timeline, the offsets τ_i), :func:`glsim.compose.exposure.schedule`."""
         cam = camera if isinstance(camera, Camera) else self.scene.camera(camera)
-        ex, sensor = self.scene.exposure, self.scene.sensor
-        if ex is None:
-            raise SceneError("exposure", "the scene has no [exposure] table, so each image is one render",
-                             "add [exposure] (time, samples, velocity …) to average sub-frames")
-        line = sensor.line_time if sensor is not None else 0.0
-        rows = list(enumerate(row_offsets(cam.height, line))) if line > 0 else [(None, 0.0)]
-        return rows, motion.timeline(ex, self.mesh, step), motion.sample_offsets(ex.time, ex.samples)
+        return exposure.schedule(self.scene, self.mesh, cam, step)
 
     def sub_frames(self, camera: int | str, step: int, truth: bool = False, **options):
         """The renders :meth:`render` averages for ``camera``'s image at ``step`` under the
@@ -317,154 +252,7 @@ class Renderer:
         the row's, cut from its band — without noise; ``truth``: with its samples)."""
         self._require_open()
         cam, opts = self.scene.camera(camera), self._options(options)
-        rows, tl, taus = self.exposure_schedule(cam, step)
-        for row, t in rows:
-            for tau in taus:
-                yield row, t + tau, tl.at(t + tau, self.drawn_mesh.deformed), \
-                    self._frame(cam, step, t + tau, tl, opts, truth, row)[0]
-
-    def _camera_index(self, cam: Camera) -> int:
-        """``cam``'s index in the scene (a band camera's or a sample camera's: its camera's, by name)."""
-        return self.scene.cameras.index(self.scene.camera(cam.name))
-
-    @property
-    def _banded(self) -> bool:
-        """Whether a rolling shutter's rows are rendered as bands (:meth:`_frame`): the depth of
-        field or the PSF move light between rows."""
-        return self.scene.optics is not None or self.scene.psf is not None
-
-    def _row_band(self, cam: Camera, step: int, state, nodes: np.ndarray, row: int):
-        """A rolling shutter's ``row`` as the band of rows whose light the depth of field and the
-        PSF move into it at this state's depths (:func:`glsim.effects.spread`): the band's camera,
-        the row's index in it, and the corner depths (mm; empty without [optics])."""
-        view = self.geometry.view(cam, step, state, nodes)
-        depths = view.corner_depths() if self.scene.optics is not None else np.empty(0)
-        return (*motion.row_band(cam, row, spread_rows(self.scene, depths)), depths)
-
-    def _sub_jacobian(self, cam: Camera, step: int, opts: Render, raster: dict | None, rig: bool,
-                      tl: "motion.Timeline", tau: float, row: int | None):
-        """One sub-frame's (J, J_rig) in :meth:`_moving`: of ``cam``, or of a rolling shutter's
-        ``row`` — the row's one-row camera with its own ``raster``, or, where the rows are
-        banded, the band's Jacobian (its raster rendered), through its depth of field, vignetting
-        and PSF as the band is rendered, cut to the row."""
-        if row is None or not self._banded:
-            return self._jacobian(cam if row is None else motion.row_band(cam, row)[0], step, opts, raster, rig, tl, tau)
-        band, at, _ = self._row_band(cam, step, None if tau == 0 else float(tau), tl.at(tau, self.drawn_mesh.deformed),
-                                     row)
-        J, J_rig = self._jacobian(band, step, opts, None, rig, tl, tau)
-        index = self._camera_index(cam)
-        rows = slice(at * cam.width, (at + 1) * cam.width)
-        stages = ("vignetting", "psf")
-        return (through_camera_effects(J, self.scene, band, index, stages)[rows],
-                None if J_rig is None else through_camera_effects(J_rig, self.scene, band, index, stages,
-                                                                  self._gain_term(band, step, opts, rig, tl, (tau,)))[rows])
-
-    def _frame(self, cam: Camera, step: int, tau: float, tl: "motion.Timeline", opts: Render, truth: bool,
-               row: int | None = None):
-        """One sub-frame of :meth:`_moving`: the state τ s from ``step``'s time, rendered without
-        temporal and fixed-pattern noise; (Raster, the Effects). ``row``: only that row of
-        ``cam`` (a rolling shutter's), rendered as the band of rows whose light the depth of
-        field and the PSF move into it (:func:`glsim.effects.spread`) and cut to it."""
-        mesh, state = self.drawn_mesh, None if tau == 0 else float(tau)
-        nodes = tl.at(tau, mesh.deformed)
-        curved = self._curved(opts, step, tl, tau)
-        index = self._camera_index(cam)
-        if row is None:
-            view = self.geometry.view(cam, step, state, nodes)
-            depths = view.corner_depths() if self.scene.optics is not None else np.empty(0)
-        else:
-            cam, at, depths = self._row_band(cam, step, state, nodes, row)
-            view = self.geometry.view(cam, step, state, nodes)
-        fx = prepare_effects(self.scene, nodes, mesh.quads, cam, index, step, depths,
-                             normals=not self.backend.capabilities.device_geometry)
-        out = self.backend.render(Request(view, opts, truth, dataclasses.replace(fx, noise=None, sensor=None), curved))
-        return (out if row is None else motion.band_row(out, at, cam.width)), fx
-
-    def _jacobian(self, cam: Camera, step: int, opts: Render, raster: dict | None, rig: bool,
-                  tl: "motion.Timeline | None" = None, tau: float = 0.0):
-        """The image Jacobian (glsim.stages.jacobian.image_jacobian) from the backend's float64
-        raster of every sample: for s > 1 rendered as the pixels of the finer sample camera
-        (its warnings were the image's). ``tl``: of the state τ s from the step's time
-        (:meth:`_moving`'s sub-frame), chained to the step's own displacements by the state's
-        derivative (:meth:`glsim.effects.motion.Timeline.derivative`)."""
-        s, mesh = opts.supersampling, self.mesh
-        state = None if tl is None or tau == 0 else float(tau)
-        deformed = mesh.deformed(step) if tl is None else tl.at(tau, mesh.deformed)
-        drawn = self.drawn_mesh.deformed(step) if tl is None else tl.at(tau, self.drawn_mesh.deformed)
-        aperture = math.sqrt(self.scene.sensor.fill_factor) if self.scene.sensor is not None else 1.0
-        if raster is None:
-            with warnings.catch_warnings():
-                warnings.simplefilter("ignore")
-                drawn_state = None if tl is None else drawn   # (the step's own view when not moving)
-                one = dataclasses.replace(opts, samples_per_pixel=1)
-                curved = self._curved(opts, step, tl, tau)
-                polish = opts.mode != "fast"   # (fast's Jacobian uses the raster's elements only)
-                if aperture == 1.0:
-                    view = self.geometry.view(jac.sample_camera(cam, s), step, state, drawn_state)
-                    raster = self.backend.render(Request(view, one, True, curved=curved, polish=polish)).samples
-                else:   # each sample offset as a camera shifted by it: (H, s, W, s) → the sample camera's order
-                    parts = [[self.backend.render(Request(self.geometry.view(shifted, step, state, drawn_state), one, True,
-                                                          curved=curved, polish=polish)).samples for shifted in row]
-                             for row in jac.shifted_cameras(cam, s, aperture)]
-                    W, H = cam.size
-                    raster = {k: np.stack([np.stack([p[k].reshape(H, W) for p in row], -1) for row in parts], 1)
-                              .reshape(-1) for k in ("element", "xi", "eta")}
-        value, gradient = self._reference_functions(opts.interpolation)
-        pieces = opts.mode == "fast" and mesh.is_quadratic   # fast draws the pieces: their nodes, then chained
-        of = self.drawn_mesh if pieces else mesh             # the mesh differentiated
-        shading = None
-        if self.scene.lighting is not None:   # the drawn mesh's normals (a quadratic mesh's pieces')
-            shading = shading_terms(self.scene, drawn, self.drawn_mesh.quads, cam, value, None if pieces else self.pieces)
-        J, J_rig, depth = jac.image_jacobian(
-            cam, self.reference.camera, jac.MeshState(of.nodes, drawn if pieces else deformed, of.quads, of.patches),
-            raster, gradient, jac.JacobianOptions(opts.mode, s, aperture, rig, self.scene.optics is not None), shading)
-        if pieces:   # the pieces' nodes as weights of the mesh's (PiecesMesh.grid_matrix)
-            G = sparse.kron(self.drawn_mesh.grid_matrix(), sparse.identity(3), format="csr")
-            J = J @ G
-            depth = None if depth is None else (depth[0], depth[1] @ G, depth[2])
-        if depth is not None:   # through the depth of field's blur, of this state's unblurred image
-            z, J_z, J_z_rig = depth
-            W, H = cam.size
-            n = J.shape[1]
-            out = through_blur(J if J_rig is None else sparse.hstack([J, J_rig], format="csr"),
-                               J_z if J_rig is None else sparse.hstack([J_z, J_z_rig], format="csr"),
-                               self._image_before(cam, step, opts, tl, tau, blur=False), dof.pixel_depth(z, H, W, s),
-                               self.scene.optics)
-            J, J_rig = (out, None) if J_rig is None else (out[:, :n], out[:, n:])
-        if tl is not None:   # ∂g/∂u_k = ∂g/∂X(τ) · ∂X(τ)/∂X_k, per node
-            J = J @ sparse.kron(sparse.identity(mesh.n_nodes), tl.derivative(tau), format="csr")
-        return J, J_rig
-
-    def _reference_functions(self, method: str):
-        """The reference grey's value and gradient (grey per px) at reference points uv (n, 2), in
-        float64: the interpolant of ``method`` (its coefficients made once), or the procedural
-        speckle's exact dots (glsim.scene.speckle.evaluate, gradient)."""
-        if method == "procedural":
-            from glsim.scene import speckle
-
-            dots = require_dots(self.reference.dots)
-            grid = speckle.dot_grid(dots)
-            return (lambda uv: speckle.evaluate(dots, uv, grid)), (lambda uv: speckle.gradient(dots, uv, grid))
-        if method not in self._ref_coeffs:
-            self._ref_coeffs[method] = interp.prepare(self.reference.image, method, np.float64)
-        coeffs = self._ref_coeffs[method]
-        return (lambda uv: interp.sample(coeffs, uv, method)), (lambda uv: interp.gradient(coeffs, uv, method))
-
-    def _image_before(self, cam: Camera, step: int, opts: Render, tl, tau: float, blur: bool) -> np.ndarray:
-        """``cam``'s image (H, W) float64 at ``step`` (or the state τ s from it on ``tl``) before
-        the camera effects and noise: lit, supersampled, and with its depth of field if ``blur``."""
-        state = None if tl is None or tau == 0 else float(tau)
-        nodes = self.drawn_mesh.deformed(step) if tl is None else tl.at(tau, self.drawn_mesh.deformed)
-        view = self.geometry.view(cam, step, state, None if tl is None else nodes)
-        index = self._camera_index(cam)
-        fx = prepare_effects(self.scene, nodes, self.drawn_mesh.quads, cam, index, step, view.corner_depths(),
-                             normals=not self.backend.capabilities.device_geometry)
-        fx = dataclasses.replace(fx, noise=None, sensor=None, vignette=None, psf=None,
-                                 **({} if blur else {"optics": None, "sigma_max": 0.0}))
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore")
-            out = self.backend.render(Request(view, opts, False, fx, self._curved(opts, step, tl, tau)))
-        return out.image.astype(np.float64)
+        yield from exposure.sub_frames(self._drawing(), cam, step, opts, truth)
 
     def render_many(self, jobs: Iterable, depth: int = 2) -> Iterator[Result]:
         """The Results of ``jobs`` in order, pipelined: request k + depth − 1 is submitted before
@@ -517,16 +305,6 @@ class Renderer:
             keep(self._jobs, key, (self.scene, opts, cam, index), SEEN_KEPT)
         return opts, cam, index
 
-    def _curved(self, opts: Render, step: int, tl: "motion.Timeline | None" = None, tau: float = 0.0) -> Curved | None:
-        """A quadratic mesh's curved patches as modes exact and q4 map on them (None otherwise)
-        at ``step``, or at its state τ s on (``tl``: :meth:`_moving`'s sub-frames), keyed as
-        :meth:`glsim.stages.geometry.MeshGeometry.step` keys it."""
-        if not self.mesh.is_quadratic or opts.mode == "fast":
-            return None
-        if tl is None or tau == 0:
-            return Curved(self.mesh, self.pieces, step)
-        return Curved(self.mesh, self.pieces, (step, float(tau)), tl.at(tau, self.mesh.deformed))
-
     def _options(self, options: dict) -> Render:
         """The scene's [render] table with ``options`` (a render call's) applied; ``pieces`` is
         the renderer's (its quadratic mesh is cut once), not changed per call."""
@@ -539,7 +317,8 @@ class Renderer:
                              "(a Renderer of scene.replace(render={'pieces': n}))")
         return opts
 
-    def _submit(self, camera, step: int, truth: bool, quantize: bool, options: dict, polish: bool = True) -> "_Submitted":
+    def _submit(self, camera, step: int, truth: bool, quantize: bool, options: dict,
+                polish: bool = True) -> "_Submitted":
         t0 = time.perf_counter()
         opts, cam, index = self._job_setup(camera, truth, options)
         view = self.geometry.view(cam, step)
@@ -547,7 +326,7 @@ class Renderer:
         depths = view.corner_depths() if self.scene.optics is not None else np.empty(0)
         fx = prepare_effects(self.scene, deformed, self.drawn_mesh.quads, cam, index, step,
                              depths, normals=not self.backend.capabilities.device_geometry)
-        curved = self._curved(opts, step)
+        curved = curved_patches(self.mesh, self.pieces, opts, step)
         token = self.backend.submit(Request(view, opts, truth, fx, curved, cam.bit_depth if quantize else None, polish))
         return _Submitted(token, cam, step, opts, truth, quantize, view.step_geo, curved is not None,
                           time.perf_counter() - t0)
@@ -558,11 +337,11 @@ class Renderer:
         image = quantize_image(out.image, cam.bit_depth) if job.quantize and out.image.dtype.kind == "f" else out.image
         seconds = job.seconds + time.perf_counter() - t0
         tr = None
-        if job.truth and self.mesh.is_quadratic:   # the raster of the patches (fast: of the pieces, mapped here)
-            tr = self._truth(cam.size, self.mesh.deformed(step),
-                             out.samples if job.curved else self._fast_to_patches(out.samples))
-        elif job.truth:
-            tr = self._truth(cam.size, job.step_geo.deformed, out.samples)
+        if job.truth:   # of the FE mesh's elements (a quadratic mesh's patches; fast's pieces mapped to them)
+            deformed = self.mesh.deformed(step) if self.mesh.is_quadratic else job.step_geo.deformed
+            tr = self.truth_assembler.maps(self.mesh, self.scene.cameras[0], cam.size, deformed,
+                                           element_raster(self.mesh, self.pieces, self.reference.camera, out.samples,
+                                                          job.curved))
         return Result(image=image, camera=cam, step=step, backend=self.backend_name,
                       options=job.options, seconds=seconds, truth=tr, stages=out.stages,
                       specimen=self._specimen(cam, job.step_geo.deformed, self.drawn_mesh.quads, step,
@@ -580,55 +359,6 @@ class Renderer:
             if step is not None:
                 keep(self._seen, key, seen, SEEN_KEPT)
         return lambda: coverage(cam, deformed, quads)
-
-    def _fast_to_patches(self, raster: dict) -> dict:
-        """A fast-mode raster of the pieces → the patches: element and (ξ, η) of the parent,
-        then (as for linear elements) the material point the reference camera sees at the
-        sample's reference point, by Newton on the curved undeformed patch."""
-        r = dict(raster)
-        hit = np.flatnonzero(r["element"] >= 0)
-        piece = r["element"][hit]
-        e, xi, eta = self.pieces.to_parent(piece, r["xi"][hit], r["eta"][hit])
-        ref_cam = self.reference.camera
-        Pr = qd.patch_points(self.mesh.patches[e], to_camera(self.mesh.nodes, ref_cam)) if hit.size else \
-            np.zeros((0, 9, 3))
-        xi, eta = quadratic_fast_coords(ref_cam, Pr, r["ref_uv"][hit], xi, eta)
-        r["element"] = r["element"].copy()
-        r["xi"], r["eta"] = r["xi"].copy(), r["eta"].copy()
-        r["element"][hit], r["xi"][hit], r["eta"][hit] = e, xi, eta
-        return r
-
-    def _stack(self, rows: list[Truth]) -> Truth:
-        """A rolling shutter's rows' truths as one (:func:`glsim.effects.motion.stack`; the
-        library's compact renderer stacks its own)."""
-        return motion.stack(rows)
-
-    def _motion_range(self, tr: Truth, cam: Camera, tl: "motion.Timeline", tau: float, duration: float) -> Truth:
-        """``tr`` (rendered at τ s) with where its material points are at the exposure's start
-        and end (:func:`glsim.effects.motion.motion_range`)."""
-        return motion.motion_range(tr, self.mesh, cam, tl, tau, duration, self._positions)
-
-    def _positions(self, nodes: np.ndarray, elements: np.ndarray, xi, eta) -> np.ndarray:
-        """Points (…, 3) mm at (ξ, η) of the FE mesh's ``elements`` with node positions ``nodes``:
-        by the patches' own shape functions for quadratic elements, else bilinear."""
-        if self.mesh.is_quadratic:
-            return qd.evaluate(qd.patch_points(self.mesh.patches[elements], nodes), xi, eta)
-        return bilinear(nodes[self.mesh.quads[elements]], xi, eta)
-
-    def _truth(self, size, deformed: np.ndarray, raster: dict) -> Truth:
-        """Truth maps from a raster of the FE mesh's elements (element, ξ, η, ref_uv; a quadratic
-        mesh's patches) over ``size`` (W, H) px, its nodes at ``deformed``."""
-        W, H = size
-        elem = raster["element"].reshape(H, W)
-        mask = elem >= 0
-        xi = np.where(mask, raster["xi"].reshape(H, W), np.nan)
-        eta = np.where(mask, raster["eta"].reshape(H, W), np.nan)
-        ref = np.where(mask[..., None], raster["ref_uv"].reshape(H, W, 2), np.nan)
-        cam1, nodes, evaluate = self.scene.cameras[0], self.mesh.nodes, self._positions
-        e, x, y = elem[mask], xi[mask], eta[mask]
-        return Truth(mask=mask, element=elem, xi=xi, eta=eta, ref_uv=ref,
-                     positions=pixel_positions(mask, lambda: (to_camera(evaluate(nodes, e, x, y), cam1),
-                                                              to_camera(evaluate(deformed, e, x, y), cam1))))
 
 
 def render(scene: Scene, camera: int | str = 0, step: int = 0, backend: str | None = None,

@@ -328,7 +328,7 @@ def _blurred64(r: Renderer, deformed: np.ndarray, cam=None):
 @pytest.mark.parametrize("mode, spp, kernel, lit", [("exact", 1, "gaussian", False), ("q4", 1, "disk", False),
                                                      ("exact", 4, "gaussian", True)])
 def test_depth_of_field_jacobian_matches_central_differences(mode, spp, kernel, lit):
-    """Through the depth of field's blur (glsim.effects.through_blur): the blurred pixel moves
+    """Through the depth of field's blur (glsim.effects.dof.through_blur): the blurred pixel moves
     with its neighbours' grey (C·J) and with its own blur size through its depth (∂out/∂σ ·
     ∂σ/∂Z · ∂Z/∂u). Against central differences of the oracle's blurred model image in float64
     (_blurred64, checked to be the rendered image to the σ rounding's effect) on every pixel whose
@@ -464,7 +464,7 @@ def _with_camera_effects(scene, grey64: np.ndarray) -> np.ndarray:
 
 def test_camera_effects_jacobian_matches_central_differences():
     """Vignetting, a Gaussian PSF and fixed-pattern noise act on the image linearly, so its
-    Jacobian is the raster's through them (glsim.effects.through_camera_effects): against
+    Jacobian is the raster's through them (glsim.compose.chain.through_camera_effects): against
     central differences of the float64 raster put through the oracle's own effect stages (the
     rendered image's composition, checked), on every pixel whose PSF window (±4 px) holds only
     pixels whose samples stay in one element in both renders; test_oracle_matches_central_differences's

@@ -6,8 +6,8 @@ import ast
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1] / "glsim"
-LAYERS = ("errors", "limits", "scene", "io", "stages", "effects", "backends", "render", "workflows", "bench", "check",
-          "dic", "cli")
+LAYERS = ("errors", "limits", "scene", "io", "stages", "effects", "backends", "compose", "render", "workflows", "bench",
+          "check", "dic", "cli")
 
 
 def _imports(path: Path) -> set[str]:

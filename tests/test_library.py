@@ -389,17 +389,17 @@ def test_a_reused_renderer_gives_the_bytes_of_a_fresh_one(tmp_path):
     spec = _spec(tmp_path, "steps = [2]\n" + SCENE + "[vary]\nnoise.sigma = [0.5, 2.0]\n"
                  "'cameras.1.pose.stereo.Phi' = [11.0, 9.0]\n")
     made = []
-    real = worker.CompactRenderer.__init__
+    real = worker.Renderer.__init__
 
     def counting(self, *a, **k):
         made.append(1)
         real(self, *a, **k)
 
-    worker.CompactRenderer.__init__ = counting
+    worker.Renderer.__init__ = counting
     try:
         s = run(load_plan(spec), tmp_path / "lib", workers=1)
     finally:
-        worker.CompactRenderer.__init__ = real
+        worker.Renderer.__init__ = real
     assert s.written == 8 and len(made) == 1
     from glsim.scene import load_scene
     scene = load_scene(tmp_path / "lib" / "v0003" / "scene.json")

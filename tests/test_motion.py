@@ -152,7 +152,7 @@ def test_rolling_shutter_with_blur_renders_each_row_in_its_band(tmp_path, backen
     row's state is the same, so the image is the global shutter's bit for bit (the band's pixels
     are the frame's, blurred by the same sums); a band of 8 rows each side, one short of the
     reach 5 + 4, changes rows within that reach of the plate's top and bottom edges."""
-    from glsim import render as rendermod
+    from glsim.compose import exposure as exposuremod
     from glsim.effects import spread
 
     if backend == "gl":
@@ -164,7 +164,7 @@ def test_rolling_shutter_with_blur_renders_each_row_in_its_band(tmp_path, backen
     res = render(rolling, backend, truth=True)
     np.testing.assert_array_equal(res.image, still.image)
     np.testing.assert_array_equal(res.truth.ref_uv, still.truth.ref_uv)
-    monkeypatch.setattr(rendermod, "spread_rows", lambda scene, depths: 8)
+    monkeypatch.setattr(exposuremod, "spread_rows", lambda scene, depths: 8)
     short = render(rolling, backend).image
     differ = np.flatnonzero((short != still.image).any(axis=1))
     edges = np.array([SIZE[1] / 2 - 0.5 - 7.5 * PX_PER_MM, SIZE[1] / 2 - 0.5 + 7.5 * PX_PER_MM])  # rows 11, 36

@@ -13,7 +13,6 @@ from pathlib import Path
 
 import numpy as np
 
-from glsim.errors import SceneError
 from glsim.scene.camera import Camera
 from glsim.scene import Lighting, Noise, Optics, Scene, Sensor
 
@@ -93,74 +92,6 @@ def spread(scene: Scene, depths: np.ndarray) -> int:
 
         rows += make_kernel(scene.psf, Path(scene.base_dir)).radius
     return rows
-
-
-def through_blur(J, J_depth, image: np.ndarray, depth: np.ndarray, optics: Optics):
-    """An image Jacobian ``J`` (W·H × n, sparse) of the image before the depth of field → of the
-    blurred image (the oracle's gather, :func:`glsim.effects.dof.gather_linearization`), given the
-    derivative of each pixel's depth ``J_depth`` (W·H × n, mm per unit), the unblurred ``image``
-    (H, W) and the depths (H, W) mm the blur's sizes come from:
-    C·J + diag(∂out/∂size · ∂size/∂Z)·J_depth. SceneError naming [optics] where C·J would need
-    more memory than this process may use (its entries estimated from every k-th row's)."""
-    from scipy import sparse
-
-    from glsim.effects import dof
-    from glsim.limits import memory_budget
-
-    size = dof.blur_sigma(depth, optics)
-    C, d = dof.gather_linearization(image, size, optics.kernel)
-    probe = np.arange(0, C.shape[0], max(1, C.shape[0] // 4096))   # C·J's entries per row, on every k-th row
-    need, budget = 24 * ((C[probe] @ J).nnz * C.shape[0] // len(probe) + C.nnz), memory_budget()
-    if need > budget:
-        raise SceneError("optics", f"the image Jacobian through the depth of field's blur (up to "
-                         f"{2 * int(dof.kernel_radius(size.max(), optics.kernel)) + 1} px windows) needs about "
-                         f"{need / 2**30:.3g} GiB, more than the {budget / 2**30:.3g} GiB this process may use",
-                         "render a smaller camera (a region of interest), or render without jacobian")
-    return sparse.csr_matrix(C @ J + sparse.diags(d * dof.size_derivative(depth, optics).ravel()) @ J_depth)
-
-
-CAMERA_STAGES = ("vignetting", "psf", "prnu")
-
-
-def through_camera_effects(J, scene: Scene, cam: Camera, camera_index: int, stages=None, gain_term=None):
-    """An image Jacobian ``J`` (W·H × n, sparse; glsim.stages.jacobian) of the image before the
-    camera effects → of the image after those of them that act on it linearly and do not move
-    with the nodes, in the pipeline's order (docs/camera.md): vignetting's gain per pixel, the
-    lens PSF (a convolution, clamp to edge: :func:`glsim.effects.psf.matrix`), the PRNU's gain;
-    the DSNU adds an offset (no derivative); ``stages``: only those of CAMERA_STAGES (a rolling
-    shutter's band takes vignetting and the PSF, its whole image the PRNU); ``gain_term``: what
-    the vignetting gain's own change adds after its stage (a rig Jacobian's diag(image)·∂gain).
-    SceneError naming [psf] where the PSF's product would need more memory than this process may
-    use."""
-    from scipy import sparse
-
-    W, H = cam.size
-    stages = CAMERA_STAGES if stages is None else stages
-    if scene.vignetting is not None and "vignetting" in stages:
-        from glsim.effects.vignetting import flat_field
-
-        J = sparse.diags(flat_field(cam, scene.vignetting).ravel()) @ J
-        if gain_term is not None:
-            J = J + gain_term
-    if scene.psf is not None and "psf" in stages:
-        from glsim.effects import psf
-        from glsim.limits import memory_budget
-
-        k = psf.make_kernel(scene.psf, Path(scene.base_dir))
-        taps = int(np.count_nonzero(k.kernel))
-        need, budget = 24 * taps * (W * H + J.nnz), memory_budget()   # (row, column, value) per entry
-        if need > budget:
-            raise SceneError("psf", f"the image Jacobian through its {2 * k.radius + 1} px kernel needs about "
-                             f"{need / 2**30:.3g} GiB, more than the {budget / 2**30:.3g} GiB this process may use",
-                             "render a smaller camera (a region of interest), give a narrower PSF, or render "
-                             "without jacobian")
-        J = psf.matrix(k, (W, H)) @ J
-    if scene.sensor is not None and scene.sensor.prnu > 0 and "prnu" in stages:
-        from glsim.effects import noise
-
-        gain = noise.prnu_gain((H, W), scene.sensor.prnu, noise.fixed_pattern_seed(scene.seed, camera_index))
-        J = sparse.diags(gain.ravel()) @ J
-    return sparse.csr_matrix(J)
 
 
 def prepare(scene: Scene, nodes_def: np.ndarray, quads: np.ndarray, cam: Camera, camera_index: int,

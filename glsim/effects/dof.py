@@ -480,3 +480,27 @@ def blur_expansion(image, sigma_map, tol: float = EXPANSION_TOL, stats: dict | N
         stats["direct_rows"] = direct_rows / max(1, int(np.where(s > 0, 2 * R + 1, 0).sum()))
     with np.errstate(invalid="ignore", divide="ignore"):
         return np.where(s > 0, acc / (Bv * Bp), img)
+
+
+def through_blur(J, J_depth, image: np.ndarray, depth: np.ndarray, optics):
+    """The derivative of the depth of field: an image Jacobian ``J`` (W·H × n, sparse) of the
+    image before the blur → of the blurred image (the oracle's gather, :func:`gather_linearization`),
+    given the derivative of each pixel's depth ``J_depth`` (W·H × n, mm per unit), the unblurred
+    ``image`` (H, W) and the depths (H, W) mm the blur's sizes come from:
+    C·J + diag(∂out/∂size · ∂size/∂Z)·J_depth. SceneError naming [optics] where C·J would need
+    more memory than this process may use (its entries estimated from every k-th row's)."""
+    from scipy import sparse
+
+    from glsim.errors import SceneError
+    from glsim.limits import memory_budget
+
+    size = blur_sigma(depth, optics)
+    C, d = gather_linearization(image, size, optics.kernel)
+    probe = np.arange(0, C.shape[0], max(1, C.shape[0] // 4096))   # C·J's entries per row, on every k-th row
+    need, budget = 24 * ((C[probe] @ J).nnz * C.shape[0] // len(probe) + C.nnz), memory_budget()
+    if need > budget:
+        raise SceneError("optics", f"the image Jacobian through the depth of field's blur (up to "
+                         f"{2 * int(kernel_radius(size.max(), optics.kernel)) + 1} px windows) needs about "
+                         f"{need / 2**30:.3g} GiB, more than the {budget / 2**30:.3g} GiB this process may use",
+                         "render a smaller camera (a region of interest), or render without jacobian")
+    return sparse.csr_matrix(C @ J + sparse.diags(d * size_derivative(depth, optics).ravel()) @ J_depth)

@@ -156,6 +156,15 @@ def prnu_gain(shape: tuple[int, int], prnu: float, seed: int) -> np.ndarray:
     return 1.0 + prnu / 100.0 * standard_normal(index, np.uint32(_seed_word(seed, "seed")), STREAM_PRNU)
 
 
+def through_prnu(J, shape: tuple[int, int], prnu: float, seed: int):
+    """The derivative of the fixed-pattern noise: an image Jacobian ``J`` (H·W × n, sparse) of
+    the image of ``shape`` (H, W) before it → after the PRNU's gain (:func:`prnu_gain`); the DSNU
+    adds an offset, with no derivative."""
+    from scipy import sparse
+
+    return sparse.diags(prnu_gain(shape, prnu, seed).ravel()) @ J
+
+
 def fixed_pattern(image, prnu: float, dsnu: float, bit_depth: int, seed: int) -> np.ndarray:
     """EMVA 1288 fixed-pattern noise, float64 (H, W): image · :func:`prnu_gain` + dsnu/(2^bits − 1) · z_d,
     z_d the standard normal map of ``seed`` (:func:`fixed_pattern_seed`) on stream STREAM_DSNU;

@@ -170,3 +170,20 @@ def apply(image: np.ndarray, k: Kernel) -> np.ndarray:
     from scipy import ndimage
 
     return ndimage.convolve(np.asarray(image, np.float64), k.kernel, mode="nearest")
+
+
+def through_kernel(J, k: Kernel, size: tuple[int, int]):
+    """The derivative of the lens PSF: an image Jacobian ``J`` (W·H × n, sparse) of the image of
+    ``size`` (W, H) before it → after the convolution (clamp to edge, :func:`matrix`). SceneError
+    naming [psf] where the product would need more memory than this process may use."""
+    from glsim.limits import memory_budget
+
+    W, H = size
+    taps = int(np.count_nonzero(k.kernel))
+    need, budget = 24 * taps * (W * H + J.nnz), memory_budget()   # (row, column, value) per entry
+    if need > budget:
+        raise SceneError("psf", f"the image Jacobian through its {2 * k.radius + 1} px kernel needs about "
+                         f"{need / 2**30:.3g} GiB, more than the {budget / 2**30:.3g} GiB this process may use",
+                         "render a smaller camera (a region of interest), give a narrower PSF, or render "
+                         "without jacobian")
+    return matrix(k, (W, H)) @ J

@@ -58,3 +58,13 @@ def flat_field_rig_jacobian(cam: Camera, vignetting) -> np.ndarray:
     out = np.zeros((len(q), len(RIG_COLUMNS)))
     out[:, 6:] = np.einsum("n,nl,nlp->np", 2.0 * dg, xn, ray_parameter_jacobian(cam, q, xn))
     return out
+
+
+def through_flat_field(J, cam: Camera, vignetting, gain_term=None):
+    """The derivative of vignetting: an image Jacobian ``J`` (W·H × n, sparse) of the image
+    before it → after its gain per pixel; ``gain_term``: what the gain's own change adds (a rig
+    Jacobian's diag(image)·∂gain, :func:`flat_field_rig_jacobian`)."""
+    from scipy import sparse
+
+    J = sparse.diags(flat_field(cam, vignetting).ravel()) @ J
+    return J if gain_term is None else J + gain_term

@@ -40,8 +40,8 @@ from glsim.scene.camera import (Camera, distort, distort_jacobian, pixel_to_norm
 
 # optional tables the Jacobian takes (check_request refuses any other by name): it is of the
 # noise-free image, over the exposure (the sub-frames' mean), lit, through the depth of field
-# (glsim.effects.through_blur) and through the camera effects that act on it linearly
-# (glsim.effects.through_camera_effects)
+# (glsim.effects.dof.through_blur) and through the camera effects that act on it linearly
+# (glsim.compose.chain.through_camera_effects)
 UNREFUSED = ("noise", "vignetting", "psf", "sensor", "exposure", "lighting", "optics")
 CHUNK = 1 << 18          # samples differentiated at once (bounds memory: ~100 doubles each)
 

@@ -42,22 +42,23 @@ class CompactRaster:
         self.element, self.xi, self.eta = element, xi, eta
 
 
-class CompactRenderer(Renderer):
-    """A Renderer whose truth is only the compact (element, ξ, η): no float64 map of the
-    positions or reference coordinates is made (the truth file determines them), and the
-    backend's full-size raster is dropped as soon as the covered pixels are gathered."""
+class CompactAssembler:
+    """The library's truth (:class:`glsim.compose.truth.TruthAssembler`): only the compact
+    (element, ξ, η); no float64 map of the positions or reference coordinates is made (the truth
+    file determines them), and the backend's full-size raster is dropped as soon as the covered
+    pixels are gathered."""
 
-    def _truth(self, size, deformed, raster) -> CompactRaster:
+    def maps(self, mesh, world, size, deformed, raster) -> CompactRaster:
         W, H = size
         return CompactRaster(*truthcodec.compact(raster["element"].reshape(H, W), raster["xi"], raster["eta"]))
 
-    def _motion_range(self, tr, cam, tl, tau, duration) -> CompactRaster:
+    def motion_range(self, mesh, tr, cam, tl, tau, duration) -> CompactRaster:
         """A library's truth is the mid-exposure state's (a global shutter's: the load step's;
         a rolling shutter's rows': glsim.io.truth.CompactTruth.maps); its files hold no motion
         range."""
         return tr
 
-    def _stack(self, rows: list[CompactRaster]) -> CompactRaster:
+    def stack(self, rows: list[CompactRaster]) -> CompactRaster:
         """A rolling shutter's rows, top to bottom (their covered pixels in raster order)."""
         return CompactRaster(np.concatenate([t.element for t in rows]), np.concatenate([t.xi for t in rows]),
                              np.concatenate([t.eta for t in rows]))
@@ -78,7 +79,8 @@ def renderer_for(scene, backend: str | None = None) -> Renderer:
 
     backend = backend or scene.render.backend
     r = thread_renderer(reference_key(scene, backend),
-                        lambda: CompactRenderer(scene, backend, ctx=thread_context() if backend == "gl" else None))
+                        lambda: Renderer(scene, backend, ctx=thread_context() if backend == "gl" else None,
+                                         truth_assembler=CompactAssembler()))
     r.scene = scene                # same mesh, reference, textures and programs; new options
     return r
 
