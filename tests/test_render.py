@@ -636,3 +636,29 @@ def test_shape_median_is_numpys():
         assert _median(a) == float(np.median(a))
         assert _median(np.round(a)) == float(np.median(np.round(a)))   # (ties)
     assert _median(np.empty(0)) == 0.0
+
+
+def test_a_truth_assembler_given_to_the_renderer_makes_the_truth():
+    """Renderer(truth_assembler=...) makes each render's truth from its raster, still and under
+    a rolling shutter (one per row, then their stack): here each pixel's element, which must be
+    the default per-pixel maps' (glsim.compose.truth.PixelMaps)."""
+    class Elements:
+        def maps(self, mesh, world, size, deformed, raster):
+            W, H = size
+            return raster["element"].reshape(H, W).copy()
+
+        def motion_range(self, mesh, tr, cam, tl, tau, duration):
+            return tr
+
+        def stack(self, rows):
+            return np.concatenate(rows)
+
+    scene = plate_scene(size=(48, 36), fx=300.0, mode="exact")
+    rolling = scene.replace(exposure={"velocity": [0.0, 0.0, 0.0]}, sensor={"line_time": 1e-4})
+    for sc in (scene, rolling):
+        with Renderer(sc, "cpu") as r:
+            default = r.render(0, 1, truth=True).truth
+        with Renderer(sc, "cpu", truth_assembler=Elements()) as r:
+            got = r.render(0, 1, truth=True).truth
+        assert 0 < default.mask.mean() < 1
+        np.testing.assert_array_equal(got, default.element)
