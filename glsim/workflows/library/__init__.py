@@ -4,11 +4,11 @@ and a manifest out — resumable, in parallel processes or on a Dask cluster (``
 Modules: :mod:`.spec` (reading and expanding specs), :mod:`.worker` (rendering a task, one
 renderer per worker thread), :mod:`.writer` (encoding and writing in a writer process),
 :mod:`.lifeline` (children that end with their parent), :mod:`.manifest` (manifest.csv and
-library.json), :mod:`.runner` (directory rules, pools, resume, verify), :mod:`.cli` (the
-command line). The names below are imported on first use, so that a writer process, which
-imports :mod:`.writer` only, loads no renderer.
+library.json), :mod:`.runner` (directory rules, pools, resume), :mod:`.audit` (which files are
+good, verify), :mod:`.cli` (the command line). The names below are imported on first use, so
+that a writer process, which imports :mod:`.writer` only, loads no renderer.
 """
-_NAMES = {"Summary": "runner", "run": "runner", "verify": "runner",
+_NAMES = {"Summary": "runner", "run": "runner", "verify": "audit",
           "Plan": "spec", "SpecError": "spec", "expand": "spec", "load_plan": "spec"}
 __all__ = sorted(_NAMES)
 

@@ -160,7 +160,7 @@ def _duration(s: float) -> str:
 
 def main(argv: list[str] | None = None) -> int:
     from glsim.workflows.library import manifest as mf
-    from glsim.workflows.library import runner
+    from glsim.workflows.library import audit, runner
     from glsim.workflows.library.spec import expand, load_plan
 
     args = parser().parse_args(argv)
@@ -173,7 +173,7 @@ def main(argv: list[str] | None = None) -> int:
                 raise GlsimError(f"{src} is a library directory: --dry-run and -o take a spec file — give the "
                                  "SPEC.toml, or leave them out to resume this library")
             if args.verify:
-                good, problems = runner.verify(src)
+                good, problems = audit.verify(src)
                 for p in problems[:20]:
                     print(f"bad: {p}")
                 if len(problems) > 20:

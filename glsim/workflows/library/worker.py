@@ -168,13 +168,14 @@ def render_task(task: dict) -> list[dict]:
                 for job, res in zip(jobs, results):
                     header, t = None, res.truth
                     if t is not None:
+                        geometry = truthio.relpath(out / task["geometry"], (out / job["truth"]).parent)
                         header = truthcodec.image_header(res.camera, scene.cameras[0], r.reference.camera,
-                                                      res.options.mode, job["step"],
-                                                      truthio.relpath(out / task["geometry"], (out / job["truth"]).parent),
-                                                      task["geometry_sha256"], motion.rolling_truth(scene, r.mesh,
-                                                                                                    job["step"]))
+                                                         res.options.mode, job["step"], geometry,
+                                                         task["geometry_sha256"],
+                                                         motion.rolling_truth(scene, r.mesh, job["step"]))
                     writer.put(str(out), {**job, "bit_depth": res.camera.bit_depth}, res.image, _coverage(res),
-                               None if t is None else (t.element, t.xi, t.eta), header, task["truth_dtype"], res.seconds)
+                               None if t is None else (t.element, t.xi, t.eta), header, task["truth_dtype"],
+                               res.seconds)
         except BaseException:
             try:
                 writer.drain()
