@@ -44,10 +44,10 @@ from glsim.limits import check_gl_target, check_image_size, check_memory, keep
 from glsim.scene import Render, Scene
 from glsim.scene import quadratic as qd
 from glsim.scene.camera import Camera
-from glsim.stages import jacobian as jac
-from glsim.stages.geometry import MeshGeometry, StepGeometry
-from glsim.stages.reference import make_reference
-from glsim.stages.view import View, coverage, make_view, warn_unseen
+from glsim.imaging import jacobian as jac
+from glsim.imaging.geometry import MeshGeometry, StepGeometry
+from glsim.imaging.reference import make_reference
+from glsim.imaging.view import View, coverage, make_view, warn_unseen
 
 SEEN_KEPT = 64              # (camera, step) views whose "seen" verdict is kept
 
@@ -70,7 +70,7 @@ class Result:
 
     @functools.cached_property
     def coverage(self) -> np.ndarray:
-        """(H, W) bool: the specimen's pixels (:func:`glsim.stages.view.coverage`), made on first
+        """(H, W) bool: the specimen's pixels (:func:`glsim.imaging.view.coverage`), made on first
         access (a CPU projection of every element: not part of the render's cost)."""
         W, H = self.camera.size
         return self.specimen() if self.specimen is not None else np.zeros((H, W), bool)
@@ -197,7 +197,7 @@ class Renderer:
         :class:`ViewSpec` (the camera's transform; the mesh and the step's nodes are shared),
         the effects, and for a quadratic mesh in exact and q4 its curved patches.
         ``jacobian``: also ``Result.jacobian``, the noise-free image's derivative with respect to
-        the nodal displacements (:mod:`glsim.stages.jacobian`; refused by name where it cannot be made);
+        the nodal displacements (:mod:`glsim.imaging.jacobian`; refused by name where it cannot be made);
         ``rig``: that and ``Result.rig_jacobian``, with respect to the camera's pose and intrinsics."""
         self._require_open()
         jacobian = jacobian or rig

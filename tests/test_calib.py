@@ -199,6 +199,7 @@ def _pair_files(d, n):
 
 
 @pytest.mark.gl
+@pytest.mark.process
 def test_library_on_the_engine_pool_gives_the_same_files(ci_library, tmp_path):
     """Two worker processes (the image library's engine) write the same pair images and ground
     truth, byte for byte, as the library rendered in this process (its first pairs: a library's
@@ -237,9 +238,22 @@ def test_library_files_ground_truth_and_resume(ci_library, gl_ctx):
 
 @pytest.fixture(scope="module")
 def ci_detections(ci_library):
-    """Every pair's detections, found by two worker processes (``glsim calib run --processes 2``'s
-    path; the tests below check them against the truth, test_detection_cache the one-process path)."""
-    return cal.detect_library(ci_library, 41, processes=2)
+    """Every pair's detections, found in this process (the tests below check them against the
+    truth; test_two_detection_processes_find_what_one_finds the worker-process path)."""
+    return cal.detect_library(ci_library, 41)
+
+
+@pytest.mark.process
+@pytest.mark.gl
+def test_two_detection_processes_find_what_one_finds(ci_library, ci_detections):
+    """``glsim calib run --processes 2``'s path: two spawned workers give the detections of one
+    process, array for array (the cache removed first, so they detect again)."""
+    cal.cache_path(ci_library, 41, cal.default_method(ci_library.target)).unlink()
+    two = cal.detect_library(ci_library, 41, processes=2)
+    assert two.keys() == ci_detections.keys()
+    for k, cams in two.items():
+        for a, b in zip(cams, ci_detections[k], strict=True):
+            assert (a is None and b is None) or np.array_equal(a, b, equal_nan=True)
 
 
 @pytest.mark.gl

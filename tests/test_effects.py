@@ -225,9 +225,9 @@ def test_noise_on_a_flat_field_matches_the_model(backend, request):
                   noise=Noise(sigma=2.0))
     ctx = request.getfixturevalue("gl_ctx") if backend == "gl" else None
     from glsim.io.fe import specimen_mesh
-    from glsim.stages.reference import Reference
+    from glsim.imaging.reference import Reference
     mesh = specimen_mesh(scene)
-    from glsim.stages.reference import _auto_camera
+    from glsim.imaging.reference import _auto_camera
     ref_cam = _auto_camera(mesh.nodes, cam.center, 1.0, (500, 500))
     flat = Reference(np.full((500, 500), 0.5, np.float32), ref_cam)
     with Renderer(scene, backend, ctx=ctx, mesh=mesh, reference=flat) as r:

@@ -25,7 +25,7 @@ from glsim.io import truth as T
 from glsim.io import truthcodec as C
 from glsim.scene import load_scene
 from glsim.io.fe import specimen_mesh
-from glsim.stages.reference import make_reference
+from glsim.imaging.reference import make_reference
 from glsim.workflows.library import load_plan, run, verify
 from glsim.workflows.library.cli import main as library_main
 

@@ -19,7 +19,7 @@ from glsim.limits import MAX_COORDINATE_MM, MAX_DISTORTION, MAX_FOCAL_PX
 from glsim.scene import load_scene
 from glsim.scene.camera import Camera
 from glsim.scene.mesh import Mesh
-from glsim.stages.reference import surface_normal
+from glsim.imaging.reference import surface_normal
 
 CAMERA = ('[[cameras]]\nname = "{name}"\nsize = [64, 48]\nfx = {fx}\nfy = 300.0\ncx = 31.5\ncy = 23.5\n{extra}')
 PLATE = "[specimen.plate]\nwidth = 40.0\nheight = 30.0\ntranslations = [{tr}]\n[specimen.pose]\nt = {t}\n"

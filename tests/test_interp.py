@@ -1,10 +1,10 @@
-"""glsim.stages.interp: numpy kernels against scipy.ndimage and polynomial reproduction."""
+"""glsim.imaging.interp: numpy kernels against scipy.ndimage and polynomial reproduction."""
 
 import numpy as np
 import pytest
 from scipy import ndimage
 
-from glsim.stages import interp
+from glsim.imaging import interp
 from glsim.errors import SceneError
 
 H, W = 37, 53

@@ -1,4 +1,4 @@
-"""Image Jacobians (issue 32, glsim.stages.jacobian): the oracle's against central finite
+"""Image Jacobians (issue 32, glsim.imaging.jacobian): the oracle's against central finite
 differences of its own float64 renders, supersampled averaging, the refusals by name, GL against
 the oracle and the ``glsim jacobian`` round trip."""
 import dataclasses
@@ -21,9 +21,9 @@ from glsim.render import Renderer
 from glsim.scene import load_scene
 from glsim.scene.camera import Distortion, rodrigues
 from glsim.scene.mesh import with_displacements
-from glsim.stages import interp
-from glsim.stages import jacobian as jac
-from glsim.stages.view import make_view
+from glsim.imaging import interp
+from glsim.imaging import jacobian as jac
+from glsim.imaging.view import make_view
 from _plates import plate_scene
 
 TILT = ((0.96, 0.0, 0.28), (0.0, 1.0, 0.0), (-0.28, 0.0, 0.96))
@@ -87,9 +87,9 @@ def test_oracle_matches_central_differences(mode, spp, interpolation, fill):
     """_against_central_differences of the oracle's float64 renders; procedural: the speckle's
     own dots evaluated exactly, their smooth edges' gradient (glsim.scene.speckle.gradient); a fill
     factor below 1: the samples at c + √fill·((k + ½)/s − ½), rendered as shifted cameras
-    (glsim.stages.jacobian.shifted_cameras; fails with the full pixel's rays, checked); fast: the
+    (glsim.imaging.jacobian.shifted_cameras; fails with the full pixel's rays, checked); fast: the
     perspective-correct triangles' weights moved by their corners' projections and depths
-    (glsim.stages.jacobian.fast_sensitivities; fails without the depths' term, checked)."""
+    (glsim.imaging.jacobian.fast_sensitivities; fails without the depths' term, checked)."""
     scene, mesh = _plate(backend="cpu", mode=mode, samples_per_pixel=spp, interpolation=interpolation)
     scene = scene.replace(sensor={"fill_factor": fill}) if fill < 1 else scene
     with Renderer(scene, mesh=mesh) as r:
@@ -143,7 +143,7 @@ def _curved_image(r: Renderer, cam, mesh, deformed, mode: str):
     when the scene is, and per pixel its samples' one element (−2 where they differ)."""
     from glsim.backends.cpu import _shade, rasterize_quadratic
     from glsim.effects import prepare
-    from glsim.stages.quadview import make_quad_view
+    from glsim.imaging.quadview import make_quad_view
 
     s, (W, H) = r.scene.render.supersampling, cam.size
     lit = r.scene.lighting is not None

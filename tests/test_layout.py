@@ -6,7 +6,7 @@ import ast
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1] / "glsim"
-LAYERS = ("errors", "limits", "scene", "io", "stages", "effects", "backends", "compose", "render", "workflows", "bench",
+LAYERS = ("errors", "limits", "scene", "io", "imaging", "effects", "backends", "compose", "render", "workflows", "bench",
           "check", "dic", "cli")
 
 

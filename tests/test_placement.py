@@ -14,7 +14,7 @@ from glsim.render import Renderer
 from glsim.scene import load_scene
 from glsim.scene.camera import rodrigues
 from glsim.io.fe import specimen_mesh
-from glsim.stages.reference import make_reference, placement
+from glsim.imaging.reference import make_reference, placement
 
 WIDTH, HEIGHT = 60.0, 40.0          # mm, the plate of the issue
 MM_PER_PX = 0.05                    # the reference image's scale
@@ -93,7 +93,7 @@ def test_a_uniform_and_a_graded_mesh_of_one_plate_give_the_same_image(tmp_path, 
     assert cams[0] == cams[1]
     assert np.array_equal(uniform.truth.mask, graded.truth.mask) and uniform.truth.mask.mean() > 0.3
     from glsim.check import closed_forms
-    from glsim.stages import interp
+    from glsim.imaging import interp
 
     with Renderer(scene, "cpu") as r:
         method = r.scene.render.interpolation

@@ -23,7 +23,7 @@ from glsim.scene.camera import project
 from glsim.workflows.preview import Preview
 from glsim.workflows.preview import overlays as ov
 from glsim.workflows.preview.panes import display_grey
-from glsim.stages.reference import make_reference
+from glsim.imaging.reference import make_reference
 
 pytestmark = pytest.mark.gl
 ROOT = Path(__file__).resolve().parents[1]

@@ -341,7 +341,7 @@ def test_gl_curved_modes_match_the_oracle(gl_ctx, kind, mode):
     float32 allows the reference sample at the same point (both images stored as float32) in
     fp64 builds, plus the box filter's float32 mean at 2×2 samples; fp32 builds, whose reference
     points move by their own Δ (the truth maps'): plus |∇I|·|Δ| and a second-order term."""
-    from glsim.stages import interp
+    from glsim.imaging import interp
 
     mesh = surface_mesh(kind)
     with Renderer(scene(), "gl", ctx=gl_ctx, mesh=mesh) as g, Renderer(scene(), "cpu", mesh=mesh) as c:
@@ -774,7 +774,8 @@ def test_point_truth_finds_points_beyond_the_control_points_projections():
     them, where a box of the nodes' projections would not: they are found, at the closed form —
     the nearer of the ray's two roots in that element (with the sub-quads' centres as Newton
     starts only where their chords are not crossed, 3 of these 50 got the farther one)."""
-    from glsim.io.truth import mesh_geometry, points_truth
+    from glsim.io.truth import mesh_geometry
+    from glsim.scene.locate import points_truth
 
     a = 4.0
     mesh = trough(a)

@@ -380,7 +380,7 @@ def test_element_areas_and_extent_are_numpys_values_bit_for_bit():
     numpy's cross, norm and sum over the last axis bit for bit, as does mesh_element_areas
     from the nodes and the elements' node indices (gathered per coordinate, in chunks), and
     extent the min and max over axis 0: random, zero-area, bow-tie and 8 m far-off elements."""
-    from glsim.stages.view import element_areas, extent, mesh_element_areas
+    from glsim.imaging.view import element_areas, extent, mesh_element_areas
 
     rng = np.random.default_rng(11)
     for m, scale, offset in ((1, 1.0, 0.0), (7, 1e-6, 600.0), (5000, 3.0, 8000.0)):
@@ -626,9 +626,9 @@ def test_gl_procedural_matches_oracle(bulge_pair, mode):
 
 
 def test_shape_median_is_numpys():
-    """glsim.stages.view._median (one partition; the element shape checks' median area, once
+    """glsim.imaging.view._median (one partition; the element shape checks' median area, once
     per load step) is np.median bit for bit: odd and even counts, ties, empty."""
-    from glsim.stages.view import _median
+    from glsim.imaging.view import _median
 
     rng = np.random.default_rng(5)
     for n in (1, 2, 3, 4, 101, 8000, 8001):

@@ -12,15 +12,15 @@ import numpy as np
 import pytest
 
 import glsim.render
-import glsim.stages.geometry
-import glsim.stages.view
+import glsim.imaging.geometry
+import glsim.imaging.view
 from glsim.errors import RenderWarning
 from glsim.check import closed_forms, oracle_maps
 from glsim.render import Renderer
 from glsim.scene import Plate, Scene, Specimen, bulge_scene
 from glsim.scene.camera import Camera, Distortion
 from glsim.scene.mesh import Mesh
-from glsim.stages.view import cover_rectangles, make_view
+from glsim.imaging.view import cover_rectangles, make_view
 
 from _plates import plate_scene
 
@@ -53,11 +53,11 @@ def test_gl_path_builds_no_numpy_view_and_uploads_once(gl_ctx, monkeypatch):
     """Rendering on GL runs make_view never (the oracle's per-element numpy work); the mesh is
     uploaded once per renderer and each step's nodes once (per precision), shared by cameras."""
     counters = {}
-    for mod in (glsim.render, glsim.stages.geometry, glsim.stages.view):
+    for mod in (glsim.render, glsim.imaging.geometry, glsim.imaging.view):
         counters[mod.__name__] = Counter(mod.make_view)
         monkeypatch.setattr(mod, "make_view", counters[mod.__name__])
-    cover = Counter(glsim.stages.view.cover_rectangles)
-    monkeypatch.setattr(glsim.stages.view, "cover_rectangles", cover)
+    cover = Counter(glsim.imaging.view.cover_rectangles)
+    monkeypatch.setattr(glsim.imaging.view, "cover_rectangles", cover)
     with Renderer(plate_scene(plate=grid(12), **STEREO), "gl", ctx=gl_ctx) as r:
         for step in (0, 1):
             for cam in (0, 1):
@@ -217,7 +217,7 @@ def test_footprints_contain_every_covered_pixel():
 @pytest.mark.gl
 @pytest.mark.parametrize("scene_name", ["bulge", "barrel"])
 def test_gpu_covers_equal_the_numpy_twin(gl_ctx, scene_name):
-    """shaders/view.glsl computes the same cover rectangles as glsim.stages.view (float32
+    """shaders/view.glsl computes the same cover rectangles as glsim.imaging.view (float32
     rounding apart)."""
     scene = bulge_scene(size=(203, 154), steps=1) if scene_name == "bulge" else barrel_scene(600.0)
     with warnings.catch_warnings():

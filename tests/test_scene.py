@@ -312,10 +312,10 @@ def test_bulge_scene_geometry():
 # examples/
 
 
-@pytest.mark.parametrize("path", sorted(p for p in EXAMPLES.glob("**/*.toml") if not p.name.startswith("library_")),
+@pytest.mark.parametrize("path", sorted(p for p in EXAMPLES.glob("**/*.toml") if not p.name.startswith(("library_", "design_"))),
                          ids=lambda p: str(p.relative_to(EXAMPLES)))
 def test_examples_load(path):
-    """Every example scene loads (library_*.toml are library specs: tests/test_library.py)."""
+    """Every example scene loads (library_*.toml and design_*.toml are specs: tests/test_library.py, tests/test_design.py)."""
     scene = load_scene(path)
     mesh = specimen_mesh(scene)
     assert mesh.n_steps >= 2 and scene.base_dir == str(path.parent)

@@ -15,7 +15,7 @@ from glsim.errors import RenderWarning
 from glsim.check.shapefilter import CAMERA, classify, grid, mesh, misses, with_element
 from glsim.render import Renderer
 from glsim.scene import Plate, Scene, Specimen
-from glsim.stages.view import TINY_AREA_REL, ZERO_AREA_REL, mesh_element_areas
+from glsim.imaging.view import TINY_AREA_REL, ZERO_AREA_REL, mesh_element_areas
 
 pytestmark = pytest.mark.gl
 

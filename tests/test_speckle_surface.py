@@ -12,7 +12,7 @@ import pytest
 from glsim.io.fe import specimen_mesh
 from glsim.render import Renderer
 from glsim.scene import load_scene, speckle
-from glsim.stages.reference import camera_scale, make_reference, pattern_scale, placement
+from glsim.imaging.reference import camera_scale, make_reference, pattern_scale, placement
 
 WIDTH, HEIGHT = 100.0, 50.0          # mm, the plate of the issue
 NX, NY = 10, 5                       # its elements

@@ -1,6 +1,6 @@
 """The backend contract: what :class:`glsim.render.Renderer` asks of a backend, the same for the
 float64 CPU oracle and the GL shaders. One request type in (:class:`Request`: a
-:class:`~glsim.stages.geometry.ViewSpec`, the scene's [render] options, the effects, the curved
+:class:`~glsim.imaging.geometry.ViewSpec`, the scene's [render] options, the effects, the curved
 elements), one result out (:class:`Raster`), and a frozen :class:`Capabilities` the renderer
 asks instead of the backend's name. Each backend verifies what it can draw before it allocates
 anything (pyvale's renderers verify a request, then render its plan).
@@ -20,7 +20,7 @@ from glsim.effects import Effects
 from glsim.scene import Render
 from glsim.scene.mesh import Mesh
 from glsim.scene.quadratic import Pieces
-from glsim.stages.geometry import ViewSpec
+from glsim.imaging.geometry import ViewSpec
 
 STAGES = ("raster", "subsamples", "interpolate", "light", "downsample", "blur", "vignette", "psf", "fixed_pattern",
           "noise")
@@ -51,7 +51,7 @@ class Curved:
     """Modes exact and q4 of a quadratic mesh: each sample is mapped on its curved patch. The
     view's elements are ``pieces`` (the mesh's linear pieces); ``mesh`` is the quadratic mesh;
     ``state`` the load step drawn, or a hashable key of a state during its exposure
-    (:meth:`glsim.stages.geometry.MeshGeometry.step`) whose FE nodes are ``nodes``."""
+    (:meth:`glsim.imaging.geometry.MeshGeometry.step`) whose FE nodes are ``nodes``."""
     mesh: Mesh
     pieces: Pieces
     state: int | tuple
@@ -68,7 +68,7 @@ class Request:
     ``truth`` (also the pixel-centre raster), ``effects`` (what the scene asks for), ``curved``,
     ``quantize`` (a bit depth: the image may come back quantised as glsim.io.images.quantize
     does, where the backend can do that exactly), ``polish`` (the raster's (ξ, η) made float64,
-    glsim.stages.truth.polish; False: as the pass gave them, where only its elements are wanted —
+    glsim.imaging.truth.polish; False: as the pass gave them, where only its elements are wanted —
     mode fast's Jacobian)."""
     view: ViewSpec
     options: Render
@@ -85,7 +85,7 @@ class Raster:
     request asked for it (uint8 / uint16); ``samples``, if the
     request asked for truth, the pixel-centre raster as flat arrays over H·W — ``element`` (−1
     where none; the quadratic patch when curved, else the view's element), ``xi``, ``eta``
-    (float64, polished: glsim.stages.truth.polish), ``ref_uv`` (px); ``stages`` run (STAGES)."""
+    (float64, polished: glsim.imaging.truth.polish), ``ref_uv`` (px); ``stages`` run (STAGES)."""
     image: np.ndarray
     samples: dict | None
     stages: tuple[str, ...]

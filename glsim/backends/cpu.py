@@ -11,13 +11,13 @@ import numpy as np
 
 from glsim.scene import bilinear as bl
 from glsim.scene import quadratic as qd
-from glsim.stages import interp
-from glsim.stages.reference import require_dots
+from glsim.imaging import interp
+from glsim.imaging.reference import require_dots
 from glsim.scene.camera import pixel_grid, pixel_to_normalized, project_camera_frame, undistort
 from glsim.backends.contract import Capabilities, Raster, Request
-from glsim.stages.quadview import make_quad_view
-from glsim.stages.truth import polish
-from glsim.stages.view import View, make_view, warn_dropped
+from glsim.imaging.quadview import make_quad_view
+from glsim.imaging.truth import polish
+from glsim.imaging.view import View, make_view, warn_dropped
 
 CHUNK = 1 << 21  # candidate (element, sample) pairs evaluated at once
 
@@ -156,7 +156,7 @@ def rasterize(view: View, mode: str, s: int = 1, aperture: float = 1.0) -> dict:
 
 
 def rasterize_quadratic(view, mode: str, s: int = 1, aperture: float = 1.0) -> dict:
-    """:func:`rasterize` for quadratic elements (a :class:`~glsim.stages.quadview.QuadView`),
+    """:func:`rasterize` for quadratic elements (a :class:`~glsim.imaging.quadview.QuadView`),
     modes ``exact`` (the sample's ray against the curved patch,
     :func:`glsim.scene.quadratic.intersect_ray`) and ``q4`` (the paper's inverse mapping
     with the element's own 9-node shape functions in the image, :func:`glsim.scene.quadratic.invert`

@@ -53,7 +53,7 @@ from glsim.render import Renderer
 from glsim.scene import bilinear as bl
 from glsim.scene import speckle
 from glsim.scene.camera import Distortion
-from glsim.stages import interp
+from glsim.imaging import interp
 
 FULL_SIZE = (1624, 1234)
 QUICK_SIZE = (812, 617)

@@ -344,7 +344,7 @@ def blur(scheme: str, size: np.ndarray, M: float) -> np.ndarray:
 
 
 # per reference interpolant: taps per axis, and the largest Σ|w|, Σ|w'| and Σ|w''| per axis over
-# the texel fraction t (glsim.stages.interp's weights; Keys' cubic has negative lobes: Σ|w| =
+# the texel fraction t (glsim.imaging.interp's weights; Keys' cubic has negative lobes: Σ|w| =
 # 1.25 at t = ½; linear's w'' is 0 between texels, its gradient jumps across them)
 _INTERP = {"linear": (2, 1.0, 2.0, 0.0), "cubic": (4, 1.25, 3.0, 12.0),
            "bspline3": (4, 1.0, 1.5, 4.0), "bspline5": (6, 1.0, 1.2, 2.0)}
@@ -368,9 +368,9 @@ def hessian(method: str) -> float:
 
 def sample_gradient(method: str, coeffs: np.ndarray, ref_uv: np.ndarray, mask: np.ndarray, s: int = 1) -> np.ndarray:
     """Per pixel (H, W), the largest |∇I| (per px) of ``method``'s interpolant of ``coeffs``
-    (:func:`glsim.stages.interp.prepare`) at the reference points ``ref_uv`` (H·s, W·s, 2) of its
+    (:func:`glsim.imaging.interp.prepare`) at the reference points ``ref_uv`` (H·s, W·s, 2) of its
     s×s samples where ``mask`` (H·s, W·s) holds; 0 where none does."""
-    from glsim.stages import interp
+    from glsim.imaging import interp
 
     g = np.zeros(mask.shape)
     if mask.any():
@@ -438,7 +438,7 @@ def normal_field(seed: int, shape: tuple[int, int]) -> tuple[np.ndarray, np.ndar
 
 def interpolation(method: str, coeffs_max: float) -> float:
     """The largest |GL − oracle| of a reference sample (shaders/interp.glsl in float32 against
-    glsim.stages.interp in float64 at the same float64 point), over coefficients (the image, or
+    glsim.imaging.interp in float64 at the same float64 point), over coefficients (the image, or
     its B-spline coefficients) of largest |value| ``coeffs_max``: with n taps and Σ|w| = S per
     axis, the n² products and sums γ_{n²}·S², each weight's polynomial (≈ 8u, relative, over S²),
     the coefficient texels' float32 rounding (u·S²) and the sample's position rounded to float32

@@ -106,7 +106,7 @@ def edge_px(cam, Pa: np.ndarray, Pb: np.ndarray) -> np.ndarray:
     rounded; else P rounded, and the sample's ray rounded to its float32 high half) — plus the
     edge function's arithmetic on those float32 corners over |∇E|: through a pinhole
     (PIXEL_TIES) at the exact pixel point (|u| ≤ W, |v| ≤ H), in px; under distortion at the
-    ray (|x|, |y| at most the image's largest ray, glsim.stages.view.ray_radius), in normalized coordinates times
+    ray (|x|, |y| at most the image's largest ray, glsim.imaging.view.ray_radius), in normalized coordinates times
     the largest ‖∂uv/∂xn‖ along the edge (fx, fy and the distortion's Jacobian at 9 points of
     its image). An edge with an end not in front of the camera (z ≤ 0, its image a half-line)
     takes the first-order bound of E with the corners' rounding in it, componentwise."""
@@ -127,7 +127,7 @@ def edge_px(cam, Pa: np.ndarray, Pb: np.ndarray) -> np.ndarray:
             moved = np.maximum(_end_px(A), _end_px(B))
             arith = np.where(np.minimum(A[2].v, B[2].v) > 0, moved + E.e / grad, whole.e / grad)
             return np.where(grad > 0, arith, np.inf)
-    from glsim.stages.view import ray_radius
+    from glsim.imaging.view import ray_radius
 
     r = ray_radius(cam)   # |x|, |y| ≤ |xn| ≤ r for every sample's ray
     x = y = _exact(r)
@@ -254,7 +254,7 @@ def renderer_mapping(renderer, truth, cam: int, step: int) -> np.ndarray:
     reference camera (no REF_LOCAL: its float32 projection is not derived here) and quadratic
     meshes."""
     from glsim.scene.camera import pixel_to_normalized, undistort
-    from glsim.stages.view import make_view
+    from glsim.imaging.view import make_view
 
     ref = renderer.reference.camera
     if not renderer.backend.capabilities.float64 or np.any(ref.distortion.coeffs) or renderer.mesh.is_quadratic:

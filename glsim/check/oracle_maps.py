@@ -79,7 +79,7 @@ def renderer_grey(oracle, mode: str, cam: int, step: int, spp: int, shift, truth
 def _reference(oracle):
     """The oracle's interpolation, its coefficients of the reference image (float64) and their
     largest |value|."""
-    from glsim.stages import interp
+    from glsim.imaging import interp
 
     method = oracle.scene.render.interpolation
     coeffs = interp.prepare(oracle.reference.image, method, np.float64)
@@ -110,7 +110,7 @@ def _pixel_points(oracle, camera, step: int, truth, who: str):
     their elements, the shape functions at their (ξ, η) (n, 4), their elements' corners and
     points in the camera's frame (n, 4, 3), (n, 3), mm; linear elements only (``who`` refuses)."""
     from glsim.scene import bilinear as bl
-    from glsim.stages.view import make_view
+    from glsim.imaging.view import make_view
 
     mesh = oracle.mesh
     if mesh.is_quadratic:
@@ -152,7 +152,7 @@ def renderer_lit(oracle, mode: str, cam: int, step: int, spp: int = 1) -> np.nda
             raise ValueError("renderer_lit: a quadratic mesh in fast mode (its pieces' lighting) is not derived here")
         from glsim.scene import bilinear as bl
         from glsim.scene import quadratic as qd
-        from glsim.stages.quadview import make_quad_view
+        from glsim.imaging.quadview import make_quad_view
 
         deformed = mesh.deformed(step)
         drawn = oracle.pieces.mesh.at_grid(deformed)
@@ -278,7 +278,7 @@ def _row_fast_bound(oracle, camera, row: int, nodes: np.ndarray) -> np.ndarray:
     the row's neighbours above and below."""
     from glsim.backends.cpu import rasterize
     from glsim.effects.motion import row_band
-    from glsim.stages.view import make_view
+    from glsim.imaging.view import make_view
 
     band, at = row_band(camera, row, 1)
     mesh = oracle.drawn_mesh

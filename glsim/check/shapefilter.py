@@ -1,6 +1,6 @@
 """The GPU's shape filter (shaders/shape.comp, glsim.backends.gl.geometry.shape_candidates)
 against numpy's classification of zero-area, tiny and folded elements
-(glsim.stages.geometry.StepGeometry.shape) on small meshes with one hard element, for
+(glsim.imaging.geometry.StepGeometry.shape) on small meshes with one hard element, for
 ``glsim check`` and tests/test_shape_filter.py. The filter must flag every step in which numpy
 finds such an element, in float64 and float32 builds; a step it does not flag is never
 classified on the host."""
@@ -10,7 +10,7 @@ import numpy as np
 
 from glsim.scene.camera import Camera
 from glsim.scene.mesh import Mesh
-from glsim.stages.view import TINY_AREA_REL
+from glsim.imaging.view import TINY_AREA_REL
 
 CAMERA = Camera(name="c", size=(96, 72), fx=100.0, fy=100.0, cx=47.5, cy=35.5)
 GRID_AREA = 8.0 * 7.999875   # the float32-resolution grid's element area (mm²): just below 2^6
@@ -45,7 +45,7 @@ def classify(ctx, nodes: np.ndarray, quads: np.ndarray):
     for step 0 of the mesh on GL context ``ctx``."""
     from glsim.backends.gl.geometry import GeometryBuffers, shape_candidates
     from glsim.backends.gl.programs import ProgramCache
-    from glsim.stages.geometry import MeshGeometry
+    from glsim.imaging.geometry import MeshGeometry
 
     geo = MeshGeometry(mesh(nodes, quads), CAMERA)
     view = geo.view(CAMERA, 0)

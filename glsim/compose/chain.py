@@ -1,6 +1,6 @@
 """The Jacobian chain (docs/jacobian.md): the noise-free image's derivative with respect to the
 nodal displacements (and, with ``rig``, the camera's parameters) from the backend's float64
-raster of every sample (:func:`glsim.stages.jacobian.image_jacobian`), chained through what
+raster of every sample (:func:`glsim.imaging.jacobian.image_jacobian`), chained through what
 lies between that raster and the image, each link the derivative beside its forward:
 
 1. a quadratic mesh drawn as its pieces (mode fast): the pieces' nodes as weights of the mesh's;
@@ -25,8 +25,8 @@ from glsim.compose.drawing import Drawing
 from glsim.effects import dof, motion, shading_terms
 from glsim.scene import Render, Scene
 from glsim.scene.camera import Camera
-from glsim.stages import interp, jacobian as jac
-from glsim.stages.reference import require_dots
+from glsim.imaging import interp, jacobian as jac
+from glsim.imaging.reference import require_dots
 
 CAMERA_STAGES = ("vignetting", "psf", "prnu")
 

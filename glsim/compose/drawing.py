@@ -10,13 +10,13 @@ from glsim.backends.contract import Curved, Request
 from glsim.effects import Effects, prepare as prepare_effects
 from glsim.scene import Render, Scene
 from glsim.scene.camera import Camera
-from glsim.stages.geometry import MeshGeometry
+from glsim.imaging.geometry import MeshGeometry
 
 
 def curved_patches(mesh, pieces, opts: Render, step: int, tl=None, tau: float = 0.0) -> Curved | None:
     """A quadratic mesh's curved patches as modes exact and q4 map on them (None otherwise) at
     ``step``, or at its state τ s on (``tl``: an exposure's :class:`glsim.effects.motion.Timeline`),
-    keyed as :meth:`glsim.stages.geometry.MeshGeometry.step` keys it."""
+    keyed as :meth:`glsim.imaging.geometry.MeshGeometry.step` keys it."""
     if not mesh.is_quadratic or opts.mode == "fast":
         return None
     if tl is None or tau == 0:

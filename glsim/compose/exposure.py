@@ -24,7 +24,7 @@ from glsim.errors import SceneError
 from glsim.scene import Render, Scene
 from glsim.scene.camera import Camera
 from glsim.scene.optional import row_offsets
-from glsim.stages.view import coverage
+from glsim.imaging.view import coverage
 
 
 @dataclass(frozen=True, eq=False)

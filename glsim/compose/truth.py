@@ -16,7 +16,7 @@ from glsim.io.truth import Truth, pixel_positions
 from glsim.scene import quadratic as qd
 from glsim.scene.bilinear import bilinear
 from glsim.scene.camera import Camera, to_camera
-from glsim.stages.quadview import fast_local_coords
+from glsim.imaging.quadview import fast_local_coords
 
 
 class TruthAssembler(Protocol):

@@ -39,7 +39,7 @@ from glsim.scene import speckle
 from glsim.scene.camera import Camera, pixel_rays, project_camera_frame, to_camera
 from glsim.errors import GlsimError
 from glsim.io.fe import specimen_mesh
-from glsim.stages.reference import Reference, camera_scale
+from glsim.imaging.reference import Reference, camera_scale
 from glsim.render import Renderer
 from glsim.scene import Plate, Render, Scene, Specimen, Speckle
 
@@ -90,7 +90,7 @@ def camera(size=SIZE) -> Camera:
 
 def mm_per_px(cam: Camera, distance: float = DISTANCE) -> float:
     """Camera scale (mm per px) on a fronto-parallel plane ``distance`` mm in front of it,
-    :func:`glsim.stages.reference.camera_scale` of a point on its axis: Z / √(fx·fy)."""
+    :func:`glsim.imaging.reference.camera_scale` of a point on its axis: Z / √(fx·fy)."""
     return camera_scale(cam, np.array([[0.0, 0.0, distance]]))
 
 

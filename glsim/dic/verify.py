@@ -37,7 +37,7 @@ from glsim.scene.bilinear import bilinear
 from glsim.scene.camera import Camera, to_camera
 from glsim.errors import GlsimError
 from glsim.io.fe import specimen_mesh
-from glsim.stages.reference import Reference, make_reference
+from glsim.imaging.reference import Reference, make_reference
 from glsim.render import Renderer, Truth
 from glsim.scene import Bulge, Scene, bulge_scene
 

@@ -196,7 +196,7 @@ def _normalize(v):
     return np.where(n > 0, v / np.where(n > 0, n, 1.0), 0.0), n[..., 0]
 
 
-class Geometry(NamedTuple):
+class ShadingGeometry(NamedTuple):
     """Per point (…) and light (…, L) of :func:`phong`: the unit normal Nu and its length m, the
     flip (±1) that turns it to the camera and the turned normal N, the view direction V and
     |X| x, the light directions L and distances d, N·L, R − V, s = 1 − R·V, where the specular
@@ -220,8 +220,8 @@ class Geometry(NamedTuple):
     att: np.ndarray
 
 
-def geometry(X, N, lights: LightArrays, shininess: float) -> Geometry:
-    """:class:`Geometry` at camera-frame points X and normals N (…, 3, broadcast; N need not be
+def geometry(X, N, lights: LightArrays, shininess: float) -> ShadingGeometry:
+    """:class:`ShadingGeometry` at camera-frame points X and normals N (…, 3, broadcast; N need not be
     unit, N = 0 gives zero directions). The specular power is taken only where N·L > 0 and
     R·V > 0 (so shininess 0 gives k_s·[R·V > 0], not 0⁰), as exp(r·log(1 − s)) with s = |R − V|²/2
     = 1 − R·V for unit R, V: the same number, but in float32 (the shader) it keeps its relative
@@ -242,7 +242,7 @@ def geometry(X, N, lights: LightArrays, shininess: float) -> Geometry:
     is_spot = np.any(lights.dir != 0, axis=-1)
     spot = np.where(is_spot, spot_factor(cos_theta, lights.cos_cutoff, lights.cos_inner), 1.0)
     att = lights.intensity / (1.0 + lights.attenuation * d * d)
-    return Geometry(Nu, m, flip, Nf, V, x, L, d, nl, RmV, s, lit, spec, cos_theta, spot, att)
+    return ShadingGeometry(Nu, m, flip, Nf, V, x, L, d, nl, RmV, s, lit, spec, cos_theta, spot, att)
 
 
 def phong(X, N, lights: LightArrays, ambient: float, k_r: float, k_s: float, shininess: float):
@@ -279,7 +279,7 @@ def saturated_fraction(image) -> float:
     return float(np.count_nonzero((image >= 1) | (image <= 0)) / image.size)
 
 
-# ---- derivatives (image Jacobians, glsim.stages.jacobian) ----------------------------------------
+# ---- derivatives (image Jacobians, glsim.imaging.jacobian) ----------------------------------------
 
 def _dot(a, b):
     return np.einsum("...d,...d->...", a, b)
@@ -383,7 +383,7 @@ def normal_jacobian(nodes, quads, flat: bool):
 
 @dataclass(frozen=True, eq=False)
 class ShadingTerms:
-    """What the lighting adds to an image Jacobian (:func:`glsim.stages.jacobian.image_jacobian`),
+    """What the lighting adds to an image Jacobian (:func:`glsim.imaging.jacobian.image_jacobian`),
     for one camera and state: the lit grey g' = combine(g, I(X, Ñ)) of a sample with reference
     grey g, point X and interpolated normal Ñ = Σ N_k n_k (camera frame).
 

@@ -47,10 +47,10 @@ def flat_field(cam: Camera, vignetting) -> np.ndarray:
 
 def flat_field_rig_jacobian(cam: Camera, vignetting) -> np.ndarray:
     """∂(:func:`flat_field`)/∂(``cam``'s parameters) (H·W, 23) in the rig Jacobian's columns
-    (glsim.stages.jacobian.RIG_COLUMNS): the gain moves with the rays' x_n as the intrinsics
+    (glsim.imaging.jacobian.RIG_COLUMNS): the gain moves with the rays' x_n as the intrinsics
     and distortion move them (∂g/∂r² · 2 x_n · ∂x_n/∂params); the pose does not move it; 0 where
     the pixel has no ray."""
-    from glsim.stages.jacobian import RIG_COLUMNS, ray_parameter_jacobian
+    from glsim.imaging.jacobian import RIG_COLUMNS, ray_parameter_jacobian
 
     q = pixel_grid(cam).reshape(-1, 2)
     xn, ok = undistort(pixel_to_normalized(q, cam.intrinsics), cam.distortion.coeffs)

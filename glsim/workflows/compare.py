@@ -13,7 +13,7 @@ mesh, the displacements and camera 0.
 
 The truth at each subset centre is exact: camera 0's ray through (u, v) met with the undeformed
 mesh, that material point moved with the FE displacement of the step
-(:func:`glsim.io.truth.points_truth`). Errors are measured − true per component, in mm and in px
+(:func:`glsim.scene.locate.points_truth`). Errors are measured − true per component, in mm and in px
 (mm / M, M = mean Z / √(fx·fy) of the compared points: the mean scale of camera 0 there).
 """
 from __future__ import annotations
@@ -28,7 +28,8 @@ import numpy as np
 from glsim.errors import GlsimError
 from glsim.io import images as io
 from glsim.io.npzfile import NpzError, read_npz
-from glsim.io.truth import mesh_geometry, points_truth
+from glsim.io.truth import mesh_geometry
+from glsim.scene.locate import points_truth
 from glsim.workflows.library.manifest import counted
 from glsim.scene import load_scene
 from glsim.io.fe import specimen_mesh
@@ -133,7 +134,7 @@ def _read_rows(path: Path) -> tuple[list[list[str]], str | None]:
 
 
 def truth_at(truth_dir: str | Path, uv: np.ndarray, step: int):
-    """The exact truth (:class:`~glsim.io.truth.PointTruth`) at camera-0 reference pixels ``uv``."""
+    """The exact truth (:class:`~glsim.scene.locate.PointTruth`) at camera-0 reference pixels ``uv``."""
     truth_dir = Path(truth_dir)
     scene_json = truth_dir / "scene.json" if truth_dir.is_dir() else truth_dir
     scene = load_scene(scene_json)

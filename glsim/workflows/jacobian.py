@@ -1,5 +1,5 @@
 """``glsim jacobian SCENE --camera C --step K -o J.npz``: one image's Jacobian with respect to the
-nodal displacements (:mod:`glsim.stages.jacobian`, docs/jacobian.md) written as one ``.npz``.
+nodal displacements (:mod:`glsim.imaging.jacobian`, docs/jacobian.md) written as one ``.npz``.
 
 The file is scipy.sparse's own CSR layout (``scipy.sparse.load_npz`` reads it: ``format``,
 ``shape``, ``data``, ``indices``, ``indptr``) plus ``image`` (the rendered float32 image, H × W),
@@ -18,7 +18,7 @@ from glsim.errors import GlsimError
 from glsim.io.atomic import atomic_path
 from glsim.render import Renderer, Result
 from glsim.scene import Scene
-from glsim.stages.jacobian import RIG_COLUMNS
+from glsim.imaging.jacobian import RIG_COLUMNS
 
 
 def _output(out: str | Path) -> Path:

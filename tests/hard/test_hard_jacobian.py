@@ -28,7 +28,7 @@ from glsim.effects import lighting as shade
 from glsim.errors import RenderWarning
 from glsim.render import Renderer
 from glsim.scene.camera import project_camera_frame, to_camera
-from glsim.stages import interp
+from glsim.imaging import interp
 
 # mm of δ per difference step; far from the origin the path's world positions (~2e5 mm, ulp
 # 2.9e-11 mm) round by ~1e-5 of 2δ at 1e-6, so there δ = 1e-4 (the reference point then steps

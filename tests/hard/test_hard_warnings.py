@@ -54,7 +54,7 @@ def test_pixels_mapping_outside_the_reference_are_counted(backend, mode, request
     how many — exactly, since each pixel centre belongs to one element."""
     import dataclasses
 
-    from glsim.stages.reference import Reference
+    from glsim.imaging.reference import Reference
 
     ctx = request.getfixturevalue("gl_ctx") if backend == "gl" else None
     nodes, quads = grid_mesh(np.linspace(-10, 10, 6), np.linspace(-7, 7, 5))

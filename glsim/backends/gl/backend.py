@@ -1,4 +1,4 @@
-"""backend="gl": render a :class:`~glsim.stages.geometry.ViewSpec` with OpenGL shaders.
+"""backend="gl": render a :class:`~glsim.imaging.geometry.ViewSpec` with OpenGL shaders.
 
 A request becomes a plan (:func:`glsim.backends.gl.plan.plan`: the deformation program's
 #defines and the ordered passes); :class:`GLBackend` executes the plan's passes in order, each by
@@ -36,9 +36,9 @@ from glsim.backends.gl.resources import Resources
 from glsim.backends.gl.truth_readback import queue_raster, queue_report
 from glsim.backends.gl.uniforms import Uniforms
 from glsim.effects import Effects
-from glsim.stages import interp
-from glsim.stages.geometry import ViewSpec
-from glsim.stages.quadview import patch_data, pieces_to_patches
+from glsim.imaging import interp
+from glsim.imaging.geometry import ViewSpec
+from glsim.imaging.quadview import patch_data, pieces_to_patches
 
 _REF_UNIT = sampler("u_ref")
 _DTYPES = {"f4": np.float32, "u1": np.uint8, "u2": np.uint16}   # moderngl texture dtype → numpy
@@ -140,7 +140,7 @@ class GLBackend(ImagePasses):
         self.resources = Resources(self.ctx)
         self._image = reference_image
         self.geometry: GeometryBuffers | None = None  # the mesh's buffers (one mesh at a time)
-        self._curved: tuple = (None, {})   # (quadratic mesh, glsim.stages.quadview.patch_data's cache)
+        self._curved: tuple = (None, {})   # (quadratic mesh, glsim.imaging.quadview.patch_data's cache)
         self._timer: dict[str, float] | None = None   # pass name → seconds, inside pass_times()
         self.last_passes: tuple[str, ...] = ()
         self._steps = {**{k: functools.partial(f, self) for k, f in deform_steps.STEPS.items()},

@@ -11,7 +11,7 @@ from glsim.backends.gl.uniforms import Uniforms
 def dot_buffers(ctx, dots) -> tuple:
     """(dots buffer, cells buffer, uniforms) of the speckle ``dots`` (refused if None)."""
     from glsim.scene.speckle import dot_grid
-    from glsim.stages.reference import require_dots
+    from glsim.imaging.reference import require_dots
 
     dots = require_dots(dots)
     grid = dot_grid(dots)

@@ -13,7 +13,7 @@ dispatch, a draw with an index buffer made once, and the problem flags (16 bytes
 problem" markers and two bits per element) and the step's shape filter (its bounds on the
 elements' areas and folds, :func:`shape_candidates`) copied on the GPU, fetched with the image
 and cleared; the bitsets are decoded only when a marker is set, and the step's zero-area, tiny
-and folded elements classified in numpy (:meth:`glsim.stages.geometry.StepGeometry.shape`)
+and folded elements classified in numpy (:meth:`glsim.imaging.geometry.StepGeometry.shape`)
 only when the filter says some element may be one.
 """
 from __future__ import annotations
@@ -25,8 +25,8 @@ import numpy as np
 
 from glsim.backends.gl.bindings import image, sampler, storage
 from glsim.backends.gl.uniforms import set_uniform
-from glsim.stages.geometry import STEPS_KEPT, MeshGeometry, ViewSpec
-from glsim.stages.view import GRAZING_COS, NEAR_MM, TINY_AREA_REL, ray_radius
+from glsim.imaging.geometry import STEPS_KEPT, MeshGeometry, ViewSpec
+from glsim.imaging.view import GRAZING_COS, NEAR_MM, TINY_AREA_REL, ray_radius
 
 _CORNERS = np.array([0, 1, 2, 0, 2, 3], np.uint32)  # two triangles per element, as the oracle's fast mode
 _GROUP = 64          # view.comp's and candidates.comp's local size
@@ -56,7 +56,7 @@ def unpack_bits(words: bytes, M: int) -> np.ndarray:
 
 def shape_candidates(words: np.ndarray, M: int) -> bool:
     """Whether some element of a step may be zero-area, tiny or folded as
-    :func:`glsim.stages.view.classify_shapes` finds them, from shaders/shape.comp's ``words``
+    :func:`glsim.imaging.view.classify_shapes` finds them, from shaders/shape.comp's ``words``
     (uint32) for its ``M`` elements: some n1·n2 may be negative, or the least lower bound on an
     area is at most TINY_AREA_REL × U, U bounding numpy's median area from above — numpy's
     median of M positive areas is at most its (M // 2 + 1)-th smallest, hence at most the
@@ -86,7 +86,7 @@ def _release(value) -> None:
 
 
 class GeometryBuffers:
-    """The GL buffers of one :class:`~glsim.stages.geometry.MeshGeometry` on one context."""
+    """The GL buffers of one :class:`~glsim.imaging.geometry.MeshGeometry` on one context."""
 
     def __init__(self, ctx, programs, geo: MeshGeometry):
         self.ctx = ctx

@@ -48,7 +48,7 @@ class Pass:
 
 
 @dataclass(frozen=True)
-class Plan:
+class PassPlan:
     """``defines`` of the deformation program (sorted items); ``rays`` the ray map's kind
     (exact: "bits" float64 pairs, "split" float32 hi + lo made in float64, "float"; else None);
     ``ref`` the reference projection ("REF_PINHOLE" float64 blends, "REF_LOCAL" float32 relative
@@ -203,7 +203,7 @@ def _image_pass(shader: str, variant: str = "") -> Pass:
 
 
 def plan(opts, truth: bool, fp64_driver: bool, fx, camera, ref_camera, pieces: int | None = None,
-         stage: str = "fragment", quantize: bool = False) -> Plan:
+         stage: str = "fragment", quantize: bool = False) -> PassPlan:
     """The plan of one render at ``opts.supersampling`` (the deformation program writes the
     truth maps only at 1 spp): ``opts`` the [render] options, ``truth`` whether the pixel-centre
     raster is asked for, ``fp64_driver`` whether the driver has GL_ARB_gpu_shader_fp64, ``fx`` the
@@ -218,7 +218,7 @@ def plan(opts, truth: bool, fp64_driver: bool, fx, camera, ref_camera, pieces: i
 
 @functools.lru_cache(maxsize=PLANS_KEPT)
 def _plan(opts, truth: bool, fp64_driver: bool, fx: EffectsShape, pinhole: bool, ref_pinhole: bool,
-          pieces: int | None, stage: str, quantize: bool) -> Plan:
+          pieces: int | None, stage: str, quantize: bool) -> PassPlan:
     """:func:`plan` over its dependencies: ``pinhole`` / ``ref_pinhole`` whether the view's /
     the reference camera's distortion is zero."""
     s = opts.supersampling
@@ -281,4 +281,4 @@ def _plan(opts, truth: bool, fp64_driver: bool, fx: EffectsShape, pinhole: bool,
         passes.append(_image_pass(f"noise.{ext}"))
     if quantize:
         passes.append(Pass(f"quantize.{ext}", step="quantize", inputs=(("u_src", "grey"),), outputs=("grey",)))
-    return Plan(tuple(sorted(d.items())), rays, ref, camera_local, sub, stage, tuple(passes))
+    return PassPlan(tuple(sorted(d.items())), rays, ref, camera_local, sub, stage, tuple(passes))

@@ -7,8 +7,8 @@ import numpy as np
 from glsim.backends.gl.geometry import SHAPE_BYTES
 from glsim.backends.gl.rays import ray_bits
 from glsim.backends.gl.readback import read_buffer, read_texture
-from glsim.stages import truth
-from glsim.stages.view import warn_dropped, warn_problems
+from glsim.imaging import truth
+from glsim.imaging.view import warn_dropped, warn_problems
 
 
 def queue_report(pack, view, s: int, geo, dropped, warn: bool):
@@ -56,7 +56,7 @@ def queue_raster(resources, view, mode: str, color, p, patches, polish: bool = T
 
 
 def float64_truth(resources, view, mode: str, raster: dict, fp64: bool) -> dict:
-    """The raster with float64 (ξ, η) (glsim.stages.truth.polish) from the float32 ones read
+    """The raster with float64 (ξ, η) (glsim.imaging.truth.polish) from the float32 ones read
     back, over the covered elements' numpy view only; exact mode polishes on the float64 rays
     the shader used (the ray map, bit for bit) where it has them."""
     hit = raster["element"] >= 0

@@ -22,7 +22,7 @@ import numpy as np
 from glsim.scene import mesh as meshmod
 from glsim.scene.camera import Camera
 from glsim.errors import check
-from glsim.stages.reference import Reference
+from glsim.imaging.reference import Reference
 
 REF_DISTANCE = 1000.0   # mm from the reference pinhole to the plate in its canonical position
 PAD_PX = 4              # reference-image border beyond the plate, background grey

@@ -28,7 +28,8 @@ from glsim.effects import noise as noisemod
 from glsim.errors import GlsimError
 from glsim.io import images as io
 from glsim.io.fe import specimen_mesh
-from glsim.io.truth import mesh_geometry, points_truth
+from glsim.io.truth import mesh_geometry
+from glsim.scene.locate import points_truth
 from glsim.render import Renderer
 from glsim.scene import Scene
 from glsim.scene.camera import project_camera_frame

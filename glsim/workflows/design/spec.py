@@ -41,7 +41,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from glsim.limits import MAX_VALUES
-from glsim.workflows.library.spec import Plan, SpecError, expand, read_spec
+from glsim.workflows.library.spec import LibraryPlan, SpecError, expand, read_spec
 
 TOP_KEYS = ("scene", "seed", "mode", "n", "camera", "step", "engine", "roi_margin", "vary", "dic",
             "realisations", "calibration", "rank")
@@ -78,8 +78,8 @@ class DicSetting:
 
 @dataclass(frozen=True)
 class Design:
-    """A checked design spec: the set-ups (a library :class:`Plan`), DIC settings, realisations."""
-    plan: Plan
+    """A checked design spec: the set-ups (a library :class:`LibraryPlan`), DIC settings, realisations."""
+    plan: LibraryPlan
     camera: str
     step: int
     engine: str

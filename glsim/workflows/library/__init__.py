@@ -9,7 +9,7 @@ good, verify), :mod:`.cli` (the command line). The names below are imported on f
 that a writer process, which imports :mod:`.writer` only, loads no renderer.
 """
 _NAMES = {"Summary": "runner", "run": "runner", "verify": "audit",
-          "Plan": "spec", "SpecError": "spec", "expand": "spec", "load_plan": "spec"}
+          "LibraryPlan": "spec", "SpecError": "spec", "expand": "spec", "load_plan": "spec"}
 __all__ = sorted(_NAMES)
 
 

@@ -19,7 +19,7 @@ from glsim.errors import GlsimError
 from glsim.io import truth as truthio
 from glsim.io.hashes import sha256_file
 from glsim.workflows.library import manifest as mf
-from glsim.workflows.library.spec import Plan
+from glsim.workflows.library.spec import LibraryPlan
 
 TRUTH_BAD = "truth missing or fails its size/SHA-256"
 
@@ -28,7 +28,7 @@ class LibraryError(GlsimError):
     """The library directory cannot be used as asked (the message says why and the fix)."""
 
 
-def first_difference(old: dict, plan: Plan) -> str:
+def first_difference(old: dict, plan: LibraryPlan) -> str:
     """The first way stored library info ``old`` (library.json) differs from ``plan``'s, in words."""
     new = mf.library_info(plan, "")
     if old.get("version") != new["version"]:
@@ -56,7 +56,7 @@ def _file_ok(path: Path, size: int, sha: str) -> bool:
         return False
 
 
-def check_records(out: Path, plan: Plan, records: dict) -> tuple[dict, list, dict]:
+def check_records(out: Path, plan: LibraryPlan, records: dict) -> tuple[dict, list, dict]:
     """The records whose files are good, a list of problems (job, what) for every other image
     of the plan, and the good truth files (path → (bytes, SHA-256); see the module text for
     the rule). Each file is hashed once, on a few threads."""

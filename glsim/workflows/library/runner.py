@@ -40,7 +40,7 @@ from glsim.io import outdir
 from glsim.io import geometryfile
 from glsim.workflows.library import manifest as mf
 from glsim.workflows.library.audit import TRUTH_BAD, LibraryError, check_records, first_difference
-from glsim.workflows.library.spec import TRUTH_DIR, Plan, mesh_key
+from glsim.workflows.library.spec import TRUTH_DIR, LibraryPlan, mesh_key
 from glsim.workflows.library.worker import WriteError, make_task, render_task
 
 CHUNK = 8          # images per task at most (a variant with more is split)
@@ -86,7 +86,7 @@ class Summary:
 
 # ---- the directory ----------------------------------------------------------------------------------
 
-def _prepare_directory(out: Path, plan: Plan, fingerprint: str, force: bool) -> bool:
+def _prepare_directory(out: Path, plan: LibraryPlan, fingerprint: str, force: bool) -> bool:
     """True to resume; False for a new library. Raises LibraryError for a directory that holds
     something else. What a run killed before writing library.json leaves (its write test,
     temporaries) does not count."""
@@ -139,7 +139,7 @@ def _write_if_changed(path: Path, data: bytes) -> None:
         tmp.write_bytes(data)
 
 
-def _write_setup(out: Path, plan: Plan, fingerprint: str) -> dict:
+def _write_setup(out: Path, plan: LibraryPlan, fingerprint: str) -> dict:
     """library.json, each variant's scene.json and the geometry files; returns
     mesh key → (geometry path relative to out, its SHA-256)."""
     mf.write_library_info(out, mf.library_info(plan, fingerprint))
@@ -193,7 +193,7 @@ def _rows(records: dict, truths: dict) -> dict:
 
 # ---- running -----------------------------------------------------------------------------------------
 
-def _tasks(out: Path, plan: Plan, todo, geometry: dict, truths: dict) -> list[dict]:
+def _tasks(out: Path, plan: LibraryPlan, todo, geometry: dict, truths: dict) -> list[dict]:
     """Tasks of ≤ CHUNK images of one variant; of each truth file not in ``truths`` (the good
     ones), the first image still to render renders it."""
     by_variant: dict[str, list] = {}
@@ -409,7 +409,7 @@ def execute(tasks: list[dict], fn, on_done, summary: Summary, scheduler=None, ke
         _run_pool(tasks, summary.workers, on_done, summary, fn)
 
 
-def run(plan: Plan, out: str | Path, workers: int | None = None, scheduler: str | None = None,
+def run(plan: LibraryPlan, out: str | Path, workers: int | None = None, scheduler: str | None = None,
         force: bool = False, progress: bool = False, flush_s: float = 2.0) -> Summary:
     """Render ``plan`` into ``out`` (see the module text); returns the :class:`Summary`. With a
     ``scheduler``, nothing is written before it has answered and a worker has joined."""
@@ -430,7 +430,7 @@ def run(plan: Plan, out: str | Path, workers: int | None = None, scheduler: str 
             client.close()
 
 
-def check_references(plan: Plan) -> None:
+def check_references(plan: LibraryPlan) -> None:
     """Read every distinct reference image file of the plan's variants (``speckle.image``) as a
     render would, so that a missing, damaged or oversized one is refused before the library's
     directory is made (SceneError naming the variant and the key)."""
@@ -474,7 +474,7 @@ def _interrupt_once():
             signal.signal(s, handler)
 
 
-def _run(plan: Plan, out: Path, workers, client, force: bool, progress: bool, flush_s: float) -> Summary:
+def _run(plan: LibraryPlan, out: Path, workers, client, force: bool, progress: bool, flush_s: float) -> Summary:
     """:func:`run` holding the lock of ``out`` (``client``: a Dask client, or None)."""
     t0 = time.perf_counter()
     fingerprint = plan.fingerprint()

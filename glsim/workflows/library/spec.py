@@ -98,7 +98,7 @@ class Job:
 
 
 @dataclass(frozen=True)
-class Plan:
+class LibraryPlan:
     """A spec expanded: every variant checked, every image named."""
     source: dict                  # the spec as read (with the base scene inlined)
     base_dir: str
@@ -392,7 +392,7 @@ def _steps(value) -> list[int] | None:
     _fail("steps", f"expected a list of load steps, got {value!r}", 'write steps = [0, 3] or "0-3"')
 
 
-def expand(spec: dict, spec_dir: str | Path = ".", sample: int | None = None) -> Plan:
+def expand(spec: dict, spec_dir: str | Path = ".", sample: int | None = None) -> LibraryPlan:
     """Expand and check a spec table (see the module text). Raises SpecError naming the key
     (and the variant) and the fix; reads every input the variants need (meshes, displacement
     files, noise tables) but writes nothing. Counts (values, variants, images) are checked
@@ -528,7 +528,7 @@ def expand(spec: dict, spec_dir: str | Path = ".", sample: int | None = None) ->
         _fail("cameras", "no image to render", "select at least one camera and step")
     all_steps = tuple(sorted({j.step for j in jobs}))
     all_cams = tuple(dict.fromkeys(j.camera for j in jobs))
-    return Plan(source={**spec, "scene": base} if not isinstance(spec.get("scene"), dict) else dict(spec),
+    return LibraryPlan(source={**spec, "scene": base} if not isinstance(spec.get("scene"), dict) else dict(spec),
                 base_dir=base_dir, keys=tuple(k.path for k in keys), mode=mode, seed=seed, truth=truth,
                 truth_dtype=dtype, cameras=all_cams, steps=all_steps, variants=tuple(variants), jobs=tuple(jobs),
                 meshes=meshes, n_variants=count)
@@ -614,7 +614,7 @@ def reference_key(scene: Scene, backend: str) -> str:
                        "base_dir": d["base_dir"], "backend": backend, "pieces": scene.render.pieces}, sort_keys=True)
 
 
-def load_plan(path: str | Path, sample: int | None = None) -> Plan:
+def load_plan(path: str | Path, sample: int | None = None) -> LibraryPlan:
     """Read and expand a spec file (``sample``: see :func:`expand`)."""
     spec, spec_dir = read_spec(path)
     try:

@@ -16,7 +16,7 @@ from glsim.scene.load import from_resolved
 
 
 def reference_inputs(scene: Scene) -> tuple:
-    """What the reference image is made from (glsim.stages.reference.make_reference): the
+    """What the reference image is made from (glsim.imaging.reference.make_reference): the
     [speckle] and [specimen] tables, camera 1 (the generator sizes its dots in camera-1 pixels
     and faces the specimen's camera side) and the folder relative paths start in. Two scenes
     with equal inputs get the same reference."""

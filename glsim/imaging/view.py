@@ -5,7 +5,7 @@ in float64, so a specimen metres from the world origin keeps its precision. The 
 consumes a full :class:`View` (:func:`make_view`, numpy, chunked so that 10⁶ elements fit in
 memory); the GL backend computes the same per-element data on the GPU from the mesh uploaded
 once (``shaders/view.glsl``, the GLSL twin of :func:`cover_rectangles`) and takes a
-:class:`glsim.stages.geometry.ViewSpec` instead.
+:class:`glsim.imaging.geometry.ViewSpec` instead.
 """
 from __future__ import annotations
 

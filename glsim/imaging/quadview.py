@@ -1,7 +1,7 @@
 """Stage "mesh → camera" for quadratic elements: per-patch data of one camera view of one load
 step, in float64, for the CPU oracle's ``exact`` and ``q4`` modes (the ``fast`` mode draws the
 linear pieces of :func:`glsim.scene.quadratic.linearize` through the ordinary
-:class:`~glsim.stages.view.View`).
+:class:`~glsim.imaging.view.View`).
 
 Every element is a 9-node biquadratic patch (:mod:`glsim.scene.quadratic`). Its pixel box
 comes from the patch evaluated on a QUAD_BOX_GRID × QUAD_BOX_GRID grid of (ξ, η), projected and
@@ -19,8 +19,8 @@ from glsim.errors import RenderWarning
 from glsim.limits import keep
 from glsim.scene import quadratic as qd
 from glsim.scene.camera import Camera, pixel_to_normalized, project_camera_frame, to_camera, undistort
-from glsim.stages.geometry import VIEWS_KEPT
-from glsim.stages.view import NEAR_MM, _labels, check_reference, make_view
+from glsim.imaging.geometry import VIEWS_KEPT
+from glsim.imaging.view import NEAR_MM, _labels, check_reference, make_view
 
 QUAD_BOX_GRID = 9
 QUAD_BOX_PAD_PX = 2.0
@@ -53,7 +53,7 @@ def make_quad_view(cam: Camera, ref_cam: Camera, nodes_ref: np.ndarray, nodes_de
 
     Pixel boxes: with ``pieces`` (the mesh's :class:`~glsim.scene.quadratic.Pieces`) and
     ``pieces_def`` (their nodes at this step), the union
-    of the pieces' exact-mode covers (:func:`glsim.stages.view.cover_rectangles`, which also
+    of the pieces' exact-mode covers (:func:`glsim.imaging.view.cover_rectangles`, which also
     bound pieces crossing the camera plane) grown by twice the pieces' chord error in px
     (:func:`chord_error_bound`), as the GL path draws them; without, the patch on a
     QUAD_BOX_GRID² grid, projected and padded. ``mode`` q4 draws only patches whose 9 nodes

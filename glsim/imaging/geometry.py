@@ -9,7 +9,7 @@
 - :class:`ViewSpec` (one per image): the camera and the rigid transform from the local
   frame to the camera frame, ``X_cam = R·(X − origin) + t``, computed in float64 from the
   camera's pose: O(1) work. The backend derives everything per element on the GPU
-  (``shaders/view.glsl``); the numpy :class:`~glsim.stages.view.View` of the same view is
+  (``shaders/view.glsl``); the numpy :class:`~glsim.imaging.view.View` of the same view is
   built only on demand (:meth:`ViewSpec.view`, :meth:`ViewSpec.subset`: truth polishing,
   lighting), never for a plain render.
 """
@@ -22,7 +22,7 @@ import numpy as np
 
 from glsim.limits import keep
 from glsim.scene.camera import Camera, project_camera_frame, to_camera
-from glsim.stages.view import (NEAR_MM, View, check_reference, classify_shapes, extent, make_view,
+from glsim.imaging.view import (NEAR_MM, View, check_reference, classify_shapes, extent, make_view,
                                mesh_element_areas)
 
 STEPS_KEPT = 2  # load steps whose deformed nodes stay cached (and uploaded)
@@ -86,7 +86,7 @@ class MeshGeometry:
 class StepGeometry:
     """One load step (``index``; (step, τ) for a state during its exposure): deformed nodes
     relative to the mesh's origin (float64, (N, 3)), every node's bounding ``box`` in world mm
-    (:func:`~glsim.stages.view.extent`), a bounding sphere of the used nodes (centred on their
+    (:func:`~glsim.imaging.view.extent`), a bounding sphere of the used nodes (centred on their
     box, in the local frame), and the camera-independent shape problems."""
 
     def __init__(self, mesh_geo: MeshGeometry, step: int, deformed: np.ndarray):
@@ -112,7 +112,7 @@ class StepGeometry:
         return v
 
     def shape(self) -> dict[str, np.ndarray]:
-        """Zero-area, tiny and folded elements (:func:`glsim.stages.view.classify_shapes`), from
+        """Zero-area, tiny and folded elements (:func:`glsim.imaging.view.classify_shapes`), from
         the local frame (rigid motions leave them unchanged); computed once per step."""
         if self._shape is None:
             problems = classify_shapes(*mesh_element_areas(self.local, self.mesh_geo.quads))
@@ -150,7 +150,7 @@ class ViewSpec:
 
     ``rotation`` (3×3) and ``translation`` (3,) map the local frame (nodes − origin) to the
     camera frame in float64; ``far`` bounds every corner's depth (from the step's bounding
-    sphere) with the same margin as :class:`~glsim.stages.view.View`.
+    sphere) with the same margin as :class:`~glsim.imaging.view.View`.
     """
     camera: Camera
     ref_camera: Camera

@@ -14,7 +14,7 @@ from glsim.scene import speckle
 from glsim.scene.camera import Camera, project_camera_frame, to_camera
 from glsim.errors import RenderWarning, SceneError
 from glsim.limits import MIN_DOTS_ACROSS, check_image_size
-from glsim.stages.view import extent, mesh_element_areas
+from glsim.imaging.view import extent, mesh_element_areas
 from glsim.scene import Scene
 
 MARGIN_PX = 8  # reference-image border around the specimen's projection

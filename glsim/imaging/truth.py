@@ -17,7 +17,7 @@ import numpy as np
 
 from glsim.scene import bilinear as bl
 from glsim.scene.camera import pixel_to_normalized, undistort
-from glsim.stages.view import View
+from glsim.imaging.view import View
 
 
 def newton_from(p, q, xi, eta, steps: int = 2, tol: float = 0.0):
