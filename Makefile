@@ -20,8 +20,9 @@ test: venv x11 readme-check
 
 # the loop while changing code: every in-process test (GL included), none that starts another
 # process (library worker pools, CLI subprocesses, forked checks, Xvfb, a browser, a cluster)
+# and none that runs a whole command end to end (slow); make test runs them all
 test-fast: venv
-	$(BIN)/python -m pytest -q -ra -n 2 -m "not process"
+	$(BIN)/python -m pytest -q -ra -n 2 -m "not process and not slow"
 
 # every measured figure in README.md and docs/ equals what its bench/results file gives
 readme-check: venv

@@ -18,6 +18,7 @@ def _numbers(record):
             yield value
 
 
+@pytest.mark.slow
 @pytest.mark.gl
 def test_quick_accuracy_report(tmp_path, capsys):
     rc = cli.main(["accuracy", "--quick", "--size", *SIZE, "--reps", "1", "--out", str(tmp_path)])
@@ -43,6 +44,7 @@ def test_quick_accuracy_report(tmp_path, capsys):
     assert [t["target"] for t in report["targets"]] and len(report["peer"]) == 3
 
 
+@pytest.mark.slow
 @pytest.mark.gl
 def test_bench_effects_quick(tmp_path):
     assert cli.main(["effects", "--size", *SIZE, "--reps", "1", "--out", str(tmp_path)]) == 0
@@ -88,6 +90,7 @@ def test_reduced_runs_never_overwrite_the_committed_results(tmp_path, capsys, mo
     assert [accuracy._met(t) for t in accuracy.targets(report)] == ["yes", "not measured at 1624×1234"]
 
 
+@pytest.mark.slow
 def test_bench_quadratic_reduced(tmp_path, capsys):
     """`glsim bench quadratic` at a reduced size: every mode of both backends against the closed
     form (exact to rounding, fast's chord error falling with the piece count), written beside
@@ -107,6 +110,7 @@ def test_bench_quadratic_reduced(tmp_path, capsys):
     assert "## quad8" in (tmp_path / "quadratic.md").read_text()
 
 
+@pytest.mark.slow
 @pytest.mark.gl
 def test_bench_throughput_quick(tmp_path):
     """`glsim bench throughput --quick`: every mode at 1 and 4 spp, one at a time and pipelined,

@@ -15,6 +15,7 @@ SIZE = ("203", "154")
 RILEY = importlib.util.find_spec("riley") is not None
 
 
+@pytest.mark.slow
 @pytest.mark.gl
 def test_reduced_peer_bench(tmp_path, capsys):
     assert cli.main(["peer", "--size", *SIZE, "--reps", "1", "--out", str(cli.RESULTS)]) == 2  # reduced: refused
