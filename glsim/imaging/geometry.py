@@ -101,14 +101,14 @@ class StepGeometry:
         self.centre = 0.5 * (lo + hi) - mesh_geo.origin
         self.radius = _farthest(self.used_local, self.centre)
         self._shape = self._problems = None
-        self._views: dict[int, ViewSpec] = {}
+        self._views: dict[tuple[Camera, Camera], ViewSpec] = {}
 
     def view_of(self, cam: Camera, ref_camera: Camera) -> "ViewSpec":
-        """This step's :class:`ViewSpec` for ``cam`` (kept per camera object, the last
+        """This step's :class:`ViewSpec` for ``cam`` (kept by the cameras' values, the last
         VIEWS_KEPT: a preview drag makes a new camera every frame)."""
-        v = self._views.get(id(cam))
-        if v is None or v.camera is not cam or v.ref_camera is not ref_camera:
-            v = keep(self._views, id(cam), ViewSpec(cam, ref_camera, self.mesh_geo, self), VIEWS_KEPT)
+        v = self._views.get((cam, ref_camera))
+        if v is None:
+            v = keep(self._views, (cam, ref_camera), ViewSpec(cam, ref_camera, self.mesh_geo, self), VIEWS_KEPT)
         return v
 
     def shape(self) -> dict[str, np.ndarray]:

@@ -10,6 +10,7 @@ up to about a hundred pixels across; larger ones get a proportionally larger pad
 """
 from __future__ import annotations
 
+import itertools
 import warnings
 from dataclasses import dataclass
 
@@ -22,6 +23,7 @@ from glsim.scene.camera import Camera, pixel_to_normalized, project_camera_frame
 from glsim.imaging.geometry import VIEWS_KEPT
 from glsim.imaging.view import NEAR_MM, _labels, check_reference, make_view
 
+_CACHES = itertools.count()   # a patch cache's serial: the GPU's uploads are keyed by it and the state
 QUAD_BOX_GRID = 9
 QUAD_BOX_PAD_PX = 2.0
 
@@ -193,10 +195,11 @@ def patch_data(curved, view, mode: str, cache: dict) -> PatchData:
     bound; made once per view and mode (the last VIEWS_KEPT kept), so a view rendered again
     gets the same object."""
     views, mesh = cache.setdefault("views", {}), curved.mesh
-    hit = views.get((id(view), mode))
-    if hit is None or hit[0] is not view:
-        hit = keep(views, (id(view), mode), (view, *_patch_data(curved, view, mode, cache)), VIEWS_KEPT)
-    _, data, folded = hit
+    key = (view.camera, view.ref_camera, curved.state, mode)
+    hit = views.get(key)
+    if hit is None:
+        hit = keep(views, key, _patch_data(curved, view, mode, cache), VIEWS_KEPT)
+    data, folded = hit
     if folded.size:
         warnings.warn(f"camera {view.camera.name}: elements {_labels(folded, mesh.element_labels)} are "
                       "folded (the surface normal reverses inside the element: a mid-side node too far from its "
@@ -224,7 +227,7 @@ def _patch_data(curved, view, mode: str, cache: dict) -> tuple[PatchData, np.nda
         sag_px = max(sag_px, q4_image_bound(to_camera(local + origin, view.camera), view.camera, pieces.n))
     xr, uv = cache["ref"]
     return PatchData(pieces=pieces.n, local=local, ref_xr=xr, ref_uv=uv, extra_sag_px=1.5 * sag_px,
-                     token=(id(cache), state)), folded
+                     token=(cache.setdefault("serial", next(_CACHES)), state)), folded
 
 
 def pieces_to_patches(raster: dict, curved, cam: Camera, mode: str) -> dict:

@@ -580,19 +580,20 @@ def truth_keys(scene: Scene, mesh, cameras, steps, dtype: str, cache: dict | Non
     mesh's pieces per element side, the truth dtype, and the truth format's and this key's
     versions; with a rolling shutter its line time and the exposure's motion (each row's state).
     Noise, lighting, optics, the speckle pattern and the output format do not enter: variants
-    differing only in those share one truth file. ``cache``: mesh digests by ``id(mesh)``, kept
-    between calls."""
+    differing only in those share one truth file. ``cache``: mesh digests by :func:`mesh_key`,
+    kept between calls."""
     from glsim.io import truthcodec
 
     cache = {} if cache is None else cache
-    if id(mesh) not in cache:       # the mesh is kept with its digest, so its id stays its own
-        cache[id(mesh)] = (mesh, _digest([mesh.nodes, mesh.quads, mesh.element_labels, *mesh.displacements,
-                                          *([] if mesh.patches is None else [mesh.patches])]))
+    mkey = mesh_key(scene)          # what the mesh depends on: one mesh, one digest
+    if mkey not in cache:
+        cache[mkey] = _digest([mesh.nodes, mesh.quads, mesh.element_labels, *mesh.displacements,
+                               *([] if mesh.patches is None else [mesh.patches])])
     d = scene.to_dict()
     sp = {k: v for k, v in d["speckle"].items() if k not in PATTERN_KEYS}
     sp["image"] = str(scene.resolve(sp["image"])) if sp["image"] else ""
     r = scene.render
-    base = {"version": [truthcodec.FORMAT, truthcodec.VERSION, KEY_VERSION], "dtype": dtype, "mesh": cache[id(mesh)][1],
+    base = {"version": [truthcodec.FORMAT, truthcodec.VERSION, KEY_VERSION], "dtype": dtype, "mesh": cache[mkey],
             "specimen": d["specimen"], "specimen_dir": d["base_dir"], "speckle": sp,
             "camera0": truthcodec.camera_dict(scene.cameras[0]),
             "render": [r.mode, r.precision, r.backend, r.samples_per_pixel, r.subsamples]
