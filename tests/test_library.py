@@ -346,7 +346,7 @@ def test_the_library_renderer_keeps_only_the_compact_truth(tmp_path):
 
 
 def test_every_truth_key_ingredient_changes_the_key(monkeypatch):
-    from glsim.workflows.library.spec import truth_keys
+    from glsim.workflows.library.keys import truth_keys
     changed = {"cameras.1.fx": (360.0, 361.0), "cameras.1.distortion.k1": (0.0, 0.01),
                "cameras.1.pose.stereo.Phi": (11.0, 12.0), "cameras.1.size": ([64, 48], [66, 48]),
                "cameras.0.cx": (31.5, 31.0), "specimen.plate.translations": ([[0.1, 0.0, 0.0], [0.25, -0.1, 0.3]],

@@ -936,7 +936,7 @@ def test_pieces_come_from_the_scene(tmp_path):
     from glsim.errors import GlsimError
     from glsim.scene import load_scene
     from glsim.scene.model import Render
-    from glsim.workflows.library.spec import truth_keys
+    from glsim.workflows.library.keys import truth_keys
 
     nodes, at = lattice(4, 3)
     meshio.write(tmp_path / "m.vtu", meshio.Mesh(nodes, [("quad8", q8_cells(4, 3, at))], point_data={"u": step1(nodes)}))

@@ -1,7 +1,8 @@
 """Image libraries: one spec (base scene + ``[vary]``) in, many variants' images, compact truth
 and a manifest out — resumable, in parallel processes or on a Dask cluster (``glsim library``).
 
-Modules: :mod:`.spec` (reading and expanding specs), :mod:`.worker` (rendering a task, one
+Modules: :mod:`.spec` (reading and expanding specs), :mod:`.keys` (what variants share: mesh,
+reference and truth keys), :mod:`.worker` (rendering a task, one
 renderer per worker thread), :mod:`.writer` (encoding and writing in a writer process),
 :mod:`.lifeline` (children that end with their parent), :mod:`.manifest` (manifest.csv and
 library.json), :mod:`.runner` (directory rules, pools, resume), :mod:`.audit` (which files are

@@ -3,7 +3,7 @@ spec it stores (``glsim library DIR --verify``). A run (:mod:`.runner`) keeps th
 when it resumes and renders the rest.
 
 * An image is good if its manifest row names its files and it has the row's size and SHA-256.
-* Truth is content-addressed (``truth/{key}.truth``, :func:`.spec.truth_keys`). A truth file is
+* Truth is content-addressed (``truth/{key}.truth``, :func:`.keys.truth_keys`). A truth file is
   good if it has the size and SHA-256 its manifest rows give, or, where no row gives them yet
   (written after the last manifest update), if it decodes: its name is its key, and it was
   renamed into place whole.

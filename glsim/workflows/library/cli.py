@@ -102,7 +102,7 @@ def estimate(plan, m: dict) -> tuple[float, int]:
     by each image's pixels × samples per pixel: per image the render and, beside it in the
     writer process, the encoding (the longer of the two counts); the truth's render and encoding
     once per truth file; the set-up once per new reference image (a renderer change)."""
-    from glsim.workflows.library.spec import reference_key
+    from glsim.workflows.library.keys import reference_key
 
     first = plan.variant(m["job"].variant).scene
     cam0 = first.camera(m["job"].camera)

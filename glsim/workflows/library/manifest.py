@@ -13,7 +13,7 @@ one per vary key    the value of each varied parameter, named by its dotted path
 ``bytes``           its size
 ``sha256``          its SHA-256 (hex)
 ``truth_file``      the compact truth, ``truth/{key}.truth`` (shared by the images of one truth
-                    key, :func:`.spec.truth_keys`); empty without truth
+                    key, :func:`.keys.truth_keys`); empty without truth
 ``truth_bytes``     its size (0 without truth)
 ``truth_sha256``    its SHA-256 (empty without truth)
 ``render_s``        seconds the render took (with GL truth read-back when truth is on)

@@ -9,7 +9,7 @@ The directory rules:
   resumed: the good files (:mod:`.audit`) are kept, everything else is rendered (again). Any
   other non-empty directory is refused, unless ``force`` and it holds a library: then that
   library's files are removed first.
-* Truth is content-addressed: every image whose truth key (:func:`.spec.truth_keys`) is the same
+* Truth is content-addressed: every image whose truth key (:func:`.keys.truth_keys`) is the same
   points to one file ``truth/{key}.truth``, rendered and written once, by the first image of
   the key still to render (the others render their image only). A manifest row is written once
   its image and its truth file both are.
@@ -40,7 +40,8 @@ from glsim.io import outdir
 from glsim.io import geometryfile
 from glsim.workflows.library import manifest as mf
 from glsim.workflows.library.audit import TRUTH_BAD, LibraryError, check_records, first_difference
-from glsim.workflows.library.spec import TRUTH_DIR, LibraryPlan, mesh_key
+from glsim.workflows.library.keys import TRUTH_DIR, mesh_key
+from glsim.workflows.library.spec import LibraryPlan
 from glsim.workflows.library.worker import WriteError, make_task, render_task
 
 CHUNK = 8          # images per task at most (a variant with more is split)

@@ -75,7 +75,7 @@ def _scene(scene_json: str):
 def renderer_for(scene, backend: str | None = None) -> Renderer:
     """This thread's renderer for ``scene``: the current one if it shares mesh, reference
     and backend (its scene swapped), else a new one on this thread's GL context."""
-    from glsim.workflows.library.spec import reference_key
+    from glsim.workflows.library.keys import reference_key
 
     backend = backend or scene.render.backend
     r = thread_renderer(reference_key(scene, backend),
