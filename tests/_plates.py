@@ -1,10 +1,12 @@
-"""The flat plate the rendering tests put before their cameras: one definition, every part a
-parameter. Each test file passes its own plate, cameras and options (the defaults are
-tests/test_render.py's: one camera of 160×120 px, fx = 2000 px, 300 mm from a 20×15 mm plate
-that moves by SHIFT at step 1)."""
+"""The flat plate the rendering tests put before their cameras (one definition, every part a
+parameter), and ``same_result``: two renders' bytes and truth equal. Each test file passes its
+own plate, cameras and options (the defaults are tests/test_render.py's: one camera of
+160×120 px, fx = 2000 px, 300 mm from a 20×15 mm plate that moves by SHIFT at step 1)."""
 from __future__ import annotations
 
 import dataclasses
+
+import numpy as np
 
 from glsim.scene import Plate, Render, Scene, Specimen
 from glsim.scene.camera import Camera, Distortion
@@ -48,3 +50,11 @@ def plate_scene(size=(160, 120), fx=2000.0, distortion=Distortion(), z=300.0, R=
         spec = Specimen(plate=plate, R=specimen_R, t=(0.0, 0.0, z))
     sections = {k: v for k, v in (("speckle", speckle), ("lighting", lighting), ("optics", optics)) if v is not None}
     return Scene(cameras=cams, specimen=spec, render=Render(**render), base_dir=base_dir, **sections)
+
+
+def same_result(a, b) -> None:
+    assert a.image.dtype == b.image.dtype and a.image.tobytes() == b.image.tobytes()
+    assert (a.truth is None) == (b.truth is None) and a.stages == b.stages
+    if a.truth is not None:
+        for k in ("element", "xi", "eta", "ref_uv"):
+            assert np.array_equal(getattr(a.truth, k), getattr(b.truth, k), equal_nan=True), k

@@ -10,8 +10,7 @@ import pytest
 
 from glsim.render import Renderer
 from glsim.scene import Lighting, Noise
-from _plates import plate_scene
-from test_pipeline import _same
+from _plates import plate_scene, same_result
 
 pytestmark = pytest.mark.gl
 
@@ -39,7 +38,7 @@ def test_interleaved_kinds_give_the_bytes_of_each_rendered_alone(gl_ctx, lit):
             for job, got in zip(jobs, r.render_many(jobs)):
                 other.render(**{**job, "camera": "d" if job["camera"] == "c" else "c"})
                 with Renderer(scene, "gl", ctx=gl_ctx) as alone:
-                    _same(got, alone.render(**job))
+                    same_result(got, alone.render(**job))
 
 
 def test_a_renderer_given_a_new_scene_renders_that_scene(gl_ctx):
@@ -51,7 +50,7 @@ def test_a_renderer_given_a_new_scene_renders_that_scene(gl_ctx):
         for _ in range(2):
             r.render("c", 0)
         r.scene = brighter
-        _same(r.render("c", 0), ref.render("c", 0))
+        same_result(r.render("c", 0), ref.render("c", 0))
     base = dataclasses.replace(_two_cameras(), noise=Noise(sigma=1.0))
     jobs = [{"camera": c, "step": s, "truth": True, "quantize": True} for c in ("c", "d") for s in (0, 1)]
     with Renderer(base, "gl", ctx=gl_ctx) as r:
@@ -60,7 +59,7 @@ def test_a_renderer_given_a_new_scene_renders_that_scene(gl_ctx):
             r.scene = variant
             with Renderer(variant, "gl", ctx=gl_ctx) as alone:
                 for a, b in zip(r.render_many(jobs), alone.render_many(jobs)):
-                    _same(a, b)
+                    same_result(a, b)
 
 
 def test_a_time_series_warns_and_renders_each_step_as_alone(gl_ctx):
@@ -101,5 +100,5 @@ def test_a_time_series_warns_and_renders_each_step_as_alone(gl_ctx):
         want.append(out)
         want_warned += w
     for a, b in zip(got, want):
-        _same(a, b)
+        same_result(a, b)
     assert got_warned == sorted(want_warned) and any("zero area" in w for w in got_warned)

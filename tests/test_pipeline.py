@@ -9,7 +9,7 @@ import pytest
 from glsim.errors import SceneError
 from glsim.render import Renderer
 from glsim.scene import Noise
-from _plates import plate_scene
+from _plates import plate_scene, same_result
 
 BACKENDS = ["cpu", pytest.param("gl", marks=pytest.mark.gl)]
 
@@ -26,14 +26,6 @@ def _jobs():
             {"camera": "d", "step": 0, "truth": True, "quantize": True}, ("c", 1)]
 
 
-def _same(a, b) -> None:
-    assert a.image.dtype == b.image.dtype and a.image.tobytes() == b.image.tobytes()
-    assert (a.truth is None) == (b.truth is None) and a.stages == b.stages
-    if a.truth is not None:
-        for k in ("element", "xi", "eta", "ref_uv"):
-            assert np.array_equal(getattr(a.truth, k), getattr(b.truth, k), equal_nan=True), k
-
-
 @pytest.mark.parametrize("backend", BACKENDS)
 @pytest.mark.parametrize("mode,spp", [("fast", 1), ("q4", 4), ("exact", 1), ("exact", 4)])
 def test_render_many_gives_the_bytes_of_one_render_at_a_time(backend, mode, spp, ctx_for):
@@ -46,7 +38,7 @@ def test_render_many_gives_the_bytes_of_one_render_at_a_time(backend, mode, spp,
             many = list(r.render_many(_jobs(), depth=depth))
             assert [(x.camera.name, x.step) for x in many] == [(x.camera.name, x.step) for x in single]
             for a, b in zip(many, single):
-                _same(a, b)
+                same_result(a, b)
 
 
 CONSTRUCTORS = ("texture", "texture_array", "buffer", "framebuffer", "empty_framebuffer", "vertex_array",
@@ -78,7 +70,7 @@ def test_a_stream_stopped_early_collects_what_it_queued(gl_ctx):
         stream.close()                          # two frames were still queued
         assert not r.backend.resources.lent
         again = r.render("c", 0, truth=True)    # the renderer goes on as before
-        _same(again, next(iter(r.render_many([{"camera": "c", "step": 0, "truth": True}]))))
+        same_result(again, next(iter(r.render_many([{"camera": "c", "step": 0, "truth": True}]))))
 
 
 def test_depth_below_one_is_refused():
@@ -100,7 +92,7 @@ def test_a_renderer_given_a_new_scene_renders_its_cameras_and_options(backend, c
         after = list(r.render_many(jobs))
     with Renderer(moved, backend, ctx=ctx_for(backend)) as fresh:
         for a, b in zip(after, fresh.render_many(jobs)):
-            _same(a, b)
+            same_result(a, b)
             assert a.options.mode == "q4" and a.camera == b.camera
     assert after[0].camera.fx == 1100.0 and before[0].image.tobytes() != after[0].image.tobytes()
 

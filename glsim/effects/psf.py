@@ -30,7 +30,6 @@ GAUSS_RADIUS_SIGMAS = 4.0        # the Gaussian kernel's half-width in σ
 AIRY_ENERGY = 0.99               # the Airy kernel holds this share of the disk's energy
 AIRY_NODES = 8                   # Gauss–Legendre points per cell side
 MAX_RADIUS = 64                  # px: larger kernels are refused (129 × 129 taps per pixel)
-AIRY_FIRST_ZERO = 3.8317059702075125 / math.pi   # r / (λN) at J1's first zero: 1.2197
 
 
 @dataclass(frozen=True, eq=False)

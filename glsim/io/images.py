@@ -82,9 +82,6 @@ def write_truth(path: str | Path, arrays: dict[str, np.ndarray]) -> Path:
     return path
 
 
-TRUTH_TIFF_DTYPES = ("float32", "float64")
-
-
 def _tiff_map(tmp: Path, a: np.ndarray, float_dtype: str = "float32") -> None:
     import tifffile
     data = a.astype(np.uint8 if a.dtype == bool else np.int32 if a.dtype.kind == "i" else float_dtype)

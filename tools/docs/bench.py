@@ -223,3 +223,18 @@ def throughput(report: dict) -> str:
     """README: stereo pairs/s one at a time and pipelined (bench/results/throughput.json)."""
     from glsim.bench.throughput import table
     return table(report)
+
+
+def throughput_change(before: dict, after: dict) -> str:
+    """docs/performance.md: pipelined pairs/s per mode of two throughput runs on one machine, one
+    after the other (the renderer before and after a change), and their ratio."""
+    old = {(r["mode"], r["spp"]): r for r in before["rows"]}
+    lines = [f"{machine_line(after['machine'])}; before {before['date'][:16]}, after {after['date'][:16]}", "",
+             "| mode | spp | pairs/s before | pairs/s after | after / before |", "|---|---|---|---|---|"]
+    for r in after["rows"]:
+        b = old.get((r["mode"], r["spp"]))
+        if b is not None:
+            lines.append(f"| {r['mode']} | {r['spp']} | {sig(b['pipelined_pairs_per_s'], 3)} | "
+                         f"{sig(r['pipelined_pairs_per_s'], 3)} | "
+                         f"{r['pipelined_pairs_per_s'] / b['pipelined_pairs_per_s']:.2f} |")
+    return "\n".join(lines)

@@ -29,7 +29,8 @@ from tools.docs.accuracy import (accuracy_facts, accuracy_table, effects, effect
                                  effects_dof_facts, effects_motion, peer, peer_rows)
 from tools.docs.bench import (check_drivers, fe_bulge_centre, fe_bulge_centre_5mm, jacobian, library, preview,
                               preview_overhead, quadratic_fast, quadratic_rows, quadratic_tables, scaling_goals,
-                              scaling_host, scaling_oracle, scaling_passes, scaling_table, throughput)
+                              scaling_host, scaling_oracle, scaling_passes, scaling_table, throughput,
+                              throughput_change)
 from tools.docs.calib import (calibration, calibration_accuracy, calibration_corner_facts, calibration_detection,
                               calibration_estimator_facts, calibration_estimators, calibration_resolution,
                               calibration_spread_facts, calibration_study, calibration_targets, calibration_timing)
@@ -62,7 +63,7 @@ GENERATORS = {"check-drivers": check_drivers, "preview": preview, "accuracy-tabl
               "fe-bulge-centre-5mm": fe_bulge_centre_5mm, "sweep-subsets": sweep_subsets,
               "quadratic-tables": quadratic_tables, "quadratic-rows": quadratic_rows, "quadratic-fast": quadratic_fast,
               "peer-rows": peer_rows, "camera-table": effects_camera, "motion-table": effects_motion,
-              "throughput": throughput, "jacobian": jacobian}
+              "throughput": throughput, "throughput-change": throughput_change, "jacobian": jacobian}
 
 
 # ---- regions ---------------------------------------------------------------------------------
