@@ -35,6 +35,7 @@ from glsim.backends.contract import Request
 from glsim.compose import chain, exposure
 from glsim.compose.drawing import Drawing, curved_patches
 from glsim.compose.truth import PixelMaps, TruthAssembler, element_raster
+from glsim.effects import dof
 from glsim.effects import prepare as prepare_effects
 from glsim.errors import RendererClosedError, SceneError
 from glsim.io.fe import specimen_mesh
@@ -43,7 +44,7 @@ from glsim.io.truth import Truth
 from glsim.limits import check_gl_target, check_image_size, check_memory, keep
 from glsim.scene import Render, Scene
 from glsim.scene import quadratic as qd
-from glsim.scene.camera import Camera
+from glsim.scene.camera import Camera, to_camera
 from glsim.imaging import jacobian as jac
 from glsim.imaging.geometry import MeshGeometry, StepGeometry
 from glsim.imaging.reference import make_reference
@@ -134,6 +135,9 @@ class Renderer:
         if limit := self.backend.capabilities.max_size:
             check_gl_target("render.samples_per_pixel", cam.size, spp, limit)
         check_memory(f"cameras[{self.scene.cameras.index(cam)}].size", cam.size, spp, truth)
+        if self.scene.optics is not None:   # before anything is written: the undeformed specimen's depths
+            dof.check_depths(to_camera(self.mesh.nodes, cam)[:, 2], self.scene.optics,
+                             f"camera {cam.name}: the specimen")
 
     def __enter__(self) -> "Renderer":
         return self

@@ -121,6 +121,10 @@ SCENES = {
     "optics focal length 1e300": (lambda d: write(d / "s.toml", scene_text() + "[optics]\nfocal_length = 1e300\n"
                                                   "f_number = 2.0\nfocus_distance = 1e308\npixel_pitch = 0.005\n"),
                                   "optics.focal_length: 1e+300 mm lies beyond"),
+    "specimen within the focal length": (lambda d: write(d / "s.toml", scene_text() + "[optics]\nfocal_length = 400.0\n"
+                                                         "f_number = 8.0\nfocus_distance = 500.0\n"
+                                                         "pixel_pitch = 0.005\n"),
+                                         "optics.focal_length: camera cam0: the specimen comes"),
 }
 # messages that blamed another key before: they must not come back
 WRONG = {"camera looking away": "fx:", "camera centre on the specimen plane": "fx:", "fx 1e300": "speckle",

@@ -112,13 +112,26 @@ def coc_px(Z, optics):
                   _param(optics, "f_number")) / _param(optics, "pixel_pitch")
 
 
+def check_depths(Z, optics, where: str = "the specimen") -> None:
+    """SceneError naming ``optics.focal_length`` if a surface at camera-frame depth Z (mm; Z ≤ 0:
+    no surface) is as close as the focal length or closer: a thin lens forms no real image of it."""
+    Z = np.asarray(Z, dtype=np.float64)
+    f = _param(optics, "focal_length")
+    near = Z[(Z > 0) & (Z <= f)]
+    if near.size:
+        from glsim.errors import SceneError
+
+        raise SceneError("optics.focal_length", f"{where} comes {near.min():.4g} mm from the lens, within its "
+                         f"focal length of {f:g} mm: a lens forms no image of it",
+                         "give the lens's real focal length (the camera's fx × pixel_pitch), or move the specimen "
+                         "beyond it")
+
+
 def _blur_size(Z, optics):
     """CoC/2 in pixels outside the in-focus band, 0 inside it and where Z ≤ 0."""
     Z = np.asarray(Z, dtype=np.float64)
     f = _param(optics, "focal_length")
-    if np.any((Z > 0) & (Z <= f)):
-        raise ValueError(f"depth Z in (0, f = {f} mm]: a surface closer than the focal length "
-                         "has no real image — use Z ≤ 0 for 'no surface'")
+    check_depths(Z, optics)
     surface = Z > 0
     c = coc_px(np.where(surface, Z, 2 * f + 1.0), optics)
     return np.where(surface & (c > _param(optics, "coc_px", 1.0)), 0.5 * c, 0.0)
