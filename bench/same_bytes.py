@@ -129,9 +129,13 @@ def machine() -> dict:
         renderer = ctx.info["GL_RENDERER"] + " | " + ctx.info["GL_VERSION"]
     finally:
         ctx.release()
-    cpu = next((line.split(":", 1)[1].strip() for line in Path("/proc/cpuinfo").read_text().splitlines()
-                if line.startswith("model name")), platform.processor())
-    return {"gl": renderer, "cpu": cpu, "numpy": np.__version__, "python": platform.python_version()}
+    info = Path("/proc/cpuinfo").read_text().splitlines() if Path("/proc/cpuinfo").exists() else []
+    cpu = next((line.split(":", 1)[1].strip() for line in info if line.startswith("model name")), platform.processor())
+    # the instruction sets decide llvmpipe's code and numpy's SIMD loops: one model name can hide several
+    flags = next((line.split(":", 1)[1].split() for line in info if line.startswith("flags")), [])
+    simd = sorted(f for f in flags if f.startswith(("avx", "sse", "fma")))
+    return {"gl": renderer, "cpu": cpu, "simd": " ".join(simd), "numpy": np.__version__,
+            "python": platform.python_version()}
 
 
 def main(argv) -> int:
