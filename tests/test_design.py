@@ -48,7 +48,17 @@ BAD = [({"dic": {"subset_size": [20]}}, "dic.subset_size"),
        ({"dic": {"subset_size": [21]}, "vary": {"noise.sigmaa": [1.0]}}, "noise.sigmaa"),
        ({"dic": {"subset_size": [21]}, "engine": "pyvale2d"}, "cameras.cam0.size"),
        ({"dic": {}}, "dic.subset_size: is required"),
-       ({"dic": {"subset_size": [21]}, "plan": 1}, "plan: unknown key")]
+       ({"dic": {"subset_size": [21]}, "plan": 1}, "plan: unknown key"),
+       ({"dic": {"subset_size": [21]}, "resolution": {"periods_px": [32, 64]}}, "resolution: the sinusoid sweep needs"),
+       ({"dic": {"subset_size": [21], "subset_step": 10}, "engine": "pyvale2d", "resolution": {"periods_px": [20, 64]}},
+        "resolution.periods_px: 20 px is not above twice the subset step"),
+       ({"dic": {"subset_size": [21]}, "engine": "pyvale2d", "resolution": {"periods_px": [64]}},
+        "resolution.periods_px: [64] has one period"),
+       ({"dic": {"subset_size": [21]}, "engine": "pyvale2d", "resolution": {"amplitude_px": 0}},
+        "resolution.amplitude_px"),
+       ({"dic": {"subset_size": [21]}, "engine": "pyvale2d", "resolution": {"period": [64]}},
+        "resolution.period: unknown key"),
+       ({"dic": {"subset_size": [21]}, "engine": "pyvale2d", "rank": {"by": "mei_px2"}}, "add a [resolution] table")]
 
 
 @pytest.mark.parametrize("top,key", BAD)

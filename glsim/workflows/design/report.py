@@ -43,6 +43,14 @@ def row_summary(r: dict) -> dict:
     m = r["meta"]
     out = {k: m[k] for k in ("key", "kind", "setup", "setting", "subset_size", "subset_step", "shape_function",
                              "speckle_seed", "noise_seed")}
+    if "ratio" in r:      # a resolution row: the sinusoid sweep
+        out.update(n_subsets=int(len(r["x"])), valid_share=float(np.mean(r["valid"])),
+                   spatial_resolution_px=float(r["spatial_resolution_px"]),
+                   periods_px=[float(p) for p in r["periods_px"]], amplitude_ratio=[float(x) for x in r["ratio"]],
+                   truth_amplitude_ratio=[float(x) for x in r["truth_ratio"]],
+                   node_spacing_px=float(r["node_spacing_px"]), engine_seconds=round(float(r["engine_seconds"]), 3),
+                   seconds=round(float(m.get("seconds", math.nan)), 3))
+        return out
     q = np.hypot(r["quick_sigma_u"], r["quick_sigma_v"]) / math.sqrt(2)
     out.update(n_subsets=int(len(r["x"])), quick_sigma_px=_median(q), quick_sigma_mm=_median(q * r["scale"]),
                seconds=round(float(m.get("seconds", math.nan)), 3))
@@ -83,6 +91,8 @@ def aggregate(design: Design, results: list[dict]) -> list[dict]:
     for v in design.plan.variants:
         for s in design.settings:
             mine = [r for r in results if r["meta"]["setup"] == v.id and r["meta"]["setting"] == s.name]
+            sweeps = [r for r in mine if "ratio" in r]
+            mine = [r for r in mine if "ratio" not in r]
             quick = [r for r in mine if r["meta"]["kind"] == "quick"]
             q = np.concatenate([np.hypot(r["quick_sigma_u"], r["quick_sigma_v"]) / math.sqrt(2) for r in quick])
             qs = np.concatenate([r["scale"] for r in quick])
@@ -120,8 +130,27 @@ def aggregate(design: Design, results: list[dict]) -> list[dict]:
                     noise_floor_over_quick=floor / _median(qe) if _median(qe) > 0 else math.nan)
                 maps.update(x=st["x"], y=st["y"], bias_u=bias_u, bias_v=bias_v, noise_u=noise_u, noise_v=noise_v,
                             scale=scale, quick_engine=qe)
+            if sweeps:
+                summary.update(_resolution_summary(sweeps, summary.get("noise_floor_px", math.nan)))
+                maps["sweep"] = summary["amplitude_ratio"]
             out.append({"summary": summary, "maps": maps})
     return out
+
+
+def _resolution_summary(sweeps: list[dict], noise_floor_px: float) -> dict:
+    """The sweep's figures for one (set-up, setting), the ratios averaged over the speckle seeds:
+    spatial resolution (px, mm), the metrological efficiency indicator (noise floor × resolution)."""
+    from glsim.workflows.design.resolution import spatial_resolution
+
+    periods = sweeps[0]["periods_px"]
+    ratio = np.mean([r["ratio"] for r in sweeps], axis=0)
+    res = spatial_resolution(periods, ratio)
+    mm = float(np.mean([r["mm_per_px"] for r in sweeps]))
+    return {"spatial_resolution_px": res, "spatial_resolution_mm": res * mm, "mei_px2": noise_floor_px * res,
+            "periods_px": [float(p) for p in periods], "amplitude_ratio": [float(x) for x in ratio],
+            "truth_amplitude_ratio": [float(x) for x in np.mean([r["truth_ratio"] for r in sweeps], axis=0)],
+            "sweep_amplitude_px": float(sweeps[0]["amplitude_px"]),
+            "sweep_node_spacing_px": float(sweeps[0]["node_spacing_px"])}
 
 
 def rank(entries: list[dict], by: str) -> list[dict]:
@@ -153,7 +182,7 @@ def write_csv(path, rows: list[dict]) -> None:
     w = csv.DictWriter(buf, cols, lineterminator="\n")
     w.writeheader()
     for r in rows:
-        w.writerow({k: json.dumps(v, sort_keys=True) if isinstance(v, dict) else v for k, v in r.items()})
+        w.writerow({k: json.dumps(v, sort_keys=True) if isinstance(v, (dict, list)) else v for k, v in r.items()})
     io.write_text(path, buf.getvalue())
 
 
@@ -228,6 +257,63 @@ def trend_figure(entries: list[dict]) -> str:
     return _png(fig)
 
 
+def _label(s: dict) -> str:
+    return f"{s['setup']} {s['setting']}"
+
+
+def attenuation_figure(entries: list[dict]) -> str:
+    """Measured / imposed sinusoid amplitude versus period, one line per set-up × setting, the
+    90 % level and each spatial resolution marked; the truth's own ratio (the FE field) dotted."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(6, 3.6))
+    for i, e in enumerate(x for x in entries if "amplitude_ratio" in x["summary"]):
+        s, c = e["summary"], f"C{i % 10}"
+        ax.plot(s["periods_px"], s["amplitude_ratio"], "-o", color=c, label=_label(s))
+        ax.plot(s["periods_px"], s["truth_amplitude_ratio"], ":", color=c)
+        if math.isfinite(s["spatial_resolution_px"]):
+            ax.axvline(s["spatial_resolution_px"], color=c, alpha=0.4, lw=1)
+    ax.axhline(0.9, color="k", lw=0.8, ls="--")
+    ax.set_xscale("log")
+    ax.set_xlabel("period (px)")
+    ax.set_ylabel("measured / imposed amplitude")
+    ax.grid(True, which="both", alpha=0.3)
+    ax.legend(fontsize=7)
+    return _png(fig)
+
+
+def frontier_figure(entries: list[dict]) -> str:
+    """Noise floor versus spatial resolution, one point per set-up × setting; the points no other
+    beats on both (the Pareto frontier) joined; dashed lines of constant MEI = noise × resolution."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    pts = [(e["summary"]["spatial_resolution_px"], e["summary"]["noise_floor_px"], _label(e["summary"]))
+           for e in entries if math.isfinite(e["summary"].get("spatial_resolution_px", math.nan))
+           and math.isfinite(e["summary"].get("noise_floor_px", math.nan))]
+    fig, ax = plt.subplots(figsize=(6, 3.8))
+    for i, (r, n, label) in enumerate(pts):
+        ax.plot(r, n, "o", color=f"C{i % 10}", label=label)
+    front = sorted(p for p in pts if not any(q[0] <= p[0] and q[1] <= p[1] and q[:2] != p[:2] for q in pts))
+    if len(front) > 1:
+        ax.plot([p[0] for p in front], [p[1] for p in front], "-", color="k", lw=1, label="frontier")
+    if pts:
+        rs = np.array([p[0] for p in pts])
+        grid = np.geomspace(rs.min() / 1.5, rs.max() * 1.5, 50)
+        for mei in sorted({p[0] * p[1] for p in pts}):
+            ax.plot(grid, mei / grid, ":", color="grey", lw=0.7)
+    ax.set_xscale("log")
+    ax.set_yscale("log")
+    ax.set_xlabel("spatial resolution: period at 90 % amplitude (px)")
+    ax.set_ylabel("noise floor (px)")
+    ax.grid(True, which="both", alpha=0.3)
+    ax.legend(fontsize=7)
+    return _png(fig)
+
+
 def _cell(v) -> str:
     if isinstance(v, float):
         return "–" if not math.isfinite(v) else f"{v:.3g}"
@@ -237,8 +323,21 @@ def _cell(v) -> str:
 
 
 RANK_COLUMNS = ("rank", "setup", "params", "setting", "p95_abs_error_px", "p95_abs_error_mm", "rms_bias_px",
-                "median_noise_px", "noise_floor_px", "quick_sigma_px", "quick_sigma_at_engine_px",
+                "median_noise_px", "noise_floor_px", "spatial_resolution_px", "mei_px2", "quick_sigma_px",
+                "quick_sigma_at_engine_px",
                 "noise_floor_over_quick", "valid_share")
+
+
+def _resolution_section(entries: list[dict]) -> str:
+    if not any("amplitude_ratio" in e["summary"] for e in entries):
+        return ""
+    return ("<h2>Spatial resolution: the sinusoid sweep</h2><p>Measured / imposed amplitude of u(x) = A·sin(2πx/p) "
+            "on a flat plate per period; the spatial resolution is the period where it falls to 90 % (dotted: the "
+            "truth's own ratio, the FE field's interpolation).</p><img alt='attenuation versus period' "
+            f"src='data:image/png;base64,{attenuation_figure(entries)}'><h2>Noise versus resolution</h2><p>Lower "
+            "left is better on both; a point on the black line is beaten on both by no other; dotted lines: "
+            "constant metrological efficiency indicator (noise floor × spatial resolution).</p><img "
+            f"alt='noise versus resolution frontier' src='data:image/png;base64,{frontier_figure(entries)}'>")
 
 
 def html_report(design: Design, ranking: list[dict], entries: list[dict], image_shape, meta: dict) -> str:
@@ -262,6 +361,7 @@ td,th{{border:1px solid #bbb;padding:3px 6px;text-align:right}}th{{background:#e
 <h2>Ranking by {html.escape(design.rank_by)}</h2><p>{html.escape(CRITERIA[design.rank_by][0])}</p>
 <table id="ranking"><tr>{head}</tr>{body}</table>
 <h2>Noise versus subset size</h2><img alt="noise versus subset size" src="data:image/png;base64,{trend_figure(entries)}">
+{_resolution_section(entries)}
 <h2>Maps per set-up and DIC setting</h2>{figs}
 <h2>Reading this report</h2><ul>{notes}</ul>
 </body></html>

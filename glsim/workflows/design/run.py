@@ -6,7 +6,9 @@ image set — the reference state (step 0), the deformed ``step`` and the refere
 another noise field (the static pair of the noise floor) — measure it with the engine and keep the
 displacements with the exact truth at the engine's subset centres (the material point seen at the
 centre, moved by the FE field of ``step`` and projected into the camera: px, and mm through the
-camera scale Z/√(fx·fy) at the centre).
+camera scale Z/√(fx·fy) at the centre). With a ``[resolution]`` table, resolution rows (per set-up,
+speckle seed and setting, under the first noise seed) measure the sinusoid sweep on a flat plate
+(:mod:`~glsim.workflows.design.resolution`).
 
 A row lives in ``DIR/rows/<key>/`` (``result.npz``, then ``row.json`` last); ``<key>`` hashes its
 inputs (the resolved scene, camera, step, ROI margin, setting, seeds, engine, this format's
@@ -33,12 +35,13 @@ from glsim.scene.locate import points_truth
 from glsim.render import Renderer
 from glsim.scene import Scene
 from glsim.scene.camera import project_camera_frame
-from glsim.workflows.design import quick
+from glsim.workflows.design import quick, resolution
 from glsim.workflows.design.engine import Engine, write_exchange
 from glsim.workflows.design.spec import Design, DicSetting, row_key
 
 FORMAT = "glsim-design/1"
 ROW_VERSION = 1
+RESOLUTION = ":resolution"   # suffix of the sinusoid sweep's rows' kind (per set-up, speckle seed, setting)
 STATIC_STREAM = 0x5EED   # the static pair's second noise field: seed derived from the realisation's
 
 
@@ -172,8 +175,12 @@ def rows(design: Design, engine_name: str | None) -> list[Row]:
                     "camera": design.camera, "step": design.step, "roi_margin": design.roi_margin}
             for s in design.settings:
                 kinds = [("quick", None)] + ([(engine_name, n) for n in design.noise_seeds] if engine_name else [])
+                if engine_name and design.resolution is not None:
+                    kinds.append((engine_name + RESOLUTION, design.noise_seeds[0]))
                 for kind, n in kinds:
-                    key = row_key({**base, "setting": s.name, "kind": kind, "noise_seed": n})
+                    extra = {"resolution": [list(design.resolution.periods_px), design.resolution.amplitude_px]} \
+                        if kind.endswith(RESOLUTION) else {}
+                    key = row_key({**base, "setting": s.name, "kind": kind, "noise_seed": n, **extra})
                     out.append(Row(key, kind, v.id, ss, s, n))
     return out
 
@@ -206,8 +213,15 @@ def run(design: Design, out: Path, eng: Engine | None, progress=None) -> list[di
                 prepared[pk] = prepare(setup_scene(variants[row.setup].scene, row.speckle_seed), design.camera,
                                        design.step, design.roi_margin)
             t1 = time.perf_counter()
-            arrays = quick_row(prepared[pk], row.setting) if row.kind == "quick" else \
-                engine_row(prepared[pk], row.setting, row.noise_seed, eng, folder)
+            if row.kind == "quick":
+                arrays = quick_row(prepared[pk], row.setting)
+            elif row.kind.endswith(RESOLUTION):
+                p = prepared[pk]
+                arrays = resolution.sweep_row(p.scene, p.camera, p.mesh, row.setting, row.noise_seed,
+                                              design.resolution.periods_px, design.resolution.amplitude_px, eng,
+                                              folder, design.roi_margin)
+            else:
+                arrays = engine_row(prepared[pk], row.setting, row.noise_seed, eng, folder)
             folder.mkdir(parents=True, exist_ok=True)
             with io.atomic_path(folder / "result.npz") as tmp:
                 with open(tmp, "wb") as f:

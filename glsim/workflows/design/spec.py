@@ -26,6 +26,10 @@ A spec is a TOML file::
     [calibration]
     rig = "exact"              # the scene's own cameras (the only choice so far)
 
+    [resolution]               # optional, with an engine: the sinusoid sweep (resolution.py)
+    periods_px = [16, 32, 64]  # periods of u(x) = A·sin(2πx/p), px at the plate; default from the subsets
+    amplitude_px = 0.5         # A, px (the DIC Challenge 2.0 star's)
+
     [rank]
     by = "p95_abs_error_px"    # see CRITERIA
 
@@ -37,6 +41,7 @@ import difflib
 import hashlib
 import itertools
 import json
+import math
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -44,11 +49,13 @@ from glsim.limits import MAX_VALUES
 from glsim.workflows.library.spec import LibraryPlan, SpecError, expand, read_spec
 
 TOP_KEYS = ("scene", "seed", "mode", "n", "camera", "step", "engine", "roi_margin", "vary", "dic",
-            "realisations", "calibration", "rank")
+            "realisations", "calibration", "resolution", "rank")
 ENGINES = ("quick", "pyvale2d")
 SHAPES = ("rigid", "affine", "quad")
 DIC_KEYS = ("subset_size", "subset_step", "shape_function")
 REAL_KEYS = ("noise_seeds", "speckle_seeds")
+RES_KEYS = ("periods_px", "amplitude_px")
+MIN_PERIOD_PX, MAX_PERIOD_PX, MAX_AMPLITUDE_PX = 4.0, 10_000.0, 5.0
 RIGS = ("exact",)
 # criterion → (what it is, needs the engine, smaller is better)
 CRITERIA = {
@@ -57,6 +64,9 @@ CRITERIA = {
     "rms_bias_px": ("RMS over subsets of the bias map |mean over realisations − truth| (px)", True, True),
     "median_noise_px": ("median over subsets of the noise map (std over realisations of U and V, px)", True, True),
     "noise_floor_px": ("std of the static pair's measured U, V over subsets and realisations (px)", True, True),
+    "spatial_resolution_px": ("period (px) at which the sinusoid's measured amplitude falls to 90 % ([resolution])",
+                              True, True),
+    "mei_px2": ("metrological efficiency indicator: noise floor × spatial resolution (px², [resolution])", True, True),
     "valid_share": ("share of subsets converged above the ZNCC threshold (larger is better)", True, False),
     "quick_sigma_px": ("median over subsets of the Cramér–Rao σ_u, σ_v (px), quick mode", False, True),
     "quick_sigma_mm": ("the same in mm", False, True),
@@ -77,6 +87,13 @@ class DicSetting:
 
 
 @dataclass(frozen=True)
+class Resolution:
+    """The sinusoid sweep: periods and amplitude of u(x) = A·sin(2πx/p), px at the plate."""
+    periods_px: tuple[float, ...]
+    amplitude_px: float
+
+
+@dataclass(frozen=True)
 class Design:
     """A checked design spec: the set-ups (a library :class:`LibraryPlan`), DIC settings, realisations."""
     plan: LibraryPlan
@@ -90,6 +107,7 @@ class Design:
     rig: str
     rank_by: str
     source: dict
+    resolution: Resolution | None = None
 
     @property
     def n_rows(self) -> int:
@@ -167,6 +185,7 @@ def check_design(spec: dict, spec_dir: str | Path = ".") -> Design:
     if rig not in RIGS:
         _fail("calibration.rig", f"{rig!r} is not supported", "only rig = \"exact\" (the scene's own cameras); "
               "a calibration from a simulated target library is not modelled yet")
+    resolution = _resolution(spec, engine, sizes, steps)
     rank = _table(spec, "rank", ("by",))
     by = rank.get("by", "p95_abs_error_px" if engine != "quick" else "quick_sigma_px")
     if by not in CRITERIA:
@@ -174,6 +193,8 @@ def check_design(spec: dict, spec_dir: str | Path = ".") -> Design:
     if CRITERIA[by][1] and engine == "quick":
         _fail("rank.by", f"{by!r} needs a measuring engine, and engine is \"quick\"",
               "write engine = \"pyvale2d\", or rank by quick_sigma_px or quick_sigma_mm")
+    if by in ("spatial_resolution_px", "mei_px2") and resolution is None:
+        _fail("rank.by", f"{by!r} needs the sinusoid sweep", "add a [resolution] table (periods_px, amplitude_px)")
 
     lib = {k: spec[k] for k in ("scene", "seed", "mode", "n", "vary") if k in spec}
     lib["truth"] = False
@@ -209,7 +230,39 @@ def check_design(spec: dict, spec_dir: str | Path = ".") -> Design:
                       "which writes empty results below about 256 px a side", "give at least 256 × 256 px")
     return Design(plan=plan, camera=camera, step=step, engine=engine, roi_margin=margin, settings=settings,
                   noise_seeds=tuple(noise_seeds), speckle_seeds=tuple(speckle_seeds), rig=rig, rank_by=by,
-                  source=spec)
+                  source=spec, resolution=resolution)
+
+
+def default_periods(sizes, steps) -> tuple[float, ...]:
+    """Seven periods, geometric, from the smallest subset size (at least 2.5 subset steps, above the
+    subset grid's Nyquist period) to eight times the largest (px)."""
+    lo, hi = max(float(min(sizes)), 2.5 * max(steps)), 8.0 * float(max(sizes))
+    return tuple(round(lo * (hi / lo) ** (k / 6), 1) for k in range(7))
+
+
+def _resolution(spec: dict, engine: str, sizes, steps) -> Resolution | None:
+    if "resolution" not in spec:
+        return None
+    res = _table(spec, "resolution", RES_KEYS)
+    if engine == "quick":
+        _fail("resolution", "the sinusoid sweep needs a measuring engine, and engine is \"quick\"",
+              "write engine = \"pyvale2d\", or leave [resolution] out")
+    num = lambda v: isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)  # noqa: E731
+    periods = _list(res, "periods_px", "resolution", lambda v: num(v) and MIN_PERIOD_PX <= v <= MAX_PERIOD_PX,
+                    f"give periods of {MIN_PERIOD_PX:g}…{MAX_PERIOD_PX:g} px, e.g. periods_px = [16, 32, 64, 128]",
+                    default=list(default_periods(sizes, steps)))
+    if len(periods) < 2:
+        _fail("resolution.periods_px", f"{list(periods)} has one period", "give at least two, around the "
+              "resolution expected (a few times the subset size)")
+    step = max(sz for sz in steps)
+    if min(periods) <= 2 * step:
+        _fail("resolution.periods_px", f"{min(periods):g} px is not above twice the subset step ({step} px): the "
+              "subset grid cannot sample it", f"give periods above {2 * step} px, or a smaller dic.subset_step")
+    amp = res.get("amplitude_px", 0.5)
+    if not (num(amp) and 0 < amp <= MAX_AMPLITUDE_PX):
+        _fail("resolution.amplitude_px", f"expected a number in (0, {MAX_AMPLITUDE_PX:g}] px, got {amp!r}",
+              "write amplitude_px = 0.5")
+    return Resolution(tuple(sorted(float(p) for p in periods)), float(amp))
 
 
 def load_design(path: str | Path) -> Design:
