@@ -16,9 +16,10 @@ by least squares to a·sin(2πx/p) + b·cos(2πx/p) + c, x the material point's 
 (the period is known, so one period in the image suffices; a period the subset grid aliases — too
 few distinct phases — gives NaN; the spec refuses periods ≤ 2 × the subset step);
 ``ratio`` = √(a² + b²)/A. The spatial resolution is the period at which the ratio falls to 0.9
-(log-linear interpolation between the two periods that bracket it); the metrological efficiency indicator is noise floor × spatial resolution
-(px²): smaller is better on both axes of the noise/resolution trade-off. The ratios are measured on
-the set-up's noisy images (its first noise seed); the fit over hundreds of subsets averages the noise.
+(log-linear interpolation between the two periods that bracket it); the metrological efficiency
+indicator is noise floor × spatial resolution (px²): smaller is better on both axes of the
+noise/resolution trade-off. The ratios are measured on the set-up's noisy images (its first noise
+seed); the fit over hundreds of subsets averages the noise.
 """
 from __future__ import annotations
 
