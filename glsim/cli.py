@@ -47,15 +47,15 @@ def _run(scene, out: str, args, label: str) -> int:
     n = len(w.images)
     r = scene.render
     if w.removed:
-        print(f"--force: removed {len(w.removed)} images and truth files of the earlier render in {out}/")
+        print(f"--force: removed {_count(len(w.removed), 'image')} and truth files of the earlier render in {out}/")
     if w.swept:
-        print(f"resumed: removed {len(w.swept)} temporary files an interrupted run left in {out}/")
+        print(f"resumed: removed {_count(len(w.swept), 'temporary file')} an interrupted run left in {out}/")
     if w.kept:
-        print(f"resumed: kept {len(w.kept)} images (with their truth) already rendered in {out}/ "
+        print(f"resumed: kept {_count(len(w.kept), 'image')} (with their truth) already rendered in {out}/ "
               f"from the same scene, their bytes those recorded in render-manifest.jsonl")
     if w.redone:
         shown = "; ".join(w.redone[:3]) + ("; …" if len(w.redone) > 3 else "")
-        print(f"resumed: rendered {len(w.redone)} images again whose files there did not match "
+        print(f"resumed: rendered {_count(len(w.redone), 'image')} again whose files there did not match "
               f"render-manifest.jsonl ({shown})")
     print(f"{label}: wrote {_count(n, 'image')} ({_count(len(w.truth), 'truth file')}) to {out}/ in {total:.2f} s "
           f"(render {sum(w.seconds):.2f} s, {sum(w.seconds) / max(n, 1) * 1e3:.0f} ms per image; "

@@ -144,7 +144,7 @@ def test_the_same_scene_resumes(tmp_path, capsys):
     capsys.readouterr()
     assert _render(scene_file, out, "--truth") == 0
     text = capsys.readouterr().out
-    assert "resumed: kept 1 images" in text and "wrote 2 images (2 truth files)" in text
+    assert "resumed: kept 1 image " in text and "wrote 2 images (2 truth files)" in text
     assert (out / "cam0_0000.tif").stat().st_mtime_ns == first
     # asking for truth in tiff now: the images without those truth files are rendered again
     assert _render(scene_file, out, "--truth", "--truth-format", "tiff") == 0
@@ -174,7 +174,7 @@ def test_an_interrupt_between_image_and_truth_leaves_neither(tmp_path, monkeypat
     assert sorted(snapshot(out)) == ["cam0_0000.tif", "cam0_0000_truth.npz", "render-manifest.jsonl", "scene.json"]
     monkeypatch.undo()
     assert _render(scene_file, out, "--truth") == 0
-    assert "resumed: kept 1 images" in capsys.readouterr().out
+    assert "resumed: kept 1 image " in capsys.readouterr().out
     files = sorted(snapshot(out))
     assert files == ["cam0_0000.tif", "cam0_0000_truth.npz", "cam0_0001.tif", "cam0_0001_truth.npz",
                      "cam0_0002.tif", "cam0_0002_truth.npz", "render-manifest.jsonl", "scene.json"]
@@ -254,4 +254,4 @@ def test_a_render_directory_of_an_earlier_release_resumes(tmp_path, capsys):
     assert not {"sensor", "psf", "vignetting", "exposure"} & set(written)
     assert {"lighting", "optics", "noise"} <= set(written)        # the first release's optional tables, as then
     capsys.readouterr()
-    assert _render(scene_file, out, "--steps", "0") == 0 and "resumed: kept 1 images" in capsys.readouterr().out
+    assert _render(scene_file, out, "--steps", "0") == 0 and "resumed: kept 1 image " in capsys.readouterr().out

@@ -1,4 +1,4 @@
-"""``glsim design SPEC.toml -o DIR``: what will my DIC measure? Candidate set-ups and DIC settings in,
+"""glsim design SPEC.toml -o DIR: what will my DIC measure? Candidate set-ups and DIC settings in,
 predicted and measured error maps and a ranking out (docs/design.md).
 
 Writes, all under DIR: ``rows/<key>/`` (one cached row each: ``result.npz``, ``row.json``), ``rows.csv``

@@ -1,4 +1,4 @@
-"""``glsim library``: render a library from a spec, resume one, or verify one.
+"""glsim library: render a library from a spec, resume one, or verify one.
 
     glsim library SPEC.toml -o DIR [--workers N | --scheduler tcp://HOST:PORT] [--force] [-q]
     glsim library SPEC.toml --dry-run         # the variant table, estimated time and disk size
