@@ -15,25 +15,15 @@ from glsim.workflows.design import resolution as rs
 from glsim.workflows.design.cli import main
 from glsim.workflows.design.engine import Pyvale2D
 
+import _design
+from _design import write_spec
+
 REPO = Path(__file__).resolve().parents[1]
 
 
 def plate_scene(size=(256, 256), shift_px=(0.0, 0.0), sigma=1.0, bit_depth=8) -> dict:
-    """A camera square onto a flat plate at 300 mm, 0.1 mm per px, moved by an image shift at step 1."""
-    W, H = size
-    return {"cameras": [{"name": "cam0", "size": [W, H], "fx": 3000.0, "fy": 3000.0, "cx": (W - 1) / 2,
-                         "cy": (H - 1) / 2, "bit_depth": bit_depth}],
-            "specimen": {"plate": {"width": 0.1 * (W - 20), "height": 0.1 * (H - 20), "nx": 2, "ny": 2,
-                                   "translations": [[0.1 * shift_px[0], 0.1 * shift_px[1], 0.0]]},
-                         "pose": {"t": [0.0, 0.0, 300.0]}},
-            "speckle": {"dot_diameter_px": 5.0, "seed": 3}, "noise": {"sigma": sigma},
-            "render": {"backend": "cpu", "mode": "exact"}}
-
-
-def write_spec(path: Path, scene: dict, **top) -> Path:
-    import tomli_w
-    path.write_bytes(tomli_w.dumps({**top, "scene": scene}).encode())
-    return path
+    """The design tests' plate (tests/_design.py), larger, still and 8-bit by default."""
+    return _design.plate_scene(size, shift_px, sigma, bit_depth)
 
 
 SINC_90 = brentq(lambda x: np.sin(x) / x - 0.9, 0.1, 1.5)     # 0.786

@@ -10,14 +10,13 @@ import json
 import os
 import shutil
 import struct
-import subprocess
-import sys
 import time
 import zlib
 from pathlib import Path
 
 import numpy as np
 import pytest
+from _hostile import files, main_under_cap, write
 
 from glsim.cli import main
 from glsim.errors import GlsimError, RenderWarning
@@ -40,16 +39,6 @@ PLATE = "[specimen.plate]\nwidth = 40.0\nheight = 30.0\n{extra}translations = [[
 def scene_text(size=(64, 48), specimen=PLATE.format(extra=""), speckle="dot_diameter_px = 4.0\n",
                render='backend = "cpu"\n') -> str:
     return CAMERA.format(W=size[0], H=size[1]) + specimen + "[speckle]\n" + speckle + "[render]\n" + render
-
-
-def write(path: Path, data) -> Path:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_bytes(data if isinstance(data, bytes) else data.encode())
-    return path
-
-
-def files(d: Path) -> dict:
-    return {p.relative_to(d).as_posix(): p.read_bytes() for p in d.rglob("*") if p.is_file()}
 
 
 # ---- crafted files -----------------------------------------------------------------------------------
@@ -218,23 +207,8 @@ def test_the_heavy_cases_are_refused_under_a_500_MB_address_space_limit(tmp_path
         d = tmp_path / f"c{i}"
         d.mkdir()
         cases[case] = CASES[case](d)
-    script = ("import contextlib, io, json, resource, sys\n"
-              "resource.setrlimit(resource.RLIMIT_AS, (500 << 20, 500 << 20))\n"
-              "from glsim.cli import main\n"
-              "out = []\n"
-              "for argv in json.loads(sys.argv[1]):\n"
-              "    err = io.StringIO()\n"
-              "    with contextlib.redirect_stderr(err):\n"
-              "        try:\n"
-              "            rc = main(argv)\n"
-              "        except BaseException as exc:\n"
-              "            rc = repr(exc)\n"
-              "    out.append([rc, err.getvalue()])\n"
-              "print(json.dumps(out))\n")
-    r = subprocess.run([sys.executable, "-c", script, json.dumps([argv for argv, _ in cases.values()])],
-                       capture_output=True, text=True, timeout=120)
-    assert r.returncode == 0, r.stderr
-    for (case, (_, culprit)), (rc, err) in zip(cases.items(), json.loads(r.stdout)):
+    results = main_under_cap([argv for argv, _ in cases.values()], timeout=120)
+    for (case, (_, culprit)), (rc, err) in zip(cases.items(), results):
         assert rc == 2 and culprit in err, (case, rc, err)
 
 

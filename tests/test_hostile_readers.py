@@ -5,15 +5,13 @@ Abaqus *INCLUDE) and images (the reference, a measured PSF) are crafted here byt
 case runs again in one subprocess limited to 500 MB of address space, where a reader that believed
 its header would run out of memory. Legitimate files still load."""
 import functools
-import json
 import struct
-import subprocess
-import sys
 import zlib
 from pathlib import Path
 
 import numpy as np
 import pytest
+from _hostile import files, main_under_cap, write
 
 from glsim.cli import main
 from glsim.errors import SceneError
@@ -22,22 +20,12 @@ from glsim.io.fe import load_mesh, open_series
 
 netCDF4 = pytest.importorskip("netCDF4")
 
-CAP = 500 << 20        # address space of the subprocess that replays every case
+
 
 SCENE = ('[[cameras]]\nname = "cam0"\nsize = [64, 48]\nfx = 300.0\nfy = 300.0\ncx = 31.5\ncy = 23.5\n'
          '{specimen}[specimen.pose]\nt = [0.0, 0.0, 300.0]\n[speckle]\n{speckle}[render]\nbackend = "cpu"\n')
 PLATE = "[specimen.plate]\nwidth = 40.0\nheight = 30.0\ntranslations = [[0.1, 0.0, 0.0]]\n"
 QUAD = np.array([[0, 0, 0], [10, 0, 0], [10, 10, 0], [0, 10, 0.0]])
-
-
-def write(path: Path, data) -> Path:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_bytes(data if isinstance(data, bytes) else data.encode())
-    return path
-
-
-def files(d: Path) -> dict:
-    return {p.relative_to(d).as_posix(): p.read_bytes() for p in d.rglob("*") if p.is_file()}
 
 
 def mesh_scene(d: Path, name: str, extra: str = "") -> Path:
@@ -267,22 +255,8 @@ def test_every_case_is_refused_under_a_500_MB_address_space_limit(tmp_path):
         d = tmp_path / f"c{i}"
         d.mkdir()
         argvs.append(case[0](d))
-    script = ("import contextlib, io, json, resource, sys\n"
-              f"resource.setrlimit(resource.RLIMIT_AS, ({CAP}, {CAP}))\n"
-              "from glsim.cli import main\n"
-              "out = []\n"
-              "for argv in json.loads(sys.argv[1]):\n"
-              "    err = io.StringIO()\n"
-              "    with contextlib.redirect_stderr(err):\n"
-              "        try:\n"
-              "            rc = main(argv)\n"
-              "        except BaseException as exc:\n"
-              "            rc = repr(exc)\n"
-              "    out.append([rc, err.getvalue()])\n"
-              "print(json.dumps(out))\n")
-    r = subprocess.run([sys.executable, "-c", script, json.dumps(argvs)], capture_output=True, text=True, timeout=300)
-    assert r.returncode == 0, r.stderr
-    for i, ((name, (_, culprit)), (rc, err)) in enumerate(zip(cases.items(), json.loads(r.stdout))):
+    results = main_under_cap(argvs)
+    for i, ((name, (_, culprit)), (rc, err)) in enumerate(zip(cases.items(), results)):
         assert rc == 2 and culprit.format(d=tmp_path / f"c{i}") in err and "Traceback" not in err, (name, rc, err)
 
 

@@ -12,6 +12,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from _hostile import files, write
 
 from glsim.cli import main
 from glsim.errors import SceneError
@@ -47,16 +48,6 @@ def inp(nodes, elements) -> str:
 
 SQUARE = [(0.0, 0.0, 0.0), (10.0, 0.0, 0.0), (10.0, 10.0, 0.0), (0.0, 10.0, 0.0)]
 PLATE_INP = Path(__file__).resolve().parents[1] / "examples/plate_inp/plate.inp"
-
-
-def write(path: Path, data) -> Path:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_bytes(data if isinstance(data, bytes) else data.encode())
-    return path
-
-
-def files(d: Path) -> dict:
-    return {p.relative_to(d).as_posix(): p.read_bytes() for p in d.rglob("*") if p.is_file()}
 
 
 def mesh_case(nodes, elements):
