@@ -4,8 +4,6 @@ MemoryError, GL error, SystemExit or traceback). Files are crafted here by writi
 headers, compact truth files, Exodus II copies. The cases whose naive handling allocates
 gigabytes run again in one subprocess limited to 500 MB of address space. Last, a small
 property-based fuzz of the scene and spec loaders: only glsim's own errors may come out."""
-import csv
-import hashlib
 import json
 import os
 import shutil
@@ -16,7 +14,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from _hostile import files, main_under_cap, write
+from _hostile import files, main_under_cap, tiff, vouch, write
 
 from glsim.cli import main
 from glsim.errors import GlsimError, RenderWarning
@@ -45,16 +43,7 @@ def scene_text(size=(64, 48), specimen=PLATE.format(extra=""), speckle="dot_diam
 
 def huge_tiff(path: Path, side: int = 30000) -> Path:
     """A 4 × 4 TIFF whose ImageWidth and ImageLength tags say ``side``."""
-    import tifffile
-    tifffile.imwrite(path, np.zeros((4, 4), np.uint8))
-    b = bytearray(path.read_bytes())
-    ifd = struct.unpack_from("<I", b, 4)[0]
-    for i in range(struct.unpack_from("<H", b, ifd)[0]):
-        entry = ifd + 2 + 12 * i
-        tag, kind = struct.unpack_from("<HH", b, entry)
-        if tag in (256, 257):
-            struct.pack_into("<H" if kind == 3 else "<I", b, entry + 8, side)
-    return write(path, bytes(b))
+    return tiff(path, np.zeros((4, 4), np.uint8), side)
 
 
 def huge_png(path: Path, side: int = 30000) -> Path:
@@ -261,19 +250,6 @@ def rewrite_truth(path: Path, header=None, blobs=None) -> None:
         pos += len(b)
     text = json.dumps(head).encode()
     path.write_bytes(C.container(text, b"".join(parts.values())))
-
-
-def vouch(lib: Path) -> None:
-    """Make the manifest vouch for the truth files as they are now (size and SHA-256)."""
-    with open(lib / "manifest.csv", newline="") as f:
-        rows = list(csv.DictReader(f))
-    for row in rows:
-        data = (lib / row["truth_file"]).read_bytes()
-        row["truth_bytes"], row["truth_sha256"] = len(data), hashlib.sha256(data).hexdigest()
-    with open(lib / "manifest.csv", "w", newline="") as f:
-        w = csv.DictWriter(f, fieldnames=list(rows[0]), lineterminator="\n")
-        w.writeheader()
-        w.writerows(rows)
 
 
 def zstd_frame_declaring(size: int) -> bytes:

@@ -12,10 +12,10 @@ import signal
 import socket
 import subprocess
 import sys
-import textwrap
 from pathlib import Path
 
 import pytest
+from _hostile import main_under_cap
 
 from glsim.cli import main
 from glsim.io import images as io
@@ -177,24 +177,8 @@ def test_a_giant_format_width_is_refused_under_a_500_MB_address_space_limit(tmp_
     argv = [["render", str(scene_file(tmp_path / f"in{i}", pattern=p)), "-o", str(tmp_path / f"out{i}"), "-q"]
             for i, p in enumerate(["{step:2000000000}", "{camera}_{step:.2000000000f}.{ext}",
                                    "{camera:>" + "9" * 5000 + "}{step}"])]
-    script = textwrap.dedent("""
-        import contextlib, io, json, resource, sys
-        resource.setrlimit(resource.RLIMIT_AS, (500 << 20, 500 << 20))
-        from glsim.cli import main
-        out = []
-        for argv in json.loads(sys.argv[1]):
-            err = io.StringIO()
-            with contextlib.redirect_stderr(err):
-                try:
-                    rc = main(argv)
-                except BaseException as exc:
-                    rc = repr(exc)
-            out.append([rc, err.getvalue()])
-        print(json.dumps(out))
-    """)
-    r = subprocess.run([sys.executable, "-c", script, json.dumps(argv)], capture_output=True, text=True, timeout=120)
-    assert r.returncode == 0, r.stderr
-    for rc, err in json.loads(r.stdout):
+    results = main_under_cap(argv, timeout=120)
+    for rc, err in results:
         assert rc == 2 and "output.pattern: " in err and "more than a file name holds (255 bytes)" in err, err
     assert not any((tmp_path / f"out{i}").exists() for i in range(3))
 

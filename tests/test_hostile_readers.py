@@ -11,7 +11,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from _hostile import files, main_under_cap, write
+from _hostile import files, main_under_cap, tiff, write
 
 from glsim.cli import main
 from glsim.errors import SceneError
@@ -102,22 +102,6 @@ def vtu(points: int = 4, cells: int = 1, extra_point_data: str = "", kind: int =
 def vtu_bomb() -> bytes:
     """A .vtu whose unused point-data array 'junk' declares 32 bytes and inflates to 1 GiB."""
     return vtu(extra_point_data=vtu_array("junk", "Float64", zlib_bomb, declared=32))
-
-
-def tiff(path: Path, data: np.ndarray, side: int | None = None, **kw) -> Path:
-    """``data`` as a TIFF, its ImageWidth and ImageLength tags patched to ``side`` where given."""
-    import tifffile
-    tifffile.imwrite(path, data, **kw)
-    if side is None:
-        return path
-    b = bytearray(path.read_bytes())
-    ifd = struct.unpack_from("<I", b, 4)[0]
-    for i in range(struct.unpack_from("<H", b, ifd)[0]):
-        entry = ifd + 2 + 12 * i
-        tag, kind = struct.unpack_from("<HH", b, entry)
-        if tag in (256, 257):
-            struct.pack_into("<H" if kind == 3 else "<I", b, entry + 8, side)
-    return write(path, bytes(b))
 
 
 def png(path: Path, side: int) -> Path:

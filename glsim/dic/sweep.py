@@ -42,12 +42,10 @@ from glsim.io.fe import specimen_mesh
 from glsim.imaging.reference import Reference, camera_scale
 from glsim.render import Renderer
 from glsim.scene import Plate, Render, Scene, Specimen, Speckle
+from glsim.workflows.pyvale_env import PLANAR_SCRIPT as DIC_SCRIPT, PYTHON as DIC_PYTHON
 
 FORMAT = "glsim-sweep/1"
-REPO = Path(__file__).resolve().parents[2]
-DIC_SCRIPT = REPO / "verify" / "dic2d.py"
 MIN_SIZE = 256  # px; at 160 px pyvale's calculate_2d writes empty results
-DIC_PYTHON = REPO / ".venv-verify" / "bin" / "python"
 
 SIZE = (512, 512)             # camera px
 FX = 3000.0                   # px at SIZE[0]; 0.1 mm/px at DISTANCE

@@ -40,11 +40,9 @@ from glsim.io.fe import specimen_mesh
 from glsim.imaging.reference import Reference, make_reference
 from glsim.render import Renderer, Truth
 from glsim.scene import Bulge, Scene, bulge_scene
+from glsim.workflows.pyvale_env import PYTHON as DIC_PYTHON, STEREO_SCRIPT as DIC_SCRIPT
 
 FORMAT = "glsim-verify/1"
-REPO = Path(__file__).resolve().parents[2]
-DIC_SCRIPT = REPO / "verify" / "dic.py"
-DIC_PYTHON = REPO / ".venv-verify" / "bin" / "python"
 
 FULL_SIZE = (1624, 1234)      # paper Table 3
 DEFORMED_STEP = 1             # bulge_scene(steps=1): step 1 is the full 5 mm bulge

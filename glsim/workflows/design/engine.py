@@ -21,11 +21,8 @@ import tifffile
 from glsim.errors import GlsimError
 from glsim.io import images as io
 from glsim.io.npzfile import NpzError, read_npz
+from glsim.workflows.pyvale_env import PLANAR_SCRIPT as PYVALE_SCRIPT, PYTHON as PYVALE_PYTHON, SETUP_HINT
 
-REPO = Path(__file__).resolve().parents[3]
-PYVALE_PYTHON = REPO / ".venv-verify" / "bin" / "python"
-PYVALE_SCRIPT = REPO / "verify" / "dic2d.py"
-SETUP_HINT = "make .venv-verify/.pyvale-installed (about 2 GB, a few minutes; `make sweep` makes it too)"
 SHAPES = {"rigid": "RIGID", "affine": "AFFINE", "quad": "QUAD"}
 # pyvale.dic.calculate_2d arguments common to every setting: ZNSSD, B-spline interpolation, no
 # prefilter (as glsim verify), optimiser tolerance 1e-4, ZNCC threshold 0.9
