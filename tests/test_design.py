@@ -202,11 +202,12 @@ def test_report_opens_in_headless_chromium(tmp_path):
 # ---- the real engine ------------------------------------------------------------------------------
 @pytest.mark.process
 @pytest.mark.slow
+@pytest.mark.engine
 def test_pyvale_end_to_end_noise_floor_matches_the_quick_mode(tmp_path):
     """pyvale's 2-D DIC on a 2.5 px, −1 px rigid shift: every subset valid, the static pair's noise
     floor within 25 % of the quick mode's Cramér–Rao σ at the same centres, the error small."""
     if Pyvale2D().missing():
-        pytest.skip(f"{Pyvale2D().missing()} (.ci/run would need it made before the tests)")
+        pytest.skip(f"{Pyvale2D().missing()} (make test-engine makes it)")
     spec = write_spec(tmp_path / "spec.toml", plate_scene(size=(256, 256), shift_px=(2.5, -1.0), sigma=2.0,
                                                           bit_depth=8),
                       engine="pyvale2d", dic={"subset_size": [21], "subset_step": 12},

@@ -77,6 +77,7 @@ def test_the_fe_field_keeps_the_imposed_amplitude_at_32_nodes_per_period():
 # ---- with the engine -----------------------------------------------------------------------------
 @pytest.mark.process
 @pytest.mark.slow
+@pytest.mark.engine
 def test_rigid_subpixel_shift_on_noise_free_exact_images_has_no_bias_beyond_the_engines_s_curve(tmp_path):
     """A 0.3 px rigid shift (the S-curve's extreme), 16 bits, no noise, exact mode, the default
     speckle (5 px dots), subset 21 affine: the conditions of glsim verify sweep. The engine's
@@ -109,6 +110,7 @@ def test_rigid_subpixel_shift_on_noise_free_exact_images_has_no_bias_beyond_the_
 
 @pytest.mark.process
 @pytest.mark.slow
+@pytest.mark.engine
 def test_sinusoid_attenuation_grows_with_subset_size_and_follows_the_subset_average(tmp_path):
     """Two subsets (15, 31 px, affine) on the same sweep: at every period the 31 px subset keeps
     less of the amplitude, so its spatial resolution is the larger. Independent reference: an
