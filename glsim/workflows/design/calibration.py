@@ -23,6 +23,7 @@ estimated camera 1 is placed by the estimated stereo extrinsics from there.
 """
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import difflib
 import hashlib
@@ -161,7 +162,7 @@ def calibration_spec(table: dict, key_prefix: str = "calibration") -> Calibratio
 def nice(x: float) -> float:
     """The printed pitch nearest ``x`` (in log scale): 1, 1.2, 1.5, 2, 2.5, 3, 4, 5, 6, 8 × 10ᵏ."""
     k = math.floor(math.log10(x))
-    options = [m * 10.0 ** e for e in (k - 1, k, k + 1) for m in NICE]
+    options = [float(f"{m}e{e}") for e in (k - 1, k, k + 1) for m in NICE]   # decimal: 0.12, not 0.12000000000000001
     return min(options, key=lambda v: abs(math.log(v / x)))
 
 
@@ -291,7 +292,8 @@ def calibrated_rig(spec: CalibrationSpec, scene, workdir, ctx=None, progress=Non
     rig = Scene(cameras=cams, render=Render(backend=backend, mode="exact", samples_per_pixel=SPP))
     lib, _ = cal.write_usable_library(rig, target, spec.pairs, out / "library", progress=progress, seed=spec.seed,
                                       backend=backend, spec=poses, noise=noise, ctx=ctx)
-    rep = cal.run(lib.directory, out / "calibration", model=spec.model)
+    with _one_opencv_thread():
+        rep = cal.run(lib.directory, out / "calibration", model=spec.model)
     est = estimated_cameras(cams, rep["estimate"])
     report = {"rms_px": rep["rms"], "epipolar_max_px": rep["epipolar_max_px"], "pairs": rep["pairs"],
               "pairs_used": rep["pairs_used"], "errors": {k: rep["errors"][k] for k in ERROR_KEYS},
@@ -304,18 +306,30 @@ def calibrated_rig(spec: CalibrationSpec, scene, workdir, ctx=None, progress=Non
     return CalibratedRig("targets", *est, report)
 
 
+@contextlib.contextmanager
+def _one_opencv_thread():
+    """OpenCV's solvers on one thread: with several, stereoCalibrate's sums come out in another
+    order from run to run (estimates differ by ~1e-11 relative); one costs ~0.1 s here."""
+    import cv2
+    before = cv2.getNumThreads()
+    cv2.setNumThreads(1)
+    try:
+        yield
+    finally:
+        cv2.setNumThreads(before)
+
+
 def _read_result(path: Path, digest: str) -> dict:
     """A finished calibration's result.json, checked; SceneError naming it otherwise."""
     fix = f"delete {path.parent} and run again: the calibration is made anew"
     try:
         done = json.loads(path.read_text())
-        if done["format"] != FORMAT or done["inputs_sha256"] != digest:
-            raise SceneError(str(path), "was made from other inputs than its directory's name says", fix)
-        cams = [camera_from_dict(c) for c in done["cameras"]]
+        ok = done["format"] == FORMAT and done["inputs_sha256"] == digest
+        cams = [camera_from_dict(c) for c in done["cameras"]]      # (a SceneError is a ValueError)
         if len(cams) != 2 or not isinstance(done["report"], dict):
             raise ValueError("not two cameras and a report")
-    except SceneError:
-        raise
     except (OSError, ValueError, KeyError, TypeError) as exc:
         raise SceneError(str(path), f"is not a finished calibration ({type(exc).__name__}: {exc})", fix) from None
+    if not ok:
+        raise SceneError(str(path), "was made from other inputs than its directory's name says", fix)
     return done
