@@ -16,6 +16,7 @@ from glsim.io.series import (Series, check_displacement, default_displacement, d
                              open_xdmf, select_steps, series_surface)
 from glsim.scene import Scene
 from glsim.scene import mesh as meshmod
+from glsim.scene.fields import apply_field, px_per_mm
 from glsim.scene.mesh import Mesh, place_mesh
 from glsim.scene.model import EXODUS_SUFFIXES
 
@@ -91,7 +92,8 @@ def load_mesh(path, unit: str = "mm", R=None, t=None, point_data_steps: Sequence
 
 
 def specimen_mesh(scene: Scene) -> meshmod.Mesh:
-    """The scene's FE mesh placed in the world (mm), with all its load steps."""
+    """The scene's FE mesh placed in the world (mm), with all its load steps, and with
+    ``specimen.field`` (split along its cracks) added to them."""
     sp = scene.specimen
     if sp.bulge is not None:
         b = sp.bulge
@@ -116,4 +118,6 @@ def specimen_mesh(scene: Scene) -> meshmod.Mesh:
                 displacement_files=[scene.resolve(x) for x in f.files] or None,
                 csv_files=[scene.resolve(x) for x in f.csv] or None, field=f.field or None,
                 roots=[scene.base_dir])
+    if sp.field is not None:   # in the specimen's own frame, before the placement
+        m = apply_field(sp.field, m, lambda X: px_per_mm(scene.cameras[0], sp.R, sp.t, X))
     return meshmod.place_mesh(m, "mm", np.asarray(sp.R, float), np.asarray(sp.t, float))

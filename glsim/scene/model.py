@@ -19,13 +19,14 @@ from glsim.scene.camera import Camera, check_ranges
 from glsim.errors import SceneError, check
 from glsim.limits import (MAX_COORDINATE_MM, MAX_ELEMENTS, MAX_NAME_BYTES, MAX_PIECES, MAX_SAMPLES_PER_PIXEL, MAX_STEPS, check_gl_target, check_image_size,
                           refuse_count, require_file)
+from glsim.scene.fields import Field
 from glsim.scene.mesh import UNITS_TO_MM
 from glsim.scene.tables import Vec3, build, check_length, reject_unknown
 from glsim.scene.optional import Exposure, Lighting, Noise, Optics, Psf, Sensor, Vignetting
 
 MODES = ("fast", "q4", "exact")
 LATER_TABLES = ("sensor", "psf", "vignetting", "exposure")   # Scene.to_dict leaves them out while absent
-LATER_KEYS = {"render": {"pieces": 4}}                        # ... and these keys while at their default
+LATER_KEYS = {"render": {"pieces": 4}, "specimen": {"field": None}}   # ... and these keys while at their default
 INTERPOLATIONS = ("linear", "cubic", "bspline3", "bspline5", "procedural")
 BACKENDS = ("gl", "cpu")
 PRECISIONS = ("fp32", "fp64")
@@ -219,12 +220,14 @@ class Specimen:
 
     Placement maps specimen coordinates to the world (camera 0's frame by default):
     X_world = R·X + t, mm. In a scene file it is the ``pose`` table (R or rvec, and t).
+    ``field``: a displacement field added to the load steps (:mod:`glsim.scene.fields`).
     """
     mesh: MeshFile | None = None
     plate: Plate | None = None
     bulge: Bulge | None = None
     R: tuple = ((1.0, 0.0, 0.0), (0.0, 1.0, 0.0), (0.0, 0.0, 1.0))
     t: tuple = (0.0, 0.0, 0.0)
+    field: Field | None = None
 
     def __post_init__(self):
         given = [k for k in ("mesh", "plate", "bulge") if getattr(self, k) is not None]
