@@ -168,6 +168,9 @@ def main(argv: list[str] | None = None) -> int:
     try:
         if args.workers is not None and args.workers < 1:    # (refused before anything is read or written)
             raise GlsimError(f"--workers {args.workers}: must be ≥ 1 — give the number of worker processes")
+        from glsim.workflows.training import cli as training_cli
+        if training_cli.handles(src):      # a spec with [training], or a training set: shards (docs/training.md)
+            return training_cli.main(args)
         if src.is_dir():
             if args.dry_run or args.output:
                 raise GlsimError(f"{src} is a library directory: --dry-run and -o take a spec file — give the "

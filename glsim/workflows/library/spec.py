@@ -114,6 +114,7 @@ class LibraryPlan:
     jobs: tuple[Job, ...]
     meshes: dict = field(default_factory=dict)     # specimen key → placed Mesh (checked)
     n_variants: int = 0                            # all variants; more than ``variants`` when sampled
+    n_steps: dict = field(default_factory=dict)    # variant id → its specimen's load steps
 
     @property
     def sampled(self) -> bool:
@@ -386,12 +387,14 @@ def _steps(value) -> list[int] | None:
     _fail("steps", f"expected a list of load steps, got {value!r}", 'write steps = [0, 3] or "0-3"')
 
 
-def expand(spec: dict, spec_dir: str | Path = ".", sample: int | None = None) -> LibraryPlan:
+def expand(spec: dict, spec_dir: str | Path = ".", sample: int | None = None,
+           keep_meshes: bool = True) -> LibraryPlan:
     """Expand and check a spec table (see the module text). Raises SpecError naming the key
     (and the variant) and the fix; reads every input the variants need (meshes, displacement
     files, noise tables) but writes nothing. Counts (values, variants, images) are checked
     against :mod:`glsim.limits` before anything is built. ``sample``: of more variants than that,
-    only the first ``sample - SAMPLE_TAIL`` and the last SAMPLE_TAIL are built (a dry run's table)."""
+    only the first ``sample - SAMPLE_TAIL`` and the last SAMPLE_TAIL are built (a dry run's table).
+    ``keep_meshes=False`` (a training set: no geometry files): each mesh is checked, then dropped."""
     from glsim.workflows.sequence import _check_effect_inputs
     from glsim.io.fe import specimen_mesh
 
@@ -455,7 +458,7 @@ def expand(spec: dict, spec_dir: str | Path = ".", sample: int | None = None) ->
         _fail("cameras", f"expected a list of camera names or indices, got {cam_sel!r}", 'write cameras = ["cam0"]')
     steps = _steps(spec.get("steps"))
 
-    variants, jobs, meshes, digests = [], [], {}, {}
+    variants, jobs, meshes, digests, n_steps = [], [], {}, {}, {}
     for i in picked:
         row = _row(mode, keys, cols, i)
         vid = f"v{i:0{width}d}"
@@ -492,7 +495,9 @@ def expand(spec: dict, spec_dir: str | Path = ".", sample: int | None = None) ->
                 meshes[mkey] = specimen_mesh(scene)
             except SceneError as exc:
                 raise SpecError(f"{where}: {exc}") from None
-        nsteps = meshes[mkey].n_steps
+        nsteps = n_steps[vid] = meshes[mkey].n_steps
+        if not keep_meshes:
+            meshes = {mkey: meshes[mkey]}      # the last one only: consecutive variants often share it
         vsteps = list(range(nsteps)) if steps is None else steps
         for s in vsteps:
             if not 0 <= s < nsteps:
@@ -525,7 +530,7 @@ def expand(spec: dict, spec_dir: str | Path = ".", sample: int | None = None) ->
     return LibraryPlan(source={**spec, "scene": base} if not isinstance(spec.get("scene"), dict) else dict(spec),
                 base_dir=base_dir, keys=tuple(k.path for k in keys), mode=mode, seed=seed, truth=truth,
                 truth_dtype=dtype, cameras=all_cams, steps=all_steps, variants=tuple(variants), jobs=tuple(jobs),
-                meshes=meshes, n_variants=count)
+                meshes=meshes if keep_meshes else {}, n_variants=count, n_steps=n_steps)
 
 
 def _row(mode: str, keys: list, cols: list, i: int) -> tuple:

@@ -1,0 +1,117 @@
+"""Training shards (glsim library with [training]): the tar layout — members, names, dtypes, fixed
+headers —, the labels and images read back equal to pair_labels and the render of a fresh
+Renderer bit for bit, the crop, and the loader's refusals."""
+import csv
+import io
+import json
+import tarfile
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from glsim.render import Renderer
+from glsim.workflows.library.cli import main as library_main
+from glsim.workflows.training.loader import ShardError, samples
+from glsim.workflows.training.spec import load_training
+
+TINY = Path(__file__).resolve().parents[1] / "examples" / "training_tiny.toml"
+KEYS = ("v0000", "v0001", "v0002", "v0003")
+FIELDS = ("cam0_def.png", "cam0_ref.png", "flow0.npy", "json", "mask_flow0.npy")
+
+
+@pytest.fixture(scope="module")
+def tiny(tmp_path_factory):
+    """examples/training_tiny.toml written once in this process (1 worker): 4 samples, 2 shards."""
+    out = tmp_path_factory.mktemp("tiny") / "set"
+    assert library_main([str(TINY), "-o", str(out), "--workers", "1", "-q"]) == 0
+    return out
+
+
+def test_shards_hold_each_samples_members_sorted_with_fixed_headers(tiny):
+    assert sorted(p.name for p in tiny.iterdir()) == ["manifest.csv", "samples.csv", "shard-000000.tar",
+                                                      "shard-000001.tar", "training.json"]
+    for k, shard in enumerate(("shard-000000.tar", "shard-000001.tar")):
+        with tarfile.open(tiny / shard) as tar:
+            members = tar.getmembers()
+        names = [m.name for m in members]
+        assert names == [f"{key}.{f}" for key in KEYS[2 * k:2 * k + 2] for f in FIELDS]
+        for m in members:
+            assert (m.type, m.mode, m.mtime, m.uid, m.gid, m.uname, m.gname) == (tarfile.REGTYPE, 0o644, 0, 0, 0, "", "")
+    with open(tiny / "manifest.csv", newline="") as f:
+        rows = list(csv.DictReader(f))
+    assert [(r["shard"], r["samples"]) for r in rows] == [("shard-000000.tar", "2"), ("shard-000001.tar", "2")]
+    assert all(int(r["bytes"]) == (tiny / r["shard"]).stat().st_size for r in rows)
+    with open(tiny / "samples.csv", newline="") as f:
+        table = list(csv.DictReader(f))
+    assert [(r["variant"], r["shard"], json.loads(r["speckle.seed"])) for r in table] == [
+        ("v0000", "shard-000000.tar", 1), ("v0001", "shard-000000.tar", 1),
+        ("v0002", "shard-000001.tar", 2), ("v0003", "shard-000001.tar", 2)]
+
+
+def test_the_loader_gives_arrays_of_the_crop_with_their_dtypes(tiny):
+    got = [s for shard in ("shard-000000.tar", "shard-000001.tar") for s in samples(tiny / shard)]
+    assert [s["__key__"] for s in got] == list(KEYS)
+    for s in got:
+        assert sorted(s) == sorted(["__key__", "cam0_def", "cam0_ref", "flow0", "json", "mask_flow0"])
+        assert s["cam0_ref"].dtype == s["cam0_def"].dtype == np.uint8 and s["cam0_ref"].shape == (40, 48)
+        assert s["flow0"].dtype == np.float32 and s["flow0"].shape[:2] == (40, 48)
+        assert s["mask_flow0"].dtype == np.uint8 and s["mask_flow0"].shape == (40, 48)
+        x0, y0, w, h = s["json"]["crop"]
+        assert (w, h) == (48, 40) and 0 <= x0 <= 64 - 48 and 0 <= y0 <= 64 - 40
+        assert s["json"]["variant"] == s["__key__"] and s["json"]["step"] == 1
+        assert s["json"]["seeds"]["speckle.seed"] == s["json"]["params"]["speckle.seed"]
+    assert len({tuple(s["json"]["crop"]) for s in got}) > 1          # placed per sample from the seed
+
+
+def test_labels_and_images_read_back_equal_pair_labels_of_a_fresh_render_bit_for_bit(tiny):
+    from glsim.workflows.training.labels import pair_labels
+
+    plan = load_training(TINY)
+    got = {s["__key__"]: s for shard in ("shard-000000.tar", "shard-000001.tar") for s in samples(tiny / shard)}
+    for v in plan.library.variants:
+        with Renderer(v.scene) as r:          # fresh: no reference, context or renderer shared with the run
+            ref = r.render("cam0", 0, truth=True, quantize=True)
+            dfm = r.render("cam0", 1, truth=True, quantize=True)
+        labels = pair_labels(v.scene, 1, {"cam0": ref.truth}, {"cam0": dfm.truth})
+        s = got[v.id]
+        x0, y0, w, h = s["json"]["crop"]
+        for name, want in (("cam0_ref", ref.image), ("cam0_def", dfm.image), ("flow0", labels["flow0"]),
+                           ("mask_flow0", labels["mask_flow0"])):
+            want = want[y0:y0 + h, x0:x0 + w]
+            assert s[name].dtype == want.dtype and s[name].shape == want.shape, name
+            assert s[name].tobytes() == np.ascontiguousarray(want).tobytes(), f"{v.id} {name}"
+
+
+def _tar(path: Path, members) -> Path:
+    with tarfile.open(path, "w") as tar:
+        for name, data, kind in members:
+            ti = tarfile.TarInfo(name)
+            ti.type = kind
+            ti.size = len(data) if kind == tarfile.REGTYPE else 0
+            if kind == tarfile.SYMTYPE:
+                ti.linkname = "/etc/passwd"
+            tar.addfile(ti, io.BytesIO(data) if kind == tarfile.REGTYPE else None)
+    return path
+
+
+@pytest.mark.parametrize("name, kind, what", [
+    ("../v0000.flow0.npy", tarfile.REGTYPE, "is not KEY.NAME.npy"),
+    ("v0000.flow0.pickle", tarfile.REGTYPE, "is not KEY.NAME.npy"),
+    ("v0000.flow0.npy", tarfile.SYMTYPE, "not a regular file")])
+def test_the_loader_refuses_a_member_that_is_not_a_samples_naming_it(tmp_path, name, kind, what):
+    path = _tar(tmp_path / "bad.tar", [(name, b"x", kind)])
+    with pytest.raises(ShardError, match=what) as e:
+        list(samples(path))
+    assert name in str(e.value) and "bad.tar" in str(e.value)
+
+
+def test_the_loader_refuses_a_pickled_npy_and_a_cut_shard(tmp_path):
+    buf = io.BytesIO()
+    np.save(buf, np.array([{"a": 1}], dtype=object), allow_pickle=True)
+    with pytest.raises(ShardError, match="cannot be read as a shard"):
+        list(samples(_tar(tmp_path / "p.tar", [("v0000.flow0.npy", buf.getvalue(), tarfile.REGTYPE)])))
+    whole = _tar(tmp_path / "w.tar", [("v0000.flow0.npy", b"\x93NUMPY" + b"0" * 2000, tarfile.REGTYPE)]).read_bytes()
+    (tmp_path / "cut.tar").write_bytes(whole[:1000])
+    with pytest.raises(ShardError, match="cut.tar"):
+        list(samples(tmp_path / "cut.tar"))
