@@ -10,7 +10,7 @@ import pytest
 from glsim.errors import SceneError
 from glsim.io.calibfiles import pyvale_calibration, read_rig_yaml, stereo_extrinsics
 from glsim.scene import Render, Scene
-from glsim.scene.camera import Camera
+from glsim.scene.camera import Camera, rotation_xyz
 from glsim.workflows.calib import library as libmod
 from glsim.workflows.design import calibration as dc
 from glsim.workflows.library.spec import SpecError
@@ -93,6 +93,13 @@ def test_targets_need_two_converging_cameras(tmp_path):
     b = Camera(name="cam1", size=a.size, fx=a.fx, fy=a.fy, cx=a.cx, cy=a.cy, t=(-100.0, 0.0, 0.0))
     with pytest.raises(SpecError, match=r"^calibration\.rig: cameras cam0 and cam1 look in parallel"):
         dc.calibrated_rig(spec, _scene((a, b)), tmp_path)
+    # turned 24° away from camera 0 instead of towards it: the axes meet behind the cameras
+    R = rotation_xyz(0.0, -24.0, 0.0)
+    away = Camera(name="cam1", size=a.size, fx=a.fx, fy=a.fy, cx=a.cx, cy=a.cy, R=R, t=-R @ [122.0, 0.0, 26.0])
+    with pytest.raises(SpecError, match=r"^calibration\.rig: cameras cam0 and cam1 see nothing in common"):
+        dc.calibrated_rig(spec, _scene((a, away)), tmp_path)
+    with pytest.raises(SpecError, match=r"^calibration\.rig: cameras cam0 and cam1 see nothing in common"):
+        dc.auto_pitch((a, away), "dots")
     assert not any(tmp_path.iterdir())
 
 
@@ -136,7 +143,7 @@ def calibrated(tmp_path_factory, gl_ctx):
 
 @pytest.mark.gl
 def test_targets_calibration_is_near_the_truth(calibrated):
-    root, spec, r = calibrated
+    root, _, r = calibrated
     true0, true1 = libmod.paper_rig(CI_SCALE)
     assert r.rig == "targets" and r.report["pairs_used"] >= PAIRS and r.report["pitch_mm"] == 10.0
     assert r.report["noise"]["sigma"] == 2.0                        # the scene has no [noise]: Table 8's 2 %
@@ -190,7 +197,7 @@ def test_same_seed_same_numbers_reused_and_resumed(calibrated, gl_ctx, tmp_path,
 
 @pytest.mark.gl
 def test_another_seed_another_calibration(calibrated, gl_ctx, tmp_path):
-    root, spec, r = calibrated
+    _, _, r = calibrated
     other = dc.calibrated_rig(dc.calibration_spec({"rig": "targets", "pairs": 3, "seed": SEED + 1}), _scene(),
                               tmp_path, ctx=gl_ctx)
     assert other.cam0.fx != r.cam0.fx and len(list(tmp_path.glob("calibration-*"))) == 1

@@ -37,7 +37,6 @@ import numpy as np
 
 from glsim.errors import SceneError
 from glsim.io import images as io
-from glsim.io.calibfiles import stereo_extrinsics
 from glsim.io.cameras import camera_from_dict, camera_to_dict
 from glsim.scene import Noise, Render, Scene
 from glsim.scene.camera import Camera, Distortion
@@ -178,6 +177,7 @@ def auto_pitch(cams: tuple[Camera, Camera], kind: str, fov: str = "full") -> flo
     field of view both cameras share at the rig's working distance, rounded to a printed pitch:
     10 mm for the paper's Table 8 rig (the library's default target)."""
     from glsim.workflows.calib.poses import common_fov, rig_frame
+    cams = stereo_cameras(cams)
     B, o = rig_frame(cams)
     ext = common_fov(cams, B, o)
     span = float(np.ptp(_unit_target(kind).points()[:, :2], axis=0).max())
@@ -199,8 +199,10 @@ def make_target(kind: str, pitch: float, px_per_mm: float):
 
 # --- the rig -----------------------------------------------------------------------------------
 
-def _stereo_cameras(scene, key: str) -> tuple[Camera, Camera]:
-    cams = tuple(scene.cameras)
+def stereo_cameras(cams, key: str = "calibration.rig") -> tuple[Camera, Camera]:
+    """The first two of ``cams``, checked: they converge and see a region in common where their
+    axes meet (the library poses its target there); SpecError naming ``key`` otherwise."""
+    cams = tuple(cams)
     if len(cams) < 2:
         _fail(key, f"rig = \"targets\" calibrates a stereo pair, and the scene has {len(cams)} camera",
               "give the scene two cameras, or write rig = \"exact\"")
@@ -211,6 +213,12 @@ def _stereo_cameras(scene, key: str) -> tuple[Camera, Camera]:
         _fail(key, f"cameras {a.name} and {b.name} look in parallel ({angle:.2g}° apart): the target poses are "
               "placed around the point where their optical axes meet", "converge the cameras (stereo DIC angles are "
               "typically 15–30°), or write rig = \"exact\"")
+    from glsim.workflows.calib.poses import common_fov, rig_frame
+    B, o = rig_frame((a, b))
+    if o[2] <= 0 or min(common_fov((a, b), B, o)) <= 0:
+        _fail(key, f"cameras {a.name} and {b.name} see nothing in common where their optical axes meet "
+              f"({o[2]:.4g} mm along {a.name}'s axis): the target poses are placed there",
+              "point the cameras at the same region of the specimen, or write rig = \"exact\"")
     return a, b
 
 
@@ -232,7 +240,7 @@ def inputs_hash(spec: CalibrationSpec, scene) -> str:
     """SHA-256 of what a calibration depends on: the spec, the first two cameras, the resolved
     noise and the backend (the name of its directory in a workdir)."""
     backend = spec.backend or scene.render.backend
-    cams = _stereo_cameras(scene, "calibration.rig") if spec.rig == "targets" else tuple(scene.cameras[:2])
+    cams = stereo_cameras(scene.cameras) if spec.rig == "targets" else tuple(scene.cameras[:2])
     text = json.dumps(_inputs(spec, cams, resolved_noise(spec, scene), backend), sort_keys=True)
     return hashlib.sha256(text.encode()).hexdigest()
 
@@ -272,7 +280,7 @@ def calibrated_rig(spec: CalibrationSpec, scene, workdir, ctx=None, progress=Non
     if spec.rig == "exact":
         return exact_rig(scene)
     t0 = time.perf_counter()
-    cams = _stereo_cameras(scene, "calibration.rig")
+    cams = stereo_cameras(scene.cameras)
     backend = spec.backend or scene.render.backend
     noise = resolved_noise(spec, scene)
     digest = inputs_hash(spec, scene)
