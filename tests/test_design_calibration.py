@@ -9,7 +9,7 @@ import pytest
 
 from glsim.errors import SceneError
 from glsim.io.calibfiles import pyvale_calibration, read_rig_yaml, stereo_extrinsics
-from glsim.scene import Render, Scene
+from glsim.scene import Noise, Render, Scene
 from glsim.scene.camera import Camera, rotation_xyz
 from glsim.workflows.calib import library as libmod
 from glsim.workflows.design import calibration as dc
@@ -101,6 +101,15 @@ def test_targets_need_two_converging_cameras(tmp_path):
     with pytest.raises(SpecError, match=r"^calibration\.rig: cameras cam0 and cam1 see nothing in common"):
         dc.auto_pitch((a, away), "dots")
     assert not any(tmp_path.iterdir())
+
+
+def test_noise_is_the_spec_s_else_the_scene_s_else_two_percent():
+    plain, own = _scene(), _scene().replace(noise={"sigma": 0.7})
+    spec = dc.calibration_spec({"rig": "targets"})
+    assert dc.resolved_noise(spec, plain) == Noise(sigma=2.0) and dc.resolved_noise(spec, own) == Noise(sigma=0.7)
+    assert dc.resolved_noise(dc.calibration_spec({"rig": "targets", "noise": 1.5}), own) == Noise(sigma=1.5)
+    assert dc.resolved_noise(dc.calibration_spec({"rig": "targets", "noise": 0}), own) is None
+    assert dc.inputs_hash(spec, plain) != dc.inputs_hash(spec, own)      # another sensor, another calibration
 
 
 def test_auto_pitch_follows_the_field_of_view():
