@@ -234,7 +234,7 @@ class Field:
         px = _range(self.max_displacement_px, f"{key}.max_displacement_px",
                     f"the largest in-plane displacement in camera-0 px, in [0, {MAX_PX:g}] (or [low, high])", 0.0, MAX_PX)
         check(min(_bounds(px)) > 0 or max(_bounds(px)) == 0, f"{key}.max_displacement_px",
-              f"the range {list(px)} includes 0", "give a range of positive values, or 0 for no scaling")
+              f"the range {px} includes 0", "give a range of positive values, or 0 for no scaling")
         object.__setattr__(self, "seed", int(self.seed))
         object.__setattr__(self, "max_displacement_px", px)
 
@@ -430,8 +430,11 @@ def split_along(mesh: Mesh, crack: Crack, key: str = "specimen.field.cracks[0]")
     copies: list[int] = []                    # source node of each new node
     replace: dict[int, dict[int, int]] = {}   # element → {old node: new node}
     n = mesh.n_nodes
+    order = np.argsort(quads.ravel(), kind="stable")     # node → its elements, by one sort
+    first = np.searchsorted(quads.ravel()[order], np.arange(n + 1))
     for node in path:
-        groups = _fan_groups(quads, node, path_edges)
+        around = np.unique(order[first[node]:first[node + 1]] // 4)
+        groups = _fan_groups(quads, around, node, path_edges)
         lefts = [g for g in groups if g & left_elements]
         if not lefts or len(lefts) == len(groups):
             continue                          # a tip inside the specimen: the fan stays whole
@@ -469,9 +472,8 @@ def split_along(mesh: Mesh, crack: Crack, key: str = "specimen.field.cracks[0]")
     return Split(split, side, source, (path[0] not in duplicated, path[-1] not in duplicated))
 
 
-def _fan_groups(quads: np.ndarray, node: int, cut: set) -> list[set[int]]:
-    """The elements around ``node`` in groups that stay joined through edges at ``node`` not in ``cut``."""
-    around = np.flatnonzero((quads == node).any(axis=1))
+def _fan_groups(quads: np.ndarray, around: np.ndarray, node: int, cut: set) -> list[set[int]]:
+    """The elements ``around`` ``node`` in groups that stay joined through edges at ``node`` not in ``cut``."""
     parent = {int(e): int(e) for e in around}
 
     def root(e):
