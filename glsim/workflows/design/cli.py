@@ -18,7 +18,7 @@ from glsim.io import images as io
 from glsim.workflows.design import report as rep
 from glsim.workflows.design.engine import engine as make_engine
 from glsim.workflows.design.run import FORMAT, print_progress, run
-from glsim.workflows.design.spec import CRITERIA, load_design
+from glsim.workflows.design.spec import criteria_for, load_design
 
 NOTES = (
     "Quick mode: the Cramér–Rao bound σ²(JᵀJ)⁻¹ of a subset DIC with the shape function, J the subset's "
@@ -31,7 +31,15 @@ NOTES = (
     "u(x) = A·sin(2πx/p) through its FE nodes (32 per smallest period); the measured U fitted by a sinusoid of "
     "the known period per period; the resolution is the period at 90 % of the imposed amplitude; the "
     "metrological efficiency indicator (MEI) is noise floor × spatial resolution (px²).",
-    "Not modelled here: calibration error (the exact rig is used), stereo (X, Y, Z, W), strain.",
+    "Not modelled here: calibration error (the exact rig is used), strain.",
+)
+STEREO_NOTES = (
+    "Stereo (engine pyvale3d): subsets on camera 0's reference image; X, Y, Z (the reference state's shape) "
+    "and U, V, W (the deformed state's displacement) in mm, camera 0's frame, against the exact truth of the "
+    "material point seen at each subset centre. Bias map: mean over realisations − truth; noise map: their std "
+    "(ddof = 1). Noise floor: std of the static pair's U, V, W (truth 0), and of its X, Y, Z minus the "
+    "reference state's over √2. The quick mode and the spatial resolution stay 2-D, on camera 0 (px). "
+    "Maps are drawn on camera 0's reference image, the ROI (the specimen both cameras see) outlined.",
 )
 
 
@@ -65,7 +73,8 @@ def main(argv: list[str] | None = None) -> int:
                 print(f"glsim design: warning: engine {design.engine} cannot run: {why}. Running the quick mode only.",
                       file=sys.stderr)
                 eng = None
-        by = design.rank_by if eng is not None or not CRITERIA[design.rank_by][1] else "quick_sigma_px"
+        by = design.rank_by if eng is not None or not criteria_for(design.engine)[design.rank_by][1] \
+            else "quick_sigma_px"
         t0 = time.perf_counter()
         out.mkdir(parents=True, exist_ok=True)
         results = run(design, out, eng, None if args.quiet else print_progress)
@@ -73,7 +82,8 @@ def main(argv: list[str] | None = None) -> int:
         ranking = rep.rank(entries, by)
         row_table = [rep.row_summary(r) for r in results]
         image_shape = design.plan.variants[0].scene.camera(design.camera).size[::-1]
-        meta = {"spec": str(args.spec), "notes": NOTES}
+        notes = NOTES + (STEREO_NOTES if design.stereo and eng is not None else ())
+        meta = {"spec": str(args.spec), "notes": notes}
         rep.write_csv(out / "rows.csv", row_table)
         rep.write_csv(out / "ranking.csv", ranking)
         design_used = design if by == design.rank_by else _with_rank(design, by)
@@ -81,9 +91,9 @@ def main(argv: list[str] | None = None) -> int:
         seconds = time.perf_counter() - t0
         io.write_text(out / "results.json", json.dumps(rep.clean(
             {"format": FORMAT, "spec": str(args.spec), "engine": eng.name if eng else "quick", "rank_by": by,
-             "camera": design.camera, "step": design.step, "noise_seeds": list(design.noise_seeds),
+             "camera": design.camera, "cameras": list(design.cameras) or [design.camera], "step": design.step, "noise_seeds": list(design.noise_seeds),
              "speckle_seeds": list(design.speckle_seeds), "calibration": design.rig, "ranking": ranking,
-             "rows": row_table, "notes": list(NOTES), "seconds": seconds}), indent=2, allow_nan=False) + "\n")
+             "rows": row_table, "notes": list(notes), "seconds": seconds}), indent=2, allow_nan=False) + "\n")
     except GlsimError as exc:
         print(f"glsim design: error: {exc}", file=sys.stderr)
         return 2

@@ -5,7 +5,9 @@ image, the deformed images (16-bit TIFF), the ROI (uint8 TIFF, 255 inside), the 
 settings in ``manifest.json``. :class:`Pyvale2D` runs pyvale's 2-D DIC on it as ``glsim verify
 sweep`` does: ``verify/dic2d.py`` (manifest format ``glsim-sweep/1``: one sequence, one run) under
 the interpreter of ``.venv-verify`` — pyvale pins opencv-python, so it never enters glsim's own
-environment. Another engine implements ``name``, ``missing()`` and ``measure()``.
+environment. :class:`Pyvale3D` runs pyvale's stereo DIC (``calculate_3d``) on a stereo exchange
+folder through ``verify/dic.py``, the script of ``glsim verify``, in the same environment. Another
+engine implements ``name``, ``missing()`` and ``measure()``.
 """
 from __future__ import annotations
 
@@ -22,6 +24,7 @@ from glsim.errors import GlsimError
 from glsim.io import images as io
 from glsim.io.npzfile import NpzError, read_npz
 from glsim.workflows.pyvale_env import PLANAR_SCRIPT as PYVALE_SCRIPT, PYTHON as PYVALE_PYTHON, SETUP_HINT
+from glsim.workflows.pyvale_env import STEREO_SCRIPT
 
 SHAPES = {"rigid": "RIGID", "affine": "AFFINE", "quad": "QUAD"}
 # pyvale.dic.calculate_2d arguments common to every setting: ZNSSD, B-spline interpolation, no
@@ -117,7 +120,118 @@ class Pyvale2D:
                              version=str(m["pyvale_version"]))
 
 
-def engine(name: str) -> Engine:
+# ---- stereo ------------------------------------------------------------------------------------------
+STEREO_RUN, STEREO_BITS = "run", 16
+# pyvale.dic.calculate_3d arguments common to every setting: those of calculate_2d above (the
+# temporal and the stereo matches alike); the epipolar search keeps pyvale's defaults
+CALCULATE_3D = {k: v for k, v in CALCULATE_2D.items()}
+
+
+@dataclass(frozen=True)
+class StereoResults:
+    """One stereo engine call: subset centres (n,) px on camera 0's reference image and, per state
+    of the exchange (k, n; state 0 the reference): positions X, Y, Z and displacements from the
+    reference U, V, W (mm, camera 0's frame), ``valid`` (converged and above the threshold in the
+    temporal and stereo matches, finite), the temporal correlation ``cost``; ``seconds`` of the
+    engine's own call."""
+    x: np.ndarray
+    y: np.ndarray
+    X: np.ndarray
+    Y: np.ndarray
+    Z: np.ndarray
+    U: np.ndarray
+    V: np.ndarray
+    W: np.ndarray
+    valid: np.ndarray
+    cost: np.ndarray
+    seconds: float
+    version: str
+
+
+class StereoEngine(Protocol):
+    name: str
+
+    def missing(self) -> str | None:
+        """None where the engine can run here, else what is missing and how to get it."""
+
+    def measure(self, exchange: Path) -> StereoResults:
+        """Measure the stereo exchange folder's states against its reference pair."""
+
+
+def stereo_image_name(camera: int, state: int) -> str:
+    return f"cam{camera}_{state:04d}_{STEREO_BITS}bit.tif"
+
+
+def write_stereo_exchange(out: Path, states: list[tuple[np.ndarray, np.ndarray]], roi: np.ndarray,
+                          calibration: dict, subset_size: int, subset_step: int, shape_function: str,
+                          max_displacement: int) -> Path:
+    """A stereo exchange folder in ``glsim verify``'s format (verify/dic.py reads it): per state a
+    camera-0 and a camera-1 image (16-bit TIFF of full-scale images; state 0 the reference),
+    roi.tif on camera 0's reference image, calibration.json (pyvale's ``Calib`` fields) and
+    manifest.json last."""
+    out.mkdir(parents=True, exist_ok=True)
+    manifest_states = []
+    for k, pair in enumerate(states):
+        names = [stereo_image_name(c, k) for c in (0, 1)]
+        for name, img in zip(names, pair):
+            io.write_image(out / name, img, STEREO_BITS)
+        manifest_states.append({"state": k, "images": {str(STEREO_BITS): names}})
+    with io.atomic_path(out / "roi.tif") as tmp:
+        tifffile.imwrite(tmp, roi.astype(np.uint8) * 255, photometric="minisblack")
+    io.write_text(out / "calibration.json", json.dumps(calibration, indent=2))
+    rows, cols = np.nonzero(roi)
+    k = int(np.argmin((rows - rows.mean()) ** 2 + (cols - cols.mean()) ** 2))
+    manifest = {"format": "glsim-design-stereo/1", "states": manifest_states, "roi": "roi.tif",
+                "seed": [int(cols[k]), int(rows[k])], "calibration": "calibration.json",
+                "calculate_3d": {**CALCULATE_3D, "subset_size": int(subset_size), "subset_step": int(subset_step),
+                                 "max_displacement": int(max_displacement)},
+                "runs": [{"name": STEREO_RUN, "shape_function": SHAPES[shape_function], "bit_depth": STEREO_BITS}]}
+    return io.write_text(out / "manifest.json", json.dumps(manifest, indent=2))
+
+
+@dataclass(frozen=True)
+class Pyvale3D:
+    """pyvale's ``calculate_3d`` through ``verify/dic.py`` (``glsim verify``'s script) in ``.venv-verify``."""
+    python: Path = PYVALE_PYTHON
+    script: Path = STEREO_SCRIPT
+    name: str = "pyvale3d"
+
+    def missing(self) -> str | None:
+        return Pyvale2D(python=self.python, script=self.script).missing()
+
+    def planar(self) -> Pyvale2D:
+        """The 2-D engine of the same environment (the spatial-resolution sweep on camera 0)."""
+        return Pyvale2D(python=self.python)
+
+    def measure(self, exchange: Path) -> StereoResults:
+        why = self.missing()
+        if why:
+            raise GlsimError(f"engine pyvale3d: {why}")
+        exchange = Path(exchange).resolve()
+        done = subprocess.run([str(Path(self.python).absolute()), str(Path(self.script).resolve()), str(exchange)],
+                              cwd=exchange, capture_output=True, text=True)
+        if done.returncode != 0:
+            tail = (done.stdout + done.stderr).strip().splitlines()[-15:]
+            raise GlsimError(f"engine pyvale3d: {self.script} failed with exit status {done.returncode} on "
+                             f"{exchange}:\n" + "\n".join(tail))
+        path = exchange / f"measured_{STEREO_RUN}.npz"
+        try:
+            m = read_npz(path, ("ss_x", "ss_y", "X", "U", "valid", "cost", "seconds", "pyvale_version"),
+                         budget=MAX_SUBSETS * 160)
+        except (NpzError, OSError) as exc:
+            raise GlsimError(f"engine pyvale3d: {path}: {exc}") from None
+        X, U = np.asarray(m["X"], np.float64), np.asarray(m["U"], np.float64)
+        if X.ndim != 3 or X.shape[-1] != 3 or U.shape != X.shape:
+            raise GlsimError(f"engine pyvale3d: {path}: X and U are {X.shape} and {U.shape}, not (states, n, 3)")
+        return StereoResults(x=np.asarray(m["ss_x"], np.float64), y=np.asarray(m["ss_y"], np.float64),
+                             X=X[..., 0], Y=X[..., 1], Z=X[..., 2], U=U[..., 0], V=U[..., 1], W=U[..., 2],
+                             valid=np.atleast_2d(m["valid"]).astype(bool), cost=np.atleast_2d(m["cost"]),
+                             seconds=float(m["seconds"]), version=str(m["pyvale_version"]))
+
+
+def engine(name: str) -> Engine | StereoEngine:
     if name == "pyvale2d":
         return Pyvale2D()
-    raise GlsimError(f"engine: {name!r} is not an engine (pyvale2d)")
+    if name == "pyvale3d":
+        return Pyvale3D()
+    raise GlsimError(f"engine: {name!r} is not an engine (pyvale2d, pyvale3d)")

@@ -4,7 +4,9 @@ Per set-up and DIC setting, at every subset centre of the engine (pooled over th
 seeds, the realisations): the bias map (mean over realisations − truth) and the noise map (std over
 realisations, ddof = 1) of U and V in px and mm, the valid share, and the noise floor (the std of the
 static pair's measured U, V over subsets and realisations; the truth there is 0). Beside them the
-quick mode's Cramér–Rao σ (median over its subset grid, and at the engine's centres).
+quick mode's Cramér–Rao σ (median over its subset grid, and at the engine's centres). Stereo rows
+(engine pyvale3d) are summarised by :func:`glsim.workflows.design.stereo.aggregate` instead: mm,
+camera 0's frame, X, Y, Z and U, V, W.
 """
 from __future__ import annotations
 
@@ -18,7 +20,8 @@ import math
 import numpy as np
 
 from glsim.io import images as io
-from glsim.workflows.design.spec import CRITERIA, Design
+from glsim.workflows.design import stereo
+from glsim.workflows.design.spec import Design, criteria_for, smaller_is_better
 
 P95 = 95
 
@@ -51,6 +54,8 @@ def row_summary(r: dict) -> dict:
                    node_spacing_px=float(r["node_spacing_px"]), engine_seconds=round(float(r["engine_seconds"]), 3),
                    seconds=round(float(m.get("seconds", math.nan)), 3))
         return out
+    if "W" in r:          # a stereo row
+        return {**out, **stereo.row_summary(r), "seconds": round(float(m.get("seconds", math.nan)), 3)}
     q = np.hypot(r["quick_sigma_u"], r["quick_sigma_v"]) / math.sqrt(2)
     out.update(n_subsets=int(len(r["x"])), quick_sigma_px=_median(q), quick_sigma_mm=_median(q * r["scale"]),
                seconds=round(float(m.get("seconds", math.nan)), 3))
@@ -101,7 +106,12 @@ def aggregate(design: Design, results: list[dict]) -> list[dict]:
                        "shape_function": s.shape_function, "quick_sigma_px": _median(q),
                        "quick_sigma_mm": _median(q * qs), "quick_subsets": int(len(q))}
             maps = {"quick": quick[0]}
-            st = _stack([r for r in mine if r["meta"]["kind"] != "quick"])
+            measured = [r for r in mine if r["meta"]["kind"] != "quick"]
+            st = _stack(measured) if not design.stereo else None
+            if design.stereo and measured:
+                more, stereo_maps = stereo.aggregate(measured)
+                summary.update(more)
+                maps.update(stereo_maps)
             if st is not None:
                 ok = st["valid"] & st["truth_valid"]
                 eu = np.where(ok, st["u"] - st["truth_u"], np.nan)
@@ -155,7 +165,7 @@ def _resolution_summary(sweeps: list[dict], noise_floor_px: float) -> dict:
 
 def rank(entries: list[dict], by: str) -> list[dict]:
     """Summaries sorted by criterion ``by`` (best first; NaN last), each with its ``rank``."""
-    smaller = CRITERIA[by][2]
+    smaller = smaller_is_better(by)
 
     def key(e):
         v = e["summary"].get(by, math.nan)
@@ -196,11 +206,13 @@ def _png(fig) -> str:
     return base64.b64encode(buf.getvalue()).decode()
 
 
-def _map(ax, x, y, values, title, shape, fig, cmap="viridis", symmetric=False):
+def _map(ax, x, y, values, title, shape, fig, cmap="viridis", symmetric=False, outline=None):
     ok = np.isfinite(values)
     vmax = np.nanmax(np.abs(values[ok])) if ok.any() else 1.0
     kw = {"vmin": -vmax, "vmax": vmax} if symmetric else {}
     im = ax.scatter(x[ok], y[ok], c=values[ok], s=12, marker="s", cmap="RdBu_r" if symmetric else cmap, **kw)
+    if outline is not None and outline.any():   # the ROI's edge: the specimen as camera 0 sees it
+        ax.contour(outline.astype(np.float32), levels=[0.5], colors="k", linewidths=0.7)
     ax.set_xlim(0, shape[1])
     ax.set_ylim(shape[0], 0)
     ax.set_aspect("equal")
@@ -216,6 +228,8 @@ def entry_figure(entry: dict, image_shape) -> str:
 
     m = entry["maps"]
     q = m["quick"]
+    if "bias_W" in m:
+        return _stereo_figure(m, image_shape)
     panels = 1 + (3 if "bias_u" in m else 0)
     fig, axes = plt.subplots(1, panels, figsize=(3.3 * panels, 3.0), squeeze=False)
     axes = axes[0]
@@ -229,6 +243,28 @@ def entry_figure(entry: dict, image_shape) -> str:
     return _png(fig)
 
 
+def _stereo_figure(m: dict, image_shape) -> str:
+    """A stereo entry's maps on camera 0's reference image, the ROI outlined: the quick σ (camera 0,
+    px), the noise and bias maps of W (mm), the in-plane bias |(U, V)| and the shape's bias in Z (mm)."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    q, roi = m["quick"], m.get("roi")
+    fig, axes = plt.subplots(1, 5, figsize=(3.3 * 5, 3.0), squeeze=False)
+    axes = axes[0]
+    _map(axes[0], q["x"], q["y"], np.hypot(q["quick_sigma_u"], q["quick_sigma_v"]) / math.sqrt(2),
+         "quick (camera 0): Cramér–Rao σ (px)", image_shape, fig, outline=roi)
+    _map(axes[1], m["x"], m["y"], m["noise_W"], "noise W: std over realisations (mm)", image_shape, fig, outline=roi)
+    _map(axes[2], m["x"], m["y"], m["bias_W"], "bias W: mean − truth (mm)", image_shape, fig, symmetric=True,
+         outline=roi)
+    _map(axes[3], m["x"], m["y"], np.hypot(m["bias_U"], m["bias_V"]), "bias |(U, V)|: mean − truth (mm)",
+         image_shape, fig, outline=roi)
+    _map(axes[4], m["x"], m["y"], m["bias_Z"], "shape bias Z (reference state, mm)", image_shape, fig,
+         symmetric=True, outline=roi)
+    return _png(fig)
+
+
 def trend_figure(entries: list[dict]) -> str:
     """Noise versus subset size, one line per set-up and shape function: quick σ (dashed) and,
     with an engine, the measured noise floor (solid)."""
@@ -238,6 +274,7 @@ def trend_figure(entries: list[dict]) -> str:
 
     fig, ax = plt.subplots(figsize=(6, 3.6))
     groups: dict = {}
+    unit = "px"
     for e in entries:
         s = e["summary"]
         groups.setdefault((s["setup"], s["subset_step"], s["shape_function"]), []).append(s)
@@ -246,11 +283,18 @@ def trend_figure(entries: list[dict]) -> str:
         size = [s["subset_size"] for s in ss]
         colour = f"C{i % 10}"
         label = f"{setup} {shape} step {step}"
+        if "noise_floor_W_mm" in ss[0]:   # stereo: mm
+            ax.plot(size, [s["quick_sigma_mm"] for s in ss], "--o", color=colour, label=f"{label}: quick σ (cam 0)")
+            ax.plot(size, [s["noise_floor_inplane_mm"] for s in ss], "-s", color=colour,
+                    label=f"{label}: noise floor U, V")
+            ax.plot(size, [s["noise_floor_W_mm"] for s in ss], ":^", color=colour, label=f"{label}: noise floor W")
+            unit = "mm"
+            continue
         ax.plot(size, [s["quick_sigma_px"] for s in ss], "--o", color=colour, label=f"{label}: quick σ")
         if "noise_floor_px" in ss[0]:
             ax.plot(size, [s["noise_floor_px"] for s in ss], "-s", color=colour, label=f"{label}: noise floor")
     ax.set_xlabel("subset size (px)")
-    ax.set_ylabel("σ (px)")
+    ax.set_ylabel(f"σ ({unit})")
     ax.set_yscale("log")
     ax.grid(True, which="both", alpha=0.3)
     ax.legend(fontsize=7)
@@ -328,6 +372,12 @@ RANK_COLUMNS = ("rank", "setup", "params", "setting", "p95_abs_error_px", "p95_a
                 "noise_floor_over_quick", "valid_share")
 
 
+STEREO_COLUMNS = ("rank", "setup", "params", "setting", "p95_abs_error_mm", "p95_abs_W_mm", "rms_bias_mm",
+                  "rms_bias_W_mm", "median_noise_mm", "median_noise_W_mm", "noise_floor_mm", "noise_floor_inplane_mm",
+                  "noise_floor_W_mm", "p95_abs_Z_mm", "noise_floor_Z_mm", "spatial_resolution_px", "quick_sigma_px",
+                  "quick_sigma_mm", "valid_share")
+
+
 def _resolution_section(entries: list[dict]) -> str:
     if not any("amplitude_ratio" in e["summary"] for e in entries):
         return ""
@@ -340,8 +390,15 @@ def _resolution_section(entries: list[dict]) -> str:
             f"alt='noise versus resolution frontier' src='data:image/png;base64,{frontier_figure(entries)}'>")
 
 
+def _cameras(design: Design) -> str:
+    if design.stereo:
+        return (f"stereo pair {html.escape(design.cameras[0])} (camera 0: its frame, its reference image's subsets) "
+                f"and {html.escape(design.cameras[1])}")
+    return f"camera {html.escape(design.camera)}"
+
+
 def html_report(design: Design, ranking: list[dict], entries: list[dict], image_shape, meta: dict) -> str:
-    cols = [c for c in RANK_COLUMNS if any(c in r for r in ranking)]
+    cols = [c for c in (STEREO_COLUMNS if design.stereo else RANK_COLUMNS) if any(c in r for r in ranking)]
     head = "".join(f"<th>{html.escape(c)}</th>" for c in cols)
     body = "".join("<tr>" + "".join(f"<td>{_cell(r.get(c, math.nan))}</td>" for c in cols) + "</tr>" for r in ranking)
     figs = "".join(f"<h3>{html.escape(e['summary']['setup'])} ({_cell(e['summary']['params'])}), "
@@ -354,11 +411,11 @@ def html_report(design: Design, ranking: list[dict], entries: list[dict], image_
 td,th{{border:1px solid #bbb;padding:3px 6px;text-align:right}}th{{background:#eee}}img{{max-width:100%}}</style>
 </head><body>
 <h1>What will my DIC measure?</h1>
-<p>Spec <code>{html.escape(meta['spec'])}</code>; engine <b>{html.escape(design.engine)}</b>; camera
-{html.escape(design.camera)}, step {design.step} against step 0; {len(design.plan.variants)} set-ups ×
+<p>Spec <code>{html.escape(meta['spec'])}</code>; engine <b>{html.escape(design.engine)}</b>; {_cameras(design)},
+step {design.step} against step 0; {len(design.plan.variants)} set-ups ×
 {len(design.settings)} DIC settings; noise seeds {list(design.noise_seeds)}, speckle seeds
 {[s for s in design.speckle_seeds if s is not None] or 'the scene’s own'}; calibration: {design.rig} rig.</p>
-<h2>Ranking by {html.escape(design.rank_by)}</h2><p>{html.escape(CRITERIA[design.rank_by][0])}</p>
+<h2>Ranking by {html.escape(design.rank_by)}</h2><p>{html.escape(criteria_for(design.engine)[design.rank_by][0])}</p>
 <table id="ranking"><tr>{head}</tr>{body}</table>
 <h2>Noise versus subset size</h2><img alt="noise versus subset size" src="data:image/png;base64,{trend_figure(entries)}">
 {_resolution_section(entries)}

@@ -10,9 +10,14 @@ camera scale Z/√(fx·fy) at the centre). With a ``[resolution]`` table, resolu
 speckle seed and setting, under the first noise seed) measure the sinusoid sweep on a flat plate
 (:mod:`~glsim.workflows.design.resolution`).
 
+Stereo designs (engine pyvale3d) have stereo engine rows instead (:mod:`~glsim.workflows.design.stereo`):
+both cameras rendered, the rig handed to the engine chosen by :func:`rig_cameras`; their quick and
+resolution rows stay 2-D, on camera 0.
+
 A row lives in ``DIR/rows/<key>/`` (``result.npz``, then ``row.json`` last); ``<key>`` hashes its
-inputs (the resolved scene, camera, step, ROI margin, setting, seeds, engine, this format's
-version), so a run resumes where it stopped and a changed spec recomputes only the changed rows.
+inputs (the resolved scene, camera(s), step, ROI margin, setting, seeds, engine, for stereo the
+calibration handed to the engine, this format's version), so a run resumes where it stopped and a
+changed spec recomputes only the changed rows.
 """
 from __future__ import annotations
 
@@ -34,7 +39,8 @@ from glsim.io.truth import mesh_geometry
 from glsim.scene.locate import points_truth
 from glsim.render import Renderer
 from glsim.scene import Scene
-from glsim.scene.camera import project_camera_frame
+from glsim.io.calibfiles import pyvale_calibration
+from glsim.scene.camera import Camera, project_camera_frame
 from glsim.workflows.design import quick, resolution
 from glsim.workflows.design.engine import Engine, write_exchange
 from glsim.workflows.design.spec import Design, DicSetting, row_key
@@ -165,6 +171,19 @@ class Row:
                 "noise_seed": self.noise_seed}
 
 
+def rig_cameras(design: Design, scene: Scene) -> tuple[Camera, Camera]:
+    """The stereo rig handed to the engine as its calibration: two glsim cameras, camera 0 first.
+    ``[calibration] rig = "exact"``: the scene's own cameras, no calibration error."""
+    if design.rig == "exact":
+        return scene.camera(design.cameras[0]), scene.camera(design.cameras[1])
+    raise GlsimError(f"calibration.rig: {design.rig!r} is not supported — write rig = \"exact\"")
+
+
+def calibration_identity(design: Design, scene: Scene) -> dict:
+    """What a stereo row's cache key holds of the rig: its kind and the calibration the engine gets."""
+    return {"rig": design.rig, "pyvale": pyvale_calibration(*rig_cameras(design, scene))}
+
+
 def rows(design: Design, engine_name: str | None) -> list[Row]:
     """Every row of the design in a fixed order (set-up, speckle seed, setting, kind, noise seed)."""
     out = []
@@ -173,6 +192,8 @@ def rows(design: Design, engine_name: str | None) -> list[Row]:
             scene = setup_scene(v.scene, ss)
             base = {"format": FORMAT, "version": ROW_VERSION, "scene": json.loads(scene.to_json()),
                     "camera": design.camera, "step": design.step, "roi_margin": design.roi_margin}
+            if design.stereo:   # 2-D designs keep their keys (and caches)
+                base.update(cameras=list(design.cameras), calibration=calibration_identity(design, scene))
             for s in design.settings:
                 kinds = [("quick", None)] + ([(engine_name, n) for n in design.noise_seeds] if engine_name else [])
                 if engine_name and design.resolution is not None:
@@ -203,6 +224,8 @@ def run(design: Design, out: Path, eng: Engine | None, progress=None) -> list[di
     variants = {v.id: v for v in design.plan.variants}
     prepared: dict = {}
     results, t0, fresh = [], time.perf_counter(), 0
+    if design.stereo:
+        from glsim.workflows.design import stereo
     for i, row in enumerate(todo):
         folder = out / "rows" / row.key
         res = load_row(folder, row.key)
@@ -210,18 +233,23 @@ def run(design: Design, out: Path, eng: Engine | None, progress=None) -> list[di
             pk = (row.setup, row.speckle_seed)
             if pk not in prepared:
                 prepared.clear()   # one set-up at a time: rows are ordered by set-up
-                prepared[pk] = prepare(setup_scene(variants[row.setup].scene, row.speckle_seed), design.camera,
-                                       design.step, design.roi_margin)
+                scene = setup_scene(variants[row.setup].scene, row.speckle_seed)
+                prepared[pk] = stereo.prepare(scene, design.cameras, design.step, design.roi_margin) \
+                    if design.stereo else prepare(scene, design.camera, design.step, design.roi_margin)
             t1 = time.perf_counter()
+            p = prepared[pk].base if design.stereo else prepared[pk]
             if row.kind == "quick":
-                arrays = quick_row(prepared[pk], row.setting)
+                arrays = quick_row(p, row.setting)
             elif row.kind.endswith(RESOLUTION):
-                p = prepared[pk]
+                # the sweep is 2-D on camera 0: a stereo engine lends its planar one
                 arrays = resolution.sweep_row(p.scene, p.camera, p.mesh, row.setting, row.noise_seed,
-                                              design.resolution.periods_px, design.resolution.amplitude_px, eng,
-                                              folder, design.roi_margin)
+                                              design.resolution.periods_px, design.resolution.amplitude_px,
+                                              eng.planar() if design.stereo else eng, folder, design.roi_margin)
+            elif design.stereo:
+                arrays = stereo.engine_row(prepared[pk], row.setting, row.noise_seed, eng, folder,
+                                           rig_cameras(design, p.scene))
             else:
-                arrays = engine_row(prepared[pk], row.setting, row.noise_seed, eng, folder)
+                arrays = engine_row(p, row.setting, row.noise_seed, eng, folder)
             folder.mkdir(parents=True, exist_ok=True)
             with io.atomic_path(folder / "result.npz") as tmp:
                 with open(tmp, "wb") as f:

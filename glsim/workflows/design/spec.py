@@ -7,8 +7,10 @@ A spec is a TOML file::
     seed = 1                   # seeds [vary]'s random draws (as a library spec)
     mode = "grid"              # [vary]'s expansion: grid, zip or random (with n)
     camera = "cam0"            # the camera whose images are measured (2-D DIC); default the first
+    cameras = ["cam0", "cam1"] # engine pyvale3d: the stereo pair (camera 0's frame); default the first two
     step = 1                   # the deformed load step, measured against step 0; default the last
-    engine = "quick"           # quick: the Cramér–Rao noise map only; pyvale2d: also pyvale's 2-D DIC
+    engine = "quick"           # quick: the Cramér–Rao noise map only; pyvale2d: also pyvale's 2-D DIC;
+                               # pyvale3d: pyvale's stereo DIC (X, Y, Z, U, V, W in mm)
     roi_margin = 4             # px: the ROI is the specimen's pixels at step 0 and at `step`, eroded
 
     [vary]                     # candidate set-ups: dotted scene paths → values (docs/library.md)
@@ -48,9 +50,10 @@ from pathlib import Path
 from glsim.limits import MAX_VALUES
 from glsim.workflows.library.spec import LibraryPlan, SpecError, expand, read_spec
 
-TOP_KEYS = ("scene", "seed", "mode", "n", "camera", "step", "engine", "roi_margin", "vary", "dic",
+TOP_KEYS = ("scene", "seed", "mode", "n", "camera", "cameras", "step", "engine", "roi_margin", "vary", "dic",
             "realisations", "calibration", "resolution", "rank")
-ENGINES = ("quick", "pyvale2d")
+ENGINES = ("quick", "pyvale2d", "pyvale3d")
+STEREO = "pyvale3d"
 SHAPES = ("rigid", "affine", "quad")
 DIC_KEYS = ("subset_size", "subset_step", "shape_function")
 REAL_KEYS = ("noise_seeds", "speckle_seeds")
@@ -71,7 +74,37 @@ CRITERIA = {
     "quick_sigma_px": ("median over subsets of the Cramér–Rao σ_u, σ_v (px), quick mode", False, True),
     "quick_sigma_mm": ("the same in mm", False, True),
 }
+# stereo criteria (engine pyvale3d): mm, camera 0's frame; the quick ones and the spatial resolution
+# stay 2-D, on camera 0
+STEREO_CRITERIA = {
+    "p95_abs_error_mm": ("95th percentile over subsets and realisations of |(U, V, W) − truth| (mm)", True, True),
+    "p95_abs_W_mm": ("95th percentile over subsets and realisations of |W − truth| (mm, out of camera 0's plane)",
+                     True, True),
+    "p95_abs_Z_mm": ("95th percentile over subsets and realisations of the reference shape's |Z − truth| (mm)",
+                     True, True),
+    "rms_bias_mm": ("RMS over subsets of the bias map |mean over realisations of (U, V, W) − truth| (mm)", True, True),
+    "rms_bias_W_mm": ("RMS over subsets of the bias map of W (mm)", True, True),
+    "median_noise_mm": ("median over subsets of the noise map (std over realisations of U, V, W; RMS of the "
+                        "three, mm)", True, True),
+    "median_noise_W_mm": ("median over subsets of the noise map of W (mm)", True, True),
+    "noise_floor_mm": ("std of the static pair's measured U, V, W over subsets and realisations (RMS of the "
+                       "three, mm)", True, True),
+    "noise_floor_W_mm": ("std of the static pair's measured W over subsets and realisations (mm)", True, True),
+    "valid_share": CRITERIA["valid_share"],
+    "spatial_resolution_px": CRITERIA["spatial_resolution_px"][:1] + (True, True),
+    "quick_sigma_px": CRITERIA["quick_sigma_px"],
+    "quick_sigma_mm": CRITERIA["quick_sigma_mm"],
+}
 MAX_SUBSET = 301
+
+
+def criteria_for(engine: str) -> dict:
+    """The ranking criteria of an engine: the stereo ones for pyvale3d, else the 2-D ones."""
+    return STEREO_CRITERIA if engine == STEREO else CRITERIA
+
+
+def smaller_is_better(by: str) -> bool:
+    return {**CRITERIA, **STEREO_CRITERIA}[by][2]
 
 
 @dataclass(frozen=True)
@@ -108,6 +141,11 @@ class Design:
     rank_by: str
     source: dict
     resolution: Resolution | None = None
+    cameras: tuple[str, ...] = ()            # the stereo pair (engine pyvale3d), camera 0 first
+
+    @property
+    def stereo(self) -> bool:
+        return self.engine == STEREO
 
     @property
     def n_rows(self) -> int:
@@ -161,7 +199,9 @@ def check_design(spec: dict, spec_dir: str | Path = ".") -> Design:
     engine = spec.get("engine", "quick")
     if engine not in ENGINES:
         _fail("engine", f"{engine!r} is not one of {ENGINES}", "quick: the a-priori noise map only; pyvale2d: "
-              "also pyvale's 2-D DIC (needs .venv-verify: make .venv-verify/.pyvale-installed)")
+              "also pyvale's 2-D DIC; pyvale3d: pyvale's stereo DIC (both need .venv-verify: make "
+              ".venv-verify/.pyvale-installed)")
+    _check_camera_keys(spec, engine)
     margin = spec.get("roi_margin", 4)
     if not (_int(margin) and 0 <= margin <= 1000):
         _fail("roi_margin", f"expected an integer 0…1000 px, got {margin!r}", "write roi_margin = 4")
@@ -187,10 +227,18 @@ def check_design(spec: dict, spec_dir: str | Path = ".") -> Design:
               "a calibration from a simulated target library is not modelled yet")
     resolution = _resolution(spec, engine, sizes, steps)
     rank = _table(spec, "rank", ("by",))
-    by = rank.get("by", "p95_abs_error_px" if engine != "quick" else "quick_sigma_px")
-    if by not in CRITERIA:
-        _fail("rank.by", f"{by!r} is not a criterion", "one of " + ", ".join(CRITERIA))
-    if CRITERIA[by][1] and engine == "quick":
+    criteria = criteria_for(engine)
+    by = rank.get("by", "quick_sigma_px" if engine == "quick" else "p95_abs_error_mm" if engine == STEREO
+                  else "p95_abs_error_px")
+    if by not in criteria:
+        if engine == STEREO and by in CRITERIA:
+            _fail("rank.by", f"{by!r} is a 2-D criterion, and engine is \"pyvale3d\" (stereo, mm)",
+                  "one of " + ", ".join(criteria))
+        if engine != STEREO and by in STEREO_CRITERIA:
+            _fail("rank.by", f"{by!r} is a stereo criterion, and engine is {engine!r}",
+                  "write engine = \"pyvale3d\" (two cameras), or rank by one of " + ", ".join(criteria))
+        _fail("rank.by", f"{by!r} is not a criterion", "one of " + ", ".join(criteria))
+    if criteria[by][1] and engine == "quick":
         _fail("rank.by", f"{by!r} needs a measuring engine, and engine is \"quick\"",
               "write engine = \"pyvale2d\", or rank by quick_sigma_px or quick_sigma_mm")
     if by in ("spatial_resolution_px", "mei_px2") and resolution is None:
@@ -203,12 +251,16 @@ def check_design(spec: dict, spec_dir: str | Path = ".") -> Design:
         if not (isinstance(cam, str) or _int(cam)):
             _fail("camera", f"expected a camera name or index, got {cam!r}", 'write camera = "cam0"')
         lib["cameras"] = [cam]
+    if "cameras" in spec:
+        lib["cameras"] = list(spec["cameras"])
     plan = expand(lib, spec_dir)
     for v in plan.variants:
         names = [c.name for c in v.scene.cameras]
         if len(names) != len(plan.variants[0].scene.cameras) or names != [c.name for c in plan.variants[0].scene.cameras]:
             _fail("vary", f"variant {v.id} has cameras {names}", "vary camera settings, not the cameras' names")
-    camera = plan.cameras[0] if "camera" in spec else plan.variants[0].scene.cameras[0].name
+    cameras = _stereo_pair(plan, engine) if engine == STEREO else ()
+    camera = cameras[0] if cameras else plan.cameras[0] if "camera" in spec else \
+        plan.variants[0].scene.cameras[0].name
     n_steps = next(iter(plan.meshes.values())).n_steps
     step = spec.get("step", n_steps - 1)
     for m in plan.meshes.values():
@@ -218,11 +270,13 @@ def check_design(spec: dict, spec_dir: str | Path = ".") -> Design:
                   "give the specimen a load step (e.g. [specimen.plate] translations) and step = 1")
     for v in plan.variants:
         for s in settings:
-            W, H = v.scene.camera(camera).size
-            if s.subset_size > min(W, H):
-                _fail("dic.subset_size", f"{s.subset_size} px is larger than the image ({W}×{H}, variant {v.id})",
-                      "give smaller subsets")
-    if engine == "pyvale2d":
+            for c in cameras or (camera,):
+                W, H = v.scene.camera(c).size
+                if s.subset_size > min(W, H):
+                    _fail("dic.subset_size", f"{s.subset_size} px is larger than the image of {c} ({W}×{H}, "
+                          f"variant {v.id})", "give smaller subsets")
+    # the 2-D engine runs the sweep of camera 0 for a stereo design too
+    if engine == "pyvale2d" or (engine == STEREO and resolution is not None):
         for v in plan.variants:
             W, H = v.scene.camera(camera).size
             if min(W, H) < 256:
@@ -230,7 +284,40 @@ def check_design(spec: dict, spec_dir: str | Path = ".") -> Design:
                       "which writes empty results below about 256 px a side", "give at least 256 × 256 px")
     return Design(plan=plan, camera=camera, step=step, engine=engine, roi_margin=margin, settings=settings,
                   noise_seeds=tuple(noise_seeds), speckle_seeds=tuple(speckle_seeds), rig=rig, rank_by=by,
-                  source=spec, resolution=resolution)
+                  source=spec, resolution=resolution, cameras=cameras)
+
+
+def _check_camera_keys(spec: dict, engine: str) -> None:
+    """``camera`` names the 2-D DIC's camera, ``cameras`` the stereo pair: each with its engine."""
+    if engine == STEREO and "camera" in spec:
+        _fail("camera", "engine pyvale3d measures a stereo pair, not one camera",
+              'write cameras = ["cam0", "cam1"] (default: the scene\'s first two), or engine = "pyvale2d"')
+    if "cameras" not in spec:
+        return
+    if engine != STEREO:
+        _fail("cameras", f"the stereo pair is for engine = \"pyvale3d\", and engine is {engine!r}",
+              'write camera = "cam0" for one camera, or engine = "pyvale3d"')
+    cams = spec["cameras"]
+    if not (isinstance(cams, list) and len(cams) == 2 and all(isinstance(c, str) or _int(c) for c in cams)):
+        _fail("cameras", f"expected two camera names or indices, got {cams!r}", 'write cameras = ["cam0", "cam1"]')
+    if cams[0] == cams[1]:
+        _fail("cameras", f"{cams} names one camera twice", "give two different cameras")
+
+
+def _stereo_pair(plan: LibraryPlan, engine: str) -> tuple[str, str]:
+    """The stereo pair: ``cameras``, or the scene's first two; each in pyvale's lens model."""
+    scene = plan.variants[0].scene
+    if len(plan.cameras) < 2:
+        _fail("engine", f"pyvale3d needs two cameras, and the scene has one ({scene.cameras[0].name})",
+              "add a second [[scene.cameras]] with a stereo pose (examples/bulge.toml), or write engine = \"pyvale2d\"")
+    pair = (plan.cameras[0], plan.cameras[1])
+    for v in plan.variants:
+        for c in pair:
+            k = v.scene.camera(c).distortion.coeffs
+            if any(k[5:]):
+                _fail(f"cameras.{c}.distortion", f"k4…k6 and s1…s4 are {list(k[5:])} (variant {v.id}); pyvale's "
+                      "stereo calibration models only k1, k2, p1, p2, k3", "set the others to 0")
+    return pair
 
 
 def default_periods(sizes, steps) -> tuple[float, ...]:
