@@ -161,9 +161,9 @@ class RandomBumps:
     """``count`` bumps (or [low, high]: drawn, both included), each with its centre [X, Y] drawn
     uniformly over the nodes' XY bounding box, its ``radius`` (mm, or [low, high]) drawn uniformly
     and each amplitude component uniformly in ±``amplitude`` (mm)."""
+    amplitude: Vec3
     count: int | tuple = 1
     radius: float | tuple = 5.0
-    amplitude: Vec3 = (0.0, 0.0, 0.0)
 
     def __post_init__(self):
         key = "specimen.field.random_bumps"
@@ -172,7 +172,8 @@ class RandomBumps:
                         MAX_COORDINATE_MM)
         check(min(_bounds(radius)) > 0, f"{key}.radius", f"must be > 0, got {radius}", "give the radius in mm")
         amp = _lengths(self.amplitude, f"{key}.amplitude", "[au, av, aw] bounds in mm, each ≥ 0")
-        check(min(amp) >= 0, f"{key}.amplitude", f"must be ≥ 0, got {list(amp)}", "give bounds in mm")
+        check(min(amp) >= 0 and max(amp) > 0, f"{key}.amplitude", f"must be ≥ 0 and not all 0, got {list(amp)}",
+              "give bounds [au, av, aw] in mm")
         for k, v in (("count", count), ("radius", radius), ("amplitude", amp)):
             object.__setattr__(self, k, v)
 

@@ -235,6 +235,8 @@ class Specimen:
               f"exactly one of mesh, plate, bulge must be given, got {', '.join(given) or 'none'}",
               "keep one of [specimen.bulge], [specimen.plate], [specimen.mesh] path = 'model.inp'")
         check_length(self.t, "specimen.pose.t", "the specimen's placement")
+        check(self.field is None or isinstance(self.field, Field), "specimen.field",
+              f"expected a table, got {self.field!r}", "write [specimen.field] with random, affine, bumps, … tables")
 
 
 @dataclass(frozen=True)
