@@ -233,7 +233,8 @@ class Field:
         check(len(self.cracks) <= MAX_CRACKS, f"{key}.cracks", f"{len(self.cracks)} cracks, more than {MAX_CRACKS}",
               "give fewer cracks")
         px = _range(self.max_displacement_px, f"{key}.max_displacement_px",
-                    f"the largest in-plane displacement in camera-0 px, in [0, {MAX_PX:g}] (or [low, high])", 0.0, MAX_PX)
+                    f"the largest in-plane displacement in camera-0 px, in [0, {MAX_PX:g}] (or [low, high])",
+                    0.0, MAX_PX)
         check(min(_bounds(px)) > 0 or max(_bounds(px)) == 0, f"{key}.max_displacement_px",
               f"the range {px} includes 0", "give a range of positive values, or 0 for no scaling")
         object.__setattr__(self, "seed", int(self.seed))
@@ -265,8 +266,11 @@ def random_displacement(rf: RandomField, seed: int, X: np.ndarray) -> np.ndarray
             continue
         for i in range(0, len(X), rows):   # elementwise products and sums: no BLAS, the same bits everywhere
             x = X[i:i + rows]
-            arg = x[:, 0:1] * omega[:, 0] + x[:, 1:2] * omega[:, 1] + x[:, 2:3] * omega[:, 2] + phase
-            out[i:i + rows, c] = np.cos(arg).sum(axis=1)
+            arg = x[:, 0:1] * omega[:, 0]
+            arg += x[:, 1:2] * omega[:, 1]
+            arg += x[:, 2:3] * omega[:, 2]
+            arg += phase
+            out[i:i + rows, c] = np.cos(arg, out=arg).sum(axis=1)
         out[:, c] *= rf.std[c] * math.sqrt(2.0 / M)
     return out
 
@@ -550,6 +554,8 @@ def field_displacement(field: Field, mesh: Mesh, scale=None) -> tuple[Mesh, np.n
     if field.affine is not None:
         u += affine_displacement(field.affine, field.seed, X, lo, hi)
     bumps = field.bumps + (drawn_bumps(field.random_bumps, field.seed, lo, hi) if field.random_bumps else ())
+    check(len(bumps) * len(X) <= MAX_FIELD_WORK, "specimen.field.bumps", f"{len(bumps)} bumps at {len(X)} nodes "
+          f"is more than {MAX_FIELD_WORK:.3g} evaluations", "use fewer bumps")
     u += bump_displacement(bumps, X)
     for crack, split in sides:
         u += crack_displacement(crack, split, X)
