@@ -436,3 +436,23 @@ def test_the_example_in_docs_scene_md_loads_and_stays_within_its_bound():
     assert m.n_nodes == 65 * 65 + 32          # the edge crack's 33 path nodes but its tip
     largest = float(np.hypot(*m.displacements[1][:, :2].T).max()) * 3000.0 / 300.0
     assert 0.05 <= largest < 0.87 and abs(largest - F.drawn_scale(scene_from_dict(d).specimen.field)) < 1e-12
+
+
+def test_a_crack_splits_a_triangle_mesh():
+    """Linear triangles (collapsed quads a, b, c, c): an edge crack along y = 0 to the tip (2.5, 0) splits
+    the 5 path nodes but the tip, the triangles above take the copies, and the jump is the profile's."""
+    q = plate(20, 15, 8, 6)
+    tris = np.concatenate([q.quads[:, [0, 1, 2, 2]], q.quads[:, [0, 2, 3, 3]]])
+    mesh = Mesh(q.nodes, tris, q.node_labels, np.arange(1, len(tris) + 1))
+    crack = F.Crack(start=(-10.0, 0.0), end=(2.5, 0.0), opening=(0.0, 0.1, 0.0))
+    split = F.split_along(mesh, crack)
+    m, n0 = split.mesh, mesh.n_nodes
+    assert m.n_nodes == n0 + 5 and split.tips == (False, True)
+    src = split.source[n0:]
+    assert np.allclose(m.nodes[src, 1], 0) and np.all(m.nodes[src, 0] < 2.5)
+    cy = m.nodes[m.quads].mean(axis=1)[:, 1]
+    assert not np.isin(m.quads[cy < 0], np.arange(n0, m.n_nodes)).any()
+    assert not np.isin(m.quads[cy > 0], src).any()
+    _, u = F.field_displacement(F.Field(cracks=(crack,)), mesh)
+    s = m.nodes[src, 0] + 10
+    assert np.allclose(u[n0:] - u[src], np.outer(np.sqrt((12.5 - s) / 12.5), [0, 0.1, 0]), rtol=0, atol=1e-15)

@@ -468,8 +468,9 @@ def split_along(mesh: Mesh, crack: Crack, key: str = "specimen.field.cracks[0]")
     s, _, cross, _ = _segment(split.nodes[:, :2], np.asarray(crack.start), np.asarray(crack.end))
     side = np.where(cross > 0, 1, -1)
     for group, sign in ((right, -1), (left, 1)):   # the elements along the path: their side of the path
-        nodes = np.unique(np.concatenate([(split.quads[e] if patches is None else split.patches[e, :8])
+        nodes = np.unique(np.concatenate([split.quads[e] if patches is None else split.patches[e]
                                           for e, _ in group]))
+        nodes = nodes[nodes >= 0]                 # not a Q8/T6 centre code
         side[nodes] = sign
     side[np.asarray(path)] = -1                   # the originals stay with the right side
     side[n:] = 1
