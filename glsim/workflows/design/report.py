@@ -142,6 +142,8 @@ def aggregate(design: Design, results: list[dict]) -> list[dict]:
                             scale=scale, quick_engine=qe)
             if sweeps:
                 summary.update(_resolution_summary(sweeps, summary.get("noise_floor_px", math.nan)))
+                if design.stereo:   # the MEI is a 2-D figure: px noise floor × px resolution
+                    summary.pop("mei_px2")
                 maps["sweep"] = summary["amplitude_ratio"]
             out.append({"summary": summary, "maps": maps})
     return out
@@ -378,9 +380,14 @@ STEREO_COLUMNS = ("rank", "setup", "params", "setting", "p95_abs_error_mm", "p95
                   "quick_sigma_mm", "valid_share")
 
 
-def _resolution_section(entries: list[dict]) -> str:
+def _resolution_section(entries: list[dict], stereo_design: bool = False) -> str:
     if not any("amplitude_ratio" in e["summary"] for e in entries):
         return ""
+    if stereo_design:   # no px noise floor to set against the resolution
+        return ("<h2>Spatial resolution (camera 0, 2-D): the sinusoid sweep</h2><p>Measured / imposed amplitude of "
+                "u(x) = A·sin(2πx/p) on a flat plate square onto camera 0 per period, by pyvale's 2-D DIC; the "
+                "spatial resolution is the period where it falls to 90 % (dotted: the truth's own ratio).</p>"
+                f"<img alt='attenuation versus period' src='data:image/png;base64,{attenuation_figure(entries)}'>")
     return ("<h2>Spatial resolution: the sinusoid sweep</h2><p>Measured / imposed amplitude of u(x) = A·sin(2πx/p) "
             "on a flat plate per period; the spatial resolution is the period where it falls to 90 % (dotted: the "
             "truth's own ratio, the FE field's interpolation).</p><img alt='attenuation versus period' "
@@ -418,7 +425,7 @@ step {design.step} against step 0; {len(design.plan.variants)} set-ups ×
 <h2>Ranking by {html.escape(design.rank_by)}</h2><p>{html.escape(criteria_for(design.engine)[design.rank_by][0])}</p>
 <table id="ranking"><tr>{head}</tr>{body}</table>
 <h2>Noise versus subset size</h2><img alt="noise versus subset size" src="data:image/png;base64,{trend_figure(entries)}">
-{_resolution_section(entries)}
+{_resolution_section(entries, design.stereo)}
 <h2>Maps per set-up and DIC setting</h2>{figs}
 <h2>Reading this report</h2><ul>{notes}</ul>
 </body></html>
