@@ -32,7 +32,7 @@ from glsim.scene.camera import Camera, project_camera_frame, to_camera
 from glsim.scene.locate import points_truth
 from glsim.workflows.design import quick
 from glsim.workflows.design.engine import StereoEngine, write_stereo_exchange
-from glsim.workflows.design.run import Prepared, static_seed, truth_px
+from glsim.workflows.design.run import Prepared, static_seed
 from glsim.workflows.design.spec import DicSetting
 
 AXES = ("X", "Y", "Z")
@@ -125,12 +125,19 @@ def noisy_pairs(prep: StereoPrepared, noise_seed: int) -> list[tuple[np.ndarray,
 
 
 def search_reach(prep: StereoPrepared) -> int:
-    """How far pyvale's initial FFT search looks (px): the largest image motion of camera 0's
-    ROI points between the states (sampled), × 1.5 + 4, at least 16."""
-    ys, xs = np.nonzero(prep.base.roi)
+    """How far pyvale's initial FFT search looks (px): the largest image motion of the ROI's
+    material points (a sample) between the states in either camera, × 1.5 + 4, at least 16."""
+    p = prep.base
+    ys, xs = np.nonzero(p.roi)
     k = max(1, len(xs) // 200)
-    probe = truth_px(prep.base, xs[::k].astype(float), ys[::k].astype(float))
-    reach = np.nanmax(np.abs(np.concatenate([probe["truth_u"], probe["truth_v"]])), initial=0.0)
+    cam0 = p.scene.camera(p.camera)
+    t = points_truth(mesh_geometry(p.mesh), cam0, np.stack([xs[::k], ys[::k]], 1).astype(float), p.step)
+    reach = 0.0
+    for cam in (cam0, p.scene.camera(prep.camera1)):
+        (a, ok_a), (b, ok_b) = (project_camera_frame(to_camera(_world(np.nan_to_num(X), cam0), cam), cam)
+                                for X in (t.X_undeformed, t.X_deformed))
+        ok = t.valid & ok_a & ok_b
+        reach = max(reach, float(np.max(np.abs(b - a)[ok], initial=0.0)))
     return max(16, int(math.ceil(1.5 * reach)) + 4)
 
 
