@@ -165,7 +165,7 @@ def _delegated(name: str, argv: list[str]) -> int:
     return run(argv)
 
 
-DELEGATED = {"bench": "benchmarks: glsim bench {accuracy,effects,library,preview,scaling,quadratic,peer,throughput,jacobian} …",
+DELEGATED = {"bench": "benchmarks: glsim bench {accuracy,effects,library,preview,scaling,quadratic,peer,throughput,jacobian,training} …",
              "calib": "calibration targets: glsim calib {library,run,study} …",
              "verify": "independent stereo-DIC verification: glsim verify run …",
              "preview": "interactive preview window: glsim preview SCENE.toml [--screenshot out.png]",

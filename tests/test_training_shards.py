@@ -115,3 +115,14 @@ def test_the_loader_refuses_a_pickled_npy_and_a_cut_shard(tmp_path):
     (tmp_path / "cut.tar").write_bytes(whole[:1000])
     with pytest.raises(ShardError, match="cut.tar"):
         list(samples(tmp_path / "cut.tar"))
+
+
+def test_the_example_loader_reads_every_pair(tiny):
+    import runpy
+
+    example = runpy.run_path(str(TINY.parent / "training_loader.py"))
+    got = list(example["pairs"](tiny))
+    assert len(got) == 4
+    for ref, dfm, flow, mask in got:
+        assert ref.dtype == dfm.dtype == np.float32 and ref.shape == (40, 48) and flow.shape == (40, 48, 2)
+        assert mask.dtype == bool and mask.any() and np.abs(flow[mask]).max() <= 0.87 + 1e-6

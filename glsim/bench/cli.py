@@ -1,4 +1,4 @@
-"""``glsim bench {accuracy,effects,library,preview,scaling,quadratic,peer,throughput,jacobian}``: what
+"""``glsim bench {accuracy,effects,library,preview,scaling,quadratic,peer,throughput,jacobian,training}``: what
 accuracy costs on this machine, each bench writing NAME.json and NAME.md.
 
 Committed results live in ``bench/results``; only a full-size run writes there by default. A
@@ -105,7 +105,14 @@ def main(argv: list[str]) -> int:
                     f"{jbm.FULL_SIZE[1]}; with --quick {jbm.QUICK_SIZE[0]} {jbm.QUICK_SIZE[1]})")
     jb.add_argument("--reps", type=int, default=3, help="interleaved repetitions after one warm-up (default 3)")
     jb.add_argument("--quick", action="store_true", help="quarter size (writes to build/bench)")
-    for p, name in ((acc, "accuracy"), (eff, "effects"), (lib, "library"), (sca, "scaling"), (qua, "quadratic"),
+    from glsim.bench import training as trb
+    tra = sub.add_parser("training", help="pairs/s delivered into training shards: 2-D 256² (1 and 2 workers) and "
+                         "stereo 1 Mpx, peak memory")
+    tra.add_argument("--pairs", type=int, default=trb.PAIRS_2D, help=f"2-D pairs (default {trb.PAIRS_2D})")
+    tra.add_argument("--stereo-pairs", type=int, default=trb.PAIRS_STEREO,
+                     help=f"stereo pairs (default {trb.PAIRS_STEREO})")
+    tra.set_defaults(reps=1, size=None)
+    for p, name in ((acc, "accuracy"), (tra, "training"), (eff, "effects"), (lib, "library"), (sca, "scaling"), (qua, "quadratic"),
                     (pee, "peer"), (thr, "throughput"), (jb, "jacobian")):
         p.add_argument("--out", default=None, help=f"directory of {name}.json / {name}.md (default {RESULTS} for a "
                        f"full-size run, {SCRATCH} otherwise)")
@@ -126,6 +133,14 @@ def main(argv: list[str]) -> int:
             full = size == lb.FULL_SIZE and args.images >= lb.FULL_IMAGES
             out = results_dir(args.out, full, "library")
             print(lb.write(lb.bench(size, args.images, args.max_workers, args.reps), out))
+            return 0
+        if args.command == "training":
+            if args.pairs < 1 or args.stereo_pairs < 1:
+                parser.error("--pairs and --stereo-pairs must be ≥ 1")
+            full = args.pairs >= trb.PAIRS_2D and args.stereo_pairs >= trb.PAIRS_STEREO
+            out = results_dir(args.out, full, "training")
+            print(trb.write(trb.bench(args.pairs, args.stereo_pairs,
+                                      log=lambda m: print(m, file=sys.stderr, flush=True)), out))
             return 0
         if args.command == "preview":
             size = tuple(args.size) if args.size else pb.FULL_SIZE
