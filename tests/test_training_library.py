@@ -134,3 +134,16 @@ def test_samples_per_shard_follow_from_the_sample_size_as_the_spec_fixes_it():
 def test_one_and_two_workers_give_the_same_bytes(tiny, tmp_path):
     assert library_main([str(TINY), "-o", str(tmp_path / "two"), "--workers", "2", "-q"]) == 0
     assert _tree(tmp_path / "two") == _tree(tiny)
+
+
+@pytest.mark.process
+def test_a_dask_cluster_gives_the_same_bytes(tiny, tmp_path):
+    distributed = pytest.importorskip("distributed")
+    from glsim.workflows.training import runner
+
+    plan = load_training(TINY)
+    with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None) as cluster, \
+            distributed.Client(cluster) as client:
+        summary = runner.run(plan, runner.stored_spec(plan), tmp_path / "dask", scheduler=client)
+    assert summary.engine == "dask" and summary.written == 2 and not summary.failed
+    assert _tree(tmp_path / "dask") == _tree(tiny)
