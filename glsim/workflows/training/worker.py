@@ -125,8 +125,8 @@ def sample_members(task: dict, sample: dict) -> dict[str, bytes]:
     field = getattr(scene.specimen, "field", None)
     if field is not None and getattr(field, "seed", None) is not None:
         seeds["specimen.field.seed"] = field.seed
-    if scene.noise is not None and getattr(scene.noise, "seed", None) is not None:
-        seeds["noise.seed"] = scene.noise.seed
+    if scene.noise is not None or scene.sensor is not None:     # (the scene's seed draws the noise)
+        seeds["seed"] = scene.seed
     members[f"{key}.json"] = sh.json_bytes({
         "variant": key, "index": sample["index"], "params": sample["params"], "seeds": seeds, "step": step,
         "cameras": {f"cam{i}": c for c, i in zip(task["cameras"], task["indices"])},
