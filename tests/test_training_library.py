@@ -2,7 +2,6 @@
 is written, resume after a deleted and a corrupted shard (only those written again), --verify
 catching a flipped byte, nothing written outside -o, and the same bytes on 1 and 2 workers."""
 import shutil
-import sys
 from pathlib import Path
 
 import pytest

@@ -131,9 +131,9 @@ def bench(pairs_2d: int = PAIRS_2D, pairs_stereo: int = PAIRS_STEREO, log=print)
 def markdown(report: dict) -> str:
     m = report["machine"]
     lines = [f"# glsim bench training — {machine_line(m)}; {report['date']}", "",
-             "Pairs delivered into WebDataset shards end to end (render at step 0 and 1 with truth, labels, "
-             "PNG and .npy encoding, tar, SHA-256, manifest); the plan (every variant expanded and checked) "
-             "is timed apart.", "",
+             ("Pairs delivered into WebDataset shards end to end (render at step 0 and 1 with truth, labels, "
+              "PNG and .npy encoding, tar, SHA-256, manifest); the plan (every variant expanded and checked) "
+              "is timed apart."), "",
              "| case | cameras | px | workers | pairs | shards | pairs/s | plan ms/pair | MB/pair | peak MB |",
              "|---|---|---|---|---|---|---|---|---|---|"]
     for r in report["rows"]:
@@ -141,9 +141,10 @@ def markdown(report: dict) -> str:
                      f"| {r['shards']} | {sig(r['pairs_per_s'], 3)} | {sig(1000 * r['plan_s'] / r['pairs'], 2)} | "
                      f"{sig(r['bytes_per_pair'] / 1e6, 3)} | {r['peak_mb']:.0f} |")
     s = report["strainnet"]
-    lines += ["", f"StrainNet-size set ({s['pairs']:,} pairs of 256²) at the best 2-D rate "
-              f"({sig(s['best_pairs_per_s'], 3)} pairs/s) plus its plan ({sig(1000 * s['plan_s_per_pair'], 2)} ms/pair): "
-              f"{s['hours']:.2f} h — {'fits' if s['fits_in_1_h'] else 'does not fit'} in 1 h on this machine.",
+    lines += ["", (f"StrainNet-size set ({s['pairs']:,} pairs of 256²) at the best 2-D rate "
+                   f"({sig(s['best_pairs_per_s'], 3)} pairs/s) plus its plan ({sig(1000 * s['plan_s_per_pair'], 2)} "
+                   f"ms/pair): {s['hours']:.2f} h — {'fits' if s['fits_in_1_h'] else 'does not fit'} in 1 h on this "
+                   "machine."),
               "", "Peak MB: the process's resident-set maximum so far (with 2 workers, the largest child's too).", ""]
     return "\n".join(lines)
 

@@ -11,8 +11,8 @@ from glsim.errors import GlsimError, interrupted
 def handles(src: Path) -> bool:
     """Whether ``src`` is a training set's directory or a spec with a [training] table (a spec
     that does not read is the library's to refuse)."""
-    from glsim.workflows.training.runner import INFO
     from glsim.workflows.library.spec import SpecError, read_spec
+    from glsim.workflows.training.runner import INFO
     from glsim.workflows.training.spec import is_training
 
     if src.is_dir():

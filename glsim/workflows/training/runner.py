@@ -33,7 +33,6 @@ from glsim.io import outdir
 from glsim.io.hashes import sha256_file
 from glsim.limits import parse_nested
 from glsim.workflows.library.audit import LibraryError
-from glsim.workflows.library.worker import WriteError
 from glsim.workflows.training.spec import TrainingPlan
 
 INFO = "training.json"
@@ -61,9 +60,10 @@ class Summary:
 
     def text(self) -> str:
         rate = self.samples / self.seconds if self.seconds > 0 else 0.0
-        lines = [f"glsim library: {self.written} shards written ({self.samples} pairs, {rate:.2f} pairs/s, "
-                 f"{self.bytes / 1e6:.1f} MB), {self.kept} kept, {len(self.failed)} failed of {self.total}, in "
-                 f"{self.seconds:.1f} s ({self.engine}, {self.workers} worker{'s' * (self.workers != 1)}) → {self.out}/"]
+        lines = [(f"glsim library: {self.written} shards written ({self.samples} pairs, {rate:.2f} pairs/s, "
+                  f"{self.bytes / 1e6:.1f} MB), {self.kept} kept, {len(self.failed)} failed of {self.total}, in "
+                  f"{self.seconds:.1f} s ({self.engine}, {self.workers} worker{'s' * (self.workers != 1)}) "
+                  f"→ {self.out}/")]
         if self.pool_restarts:
             lines.append(f"a worker process died {self.pool_restarts}× and its shards were written again")
         lines += [f"failed: {s}: {m}" for s, m in self.failed[:5]]
@@ -165,7 +165,7 @@ def _prepare(out: Path, plan: TrainingPlan, force: bool) -> bool:
     from glsim.workflows.library import manifest as lmf
     from glsim.workflows.library.runner import WRITE_TEST
 
-    left = lambda p: p.name == WRITE_TEST or (p.name.startswith(".") and ".part" in p.name)  # noqa: E731
+    left = lambda p: p.name == WRITE_TEST or (p.name.startswith(".") and ".part" in p.name)
     if all(left(p) for p in outdir.entries(out)):
         return False
     old = read_info(out)

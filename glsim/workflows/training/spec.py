@@ -26,8 +26,8 @@ from pathlib import Path
 
 import numpy as np
 
-from glsim.limits import check_memory
 from glsim.errors import SceneError
+from glsim.limits import check_memory
 from glsim.workflows.library.spec import LibraryPlan, SpecError, expand, read_spec
 
 KEYS = ("format", "shard_bytes", "step", "cameras", "crop", "labels", "image_dtype", "image_format")
