@@ -126,6 +126,25 @@ def test_labels_are_the_truth_projected(backend, ctx_for):
         assert L[k].dtype == np.float32 and not L[k][~L["mask_" + k].astype(bool)].any()
 
 
+def test_quadratic_elements_are_labelled_by_their_own_shape_functions():
+    """A curved Q8 surface (tests/test_quadratic.py's paraboloid, moved and bent at step 1): flow0 is
+    the projection of the deformed truth's X_undeformed, uvw the ray-cast point's displacement."""
+    from tests.test_quadratic import scene, surface_mesh
+
+    mesh, sc = surface_mesh("quad8"), scene()
+    with Renderer(sc, "cpu", mesh=mesh) as r:
+        ref, dfm = r.render(0, 0, truth=True).truth, r.render(0, 1, truth=True).truth
+    cam = sc.cameras[0]
+    L = pair_labels(sc, 1, {cam.name: ref}, {cam.name: dfm}, mesh=mesh)
+    p = np.stack(_grid(*ref.mask.shape), -1)
+    m = L["mask_flow0"].astype(bool)
+    assert m.sum() > 0.9 * dfm.mask.sum() > 1000
+    _stored(L["flow0"][m], project_camera_frame(dfm.X_undeformed[m], cam)[0] - p[m])
+    m = L["mask_uvw"].astype(bool)
+    assert np.array_equal(m, ref.mask)
+    _stored(L["uvw"][m], points_truth(mesh_geometry(mesh), cam, p[m], 1).displacement)
+
+
 def _ulp(a):
     """float32's unit in the last place at ``a``, per value."""
     a = np.abs(np.asarray(a, np.float32))

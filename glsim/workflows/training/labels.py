@@ -95,20 +95,20 @@ def pair_labels(scene: Scene, step: int, ref: dict[str, Truth], deformed: dict[s
                 raise SceneError(f"{which}[{n!r}]", f"is {W} × {H} px, camera {n!r} {cam.size[0]} × {cam.size[1]}",
                                  "give the truths of Renderer(scene).render(name, truth=True) for that scene")
     nodes0, nodes_step = mesh.nodes.T.copy(), mesh.deformed(step).T.copy()
+    centre = 0.5 * (nodes0.min(axis=1) + nodes0.max(axis=1))
     out: dict[str, np.ndarray] = {}
     sides = []
     for i, (cam, n) in enumerate(zip(cams, names)):
-        r, d = _Side(ref[n], mesh, nodes0), _Side(deformed[n], mesh, nodes0)
+        r, d = (_Side(truths[n], mesh, nodes0, nodes_step, centre) for truths in (ref, deformed))
         sides.append((r, d))
-        r_step = r.points(mesh, nodes_step)
         out[f"flow{i}"], out[f"mask_flow{i}"], _ = _label(d, d.X0, cam, r)
-        out[f"forward{i}"], out[f"mask_forward{i}"], jumps = _label(r, r_step, cam, d)
+        out[f"forward{i}"], out[f"mask_forward{i}"], jumps = _label(r, r.Xs, cam, d)
         if i == 0:    # the displacement in camera 0's frame, where the forward label is smooth
-            out["uvw"], out["mask_uvw"] = _store(r, cam.rotation @ (r_step - r.X0), ~jumps)
+            out["uvw"], out["mask_uvw"] = _store(r, cam.rotation @ (r.Xs - r.X0), ~jumps)
     if len(cams) == 2:
         (r0, d0), (r1, d1) = sides
         out["disparity_ref"], out["mask_disparity_ref"], _ = _label(r0, r0.X0, cams[1], r1)
-        out["disparity_def"], out["mask_disparity_def"], _ = _label(d0, d0.points(mesh, nodes_step), cams[1], d1)
+        out["disparity_def"], out["mask_disparity_def"], _ = _label(d0, d0.Xs, cams[1], d1)
     return out
 
 
@@ -129,9 +129,12 @@ def _check_inputs(scene: Scene, ref: dict, deformed: dict) -> list[str]:
 
 
 class _Side:
-    """One truth's covered pixels: their flat indices, pixel coordinates (2, n) and material points."""
+    """One truth's covered pixels: their flat indices, pixel coordinates (2, n) and their material
+    points (3, n) world mm, undeformed (``X0``) and at the step (``Xs``): with the nodes at
+    ``nodes0`` / ``nodes_step`` (3, N) by :func:`glsim.compose.truth.material_points`'s shape
+    functions (what the truth's positions are made of)."""
 
-    def __init__(self, truth: Truth, mesh: Mesh, nodes0: np.ndarray):
+    def __init__(self, truth: Truth, mesh: Mesh, nodes0: np.ndarray, nodes_step: np.ndarray, centre: np.ndarray):
         self.mask = np.asarray(truth.mask, bool)
         self.element = np.asarray(truth.element)
         self.shape = H, W = self.mask.shape
@@ -141,35 +144,35 @@ class _Side:
         e = self.element.ravel()[self.idx]
         xi, eta = truth.xi.ravel()[self.idx], truth.eta.ravel()[self.idx]
         if mesh.is_quadratic:
-            self._local = (e, xi, eta)
-        else:      # the pixels' shape functions on the nodes, once for every state evaluated
+            def evaluate(nodes):
+                return np.ascontiguousarray(material_points(mesh, nodes.T, e, xi, eta).T)
+        else:      # the pixels' shape functions on the nodes, a vector per coordinate (faster than (N, 3))
             n = len(e)
-            self._shape = sparse.csr_matrix((shape_functions(xi, eta).ravel(), mesh.quads[e].ravel(),
-                                             np.arange(0, 4 * n + 1, 4)), shape=(n, mesh.n_nodes))
-        self.X0 = self.points(mesh, nodes0)           # reference positions: the material point's identity
-        self.extent = float(np.abs(mesh.nodes).max())
-        self.splits = _split_pixels(self.element, mesh)
+            shape = sparse.csr_matrix((shape_functions(xi, eta).ravel(), mesh.quads[e].ravel(),
+                                       np.arange(0, 4 * n + 1, 4)), shape=(n, mesh.n_nodes))
 
-    def points(self, mesh: Mesh, nodes: np.ndarray) -> np.ndarray:
-        """The covered pixels' material points (3, n) world mm with the nodes at ``nodes`` (3, N):
-        :func:`glsim.compose.truth.material_points`, what the truth's positions are made of."""
-        if mesh.is_quadratic:
-            return material_points(mesh, nodes.T, *self._local).T
-        return (self._shape @ nodes.T).T
+            def evaluate(nodes):
+                return np.stack([shape @ x for x in nodes])
+        self.X0, self.Xs = evaluate(nodes0), evaluate(nodes_step)
+        # the material point's identity: its reference position about the mesh's centre, float32 (its
+        # rounding, 1e-7 of the mesh's size, is far below a pixel's footprint)
+        self.identity = (self.X0 - centre[:, None]).astype(np.float32)
+        self.size = float(np.abs(self.identity).max(initial=0.0))
+        self.splits = _split_pixels(self.element, mesh)
 
     @functools.cached_property
     def material(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """The reference positions as maps (3, H·W) (NaN uncovered) and the material map's
-        derivative estimates g_u, g_v (H·W,) float32 mm/px: per axis the smaller one-sided
-        difference, 0 where neither neighbour is covered (a 1-px strip: only an exact match passes)."""
+        """The identities as maps (3, H·W) (NaN uncovered) and the material map's derivative
+        estimates g_u, g_v (H·W,) mm/px: per axis the smaller one-sided difference, 0 where neither
+        neighbour is covered (a 1-px strip: only an exact match passes). float32."""
         H, W = self.shape
-        X = np.full((3, H * W), np.nan)
-        X[:, self.idx] = self.X0
+        X = np.full((3, H * W), np.nan, np.float32)
+        X[:, self.idx] = self.identity
         X = X.reshape(3, H, W)
         g = []
         for axis in (2, 1):
             diff = np.diff(X, axis=axis)
-            d = np.sqrt(np.einsum("kij,kij->ij", diff, diff)).astype(np.float32)   # NaN: either uncovered
+            d = np.sqrt(diff[0] * diff[0] + diff[1] * diff[1] + diff[2] * diff[2])   # NaN: either uncovered
             gk = np.full((H, W), np.nan, np.float32)
             if axis == 2:
                 gk[:, 1:] = d
@@ -207,20 +210,22 @@ def _label(a: _Side, X: np.ndarray, cam: Camera, b: _Side) -> tuple[np.ndarray, 
     full = np.full((2, H * W), np.nan, np.float32)   # (float32: τ is 0.12 px)
     full[:, a.idx[ok]] = label[:, ok]
     disc = (_jumps(full.reshape(2, H, W)) | a.splits).ravel()[a.idx]
-    map_, mask = _store(a, label, ok & ~disc & _visible(q, a.X0, b))
+    map_, mask = _store(a, label, ok & ~disc & _visible(q, a.identity, b, max(a.size, b.size)))
     return map_, mask, disc
 
 
-def _visible(q: np.ndarray, X0: np.ndarray, b: _Side) -> np.ndarray:
-    """Whether the points of reference positions ``X0`` (3, n), projected at ``q`` (2, n) px into
-    ``b``'s image, are what ``b`` shows at the nearest pixel (see the module's docstring)."""
+def _visible(q: np.ndarray, X0: np.ndarray, b: _Side, size: float) -> np.ndarray:
+    """Whether the points of identities ``X0`` (3, n), projected at ``q`` (2, n) px into ``b``'s
+    image, are what ``b`` shows at the nearest pixel (see the module's docstring); ``size``: the
+    identities' largest coordinate (mm), for their rounding."""
     Hb, Wb = b.shape
     c = np.rint(q)
     inside = (c[0] >= 0) & (c[0] < Wb) & (c[1] >= 0) & (c[1] < Hb)
     k = np.where(inside, c[1] * Wb + c[0], 0).astype(np.int64)
     Xb, gu, gv = b.material
-    tol = VISIBLE_MARGIN * (np.abs(q[0] - c[0]) * gu[k] + np.abs(q[1] - c[1]) * gv[k])
-    tol += 1e-9 * (1.0 + b.extent)                     # float64 rounding of the positions
+    tol = VISIBLE_MARGIN * (np.abs(q[0] - c[0]).astype(np.float32) * gu[k]
+                            + np.abs(q[1] - c[1]).astype(np.float32) * gv[k])
+    tol += np.float32(1e-6 * (1.0 + size))             # the identities' float32 rounding, with room
     d2 = (Xb[0, k] - X0[0]) ** 2 + (Xb[1, k] - X0[1]) ** 2 + (Xb[2, k] - X0[2]) ** 2
     return inside & (d2 <= tol * tol)                  # (NaN where b's pixel is uncovered: not visible)
 
@@ -232,8 +237,7 @@ def _store(a: _Side, values: np.ndarray, valid: np.ndarray) -> tuple[np.ndarray,
     k = len(values)
     at = a.idx[valid]
     out = np.zeros((H * W, k), np.float32)
-    for j in range(k):
-        out[at, j] = values[j, valid]
+    out[at] = values[:, valid].T
     mask = np.zeros(H * W, np.uint8)
     mask[at] = 1
     return out.reshape(H, W, k), mask.reshape(H, W)
@@ -244,25 +248,26 @@ def _jumps(L: np.ndarray) -> np.ndarray:
     available neighbouring difference along its line by more than SMOOTH_CURVATURE px (NaN labels
     (2, H, W): unavailable)."""
     flags = np.zeros(L.shape[1:], bool)
+    t2 = np.float32(SMOOTH_CURVATURE ** 2)
     for axis in (1, 2):
-        if L.shape[axis] < 3:
+        n = L.shape[axis]
+        if n < 3:
             continue
-        d = np.diff(L, axis=axis)                                   # pair k: pixels k, k + 1
-        dd = np.diff(d, axis=axis)                                  # pair k + 1 against pair k
+        cut = lambda a, lo, hi: a[:, lo:hi] if axis == 1 else a[:, :, lo:hi]   # noqa: E731
+        dd = cut(L, 2, n) - 2 * cut(L, 1, n - 1) + cut(L, 0, n - 2)    # pair k + 1 against pair k
         dd2 = dd[0] * dd[0] + dd[1] * dd[1]
-        pad = [(0, 0), (0, 0)]
-        pad[axis - 1] = (1, 1)                                      # no pair beyond the ends: as unavailable
-        dd2 = np.pad(dd2, pad, constant_values=np.nan)
-        big = dd2 > SMOOTH_CURVATURE ** 2
-        either = ~(dd2 <= SMOOTH_CURVATURE ** 2)                    # big, or unavailable (NaN)
-        if axis == 1:      # pair k is compared with pair k − 1 by dd2[k], with pair k + 1 by dd2[k + 1]
-            jump = either[:-1] & either[1:] & (big[:-1] | big[1:])
-            flags[:-1] |= jump
-            flags[1:] |= jump
-        else:
-            jump = either[:, :-1] & either[:, 1:] & (big[:, :-1] | big[:, 1:])
-            flags[:, :-1] |= jump
-            flags[:, 1:] |= jump
+        big = dd2 > t2
+        either = ~(dd2 <= t2)                                          # big, or unavailable (NaN)
+        # pair k (pixels k, k + 1) against pair k − 1 (dd2[k − 1]) and k + 1 (dd2[k]); none beyond the ends
+        jump = np.empty(big.shape[:axis - 1] + (n - 1,) + big.shape[axis:], bool)
+        inner, first, last = (slice(1, -1), 0, -1) if axis == 1 else ((slice(None), slice(1, -1)), (slice(None), 0),
+                                                                      (slice(None), -1))
+        lo, hi = (slice(None, -1), slice(1, None)) if axis == 1 else ((slice(None), slice(None, -1)),
+                                                                      (slice(None), slice(1, None)))
+        jump[inner] = either[lo] & either[hi] & (big[lo] | big[hi])
+        jump[first], jump[last] = big[first], big[last]
+        flags[lo] |= jump
+        flags[hi] |= jump
     return flags
 
 
