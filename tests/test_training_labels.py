@@ -9,17 +9,16 @@ import pytest
 from scipy import ndimage
 
 from glsim.errors import SceneError
+from glsim.io.fe import specimen_mesh
+from glsim.io.truth import mesh_geometry
 from glsim.render import Renderer
 from glsim.scene import Plate, Speckle
 from glsim.scene import mesh as meshmod
 from glsim.scene.camera import Distortion, project_camera_frame, rotation_xyz
-from glsim.scene.tables import Pose, Stereo
-from glsim.io.fe import specimen_mesh
-from glsim.io.truth import mesh_geometry
 from glsim.scene.locate import points_truth
+from glsim.scene.tables import Pose, Stereo
 from glsim.workflows.training import labels as lb
 from glsim.workflows.training.labels import pair_labels
-
 from tests._plates import plate_scene
 
 BACKENDS = ["cpu", pytest.param("gl", marks=pytest.mark.gl)]
@@ -188,18 +187,19 @@ def test_flow_inverts_forward(backend, ctx_for):
     assert bound < 2e-3
 
 
-def _stereo(distortion=Distortion(), **kw):
+def _stereo(distortion=None, **kw):
     """Camera "c" and, 60 mm to its right turned 11° towards the plate, camera "d"."""
-    return _scene(size=(128, 112), distortion=distortion,
+    return _scene(size=(128, 112), distortion=distortion or Distortion(),
                   second={"name": "d", "pose": Pose(stereo=Stereo(-60.0, 0.0, 0.0, 0.0, 11.0, 0.0))}, **kw)
 
 
 @pytest.mark.parametrize("backend", BACKENDS)
 def test_disparity_triangulates_to_the_truth(backend, ctx_for):
-    """(p, p + disparity) undistorted (cv2.undistortPoints with a 1e-14 criterion) and triangulated (cv2.triangulatePoints)
-    with the rig's two cameras give the truth's X_undeformed (reference) and X_deformed (deformed)
-    of camera 0's pixel within the effect of the disparity's float32 rounding: depth error
-    Z² / (f B) per px of disparity, B the baseline, plus the lateral Z / f."""
+    """(p, p + disparity) undistorted (cv2.undistortPoints, to 1e-14) and triangulated
+    (cv2.triangulatePoints) with the rig's two cameras give the truth's X_undeformed (reference) and
+    X_deformed (deformed) at camera 0's pixel, within what the disparity's float32 rounding moves
+    it: |δd| ≤ ulp/√2 px, which moves the point by Z/f·|δd| across the ray and Z²/(f B)·|δd| along it
+    (B the baseline); the bound takes 2 ulp for the rig's convergence and the undistortion."""
     dist = Distortion(k1=-0.25, k2=0.1, p1=0.001)
     scene = _stereo(dist)
     mesh = specimen_mesh(scene)

@@ -21,9 +21,10 @@ Masks (uint8, 1 = valid; invalid labels hold 0):
   material point. Same means: their reference positions differ by at most twice the first-order
   change of the material map over q − c, |Δu|·g_u + |Δv|·g_v, where g is the map's derivative
   (mm/px) estimated at c by the smaller one-sided difference (the smooth side of an occlusion
-  edge). The factor 2 lets the derivative change by up to 100 % within the 1.5-px stencil (a few
-  per cent under perspective; more only at grazing views); an occluded point is many pixels'
-  worth of material away from the occluder that hides it;
+  edge), plus 1e-6 of the specimen's size (the positions are compared in float32). The factor 2
+  lets the derivative change by up to 100 % within the 1.5-px stencil (a few per cent under
+  perspective; more only at grazing views); an occluded point is many pixels' worth of material
+  away from the occluder that hides it;
 - *not at a discontinuity*: neighbouring pixels (4-neighbours: a pixel's footprint reaches
   halfway to them) whose labels jump, or whose elements lie on either side of a split.
   A jump: the pair's label difference differs from each available neighbouring difference along
@@ -117,13 +118,15 @@ def _check_inputs(scene: Scene, ref: dict, deformed: dict) -> list[str]:
     the scene, in the same order, as Truths."""
     names = list(ref) if isinstance(ref, dict) else []
     if not 1 <= len(names) <= 2 or not isinstance(deformed, dict) or list(deformed) != names:
-        raise SceneError("ref", f"holds cameras {names}, deformed {list(deformed) if isinstance(deformed, dict) else deformed!r}",
-                         "give one camera (2-D) or two (stereo, camera 0 first), the same in both, in the same order")
+        got = list(deformed) if isinstance(deformed, dict) else type(deformed).__name__
+        raise SceneError("ref", f"holds cameras {names}, deformed {got}", "give one camera (2-D) or two (stereo, "
+                         "camera 0 first), the same in both, in the same order")
     for which, truths in (("ref", ref), ("deformed", deformed)):
         for n in names:
             if not isinstance(truths[n], Truth):
                 raise SceneError(f"{which}[{n!r}]", f"is a {type(truths[n]).__name__}, not a Truth",
-                                 "give Renderer(scene).render(name, step, truth=True).truth")
+                                 "give Renderer(scene).render(name, step, truth=True).truth (or a truth "
+                                 "file's maps())")
             scene.camera(n)
     return names
 
@@ -137,9 +140,9 @@ class _Side:
     def __init__(self, truth: Truth, mesh: Mesh, nodes0: np.ndarray, nodes_step: np.ndarray, centre: np.ndarray):
         self.mask = np.asarray(truth.mask, bool)
         self.element = np.asarray(truth.element)
-        self.shape = H, W = self.mask.shape
+        self.shape = self.mask.shape
         self.idx = np.flatnonzero(self.mask)
-        row, col = np.divmod(self.idx, W)
+        row, col = np.divmod(self.idx, self.shape[1])
         self.uv = np.stack([col, row]).astype(np.float64)
         e = self.element.ravel()[self.idx]
         xi, eta = truth.xi.ravel()[self.idx], truth.eta.ravel()[self.idx]
@@ -253,8 +256,7 @@ def _jumps(L: np.ndarray) -> np.ndarray:
         n = L.shape[axis]
         if n < 3:
             continue
-        cut = lambda a, lo, hi: a[:, lo:hi] if axis == 1 else a[:, :, lo:hi]   # noqa: E731
-        dd = cut(L, 2, n) - 2 * cut(L, 1, n - 1) + cut(L, 0, n - 2)    # pair k + 1 against pair k
+        dd = _along(L, axis, 2, n) - 2 * _along(L, axis, 1, n - 1) + _along(L, axis, 0, n - 2)   # pair k + 1 − pair k
         dd2 = dd[0] * dd[0] + dd[1] * dd[1]
         big = dd2 > t2
         either = ~(dd2 <= t2)                                          # big, or unavailable (NaN)
@@ -269,6 +271,11 @@ def _jumps(L: np.ndarray) -> np.ndarray:
         flags[lo] |= jump
         flags[hi] |= jump
     return flags
+
+
+def _along(a: np.ndarray, axis: int, lo: int, hi: int) -> np.ndarray:
+    """``a`` sliced lo:hi along ``axis``."""
+    return a[(slice(None),) * axis + (slice(lo, hi),)]
 
 
 def _split_pixels(element: np.ndarray, mesh: Mesh) -> np.ndarray:
