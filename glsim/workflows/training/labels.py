@@ -143,7 +143,8 @@ class _Side:
         self.shape = self.mask.shape
         self.idx = np.flatnonzero(self.mask)
         row, col = np.divmod(self.idx, self.shape[1])
-        self.uv = np.stack([col, row]).astype(np.float64)
+        self.uv = np.empty((2, len(self.idx)))
+        self.uv[0], self.uv[1] = col, row
         e = self.element.ravel()[self.idx]
         xi, eta = truth.xi.ravel()[self.idx], truth.eta.ravel()[self.idx]
         if mesh.is_quadratic:
@@ -160,14 +161,14 @@ class _Side:
         # the material point's identity: its reference position about the mesh's centre, float32 (its
         # rounding, 1e-7 of the mesh's size, is far below a pixel's footprint)
         self.identity = (self.X0 - centre[:, None]).astype(np.float32)
-        self.size = float(np.abs(self.identity).max(initial=0.0))
+        self.size = float(max(-self.identity.min(initial=0.0), self.identity.max(initial=0.0)))
         self.splits = _split_pixels(self.element, mesh)
 
     @functools.cached_property
     def material(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """The identities as maps (3, H·W) (NaN uncovered) and the material map's derivative
         estimates g_u, g_v (H·W,) mm/px: per axis the smaller one-sided difference, 0 where neither
-        neighbour is covered (a 1-px strip: only an exact match passes). float32."""
+        neighbour is covered (a 1-px strip: only an exact match passes), times VISIBLE_MARGIN. float32."""
         H, W = self.shape
         X = np.full((3, H * W), np.nan, np.float32)
         X[:, self.idx] = self.identity
@@ -184,6 +185,7 @@ class _Side:
                 gk[1:] = d
                 np.fmin(gk[:-1], d, out=gk[:-1])
             np.copyto(gk, 0.0, where=np.isnan(gk))
+            gk *= VISIBLE_MARGIN
             g.append(gk.ravel())
         return X.reshape(3, -1), g[0], g[1]
 
@@ -191,13 +193,14 @@ class _Side:
 def _project(X: np.ndarray, cam: Camera) -> tuple[np.ndarray, np.ndarray]:
     """World points (3, n) → pixels (2, n) and ok (n,): :func:`glsim.scene.camera.project_camera_frame`'s
     model (distortion included), the points component-first."""
-    R, t = cam.rotation, cam.translation
-    x, y, z = (R[j, 0] * X[0] + R[j, 1] * X[1] + R[j, 2] * X[2] + t[j] for j in range(3))
-    front = z > 0.0
+    Xc = cam.rotation @ X
+    Xc += cam.translation[:, None]
+    front = Xc[2] > 0.0
     with np.errstate(divide="ignore", invalid="ignore"):
-        xn = np.stack([x, y]) / np.where(front, z, 1.0)
-    ok = front & (xn[0] ** 2 + xn[1] ** 2 < cam.distortion.valid_radius() ** 2)
-    xn[:, ~ok] = 0.0
+        xn = Xc[:2] / np.where(front, Xc[2], 1.0)
+    ok = front & (xn[0] * xn[0] + xn[1] * xn[1] < cam.distortion.valid_radius() ** 2)
+    if not ok.all():
+        xn[:, ~ok] = 0.0
     xd = xn if cam.distortion.is_zero else distort(xn.T, cam.distortion.coeffs).T
     return normalized_to_pixel(xd.T, cam.intrinsics).T, ok
 
@@ -211,7 +214,10 @@ def _label(a: _Side, X: np.ndarray, cam: Camera, b: _Side) -> tuple[np.ndarray, 
     q, ok = _project(X, cam)
     label = q - a.uv
     full = np.full((2, H * W), np.nan, np.float32)   # (float32: τ is 0.12 px)
-    full[:, a.idx[ok]] = label[:, ok]
+    if ok.all():
+        full[:, a.idx] = label
+    else:
+        full[:, a.idx[ok]] = label[:, ok]
     disc = (_jumps(full.reshape(2, H, W)) | a.splits).ravel()[a.idx]
     map_, mask = _store(a, label, ok & ~disc & _visible(q, a.identity, b, max(a.size, b.size)))
     return map_, mask, disc
@@ -223,12 +229,13 @@ def _visible(q: np.ndarray, X0: np.ndarray, b: _Side, size: float) -> np.ndarray
     identities' largest coordinate (mm), for their rounding."""
     Hb, Wb = b.shape
     c = np.rint(q)
-    inside = (c[0] >= 0) & (c[0] < Wb) & (c[1] >= 0) & (c[1] < Hb)
-    k = np.where(inside, c[1] * Wb + c[0], 0).astype(np.int64)
+    off = np.abs(q - c).astype(np.float32)
+    c = c.astype(np.int64)
+    inside = (c[0].astype(np.uint64) < Wb) & (c[1].astype(np.uint64) < Hb)     # (negatives wrap round)
+    k = c[1] * Wb + c[0]
+    k[~inside] = 0
     Xb, gu, gv = b.material
-    tol = VISIBLE_MARGIN * (np.abs(q[0] - c[0]).astype(np.float32) * gu[k]
-                            + np.abs(q[1] - c[1]).astype(np.float32) * gv[k])
-    tol += np.float32(1e-6 * (1.0 + size))             # the identities' float32 rounding, with room
+    tol = off[0] * gu[k] + off[1] * gv[k] + np.float32(1e-6 * (1.0 + size))   # (float32 identities, with room)
     d2 = (Xb[0, k] - X0[0]) ** 2 + (Xb[1, k] - X0[1]) ** 2 + (Xb[2, k] - X0[2]) ** 2
     return inside & (d2 <= tol * tol)                  # (NaN where b's pixel is uncovered: not visible)
 
@@ -238,11 +245,11 @@ def _store(a: _Side, values: np.ndarray, valid: np.ndarray) -> tuple[np.ndarray,
     and the uint8 mask."""
     H, W = a.shape
     k = len(values)
-    at = a.idx[valid]
     out = np.zeros((H * W, k), np.float32)
-    out[at] = values[:, valid].T
+    out[a.idx] = values.T
     mask = np.zeros(H * W, np.uint8)
-    mask[at] = 1
+    mask[a.idx] = valid
+    out[a.idx[~valid]] = 0.0         # (the few invalid afterwards: cheaper than compressing all)
     return out.reshape(H, W, k), mask.reshape(H, W)
 
 
