@@ -299,14 +299,50 @@ def test_jumps_flag_the_pairs_beyond_a_smooth_field():
     assert np.array_equal(lb._jumps(holes.astype(np.float32)), want & ~np.isnan(holes[0]))
 
 
-def _occluder_mesh():
+def _occluder_mesh(strip_moves=(0.05, 0.02, 0.0)):
     """A 16 × 16 mm plate 300 mm before camera 0 and, 10 mm in front of it, a 4 × 16 mm strip at
-    x ∈ [−2, 2]: camera 1, 60 mm to the right, sees the strip's shadow on the plate at x ∈ [−4.1, −0.1]."""
+    x ∈ [−2, 2]: camera 1, 60 mm to the right, sees the strip's shadow on the plate at x ∈ [−4.1, −0.1].
+    At step 1 both move by (0.05, 0.02, 0) mm, or the strip alone by ``strip_moves``."""
     back, strip = meshmod.plate(16, 16, 8, 8, center=(0, 0, 300)), meshmod.plate(4, 16, 2, 8, center=(0, 0, 290))
     n = len(back.nodes)
     mesh = meshmod.Mesh(np.vstack([back.nodes, strip.nodes]), np.vstack([back.quads, strip.quads + n]),
                         np.arange(1, n + len(strip.nodes) + 1), np.arange(1, len(back.quads) + len(strip.quads) + 1))
-    return meshmod.with_displacements(mesh, [np.tile([0.05, 0.02, 0.0], (len(mesh.nodes), 1))]), len(back.quads)
+    u = np.tile(strip_moves, (len(mesh.nodes), 1))
+    if strip_moves != (0.05, 0.02, 0.0):
+        u[:n] = 0.0
+    return meshmod.with_displacements(mesh, [u]), len(back.quads)
+
+
+@pytest.mark.parametrize("backend", BACKENDS)
+def test_occlusion_between_the_states_is_masked(backend, ctx_for):
+    """The strip alone moves 1 mm (6 px) across the still plate: plate points camera 0 sees in one
+    state and not in the other (the ray from the camera centre to the point crosses the strip's
+    outline in that state, worked out by hand) are masked in that state's label (forward0 for
+    those hidden at the step, flow0 for those hidden at step 0), more than a pixel inside; those
+    seen in both, more than 1.5 px from the strip's outline in either state, are valid."""
+    scene = _scene(size=(128, 112))
+    mesh, n_back = _occluder_mesh(strip_moves=(1.0, 0.0, 0.0))
+    ref, dfm, _, _ = _pair(scene, mesh, backend, ctx_for(backend))
+    L = pair_labels(scene, 1, ref, dfm, mesh=mesh)
+    margin = 300.0 / scene.cameras[0].fx           # a pixel's footprint on the plate, mm
+
+    def behind(X, shift):
+        """How far (mm, on the strip) inside the strip's outline, moved by ``shift`` in x, the ray
+        from camera 0's centre to X crosses the strip's plane: > 0 hidden."""
+        cross = X * (290.0 / X[..., 2])[..., None]
+        return np.minimum(2.0 - np.abs(cross[..., 0] - shift), 8.0 - np.abs(cross[..., 1]))
+
+    for key, t, other_shift, own_shift in (("forward0", ref["c"], 1.0, 0.0), ("flow0", dfm["c"], 0.0, 1.0)):
+        back = t.mask & (t.element < n_back)
+        X = t.X_undeformed                           # (the plate does not move)
+        there, here = behind(X, other_shift), behind(X, own_shift)
+        valid = L["mask_" + key].astype(bool)
+        hidden = back & (there > margin)
+        seen = back & (there < -1.5 * margin) & (here < -1.5 * margin)
+        seen &= ~ndimage.binary_dilation(t.mask & (t.element >= n_back), iterations=2)
+        assert hidden.sum() > 300 and seen.sum() > 3000
+        assert not valid[hidden].any(), key
+        assert valid[seen].all(), key
 
 
 @pytest.mark.parametrize("backend", BACKENDS)
