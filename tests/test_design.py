@@ -11,7 +11,7 @@ import pytest
 from scipy import ndimage
 
 from glsim.scene import scene_from_dict
-from glsim.workflows.design import quick, run as design_run
+from glsim.workflows.design import planar, quick
 from glsim.workflows.design.cli import main
 from glsim.workflows.design.engine import Pyvale2D
 
@@ -97,7 +97,7 @@ def test_quick_mode_equals_sssig_and_a_monte_carlo_of_a_subset_matcher():
     from glsim.render import Renderer
 
     scene = scene_from_dict(plate_scene(), ".")
-    prep = design_run.prepare(scene, "cam0", 1, 2)
+    prep = planar.prepare(scene, "cam0", 1, 2)
     with Renderer(scene.replace(noise=None), mesh=prep.mesh, reference=prep.reference) as r:
         moved = np.asarray(r.render(0, 1).image, np.float64)
     size, h = 21, 10
@@ -128,7 +128,7 @@ def test_quick_mode_equals_sssig_and_a_monte_carlo_of_a_subset_matcher():
 
 def test_quick_sigma_falls_with_subset_size_and_grows_with_the_shape_functions_order():
     scene = scene_from_dict(plate_scene(), ".")
-    prep = design_run.prepare(scene, "cam0", 1, 2)
+    prep = planar.prepare(scene, "cam0", 1, 2)
     c = np.array([[100, 80], [90, 70]])
     s = {(n, sh): quick.crb(prep.image, prep.variance, c, n, sh)["sigma_u"] for n in (15, 31)
          for sh in ("rigid", "affine", "quad")}

@@ -12,7 +12,7 @@ from glsim.workflows.design.cli import main
 from glsim.workflows.design.engine import Pyvale3D
 
 from _design import write_spec
-from test_design_stereo import plate_rotation, stereo_plate
+from _design import plate_rotation, stereo_plate
 
 # pyvale's 2-D S-curve amplitude on exactly shifted noise-free model images, subset 21 px, affine:
 # bench/results/sweep.json (docs/verify.md), the bound of tests/test_design_theory.py's zero-bias test
@@ -50,6 +50,7 @@ def _triangulation_jacobian(scene) -> np.ndarray:
 
 @pytest.mark.process
 @pytest.mark.slow
+@pytest.mark.engine
 def test_rigid_translation_on_noise_free_images_is_measured_within_pyvales_interpolation_bias(tmp_path):
     """A plate moved by t = (0.15, −0.1, 0.4) mm (its own axes; 0.78 px, −1 px and a depth change
     seen by camera 0), 16-bit noise-free exact images, subset 21 px, affine. The imposed

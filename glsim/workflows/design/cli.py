@@ -17,7 +17,8 @@ from glsim.errors import GlsimError
 from glsim.io import images as io
 from glsim.workflows.design import report as rep
 from glsim.workflows.design.engine import engine as make_engine
-from glsim.workflows.design.run import FORMAT, print_progress, run
+from glsim.workflows.design.planar import setup_scene
+from glsim.workflows.design.run import FORMAT, calibration_report, print_progress, run
 from glsim.workflows.design.spec import criteria_for, load_design
 
 NOTES = (
@@ -31,7 +32,7 @@ NOTES = (
     "u(x) = A·sin(2πx/p) through its FE nodes (32 per smallest period); the measured U fitted by a sinusoid of "
     "the known period per period; the resolution is the period at 90 % of the imposed amplitude; the "
     "metrological efficiency indicator (MEI) is noise floor × spatial resolution (px²).",
-    "Not modelled here: calibration error (the exact rig is used), strain.",
+    "Not modelled here: strain; calibration error only with [calibration] rig = \"targets\" (stereo).",
 )
 STEREO_NOTES = (
     "Stereo (engine pyvale3d): subsets on camera 0's reference image; X, Y, Z (the reference state's shape) "
@@ -83,7 +84,11 @@ def main(argv: list[str] | None = None) -> int:
         row_table = [rep.row_summary(r) for r in results]
         image_shape = design.plan.variants[0].scene.camera(design.camera).size[::-1]
         notes = NOTES + (STEREO_NOTES if design.stereo and eng is not None else ())
-        meta = {"spec": str(args.spec), "notes": notes}
+        calibration = {"rig": design.rig}
+        if design.stereo and eng is not None and design.rig != "exact":
+            calibration["setups"] = {v.id: calibration_report(design, setup_scene(v.scene, design.speckle_seeds[0]), out)
+                                     for v in design.plan.variants}
+        meta = {"spec": str(args.spec), "notes": notes, "calibration": calibration}
         rep.write_csv(out / "rows.csv", row_table)
         rep.write_csv(out / "ranking.csv", ranking)
         design_used = design if by == design.rank_by else _with_rank(design, by)
@@ -92,7 +97,7 @@ def main(argv: list[str] | None = None) -> int:
         io.write_text(out / "results.json", json.dumps(rep.clean(
             {"format": FORMAT, "spec": str(args.spec), "engine": eng.name if eng else "quick", "rank_by": by,
              "camera": design.camera, "cameras": list(design.cameras) or [design.camera], "step": design.step, "noise_seeds": list(design.noise_seeds),
-             "speckle_seeds": list(design.speckle_seeds), "calibration": design.rig, "ranking": ranking,
+             "speckle_seeds": list(design.speckle_seeds), "calibration": calibration, "ranking": ranking,
              "rows": row_table, "notes": list(notes), "seconds": seconds}), indent=2, allow_nan=False) + "\n")
     except GlsimError as exc:
         print(f"glsim design: error: {exc}", file=sys.stderr)

@@ -25,8 +25,8 @@ A spec is a TOML file::
     noise_seeds = [1, 2, 3]    # one noisy image set per seed (the scene's top-level seed)
     speckle_seeds = [0]        # speckle patterns (speckle.seed): pattern-induced bias
 
-    [calibration]
-    rig = "exact"              # the scene's own cameras (the only choice so far)
+    [calibration]              # stereo only (calibration.py)
+    rig = "exact"              # the scene's own cameras; "targets": calibrated from a simulated target library
 
     [resolution]               # optional, with an engine: the sinusoid sweep (resolution.py)
     periods_px = [16, 32, 64]  # periods of u(x) = A·sin(2πx/p), px at the plate; default from the subsets
@@ -48,6 +48,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from glsim.limits import MAX_VALUES
+from glsim.workflows.design.calibration import CalibrationSpec, calibration_spec
 from glsim.workflows.library.spec import LibraryPlan, SpecError, expand, read_spec
 
 TOP_KEYS = ("scene", "seed", "mode", "n", "camera", "cameras", "step", "engine", "roi_margin", "vary", "dic",
@@ -59,7 +60,6 @@ DIC_KEYS = ("subset_size", "subset_step", "shape_function")
 REAL_KEYS = ("noise_seeds", "speckle_seeds")
 RES_KEYS = ("periods_px", "amplitude_px")
 MIN_PERIOD_PX, MAX_PERIOD_PX, MAX_AMPLITUDE_PX = 4.0, 10_000.0, 5.0
-RIGS = ("exact",)
 # criterion → (what it is, needs the engine, smaller is better)
 CRITERIA = {
     "p95_abs_error_px": ("95th percentile over subsets and realisations of |(U, V) − truth| (px)", True, True),
@@ -142,6 +142,7 @@ class Design:
     source: dict
     resolution: Resolution | None = None
     cameras: tuple[str, ...] = ()            # the stereo pair (engine pyvale3d), camera 0 first
+    calibration: CalibrationSpec = CalibrationSpec()   # the rig the stereo engine measures with
 
     @property
     def stereo(self) -> bool:
@@ -220,11 +221,11 @@ def check_design(spec: dict, spec_dir: str | Path = ".") -> Design:
     # without speckle_seeds each set-up keeps its own scene's pattern (None)
     speckle_seeds = _list(real, "speckle_seeds", "realisations", seed_ok, "give seeds 0…2³²−1, e.g. "
                           "speckle_seeds = [0]") if "speckle_seeds" in real else (None,)
-    calib = _table(spec, "calibration", ("rig",))
-    rig = calib.get("rig", "exact")
-    if rig not in RIGS:
-        _fail("calibration.rig", f"{rig!r} is not supported", "only rig = \"exact\" (the scene's own cameras); "
-              "a calibration from a simulated target library is not modelled yet")
+    calibration = calibration_spec(spec.get("calibration"))
+    rig = calibration.rig
+    if rig != "exact" and engine != STEREO:
+        _fail("calibration.rig", f"{rig!r} calibrates a stereo rig, and engine is {engine!r}",
+              "write engine = \"pyvale3d\" (stereo), or rig = \"exact\" (a 2-D DIC in px needs no calibration)")
     resolution = _resolution(spec, engine, sizes, steps)
     rank = _table(spec, "rank", ("by",))
     criteria = criteria_for(engine)
@@ -284,7 +285,7 @@ def check_design(spec: dict, spec_dir: str | Path = ".") -> Design:
                       "which writes empty results below about 256 px a side", "give at least 256 × 256 px")
     return Design(plan=plan, camera=camera, step=step, engine=engine, roi_margin=margin, settings=settings,
                   noise_seeds=tuple(noise_seeds), speckle_seeds=tuple(speckle_seeds), rig=rig, rank_by=by,
-                  source=spec, resolution=resolution, cameras=cameras)
+                  source=spec, resolution=resolution, cameras=cameras, calibration=calibration)
 
 
 def _check_camera_keys(spec: dict, engine: str) -> None:

@@ -32,7 +32,7 @@ from glsim.scene.camera import Camera, project_camera_frame, to_camera
 from glsim.scene.locate import points_truth
 from glsim.workflows.design import quick
 from glsim.workflows.design.engine import StereoEngine, write_stereo_exchange
-from glsim.workflows.design.run import Prepared, static_seed
+from glsim.workflows.design.planar import Prepared, static_seed
 from glsim.workflows.design.spec import DicSetting
 
 AXES = ("X", "Y", "Z")
