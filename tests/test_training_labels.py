@@ -393,6 +393,9 @@ def test_bad_input_is_refused_by_name():
         pair_labels(scene, 1, {"c": ref}, {"c": dfm.mask})
     with pytest.raises(SceneError, match=r"^camera: no camera named 'x'"):
         pair_labels(scene, 1, {"x": ref}, {"x": dfm})
+    with pytest.raises(SceneError, match=r"^ref\['c'\]: names element 63; the specimen has 1"):
+        pair_labels(scene, 1, {"c": ref}, {"c": dfm}, mesh=meshmod.with_displacements(meshmod.plate(1, 1, 1, 1),
+                                                                                      [np.zeros((4, 3))]))
     small = dataclasses.replace(scene, cameras=(dataclasses.replace(scene.cameras[0], size=(64, 64)),))
     with pytest.raises(SceneError, match=r"^ref\['c'\]: is 96 × 96 px, camera 'c' 64 × 64"):
         pair_labels(small, 1, {"c": ref}, {"c": dfm})

@@ -95,6 +95,10 @@ def pair_labels(scene: Scene, step: int, ref: dict[str, Truth], deformed: dict[s
             if (W, H) != cam.size:
                 raise SceneError(f"{which}[{n!r}]", f"is {W} × {H} px, camera {n!r} {cam.size[0]} × {cam.size[1]}",
                                  "give the truths of Renderer(scene).render(name, truth=True) for that scene")
+            last = int(np.max(truths[n].element, initial=-1))
+            if last >= mesh.n_elements:
+                raise SceneError(f"{which}[{n!r}]", f"names element {last}; the specimen has {mesh.n_elements}",
+                                 "give the truths of this scene's renders (and its renderer's mesh)")
     nodes0, nodes_step = mesh.nodes.T.copy(), mesh.deformed(step).T.copy()
     centre = 0.5 * (nodes0.min(axis=1) + nodes0.max(axis=1))
     out: dict[str, np.ndarray] = {}
