@@ -7,7 +7,9 @@ encoded, written and hashed: ``glsim library`` with ``[training]`` end to end), 
 * **stereo 1 Mpx**: two 1024×1024 cameras 11° apart over a plate with a random field, all labels
   (flow, forward per camera, disparities, uvw); 1 worker.
 
-A warm-up set (2 pairs, not reported) makes this process's GL context and programs first: a
+The 1-worker 2-D set is made twice, before and after the 2-worker one (the machine may be
+shared): the table shows the faster, the StrainNet-size estimate takes the slower. A warm-up set
+(2 pairs, not reported) makes this process's GL context and programs first: a
 training set pays them once, so the 1-worker rates are the steady state; the 2-worker run starts
 its own processes (and pays their set-up). Each case reports the plan's time (expanding and
 checking every variant, before anything is written), the run's (from the directory's lock to the
@@ -81,10 +83,10 @@ def _case(name: str, spec: dict, workers: int, shards: int, log) -> dict:
 
     tmp = Path(tempfile.mkdtemp(prefix="glsim-bench-training-"))
     try:
+        first = expand_training(spec, tmp, sample=6)      # (the sample's size: 1 variant built and checked)
+        per = max(1, math.ceil(first.library.n_variants / shards))      # ≥ `shards` tasks for the workers
+        spec = {**spec, "training": {**spec["training"], "shard_bytes": per * first.sample_bytes}}
         t0 = time.perf_counter()
-        plan = expand_training(spec, tmp)
-        per = max(1, math.ceil(len(plan.library.variants) / shards))      # ≥ `shards` tasks for the workers
-        spec = {**spec, "training": {**spec["training"], "shard_bytes": per * plan.sample_bytes}}
         plan = expand_training(spec, tmp)
         t1 = time.perf_counter()
         summary = runner.run(plan, runner.stored_spec(plan), tmp / "set", workers=workers)
@@ -115,17 +117,22 @@ def bench(pairs_2d: int = PAIRS_2D, pairs_stereo: int = PAIRS_STEREO, log=print)
     labels = ["flow", "mask_flow", "forward", "mask_forward"]
     # warm-up (not reported): this process's GL context and programs, made once for a whole set
     _case("warm-up", _spec(scene_2d(), 1, 2, 1, labels), 1, 1, lambda m: None)
-    rows = [_case("2-D 256²", _spec(scene_2d(), speckles, fields, 1, labels), 1, 4, log),
-            _case("2-D 256²", _spec(scene_2d(), speckles, fields, 1, labels), 2, 4, log)]
+    spec_2d = _spec(scene_2d(), speckles, fields, 1, labels)
+    # this machine is shared, so the 1-worker 2-D run is repeated (interleaved with the 2-worker one):
+    # the table shows the faster, the StrainNet estimate takes the slower
+    reps = [_case("2-D 256²", spec_2d, 1, 4, log), _case("2-D 256²", spec_2d, 2, 4, log),
+            _case("2-D 256²", spec_2d, 1, 4, log)]
+    ones = [reps[0], reps[2]]
+    best = max(ones, key=lambda r: r["pairs_per_s"])
+    rows = [{**best, "reps": [r["pairs_per_s"] for r in ones]}, reps[1]]
     s = max(1, math.ceil(pairs_stereo / 2))
     rows.append(_case("stereo 1 Mpx", _spec(scene_stereo(), s, min(2, pairs_stereo), 1, None), 1, 2, log))
-    one = rows[0]
-    plan_per_pair = one["plan_s"] / one["pairs"]
-    best = max(r["pairs_per_s"] for r in rows if r["case"] == "2-D 256²")
-    hours = (STRAINNET_PAIRS * plan_per_pair + STRAINNET_PAIRS / best) / 3600
+    slow = min(ones, key=lambda r: r["pairs_per_s"])
+    plan_per_pair = max(r["plan_s"] / r["pairs"] for r in ones)
+    hours = (STRAINNET_PAIRS * plan_per_pair + STRAINNET_PAIRS / slow["pairs_per_s"]) / 3600
     return {"machine": machine, "date": time.strftime("%Y-%m-%d"), "rows": rows,
-            "strainnet": {"pairs": STRAINNET_PAIRS, "plan_s_per_pair": plan_per_pair, "best_pairs_per_s": best,
-                          "hours": hours, "fits_in_1_h": hours <= 1.0}}
+            "strainnet": {"pairs": STRAINNET_PAIRS, "plan_s_per_pair": plan_per_pair,
+                          "slower_pairs_per_s": slow["pairs_per_s"], "hours": hours, "fits_in_1_h": hours <= 1.0}}
 
 
 def markdown(report: dict) -> str:
@@ -141,11 +148,14 @@ def markdown(report: dict) -> str:
                      f"| {r['shards']} | {sig(r['pairs_per_s'], 3)} | {sig(1000 * r['plan_s'] / r['pairs'], 2)} | "
                      f"{sig(r['bytes_per_pair'] / 1e6, 3)} | {r['peak_mb']:.0f} |")
     s = report["strainnet"]
-    lines += ["", (f"StrainNet-size set ({s['pairs']:,} pairs of 256²) at the best 2-D rate "
-                   f"({sig(s['best_pairs_per_s'], 3)} pairs/s) plus its plan ({sig(1000 * s['plan_s_per_pair'], 2)} "
-                   f"ms/pair): {s['hours']:.2f} h — {'fits' if s['fits_in_1_h'] else 'does not fit'} in 1 h on this "
-                   "machine."),
-              "", "Peak MB: the process's resident-set maximum so far (with 2 workers, the largest child's too).", ""]
+    reps = report["rows"][0].get("reps", [])
+    lines += ["", (f"StrainNet-size set ({s['pairs']:,} pairs of 256²) at the slower of the 1-worker 2-D repetitions "
+                   f"({', '.join(sig(x, 3) for x in reps)} pairs/s) plus its plan "
+                   f"({sig(1000 * s['plan_s_per_pair'], 2)} ms/pair): {s['hours']:.2f} h — "
+                   f"{'fits' if s['fits_in_1_h'] else 'does not fit'} in 1 h on this machine (one worker)."),
+              "", ("Pairs/s of the 1-worker 2-D row: the faster of two repetitions, run before and after the "
+                   "2-worker one. Peak MB: the process's resident-set maximum so far (with 2 workers, the largest "
+                   "child's too)."), ""]
     return "\n".join(lines)
 
 

@@ -4,6 +4,9 @@
     glsim library SPEC.toml --dry-run         # the variant table, estimated time and disk size
     glsim library DIR                         # resume the library in DIR (its stored spec)
     glsim library DIR --verify                # check every file against the manifest
+
+A spec with a [training] table writes a training set instead: WebDataset shards of image pairs
+and their labels (docs/training.md); DIR and --verify work the same on it.
 """
 from __future__ import annotations
 

@@ -19,6 +19,7 @@ always cuts the same shards.
 """
 from __future__ import annotations
 
+import functools
 import hashlib
 import json
 from dataclasses import dataclass
@@ -83,6 +84,11 @@ class TrainingPlan:
     shards: tuple
 
     def fingerprint(self) -> str:
+        return self._fingerprint
+
+    @functools.cached_property
+    def _fingerprint(self) -> str:
+        """(once: it hashes every variant's scene)"""
         h = hashlib.sha256(self.library.fingerprint().encode())
         h.update(json.dumps(self.training.as_dict(), sort_keys=True).encode())
         return h.hexdigest()
