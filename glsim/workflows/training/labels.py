@@ -42,6 +42,7 @@ step's state, not of the blur around it.
 from __future__ import annotations
 
 import functools
+import weakref
 
 import numpy as np
 from scipy import sparse
@@ -263,30 +264,37 @@ def _jumps(L: np.ndarray) -> np.ndarray:
     (2, H, W): unavailable)."""
     flags = np.zeros(L.shape[1:], bool)
     t2 = np.float32(SMOOTH_CURVATURE ** 2)
-    for axis in (1, 2):
-        n = L.shape[axis]
+    for ax in (0, 1):
+        n = flags.shape[ax]
         if n < 3:
             continue
-        dd = _along(L, axis, 2, n) - 2 * _along(L, axis, 1, n - 1) + _along(L, axis, 0, n - 2)   # pair k + 1 − pair k
-        dd2 = dd[0] * dd[0] + dd[1] * dd[1]
+        lab = L.transpose(1, 2, 0)                                   # (H, W, 2): ax indexes H or W
+        dd = _along(lab, ax, 2, n) - 2 * _along(lab, ax, 1, n - 1) + _along(lab, ax, 0, n - 2)
+        dd2 = dd[..., 0] * dd[..., 0] + dd[..., 1] * dd[..., 1]       # [k]: pair k + 1 against pair k
         big = dd2 > t2
         either = ~(dd2 <= t2)                                          # big, or unavailable (NaN)
-        # pair k (pixels k, k + 1) against pair k − 1 (dd2[k − 1]) and k + 1 (dd2[k]); none beyond the ends
-        jump = np.empty(big.shape[:axis - 1] + (n - 1,) + big.shape[axis:], bool)
-        inner, first, last = (slice(1, -1), 0, -1) if axis == 1 else ((slice(None), slice(1, -1)), (slice(None), 0),
-                                                                      (slice(None), -1))
-        lo, hi = (slice(None, -1), slice(1, None)) if axis == 1 else ((slice(None), slice(None, -1)),
-                                                                      (slice(None), slice(1, None)))
-        jump[inner] = either[lo] & either[hi] & (big[lo] | big[hi])
-        jump[first], jump[last] = big[first], big[last]
-        flags[lo] |= jump
-        flags[hi] |= jump
+        # pair k (pixels k, k + 1) against pair k − 1 (dd2[k − 1]) and pair k + 1 (dd2[k]); none beyond the ends
+        jump = np.empty(big.shape[:ax] + (n - 1,) + big.shape[ax + 1:], bool)
+        _along(jump, ax, 0, 1)[...] = _along(big, ax, 0, 1)
+        _along(jump, ax, n - 2, n - 1)[...] = _along(big, ax, n - 3, n - 2)
+        _along(jump, ax, 1, n - 2)[...] = (_along(either, ax, 0, n - 3) & _along(either, ax, 1, n - 2)
+                                           & (_along(big, ax, 0, n - 3) | _along(big, ax, 1, n - 2)))
+        _mark_pairs(flags, ax, jump)
     return flags
 
 
 def _along(a: np.ndarray, axis: int, lo: int, hi: int) -> np.ndarray:
-    """``a`` sliced lo:hi along ``axis``."""
+    """``a`` sliced lo:hi along ``axis`` (a view)."""
     return a[(slice(None),) * axis + (slice(lo, hi),)]
+
+
+def _mark_pairs(flags: np.ndarray, ax: int, pairs: np.ndarray) -> None:
+    """Set in ``flags`` (H, W) both pixels of the neighbouring pairs along ``ax`` that ``pairs`` (one
+    shorter along ``ax``) holds."""
+    n = flags.shape[ax]
+    first, second = _along(flags, ax, 0, n - 1), _along(flags, ax, 1, n)
+    first |= pairs
+    second |= pairs
 
 
 def _split_pixels(element: np.ndarray, mesh: Mesh) -> np.ndarray:
@@ -297,32 +305,31 @@ def _split_pixels(element: np.ndarray, mesh: Mesh) -> np.ndarray:
     if canon is None:
         return flags
     quads = mesh.quads
-    for axis in (0, 1):
-        a = element[:-1] if axis == 0 else element[:, :-1]
-        b = element[1:] if axis == 0 else element[:, 1:]
+    for ax in (0, 1):
+        n = element.shape[ax]
+        a, b = _along(element, ax, 0, n - 1), _along(element, ax, 1, n)
         pair = (a >= 0) & (b >= 0) & (a != b)
         qa, qb = quads[a[pair]], quads[b[pair]]
         shared = (qa[:, :, None] == qb[:, None, :]).any(axis=(1, 2))
         touch = (canon[qa][:, :, None] == canon[qb][:, None, :]).any(axis=(1, 2))
         split = np.zeros(a.shape, bool)
         split[pair] = touch & ~shared
-        if axis == 0:
-            flags[:-1] |= split
-            flags[1:] |= split
-        else:
-            flags[:, :-1] |= split
-            flags[:, 1:] |= split
+        _mark_pairs(flags, ax, split)
     return flags
 
 
-@functools.lru_cache(maxsize=4)
+_CANONICAL: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()   # mesh → _canonical_nodes(mesh)
+
+
 def _canonical_nodes(mesh: Mesh) -> np.ndarray | None:
     """Each node's first node at the same place (N,) (coordinates equal to 1e-9 of the mesh's
-    extent: duplicated nodes), or None when no two nodes coincide."""
+    extent: duplicated nodes), or None when no two nodes coincide; kept while the mesh lives."""
+    if mesh in _CANONICAL:
+        return _CANONICAL[mesh]
     nodes = mesh.nodes
     scale = 1e-9 * max(float(np.ptp(nodes, axis=0).max()), 1e-300)
     key = np.round((nodes - nodes.min(axis=0)) / scale)
     _, first, inverse = np.unique(key, axis=0, return_index=True, return_inverse=True)
-    if len(first) == len(nodes):
-        return None
-    return first[inverse.ravel()]
+    canon = None if len(first) == len(nodes) else first[inverse.ravel()]
+    _CANONICAL[mesh] = canon
+    return canon
