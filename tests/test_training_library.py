@@ -4,6 +4,7 @@ catching a flipped byte, nothing written outside -o, and the same bytes on 1 and
 import shutil
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from glsim.workflows.library.cli import main as library_main
@@ -146,3 +147,33 @@ def test_a_dask_cluster_gives_the_same_bytes(tiny, tmp_path):
         summary = runner.run(plan, runner.stored_spec(plan), tmp_path / "dask", scheduler=client)
     assert summary.engine == "dask" and summary.written == 2 and not summary.failed
     assert _tree(tmp_path / "dask") == _tree(tiny)
+
+
+def test_the_strainnet_like_example_gives_256_px_pairs_within_0_87_px(tmp_path):
+    from glsim.workflows.library.spec import read_spec
+    from glsim.workflows.training import runner
+    from glsim.workflows.training.loader import samples
+    from glsim.workflows.training.spec import expand_training
+
+    spec, spec_dir = read_spec(EXAMPLES / "strainnet_like.toml")
+    full = expand_training(spec, spec_dir, sample=6)
+    assert full.library.n_variants == 363 * 60 and full.per_shard == 10**9 // full.sample_bytes == 756
+    spec["vary"] = {"speckle": {"seed": [5]}, "specimen": {"field": {"seed": [0, 1, 2]}}}   # 3 of its pairs
+    plan = expand_training(spec, spec_dir)
+    assert runner.run(plan, runner.stored_spec(plan), tmp_path / "set", workers=1).samples == 3
+    got = list(samples(tmp_path / "set" / "shard-000000.tar"))
+    assert [s["json"]["seeds"] for s in got] == [{"speckle.seed": 5, "specimen.field.seed": k} for k in range(3)]
+    for s in got:
+        assert s["cam0_ref"].shape == (256, 256) and s["cam0_ref"].dtype == np.uint8
+        for name in ("flow0", "forward0"):
+            valid = s["mask_" + name].astype(bool)
+            assert valid.mean() > 0.99 and 0.01 < np.abs(s[name][valid]).max() <= 0.87 + 1e-4, name
+
+
+def test_a_damaged_training_json_naming_a_shard_outside_is_refused(tiny, tmp_path, capsys):
+    out = tmp_path / "set"
+    shutil.copytree(tiny, out)
+    info = out / "training.json"
+    info.write_text(info.read_text().replace('"shard-000001.tar"', '"../shard-000001.tar"'))
+    assert library_main([str(out), "--verify"]) == 2
+    assert "holds no training set (no training.json, or a damaged one)" in capsys.readouterr().err

@@ -276,7 +276,7 @@ def verify(out: str | Path) -> tuple[int, list[str]]:
     data = read_info(out)
     if data is None:
         raise GlsimError(f"{out}: holds no training set (no {INFO}, or a damaged one) — give the directory "
-                         "`glsim library SPEC -o DIR` wrote")
+                         "`glsim library SPEC -o DIR` wrote, or write the set again: glsim library SPEC -o DIR --force")
     rows = read_manifest(out)
     good, problems = 0, []
     for s in data["shards"]:

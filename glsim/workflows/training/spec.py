@@ -230,7 +230,7 @@ def expand_training(spec: dict, spec_dir: str | Path = ".", sample: int | None =
     labels = label_names(t.labels, indices, stereo) if t.labels else ()
     size = sample_bytes([first.camera(n) for n in names], t, labels, indices, stereo)
     per = max(1, t.shard_bytes // size)
-    ids = [v.id for v in plan.variants]
+    ids = [] if plan.sampled else [v.id for v in plan.variants]     # (a dry run's sample cuts no shards)
     shards = tuple(Shard(f"shard-{k:06d}.tar", tuple(ids[i:i + per])) for k, i in enumerate(range(0, len(ids), per)))
     return TrainingPlan(plan, t, names, indices, labels, size, per, shards)
 
