@@ -126,3 +126,37 @@ def test_the_example_loader_reads_every_pair(tiny):
     for ref, dfm, flow, mask in got:
         assert ref.dtype == dfm.dtype == np.float32 and ref.shape == (40, 48) and flow.shape == (40, 48, 2)
         assert mask.dtype == bool and mask.any() and np.abs(flow[mask]).max() <= 0.87 + 1e-6
+
+
+def test_a_stereo_sample_holds_both_cameras_and_every_label_bit_for_bit(tmp_path):
+    import tomli_w
+    import tomllib
+
+    from glsim.workflows.training.labels import pair_labels
+
+    spec = tomllib.loads(TINY.read_text())
+    cam1 = {**spec["scene"]["cameras"][0], "name": "cam1",
+            "pose": {"stereo": {"Tx": -30.0, "Ty": 0.0, "Tz": 1.5, "Theta": 0.0, "Phi": 5.7, "Psi": 0.0}}}
+    spec["scene"]["cameras"].append(cam1)
+    spec["training"] = {"shard_bytes": 10**9, "step": 1, "crop": [40, 36]}
+    spec["vary"] = {"specimen": {"field": {"seed": [3]}}}
+    (tmp_path / "stereo.toml").write_bytes(tomli_w.dumps(spec).encode())
+    assert library_main([str(tmp_path / "stereo.toml"), "-o", str(tmp_path / "set"), "--workers", "1", "-q"]) == 0
+    (s,) = samples(tmp_path / "set" / "shard-000000.tar")
+    maps = [f"{k}{i}" for k in ("flow", "forward") for i in (0, 1)] + ["disparity_ref", "disparity_def", "uvw"]
+    assert sorted(s) == sorted(["__key__", "json", *(f"cam{i}_{t}" for i in (0, 1) for t in ("ref", "def")),
+                                *maps, *(f"mask_{k}" for k in maps)])
+    assert s["json"]["cameras"] == {"cam0": "cam0", "cam1": "cam1"}
+    plan = load_training(tmp_path / "stereo.toml")
+    scene = plan.library.variants[0].scene
+    with Renderer(scene) as r:
+        res = {(c, k): r.render(c, k, truth=True, quantize=True) for c in ("cam0", "cam1") for k in (0, 1)}
+    labels = pair_labels(scene, 1, {c: res[c, 0].truth for c in ("cam0", "cam1")},
+                         {c: res[c, 1].truth for c in ("cam0", "cam1")})
+    x0, y0, w, h = s["json"]["crop"]
+    want = {**labels, **{f"cam{i}_{t}": res[c, k].image for i, c in enumerate(("cam0", "cam1"))
+                         for k, t in ((0, "ref"), (1, "def"))}}
+    for name, a in want.items():
+        a = np.ascontiguousarray(a[y0:y0 + h, x0:x0 + w])
+        assert s[name].dtype == a.dtype and s[name].shape == a.shape and s[name].tobytes() == a.tobytes(), name
+    assert s["mask_disparity_ref"].mean() > 0.9 and np.all(np.abs(s["disparity_ref"][s["mask_disparity_ref"] > 0]) < 20)

@@ -108,9 +108,10 @@ def sample_members(task: dict, sample: dict) -> dict[str, bytes]:
     missing = [k for k in keep if k not in labels]
     if missing:
         raise ValueError(f"pair_labels gave no {missing} for variant {key} (it gave {sorted(labels)})")
-    first = scene.camera(task["cameras"][0])
-    crop = t["crop"]
-    x0, y0 = crop_offset(task["seed"], sample["index"], first.size, crop)
+    cams = [scene.camera(c) for c in task["cameras"]]
+    crop = t["crop"]                # (the same offset in every camera, within the smallest)
+    x0, y0 = crop_offset(task["seed"], sample["index"], (min(c.width for c in cams), min(c.height for c in cams)),
+                         crop)
     cut = (lambda a: a) if crop is None else (lambda a: a[y0:y0 + crop[1], x0:x0 + crop[0]])
     members = {}
     for c, i in zip(task["cameras"], task["indices"]):
@@ -118,9 +119,8 @@ def sample_members(task: dict, sample: dict) -> dict[str, bytes]:
             ext, data = sh.image_member(np.ascontiguousarray(cut(images[c, s])), t["image_format"])
             members[f"{key}.cam{i}_{tag}.{ext}"] = data
     for k in keep:
-        a = labels[k]
-        a = cut(a) if a.ndim >= 2 and a.shape[:2] == (first.height, first.width) else a
-        members[f"{key}.{k}.npy"] = sh.npy_bytes(a)
+        a = labels[k]               # (H, W[, k]) maps of a camera's pixels
+        members[f"{key}.{k}.npy"] = sh.npy_bytes(cut(a) if a.ndim >= 2 else a)
     seeds = {"speckle.seed": scene.speckle.seed}
     field = getattr(scene.specimen, "field", None)
     if field is not None and getattr(field, "seed", None) is not None:
