@@ -120,7 +120,8 @@ def test_dry_run_says_the_shards_and_writes_nothing(tmp_path, capsys, monkeypatc
     monkeypatch.chdir(tmp_path)
     assert library_main([str(TINY), "--dry-run"]) == 0
     text = capsys.readouterr().out
-    assert "4 samples" in text and "2 per shard" in text and "2 shards" in text and "nothing was written" in text
+    assert "4 samples" in text and "2 per shard of 60 kB, 2 shards" in text and "nothing was written" in text
+    assert "estimated: about" in text and "on one worker (measured here: v0000 in" in text
     assert list(tmp_path.iterdir()) == []
 
 

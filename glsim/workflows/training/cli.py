@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import sys
+import time
 from pathlib import Path
 
 from glsim.errors import GlsimError, interrupted
@@ -25,6 +26,7 @@ def handles(src: Path) -> bool:
 
 def main(args) -> int:
     """The library command's parsed ``args`` for a training spec or set."""
+    from glsim.workflows.library.cli import _size
     from glsim.workflows.training import runner
     from glsim.workflows.training.spec import expand_training, load_training
 
@@ -51,15 +53,18 @@ def main(args) -> int:
             if args.verify:
                 raise GlsimError(f"--verify checks a training set's directory, and {src} is not one — give the DIR "
                                  "it was written to")
+            t0 = time.perf_counter()
             plan = load_training(src, sample=40 if args.dry_run else None)
+            plan_s = (time.perf_counter() - t0) / len(plan.library.variants)
             spec = runner.stored_spec(plan)
             out = Path(args.output) if args.output else src.with_suffix("")
         if args.dry_run:
             n = plan.library.n_variants
             print(f"{n} samples ({'the first and last 40 checked; ' * plan.library.sampled}cameras "
-                  f"{', '.join(plan.cameras)}; step 0 and {plan.training.step}), about {plan.sample_bytes / 1e6:.3g} "
-                  f"MB each: {plan.per_shard} per shard of {plan.training.shard_bytes / 1e9:.3g} GB, "
+                  f"{', '.join(plan.cameras)}; step 0 and {plan.training.step}), at most {_size(plan.sample_bytes)} "
+                  f"each: {plan.per_shard} per shard of {_size(plan.training.shard_bytes)}, "
                   f"{-(-n // plan.per_shard)} shards")
+            print(_estimate_line(plan, plan_s))
             print("dry run: nothing was written")
             return 0
         summary = runner.run(plan, spec, out, workers=args.workers, scheduler=args.scheduler, force=args.force,
@@ -75,3 +80,39 @@ def main(args) -> int:
         return 130
     print(summary.text())
     return 1 if summary.failed else 0
+
+
+def measure(plan) -> float:
+    """Seconds of one sample on this machine: the first variant made into a shard's members
+    (rendered, labelled, encoded; nothing written) twice, the second timed (the set-up — context,
+    programs, reference image — is paid once per set)."""
+    import warnings
+
+    from glsim.workflows.library import worker as lw
+    from glsim.workflows.training.spec import Shard
+    from glsim.workflows.training.worker import make_task, sample_members
+
+    v = plan.library.variants[0]
+    task = make_task(plan, Shard("dry-run", (v.id,)), Path("."))
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            sample_members(task, task["samples"][0])
+            t0 = time.perf_counter()
+            sample_members(task, task["samples"][0])
+            return time.perf_counter() - t0
+    finally:
+        lw.release()
+
+
+def _estimate_line(plan, plan_s: float) -> str:
+    from glsim.workflows.library.cli import _duration
+
+    try:
+        one = measure(plan)
+    except (GlsimError, RuntimeError, OSError, ValueError) as exc:
+        return f"estimated: not measured — the first sample did not render here ({type(exc).__name__}: {exc})"
+    n = plan.library.n_variants
+    return (f"estimated: about {_duration(n * (one + plan_s))} on one worker (measured here: {plan.library.variants[0].id} "
+            f"in {one:.3g} s — rendered at both steps, labelled, encoded — and {1000 * plan_s:.2g} ms to expand and "
+            "check it; a set pays its GL set-up once)")
