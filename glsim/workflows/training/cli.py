@@ -26,7 +26,6 @@ def handles(src: Path) -> bool:
 
 def main(args) -> int:
     """The library command's parsed ``args`` for a training spec or set."""
-    from glsim.workflows.library.cli import _size
     from glsim.workflows.training import runner
     from glsim.workflows.training.spec import expand_training, load_training
 
@@ -106,8 +105,6 @@ def measure(plan) -> float:
 
 
 def _estimate_line(plan, plan_s: float) -> str:
-    from glsim.workflows.library.cli import _duration
-
     try:
         one = measure(plan)
     except (GlsimError, RuntimeError, OSError, ValueError) as exc:
@@ -116,3 +113,15 @@ def _estimate_line(plan, plan_s: float) -> str:
     return (f"estimated: about {_duration(n * (one + plan_s))} on one worker (measured here: {plan.library.variants[0].id} "
             f"in {one:.3g} s — rendered at both steps, labelled, encoded — and {1000 * plan_s:.2g} ms to expand and "
             "check it; a set pays its GL set-up once)")
+
+
+def _size(n: float) -> str:
+    """Bytes in words (as the library's dry run writes them)."""
+    for unit in ("B", "kB", "MB", "GB", "TB"):
+        if n < 1000 or unit == "TB":
+            return f"{n:.3g} {unit}"
+        n /= 1000
+
+
+def _duration(s: float) -> str:
+    return f"{s:.0f} s" if s < 120 else f"{s / 60:.0f} min" if s < 7200 else f"{s / 3600:.1f} h"
