@@ -1,6 +1,7 @@
 """glsim library's training mode end to end: bad [training] keys refused by key before anything
-is written, resume after a deleted and a corrupted shard (only those written again), --verify
-catching a flipped byte, nothing written outside -o, and the same bytes on 1 and 2 workers."""
+is written, resume after a deleted and a corrupted shard (only those written again) and after a
+SIGKILL, --verify catching a flipped byte, nothing written outside -o, the same bytes on 1 and 2
+workers and on Dask, and the StrainNet-like example's pairs."""
 import shutil
 from pathlib import Path
 
@@ -178,3 +179,30 @@ def test_a_damaged_training_json_naming_a_shard_outside_is_refused(tiny, tmp_pat
     info.write_text(info.read_text().replace('"shard-000001.tar"', '"../shard-000001.tar"'))
     assert library_main([str(out), "--verify"]) == 2
     assert "holds no training set (no training.json, or a damaged one)" in capsys.readouterr().err
+
+
+@pytest.mark.process
+def test_a_killed_run_resumes_to_the_bytes_of_an_uninterrupted_one(tmp_path):
+    import os
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    spec = _spec(tmp_path, "shard_bytes = 30_000\nstep = 1\ncrop = [48, 40]\nlabels = [\"flow\", \"mask_flow\"]")
+    spec.write_text(spec.read_text().replace("speckle.seed = [1, 2]", "speckle.seed = [1, 2, 3, 4, 5]")
+                    .replace("specimen.field.seed = [10, 11]", "specimen.field.seed = [10, 11, 12, 13]"))
+    assert library_main([str(spec), "-o", str(tmp_path / "whole"), "--workers", "1", "-q"]) == 0
+    assert len(list((tmp_path / "whole").glob("shard-*.tar"))) == 20
+    out = tmp_path / "killed"
+    proc = subprocess.Popen([sys.executable, "-m", "glsim.cli", "library", str(spec), "-o", str(out), "--workers", "1",
+                             "-q"], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    deadline = time.monotonic() + 60
+    while proc.poll() is None and len(list(out.glob("shard-*.tar"))) < 3 and time.monotonic() < deadline:
+        time.sleep(0.01)
+    os.kill(proc.pid, signal.SIGKILL)
+    proc.wait()
+    assert len(list(out.glob("shard-*.tar"))) < 20                 # killed before the end
+    with pytest.warns(UserWarning, match="took over the lock of a glsim run that is no longer running"):
+        assert library_main([str(out), "-q"]) == 0
+    assert _tree(out) == _tree(tmp_path / "whole") and not list(out.glob(".*"))

@@ -160,3 +160,12 @@ def test_a_stereo_sample_holds_both_cameras_and_every_label_bit_for_bit(tmp_path
         a = np.ascontiguousarray(a[y0:y0 + h, x0:x0 + w])
         assert s[name].dtype == a.dtype and s[name].shape == a.shape and s[name].tobytes() == a.tobytes(), name
     assert s["mask_disparity_ref"].mean() > 0.9 and np.all(np.abs(s["disparity_ref"][s["mask_disparity_ref"] > 0]) < 20)
+
+
+def test_the_loader_refuses_a_member_larger_than_its_bound_before_reading_it(tmp_path, monkeypatch):
+    from glsim.workflows.training import loader
+
+    monkeypatch.setattr(loader, "MAX_MEMBER", 100)
+    path = _tar(tmp_path / "big.tar", [("v0000.flow0.npy", b"\x00" * 101, tarfile.REGTYPE)])
+    with pytest.raises(ShardError, match=r"'v0000.flow0.npy' holds 101 bytes, more than 100"):
+        list(samples(path))
