@@ -312,13 +312,37 @@ def test_bulge_scene_geometry():
 # examples/
 
 
-@pytest.mark.parametrize("path", sorted(p for p in EXAMPLES.glob("**/*.toml") if not p.name.startswith(("library_", "design_"))),
+def _is_spec(path) -> bool:
+    """A library, training or design spec names its base scene (scene = "…" or [scene]); a scene never does."""
+    import tomllib
+    return "scene" in tomllib.loads(path.read_text())
+
+
+@pytest.mark.parametrize("path", sorted(p for p in EXAMPLES.glob("**/*.toml") if not _is_spec(p)),
                          ids=lambda p: str(p.relative_to(EXAMPLES)))
 def test_examples_load(path):
-    """Every example scene loads (library_*.toml and design_*.toml are specs: tests/test_library.py, tests/test_design.py)."""
+    """Every example scene loads (the specs: test_example_specs_are_checked below)."""
     scene = load_scene(path)
     mesh = specimen_mesh(scene)
     assert mesh.n_steps >= 2 and scene.base_dir == str(path.parent)
+
+
+@pytest.mark.parametrize("path", sorted(p for p in EXAMPLES.glob("**/*.toml") if _is_spec(p)),
+                         ids=lambda p: str(p.relative_to(EXAMPLES)))
+def test_example_specs_are_checked(path):
+    """Every example spec is a spec: a design spec checked whole as glsim design reads it (nothing
+    rendered); a library or training spec read with its base scene (their expansion is tested in
+    tests/test_library.py and tests/test_training_library.py)."""
+    import tomllib
+    data = tomllib.loads(path.read_text())
+    if "engine" in data or "dic" in data:
+        from glsim.workflows.design.spec import load_design
+        design = load_design(path)
+        assert design.plan.variants and design.settings
+    else:
+        from glsim.workflows.library.spec import read_spec
+        spec, spec_dir = read_spec(path)
+        assert "scene" in spec and spec_dir == path.parent
 
 
 def test_bulge_example_is_bulge_scene():

@@ -10,7 +10,7 @@ name inside the output directory and renamed when complete.
 Renderer reuse: a fresh Renderer on the worker thread's GL context costs mostly its reference
 image (the speckle drawn onto the undeformed specimen, prefiltered and uploaded). Consecutive
 samples whose speckle, camera 0 and undeformed geometry are equal — a displacement field varied
-under one speckle — keep the renderer and only swap its mesh (:func:`_swap_mesh`).
+under one speckle — keep the renderer and only swap its mesh (:meth:`glsim.render.Renderer.load_displacements`).
 """
 from __future__ import annotations
 
@@ -46,7 +46,7 @@ def _reference_key(scene, mesh) -> str:
 
 def renderer_for(scene):
     """This thread's Renderer for ``scene`` (on its GL context): the last sample's, with its mesh
-    swapped (:func:`_swap_mesh`), when their reference key (:func:`_reference_key`) is the same;
+    swapped (:meth:`Renderer.load_displacements`), when their reference key (:func:`_reference_key`) is the same;
     else a new one (the old one's GL resources released)."""
     from glsim.io.fe import specimen_mesh
     from glsim.render import Renderer
@@ -61,21 +61,8 @@ def renderer_for(scene):
     r = lw.thread_renderer(key, lambda: Renderer(scene, backend, ctx=lw.thread_context() if backend == "gl" else None,
                                                  mesh=mesh))
     if r.mesh is not mesh:
-        _swap_mesh(r, scene, mesh)
+        r.load_displacements(scene, mesh)
     return r
-
-
-def _swap_mesh(r, scene, mesh) -> None:
-    """Give renderer ``r`` the next sample's ``scene`` and ``mesh`` (the same undeformed geometry,
-    reference image, backend: only the displacements differ) and drop what it cached of the old
-    mesh: its GL geometry (the backend uploads the new one on the next view), the views it has
-    seen and its per-job set-up. Measured on llvmpipe at 256² (two renders with truth): 37 ms per
-    sample against 54 ms for a new Renderer sharing the reference image (its texture prefiltered
-    and uploaded again); the same bytes (tests/test_training_shards.py renders each sample afresh)."""
-    r.scene, r.mesh = scene, mesh
-    r._geometry, r._pieces = None, None
-    r._seen.clear()
-    r._jobs.clear()
 
 
 def _scene(scene_json: str):
