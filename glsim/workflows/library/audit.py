@@ -221,3 +221,15 @@ def _manifest_problems(out: Path, plan, rows: list[dict]) -> list[str]:
             except (KeyError, ValueError, TypeError) as exc:
                 lines.append(f"{path}: line {line} cannot be read ({type(exc).__name__}: {exc})")
     return lines
+
+
+def print_verify(good: int, problems: list[str], what: str, directory, fix: str) -> int:
+    """``--verify``'s lines: up to 20 problems, then the count of good ``what`` and problems (with
+    ``fix`` where there are any); exit status 1 with problems, else 0."""
+    for p in problems[:20]:
+        print(f"bad: {p}")
+    if len(problems) > 20:
+        print(f"… and {len(problems) - 20} more")
+    print(f"glsim library --verify: {good} {what} good, {len(problems)} problems in {directory}/"
+          + (f" — {fix}" if problems else ""))
+    return 1 if problems else 0

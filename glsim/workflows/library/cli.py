@@ -180,13 +180,7 @@ def main(argv: list[str] | None = None) -> int:
                                  "SPEC.toml, or leave them out to resume this library")
             if args.verify:
                 good, problems = audit.verify(src)
-                for p in problems[:20]:
-                    print(f"bad: {p}")
-                if len(problems) > 20:
-                    print(f"… and {len(problems) - 20} more")
-                print(f"glsim library --verify: {good} images good, {len(problems)} problems in {src}/"
-                      + (" — run `glsim library DIR` to re-render them" if problems else ""))
-                return 1 if problems else 0
+                return audit.print_verify(good, problems, "images", src, "run `glsim library DIR` to re-render them")
             info = mf.read_library_info(src)
             if info is None:
                 raise GlsimError(f"{src}: holds no library (no library.json, or a damaged one) — give a spec file, or a "

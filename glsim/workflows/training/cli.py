@@ -26,6 +26,7 @@ def handles(src: Path) -> bool:
 
 def main(args) -> int:
     """The library command's parsed ``args`` for a training spec or set."""
+    from glsim.workflows.library.audit import print_verify
     from glsim.workflows.training import runner
     from glsim.workflows.training.spec import expand_training, load_training
 
@@ -37,13 +38,7 @@ def main(args) -> int:
                                  "the SPEC.toml, or leave them out to resume this training set")
             if args.verify:
                 good, problems = runner.verify(src)
-                for p in problems[:20]:
-                    print(f"bad: {p}")
-                if len(problems) > 20:
-                    print(f"… and {len(problems) - 20} more")
-                print(f"glsim library --verify: {good} shards good, {len(problems)} problems in {src}/"
-                      + (" — run `glsim library DIR` to write them again" if problems else ""))
-                return 1 if problems else 0
+                return print_verify(good, problems, "shards", src, "run `glsim library DIR` to write them again")
             data = runner.read_info(src)
             if data is None:
                 raise GlsimError(f"{src}: holds no training set (a damaged {runner.INFO}) — give the spec file")
