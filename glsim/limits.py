@@ -32,6 +32,9 @@ MAX_FOCAL_PX = 1e7            # fx, fy of a scene camera (a 10 m lens on 1 µm p
 MAX_DISTORTION = 1e6          # |k1 … s4| of a scene camera (calibrations give |k| below 100)
 BYTES_PER_SAMPLE = 64         # memory estimate of a render: per sub-sample (GL targets, image, raster) …
 TRUTH_BYTES_PER_PIXEL = 128   # … and per pixel of truth maps; refused above the machine's memory
+MAX_INDEX_BYTES = MAX_IMAGES * 512   # a library's or training set's library.json / training.json / manifest.csv:
+#                               a row (an image, a variant, a shard) takes well under 512 bytes, so one glsim
+#                               wrote is smaller; a larger one is refused before it is read (2 GiB)
 
 
 def keep(cache: dict, key, value, most: int):
@@ -206,3 +209,18 @@ def check_mesh_memory(key: str, nodes: int, elements: int, extra_bytes: int = 0,
                          "write or export the mesh file again")
     check_need(key, nodes * MESH_BYTES_PER_NODE + elements * MESH_BYTES_PER_ELEMENT + extra_bytes,
                f"declares {nodes:,} nodes and {elements:,} elements{what}, which need", MESH_FIX)
+
+
+def read_bounded(path, limit: int = MAX_INDEX_BYTES) -> bytes:
+    """The bytes of ``path``, refused (OSError EFBIG) past ``limit`` before any is read: its size from
+    the open file's own status, and the read stops one byte past ``limit`` (a file that grows, or is
+    no regular file, is caught too)."""
+    import errno
+    with open(path, "rb") as f:
+        size = os.fstat(f.fileno()).st_size
+        if size > limit:
+            raise OSError(errno.EFBIG, f"{size} bytes, more than the {limit} a file of this kind holds", str(path))
+        data = f.read(limit + 1)
+    if len(data) > limit:
+        raise OSError(errno.EFBIG, f"more than the {limit} bytes a file of this kind holds", str(path))
+    return data

@@ -40,7 +40,7 @@ from pathlib import Path
 
 from glsim.errors import GlsimError
 from glsim.io import images as io
-from glsim.limits import parse_nested
+from glsim.limits import parse_nested, read_bounded
 
 FILE_COLUMNS = ("camera", "step", "file", "bytes", "sha256", "truth_file", "truth_bytes", "truth_sha256")
 TIME_COLUMNS = ("render_s", "truth_s", "encode_s", "write_s", "saturated", "covered")
@@ -88,7 +88,7 @@ def manifest_rows(out: Path) -> list[dict]:
     fix = ("the manifest is damaged: restore it, or delete it and run the library command again (its images "
            "are then rendered again)")
     try:
-        text = path.read_bytes().decode("utf-8")
+        text = read_bounded(path).decode("utf-8")
     except UnicodeDecodeError as exc:
         raise ManifestError(f"{path}: is not UTF-8 text (byte 0x{exc.object[exc.start]:02x} at offset {exc.start}) "
                             f"— {fix}") from None
@@ -185,7 +185,7 @@ def write_library_info(out: Path, info: dict) -> Path:
 def read_library_info(out: Path) -> dict | None:
     """``library.json`` of the library in ``out``; None if there is none, or a damaged one."""
     try:
-        data = parse_nested(json.loads, (Path(out) / LIBRARY).read_text(encoding="utf-8"), LIBRARY)
+        data = parse_nested(json.loads, read_bounded(Path(out) / LIBRARY).decode("utf-8"), LIBRARY)
     except (OSError, ValueError, UnicodeDecodeError):    # SceneError (nested too deep) is a ValueError
         return None
     return data if isinstance(data, dict) and data.get("format") == "glsim-library" and _complete(data) else None

@@ -31,7 +31,7 @@ from glsim.errors import GlsimError
 from glsim.io import images as io
 from glsim.io import outdir
 from glsim.io.hashes import sha256_file
-from glsim.limits import parse_nested
+from glsim.limits import parse_nested, read_bounded
 from glsim.workflows.library.audit import LibraryError
 from glsim.workflows.training.spec import TrainingPlan
 
@@ -90,7 +90,7 @@ def stored_spec(plan: TrainingPlan) -> dict:
 
 def read_info(out: Path) -> dict | None:
     try:
-        data = parse_nested(json.loads, (Path(out) / INFO).read_text(encoding="utf-8"), INFO)
+        data = parse_nested(json.loads, read_bounded(Path(out) / INFO).decode("utf-8"), INFO)
     except (OSError, ValueError, UnicodeDecodeError):
         return None
     ok = (isinstance(data, dict) and data.get("format") == FORMAT and isinstance(data.get("shards"), list)
@@ -120,7 +120,7 @@ def read_manifest(out: Path) -> dict:
     path = Path(out) / MANIFEST
     rows = {}
     try:
-        text = path.read_text(encoding="utf-8")
+        text = read_bounded(path).decode("utf-8")
     except (OSError, UnicodeDecodeError):
         return rows
     try:
