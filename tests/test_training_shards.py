@@ -169,3 +169,14 @@ def test_the_loader_refuses_a_member_larger_than_its_bound_before_reading_it(tmp
     path = _tar(tmp_path / "big.tar", [("v0000.flow0.npy", b"\x00" * 101, tarfile.REGTYPE)])
     with pytest.raises(ShardError, match=r"'v0000.flow0.npy' holds 101 bytes, more than 100"):
         list(samples(path))
+
+
+def test_the_loader_refuses_a_member_past_the_memory_this_process_may_use(tmp_path, monkeypatch):
+    """A member declaring more than half the process's memory budget (its bytes and the decoded
+    array) is refused from its header, before it is read (the budget faked small here)."""
+    from glsim.workflows.training import loader
+
+    monkeypatch.setattr(loader, "memory_budget", lambda: 150)
+    path = _tar(tmp_path / "big.tar", [("v0000.flow0.npy", b"\x00" * 101, tarfile.REGTYPE)])
+    with pytest.raises(ShardError, match=r"more than half the 150 bytes this process may use"):
+        list(samples(path))

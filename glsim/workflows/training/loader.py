@@ -21,6 +21,7 @@ from pathlib import Path
 import numpy as np
 
 from glsim.errors import GlsimError
+from glsim.limits import memory_budget
 
 MAX_MEMBER = 1 << 34          # 16 GiB: a 16384² float32 label with 16 channels
 _NAME = re.compile(r"(?P<key>[^./]+)\.(?P<field>[A-Za-z0-9_]+)\.(?P<ext>npy|png)|(?P<jkey>[^./]+)\.json")
@@ -56,6 +57,10 @@ def samples(path: str | Path, decode: bool = True) -> Iterator[dict]:
                     raise ShardError(f"{path}: member {m.name!r} is not KEY.NAME.npy, KEY.NAME.png or KEY.json — {fix}")
                 if m.size > MAX_MEMBER:
                     raise ShardError(f"{path}: member {m.name!r} holds {m.size} bytes, more than {MAX_MEMBER} — {fix}")
+                if 2 * m.size > memory_budget():     # (its bytes and the decoded array)
+                    raise ShardError(f"{path}: member {m.name!r} holds {m.size} bytes, more than half the "
+                                     f"{memory_budget()} bytes this process may use — read it on a machine with "
+                                     "more memory, or write smaller samples (crop)")
                 key = match["key"] or match["jkey"]
                 field, ext = (match["field"], match["ext"]) if match["key"] else ("json", "json")
                 if current is not None and current["__key__"] != key:
