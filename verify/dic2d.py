@@ -16,6 +16,13 @@ this script gathers with ``pyvale.dic.import_2d`` into
 - ``valid`` (shifts, n): converged, ZNCC ≥ the threshold, finite;
 - ``cost`` (ZNCC), ``niter`` (shifts, n); ``seconds`` (the ``calculate_2d`` call) and
   ``pyvale_version``.
+
+With a ``strain`` table in the manifest (``window_size``, ``window_element``,
+``strain_formulation``: the keyword arguments of ``pyvale.strain.calculate_2d``), the displacements
+also go through pyvale's strain (the invalid subsets as NaN, which pyvale leaves out of every
+window), and the npz also holds ``strain_x``, ``strain_y`` (m,): the strain points (window
+centres, px on the reference image) and ``exx``, ``eyy``, ``exy`` (tensor shear), ``strain_valid``
+(shifts, m), in the manifest's shift order.
 """
 from __future__ import annotations
 
@@ -58,9 +65,45 @@ def run(exchange: Path, manifest: dict, seq: dict, spec: dict) -> dict:
     cost = np.asarray(res.cost, np.float64)
     valid = (np.asarray(res.converged).astype(bool) & (cost >= kwargs["threshold"])
              & np.isfinite(u) & np.isfinite(v))
-    return {"ss_x": np.asarray(res.ss_x), "ss_y": np.asarray(res.ss_y), "u": u, "v": v, "valid": valid,
-            "cost": cost, "niter": np.asarray(res.niter), "seconds": np.float64(seconds),
-            "pyvale_version": np.str_(version("pyvale"))}
+    out = {"ss_x": np.asarray(res.ss_x), "ss_y": np.asarray(res.ss_y), "u": u, "v": v, "valid": valid,
+           "cost": cost, "niter": np.asarray(res.niter), "seconds": np.float64(seconds),
+           "pyvale_version": np.str_(version("pyvale"))}
+    if manifest.get("strain"):
+        out.update(strain(files, out, manifest["strain"], fresh_dir(exchange / "strain" / seq["name"] / spec["name"])))
+    return out
+
+
+def strain(files: list[Path], m: dict, kwargs: dict, out: Path) -> dict:
+    """pyvale's strain of the DIC results ``files`` (one per shift), the subsets ``m`` marks
+    invalid set to NaN so that no window uses them; the components at every strain point."""
+    import pyvale.dic as dic
+    import pyvale.strain as pstrain
+
+    with contextlib.redirect_stdout(io.StringIO()):
+        grid = dic.import_2d(files, delimiter=",", layout="matrix", print_level=0)
+    # the matrix layout's (row, column) of every subset of the column layout above
+    cols = np.searchsorted(grid.ss_x[0], m["ss_x"])
+    rows = np.searchsorted(grid.ss_y[:, 0], m["ss_y"])
+    keep = np.zeros(grid.u_px.shape, bool)
+    for k in range(len(files)):
+        keep[k, rows[m["valid"][k]], cols[m["valid"][k]]] = True
+    grid.u_px = np.where(keep, grid.u_px, np.nan)
+    grid.v_px = np.where(keep, grid.v_px, np.nan)
+    prefix = "strain_"
+    with contextlib.redirect_stdout(io.StringIO()):
+        pstrain.calculate_2d(grid, window_size=int(kwargs["window_size"]), window_element=int(kwargs["window_element"]),
+                             strain_formulation=str(kwargs["strain_formulation"]), output_basepath=str(out),
+                             output_prefix=prefix, output_delimiter=",", print_level=0)
+    written = [out / f"{prefix}strain_data_{k:04d}.csv" for k in range(len(files))]
+    missing = [str(f) for f in written if not f.is_file()]
+    if missing:
+        raise RuntimeError(f"pyvale's strain wrote no result for {missing} (found {sorted(p.name for p in out.glob('*'))})")
+    with contextlib.redirect_stdout(io.StringIO()):
+        res = pstrain.import_2d(written, delimiter=",", layout="column")
+    exx, eyy, exy = (np.atleast_2d(np.asarray(a, np.float64)) for a in (res.eps_xx, res.eps_yy, res.eps_xy))
+    ok = np.isfinite(exx) & np.isfinite(eyy) & np.isfinite(exy)
+    return {"strain_x": np.asarray(res.window_x, np.float64).ravel(), "strain_y": np.asarray(res.window_y, np.float64).ravel(),
+            "exx": exx, "eyy": eyy, "exy": exy, "strain_valid": ok}
 
 
 def main(argv: list[str]) -> int:

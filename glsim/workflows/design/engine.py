@@ -39,7 +39,10 @@ MAX_SUBSETS = 10_000_000
 class SubsetResults:
     """One engine call: subset centres (n,) px on the reference image and, per deformed image
     (k, n), the displacement u, v (px), ``valid`` (converged, correlation above the threshold,
-    finite) and the correlation coefficient ``cost``; ``seconds`` of the engine's own call."""
+    finite) and the correlation coefficient ``cost``; ``seconds`` of the engine's own call. With
+    strain asked for (:func:`write_exchange`'s ``strain``): the strain points ``strain_x``,
+    ``strain_y`` (m,) px on the reference image and per deformed image (k, m) the in-plane strain
+    ``exx``, ``eyy``, ``exy`` (tensor shear, the formulation asked for) and ``strain_valid``."""
     x: np.ndarray
     y: np.ndarray
     u: np.ndarray
@@ -48,6 +51,15 @@ class SubsetResults:
     cost: np.ndarray
     seconds: float
     version: str
+    strain_x: np.ndarray | None = None
+    strain_y: np.ndarray | None = None
+    exx: np.ndarray | None = None
+    eyy: np.ndarray | None = None
+    exy: np.ndarray | None = None
+    strain_valid: np.ndarray | None = None
+
+
+STRAIN_ARRAYS = ("strain_x", "strain_y", "exx", "eyy", "exy", "strain_valid")
 
 
 class Engine(Protocol):
@@ -61,8 +73,11 @@ class Engine(Protocol):
 
 
 def write_exchange(out: Path, reference: np.ndarray, deformed: list[np.ndarray], roi: np.ndarray,
-                   subset_size: int, subset_step: int, shape_function: str, max_displacement: int) -> Path:
-    """The exchange folder (16-bit TIFFs of full-scale images, roi.tif, manifest.json last)."""
+                   subset_size: int, subset_step: int, shape_function: str, max_displacement: int,
+                   strain: dict | None = None) -> Path:
+    """The exchange folder (16-bit TIFFs of full-scale images, roi.tif, manifest.json last);
+    ``strain``: pyvale.strain.calculate_2d's ``window_size``, ``window_element`` and
+    ``strain_formulation``, or None (no strain: the manifest as before)."""
     out.mkdir(parents=True, exist_ok=True)
     io.write_image(out / "reference.tif", reference, 16)
     names = []
@@ -79,6 +94,9 @@ def write_exchange(out: Path, reference: np.ndarray, deformed: list[np.ndarray],
                 "calculate_2d": {**CALCULATE_2D, "subset_step": int(subset_step),
                                  "shape_function": SHAPES[shape_function],
                                  "max_displacement": int(max_displacement)}}
+    if strain:
+        manifest["strain"] = {"window_size": int(strain["window_size"]), "window_element": int(strain["window_element"]),
+                              "strain_formulation": str(strain["strain_formulation"])}
     return io.write_text(out / "manifest.json", json.dumps(manifest, indent=2))
 
 
@@ -111,13 +129,21 @@ class Pyvale2D:
         path = exchange / f"measured_{SEQUENCE}_{RUN}.npz"
         try:
             m = read_npz(path, ("ss_x", "ss_y", "u", "v", "valid", "cost", "seconds", "pyvale_version"),
-                         budget=MAX_SUBSETS * 64)
+                         optional=STRAIN_ARRAYS, budget=MAX_SUBSETS * 128)
         except (NpzError, OSError) as exc:
             raise GlsimError(f"engine pyvale2d: {path}: {exc}") from None
+        strain = {}
+        if all(k in m for k in STRAIN_ARRAYS):
+            strain = {"strain_x": np.asarray(m["strain_x"], np.float64), "strain_y": np.asarray(m["strain_y"], np.float64),
+                      **{k: np.atleast_2d(np.asarray(m[k], np.float64)) for k in ("exx", "eyy", "exy")},
+                      "strain_valid": np.atleast_2d(m["strain_valid"]).astype(bool)}
+            n = len(strain["strain_x"])
+            if strain["strain_y"].shape != (n,) or any(strain[k].shape[-1] != n for k in STRAIN_ARRAYS[2:]):
+                raise GlsimError(f"engine pyvale2d: {path}: the strain arrays' lengths differ from strain_x's ({n})")
         return SubsetResults(x=np.asarray(m["ss_x"], np.float64), y=np.asarray(m["ss_y"], np.float64),
                              u=np.atleast_2d(m["u"]), v=np.atleast_2d(m["v"]), valid=np.atleast_2d(m["valid"]),
                              cost=np.atleast_2d(m["cost"]), seconds=float(m["seconds"]),
-                             version=str(m["pyvale_version"]))
+                             version=str(m["pyvale_version"]), **strain)
 
 
 # ---- stereo ------------------------------------------------------------------------------------------

@@ -21,7 +21,7 @@ from glsim.render import Renderer
 from glsim.scene import Scene
 from glsim.scene.camera import project_camera_frame
 from glsim.scene.locate import points_truth
-from glsim.workflows.design import quick
+from glsim.workflows.design import quick, strain as strainmod
 from glsim.workflows.design.engine import Engine, write_exchange
 from glsim.workflows.design.spec import DicSetting
 
@@ -87,6 +87,12 @@ def truth_px(prep: Prepared, x: np.ndarray, y: np.ndarray) -> dict[str, np.ndarr
             "scale": np.where(valid, scale, np.nan), "truth_valid": valid}
 
 
+def _motion(prep: Prepared, x: np.ndarray, y: np.ndarray):
+    """The exact image motion (u, v, valid) px at reference pixels (x, y): the strain's truth field."""
+    t = truth_px(prep, x, y)
+    return t["truth_u"], t["truth_v"], t["truth_valid"]
+
+
 def quick_at(prep: Prepared, setting: DicSetting, x: np.ndarray, y: np.ndarray) -> dict[str, np.ndarray]:
     """The Cramér–Rao σ at centres (x, y) rounded to pixels; ∞ where the subset leaves the image."""
     c = np.stack([np.rint(x), np.rint(y)], axis=1).astype(np.int64)
@@ -125,8 +131,12 @@ def engine_row(prep: Prepared, setting: DicSetting, noise_seed: int, eng: Engine
     probe = truth_px(prep, xs[:: max(1, len(xs) // 200)].astype(float), ys[:: max(1, len(ys) // 200)].astype(float))
     reach = np.nanmax(np.abs(np.concatenate([probe["truth_u"], probe["truth_v"]])), initial=0.0)
     write_exchange(folder / "exchange", ref, [static, deformed], prep.roi, setting.subset_size,
-                   setting.subset_step, setting.shape_function, max(16, int(math.ceil(1.5 * reach)) + 4))
+                   setting.subset_step, setting.shape_function, max(16, int(math.ceil(1.5 * reach)) + 4),
+                   strain=setting.strain)
     m = eng.measure(folder / "exchange")
-    return {"x": m.x, "y": m.y, "static_u": m.u[0], "static_v": m.v[0], "static_valid": m.valid[0],
+    more = {}
+    if setting.strain is not None:
+        more = strainmod.row_arrays(m, lambda x, y: _motion(prep, x, y), setting.strain_formulation)
+    return {**more, "x": m.x, "y": m.y, "static_u": m.u[0], "static_v": m.v[0], "static_valid": m.valid[0],
             "u": m.u[1], "v": m.v[1], "valid": m.valid[1], "cost": m.cost[1], "engine_seconds": np.float64(m.seconds),
             "engine_version": np.str_(m.version), **quick_at(prep, setting, m.x, m.y), **truth_px(prep, m.x, m.y)}

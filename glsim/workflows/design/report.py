@@ -20,7 +20,7 @@ import math
 import numpy as np
 
 from glsim.io import images as io
-from glsim.workflows.design import stereo
+from glsim.workflows.design import stereo, strain
 from glsim.workflows.design.spec import Design, criteria_for, smaller_is_better
 
 P95 = 95
@@ -70,6 +70,8 @@ def row_summary(r: dict) -> dict:
                    static_std_u_px=float(np.std(r["static_u"][s])) if s.any() else math.nan,
                    static_std_v_px=float(np.std(r["static_v"][s])) if s.any() else math.nan,
                    engine_seconds=round(float(r["engine_seconds"]), 3))
+        if "exx" in r:
+            out.update(strain.row_summary(r))
     return out
 
 
@@ -105,8 +107,15 @@ def aggregate(design: Design, results: list[dict]) -> list[dict]:
                        "subset_size": s.subset_size, "subset_step": s.subset_step,
                        "shape_function": s.shape_function, "quick_sigma_px": _median(q),
                        "quick_sigma_mm": _median(q * qs), "quick_subsets": int(len(q))}
+            if s.strain is not None:
+                summary.update(strain_window=s.strain_window, strain_element=s.strain_element,
+                               strain_formulation=s.strain_formulation)
             maps = {"quick": quick[0]}
             measured = [r for r in mine if r["meta"]["kind"] != "quick"]
+            if measured and all("exx" in r for r in measured):
+                more, strain_maps = strain.aggregate(measured)
+                summary.update(more)
+                maps.update(strain_maps)
             st = _stack(measured) if not design.stereo else None
             if design.stereo and measured:
                 more, stereo_maps = stereo.aggregate(measured)
@@ -232,7 +241,7 @@ def entry_figure(entry: dict, image_shape) -> str:
     q = m["quick"]
     if "bias_W" in m:
         return _stereo_figure(m, image_shape)
-    panels = 1 + (3 if "bias_u" in m else 0)
+    panels = 1 + (3 if "bias_u" in m else 0) + (2 if "strain_bias_exx" in m else 0)
     fig, axes = plt.subplots(1, panels, figsize=(3.3 * panels, 3.0), squeeze=False)
     axes = axes[0]
     _map(axes[0], q["x"], q["y"], np.hypot(q["quick_sigma_u"], q["quick_sigma_v"]) / math.sqrt(2),
@@ -242,6 +251,11 @@ def entry_figure(entry: dict, image_shape) -> str:
              "measured noise: std over realisations (px)", image_shape, fig)
         _map(axes[2], m["x"], m["y"], m["bias_u"], "bias U: mean − truth (px)", image_shape, fig, symmetric=True)
         _map(axes[3], m["x"], m["y"], m["bias_v"], "bias V: mean − truth (px)", image_shape, fig, symmetric=True)
+    if "strain_bias_exx" in m:
+        _map(axes[-2], m["strain_x"], m["strain_y"], m["strain_noise_exx"], "strain noise exx: std over realisations",
+             image_shape, fig)
+        _map(axes[-1], m["strain_x"], m["strain_y"], m["strain_bias_exx"], "strain bias exx: mean − truth",
+             image_shape, fig, symmetric=True)
     return _png(fig)
 
 
@@ -369,7 +383,8 @@ def _cell(v) -> str:
 
 
 RANK_COLUMNS = ("rank", "setup", "params", "setting", "p95_abs_error_px", "p95_abs_error_mm", "rms_bias_px",
-                "median_noise_px", "noise_floor_px", "spatial_resolution_px", "mei_px2", "quick_sigma_px",
+                "median_noise_px", "noise_floor_px", "p95_abs_strain_error", "rms_strain_bias", "median_strain_noise",
+                "strain_noise_floor", "spatial_resolution_px", "mei_px2", "quick_sigma_px",
                 "quick_sigma_at_engine_px",
                 "noise_floor_over_quick", "valid_share")
 

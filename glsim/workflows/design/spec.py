@@ -20,6 +20,9 @@ A spec is a TOML file::
     subset_size = [21, 31]     # px, odd
     subset_step = 10           # px between subset centres (a number or a list)
     shape_function = "affine"  # rigid (zero order), affine (first), quad (second); or a list
+    strain_window = [5, 9]     # optional, engine pyvale2d: pyvale's strain window (subset centres a side, odd)
+    strain_element = 9         # its fit: 4 (bilinear, Q4) or 9 (biquadratic, Q9); default 9 (pyvale's)
+    strain_formulation = "HENCKY"   # GREEN, ALMANSI, HENCKY, BIOT_EULER, BIOT_LAGRANGE; default HENCKY
 
     [realisations]
     noise_seeds = [1, 2, 3]    # one noisy image set per seed (the scene's top-level seed)
@@ -56,7 +59,12 @@ TOP_KEYS = ("scene", "seed", "mode", "n", "camera", "cameras", "step", "engine",
 ENGINES = ("quick", "pyvale2d", "pyvale3d")
 STEREO = "pyvale3d"
 SHAPES = ("rigid", "affine", "quad")
-DIC_KEYS = ("subset_size", "subset_step", "shape_function")
+DIC_KEYS = ("subset_size", "subset_step", "shape_function", "strain_window", "strain_element", "strain_formulation")
+STRAIN_KEYS = DIC_KEYS[3:]
+# pyvale.strain.calculate_2d's strain measures (from F = I + ∇u) and window elements
+STRAIN_FORMULATIONS = ("GREEN", "ALMANSI", "HENCKY", "BIOT_EULER", "BIOT_LAGRANGE")
+STRAIN_ELEMENTS = (4, 9)
+MAX_STRAIN_WINDOW = 101
 REAL_KEYS = ("noise_seeds", "speckle_seeds")
 RES_KEYS = ("periods_px", "amplitude_px")
 MIN_PERIOD_PX, MAX_PERIOD_PX, MAX_AMPLITUDE_PX = 4.0, 10_000.0, 5.0
@@ -71,6 +79,14 @@ CRITERIA = {
                               True, True),
     "mei_px2": ("metrological efficiency indicator: noise floor × spatial resolution (px², [resolution])", True, True),
     "valid_share": ("share of subsets converged above the ZNCC threshold (larger is better)", True, False),
+    "p95_abs_strain_error": ("95th percentile over strain points, realisations and the components exx, eyy, exy "
+                             "of |strain − truth| (strain, [dic] strain_window)", True, True),
+    "rms_strain_bias": ("RMS over strain points and exx, eyy, exy of the strain bias map (mean over realisations "
+                        "− truth; strain)", True, True),
+    "median_strain_noise": ("median over strain points of the strain noise map (std over realisations, RMS of "
+                            "exx, eyy, exy; strain)", True, True),
+    "strain_noise_floor": ("std of the static pair's strain over strain points and realisations (RMS of exx, "
+                           "eyy, exy; strain)", True, True),
     "quick_sigma_px": ("median over subsets of the Cramér–Rao σ_u, σ_v (px), quick mode", False, True),
     "quick_sigma_mm": ("the same in mm", False, True),
 }
@@ -96,6 +112,7 @@ STEREO_CRITERIA = {
     "quick_sigma_mm": CRITERIA["quick_sigma_mm"],
 }
 MAX_SUBSET = 301
+STRAIN_CRITERIA = ("p95_abs_strain_error", "rms_strain_bias", "median_strain_noise", "strain_noise_floor")
 
 
 def criteria_for(engine: str) -> dict:
@@ -109,14 +126,29 @@ def smaller_is_better(by: str) -> bool:
 
 @dataclass(frozen=True)
 class DicSetting:
-    """One DIC setting: subset size and step (px) and the shape function."""
+    """One DIC setting: subset size and step (px) and the shape function; with a strain window
+    (subset centres a side) pyvale's strain too, by its window element and formulation."""
     subset_size: int
     subset_step: int
     shape_function: str
+    strain_window: int | None = None
+    strain_element: int = 9
+    strain_formulation: str = "HENCKY"
 
     @property
     def name(self) -> str:
-        return f"s{self.subset_size}-st{self.subset_step}-{self.shape_function}"
+        base = f"s{self.subset_size}-st{self.subset_step}-{self.shape_function}"
+        if self.strain_window is None:   # without strain: the names (and row keys) as before
+            return base
+        return f"{base}-sw{self.strain_window}-q{self.strain_element}-{self.strain_formulation.lower()}"
+
+    @property
+    def strain(self) -> dict | None:
+        """pyvale.strain.calculate_2d's arguments, or None without strain."""
+        if self.strain_window is None:
+            return None
+        return {"window_size": self.strain_window, "window_element": self.strain_element,
+                "strain_formulation": self.strain_formulation}
 
 
 @dataclass(frozen=True)
@@ -213,7 +245,8 @@ def check_design(spec: dict, spec_dir: str | Path = ".") -> Design:
                   "give subset steps of 1…1000 px, e.g. subset_step = 10", default=10)
     shapes = _list(dic, "shape_function", "dic", lambda v: v in SHAPES, f"one or more of {SHAPES}",
                    default="affine")
-    settings = tuple(DicSetting(a, b, c) for a, b, c in itertools.product(sizes, steps, shapes))
+    settings = tuple(DicSetting(a, b, c, *st) for a, b, c, st in itertools.product(sizes, steps, shapes,
+                                                                                  _strain(dic, engine)))
     real = _table(spec, "realisations", REAL_KEYS)
     seed_ok = lambda v: _int(v) and 0 <= v < 2 ** 32   # noqa: E731 (glsim's seeds are uint32 words)
     noise_seeds = _list(real, "noise_seeds", "realisations", seed_ok, "give seeds 0…2³²−1, e.g. noise_seeds = "
@@ -244,6 +277,8 @@ def check_design(spec: dict, spec_dir: str | Path = ".") -> Design:
               "write engine = \"pyvale2d\", or rank by quick_sigma_px or quick_sigma_mm")
     if by in ("spatial_resolution_px", "mei_px2") and resolution is None:
         _fail("rank.by", f"{by!r} needs the sinusoid sweep", "add a [resolution] table (periods_px, amplitude_px)")
+    if by in STRAIN_CRITERIA and all(st.strain_window is None for st in settings):
+        _fail("rank.by", f"{by!r} ranks by strain, and [dic] asks for none", "add dic.strain_window = [5, 9]")
 
     lib = {k: spec[k] for k in ("scene", "seed", "mode", "n", "vary") if k in spec}
     lib["truth"] = False
@@ -286,6 +321,28 @@ def check_design(spec: dict, spec_dir: str | Path = ".") -> Design:
     return Design(plan=plan, camera=camera, step=step, engine=engine, roi_margin=margin, settings=settings,
                   noise_seeds=tuple(noise_seeds), speckle_seeds=tuple(speckle_seeds), rig=rig, rank_by=by,
                   source=spec, resolution=resolution, cameras=cameras, calibration=calibration)
+
+
+def _strain(dic: dict, engine: str) -> list[tuple]:
+    """The strain settings of [dic]: (window, element, formulation) combinations, or [()] without
+    strain_window (the settings as before)."""
+    given = [k for k in STRAIN_KEYS if k in dic]
+    if not given:
+        return [()]
+    if "strain_window" not in dic:
+        _fail(f"dic.{given[0]}", "sets pyvale's strain, and dic.strain_window is not given",
+              "add strain_window = [5, 9] (the strain window in subset centres a side, odd), or leave it out")
+    if engine != "pyvale2d":
+        _fail("dic.strain_window", f"strain is computed by engine pyvale2d, and engine is {engine!r}",
+              "write engine = \"pyvale2d\"" + (" (the stereo engine's strain is not wired in yet)"
+                                                if engine == STEREO else "") + ", or leave the strain keys out")
+    windows = _list(dic, "strain_window", "dic", lambda v: _int(v) and 3 <= v <= MAX_STRAIN_WINDOW and v % 2 == 1,
+                    f"give odd windows 3…{MAX_STRAIN_WINDOW} (subset centres a side), e.g. strain_window = [5, 9]")
+    elements = _list(dic, "strain_element", "dic", lambda v: _int(v) and v in STRAIN_ELEMENTS,
+                     "4 (bilinear) or 9 (biquadratic), e.g. strain_element = 9", default=9)
+    forms = _list(dic, "strain_formulation", "dic", lambda v: v in STRAIN_FORMULATIONS,
+                  f"one or more of {', '.join(STRAIN_FORMULATIONS)} (pyvale's names)", default="HENCKY")
+    return list(itertools.product(windows, elements, forms))
 
 
 def _check_camera_keys(spec: dict, engine: str) -> None:
