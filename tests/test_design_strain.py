@@ -19,7 +19,8 @@ from glsim.workflows.design.cli import main
 from glsim.workflows.design.engine import Pyvale2D, SubsetResults, write_exchange
 from glsim.workflows.design.spec import DicSetting, check_design, row_key
 
-from _design import plate_scene, write_spec
+import _design
+from _design import plate_scene, stereo_plate, write_spec
 
 G = [[0.01, 0.004], [-0.002, -0.005]]     # ∂(u, v)/∂(X, Y): the plate's imposed affine field
 BIAS, SPREAD = 2e-4, 1e-4                 # the stand-in's strain bias and per-realisation offset
@@ -49,7 +50,7 @@ BAD = [({"subset_size": [21], "strain_window": [4]}, "pyvale2d", "dic.strain_win
         "dic.strain_formulation: 'green' is not allowed"),
        ({"subset_size": [21], "strain_formulation": "GREEN"}, "pyvale2d",
         "dic.strain_formulation: sets pyvale's strain, and dic.strain_window is not given"),
-       ({"subset_size": [21], "strain_window": 5}, "quick", "dic.strain_window: strain is computed by engine pyvale2d"),
+       ({"subset_size": [21], "strain_window": 5}, "quick", "dic.strain_window: strain is computed by a measuring engine"),
        ({"subset_size": [21], "strain_windows": 5}, "pyvale2d", "dic.strain_windows: unknown key")]
 
 
@@ -63,16 +64,13 @@ def test_bad_strain_keys_are_refused_by_key_before_anything_is_written(tmp_path,
     assert not out.exists()
 
 
-def test_ranking_by_strain_needs_strain_and_stereo_strain_is_refused(tmp_path, capsys):
-    spec = write_spec(tmp_path / "a.toml", strained_plate(), engine="pyvale2d", dic={"subset_size": [21]},
-                      rank={"by": "strain_noise_floor"})
-    assert main([str(spec), "-o", str(tmp_path / "out")]) == 2
-    assert "rank.by: 'strain_noise_floor' ranks by strain, and [dic] asks for none" in capsys.readouterr().err
-    spec = write_spec(tmp_path / "b.toml", strained_plate(), engine="pyvale3d",
-                      dic={"subset_size": [21], "strain_window": 5})
-    assert main([str(spec), "-o", str(tmp_path / "out")]) == 2
-    assert "dic.strain_window: strain is computed by engine pyvale2d, and engine is 'pyvale3d'" in capsys.readouterr().err
-    assert not (tmp_path / "out").exists()
+def test_ranking_by_strain_needs_strain(tmp_path, capsys):
+    for engine, scene in (("pyvale2d", strained_plate()), ("pyvale3d", stereo_plate())):
+        spec = write_spec(tmp_path / f"{engine}.toml", scene, engine=engine, dic={"subset_size": [21]},
+                          rank={"by": "strain_noise_floor"})
+        assert main([str(spec), "-o", str(tmp_path / "out")]) == 2
+        assert "rank.by: 'strain_noise_floor' ranks by strain, and [dic] asks for none" in capsys.readouterr().err
+        assert not (tmp_path / "out").exists()
 
 
 def test_strain_settings_are_every_combination_with_the_other_dic_keys(tmp_path):
@@ -210,3 +208,67 @@ def test_strain_maps_criteria_and_report_against_injected_errors(tmp_path, monke
     # resumed: no engine call
     calls = eng.calls
     assert main([str(spec), "-o", str(out), "-q"]) == 0 and eng.calls == calls
+
+
+# ---- stereo: the surface strain ----------------------------------------------------------------------
+def strained_stereo_plate() -> dict:
+    """tests/_design.py's stereo plate (turned 10° about y, 20° rig) with the affine field G too."""
+    sc = stereo_plate(sigma=1.0, bit_depth=8)
+    sc["specimen"]["field"] = {"affine": {"gradient": G}}
+    return sc
+
+
+@pytest.mark.parametrize("formulation", ["GREEN", "HENCKY", "BIOT_EULER"])
+def test_surface_truth_of_a_turned_plate_is_the_measure_of_I_plus_G_in_the_plates_axes(formulation):
+    """The plate turned about y: camera 0's x projected onto it is the plate's x axis and n × t₁ its
+    y axis (pyvale's tangent basis), so the surface strain is the measure of I + G (G in the plate's
+    own axes, as [specimen.field] gives it), with the out-of-plane row and column of the identity."""
+    from glsim.workflows.design import stereo
+    scene = scene_from_dict(strained_stereo_plate(), ".")
+    base = planar.Prepared(scene, "cam0", 1, specimen_mesh(scene), None, np.zeros((256, 256)), None, None)
+    prep = stereo.StereoPrepared(base, "cam1")
+    rng = np.random.default_rng(1)
+    x, y = rng.uniform(50, 206, 40), rng.uniform(50, 206, 40)
+    t = strain.surface_truth(lambda a, b: stereo._points(prep, a, b), x, y, formulation)
+    want = reference_strain(np.eye(2) + np.array(G), formulation)
+    assert t["truth_strain_valid"].all()
+    np.testing.assert_allclose(t["truth_exx"], want[0, 0], atol=1e-9)
+    np.testing.assert_allclose(t["truth_eyy"], want[1, 1], atol=1e-9)
+    np.testing.assert_allclose(t["truth_exy"], want[0, 1], atol=1e-9)
+
+
+class StereoStrainStandIn(_design.StandIn):
+    """tests/_design.py's stereo stand-in plus, at its subset centres, the surface strain of I + G
+    (scipy) + BIAS + the realisation's offset (−1, 0, +1)·SPREAD in the deformed state, the offset
+    alone in the static state, 0 in the reference."""
+
+    def measure(self, exchange: Path):
+        off = (-1, 0, 1)[self.calls % 3] * SPREAD
+        m = super().measure(exchange)
+        manifest = self.seen[-1][1]
+        eps = reference_strain(np.eye(2) + np.array(G), manifest["strain"]["strain_formulation"])
+        n = len(m.x)
+        comp = {k: np.stack([np.zeros(n), np.full(n, off), np.full(n, eps[i, j] + BIAS + off)])
+                for k, (i, j) in (("exx", (0, 0)), ("eyy", (1, 1)), ("exy", (0, 1)))}
+        return dataclasses.replace(m, strain_x=m.x, strain_y=m.y, strain_valid=np.ones((3, n), bool), **comp)
+
+
+def test_stereo_strain_maps_and_criteria_against_injected_errors(tmp_path, monkeypatch):
+    import glsim.workflows.design.cli as cli
+    scene = scene_from_dict(strained_stereo_plate(), ".")
+    eng = StereoStrainStandIn(scene, 1)
+    monkeypatch.setattr(cli, "make_engine", lambda name: eng)
+    spec = write_spec(tmp_path / "spec.toml", strained_stereo_plate(), engine="pyvale3d",
+                      dic={"subset_size": [31], "subset_step": 16, "strain_window": 5, "strain_formulation": "HENCKY"},
+                      realisations={"noise_seeds": [1, 2, 3]}, rank={"by": "strain_noise_floor"})
+    out = tmp_path / "out"
+    assert main([str(spec), "-o", str(out), "-q"]) == 0
+    assert eng.seen[0][1]["strain"] == {"window_size": 5, "window_element": 9, "strain_formulation": "HENCKY"}
+    r = json.loads((out / "results.json").read_text())["ranking"][0]
+    assert r["rms_strain_bias"] == pytest.approx(BIAS, rel=1e-6)
+    assert r["median_strain_noise"] == pytest.approx(SPREAD, rel=1e-6)
+    assert r["p95_abs_strain_error"] == pytest.approx(BIAS + SPREAD, rel=1e-6)
+    assert r["strain_noise_floor"] == pytest.approx(SPREAD * math.sqrt(2 / 3), rel=1e-6)
+    assert r["rms_bias_W_mm"] == pytest.approx(_design.BIAS["W"], rel=1e-6)     # the displacement maps as before
+    html = (out / "report.html").read_text()
+    assert "strain_noise_floor" in html

@@ -1,6 +1,7 @@
-r"""glsim design's strain with pyvale (engine pyvale2d, .venv-verify; skipped without it): a plate
-stretched uniformly measured within its strain noise floor of the imposed strain, and the static
-pair's strain noise floor against the least-squares theory of pyvale's strain window.
+r"""glsim design's strain with pyvale (engines pyvale2d and pyvale3d, .venv-verify; skipped without
+it): a plate stretched uniformly measured within its strain noise floor of the imposed strain (2-D,
+and stereo on a turned plate: the surface strain in pyvale's tangent basis), and the static pair's
+strain noise floor against the least-squares theory of pyvale's strain window.
 
 The theory (``test_strain_noise_floor_follows_the_window_fit_theory``). pyvale's strain window of
 N × N subset centres (N odd, spacing h px) fits each displacement component with a polynomial in
@@ -46,7 +47,7 @@ import pytest
 from glsim.workflows.design.cli import main
 from glsim.workflows.design.engine import Pyvale2D
 
-from _design import plate_scene, write_spec
+from _design import plate_scene, stereo_plate, write_spec
 
 pytestmark = [pytest.mark.process, pytest.mark.slow, pytest.mark.engine]
 
@@ -151,3 +152,38 @@ def test_strain_noise_floor_follows_the_window_fit_theory(tmp_path):
         assert meas[k] == pytest.approx(theory[k], rel=0.2), (k, meas[k], theory[k])
     want = 7 * math.sqrt(48) / (3 * math.sqrt(8))
     assert meas[3, 4] / meas[7, 4] == pytest.approx(want, rel=0.15)
+
+
+def test_stereo_surface_strain_of_a_turned_plate_is_measured_within_its_noise_floor(tmp_path):
+    """tests/_design.py's stereo plate (turned 10° about y, 20° rig, 0.1 mm/px) stretched by
+    G = diag(0.01, −0.005) in its own axes: the surface strain in pyvale's tangent basis (camera 0's
+    x projected onto the plate: the plate's x) is Hencky ln(1.01), ln(0.995), 0. pyvale3d (subset 21,
+    step 10, affine; window 5, Q9) over the full-window points of two noise seeds: the mean of each
+    component within its strain noise floor of the imposed strain."""
+    _needs_pyvale()
+    scene = stereo_plate(sigma=1.0, bit_depth=8, shift_mm=(0.0, 0.0, 0.0))
+    scene["specimen"]["field"] = {"affine": {"gradient": [[0.01, 0.0], [0.0, -0.005]]}}
+    scene["render"]["samples_per_pixel"] = 4
+    spec = write_spec(tmp_path / "spec.toml", scene, engine="pyvale3d",
+                      dic={"subset_size": [21], "subset_step": 10, "strain_window": 5},
+                      realisations={"noise_seeds": [1, 2]}, rank={"by": "strain_noise_floor"})
+    out = tmp_path / "out"
+    assert main([str(spec), "-o", str(out), "-q"]) == 0
+    rows = _rows(out)
+    assert len(rows) == 2
+    imposed = {"exx": math.log(1.01), "eyy": math.log(0.995), "exy": 0.0}
+    err = {c: [] for c in imposed}
+    static = {c: [] for c in imposed}
+    for _, r in rows:
+        for c, want in imposed.items():
+            np.testing.assert_allclose(r[f"truth_{c}"][r["truth_strain_valid"]], want, atol=1e-9)
+        ok = _full_windows(r, r["valid"] & r["static_valid"], 5, 10) & r["strain_valid"] & r["static_strain_valid"]
+        assert ok.sum() > 100
+        for c, want in imposed.items():
+            err[c].append(r[c][ok] - want)
+            static[c].append(r[f"static_{c}"][ok])
+    for c in imposed:
+        floor = float(np.std(np.concatenate(static[c])))
+        mean = float(np.mean(np.concatenate(err[c])))
+        assert 1e-5 < floor < 1e-3
+        assert abs(mean) <= floor, (c, mean, floor)

@@ -16,9 +16,18 @@ per state under ``EXCHANGE/dic/<run>/``; this script gathers them into
   matches, finite;
 - ``cost``, ``stereo_cost``, ``epi_dist_px`` (states, n); ``seconds`` (the ``calculate_3d``
   call), ``pyvale_version``.
+
+With a ``strain`` table in the manifest (``window_size``, ``window_element``,
+``strain_formulation``: the keyword arguments of ``pyvale.strain.calculate_3d``), the results also
+go through pyvale's surface strain (the invalid subsets as NaN, which pyvale leaves out of every
+window), and the npz also holds ``strain_x``, ``strain_y`` (m,): the strain points (px on camera
+0's reference image) and ``exx``, ``eyy``, ``exy`` (tensor shear, in pyvale's tangent basis),
+``strain_valid`` (states, m).
 """
 from __future__ import annotations
 
+import contextlib
+import io
 import json
 import sys
 import time
@@ -76,8 +85,44 @@ def run(exchange: Path, manifest: dict, spec: dict) -> dict:
     if len(files) != len(images):
         raise RuntimeError(f"pyvale wrote {len(files)} result files for {len(images)} states in {out}")
     results = dic.import_3d(files, delimiter=",", layout="column", print_level=0)
-    return {**gather(results, kwargs["threshold"]), "seconds": np.float64(seconds),
-            "pyvale_version": np.str_(version("pyvale"))}
+    out = {**gather(results, kwargs["threshold"]), "seconds": np.float64(seconds),
+           "pyvale_version": np.str_(version("pyvale"))}
+    if manifest.get("strain"):
+        out.update(strain(files, out, manifest["strain"], fresh_dir(exchange / "strain" / spec["name"])))
+    return out
+
+
+def strain(files: list[Path], m: dict, kwargs: dict, out: Path) -> dict:
+    """pyvale's surface strain of the stereo results ``files`` (one per state), the subsets ``m``
+    marks invalid set to NaN so that no window uses them; the components at every strain point."""
+    import pyvale.dic as dic
+    import pyvale.strain as pstrain
+
+    with contextlib.redirect_stdout(io.StringIO()):
+        grid = dic.import_3d(files, delimiter=",", layout="matrix", print_level=0)
+    cols = np.searchsorted(grid.ss_x[0], m["ss_x"])
+    rows = np.searchsorted(grid.ss_y[:, 0], m["ss_y"])
+    keep = np.zeros(grid.stereo.u_mm.shape, bool)
+    for k in range(len(files)):
+        keep[k, rows[m["valid"][k]], cols[m["valid"][k]]] = True
+    st = grid.stereo
+    for name in ("u_mm", "v_mm", "w_mm", "x_mm", "y_mm", "z_mm"):
+        setattr(st, name, np.where(keep, getattr(st, name), np.nan))
+    prefix = "strain_"
+    with contextlib.redirect_stdout(io.StringIO()):
+        pstrain.calculate_3d(grid, window_size=int(kwargs["window_size"]), window_element=int(kwargs["window_element"]),
+                             strain_formulation=str(kwargs["strain_formulation"]), output_basepath=str(out),
+                             output_prefix=prefix, output_delimiter=",", print_level=0)
+    written = [out / f"{prefix}strain_data_{k:04d}.csv" for k in range(len(files))]
+    missing = [str(f) for f in written if not f.is_file()]
+    if missing:
+        raise RuntimeError(f"pyvale's strain wrote no result for {missing} (found {sorted(p.name for p in out.glob('*'))})")
+    with contextlib.redirect_stdout(io.StringIO()):
+        res = pstrain.import_3d(written, delimiter=",", layout="column")
+    exx, eyy, exy = (np.atleast_2d(np.asarray(a, np.float64)) for a in (res.eps_xx, res.eps_yy, res.eps_xy))
+    ok = np.isfinite(exx) & np.isfinite(eyy) & np.isfinite(exy)
+    return {"strain_x": np.asarray(res.window_x, np.float64).ravel(), "strain_y": np.asarray(res.window_y, np.float64).ravel(),
+            "exx": exx, "eyy": eyy, "exy": exy, "strain_valid": ok}
 
 
 def main(argv: list[str]) -> int:

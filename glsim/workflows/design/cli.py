@@ -32,11 +32,12 @@ NOTES = (
     "u(x) = A·sin(2πx/p) through its FE nodes (32 per smallest period); the measured U fitted by a sinusoid of "
     "the known period per period; the resolution is the period at 90 % of the imposed amplitude; the "
     "metrological efficiency indicator (MEI) is noise floor × spatial resolution (px²).",
-    "Strain ([dic] strain_window, engine pyvale2d): pyvale.strain.calculate_2d on the measured U, V (invalid "
-    "subsets left out), in the formulation asked for, px/px on the reference image; the truth the same measure "
-    "of F = I + ∇u of the exact image-motion field at each strain point. Strain bias, noise and noise floor as "
-    "for U, V; criteria pooled over exx, eyy, exy (tensor shear), in strain (not %, not µε).",
-    "Not modelled here: stereo strain; calibration error only with [calibration] rig = \"targets\" (stereo).",
+    "Strain ([dic] strain_window): pyvale.strain.calculate_2d (pyvale2d) or calculate_3d (pyvale3d: the surface "
+    "strain in pyvale's tangent basis, camera 0's x projected onto the surface) on the measured displacements "
+    "(invalid subsets left out), in the formulation asked for; the truth the same measure of F = I + ∇u of the "
+    "exact field at each strain point. Strain bias, noise and noise floor as for the displacements; criteria "
+    "pooled over exx, eyy, exy (tensor shear), in strain (not %, not µε).",
+    "Not modelled here: calibration error only with [calibration] rig = \"targets\" (stereo).",
 )
 STEREO_NOTES = (
     "Stereo (engine pyvale3d): subsets on camera 0's reference image; X, Y, Z (the reference state's shape) "

@@ -95,9 +95,27 @@ def write_exchange(out: Path, reference: np.ndarray, deformed: list[np.ndarray],
                                  "shape_function": SHAPES[shape_function],
                                  "max_displacement": int(max_displacement)}}
     if strain:
-        manifest["strain"] = {"window_size": int(strain["window_size"]), "window_element": int(strain["window_element"]),
-                              "strain_formulation": str(strain["strain_formulation"])}
+        manifest["strain"] = _strain_table(strain)
     return io.write_text(out / "manifest.json", json.dumps(manifest, indent=2))
+
+
+def _strain_table(strain: dict) -> dict:
+    """The manifest's ``strain`` table: pyvale.strain.calculate_2d / _3d's keyword arguments."""
+    return {"window_size": int(strain["window_size"]), "window_element": int(strain["window_element"]),
+            "strain_formulation": str(strain["strain_formulation"])}
+
+
+def _read_strain(m: dict, path: Path, name: str) -> dict:
+    """The optional strain arrays of a measured npz (all or none), checked against each other."""
+    if not all(k in m for k in STRAIN_ARRAYS):
+        return {}
+    strain = {"strain_x": np.asarray(m["strain_x"], np.float64), "strain_y": np.asarray(m["strain_y"], np.float64),
+              **{k: np.atleast_2d(np.asarray(m[k], np.float64)) for k in ("exx", "eyy", "exy")},
+              "strain_valid": np.atleast_2d(m["strain_valid"]).astype(bool)}
+    n = len(strain["strain_x"])
+    if strain["strain_y"].shape != (n,) or any(strain[k].shape[-1] != n for k in STRAIN_ARRAYS[2:]):
+        raise GlsimError(f"engine {name}: {path}: the strain arrays' lengths differ from strain_x's ({n})")
+    return strain
 
 
 @dataclass(frozen=True)
@@ -132,14 +150,7 @@ class Pyvale2D:
                          optional=STRAIN_ARRAYS, budget=MAX_SUBSETS * 128)
         except (NpzError, OSError) as exc:
             raise GlsimError(f"engine pyvale2d: {path}: {exc}") from None
-        strain = {}
-        if all(k in m for k in STRAIN_ARRAYS):
-            strain = {"strain_x": np.asarray(m["strain_x"], np.float64), "strain_y": np.asarray(m["strain_y"], np.float64),
-                      **{k: np.atleast_2d(np.asarray(m[k], np.float64)) for k in ("exx", "eyy", "exy")},
-                      "strain_valid": np.atleast_2d(m["strain_valid"]).astype(bool)}
-            n = len(strain["strain_x"])
-            if strain["strain_y"].shape != (n,) or any(strain[k].shape[-1] != n for k in STRAIN_ARRAYS[2:]):
-                raise GlsimError(f"engine pyvale2d: {path}: the strain arrays' lengths differ from strain_x's ({n})")
+        strain = _read_strain(m, path, self.name)
         return SubsetResults(x=np.asarray(m["ss_x"], np.float64), y=np.asarray(m["ss_y"], np.float64),
                              u=np.atleast_2d(m["u"]), v=np.atleast_2d(m["v"]), valid=np.atleast_2d(m["valid"]),
                              cost=np.atleast_2d(m["cost"]), seconds=float(m["seconds"]),
@@ -159,7 +170,8 @@ class StereoResults:
     of the exchange (k, n; state 0 the reference): positions X, Y, Z and displacements from the
     reference U, V, W (mm, camera 0's frame), ``valid`` (converged and above the threshold in the
     temporal and stereo matches, finite), the temporal correlation ``cost``; ``seconds`` of the
-    engine's own call."""
+    engine's own call. With strain asked for: strain points and per state the surface strain, as
+    :class:`SubsetResults`'s (pyvale's tangent basis: camera 0's x projected onto the surface)."""
     x: np.ndarray
     y: np.ndarray
     X: np.ndarray
@@ -172,6 +184,12 @@ class StereoResults:
     cost: np.ndarray
     seconds: float
     version: str
+    strain_x: np.ndarray | None = None
+    strain_y: np.ndarray | None = None
+    exx: np.ndarray | None = None
+    eyy: np.ndarray | None = None
+    exy: np.ndarray | None = None
+    strain_valid: np.ndarray | None = None
 
 
 class StereoEngine(Protocol):
@@ -190,7 +208,7 @@ def stereo_image_name(camera: int, state: int) -> str:
 
 def write_stereo_exchange(out: Path, states: list[tuple[np.ndarray, np.ndarray]], roi: np.ndarray,
                           calibration: dict, subset_size: int, subset_step: int, shape_function: str,
-                          max_displacement: int) -> Path:
+                          max_displacement: int, strain: dict | None = None) -> Path:
     """A stereo exchange folder in ``glsim verify``'s format (verify/dic.py reads it): per state a
     camera-0 and a camera-1 image (16-bit TIFF of full-scale images; state 0 the reference),
     roi.tif on camera 0's reference image, calibration.json (pyvale's ``Calib`` fields) and
@@ -212,6 +230,8 @@ def write_stereo_exchange(out: Path, states: list[tuple[np.ndarray, np.ndarray]]
                 "calculate_3d": {**CALCULATE_3D, "subset_size": int(subset_size), "subset_step": int(subset_step),
                                  "max_displacement": int(max_displacement)},
                 "runs": [{"name": STEREO_RUN, "shape_function": SHAPES[shape_function], "bit_depth": STEREO_BITS}]}
+    if strain:
+        manifest["strain"] = _strain_table(strain)
     return io.write_text(out / "manifest.json", json.dumps(manifest, indent=2))
 
 
@@ -243,7 +263,7 @@ class Pyvale3D:
         path = exchange / f"measured_{STEREO_RUN}.npz"
         try:
             m = read_npz(path, ("ss_x", "ss_y", "X", "U", "valid", "cost", "seconds", "pyvale_version"),
-                         budget=MAX_SUBSETS * 160)
+                         optional=STRAIN_ARRAYS, budget=MAX_SUBSETS * 256)
         except (NpzError, OSError) as exc:
             raise GlsimError(f"engine pyvale3d: {path}: {exc}") from None
         X, U = np.asarray(m["X"], np.float64), np.asarray(m["U"], np.float64)
@@ -252,7 +272,8 @@ class Pyvale3D:
         return StereoResults(x=np.asarray(m["ss_x"], np.float64), y=np.asarray(m["ss_y"], np.float64),
                              X=X[..., 0], Y=X[..., 1], Z=X[..., 2], U=U[..., 0], V=U[..., 1], W=U[..., 2],
                              valid=np.atleast_2d(m["valid"]).astype(bool), cost=np.atleast_2d(m["cost"]),
-                             seconds=float(m["seconds"]), version=str(m["pyvale_version"]))
+                             seconds=float(m["seconds"]), version=str(m["pyvale_version"]),
+                             **_read_strain(m, path, self.name))
 
 
 def engine(name: str) -> Engine | StereoEngine:

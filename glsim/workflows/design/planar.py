@@ -136,7 +136,8 @@ def engine_row(prep: Prepared, setting: DicSetting, noise_seed: int, eng: Engine
     m = eng.measure(folder / "exchange")
     more = {}
     if setting.strain is not None:
-        more = strainmod.row_arrays(m, lambda x, y: _motion(prep, x, y), setting.strain_formulation)
+        more = strainmod.row_arrays(m, lambda x, y, f: strainmod.truth(lambda a, b: _motion(prep, a, b), x, y, f),
+                                    setting.strain_formulation)
     return {**more, "x": m.x, "y": m.y, "static_u": m.u[0], "static_v": m.v[0], "static_valid": m.valid[0],
             "u": m.u[1], "v": m.v[1], "valid": m.valid[1], "cost": m.cost[1], "engine_seconds": np.float64(m.seconds),
             "engine_version": np.str_(m.version), **quick_at(prep, setting, m.x, m.y), **truth_px(prep, m.x, m.y)}

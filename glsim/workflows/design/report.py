@@ -55,7 +55,8 @@ def row_summary(r: dict) -> dict:
                    seconds=round(float(m.get("seconds", math.nan)), 3))
         return out
     if "W" in r:          # a stereo row
-        return {**out, **stereo.row_summary(r), "seconds": round(float(m.get("seconds", math.nan)), 3)}
+        return {**out, **stereo.row_summary(r), **(strain.row_summary(r) if "exx" in r else {}),
+                "seconds": round(float(m.get("seconds", math.nan)), 3)}
     q = np.hypot(r["quick_sigma_u"], r["quick_sigma_v"]) / math.sqrt(2)
     out.update(n_subsets=int(len(r["x"])), quick_sigma_px=_median(q), quick_sigma_mm=_median(q * r["scale"]),
                seconds=round(float(m.get("seconds", math.nan)), 3))
@@ -267,7 +268,8 @@ def _stereo_figure(m: dict, image_shape) -> str:
     import matplotlib.pyplot as plt
 
     q, roi = m["quick"], m.get("roi")
-    fig, axes = plt.subplots(1, 5, figsize=(3.3 * 5, 3.0), squeeze=False)
+    panels = 5 + (2 if "strain_bias_exx" in m else 0)
+    fig, axes = plt.subplots(1, panels, figsize=(3.3 * panels, 3.0), squeeze=False)
     axes = axes[0]
     _map(axes[0], q["x"], q["y"], np.hypot(q["quick_sigma_u"], q["quick_sigma_v"]) / math.sqrt(2),
          "quick (camera 0): Cramér–Rao σ (px)", image_shape, fig, outline=roi)
@@ -278,6 +280,11 @@ def _stereo_figure(m: dict, image_shape) -> str:
          image_shape, fig, outline=roi)
     _map(axes[4], m["x"], m["y"], m["bias_Z"], "shape bias Z (reference state, mm)", image_shape, fig,
          symmetric=True, outline=roi)
+    if "strain_bias_exx" in m:
+        _map(axes[5], m["strain_x"], m["strain_y"], m["strain_noise_exx"], "surface strain noise exx", image_shape,
+             fig, outline=roi)
+        _map(axes[6], m["strain_x"], m["strain_y"], m["strain_bias_exx"], "surface strain bias exx: mean − truth",
+             image_shape, fig, symmetric=True, outline=roi)
     return _png(fig)
 
 
@@ -391,7 +398,8 @@ RANK_COLUMNS = ("rank", "setup", "params", "setting", "p95_abs_error_px", "p95_a
 
 STEREO_COLUMNS = ("rank", "setup", "params", "setting", "p95_abs_error_mm", "p95_abs_W_mm", "rms_bias_mm",
                   "rms_bias_W_mm", "median_noise_mm", "median_noise_W_mm", "noise_floor_mm", "noise_floor_inplane_mm",
-                  "noise_floor_W_mm", "p95_abs_Z_mm", "noise_floor_Z_mm", "spatial_resolution_px", "quick_sigma_px",
+                  "noise_floor_W_mm", "p95_abs_Z_mm", "noise_floor_Z_mm", "p95_abs_strain_error", "rms_strain_bias",
+                  "median_strain_noise", "strain_noise_floor", "spatial_resolution_px", "quick_sigma_px",
                   "quick_sigma_mm", "valid_share")
 
 

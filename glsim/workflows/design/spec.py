@@ -20,7 +20,7 @@ A spec is a TOML file::
     subset_size = [21, 31]     # px, odd
     subset_step = 10           # px between subset centres (a number or a list)
     shape_function = "affine"  # rigid (zero order), affine (first), quad (second); or a list
-    strain_window = [5, 9]     # optional, engine pyvale2d: pyvale's strain window (subset centres a side, odd)
+    strain_window = [5, 9]     # optional, with an engine: pyvale's strain window (subset centres a side, odd)
     strain_element = 9         # its fit: 4 (bilinear, Q4) or 9 (biquadratic, Q9); default 9 (pyvale's)
     strain_formulation = "HENCKY"   # GREEN, ALMANSI, HENCKY, BIOT_EULER, BIOT_LAGRANGE; default HENCKY
 
@@ -106,6 +106,8 @@ STEREO_CRITERIA = {
     "noise_floor_mm": ("std of the static pair's measured U, V, W over subsets and realisations (RMS of the "
                        "three, mm)", True, True),
     "noise_floor_W_mm": ("std of the static pair's measured W over subsets and realisations (mm)", True, True),
+    **{k: (CRITERIA[k][0].replace("strain − truth", "surface strain − truth"), True, True)
+       for k in ("p95_abs_strain_error", "rms_strain_bias", "median_strain_noise", "strain_noise_floor")},
     "valid_share": CRITERIA["valid_share"],
     "spatial_resolution_px": CRITERIA["spatial_resolution_px"][:1] + (True, True),
     "quick_sigma_px": CRITERIA["quick_sigma_px"],
@@ -332,10 +334,9 @@ def _strain(dic: dict, engine: str) -> list[tuple]:
     if "strain_window" not in dic:
         _fail(f"dic.{given[0]}", "sets pyvale's strain, and dic.strain_window is not given",
               "add strain_window = [5, 9] (the strain window in subset centres a side, odd), or leave it out")
-    if engine != "pyvale2d":
-        _fail("dic.strain_window", f"strain is computed by engine pyvale2d, and engine is {engine!r}",
-              "write engine = \"pyvale2d\"" + (" (the stereo engine's strain is not wired in yet)"
-                                                if engine == STEREO else "") + ", or leave the strain keys out")
+    if engine == "quick":
+        _fail("dic.strain_window", "strain is computed by a measuring engine, and engine is \"quick\"",
+              "write engine = \"pyvale2d\" (or \"pyvale3d\"), or leave the strain keys out")
     windows = _list(dic, "strain_window", "dic", lambda v: _int(v) and 3 <= v <= MAX_STRAIN_WINDOW and v % 2 == 1,
                     f"give odd windows 3…{MAX_STRAIN_WINDOW} (subset centres a side), e.g. strain_window = [5, 9]")
     elements = _list(dic, "strain_element", "dic", lambda v: _int(v) and v in STRAIN_ELEMENTS,

@@ -30,7 +30,7 @@ from glsim.render import Renderer
 from glsim.scene import Scene
 from glsim.scene.camera import Camera, project_camera_frame, to_camera
 from glsim.scene.locate import points_truth
-from glsim.workflows.design import quick
+from glsim.workflows.design import quick, strain as strainmod
 from glsim.workflows.design.engine import StereoEngine, write_stereo_exchange
 from glsim.workflows.design.planar import Prepared, static_seed
 from glsim.workflows.design.spec import DicSetting
@@ -147,7 +147,8 @@ def engine_row(prep: StereoPrepared, setting: DicSetting, noise_seed: int, eng: 
     and the truth at the engine's centres."""
     pairs = noisy_pairs(prep, noise_seed)
     write_stereo_exchange(folder / "exchange", pairs, prep.base.roi, pyvale_calibration(*rig),
-                          setting.subset_size, setting.subset_step, setting.shape_function, search_reach(prep))
+                          setting.subset_size, setting.subset_step, setting.shape_function, search_reach(prep),
+                          strain=setting.strain)
     m = eng.measure(folder / "exchange")
     if m.X.shape[0] != 3:
         raise GlsimError(f"engine {eng.name}: {m.X.shape[0]} states measured, expected 3 (reference, static, deformed)")
@@ -160,7 +161,18 @@ def engine_row(prep: StereoPrepared, setting: DicSetting, noise_seed: int, eng: 
     out["cost"] = m.cost[2]
     out["roi_bits"] = np.packbits(prep.base.roi)
     out["roi_shape"] = np.array(prep.base.roi.shape, np.int64)
+    if setting.strain is not None:   # states 1 (static) and 2 (deformed)
+        out.update(strainmod.row_arrays(m, lambda x, y, f: strainmod.surface_truth(
+            lambda a, b: _points(prep, a, b), x, y, f), setting.strain_formulation, static=1, deformed=2))
     return {**out, **truth_mm(prep, m.x, m.y)}
+
+
+def _points(prep: StereoPrepared, x: np.ndarray, y: np.ndarray):
+    """Material points seen at camera-0 pixels: reference position, displacement (mm, camera 0's
+    frame), valid — the surface strain's truth field."""
+    p = prep.base
+    t = points_truth(mesh_geometry(p.mesh), p.scene.camera(p.camera), np.stack([x, y], axis=1), p.step)
+    return t.X_undeformed, t.X_deformed - t.X_undeformed, t.valid
 
 
 # ---- summaries --------------------------------------------------------------------------------------

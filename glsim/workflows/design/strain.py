@@ -15,6 +15,13 @@ across the stencil), F = I + ∇d, and pyvale's measure of F (as pyvale.strain c
 
 components xx, yy and the tensor shear xy. For a plate square onto the camera (image axes along
 the plate's, constant depth) the image's ∇d is the plate's in-plane ∇u: the material strain.
+
+Stereo (engine pyvale3d): pyvale's surface strain. At a strain point (camera 0's reference pixel)
+the material point X₀ seen there and those seen ±``DELTA`` px away (camera 0's frame, mm, with
+their displacements U of ``step``); the surface's normal n from the cross product of the two
+chords (towards +z, as pyvale), the tangent basis t₁ = camera 0's x projected onto the surface, t₂
+= n × t₁ (pyvale's); ∂U/∂s (3 × 2) in the tangent coordinates s from the chords, and F = I + Bᵀ·[∂U/∂s₁
+∂U/∂s₂ 0] with B = [t₁ t₂ n] (pyvale's ``compute_surface_F_3d``); the same measure of the 3 × 3 F.
 """
 from __future__ import annotations
 
@@ -27,15 +34,16 @@ COMPONENTS = ("exx", "eyy", "exy")
 
 
 def _sym_fn(C: np.ndarray, fn) -> np.ndarray:
-    """fn applied to the eigenvalues of symmetric 2 × 2 matrices C (n, 2, 2)."""
+    """fn applied to the eigenvalues of symmetric matrices C (n, k, k)."""
     w, Q = np.linalg.eigh(C)
     return np.einsum("nij,nj,nkj->nik", Q, fn(w), Q)
 
 
 def measure(F: np.ndarray, formulation: str) -> np.ndarray:
-    """Strain tensors (n, 2, 2) of in-plane deformation gradients F (n, 2, 2) in pyvale's
-    formulation (F's out-of-plane row and column those of the identity, as pyvale's 2-D F)."""
-    eye = np.eye(2)
+    """Strain tensors (n, k, k) of deformation gradients F (n, k, k) in pyvale's formulation; k = 2
+    for the 2-D engine (F's out-of-plane row and column those of the identity, as pyvale's 2-D F),
+    3 for the surface's F."""
+    eye = np.eye(F.shape[-1])
     Ft = np.transpose(F, (0, 2, 1))
     if formulation == "GREEN":
         return 0.5 * (Ft @ F - eye)
@@ -65,22 +73,60 @@ def truth(displacement, x: np.ndarray, y: np.ndarray, formulation: str) -> dict[
     grad[:, 1, 1] = (v[2] - v[3]) / (2 * DELTA)
     valid = ok.all(axis=0) & np.isfinite(grad).all(axis=(1, 2))
     grad[~valid] = 0.0
-    eps = measure(np.eye(2) + grad, formulation)
+    return _components(measure(np.eye(2) + grad, formulation), valid)
+
+
+def _components(eps: np.ndarray, valid: np.ndarray) -> dict[str, np.ndarray]:
     out = {f"truth_{c}": np.where(valid, eps[:, i, j], np.nan)
            for c, (i, j) in zip(COMPONENTS, ((0, 0), (1, 1), (0, 1)))}
     return {**out, "truth_strain_valid": valid}
 
 
-def row_arrays(m, displacement, formulation: str) -> dict[str, np.ndarray]:
-    """An engine row's strain arrays from the engine's results ``m`` (static pair first, then the
-    deformed step) with the truth at its strain points."""
+def surface_truth(points, x: np.ndarray, y: np.ndarray, formulation: str) -> dict[str, np.ndarray]:
+    """The exact surface strain at camera-0 pixels (x, y) in pyvale's tangent basis (module doc);
+    ``points(x, y)`` → (X (n, 3) reference position, U (n, 3) displacement, valid), camera 0's frame."""
+    x, y = np.asarray(x, np.float64), np.asarray(y, np.float64)
+    n = len(x)
+    px, py = np.concatenate([x + DELTA, x - DELTA, x, x]), np.concatenate([y, y, y + DELTA, y - DELTA])
+    X, U, ok = points(px, py)
+    X, U, ok = np.asarray(X).reshape(4, n, 3), np.asarray(U).reshape(4, n, 3), np.asarray(ok).reshape(4, n)
+    valid = ok.all(axis=0)
+    X, U = np.where(valid[None, :, None], X, 0.0), np.where(valid[None, :, None], U, 0.0)
+    dXa, dXb = X[0] - X[1], X[2] - X[3]          # the chords along the pixel's x and y
+    normal = np.cross(dXa, dXb)
+    length = np.linalg.norm(normal, axis=1)
+    valid &= length > 0
+    normal = normal / np.where(length > 0, length, 1.0)[:, None]
+    normal *= np.where(normal[:, 2] < 0, -1.0, 1.0)[:, None]
+    t1 = np.array([1.0, 0.0, 0.0]) - normal * normal[:, :1]
+    n1 = np.linalg.norm(t1, axis=1)
+    valid &= n1 > math.sin(math.radians(0.1))      # pyvale's limit (its z fallback is not modelled)
+    t1 = t1 / np.where(n1 > 0, n1, 1.0)[:, None]
+    t2 = np.cross(normal, t1)
+    B = np.stack([t1, t2, normal], axis=2)          # columns t1, t2, n
+    S = np.stack([np.einsum("nk,nkj->nj", dXa, B[:, :, :2]), np.einsum("nk,nkj->nj", dXb, B[:, :, :2])], axis=2)
+    dU = np.stack([U[0] - U[1], U[2] - U[3]], axis=2)           # (n, 3, 2): U along the two chords
+    det = np.linalg.det(S)
+    valid &= np.abs(det) > 0
+    S[~valid] = np.eye(2)
+    grad = dU @ np.linalg.inv(S)                                # ∂U/∂s, (n, 3, 2)
+    G = np.zeros((n, 3, 3))
+    G[:, :, :2] = grad
+    F = np.eye(3) + np.transpose(B, (0, 2, 1)) @ G
+    F[~valid] = np.eye(3)
+    return _components(measure(F, formulation), valid)
+
+
+def row_arrays(m, truth_fn, formulation: str, static: int = 0, deformed: int = 1) -> dict[str, np.ndarray]:
+    """An engine row's strain arrays from the engine's results ``m`` (states ``static`` and
+    ``deformed``) with the truth ``truth_fn(x, y, formulation)`` at its strain points."""
     if m.strain_x is None:
         raise ValueError("the engine returned no strain (its npz has no strain arrays)")
-    out = {"strain_x": m.strain_x, "strain_y": m.strain_y, "static_strain_valid": m.strain_valid[0],
-           "strain_valid": m.strain_valid[1]}
+    out = {"strain_x": m.strain_x, "strain_y": m.strain_y, "static_strain_valid": m.strain_valid[static],
+           "strain_valid": m.strain_valid[deformed]}
     for c in COMPONENTS:
-        out[f"static_{c}"], out[c] = getattr(m, c)[0], getattr(m, c)[1]
-    return {**out, **truth(displacement, m.strain_x, m.strain_y, formulation)}
+        out[f"static_{c}"], out[c] = getattr(m, c)[static], getattr(m, c)[deformed]
+    return {**out, **truth_fn(m.strain_x, m.strain_y, formulation)}
 
 
 def _stack(rows: list[dict]) -> dict:
