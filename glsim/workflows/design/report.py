@@ -6,7 +6,8 @@ realisations, ddof = 1) of U and V in px and mm, the valid share, and the noise 
 static pair's measured U, V over subsets and realisations; the truth there is 0). Beside them the
 quick mode's Cramér–Rao σ (median over its subset grid, and at the engine's centres). Stereo rows
 (engine pyvale3d) are summarised by :func:`glsim.workflows.design.stereo.aggregate` instead: mm,
-camera 0's frame, X, Y, Z and U, V, W.
+camera 0's frame, X, Y, Z and U, V, W. Settings with a strain window add the strain's maps and
+figures (:func:`glsim.workflows.design.strain.aggregate`).
 """
 from __future__ import annotations
 

@@ -6,7 +6,8 @@ image set — the reference state (step 0), the deformed ``step`` and the refere
 another noise field (the static pair of the noise floor) — measure it with the engine and keep the
 displacements with the exact truth at the engine's subset centres (the material point seen at the
 centre, moved by the FE field of ``step`` and projected into the camera: px, and mm through the
-camera scale Z/√(fx·fy) at the centre). With a ``[resolution]`` table, resolution rows (per set-up,
+camera scale Z/√(fx·fy) at the centre). A setting with a strain window also keeps the engine's strain
+at its strain points with the exact strain there (:mod:`~glsim.workflows.design.strain`). With a ``[resolution]`` table, resolution rows (per set-up,
 speckle seed and setting, under the first noise seed) measure the sinusoid sweep on a flat plate
 (:mod:`~glsim.workflows.design.resolution`).
 

@@ -179,7 +179,7 @@ def aggregate(rows: list[dict]) -> tuple[dict, dict]:
     err = np.concatenate(errs)
     b = _finite(np.concatenate(biases))
     noise_rms = np.sqrt(np.mean(np.square(noises), axis=0))
-    summary.update(strain_points=int(len(st["x"])), strain_valid_share=float(np.mean(st["strain_valid"])),
+    summary.update(strain_points=len(st["x"]), strain_valid_share=float(np.mean(st["strain_valid"])),
                    p95_abs_strain_error=float(np.percentile(err, 95)) if err.size else math.nan,
                    rms_strain_bias=float(np.sqrt(np.mean(b ** 2))) if b.size else math.nan,
                    median_strain_noise=float(np.median(_finite(noise_rms))) if _finite(noise_rms).size else math.nan,
@@ -192,6 +192,6 @@ def row_summary(r: dict) -> dict:
     ok = r["strain_valid"] & r["truth_strain_valid"]
     e = np.concatenate([np.abs(r[c] - r[f"truth_{c}"])[ok] for c in COMPONENTS])
     s = r["static_strain_valid"]
-    return {"strain_points": int(len(r["strain_x"])),
+    return {"strain_points": len(r["strain_x"]),
             "p95_abs_strain_error": float(np.percentile(e, 95)) if e.size else math.nan,
             "static_std_exx": float(np.std(r["static_exx"][s])) if s.any() else math.nan}
