@@ -34,6 +34,9 @@ import numpy as np
 from glsim.io import images as io
 from glsim.scene import Scene
 from glsim.io.calibfiles import pyvale_calibration
+from glsim.io.hashes import sha256_file
+from glsim.io.npzfile import NpzError, read_npz
+from glsim.limits import parse_nested, read_bounded
 from glsim.workflows.design.calibration import calibrated_rig, inputs_hash
 from glsim.scene.camera import Camera
 from glsim.workflows.design import resolution, stereo
@@ -42,7 +45,7 @@ from glsim.workflows.design.planar import engine_row, prepare, quick_row, setup_
 from glsim.workflows.design.spec import Design, DicSetting, row_key
 
 FORMAT = "glsim-design/1"
-ROW_VERSION = 1
+ROW_VERSION = 2   # 2: row.json vouches for result.npz (size, SHA-256, array names)
 RESOLUTION = ":resolution"   # suffix of the sinusoid sweep's rows' kind (per set-up, speckle seed, setting)
 @dataclass(frozen=True)
 class Row:
@@ -112,16 +115,36 @@ def rows(design: Design, engine_name: str | None) -> list[Row]:
     return out
 
 
+ROW_META_BYTES = 1 << 20    # row.json: a row's meta (its key, setting, seeds, the result's hash)
+
+
 def load_row(folder: Path, key: str) -> dict | None:
-    """A finished row's arrays (with its meta), or None when it is missing or not this key's."""
+    """A finished row's arrays (with its meta), or None — computed again — when it is missing, not
+    this key's, or its result.npz is not the one row.json vouches for (size and SHA-256, checked
+    before the arrays are read, each bounded by its header: :func:`glsim.io.npzfile.read_npz`)."""
     try:
-        meta = json.loads((folder / "row.json").read_text())
-        if meta.get("key") != key:
+        meta = parse_nested(json.loads, read_bounded(folder / "row.json", ROW_META_BYTES).decode("utf-8"),
+                            "row.json")
+        result = folder / "result.npz"
+        if not (isinstance(meta, dict) and meta.get("key") == key and isinstance(meta.get("arrays"), list)
+                and result.is_file() and not result.is_symlink() and result.stat().st_size == meta.get("bytes")
+                and sha256_file(result) == meta.get("sha256")):
             return None
-        with np.load(folder / "result.npz") as z:
-            return {"meta": meta, **{k: z[k] for k in z.files}}
-    except (OSError, ValueError, KeyError):
+        return {"meta": meta, **read_npz(result, [str(a) for a in meta["arrays"]])}
+    except (OSError, ValueError, UnicodeDecodeError, NpzError):
         return None
+
+
+def save_row(folder: Path, meta: dict, arrays: dict) -> dict:
+    """result.npz, then row.json last with its size, SHA-256 and array names (what load_row checks)."""
+    folder.mkdir(parents=True, exist_ok=True)
+    with io.atomic_path(folder / "result.npz") as tmp:
+        with open(tmp, "wb") as f:
+            np.savez(f, **arrays)
+    result = folder / "result.npz"
+    meta = {**meta, "arrays": sorted(arrays), "bytes": result.stat().st_size, "sha256": sha256_file(result)}
+    io.write_text(folder / "row.json", json.dumps(meta, indent=2))
+    return meta
 
 
 def run(design: Design, out: Path, eng: Engine | None, progress=None) -> list[dict]:
@@ -154,12 +177,7 @@ def run(design: Design, out: Path, eng: Engine | None, progress=None) -> list[di
                                            rig_cameras(design, p.scene, out))
             else:
                 arrays = engine_row(p, row.setting, row.noise_seed, eng, folder)
-            folder.mkdir(parents=True, exist_ok=True)
-            with io.atomic_path(folder / "result.npz") as tmp:
-                with open(tmp, "wb") as f:
-                    np.savez(f, **arrays)
-            meta = {**row.meta(), "seconds": time.perf_counter() - t1}
-            io.write_text(folder / "row.json", json.dumps(meta, indent=2))
+            meta = save_row(folder, {**row.meta(), "seconds": time.perf_counter() - t1}, arrays)
             res, fresh = {"meta": meta, **arrays}, fresh + 1
         results.append(res)
         if progress:
