@@ -35,6 +35,23 @@ SEQUENCE, RUN = "r", "run"
 MAX_SUBSETS = 10_000_000
 
 
+def run_script(engine, exchange: Path) -> Path:
+    """Run ``engine.script`` on the exchange folder under ``engine.python`` (pyvale's environment);
+    GlsimError naming the engine with what is missing, or with the script's last lines if it fails.
+    Its working directory is the exchange folder: pyvale writes plotter_log.log there, inside -o."""
+    why = engine.missing()
+    if why:
+        raise GlsimError(f"engine {engine.name}: {why}")
+    exchange = Path(exchange).resolve()
+    done = subprocess.run([str(Path(engine.python).absolute()), str(Path(engine.script).resolve()), str(exchange)],
+                          cwd=exchange, capture_output=True, text=True)
+    if done.returncode != 0:
+        tail = (done.stdout + done.stderr).strip().splitlines()[-15:]
+        raise GlsimError(f"engine {engine.name}: {engine.script} failed with exit status {done.returncode} on "
+                         f"{exchange}:\n" + "\n".join(tail))
+    return exchange
+
+
 @dataclass(frozen=True)
 class SubsetResults:
     """One engine call: subset centres (n,) px on the reference image and, per deformed image
@@ -133,17 +150,7 @@ class Pyvale2D:
         return None
 
     def measure(self, exchange: Path) -> SubsetResults:
-        why = self.missing()
-        if why:
-            raise GlsimError(f"engine pyvale2d: {why}")
-        exchange = Path(exchange).resolve()
-        # cwd: pyvale writes plotter_log.log into its working directory, which must be inside -o
-        done = subprocess.run([str(Path(self.python).absolute()), str(Path(self.script).resolve()), str(exchange)],
-                              cwd=exchange, capture_output=True, text=True)
-        if done.returncode != 0:
-            tail = (done.stdout + done.stderr).strip().splitlines()[-15:]
-            raise GlsimError(f"engine pyvale2d: {self.script} failed with exit status {done.returncode} on "
-                             f"{exchange}:\n" + "\n".join(tail))
+        exchange = run_script(self, exchange)
         path = exchange / f"measured_{SEQUENCE}_{RUN}.npz"
         try:
             m = read_npz(path, ("ss_x", "ss_y", "u", "v", "valid", "cost", "seconds", "pyvale_version"),
@@ -250,16 +257,7 @@ class Pyvale3D:
         return Pyvale2D(python=self.python)
 
     def measure(self, exchange: Path) -> StereoResults:
-        why = self.missing()
-        if why:
-            raise GlsimError(f"engine pyvale3d: {why}")
-        exchange = Path(exchange).resolve()
-        done = subprocess.run([str(Path(self.python).absolute()), str(Path(self.script).resolve()), str(exchange)],
-                              cwd=exchange, capture_output=True, text=True)
-        if done.returncode != 0:
-            tail = (done.stdout + done.stderr).strip().splitlines()[-15:]
-            raise GlsimError(f"engine pyvale3d: {self.script} failed with exit status {done.returncode} on "
-                             f"{exchange}:\n" + "\n".join(tail))
+        exchange = run_script(self, exchange)
         path = exchange / f"measured_{STEREO_RUN}.npz"
         try:
             m = read_npz(path, ("ss_x", "ss_y", "X", "U", "valid", "cost", "seconds", "pyvale_version"),
