@@ -28,6 +28,8 @@ from glsim.io.images import quantize, read_image
 from glsim.render import Renderer
 from glsim.scene import Scene
 
+pytestmark = pytest.mark.workflow   # the compute-stage rerun of the GL tier leaves these out (docs/testing.md)
+
 CI_SCALE, CI_PAIRS, CI_SEED = 0.25, 20, 7
 
 

@@ -14,6 +14,8 @@ from glsim.workflows.design.cli import main
 
 from _design import StandIn, stereo_plate, write_spec
 
+pytestmark = pytest.mark.workflow   # the compute-stage rerun of the GL tier leaves these out (docs/testing.md)
+
 TARGETS = {"rig": "targets", "pairs": 6, "seed": 1, "backend": "gl", "noise": 1.0}
 
 

@@ -15,6 +15,8 @@ from glsim.workflows.calib import library as libmod
 from glsim.workflows.design import calibration as dc
 from glsim.workflows.library.spec import SpecError
 
+pytestmark = pytest.mark.workflow   # the compute-stage rerun of the GL tier leaves these out (docs/testing.md)
+
 CI_SCALE = 0.25
 
 

@@ -11,6 +11,8 @@ from glsim.bench import cli, peer
 from glsim.check import closed_forms
 from tools.docs import regions
 
+pytestmark = pytest.mark.workflow   # the compute-stage rerun of the GL tier leaves these out (docs/testing.md)
+
 SIZE = ("203", "154")
 RILEY = importlib.util.find_spec("riley") is not None
 

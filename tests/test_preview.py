@@ -25,7 +25,7 @@ from glsim.workflows.preview import overlays as ov
 from glsim.workflows.preview.panes import display_grey
 from glsim.imaging.reference import make_reference
 
-pytestmark = pytest.mark.gl
+pytestmark = [pytest.mark.gl, pytest.mark.workflow]   # workflow: see docs/testing.md
 ROOT = Path(__file__).resolve().parents[1]
 SIZE = (853, 480)     # two 320×244 camera tiles at scale 1 (panel 213 px)
 

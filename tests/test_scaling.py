@@ -24,6 +24,8 @@ from glsim.imaging.view import cover_rectangles, make_view
 
 from _plates import plate_scene
 
+pytestmark = pytest.mark.workflow   # the compute-stage rerun of the GL tier leaves these out (docs/testing.md)
+
 MODES = ("fast", "q4", "exact")
 
 

@@ -21,6 +21,8 @@ from glsim.workflows.training import labels as lb
 from glsim.workflows.training.labels import pair_labels
 from tests._plates import plate_scene
 
+pytestmark = pytest.mark.workflow   # the compute-stage rerun of the GL tier leaves these out (docs/testing.md)
+
 BACKENDS = ["cpu", pytest.param("gl", marks=pytest.mark.gl)]
 UP = 4    # the warp test's reference: camera 0 with UP × its pixels
 

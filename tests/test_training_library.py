@@ -11,6 +11,8 @@ import pytest
 from glsim.workflows.library.cli import main as library_main
 from glsim.workflows.training.spec import load_training
 
+pytestmark = pytest.mark.workflow   # the compute-stage rerun of the GL tier leaves these out (docs/testing.md)
+
 EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
 TINY = EXAMPLES / "training_tiny.toml"
 SHARDS = ("shard-000000.tar", "shard-000001.tar")

@@ -15,6 +15,8 @@ from glsim.workflows.library.cli import main as library_main
 from glsim.workflows.training.loader import ShardError, samples
 from glsim.workflows.training.spec import load_training
 
+pytestmark = pytest.mark.workflow   # the compute-stage rerun of the GL tier leaves these out (docs/testing.md)
+
 TINY = Path(__file__).resolve().parents[1] / "examples" / "training_tiny.toml"
 KEYS = ("v0000", "v0001", "v0002", "v0003")
 FIELDS = ("cam0_def.png", "cam0_ref.png", "flow0.npy", "json", "mask_flow0.npy")
