@@ -76,6 +76,20 @@ def model_flags(model: str) -> int:
     return flags
 
 
+@contextlib.contextmanager
+def one_opencv_thread():
+    """OpenCV's solvers on one thread: with several, stereoCalibrate's sums come out in another order
+    from run to run (estimates differ by ~1e-11 relative), and the same library must give the same
+    calibration to the bit; one thread costs ~0.1 s a calibration here."""
+    import cv2
+    before = cv2.getNumThreads()
+    cv2.setNumThreads(1)
+    try:
+        yield
+    finally:
+        cv2.setNumThreads(before)
+
+
 def calibrate(object_points: list[np.ndarray], points1: list[np.ndarray], points2: list[np.ndarray],
               image_size: tuple[int, int], model: str = "k1k2p1p2k3", pairs=None) -> StereoCalibration:
     """Calibrate from matched views: ``object_points[i]`` (n_i, 3) mm and their images in
@@ -87,11 +101,12 @@ def calibrate(object_points: list[np.ndarray], points1: list[np.ndarray], points
     obj = [np.asarray(o, np.float32).reshape(-1, 1, 3) for o in object_points]
     im1 = [np.asarray(p, np.float32).reshape(-1, 1, 2) for p in points1]
     im2 = [np.asarray(p, np.float32).reshape(-1, 1, 2) for p in points2]
-    rms1, K1, D1, *_ = cv2.calibrateCamera(obj, im1, image_size, None, None, flags=flags, criteria=CRITERIA)
-    rms2, K2, D2, *_ = cv2.calibrateCamera(obj, im2, image_size, None, None, flags=flags, criteria=CRITERIA)
-    rms, K1, D1, K2, D2, R, T, E, F, rvecs, tvecs, per_view = cv2.stereoCalibrateExtended(
-        obj, im1, im2, K1, D1, K2, D2, image_size, np.eye(3), np.zeros((3, 1)),
-        flags=flags | cv2.CALIB_USE_INTRINSIC_GUESS, criteria=CRITERIA)
+    with one_opencv_thread():
+        rms1, K1, D1, *_ = cv2.calibrateCamera(obj, im1, image_size, None, None, flags=flags, criteria=CRITERIA)
+        rms2, K2, D2, *_ = cv2.calibrateCamera(obj, im2, image_size, None, None, flags=flags, criteria=CRITERIA)
+        rms, K1, D1, K2, D2, R, T, E, F, rvecs, tvecs, per_view = cv2.stereoCalibrateExtended(
+            obj, im1, im2, K1, D1, K2, D2, image_size, np.eye(3), np.zeros((3, 1)),
+            flags=flags | cv2.CALIB_USE_INTRINSIC_GUESS, criteria=CRITERIA)
     return StereoCalibration(K1=K1, D1=D1.ravel(), K2=K2, D2=D2.ravel(), R=R, T=T.ravel(), E=E, F=F,
                              rms=float(rms), rms1=float(rms1), rms2=float(rms2), per_view=np.asarray(per_view),
                              rvecs=np.asarray(rvecs).reshape(-1, 3), tvecs=np.asarray(tvecs).reshape(-1, 3),

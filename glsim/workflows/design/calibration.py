@@ -23,7 +23,6 @@ estimated camera 1 is placed by the estimated stereo extrinsics from there.
 """
 from __future__ import annotations
 
-import contextlib
 import dataclasses
 import difflib
 import hashlib
@@ -300,8 +299,7 @@ def calibrated_rig(spec: CalibrationSpec, scene, workdir, ctx=None, progress=Non
     rig = Scene(cameras=cams, render=Render(backend=backend, mode="exact", samples_per_pixel=SPP))
     lib, _ = cal.write_usable_library(rig, target, spec.pairs, out / "library", progress=progress, seed=spec.seed,
                                       backend=backend, spec=poses, noise=noise, ctx=ctx)
-    with _one_opencv_thread():
-        rep = cal.run(lib.directory, out / "calibration", model=spec.model)
+    rep = cal.run(lib.directory, out / "calibration", model=spec.model)   # (OpenCV on one thread: the same bits)
     est = estimated_cameras(cams, rep["estimate"])
     report = {"rms_px": rep["rms"], "epipolar_max_px": rep["epipolar_max_px"], "pairs": rep["pairs"],
               "pairs_used": rep["pairs_used"], "errors": {k: rep["errors"][k] for k in ERROR_KEYS},
@@ -312,19 +310,6 @@ def calibrated_rig(spec: CalibrationSpec, scene, workdir, ctx=None, progress=Non
     io.write_text(result, json.dumps({"format": FORMAT, "inputs_sha256": digest,
                                       "cameras": [camera_to_dict(c) for c in est], "report": report}, indent=1))
     return CalibratedRig("targets", *est, report)
-
-
-@contextlib.contextmanager
-def _one_opencv_thread():
-    """OpenCV's solvers on one thread: with several, stereoCalibrate's sums come out in another
-    order from run to run (estimates differ by ~1e-11 relative); one costs ~0.1 s here."""
-    import cv2
-    before = cv2.getNumThreads()
-    cv2.setNumThreads(1)
-    try:
-        yield
-    finally:
-        cv2.setNumThreads(before)
 
 
 def _read_result(path: Path, digest: str) -> dict:
