@@ -20,6 +20,7 @@ TARGETS = {"rig": "targets", "pairs": 6, "seed": 1, "backend": "gl", "noise": 1.
 
 
 @pytest.mark.gl
+@pytest.mark.slow   # glsim design end to end, with a target library rendered and calibrated
 def test_the_engine_measures_with_the_calibrated_cameras_and_the_report_gives_their_errors(tmp_path, monkeypatch, gl_ctx):
     import glsim.workflows.design.cli as cli
     scene_dict = stereo_plate(size=(320, 256), sigma=1.0, bit_depth=8)

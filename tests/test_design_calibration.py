@@ -153,6 +153,7 @@ def calibrated(tmp_path_factory, gl_ctx):
 
 
 @pytest.mark.gl
+@pytest.mark.slow   # a whole target library rendered and calibrated
 def test_targets_calibration_is_near_the_truth(calibrated):
     root, _, r = calibrated
     true0, true1 = libmod.paper_rig(CI_SCALE)
@@ -184,6 +185,7 @@ def test_targets_calibration_is_near_the_truth(calibrated):
 
 
 @pytest.mark.gl
+@pytest.mark.slow   # a whole target library rendered and calibrated
 def test_same_seed_same_numbers_reused_and_resumed(calibrated, gl_ctx, tmp_path, monkeypatch):
     root, spec, r = calibrated
     monkeypatch.chdir(tmp_path)
@@ -207,6 +209,7 @@ def test_same_seed_same_numbers_reused_and_resumed(calibrated, gl_ctx, tmp_path,
 
 
 @pytest.mark.gl
+@pytest.mark.slow   # a whole target library rendered and calibrated
 def test_another_seed_another_calibration(calibrated, gl_ctx, tmp_path):
     _, _, r = calibrated
     other = dc.calibrated_rig(dc.calibration_spec({"rig": "targets", "pairs": 3, "seed": SEED + 1}), _scene(),
