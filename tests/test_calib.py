@@ -354,6 +354,7 @@ def test_perspective_bias_floor_without_correction(ci_library, ci_detections):
 
 
 @pytest.mark.gl
+@pytest.mark.slow   # a whole calibration study
 def test_study_rows_are_reproducible_and_resumable(ci_library, ci_detections, tmp_path):
     pytest.importorskip("matplotlib")
     out = tmp_path / "study.csv"
@@ -616,6 +617,7 @@ def test_charuco_corners_refined_beyond_opencv(tmp_path, gl_ctx):
     assert refined.mean() < 0.03 and refined.max() < 0.08 and refined.mean() < 0.5 * raw.mean()
 
 
+@pytest.mark.slow   # two whole libraries rendered and calibrated
 def test_calib_run_on_chessboard_and_charuco_libraries(tmp_path, gl_ctx, capsys):
     """OpenCV's detectors, their corners in the truth's order (findChessboardCornersSB numbers
     this board from the other end), the same report; no perspective-bias pass for corners."""
@@ -682,6 +684,7 @@ def test_library_with_blur_and_lighting(ci_library, tmp_path, gl_ctx, capsys):
 
 
 @pytest.mark.gl
+@pytest.mark.slow   # a whole calibration study
 def test_quality_study_goes_round_the_target_seeds(ci_library, ci_detections, tmp_path, gl_ctx):
     """Several libraries of one σ (one per --target-seed): run r uses the r mod m-th, so the
     runs of a σ average over printed targets."""

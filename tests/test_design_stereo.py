@@ -117,6 +117,7 @@ def stereo_spec(tmp_path: Path, **top) -> Path:
                       rank={"by": "p95_abs_W_mm"}, **top)
 
 
+@pytest.mark.slow   # glsim design end to end
 def test_stereo_rows_maps_and_ranking_against_injected_errors(tmp_path, monkeypatch, capsys):
     import glsim.workflows.design.cli as cli
     scene = scene_from_dict(stereo_plate(sigma=1.0, bit_depth=8), ".")

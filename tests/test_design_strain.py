@@ -180,6 +180,7 @@ class StandIn2D:
                              strain_x=c[:, 0], strain_y=c[:, 1], strain_valid=sv, **comp)
 
 
+@pytest.mark.slow   # glsim design end to end
 def test_strain_maps_criteria_and_report_against_injected_errors(tmp_path, monkeypatch):
     import glsim.workflows.design.cli as cli
     eng = StandIn2D()
@@ -253,6 +254,7 @@ class StereoStrainStandIn(_design.StandIn):
         return dataclasses.replace(m, strain_x=m.x, strain_y=m.y, strain_valid=np.ones((3, n), bool), **comp)
 
 
+@pytest.mark.slow   # glsim design end to end
 def test_stereo_strain_maps_and_criteria_against_injected_errors(tmp_path, monkeypatch):
     import glsim.workflows.design.cli as cli
     scene = scene_from_dict(strained_stereo_plate(), ".")
