@@ -224,3 +224,30 @@ def test_dic_script_never_imports_glsim():
     names = [a.name for n in ast.walk(tree) if isinstance(n, ast.Import) for a in n.names]
     names += [n.module or "" for n in ast.walk(tree) if isinstance(n, ast.ImportFrom)]
     assert names and not any(name.split(".")[0] == "glsim" for name in names)
+
+
+def test_a_measurement_declaring_a_huge_array_is_refused_before_it_is_made(exchange, tmp_path, monkeypatch):
+    """pyvale's results are read bounded by their .npy headers: an X declaring 10¹² rows is named,
+    not allocated (a MemoryError or an OOM kill); the truth named outside the exchange is refused."""
+    import io
+    import shutil
+    import zipfile
+    exchange = Path(shutil.copytree(exchange, tmp_path / "exchange"))   # (the module's folder stays intact)
+    _synthetic_measurement(exchange, np.zeros(3))
+    path = exchange / "measured_synthetic.npz"
+    with np.load(path) as z:
+        arrays = {k: z[k] for k in z.files}
+    header = io.BytesIO()
+    np.lib.format.write_array_header_1_0(header, {"descr": "<f8", "fortran_order": False, "shape": (2, 10**12, 3)})
+    with zipfile.ZipFile(path, "w") as zf:
+        for k, a in arrays.items():
+            buf = io.BytesIO()
+            np.save(buf, a)
+            zf.writestr(f"{k}.npy", header.getvalue() + a.tobytes() if k == "X" else buf.getvalue())
+    with pytest.raises(GlsimError, match="X"):
+        verify.report(exchange, tmp_path / "results")
+    manifest = json.loads((exchange / "manifest.json").read_text())
+    manifest["truth"] = "../elsewhere.npz"
+    (exchange / "manifest.json").write_text(json.dumps(manifest))
+    with pytest.raises(GlsimError, match="outside the exchange folder"):
+        verify.compare(exchange, {"name": "synthetic"})

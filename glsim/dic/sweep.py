@@ -39,6 +39,7 @@ from glsim.scene import speckle
 from glsim.scene.camera import Camera, pixel_rays, project_camera_frame, to_camera
 from glsim.errors import GlsimError
 from glsim.io.fe import specimen_mesh
+from glsim.io.npzfile import NpzError, read_npz
 from glsim.imaging.reference import Reference, camera_scale
 from glsim.render import Renderer
 from glsim.scene import Plate, Render, Scene, Specimen, Speckle
@@ -349,7 +350,11 @@ def analyse(exchange: str | Path) -> dict:
     seqs = {s["name"]: s for s in manifest["sequences"]}
     out = []
     for run in manifest["runs"]:
-        meas = {name: np.load(exchange / f"measured_{name}_{run['name']}.npz") for name in seqs}
+        try:   # pyvale's results, each array bounded by its header before it is made
+            meas = {name: read_npz(exchange / f"measured_{name}_{run['name']}.npz",
+                                   ("ss_x", "ss_y", "u", "v", "valid", "seconds", "pyvale_version")) for name in seqs}
+        except (NpzError, OSError) as exc:
+            raise GlsimError(f"glsim verify sweep: {exc} — run the DIC again (glsim verify sweep)") from None
         model = next((n for n, s in seqs.items() if s["source"] == "model" and s["spp"] == 1), None)
         for name, seq in seqs.items():
             m = meas[name]

@@ -37,6 +37,7 @@ from glsim.scene.bilinear import bilinear
 from glsim.scene.camera import Camera, to_camera
 from glsim.errors import GlsimError
 from glsim.io.fe import specimen_mesh
+from glsim.io.npzfile import NpzError, read_npz
 from glsim.imaging.reference import Reference, make_reference
 from glsim.render import Renderer, Truth
 from glsim.scene import Bulge, Scene, bulge_scene
@@ -231,8 +232,17 @@ def compare(exchange: str | Path, run: dict) -> dict:
     """One DIC run's Tables 4/5 against the truth maps, on the subsets valid in every state."""
     exchange = Path(exchange)
     manifest = json.loads((exchange / "manifest.json").read_text())
-    truth = np.load(exchange / manifest["truth"])
-    meas = np.load(exchange / f"measured_{run['name']}.npz")
+    truth_path = exchange / str(manifest["truth"])
+    if not _inside(truth_path, exchange):
+        raise GlsimError(f"{exchange / 'manifest.json'}: truth {manifest['truth']!r} lies outside the exchange folder "
+                         "— write the exchange again (glsim verify run)")
+    steps = [s["step"] for s in manifest["states"]]
+    try:   # each array bounded by its header before it is made (pyvale's results, glsim's truth)
+        truth = read_npz(truth_path, [f"X_step{k}" for k in steps])
+        meas = read_npz(exchange / f"measured_{run['name']}.npz",
+                        ("ss_x", "ss_y", "valid", "X", "U", "seconds", "pyvale_version"))
+    except (NpzError, OSError) as exc:
+        raise GlsimError(f"glsim verify: {exc} — run the DIC again (glsim verify run)") from None
     uv = np.stack([meas["ss_x"], meas["ss_y"]], axis=1).astype(np.float64)
     imposed, ok = {}, np.all(meas["valid"], axis=0)
     for s in manifest["states"]:
@@ -302,3 +312,7 @@ def report(exchange: str | Path, results_dir: str | Path) -> dict:
 
 
 # ---- command line -------------------------------------------------------------------------------
+
+
+def _inside(path: Path, folder: Path) -> bool:
+    return Path(path).resolve().is_relative_to(Path(folder).resolve())
