@@ -36,7 +36,7 @@ from pathlib import Path
 
 import numpy as np
 
-from exchange import fresh_dir, load_roi, save_npz
+from exchange import strain_arrays, valid_on_grid, fresh_dir, load_roi, save_npz
 
 
 def run(exchange: Path, manifest: dict, seq: dict, spec: dict) -> dict:
@@ -82,11 +82,7 @@ def strain(files: list[Path], m: dict, kwargs: dict, out: Path) -> dict:
     with contextlib.redirect_stdout(io.StringIO()):
         grid = dic.import_2d(files, delimiter=",", layout="matrix", print_level=0)
     # the matrix layout's (row, column) of every subset of the column layout above
-    cols = np.searchsorted(grid.ss_x[0], m["ss_x"])
-    rows = np.searchsorted(grid.ss_y[:, 0], m["ss_y"])
-    keep = np.zeros(grid.u_px.shape, bool)
-    for k in range(len(files)):
-        keep[k, rows[m["valid"][k]], cols[m["valid"][k]]] = True
+    keep = valid_on_grid(grid.ss_x, grid.ss_y, m, grid.u_px.shape)
     grid.u_px = np.where(keep, grid.u_px, np.nan)
     grid.v_px = np.where(keep, grid.v_px, np.nan)
     prefix = "strain_"
@@ -94,16 +90,7 @@ def strain(files: list[Path], m: dict, kwargs: dict, out: Path) -> dict:
         pstrain.calculate_2d(grid, window_size=int(kwargs["window_size"]), window_element=int(kwargs["window_element"]),
                              strain_formulation=str(kwargs["strain_formulation"]), output_basepath=str(out),
                              output_prefix=prefix, output_delimiter=",", print_level=0)
-    written = [out / f"{prefix}strain_data_{k:04d}.csv" for k in range(len(files))]
-    missing = [str(f) for f in written if not f.is_file()]
-    if missing:
-        raise RuntimeError(f"pyvale's strain wrote no result for {missing} (found {sorted(p.name for p in out.glob('*'))})")
-    with contextlib.redirect_stdout(io.StringIO()):
-        res = pstrain.import_2d(written, delimiter=",", layout="column")
-    exx, eyy, exy = (np.atleast_2d(np.asarray(a, np.float64)) for a in (res.eps_xx, res.eps_yy, res.eps_xy))
-    ok = np.isfinite(exx) & np.isfinite(eyy) & np.isfinite(exy)
-    return {"strain_x": np.asarray(res.window_x, np.float64).ravel(), "strain_y": np.asarray(res.window_y, np.float64).ravel(),
-            "exx": exx, "eyy": eyy, "exy": exy, "strain_valid": ok}
+    return strain_arrays(out, prefix, len(files), pstrain.import_2d)
 
 
 def main(argv: list[str]) -> int:
