@@ -22,24 +22,9 @@ import numpy as np
 
 from glsim.io import images as io
 from glsim.workflows.design import stereo, strain
+from glsim.workflows.design.stats import P95, common_points, median, pct, rms
 from glsim.workflows.design.spec import Design, criteria_for, smaller_is_better
 
-P95 = 95
-
-
-def _rms(a: np.ndarray) -> float:
-    a = a[np.isfinite(a)]
-    return float(np.sqrt(np.mean(a ** 2))) if a.size else math.nan
-
-
-def _median(a: np.ndarray) -> float:
-    a = a[np.isfinite(a)]
-    return float(np.median(a)) if a.size else math.nan
-
-
-def _pct(a: np.ndarray, q: float) -> float:
-    a = a[np.isfinite(a)]
-    return float(np.percentile(a, q)) if a.size else math.nan
 
 
 def row_summary(r: dict) -> dict:
@@ -59,14 +44,14 @@ def row_summary(r: dict) -> dict:
         return {**out, **stereo.row_summary(r), **(strain.row_summary(r) if "exx" in r else {}),
                 "seconds": round(float(m.get("seconds", math.nan)), 3)}
     q = np.hypot(r["quick_sigma_u"], r["quick_sigma_v"]) / math.sqrt(2)
-    out.update(n_subsets=int(len(r["x"])), quick_sigma_px=_median(q), quick_sigma_mm=_median(q * r["scale"]),
+    out.update(n_subsets=int(len(r["x"])), quick_sigma_px=median(q), quick_sigma_mm=median(q * r["scale"]),
                seconds=round(float(m.get("seconds", math.nan)), 3))
     if m["kind"] != "quick":
         ok = r["valid"] & r["truth_valid"]
         e = np.hypot(r["u"] - r["truth_u"], r["v"] - r["truth_v"])
         s = r["static_valid"]
         out.update(valid_share=float(np.mean(r["valid"])) if len(ok) else math.nan,
-                   p95_abs_error_px=_pct(e[ok], P95), p95_abs_error_mm=_pct((e * r["scale"])[ok], P95),
+                   p95_abs_error_px=pct(e[ok], P95), p95_abs_error_mm=pct((e * r["scale"])[ok], P95),
                    mean_u_error_px=float(np.mean((r["u"] - r["truth_u"])[ok])) if ok.any() else math.nan,
                    mean_v_error_px=float(np.mean((r["v"] - r["truth_v"])[ok])) if ok.any() else math.nan,
                    static_std_u_px=float(np.std(r["static_u"][s])) if s.any() else math.nan,
@@ -81,14 +66,9 @@ def _stack(rows: list[dict]) -> dict | None:
     """Engine rows of one (set-up, setting) on their common subset centres: (realisations, n)."""
     if not rows:
         return None
-    keys = [set(zip(np.round(r["x"], 3), np.round(r["y"], 3))) for r in rows]
-    common = sorted(set.intersection(*keys))
-    idx = []
-    for r in rows:
-        where = {xy: i for i, xy in enumerate(zip(np.round(r["x"], 3), np.round(r["y"], 3)))}
-        idx.append(np.array([where[c] for c in common], np.int64))
+    x, y, idx = common_points([r["x"] for r in rows], [r["y"] for r in rows])
     pick = lambda k: np.stack([r[k][i] for r, i in zip(rows, idx)])  # noqa: E731
-    return {"x": np.array([c[0] for c in common]), "y": np.array([c[1] for c in common]),
+    return {"x": x, "y": y,
             **{k: pick(k) for k in ("u", "v", "valid", "static_u", "static_v", "static_valid", "truth_u", "truth_v",
                                     "truth_valid", "scale", "quick_sigma_u", "quick_sigma_v")}}
 
@@ -107,8 +87,8 @@ def aggregate(design: Design, results: list[dict]) -> list[dict]:
             qs = np.concatenate([r["scale"] for r in quick])
             summary = {"setup": v.id, "params": variants[v.id].params, "setting": s.name,
                        "subset_size": s.subset_size, "subset_step": s.subset_step,
-                       "shape_function": s.shape_function, "quick_sigma_px": _median(q),
-                       "quick_sigma_mm": _median(q * qs), "quick_subsets": int(len(q))}
+                       "shape_function": s.shape_function, "quick_sigma_px": median(q),
+                       "quick_sigma_mm": median(q * qs), "quick_subsets": int(len(q))}
             if s.strain is not None:
                 summary.update(strain_window=s.strain_window, strain_element=s.strain_element,
                                strain_formulation=s.strain_formulation)
@@ -142,13 +122,13 @@ def aggregate(design: Design, results: list[dict]) -> list[dict]:
                 floor = float(math.sqrt((su ** 2 + sv ** 2) / 2)) if sok.any() else math.nan
                 summary.update(
                     realisations=int(len(st["u"])), subsets=int(len(st["x"])), valid_share=float(st["valid"].mean()),
-                    p95_abs_error_px=_pct(err, P95), p95_abs_error_mm=_pct(err * scale, P95),
-                    rms_bias_px=_rms(np.hypot(bias_u, bias_v)), rms_bias_mm=_rms(np.hypot(bias_u, bias_v) * scale),
-                    median_noise_px=_median(np.hypot(noise_u, noise_v) / math.sqrt(2)),
-                    median_noise_mm=_median(np.hypot(noise_u, noise_v) / math.sqrt(2) * scale),
+                    p95_abs_error_px=pct(err, P95), p95_abs_error_mm=pct(err * scale, P95),
+                    rms_bias_px=rms(np.hypot(bias_u, bias_v)), rms_bias_mm=rms(np.hypot(bias_u, bias_v) * scale),
+                    median_noise_px=median(np.hypot(noise_u, noise_v) / math.sqrt(2)),
+                    median_noise_mm=median(np.hypot(noise_u, noise_v) / math.sqrt(2) * scale),
                     noise_floor_u_px=float(su), noise_floor_v_px=float(sv), noise_floor_px=floor,
-                    noise_floor_mm=floor * _median(scale), quick_sigma_at_engine_px=_median(qe),
-                    noise_floor_over_quick=floor / _median(qe) if _median(qe) > 0 else math.nan)
+                    noise_floor_mm=floor * median(scale), quick_sigma_at_engine_px=median(qe),
+                    noise_floor_over_quick=floor / median(qe) if median(qe) > 0 else math.nan)
                 maps.update(x=st["x"], y=st["y"], bias_u=bias_u, bias_v=bias_v, noise_u=noise_u, noise_v=noise_v,
                             scale=scale, quick_engine=qe)
             if sweeps:

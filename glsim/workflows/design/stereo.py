@@ -33,6 +33,7 @@ from glsim.scene.locate import points_truth
 from glsim.workflows.design import quick, strain as strainmod
 from glsim.workflows.design.engine import StereoEngine, write_stereo_exchange
 from glsim.workflows.design.planar import Prepared, static_seed
+from glsim.workflows.design.stats import median, pct, rms
 from glsim.workflows.design.spec import DicSetting
 
 AXES = ("X", "Y", "Z")
@@ -176,22 +177,6 @@ def _points(prep: StereoPrepared, x: np.ndarray, y: np.ndarray):
 
 
 # ---- summaries --------------------------------------------------------------------------------------
-P95 = 95
-
-
-def _pct(a: np.ndarray, q: float = P95) -> float:
-    a = a[np.isfinite(a)]
-    return float(np.percentile(a, q)) if a.size else math.nan
-
-
-def _rms(a: np.ndarray) -> float:
-    a = a[np.isfinite(a)]
-    return float(np.sqrt(np.mean(a ** 2))) if a.size else math.nan
-
-
-def _median(a: np.ndarray) -> float:
-    a = a[np.isfinite(a)]
-    return float(np.median(a)) if a.size else math.nan
 
 
 def _std(a: np.ndarray) -> float:
@@ -205,8 +190,8 @@ def row_summary(r: dict) -> dict:
     e = {a: np.where(ok, r[a] - r[f"truth_{a}"], np.nan) for a in DISPLACEMENTS}
     s = r["static_valid"]
     return {"n_subsets": int(len(r["x"])), "valid_share": float(np.mean(r["valid"])) if len(ok) else math.nan,
-            "p95_abs_error_mm": _pct(np.sqrt(e["U"] ** 2 + e["V"] ** 2 + e["W"] ** 2)),
-            "p95_abs_W_mm": _pct(np.abs(e["W"])),
+            "p95_abs_error_mm": pct(np.sqrt(e["U"] ** 2 + e["V"] ** 2 + e["W"] ** 2)),
+            "p95_abs_W_mm": pct(np.abs(e["W"])),
             **{f"mean_{a}_error_mm": float(np.nanmean(e[a])) if ok.any() else math.nan for a in DISPLACEMENTS},
             **{f"static_std_{a}_mm": _std(r[f"static_{a}"][s]) for a in DISPLACEMENTS},
             "engine_seconds": round(float(r["engine_seconds"]), 3)}
@@ -264,16 +249,16 @@ def aggregate(rows: list[dict]) -> tuple[dict, dict]:
     floor.update({a: _std((st[f"static_{a}"] - st[f"ref_{a}"])[both]) / math.sqrt(2) for a in AXES})
     summary.update(
         realisations=int(len(st["valid"])), subsets=int(len(st["x"])), valid_share=float(st["valid"].mean()),
-        p95_abs_error_mm=_pct(np.sqrt(e["U"] ** 2 + e["V"] ** 2 + e["W"] ** 2)),
-        p95_abs_W_mm=_pct(np.abs(e["W"])),
-        p95_abs_Z_mm=_pct(np.abs(np.where(ok0, st["ref_Z"] - st["truth_Z"], np.nan))),
-        rms_bias_mm=_rms(bias3), rms_bias_W_mm=_rms(maps["bias_W"]), rms_bias_Z_mm=_rms(maps["bias_Z"]),
-        median_noise_mm=_median(noise3), median_noise_W_mm=_median(maps["noise_W"]),
-        median_noise_Z_mm=_median(maps["noise_Z"]),
+        p95_abs_error_mm=pct(np.sqrt(e["U"] ** 2 + e["V"] ** 2 + e["W"] ** 2)),
+        p95_abs_W_mm=pct(np.abs(e["W"])),
+        p95_abs_Z_mm=pct(np.abs(np.where(ok0, st["ref_Z"] - st["truth_Z"], np.nan))),
+        rms_bias_mm=rms(bias3), rms_bias_W_mm=rms(maps["bias_W"]), rms_bias_Z_mm=rms(maps["bias_Z"]),
+        median_noise_mm=median(noise3), median_noise_W_mm=median(maps["noise_W"]),
+        median_noise_Z_mm=median(maps["noise_Z"]),
         noise_floor_mm=math.sqrt(sum(floor[a] ** 2 for a in DISPLACEMENTS) / 3),
         noise_floor_inplane_mm=math.sqrt((floor["U"] ** 2 + floor["V"] ** 2) / 2),
         **{f"noise_floor_{a}_mm": floor[a] for a in (*DISPLACEMENTS, *AXES)},
-        mm_per_px=_median(np.nanmean(st["scale"], axis=0)))
+        mm_per_px=median(np.nanmean(st["scale"], axis=0)))
     roi = rows[0].get("roi_bits")
     if roi is not None:
         shape = tuple(int(v) for v in rows[0]["roi_shape"])

@@ -29,6 +29,8 @@ import math
 
 import numpy as np
 
+from glsim.workflows.design.stats import common_points, median, pct, rms
+
 DELTA = 0.5        # px: the truth gradient's central-difference half step
 COMPONENTS = ("exx", "eyy", "exy")
 
@@ -131,16 +133,10 @@ def row_arrays(m, truth_fn, formulation: str, static: int = 0, deformed: int = 1
 
 def _stack(rows: list[dict]) -> dict:
     """Strain arrays of one (set-up, setting)'s engine rows on their common strain points."""
-    keys = [set(zip(np.round(r["strain_x"], 3), np.round(r["strain_y"], 3))) for r in rows]
-    common = sorted(set.intersection(*keys))
-    idx = []
-    for r in rows:
-        where = {xy: i for i, xy in enumerate(zip(np.round(r["strain_x"], 3), np.round(r["strain_y"], 3)))}
-        idx.append(np.array([where[c] for c in common], np.int64))
+    x, y, idx = common_points([r["strain_x"] for r in rows], [r["strain_y"] for r in rows])
     names = [*COMPONENTS, *(f"static_{c}" for c in COMPONENTS), *(f"truth_{c}" for c in COMPONENTS),
              "strain_valid", "static_strain_valid", "truth_strain_valid"]
-    return {"x": np.array([c[0] for c in common]), "y": np.array([c[1] for c in common]),
-            **{k: np.stack([r[k][i] for r, i in zip(rows, idx)]) for k in names}}
+    return {"x": x, "y": y, **{k: np.stack([r[k][i] for r, i in zip(rows, idx)]) for k in names}}
 
 
 def _finite(a: np.ndarray) -> np.ndarray:
@@ -177,12 +173,10 @@ def aggregate(rows: list[dict]) -> tuple[dict, dict]:
         noises.append(noise)
         floors.append(floor)
     err = np.concatenate(errs)
-    b = _finite(np.concatenate(biases))
+    b = np.concatenate(biases)
     noise_rms = np.sqrt(np.mean(np.square(noises), axis=0))
     summary.update(strain_points=len(st["x"]), strain_valid_share=float(np.mean(st["strain_valid"])),
-                   p95_abs_strain_error=float(np.percentile(err, 95)) if err.size else math.nan,
-                   rms_strain_bias=float(np.sqrt(np.mean(b ** 2))) if b.size else math.nan,
-                   median_strain_noise=float(np.median(_finite(noise_rms))) if _finite(noise_rms).size else math.nan,
+                   p95_abs_strain_error=pct(err), rms_strain_bias=rms(b), median_strain_noise=median(noise_rms),
                    strain_noise_floor=float(math.sqrt(np.mean(np.square(floors)))))
     return summary, maps
 
