@@ -39,8 +39,10 @@ def test_a_field_crack_is_masked_and_its_labels_jump_by_the_opening(gl_ctx):
     far = np.ones(mask.shape, bool)
     far[124:132, :] = False
     assert mask[far].all()                                   # away from the crack every label is valid
+    # masked along the whole crack, to its tip at column 127.5: near the tip the opening (0.12 px at
+    # column 120) is below the jump rule's threshold, and the split of the mesh marks it
+    assert not mask[127:129, 0:127].any()
     for col in (10, 40, 80):                                 # where the opening is ≥ 0.3 px
-        assert not mask[127:129, col].any(), col
         x_mm = (col - 127.5) * MM_PER_PX
         jump_px = OPENING_MM * math.sqrt(-x_mm / LENGTH_MM) / MM_PER_PX
         above, below = flow[124, col, 1], flow[131, col, 1]

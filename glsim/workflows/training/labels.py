@@ -32,8 +32,9 @@ Masks (uint8, 1 = valid; invalid labels hold 0):
   field's curvature L'' (px/px²), and the image of a pixel averages its footprint, whose mean
   label differs from the centre's by L''/24 per axis: beyond 0.12 px/px² that is 0.005 px, half
   the 0.01 px a DIC resolves, and the centre's label no longer describes the pixel. A split: two
-  elements that share no node yet touch (a node of one coincides with a node of the other in the
-  undeformed mesh) — how an FE mesh models a crack; both pixels of such a pair are masked.
+  elements with two distinct nodes at one place (one of each, in the undeformed mesh) — how an FE
+  mesh models a crack, up to the last edge before an interior tip, whose elements also share the
+  tip node; both pixels of such a pair are masked.
 
 The specimen's outline is not a discontinuity: a pixel there is labelled by its centre's point.
 With ``[exposure]`` (motion over the exposure, a rolling shutter) the labels are of the load
@@ -298,8 +299,8 @@ def _mark_pairs(flags: np.ndarray, ax: int, pairs: np.ndarray) -> None:
 
 
 def _split_pixels(element: np.ndarray, mesh: Mesh) -> np.ndarray:
-    """(H, W) bool: both pixels of every neighbouring pair on two elements that share no node but
-    touch (a node of each at the same place in the undeformed mesh): either side of a split."""
+    """(H, W) bool: both pixels of every neighbouring pair on two elements with two distinct nodes at
+    the same place in the undeformed mesh (one of each): either side of a split."""
     flags = np.zeros(element.shape, bool)
     canon = _canonical_nodes(mesh)
     if canon is None:
@@ -310,10 +311,11 @@ def _split_pixels(element: np.ndarray, mesh: Mesh) -> np.ndarray:
         a, b = _along(element, ax, 0, n - 1), _along(element, ax, 1, n)
         pair = (a >= 0) & (b >= 0) & (a != b)
         qa, qb = quads[a[pair]], quads[b[pair]]
-        shared = (qa[:, :, None] == qb[:, None, :]).any(axis=(1, 2))
-        touch = (canon[qa][:, :, None] == canon[qb][:, None, :]).any(axis=(1, 2))
+        # two distinct nodes at one place: the elements lie on either side of a split, even where
+        # they also share a node (the last edge before a crack's interior tip shares the tip)
+        apart = ((canon[qa][:, :, None] == canon[qb][:, None, :]) & (qa[:, :, None] != qb[:, None, :])).any(axis=(1, 2))
         split = np.zeros(a.shape, bool)
-        split[pair] = touch & ~shared
+        split[pair] = apart
         _mark_pairs(flags, ax, split)
     return flags
 
