@@ -2,11 +2,10 @@
 (resume, ``--verify``). The library command hands over when :func:`handles` says so."""
 from __future__ import annotations
 
-import sys
 import time
 from pathlib import Path
 
-from glsim.errors import GlsimError, interrupted
+from glsim.errors import GlsimError
 
 
 def handles(src: Path) -> bool:
@@ -25,53 +24,44 @@ def handles(src: Path) -> bool:
 
 
 def main(args) -> int:
-    """The library command's parsed ``args`` for a training spec or set."""
+    """The library command's parsed ``args`` for a training spec or set (its errors and an
+    interrupt are reported by the library command, which calls this)."""
     from glsim.workflows.library.audit import print_verify
     from glsim.workflows.training import runner
     from glsim.workflows.training.spec import expand_training, load_training
 
     src = Path(args.source)
-    try:
-        if src.is_dir():
-            if args.dry_run or args.output:
-                raise GlsimError(f"{src} is a training set's directory: --dry-run and -o take a spec file — give "
-                                 "the SPEC.toml, or leave them out to resume this training set")
-            if args.verify:
-                good, problems = runner.verify(src)
-                return print_verify(good, problems, "shards", src, "run `glsim library DIR` to write them again")
-            data = runner.read_info(src)
-            if data is None:
-                raise GlsimError(f"{src}: holds no training set (a damaged {runner.INFO}) — give the spec file")
-            plan, spec, out = expand_training(data["spec"], data["base_dir"]), data["spec"], src
-        else:
-            if args.verify:
-                raise GlsimError(f"--verify checks a training set's directory, and {src} is not one — give the DIR "
-                                 "it was written to")
-            t0 = time.perf_counter()
-            plan = load_training(src, sample=40 if args.dry_run else None)
-            plan_s = (time.perf_counter() - t0) / len(plan.library.variants)
-            spec = runner.stored_spec(plan)
-            out = Path(args.output) if args.output else src.with_suffix("")
-        if args.dry_run:
-            n = plan.library.n_variants
-            print(f"{n} samples ({'the first and last 40 checked; ' * plan.library.sampled}cameras "
-                  f"{', '.join(plan.cameras)}; step 0 and {plan.training.step}), at most {_size(plan.sample_bytes)} "
-                  f"each: {plan.per_shard} per shard of {_size(plan.training.shard_bytes)}, "
-                  f"{-(-n // plan.per_shard)} shards")
-            print(_estimate_line(plan, plan_s))
-            print("dry run: nothing was written")
-            return 0
-        summary = runner.run(plan, spec, out, workers=args.workers, scheduler=args.scheduler, force=args.force,
-                             progress=not args.quiet)
-    except GlsimError as exc:
-        print(f"glsim library: error: {exc}", file=sys.stderr)
-        return 2
-    except BaseException as exc:
-        if not interrupted(exc):
-            raise
-        print("glsim library: interrupted — no partial shard was left; run the same command again to resume",
-              file=sys.stderr)
-        return 130
+    if src.is_dir():
+        if args.dry_run or args.output:
+            raise GlsimError(f"{src} is a training set's directory: --dry-run and -o take a spec file — give "
+                             "the SPEC.toml, or leave them out to resume this training set")
+        if args.verify:
+            good, problems = runner.verify(src)
+            return print_verify(good, problems, "shards", src, "run `glsim library DIR` to write them again")
+        data = runner.read_info(src)
+        if data is None:
+            raise GlsimError(f"{src}: holds no training set (a damaged {runner.INFO}) — give the spec file")
+        plan, spec, out = expand_training(data["spec"], data["base_dir"]), data["spec"], src
+    else:
+        if args.verify:
+            raise GlsimError(f"--verify checks a training set's directory, and {src} is not one — give the DIR "
+                             "it was written to")
+        t0 = time.perf_counter()
+        plan = load_training(src, sample=40 if args.dry_run else None)
+        plan_s = (time.perf_counter() - t0) / len(plan.library.variants)
+        spec = runner.stored_spec(plan)
+        out = Path(args.output) if args.output else src.with_suffix("")
+    if args.dry_run:
+        n = plan.library.n_variants
+        print(f"{n} samples ({'the first and last 40 checked; ' * plan.library.sampled}cameras "
+              f"{', '.join(plan.cameras)}; step 0 and {plan.training.step}), at most {_size(plan.sample_bytes)} "
+              f"each: {plan.per_shard} per shard of {_size(plan.training.shard_bytes)}, "
+              f"{-(-n // plan.per_shard)} shards")
+        print(_estimate_line(plan, plan_s))
+        print("dry run: nothing was written")
+        return 0
+    summary = runner.run(plan, spec, out, workers=args.workers, scheduler=args.scheduler, force=args.force,
+                         progress=not args.quiet)
     print(summary.text())
     return 1 if summary.failed else 0
 
