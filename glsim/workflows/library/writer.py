@@ -243,9 +243,14 @@ def serve(conn, replies, parent: int) -> None:
 
     signal.signal(signal.SIGINT, signal.SIG_IGN)       # Ctrl-C is the parent's to handle
     blocks: dict[int, tuple] = {}                      # slot → (serial, mmap)
+    # SIGTERM is held back while the lifeline thread starts: Thread.start waits on a Condition,
+    # and a SystemExit raised where that wait takes its lock back leaves the lock released twice
+    # (RuntimeError and a traceback). Pending SIGTERMs arrive on unblocking, inside the try.
+    signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGTERM})
     try:
         signal.signal(signal.SIGTERM, _stop)
         die_with_parent(parent)
+        signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGTERM})
         while not _stopped and (msg := conn.recv()) is not None:
             slot, (serial, fd, size), layout, args = msg
             if blocks.get(slot, (None,))[0] != serial:
@@ -271,6 +276,7 @@ def serve(conn, replies, parent: int) -> None:
         pass
     finally:   # nothing in progress now: a SIGTERM during the interpreter's shutdown ends it quietly
         signal.signal(signal.SIGTERM, lambda signum, frame: os._exit(128 + signum))
+        signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGTERM})   # if the setup failed before
 
 
 def main(argv=None) -> None:
