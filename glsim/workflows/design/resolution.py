@@ -177,7 +177,7 @@ def sweep_row(scene: Scene, camera: str, specimen, setting, noise_seed: int | No
     sw = sweep_plate(scene, camera, specimen_depth(scene, camera, specimen), periods_px, amplitude_px)
     images, roi = render_sweep(sw, noise_seed, margin)
     write_exchange(folder / "exchange", images[0], images[1:], roi, setting.subset_size, setting.subset_step,
-                   setting.shape_function, max(16, int(math.ceil(2 * amplitude_px)) + 4))
+                   setting.shape_function, max(16, int(math.ceil(2 * amplitude_px)) + 4), strain=setting.strain)
     m = eng.measure(folder / "exchange")
     t = truth_at(sw, m.x, m.y)
     ok = m.valid & t["truth_valid"][None, :]
@@ -190,5 +190,210 @@ def sweep_row(scene: Scene, camera: str, specimen, setting, noise_seed: int | No
             "amplitude_px": np.float64(amplitude_px), "ratio": ratio, "truth_ratio": truth_ratio,
             "node_spacing_px": np.float64(sw.node_spacing_px), "depth_mm": np.float64(sw.depth),
             "mm_per_px": np.float64(sw.depth / sw.scene.camera(camera).fx),
+            "spatial_resolution_px": np.float64(spatial_resolution(sw.periods_px, ratio)),
+            "engine_seconds": np.float64(m.seconds), "engine_version": np.str_(m.version),
+            **(strain_sweep(sw, m, setting.strain_formulation) if setting.strain is not None else {})}
+
+
+# ---- strain (2-D, a setting with a strain window) ------------------------------------------------------
+def analytic_strain(x_plate: np.ndarray, period: float, amplitude: float, formulation: str) -> np.ndarray:
+    """Exact exx of u = A·sin(2πX/p) (px, X the material point's plate coordinate, px) in pyvale's
+    formulation: ∂u/∂X = A·(2π/p)·cos(2πX/p), F = diag(1 + ∂u/∂X, 1), exx of its measure. On the
+    fronto-parallel plate the reference image's px are the plate's, so this is what pyvale's
+    gradient on the reference image's grid estimates."""
+    from glsim.workflows.design.strain import measure
+
+    g = amplitude * (2 * np.pi / period) * np.cos(2 * np.pi * np.asarray(x_plate, float) / period)
+    F = np.zeros((len(g), 2, 2))
+    F[:, 0, 0], F[:, 1, 1] = 1.0 + np.nan_to_num(g), 1.0
+    return np.where(np.isfinite(g), measure(F, formulation)[:, 0, 0], np.nan)
+
+
+def _motion(sw: Sweep, step: int, x: np.ndarray, y: np.ndarray):
+    """The exact image motion (u, v, valid) px at reference pixels (x, y) of ``step``."""
+    from glsim.scene.camera import project_camera_frame
+
+    cam = sw.scene.camera(sw.camera)
+    uv = np.stack([x, y], axis=1).astype(np.float64)
+    t = points_truth(mesh_geometry(sw.mesh), cam, uv, step)
+    moved, good = project_camera_frame(to_camera(np.nan_to_num(t.X_deformed), cam), cam)
+    ok = t.valid & good
+    d = np.where(ok[:, None], moved - uv, np.nan)
+    return d[:, 0], d[:, 1], ok
+
+
+def strain_sweep(sw: Sweep, m, formulation: str) -> dict[str, np.ndarray]:
+    """The strain of the sweep per period: pyvale's exx at its strain points fitted as the sinusoid
+    (``strain_ratio``: its amplitude over that of the analytic exx fitted at the same points), the
+    FE field's own exx likewise (``truth_strain_ratio``: central differences of the rendered field,
+    as the design's strain truth), and the period where the ratio falls to 90 %."""
+    from glsim.workflows.design import strain as strainmod
+
+    if m.strain_x is None:
+        raise GlsimError("the engine returned no strain for the sinusoid sweep (its npz has no strain arrays)")
+    xp = truth_at_points(sw, m.strain_x, m.strain_y)
+    ratio, truth_ratio, amp = [], [], []
+    for k, p in enumerate(sw.periods_px):
+        exact = analytic_strain(xp, p, sw.amplitude_px, formulation)
+        ref = fit_amplitude(xp, exact, p)
+        meas = np.where(m.strain_valid[k], m.exx[k], np.nan)
+        fe = strainmod.truth(lambda a, b: _motion(sw, k + 1, a, b), m.strain_x, m.strain_y, formulation)["truth_exx"]
+        amp.append(ref)
+        ratio.append(fit_amplitude(xp, meas, p) / ref)
+        truth_ratio.append(fit_amplitude(xp, fe, p) / ref)
+    ratio = np.array(ratio)
+    return {"strain_x": m.strain_x, "strain_y": m.strain_y, "exx": m.exx, "strain_valid": m.strain_valid,
+            "strain_x_plate": xp, "strain_amplitude": np.array(amp), "strain_ratio": ratio,
+            "truth_strain_ratio": np.array(truth_ratio),
+            "strain_spatial_resolution_px": np.float64(spatial_resolution(sw.periods_px, ratio))}
+
+
+def truth_at_points(sw: Sweep, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """The material point's plate x (px from the principal ray) seen at reference pixels (x, y)."""
+    cam = sw.scene.camera(sw.camera)
+    t = points_truth(mesh_geometry(sw.mesh), cam, np.stack([x, y], axis=1).astype(np.float64), 0)
+    xs = to_camera(np.nan_to_num(t.X_undeformed), cam)[:, 0] * cam.fx / sw.depth
+    return np.where(t.valid, xs, np.nan)
+
+
+# ---- stereo (engine pyvale3d): an out-of-plane sinusoid ------------------------------------------------
+@dataclasses.dataclass(frozen=True)
+class StereoSweep:
+    """The stereo sweep's plate: centred on the specimen's node centroid, facing the bisector of the
+    two cameras' lines of sight there; load step k moves it along its normal by
+    W = A·sin(2πx/p_k), x along camera 0's x projected onto the plate. Periods and amplitude in
+    camera 0's px at the plate's centre (mm = px·``mm_per_px``). ``axes``: the plate's x, y and
+    normal (away from the cameras) as columns, world frame; ``origin``: its centre, world."""
+    scene: Scene
+    cameras: tuple[str, str]
+    mesh: object
+    origin: np.ndarray
+    axes: np.ndarray
+    mm_per_px: float
+    periods_px: tuple[float, ...]
+    amplitude_px: float
+    node_spacing_px: float
+
+
+def _centre(cam) -> np.ndarray:
+    """A camera's optical centre, world (X_cam = R·X + t)."""
+    return -np.asarray(cam.rotation, float).T @ np.asarray(cam.translation, float)
+
+
+def bisector_axes(cam0, cam1, point: np.ndarray) -> np.ndarray:
+    """Columns x, y, z (world): z the normal, away from the cameras along the bisector of the two
+    lines of sight to ``point``; x camera 0's x projected onto the plane; y = z × x."""
+    sight = [(_centre(c) - point) / np.linalg.norm(_centre(c) - point) for c in (cam0, cam1)]
+    b = sight[0] + sight[1]
+    if not np.linalg.norm(b) > 1e-9:
+        raise GlsimError("the stereo sweep: the cameras look at the specimen from opposite sides — no plate faces both")
+    z = -b / np.linalg.norm(b)
+    x = np.asarray(cam0.rotation, float)[0]
+    x = x - (x @ z) * z
+    if not np.linalg.norm(x) > 1e-6:
+        raise GlsimError("the stereo sweep: camera 0's x axis is along the bisector — no plate x to vary along")
+    x = x / np.linalg.norm(x)
+    return np.stack([x, np.cross(z, x), z], axis=1)
+
+
+def _plate_extent(cam, origin: np.ndarray, axes: np.ndarray) -> tuple[float, float]:
+    """Half width and height (mm, plate axes) of camera ``cam``'s image corners cast on the plate's plane."""
+    W, H = cam.size
+    R = np.asarray(cam.rotation, float)
+    corners = np.array([[-0.5, -0.5], [W - 0.5, -0.5], [-0.5, H - 0.5], [W - 0.5, H - 0.5]])
+    d = np.stack([(corners[:, 0] - cam.cx) / cam.fx, (corners[:, 1] - cam.cy) / cam.fy, np.ones(4)], axis=1) @ R
+    C, n = _centre(cam), axes[:, 2]
+    s = ((origin - C) @ n) / (d @ n)
+    if not np.all(s > 0):
+        raise GlsimError("the stereo sweep: camera 0's view does not meet the plate's plane in front of it "
+                         "(the plate is seen edge-on) — point the cameras at the specimen")
+    local = (C + s[:, None] * d - origin) @ axes
+    return float(np.max(np.abs(local[:, 0]))), float(np.max(np.abs(local[:, 1])))
+
+
+def stereo_sweep_plate(scene: Scene, cameras: tuple[str, str], origin, periods_px, amplitude_px: float) -> StereoSweep:
+    """The set-up with the stereo sweep's plate (:class:`StereoSweep`) as its specimen."""
+    cam0, cam1 = scene.camera(cameras[0]), scene.camera(cameras[1])
+    origin = np.asarray(origin, float)
+    axes = bisector_axes(cam0, cam1, origin)
+    depth = float(to_camera(origin, cam0)[2])
+    if not depth > 0:
+        raise GlsimError(f"camera {cameras[0]}: the specimen is behind it (depth {depth:.3g} mm) — point it at the specimen")
+    mm = depth / cam0.fx
+    hw, hh = (PLATE_COVER * e for e in _plate_extent(cam0, origin, axes))
+    spacing_px = min(periods_px) / NODES_PER_PERIOD
+    nx = int(math.ceil(2 * hw / (spacing_px * mm)))
+    if nx > MAX_NODES_X:
+        raise GlsimError(f"resolution.periods_px: a smallest period of {min(periods_px)} px needs {nx} elements "
+                         f"across the plate (over {MAX_NODES_X}) — give larger periods")
+    width = nx * spacing_px * mm
+    ny = max(2, int(math.ceil(2 * hh / (16 * spacing_px * mm))))   # W(x) alone: bilinear is exact in y
+    plate = meshmod.plate(width, 2 * hh, nx, ny)
+    x = plate.nodes[:, 0] / mm
+    steps = []
+    for p in periods_px:
+        d = np.zeros_like(plate.nodes)
+        d[:, 2] = amplitude_px * mm * np.sin(2 * np.pi * x / p)
+        steps.append(d)
+    mesh = meshmod.place_mesh(meshmod.with_displacements(plate, steps), "mm", axes, origin)
+    spec = dataclasses.replace(scene.specimen, mesh=None, bulge=None, R=tuple(map(tuple, axes)), t=tuple(origin),
+                               plate=Plate(width=width, height=2 * hh, nx=nx, ny=ny))
+    return StereoSweep(scene.replace(specimen=spec), tuple(cameras), mesh, origin, axes, float(mm),
+                       tuple(float(p) for p in periods_px), float(amplitude_px), float(spacing_px))
+
+
+def stereo_truth_at(sw: StereoSweep, x: np.ndarray, y: np.ndarray) -> dict[str, np.ndarray]:
+    """Per camera-0 subset centre: the material point's plate x (px) and, per period, its exact
+    displacement along the plate's normal (mm); the normal in camera 0's frame."""
+    cam = sw.scene.camera(sw.cameras[0])
+    R = np.asarray(cam.rotation, float)
+    normal = R @ sw.axes[:, 2]
+    g = mesh_geometry(sw.mesh)
+    uv = np.stack([x, y], axis=1).astype(np.float64)
+    xs, ws, ok = None, [], np.ones(len(x), bool)
+    for k in range(1, len(sw.periods_px) + 1):
+        t = points_truth(g, cam, uv, k)
+        if xs is None:   # camera 0's frame → world → plate
+            world = (np.nan_to_num(t.X_undeformed) - np.asarray(cam.translation, float)) @ R
+            xs = (world - sw.origin) @ sw.axes[:, 0] / sw.mm_per_px
+        ok &= t.valid
+        ws.append(np.nan_to_num(t.X_deformed - t.X_undeformed) @ normal)
+    return {"x_plate": np.where(ok, xs, np.nan), "truth_w": np.stack(ws), "truth_valid": ok, "normal": normal}
+
+
+def stereo_sweep_row(scene: Scene, cameras: tuple[str, str], specimen, setting, noise_seed: int | None, periods_px,
+                     amplitude_px: float, eng, folder, margin: int, rig) -> dict[str, np.ndarray]:
+    """One stereo resolution row: the out-of-plane sweep rendered by both cameras (noise
+    ``noise_seed``), measured by the stereo engine ``eng`` with ``setting`` and the rig ``rig``
+    (its calibration), the measured displacement along the plate's normal fitted per period as
+    the 2-D sweep fits U, and the truth likewise."""
+    from glsim.io.calibfiles import pyvale_calibration
+    from glsim.workflows.design import stereo
+    from glsim.workflows.design.engine import write_stereo_exchange
+
+    origin = np.mean(np.asarray(specimen.nodes, float), axis=0)
+    sw = stereo_sweep_plate(scene, cameras, origin, periods_px, amplitude_px)
+    # the ROI from step 0 and the first period's step, eroded by the amplitude as the 2-D sweep's
+    prep = stereo.prepare(sw.scene, sw.cameras, 1, margin + int(math.ceil(amplitude_px)), mesh=sw.mesh)
+    pairs = stereo.state_pairs(prep, noise_seed, range(len(sw.periods_px) + 1))
+    write_stereo_exchange(folder / "exchange", pairs, prep.base.roi, pyvale_calibration(*rig), setting.subset_size,
+                          setting.subset_step, setting.shape_function, max(16, int(math.ceil(2 * amplitude_px)) + 4))
+    m = eng.measure(folder / "exchange")
+    if m.X.shape[0] != len(pairs):
+        raise GlsimError(f"engine {eng.name}: {m.X.shape[0]} states measured, expected {len(pairs)} (the sweep's)")
+    t = stereo_truth_at(sw, m.x, m.y)
+    ok = m.valid[1:] & t["truth_valid"][None, :]
+    w = np.stack([m.U[1:], m.V[1:], m.W[1:]], axis=-1) @ t["normal"]
+    w = np.where(ok, w, np.nan)
+    amp_mm = amplitude_px * sw.mm_per_px
+    ratio = np.array([fit_amplitude(t["x_plate"], w[k], p) for k, p in enumerate(sw.periods_px)]) / amp_mm
+    truth_ratio = np.array([fit_amplitude(t["x_plate"], t["truth_w"][k], p)
+                            for k, p in enumerate(sw.periods_px)]) / amp_mm
+    return {"x": m.x, "y": m.y, "U": m.U[1:], "V": m.V[1:], "W": m.W[1:], "w_normal": w, "valid": m.valid[1:],
+            "x_plate": t["x_plate"], "truth_w": t["truth_w"], "truth_valid": t["truth_valid"],
+            "normal": t["normal"], "periods_px": np.array(sw.periods_px), "amplitude_px": np.float64(amplitude_px),
+            "amplitude_mm": np.float64(amp_mm), "ratio": ratio, "truth_ratio": truth_ratio,
+            "node_spacing_px": np.float64(sw.node_spacing_px), "depth_mm": np.float64(to_camera(sw.origin, scene.camera(cameras[0]))[2]),
+            "mm_per_px": np.float64(sw.mm_per_px),
             "spatial_resolution_px": np.float64(spatial_resolution(sw.periods_px, ratio)),
             "engine_seconds": np.float64(m.seconds), "engine_version": np.str_(m.version)}

@@ -12,8 +12,9 @@ speckle seed and setting, under the first noise seed) measure the sinusoid sweep
 (:mod:`~glsim.workflows.design.resolution`).
 
 Stereo designs (engine pyvale3d) have stereo engine rows instead (:mod:`~glsim.workflows.design.stereo`):
-both cameras rendered, the rig handed to the engine chosen by :func:`rig_cameras`; their quick and
-resolution rows stay 2-D, on camera 0.
+both cameras rendered, the rig handed to the engine chosen by :func:`rig_cameras`; their quick rows
+stay 2-D, on camera 0; their resolution rows measure an out-of-plane sinusoid with the stereo engine
+(:func:`~glsim.workflows.design.resolution.stereo_sweep_row`).
 
 A row lives in ``DIR/rows/<key>/`` (``result.npz``, then ``row.json`` last); ``<key>`` hashes its
 inputs (the resolved scene, camera(s), step, ROI margin, setting, seeds, engine, for stereo the
@@ -110,6 +111,8 @@ def rows(design: Design, engine_name: str | None) -> list[Row]:
                 for kind, n in kinds:
                     extra = {"resolution": [list(design.resolution.periods_px), design.resolution.amplitude_px]} \
                         if kind.endswith(RESOLUTION) else {}
+                    if extra and (design.stereo or s.strain is not None):   # 2-D sweeps without strain keep their keys
+                        extra["sweep"] = "stereo-normal" if design.stereo else "strain"
                     key = row_key({**base, "setting": s.name, "kind": kind, "noise_seed": n, **extra})
                     out.append(Row(key, kind, v.id, ss, s, n))
     return out
@@ -167,11 +170,14 @@ def run(design: Design, out: Path, eng: Engine | None, progress=None) -> list[di
             p = prepared[pk].base if design.stereo else prepared[pk]
             if row.kind == "quick":
                 arrays = quick_row(p, row.setting)
+            elif row.kind.endswith(RESOLUTION) and design.stereo:
+                arrays = resolution.stereo_sweep_row(p.scene, design.cameras, p.mesh, row.setting, row.noise_seed,
+                                                     design.resolution.periods_px, design.resolution.amplitude_px,
+                                                     eng, folder, design.roi_margin, rig_cameras(design, p.scene, out))
             elif row.kind.endswith(RESOLUTION):
-                # the sweep is 2-D on camera 0: a stereo engine lends its planar one
                 arrays = resolution.sweep_row(p.scene, p.camera, p.mesh, row.setting, row.noise_seed,
                                               design.resolution.periods_px, design.resolution.amplitude_px,
-                                              eng.planar() if design.stereo else eng, folder, design.roi_margin)
+                                              eng, folder, design.roi_margin)
             elif design.stereo:
                 arrays = stereo.engine_row(prepared[pk], row.setting, row.noise_seed, eng, folder,
                                            rig_cameras(design, p.scene, out))

@@ -69,11 +69,11 @@ def seen_by(cam0: Camera, cam1: Camera, mesh, pixels: np.ndarray, masks1: dict[i
     return ok
 
 
-def prepare(scene: Scene, cameras: tuple[str, str], step: int, margin: int) -> StereoPrepared:
+def prepare(scene: Scene, cameras: tuple[str, str], step: int, margin: int, mesh=None) -> StereoPrepared:
     """Render both cameras' noise-free states 0 and ``step`` (masks), camera 0's reference image
-    and variance; the stereo ROI (module doc)."""
+    and variance; the stereo ROI (module doc). ``mesh``: the specimen's (default the scene's own)."""
     c0, c1 = cameras
-    mesh = specimen_mesh(scene)
+    mesh = specimen_mesh(scene) if mesh is None else mesh
     with Renderer(scene.replace(noise=None), mesh=mesh) as r:
         out = {(c, k): r.render(c, k, truth=True) for c in cameras for k in (0, step)}
         reference = r.reference
@@ -123,6 +123,16 @@ def noisy_pairs(prep: StereoPrepared, noise_seed: int) -> list[tuple[np.ndarray,
             pairs.append(tuple(np.asarray(r.render(c, step, quantize=True).image, np.float64)
                                / float(2 ** p.scene.camera(c).bit_depth - 1) for c in (p.camera, prep.camera1)))
     return pairs
+
+
+def state_pairs(prep: StereoPrepared, noise_seed: int | None, steps) -> list[tuple[np.ndarray, np.ndarray]]:
+    """[(cam0, cam1)] of each of ``steps`` under one noise seed (None: noise-free), quantised, full scale."""
+    p = prep.base
+    scene = p.scene.replace(noise=None) if noise_seed is None else p.scene.replace(seed=int(noise_seed))
+    full = [float(2 ** p.scene.camera(c).bit_depth - 1) for c in (p.camera, prep.camera1)]
+    with Renderer(scene, mesh=p.mesh, reference=p.reference) as r:
+        return [tuple(np.asarray(r.render(c, k, quantize=True).image, np.float64) / f
+                      for c, f in zip((p.camera, prep.camera1), full)) for k in steps]
 
 
 def search_reach(prep: StereoPrepared) -> int:
