@@ -88,14 +88,18 @@ def preview_window(xserver):
     return run
 
 
+REQUIRED = {"engine": "GLSIM_REQUIRE_ENGINE", "torch": "GLSIM_REQUIRE_TORCH"}   # marker → its tier's variable
+
+
 @pytest.hookimpl(hookwrapper=True)
 def pytest_runtest_makereport(item, call):
     """Under ``make test-engine`` (GLSIM_REQUIRE_ENGINE=1) a test marked ``engine`` that skips —
-    the DIC environment absent or broken — fails instead: that tier exists to run the real engine,
-    and a skipped engine test there would pass CI without measuring anything."""
+    the DIC environment absent or broken — fails instead, and under ``make test-torch``
+    (GLSIM_REQUIRE_TORCH=1) one marked ``torch``: those tiers exist to run what the skip would
+    leave out, and a skipped test there would pass CI without running anything."""
     outcome = yield
     report = outcome.get_result()
-    if (report.skipped and os.environ.get("GLSIM_REQUIRE_ENGINE") == "1"
-            and item.get_closest_marker("engine") is not None):
-        report.outcome = "failed"
-        report.longrepr = f"engine test skipped under GLSIM_REQUIRE_ENGINE=1: {report.longrepr}"
+    for marker, var in REQUIRED.items():
+        if report.skipped and os.environ.get(var) == "1" and item.get_closest_marker(marker) is not None:
+            report.outcome = "failed"
+            report.longrepr = f"{marker} test skipped under {var}=1: {report.longrepr}"
