@@ -1,6 +1,7 @@
 """Shared fixtures: one EGL context for every GL test, its error flag checked around each; a
 virtual X server (Xvfb) for the window tests and ``preview_window`` to run one there."""
 import contextlib
+import fcntl
 import os
 import shutil
 import subprocess
@@ -44,6 +45,28 @@ def _gl_error_check(request):
     assert ctx.error == "GL_NO_ERROR"
     yield
     assert ctx.error == "GL_NO_ERROR"
+
+
+@pytest.fixture(scope="session")
+def shared_dir(tmp_path_factory):
+    """``shared_dir(name, make)``: a directory that ``make(path)`` fills once per test run, shared
+    by the run's xdist workers (a module-scoped fixture is otherwise built by each worker that gets
+    one of its tests): the first to ask builds it under a file lock, the others wait and read it.
+    ``make`` must depend on nothing but ``name``; callers copy it before changing anything in it."""
+    root = tmp_path_factory.getbasetemp()
+    if os.environ.get("PYTEST_XDIST_WORKER"):   # each worker's basetemp lies in the run's own directory
+        root = root.parent
+
+    def get(name, make):
+        d = root / f"shared-{name}"
+        with open(root / f"shared-{name}.lock", "w") as lock:
+            fcntl.flock(lock, fcntl.LOCK_EX)
+            if not (root / f"shared-{name}.done").exists():
+                shutil.rmtree(d, ignore_errors=True)   # a build that failed part way
+                make(d)
+                (root / f"shared-{name}.done").touch()
+        return d
+    return get
 
 
 @pytest.fixture(scope="session")

@@ -191,9 +191,14 @@ def test_rig_yaml_round_trip(tmp_path):
 # --- the rendered library (GL) ------------------------------------------------------------------------
 
 @pytest.fixture(scope="module")
-def ci_library(tmp_path_factory, gl_ctx):
-    out = tmp_path_factory.mktemp("calib") / "lib"
-    return libmod.write_library(libmod.paper_rig(CI_SCALE), DotGrid(), CI_PAIRS, out, seed=CI_SEED, ctx=gl_ctx)
+def ci_library(tmp_path_factory, gl_ctx, shared_dir):
+    """The CI library and its detection cache (found in one process, as ci_detections reads it),
+    rendered once per run for every worker; each worker's own copy, which its tests may change."""
+    def make(out):
+        cal.detect_library(libmod.write_library(libmod.paper_rig(CI_SCALE), DotGrid(), CI_PAIRS, out, seed=CI_SEED,
+                                                ctx=gl_ctx), 41)
+    built = shared_dir("calib-ci-library", make)
+    return libmod.load_library(_copy_library(built, tmp_path_factory.mktemp("calib") / "lib"))
 
 
 def _pair_files(d, n):
@@ -240,8 +245,10 @@ def test_library_files_ground_truth_and_resume(ci_library, gl_ctx):
 
 @pytest.fixture(scope="module")
 def ci_detections(ci_library):
-    """Every pair's detections, found in this process (the tests below check them against the
-    truth; test_two_detection_processes_find_what_one_finds the worker-process path)."""
+    """Every pair's detections, found in one process (read from ci_library's cache; the tests
+    below check them against the truth; test_two_detection_processes_find_what_one_finds the
+    worker-process path)."""
+    assert cal.cache_path(ci_library, 41, cal.default_method(ci_library.target)).is_file()
     return cal.detect_library(ci_library, 41)
 
 
