@@ -99,12 +99,13 @@ $(VERIFY_STAMP): verify/requirements.txt
 	$(VERIFY_VENV)/bin/python -m pip install -q -r verify/requirements.txt
 	touch $@
 
-# make test-torch: the PyTorch loader's tests (examples/training_loader.py, pytest -m torch), after
-# installing torch into .venv where it is not importable (the CPU build, 2.13.0: 25 s and 0.9 GB
-# here from a local wheel; it needs glsim, GL and the test tools, which .venv has); a skip there is
-# a failure. Without a local CPU wheel PyPI gives the CUDA build: make test-torch
-# TORCH="torch==2.13.0 --index-url https://download.pytorch.org/whl/cpu"
+# make test-torch: the PyTorch loader's tests (examples/training_loader.py: pytest -m torch and
+# docs/training.md's blocks), after installing torch into .venv where it is not importable (the CPU
+# build, 2.13.0: 25 s and 0.9 GB here from a local wheel; the tests need glsim, GL and the test
+# tools, which .venv has); a skip there is a failure. Without a local CPU wheel PyPI gives the CUDA
+# build: make test-torch TORCH="torch==2.13.0 --index-url https://download.pytorch.org/whl/cpu"
 TORCH ?= torch==2.13.0
 test-torch: venv
 	$(BIN)/python -c "import torch" 2>/dev/null || $(BIN)/python -m pip install -q $(TORCH)
 	GLSIM_REQUIRE_TORCH=1 $(BIN)/python -m pytest -q -ra -m torch
+	$(BIN)/python -m pytest -q -ra tests/test_doc_examples.py -k "test_every_block_runs and docs/training.md"

@@ -118,6 +118,9 @@ def _expected(s: dict, scales: dict) -> dict:
     return want
 
 
+WORKERS = [0, pytest.param(2, marks=pytest.mark.process)]     # DataLoader worker processes
+
+
 def _read(ds, workers: int) -> list[dict]:
     """Every sample the DataLoader gives (batches of 2 split back into samples), in order."""
     out = []
@@ -135,8 +138,7 @@ def _assert_equal(got: dict, want: dict):
         assert g.tobytes() == np.ascontiguousarray(w).tobytes(), (got["__key__"], name)
 
 
-@pytest.mark.process
-@pytest.mark.parametrize("workers", [0, 2])
+@pytest.mark.parametrize("workers", WORKERS)
 @pytest.mark.parametrize("case", ["five", "stereo", "widened"])
 def test_each_sample_comes_once_equal_to_the_numpy_loaders_arrays_bit_for_bit(sets, case, workers):
     directory, scales = sets[case], CASES[case][1]
@@ -180,8 +182,7 @@ def _order(ds, workers: int) -> list[str]:
     return [g["__key__"] for g in _read(ds, workers)]
 
 
-@pytest.mark.process
-@pytest.mark.parametrize("workers", [0, 2])
+@pytest.mark.parametrize("workers", WORKERS)
 def test_the_shuffle_gives_each_sample_once_in_an_order_its_seed_and_epoch_fix(sets, workers):
     directory = sets["five"]
     ref = _numpy_samples(directory)
