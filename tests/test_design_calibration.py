@@ -2,6 +2,8 @@
 refusals by key, the exact rig, and a stereo calibration from a simulated target library of the
 Table 8 rig at 406 × 308 px checked against the truth."""
 import math
+import pickle
+import shutil
 from pathlib import Path
 
 import numpy as np
@@ -146,10 +148,18 @@ BOUND_T_MM, BOUND_ROT_DEG, BOUND_RMS_PX = 5 * 0.073 * math.sqrt(3), 5 * 0.011 * 
 
 
 @pytest.fixture(scope="module")
-def calibrated(tmp_path_factory, gl_ctx):
-    root = tmp_path_factory.mktemp("design_calibration")
+def calibrated(tmp_path_factory, gl_ctx, shared_dir):
+    """The calibration of PAIRS pairs, made once per run for every worker: its work directory
+    (each worker's own copy) and the rig calibrated_rig returned when it made it (pickled)."""
     spec = dc.calibration_spec({"rig": "targets", "pairs": PAIRS, "seed": SEED})
-    return root, spec, dc.calibrated_rig(spec, _scene(), root / "work", ctx=gl_ctx)
+
+    def make(d):
+        rig = dc.calibrated_rig(spec, _scene(), d / "work", ctx=gl_ctx)
+        (d / "rig.pickle").write_bytes(pickle.dumps(rig))
+    built = shared_dir("design-calibration", make)
+    root = tmp_path_factory.mktemp("design_calibration")
+    shutil.copytree(built / "work", root / "work")
+    return root, spec, pickle.loads((built / "rig.pickle").read_bytes())
 
 
 @pytest.mark.gl
