@@ -44,7 +44,9 @@ STEREO_NOTES = (
     "and U, V, W (the deformed state's displacement) in mm, camera 0's frame, against the exact truth of the "
     "material point seen at each subset centre. Bias map: mean over realisations − truth; noise map: their std "
     "(ddof = 1). Noise floor: std of the static pair's U, V, W (truth 0), and of its X, Y, Z minus the "
-    "reference state's over √2. The quick mode and the spatial resolution stay 2-D, on camera 0 (px). "
+    "reference state's over √2. The quick mode stays 2-D, on camera 0 (px); the spatial resolution is that of an "
+    "out-of-plane sinusoid W along the normal of a plate facing the stereo bisector (mei_W_mm2: W noise floor × "
+    "resolution in mm). "
     "Maps are drawn on camera 0's reference image, the ROI (the specimen both cameras see) outlined.",
 )
 

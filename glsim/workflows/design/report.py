@@ -39,6 +39,13 @@ def row_summary(r: dict) -> dict:
                    truth_amplitude_ratio=[float(x) for x in r["truth_ratio"]],
                    node_spacing_px=float(r["node_spacing_px"]), engine_seconds=round(float(r["engine_seconds"]), 3),
                    seconds=round(float(m.get("seconds", math.nan)), 3))
+        if "amplitude_mm" in r:      # the stereo sweep: W along the plate's normal
+            out.update(sweep_amplitude_mm=float(r["amplitude_mm"]),
+                       spatial_resolution_mm=float(r["spatial_resolution_px"] * r["mm_per_px"]))
+        if "strain_ratio" in r:
+            out.update(strain_spatial_resolution_px=float(r["strain_spatial_resolution_px"]),
+                       strain_amplitude_ratio=[float(x) for x in r["strain_ratio"]],
+                       truth_strain_amplitude_ratio=[float(x) for x in r["truth_strain_ratio"]])
         return out
     if "W" in r:          # a stereo row
         return {**out, **stereo.row_summary(r), **(strain.row_summary(r) if "exx" in r else {}),
@@ -133,8 +140,12 @@ def aggregate(design: Design, results: list[dict]) -> list[dict]:
                             scale=scale, quick_engine=qe)
             if sweeps:
                 summary.update(_resolution_summary(sweeps, summary.get("noise_floor_px", math.nan)))
-                if design.stereo:   # the MEI is a 2-D figure: px noise floor × px resolution
+                if design.stereo:   # mm: the W noise floor of the set-up's stereo rows × the resolution on the plate
                     summary.pop("mei_px2")
+                    summary["mei_W_mm2"] = summary.get("noise_floor_W_mm", math.nan) * summary["spatial_resolution_mm"]
+                if "strain_spatial_resolution_px" in summary:
+                    summary["strain_mei_px"] = (summary.get("strain_noise_floor_exx", math.nan)
+                                                * summary["strain_spatial_resolution_px"])
                 maps["sweep"] = summary["amplitude_ratio"]
             out.append({"summary": summary, "maps": maps})
     return out
@@ -149,11 +160,19 @@ def _resolution_summary(sweeps: list[dict], noise_floor_px: float) -> dict:
     ratio = np.mean([r["ratio"] for r in sweeps], axis=0)
     res = spatial_resolution(periods, ratio)
     mm = float(np.mean([r["mm_per_px"] for r in sweeps]))
-    return {"spatial_resolution_px": res, "spatial_resolution_mm": res * mm, "mei_px2": noise_floor_px * res,
-            "periods_px": [float(p) for p in periods], "amplitude_ratio": [float(x) for x in ratio],
-            "truth_amplitude_ratio": [float(x) for x in np.mean([r["truth_ratio"] for r in sweeps], axis=0)],
-            "sweep_amplitude_px": float(sweeps[0]["amplitude_px"]),
-            "sweep_node_spacing_px": float(sweeps[0]["node_spacing_px"])}
+    out = {"spatial_resolution_px": res, "spatial_resolution_mm": res * mm, "mei_px2": noise_floor_px * res,
+           "periods_px": [float(p) for p in periods], "amplitude_ratio": [float(x) for x in ratio],
+           "truth_amplitude_ratio": [float(x) for x in np.mean([r["truth_ratio"] for r in sweeps], axis=0)],
+           "sweep_amplitude_px": float(sweeps[0]["amplitude_px"]),
+           "sweep_node_spacing_px": float(sweeps[0]["node_spacing_px"])}
+    if all("strain_ratio" in r for r in sweeps):   # a setting with a strain window: exx of the same sweep
+        sr = np.mean([r["strain_ratio"] for r in sweeps], axis=0)
+        sres = spatial_resolution(periods, sr)
+        out.update(strain_spatial_resolution_px=sres, strain_spatial_resolution_mm=sres * mm,
+                   strain_amplitude_ratio=[float(x) for x in sr],
+                   truth_strain_amplitude_ratio=[float(x) for x in
+                                                 np.mean([r["truth_strain_ratio"] for r in sweeps], axis=0)])
+    return out
 
 
 def rank(entries: list[dict], by: str) -> list[dict]:
@@ -309,39 +328,52 @@ def _label(s: dict) -> str:
     return f"{s['setup']} {s['setting']}"
 
 
-def attenuation_figure(entries: list[dict]) -> str:
+def attenuation_figure(entries: list[dict], what: str = "") -> str:
     """Measured / imposed sinusoid amplitude versus period, one line per set-up × setting, the
-    90 % level and each spatial resolution marked; the truth's own ratio (the FE field) dotted."""
+    90 % level and each spatial resolution marked; the truth's own ratio (the FE field) dotted.
+    ``what``: "" the displacement's, "strain_" the strain's (exx over the analytic exx)."""
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
     fig, ax = plt.subplots(figsize=(6, 3.6))
-    for i, e in enumerate(x for x in entries if "amplitude_ratio" in x["summary"]):
+    for i, e in enumerate(x for x in entries if f"{what}amplitude_ratio" in x["summary"]):
         s, c = e["summary"], f"C{i % 10}"
-        ax.plot(s["periods_px"], s["amplitude_ratio"], "-o", color=c, label=_label(s))
-        ax.plot(s["periods_px"], s["truth_amplitude_ratio"], ":", color=c)
-        if math.isfinite(s["spatial_resolution_px"]):
-            ax.axvline(s["spatial_resolution_px"], color=c, alpha=0.4, lw=1)
+        ax.plot(s["periods_px"], s[f"{what}amplitude_ratio"], "-o", color=c, label=_label(s))
+        ax.plot(s["periods_px"], s[f"truth_{what}amplitude_ratio"], ":", color=c)
+        if math.isfinite(s[f"{what}spatial_resolution_px"]):
+            ax.axvline(s[f"{what}spatial_resolution_px"], color=c, alpha=0.4, lw=1)
     ax.axhline(0.9, color="k", lw=0.8, ls="--")
     ax.set_xscale("log")
     ax.set_xlabel("period (px)")
-    ax.set_ylabel("measured / imposed amplitude")
+    ax.set_ylabel("measured / analytic exx amplitude" if what else "measured / imposed amplitude")
     ax.grid(True, which="both", alpha=0.3)
     ax.legend(fontsize=7)
     return _png(fig)
 
 
-def frontier_figure(entries: list[dict]) -> str:
+FRONTIERS = {   # (resolution key, noise floor key, x label, y label)
+    "px": ("spatial_resolution_px", "noise_floor_px", "spatial resolution: period at 90 % amplitude (px)",
+           "noise floor (px)"),
+    "W": ("spatial_resolution_mm", "noise_floor_W_mm", "spatial resolution of W: period at 90 % amplitude (mm)",
+          "noise floor of W (mm)"),
+    "strain": ("strain_spatial_resolution_px", "strain_noise_floor_exx",
+               "strain spatial resolution: period at 90 % exx amplitude (px)", "strain noise floor exx"),
+}
+
+
+def frontier_figure(entries: list[dict], kind: str = "px") -> str:
     """Noise floor versus spatial resolution, one point per set-up × setting; the points no other
-    beats on both (the Pareto frontier) joined; dashed lines of constant MEI = noise × resolution."""
+    beats on both (the Pareto frontier) joined; dashed lines of constant MEI = noise × resolution.
+    ``kind``: a key of :data:`FRONTIERS` (2-D px, stereo W in mm, or the strain's)."""
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    pts = [(e["summary"]["spatial_resolution_px"], e["summary"]["noise_floor_px"], _label(e["summary"]))
-           for e in entries if math.isfinite(e["summary"].get("spatial_resolution_px", math.nan))
-           and math.isfinite(e["summary"].get("noise_floor_px", math.nan))]
+    rk, nk, xlabel, ylabel = FRONTIERS[kind]
+    pts = [(e["summary"][rk], e["summary"][nk], _label(e["summary"]))
+           for e in entries if e["summary"].get(rk, math.nan) > 0    # log axes: NaN and 0 (noise-free) left out
+           and e["summary"].get(nk, math.nan) > 0 and math.isfinite(e["summary"][rk] * e["summary"][nk])]
     fig, ax = plt.subplots(figsize=(6, 3.8))
     for i, (r, n, label) in enumerate(pts):
         ax.plot(r, n, "o", color=f"C{i % 10}", label=label)
@@ -355,10 +387,11 @@ def frontier_figure(entries: list[dict]) -> str:
             ax.plot(grid, mei / grid, ":", color="grey", lw=0.7)
     ax.set_xscale("log")
     ax.set_yscale("log")
-    ax.set_xlabel("spatial resolution: period at 90 % amplitude (px)")
-    ax.set_ylabel("noise floor (px)")
+    ax.set_xlabel(xlabel)
+    ax.set_ylabel(ylabel)
     ax.grid(True, which="both", alpha=0.3)
-    ax.legend(fontsize=7)
+    if pts:
+        ax.legend(fontsize=7)
     return _png(fig)
 
 
@@ -372,7 +405,8 @@ def _cell(v) -> str:
 
 RANK_COLUMNS = ("rank", "setup", "params", "setting", "p95_abs_error_px", "p95_abs_error_mm", "rms_bias_px",
                 "median_noise_px", "noise_floor_px", "p95_abs_strain_error", "rms_strain_bias", "median_strain_noise",
-                "strain_noise_floor", "spatial_resolution_px", "mei_px2", "quick_sigma_px",
+                "strain_noise_floor", "spatial_resolution_px", "mei_px2", "strain_spatial_resolution_px",
+                "strain_mei_px", "quick_sigma_px",
                 "quick_sigma_at_engine_px",
                 "noise_floor_over_quick", "valid_share")
 
@@ -380,25 +414,43 @@ RANK_COLUMNS = ("rank", "setup", "params", "setting", "p95_abs_error_px", "p95_a
 STEREO_COLUMNS = ("rank", "setup", "params", "setting", "p95_abs_error_mm", "p95_abs_W_mm", "rms_bias_mm",
                   "rms_bias_W_mm", "median_noise_mm", "median_noise_W_mm", "noise_floor_mm", "noise_floor_inplane_mm",
                   "noise_floor_W_mm", "p95_abs_Z_mm", "noise_floor_Z_mm", "p95_abs_strain_error", "rms_strain_bias",
-                  "median_strain_noise", "strain_noise_floor", "spatial_resolution_px", "quick_sigma_px",
+                  "median_strain_noise", "strain_noise_floor", "spatial_resolution_px", "spatial_resolution_mm",
+                  "mei_W_mm2", "quick_sigma_px",
                   "quick_sigma_mm", "valid_share")
+
+
+def _img(alt: str, png: str) -> str:
+    return f"<img alt='{alt}' src='data:image/png;base64,{png}'>"
 
 
 def _resolution_section(entries: list[dict], stereo_design: bool = False) -> str:
     if not any("amplitude_ratio" in e["summary"] for e in entries):
         return ""
-    if stereo_design:   # no px noise floor to set against the resolution
-        return ("<h2>Spatial resolution (camera 0, 2-D): the sinusoid sweep</h2><p>Measured / imposed amplitude of "
-                "u(x) = A·sin(2πx/p) on a flat plate square onto camera 0 per period, by pyvale's 2-D DIC; the "
-                "spatial resolution is the period where it falls to 90 % (dotted: the truth's own ratio).</p>"
-                f"<img alt='attenuation versus period' src='data:image/png;base64,{attenuation_figure(entries)}'>")
-    return ("<h2>Spatial resolution: the sinusoid sweep</h2><p>Measured / imposed amplitude of u(x) = A·sin(2πx/p) "
-            "on a flat plate per period; the spatial resolution is the period where it falls to 90 % (dotted: the "
-            "truth's own ratio, the FE field's interpolation).</p><img alt='attenuation versus period' "
-            f"src='data:image/png;base64,{attenuation_figure(entries)}'><h2>Noise versus resolution</h2><p>Lower "
-            "left is better on both; a point on the black line is beaten on both by no other; dotted lines: "
-            "constant metrological efficiency indicator (noise floor × spatial resolution).</p><img "
-            f"alt='noise versus resolution frontier' src='data:image/png;base64,{frontier_figure(entries)}'>")
+    if stereo_design:
+        out = ("<h2>Spatial resolution (stereo): the out-of-plane sinusoid sweep</h2><p>Measured / imposed amplitude "
+               "of W(x) = A·sin(2πx/p) along the normal of a flat plate facing the stereo bisector at the specimen's "
+               "place, per period (camera 0's px at the plate), by pyvale's stereo DIC; the spatial resolution is the "
+               "period where it falls to 90 % (dotted: the truth's own ratio).</p>"
+               + _img("attenuation versus period", attenuation_figure(entries))
+               + "<h2>Noise versus resolution (W)</h2><p>The W noise floor of the set-up's stereo rows against the "
+               "resolution in mm; dotted lines: constant metrological efficiency indicator (mei_W_mm2).</p>"
+               + _img("noise versus resolution frontier", frontier_figure(entries, "W")))
+        return out
+    out = ("<h2>Spatial resolution: the sinusoid sweep</h2><p>Measured / imposed amplitude of u(x) = A·sin(2πx/p) "
+           "on a flat plate per period; the spatial resolution is the period where it falls to 90 % (dotted: the "
+           "truth's own ratio, the FE field's interpolation).</p>" + _img("attenuation versus period",
+                                                                          attenuation_figure(entries))
+           + "<h2>Noise versus resolution</h2><p>Lower left is better on both; a point on the black line is beaten on "
+           "both by no other; dotted lines: constant metrological efficiency indicator (noise floor × spatial "
+           "resolution).</p>" + _img("noise versus resolution frontier", frontier_figure(entries)))
+    if any("strain_amplitude_ratio" in e["summary"] for e in entries):
+        out += ("<h2>Strain spatial resolution</h2><p>pyvale's exx of the same sweep, its fitted amplitude over that "
+                "of the analytic exx of u (∂u/∂x = A·(2π/p)·cos(2πx/p) in the setting's formulation) at the same "
+                "strain points; the strain's resolution is the period where it falls to 90 % (dotted: the FE "
+                "field's own strain). The subset and the strain window both smooth.</p>"
+                + _img("strain attenuation versus period", attenuation_figure(entries, "strain_"))
+                + _img("strain noise versus resolution frontier", frontier_figure(entries, "strain")))
+    return out
 
 
 def _cameras(design: Design) -> str:

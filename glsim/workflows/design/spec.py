@@ -32,7 +32,8 @@ A spec is a TOML file::
     rig = "exact"              # the scene's own cameras; "targets": calibrated from a simulated target library
 
     [resolution]               # optional, with an engine: the sinusoid sweep (resolution.py)
-    periods_px = [16, 32, 64]  # periods of u(x) = A·sin(2πx/p), px at the plate; default from the subsets
+    periods_px = [16, 32, 64]  # periods of u(x) = A·sin(2πx/p) (stereo: W along the plate's normal), px at
+                               # the plate; default from the subsets
     amplitude_px = 0.5         # A, px (the DIC Challenge 2.0 star's)
 
     [rank]
@@ -78,6 +79,10 @@ CRITERIA = {
     "spatial_resolution_px": ("period (px) at which the sinusoid's measured amplitude falls to 90 % ([resolution])",
                               True, True),
     "mei_px2": ("metrological efficiency indicator: noise floor × spatial resolution (px², [resolution])", True, True),
+    "strain_spatial_resolution_px": ("period (px) at which the sinusoid's measured exx amplitude falls to 90 % of "
+                                     "the analytic one ([resolution] and [dic] strain_window)", True, True),
+    "strain_mei_px": ("strain's efficiency indicator: exx noise floor × strain spatial resolution (strain·px, "
+                      "[resolution] and [dic] strain_window)", True, True),
     "valid_share": ("share of subsets converged above the ZNCC threshold (larger is better)", True, False),
     "p95_abs_strain_error": ("95th percentile over strain points, realisations and the components exx, eyy, exy "
                              "of |strain − truth| (strain, [dic] strain_window)", True, True),
@@ -90,8 +95,7 @@ CRITERIA = {
     "quick_sigma_px": ("median over subsets of the Cramér–Rao σ_u, σ_v (px), quick mode", False, True),
     "quick_sigma_mm": ("the same in mm", False, True),
 }
-# stereo criteria (engine pyvale3d): mm, camera 0's frame; the quick ones and the spatial resolution
-# stay 2-D, on camera 0
+# stereo criteria (engine pyvale3d): mm, camera 0's frame; the quick ones stay 2-D, on camera 0
 STEREO_CRITERIA = {
     "p95_abs_error_mm": ("95th percentile over subsets and realisations of |(U, V, W) − truth| (mm)", True, True),
     "p95_abs_W_mm": ("95th percentile over subsets and realisations of |W − truth| (mm, out of camera 0's plane)",
@@ -109,11 +113,17 @@ STEREO_CRITERIA = {
     **{k: (CRITERIA[k][0].replace("strain − truth", "surface strain − truth"), True, True)
        for k in ("p95_abs_strain_error", "rms_strain_bias", "median_strain_noise", "strain_noise_floor")},
     "valid_share": CRITERIA["valid_share"],
-    "spatial_resolution_px": CRITERIA["spatial_resolution_px"][:1] + (True, True),
+    "spatial_resolution_px": ("period (camera 0's px at the plate) at which an out-of-plane sinusoid W's measured "
+                              "amplitude falls to 90 % ([resolution], stereo)", True, True),
+    "spatial_resolution_mm": ("the same in mm on the plate", True, True),
+    "mei_W_mm2": ("metrological efficiency indicator: W noise floor × spatial resolution (mm², [resolution])",
+                  True, True),
     "quick_sigma_px": CRITERIA["quick_sigma_px"],
     "quick_sigma_mm": CRITERIA["quick_sigma_mm"],
 }
 MAX_SUBSET = 301
+RESOLUTION_CRITERIA = ("spatial_resolution_px", "spatial_resolution_mm", "mei_px2", "mei_W_mm2",
+                       "strain_spatial_resolution_px", "strain_mei_px")
 STRAIN_CRITERIA = ("p95_abs_strain_error", "rms_strain_bias", "median_strain_noise", "strain_noise_floor")
 
 
@@ -277,8 +287,11 @@ def check_design(spec: dict, spec_dir: str | Path = ".") -> Design:
     if criteria[by][1] and engine == "quick":
         _fail("rank.by", f"{by!r} needs a measuring engine, and engine is \"quick\"",
               "write engine = \"pyvale2d\", or rank by quick_sigma_px or quick_sigma_mm")
-    if by in ("spatial_resolution_px", "mei_px2") and resolution is None:
+    if by in RESOLUTION_CRITERIA and resolution is None:
         _fail("rank.by", f"{by!r} needs the sinusoid sweep", "add a [resolution] table (periods_px, amplitude_px)")
+    if by.startswith("strain_") and by in RESOLUTION_CRITERIA and all(st.strain_window is None for st in settings):
+        _fail("rank.by", f"{by!r} ranks by the strain's resolution, and [dic] asks for no strain",
+              "add dic.strain_window = [5, 9]")
     if by in STRAIN_CRITERIA and all(st.strain_window is None for st in settings):
         _fail("rank.by", f"{by!r} ranks by strain, and [dic] asks for none", "add dic.strain_window = [5, 9]")
 
@@ -313,7 +326,7 @@ def check_design(spec: dict, spec_dir: str | Path = ".") -> Design:
                 if s.subset_size > min(W, H):
                     _fail("dic.subset_size", f"{s.subset_size} px is larger than the image of {c} ({W}×{H}, "
                           f"variant {v.id})", "give smaller subsets")
-    # the 2-D engine runs the sweep of camera 0 for a stereo design too
+    # pyvale's DIC writes empty results on small images (the stereo sweep's calculate_3d runs on camera 0's)
     if engine == "pyvale2d" or (engine == STEREO and resolution is not None):
         for v in plan.variants:
             W, H = v.scene.camera(camera).size
