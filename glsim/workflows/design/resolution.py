@@ -20,6 +20,19 @@ few distinct phases — gives NaN; the spec refuses periods ≤ 2 × the subset 
 indicator is noise floor × spatial resolution (px²): smaller is better on both axes of the
 noise/resolution trade-off. The ratios are measured on the set-up's noisy images (its first noise
 seed); the fit over hundreds of subsets averages the noise.
+
+Strain (a setting with a strain window): pyvale's exx of the same sweep at its strain points, fitted
+alike, over the fitted amplitude of the analytic exx at the same points (∂u/∂X = A·(2π/p)·cos(2πX/p),
+F = diag(1 + ∂u/∂X, 1), the setting's formulation); the strain's resolution is where that falls to 0.9.
+
+Stereo (engine pyvale3d, :func:`stereo_sweep_row`): the plate sits at the specimen's node centroid
+facing the bisector of the two cameras' lines of sight (both cameras foreshorten it alike, as the
+DIC Challenge 2.0 stereo set-up; a curved specimen's mean normal could face one camera more than the
+other, or away), x along camera 0's x projected onto it; step k moves it along its normal by
+W = A·sin(2πx/p_k) (px of camera 0 at the plate's centre). Both cameras render every step, the stereo
+engine measures them against step 0 with the design's rig, and the measured displacement's component
+along the plate's normal is fitted as U is in 2-D (camera 0's W alone would carry cos of the half
+stereo angle).
 """
 from __future__ import annotations
 
