@@ -52,15 +52,19 @@ def shared_dir(tmp_path_factory):
     """``shared_dir(name, make)``: a directory that ``make(path)`` fills once per test run, shared
     by the run's xdist workers (a module-scoped fixture is otherwise built by each worker that gets
     one of its tests): the first to ask builds it under a file lock, the others wait and read it.
-    ``make`` must depend on nothing but ``name``; callers copy it before changing anything in it."""
+    ``make`` must depend on nothing but ``name``; callers copy it before changing anything in it.
+    ``wait=False``: None at once where another worker is building it (to build another meanwhile)."""
     root = tmp_path_factory.getbasetemp()
     if os.environ.get("PYTEST_XDIST_WORKER"):   # each worker's basetemp lies in the run's own directory
         root = root.parent
 
-    def get(name, make):
+    def get(name, make, wait=True):
         d = root / f"shared-{name}"
         with open(root / f"shared-{name}.lock", "w") as lock:
-            fcntl.flock(lock, fcntl.LOCK_EX)
+            try:
+                fcntl.flock(lock, fcntl.LOCK_EX | (0 if wait else fcntl.LOCK_NB))
+            except BlockingIOError:
+                return None
             if not (root / f"shared-{name}.done").exists():
                 shutil.rmtree(d, ignore_errors=True)   # a build that failed part way
                 make(d)

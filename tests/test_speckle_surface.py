@@ -4,6 +4,8 @@ same dots at the same material points, so its images agree."""
 from __future__ import annotations
 
 import dataclasses
+import pickle
+from types import SimpleNamespace
 
 import meshio
 import numpy as np
@@ -94,14 +96,24 @@ def grey8(image):
 
 
 @pytest.fixture(scope="module")
-def images(tmp_path_factory):
-    """Camera 0's image of every meshing of the plate (bspline3, the default, and procedural)."""
-    out = {}
-    for name, kw in KINDS.items():
-        scene = scene_file(tmp_path_factory.mktemp("plate"), **kw)
-        with Renderer(scene, "cpu") as r:
-            out[name] = (r.render(0, 0, truth=True), r.render(0, 0, interpolation="procedural").image)
-    return out
+def images(shared_dir):
+    """Camera 0's image of every meshing of the plate (bspline3, the default, and procedural),
+    each rendered once per run for every worker (the arrays the test reads, pickled; the workers
+    render different meshings at once, then wait for the rest)."""
+    def make(name):
+        def render(d):
+            with Renderer(scene_file(d, **KINDS[name]), "cpu") as r:
+                res = r.render(0, 0, truth=True)
+                out = (SimpleNamespace(image=res.image, truth=SimpleNamespace(
+                    mask=res.truth.mask, X_undeformed=res.truth.X_undeformed)),
+                    r.render(0, 0, interpolation="procedural").image)
+            (d / "images.pickle").write_bytes(pickle.dumps(out))
+        return render
+
+    for i, name in enumerate(KINDS):
+        shared_dir(f"speckle-plate{i}", make(name), wait=False)
+    return {name: pickle.loads((shared_dir(f"speckle-plate{i}", make(name)) / "images.pickle").read_bytes())
+            for i, name in enumerate(KINDS)}
 
 
 @pytest.mark.parametrize("name", [k for k in KINDS if k != "Q4"])
