@@ -106,6 +106,12 @@ GMSH = {
         _msh(HEAD_ASCII + NODES_ASCII + ELEMENTS_ASCII + '$NodeData\n1\n"u"\n1\n0.0\n3\n0\n3\n1000000000000\n'
              "1 0 0 0\n$EndNodeData\n"),
         "m.msh: its $NodeData section's 1,000,000,000,000 items declares 4,000,000,000,000 values, more than the"),
+    "MSH2 binary element block of 1e9 elements": (
+        _msh(lambda: b"$MeshFormat\n2.2 1 8\n" + struct.pack("<i", 1) + b"\n$EndMeshFormat\n$Nodes\n4\n"
+             + b"".join(struct.pack("<i3d", k + 1, *POINTS[k]) for k in range(4)) + b"\n$EndNodes\n$Elements\n1\n"
+             + struct.pack("<3i", 3, 10**9, 2) + struct.pack("<7i", 1, 0, 0, 1, 2, 3, 4) + b"\n$EndElements\n"),
+        "m.msh: its $Elements section: element block 1 declares 1,000,000,000 elements, more than the 1 its section "
+        "declares"),
 }
 # where the machine has the memory, these load (meshio's tag table: 8 bytes a tag up to 10⁸); in
 # the capped subprocess alone they are refused, by the estimate, before meshio allocates the table
@@ -114,6 +120,11 @@ GMSH_CAPPED = {
         _msh(lambda: HEAD_BINARY + binary_nodes(4, tags=(1, 2, 3, 10**8)) + binary_elements(1, nodes=(1, 2, 3, 10**8))),
         "m.msh: declares 4 nodes and 0 elements (its $Nodes, with node tags up to 100,000,000 in entity block 1), "
         "which need"),
+    "MSH2 ASCII node tag 1e9": (
+        _msh("$MeshFormat\n2.2 0 8\n$EndMeshFormat\n$Nodes\n4\n1 0 0 0\n2 10 0 0\n3 10 10 0\n1000000000 0 10 0\n"
+             "$EndNodes\n$Elements\n1\n1 3 2 0 1 1 2 3 1000000000\n$EndElements\n"),
+        "m.msh: declares 4 nodes and 0 elements (its $Nodes, with node tags up to 1,000,000,000 in its $Nodes "
+        "section), which need"),
 }
 
 

@@ -199,8 +199,9 @@ def _check_gmsh(path: Path) -> None:
                 raise SceneError(str(path), f"its {name} section declares {n:,} entries in {blocks:,} blocks, more "
                                  f"than its {size:,} bytes can hold (at least {least} bytes each)", _GMSH_FIX)
         check_mesh_memory(str(path), nodes[1], elements[1], 16 * max(nodes[2], 0), " (its $Nodes and $Elements)")
-        if version.startswith("4") and (not binary or data_size in (4, 8)):
-            g = _Gmsh(str(path), mm, binary, version == "4.0", data_size, start)
+        major = version.split(".")[0]
+        if major in ("2", "4") and (not binary or data_size in (4, 8)):
+            g = _Gmsh(str(path), mm, binary, version if major == "4" else "2", data_size, start)
             with contextlib.suppress(_Unread):
                 g.walk()
             check_mesh_memory(str(path), g.nodes, g.elements, 16 * g.max_tag + g.data_bytes,
@@ -243,10 +244,10 @@ def _skip_tokens(mm, pos: int, k: int) -> int:
     return _BLANKS.match(mm, pos).end()
 
 
-def _tag_range(mm, at: int, n: int, record) -> tuple[float, float]:
+def _tag_range(mm, at: int, n: int, record, every: int = 1) -> tuple[float, float]:
     """(largest, smallest) of n node tags at ``at`` in the mapped file: binary values (``record``, a
-    dtype: the tag or a record with a field 'tag'), or ASCII tokens up to ``record`` (an offset). The
-    views on the map end here, so that it can be closed whatever is raised next."""
+    dtype: the tag or a record with a field 'tag'), or ASCII tokens up to ``record`` (an offset; every
+    ``every``-th token a tag). The views on the map end here, so that it can be closed whatever is raised next."""
     if n == 0:
         return 0.0, 1.0
     if isinstance(record, np.dtype):
@@ -256,7 +257,7 @@ def _tag_range(mm, at: int, n: int, record) -> tuple[float, float]:
         import warnings
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
-            tags = np.fromstring(mm[at:record], dtype=np.float64, sep=" ")
+            tags = np.fromstring(mm[at:record], dtype=np.float64, sep=" ")[::every]   # MSH 2: 'tag x y z'
     return (float(tags.max()), float(tags.min())) if len(tags) else (0.0, 1.0)
 
 
@@ -269,10 +270,11 @@ class _Gmsh:
     sizes meshio's tag table) the memory estimate. Where meshio fails before allocating more (an
     unknown element type, the end of the file) it raises _Unread."""
 
-    def __init__(self, path: str, mm, binary: bool, v40: bool = False, data_size: int = 8, pos: int = 0):
+    def __init__(self, path: str, mm, binary: bool, version: str = "4.1", data_size: int = 8, pos: int = 0):
         self.path, self.mm, self.binary, self.pos = path, mm, binary, pos
-        self.v40 = v40                                   # MSH 4.0: counts are C longs, element nodes C ints
-        self.size_t = "Q" if v40 or data_size == 8 else "I"
+        self.v40 = version == "4.0"                      # MSH 4.0: counts are C longs, element nodes C ints
+        self.v2 = version == "2"                         # MSH 2: a count line, then the nodes or elements
+        self.size_t = "Q" if self.v40 or data_size == 8 else "I"
         self.nodes = self.elements = self.max_tag = self.data_bytes = 0
 
     # ---- reading as meshio reads
@@ -354,6 +356,9 @@ class _Gmsh:
     def walk(self) -> None:
         sections = {b"Entities": self.entities, b"Nodes": self.node_blocks, b"Elements": self.element_blocks,
                     b"Periodic": self.periodic, b"NodeData": self.data, b"ElementData": self.data}
+        if self.v2:                                      # (its $Periodic is read line by line)
+            sections = {b"Nodes": self.nodes_v2, b"Elements": self.elements_v2, b"NodeData": self.data,
+                        b"ElementData": self.data}
         while self.left() > 0:
             line = self.line().strip()
             if not line:
@@ -454,6 +459,44 @@ class _Gmsh:
             most, least = max(most, tag), min(least, tag)
         if n:
             self._keep_tag(most, least, name)
+
+    def nodes_v2(self, what: str) -> None:
+        """MSH 2: a count line, then 'tag x y z' values (ASCII; meshio sizes its tag table by the largest
+        tag) or records of an int tag and 3 doubles (binary; meshio requires tags 1…n)."""
+        (total,) = self._line_ints(1, what)
+        self._check_count(total, total, what, "nodes")
+        self.nodes += total
+        self.fits(total if self.binary else 4 * total, 28, what, f"{total:,} nodes")
+        if self.binary:
+            return
+        at = self.pos
+        self.skip(4 * total, 8, what)
+        if total:
+            most, least = _tag_range(self.mm, at, total, self.pos, every=4)
+            self._keep_tag(most, least, what)
+
+    def elements_v2(self, what: str) -> None:
+        """MSH 2: a count line, then lines (ASCII: meshio reads them one by one, allocating as it goes) or
+        binary blocks of an element type, a count and a number of tags, each bounded here."""
+        from meshio._common import num_nodes_per_cell
+        from meshio.gmsh.common import _gmsh_to_meshio_type
+
+        (total,) = self._line_ints(1, what)
+        self._check_count(total, total, what, "elements")
+        self.fits(2 * total, 4 if self.binary else 2, what, f"{total:,} elements")
+        self.elements += total
+        seen, k = 0, 0
+        while self.binary and seen < total:
+            k += 1
+            name = f"{what}: element block {k}"
+            kind, n, tags = self.ints("iii", name)
+            self._check_count(tags, max(tags, 0), name, "tags")
+            self._check_count(n, total - seen, name, "elements")
+            nodes = num_nodes_per_cell.get(_gmsh_to_meshio_type.get(kind, ""))
+            if nodes is None:
+                raise _Unread                            # meshio: no such element type
+            self.skip(n * (1 + tags + nodes), 4, name, f"{n:,} elements of {nodes} nodes and {tags:,} tags")
+            seen += n
 
     def element_blocks(self, what: str) -> None:
         from meshio._common import num_nodes_per_cell
