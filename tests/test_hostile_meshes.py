@@ -93,6 +93,10 @@ GMSH = {
         _msh(HEAD_ASCII + "$Comments\n$Nodes\n1 1 1 1\n2 1 0 1\n1\n0 0 0\n$EndNodes\n$EndComments\n"
              "$Nodes\n1 1000000000000 1 1\n2 1 0 1000000000000\n1\n0 0 0\n$EndNodes\n"),
         "m.msh: its $Nodes section declares 1,000,000,000,000 nodes in 1 blocks, more than the"),
+    "MSH4 a real $Nodes after an unreadable one in $Comments": (
+        _msh(HEAD_ASCII + "$Comments\n$Nodes\nnot a count\n$EndComments\n"
+             "$Nodes\n1 1000000000000 1 1\n2 1 0 1000000000000\n1\n0 0 0\n$EndNodes\n"),
+        "m.msh: its $Nodes section declares 1,000,000,000,000 nodes in 1 blocks, more than the"),
     "MSH2 behind $Comments, 1e12 nodes": (
         _msh("$Comments\nmade by hand\n$EndComments\n$MeshFormat\n2.2 0 8\n$EndMeshFormat\n$Nodes\n1000000000000\n"
              "1 0 0 0\n$EndNodes\n"),

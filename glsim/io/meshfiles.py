@@ -181,19 +181,22 @@ def _gmsh_format(mm) -> tuple[str, bool, int, int]:
 
 def _check_gmsh(path: Path) -> None:
     """Gmsh's declared node and element counts (and MSH 4.1's largest node tag, which sizes meshio's
-    tag table) against the file's length and the memory estimate, before meshio allocates them; an
-    MSH 4 file is then walked section by section as meshio reads it (:class:`_Gmsh`), each entity
-    block's count bounded before meshio allocates from it."""
+    tag table) against the file's length and the memory estimate, before meshio allocates them; the
+    file is then walked section by section as meshio reads it (:class:`_Gmsh`), each block's count
+    bounded before meshio allocates from it."""
     size = path.stat().st_size
     if size == 0:
         return
     with open(path, "rb") as f, mmap.mmap(f.fileno(), 0, access=mmap.ACCESS_READ) as mm:
         try:
             version, binary, data_size, start = _gmsh_format(mm)
+        except _Unread:
+            return                                       # meshio names it
+        try:                                             # the headers found first (the walk below reads them in order)
             nodes = _gmsh_header(mm, b"$Nodes", version, binary, data_size)
             elements = _gmsh_header(mm, b"$Elements", version, binary, data_size)
-        except (_Unread, ValueError, IndexError, struct.error):
-            return                                       # meshio names it
+        except (ValueError, IndexError, struct.error):
+            nodes = elements = (0, 0, 0)
         for name, (blocks, n, _), least in zip(("$Nodes", "$Elements"), (nodes, elements), _GMSH_MIN_BYTES[binary]):
             if min(n, blocks) < 0 or max(n, blocks) * least > size:
                 raise SceneError(str(path), f"its {name} section declares {n:,} entries in {blocks:,} blocks, more "
@@ -247,7 +250,7 @@ def _skip_tokens(mm, pos: int, k: int) -> int:
 def _tag_range(mm, at: int, n: int, record, every: int = 1) -> tuple[float, float]:
     """(largest, smallest) of n node tags at ``at`` in the mapped file: binary values (``record``, a
     dtype: the tag or a record with a field 'tag'), or ASCII tokens up to ``record`` (an offset; every
-    ``every``-th token a tag). The views on the map end here, so that it can be closed whatever is raised next."""
+    ``every``-th token a tag). The views on the map end here, so that it closes whatever is raised next."""
     if n == 0:
         return 0.0, 1.0
     if isinstance(record, np.dtype):
@@ -262,7 +265,7 @@ def _tag_range(mm, at: int, n: int, record, every: int = 1) -> tuple[float, floa
 
 
 class _Gmsh:
-    """A cursor over a mapped MSH 4 file that reads what meshio 5.3's reader reads, in its order and
+    """A cursor over a mapped Gmsh file that reads what meshio 5.3's reader reads, in its order and
     its way (ASCII: whitespace-separated tokens, as numpy's fromfile reads them, each followed by its
     whitespace; binary: packed values), so that every count meshio allocates from — each $Nodes and
     $Elements entity block's, $Entities', $Periodic's, $NodeData's — is bounded before meshio sees it:
