@@ -42,6 +42,9 @@ def row_summary(r: dict) -> dict:
         if "amplitude_mm" in r:      # the stereo sweep: W along the plate's normal
             out.update(sweep_amplitude_mm=float(r["amplitude_mm"]),
                        spatial_resolution_mm=float(r["spatial_resolution_px"] * r["mm_per_px"]))
+        if "inplane_ratio" in r:     # the stereo sweep's in-plane steps (a setting with a strain window)
+            out.update(inplane_spatial_resolution_px=float(r["inplane_spatial_resolution_px"]),
+                       inplane_amplitude_ratio=[float(x) for x in r["inplane_ratio"]])
         if "strain_ratio" in r:
             out.update(strain_spatial_resolution_px=float(r["strain_spatial_resolution_px"]),
                        strain_amplitude_ratio=[float(x) for x in r["strain_ratio"]],
@@ -172,6 +175,12 @@ def _resolution_summary(sweeps: list[dict], noise_floor_px: float) -> dict:
                    strain_amplitude_ratio=[float(x) for x in sr],
                    truth_strain_amplitude_ratio=[float(x) for x in
                                                  np.mean([r["truth_strain_ratio"] for r in sweeps], axis=0)])
+    if all("inplane_ratio" in r for r in sweeps):   # stereo: U along the plate's x (the strain's steps)
+        ur = np.mean([r["inplane_ratio"] for r in sweeps], axis=0)
+        out.update(inplane_spatial_resolution_px=spatial_resolution(periods, ur),
+                   inplane_amplitude_ratio=[float(x) for x in ur],
+                   truth_inplane_amplitude_ratio=[float(x) for x in
+                                                  np.mean([r["truth_inplane_ratio"] for r in sweeps], axis=0)])
     return out
 
 
@@ -415,7 +424,8 @@ STEREO_COLUMNS = ("rank", "setup", "params", "setting", "p95_abs_error_mm", "p95
                   "rms_bias_W_mm", "median_noise_mm", "median_noise_W_mm", "noise_floor_mm", "noise_floor_inplane_mm",
                   "noise_floor_W_mm", "p95_abs_Z_mm", "noise_floor_Z_mm", "p95_abs_strain_error", "rms_strain_bias",
                   "median_strain_noise", "strain_noise_floor", "spatial_resolution_px", "spatial_resolution_mm",
-                  "mei_W_mm2", "quick_sigma_px",
+                  "mei_W_mm2", "inplane_spatial_resolution_px", "strain_spatial_resolution_px", "strain_mei_px",
+                  "quick_sigma_px",
                   "quick_sigma_mm", "valid_share")
 
 
@@ -435,6 +445,13 @@ def _resolution_section(entries: list[dict], stereo_design: bool = False) -> str
                + "<h2>Noise versus resolution (W)</h2><p>The W noise floor of the set-up's stereo rows against the "
                "resolution in mm; dotted lines: constant metrological efficiency indicator (mei_W_mm2).</p>"
                + _img("noise versus resolution frontier", frontier_figure(entries, "W")))
+        if any("strain_amplitude_ratio" in e["summary"] for e in entries):
+            out += ("<h2>Strain spatial resolution (stereo)</h2><p>Settings with a strain window add steps that move "
+                    "the plate along its own x by U = A·sin(2πx/p): pyvale's surface exx (tangent t₁ = the plate's x) "
+                    "fitted over the analytic exx of U at the same strain points (dotted: the FE field's own surface "
+                    "strain); inplane_spatial_resolution_px is U's own resolution.</p>"
+                    + _img("strain attenuation versus period", attenuation_figure(entries, "strain_"))
+                    + _img("strain noise versus resolution frontier", frontier_figure(entries, "strain")))
         return out
     out = ("<h2>Spatial resolution: the sinusoid sweep</h2><p>Measured / imposed amplitude of u(x) = A·sin(2πx/p) "
            "on a flat plate per period; the spatial resolution is the period where it falls to 90 % (dotted: the "

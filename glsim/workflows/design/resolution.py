@@ -32,7 +32,8 @@ other, or away), x along camera 0's x projected onto it; step k moves it along i
 W = A·sin(2πx/p_k) (px of camera 0 at the plate's centre). Both cameras render every step, the stereo
 engine measures them against step 0 with the design's rig, and the measured displacement's component
 along the plate's normal is fitted as U is in 2-D (camera 0's W alone would carry cos of the half
-stereo angle).
+stereo angle). A setting with a strain window adds steps moving the plate along its x (U), whose
+pyvale surface exx (tangent t₁ = the plate's x) is fitted against the analytic exx as in 2-D.
 """
 from __future__ import annotations
 
@@ -274,7 +275,8 @@ def truth_at_points(sw: Sweep, x: np.ndarray, y: np.ndarray) -> np.ndarray:
 class StereoSweep:
     """The stereo sweep's plate: centred on the specimen's node centroid, facing the bisector of the
     two cameras' lines of sight there; load step k moves it along its normal by
-    W = A·sin(2πx/p_k), x along camera 0's x projected onto the plate. Periods and amplitude in
+    W = A·sin(2πx/p_k), x along camera 0's x projected onto the plate; with ``inplane``, steps
+    K + k move it along its x by U = A·sin(2πx/p_k) (K periods). Periods and amplitude in
     camera 0's px at the plate's centre (mm = px·``mm_per_px``). ``axes``: the plate's x, y and
     normal (away from the cameras) as columns, world frame; ``origin``: its centre, world."""
     scene: Scene
@@ -286,6 +288,7 @@ class StereoSweep:
     periods_px: tuple[float, ...]
     amplitude_px: float
     node_spacing_px: float
+    inplane: bool = False
 
 
 def _centre(cam) -> np.ndarray:
@@ -324,7 +327,8 @@ def _plate_extent(cam, origin: np.ndarray, axes: np.ndarray) -> tuple[float, flo
     return float(np.max(np.abs(local[:, 0]))), float(np.max(np.abs(local[:, 1])))
 
 
-def stereo_sweep_plate(scene: Scene, cameras: tuple[str, str], origin, periods_px, amplitude_px: float) -> StereoSweep:
+def stereo_sweep_plate(scene: Scene, cameras: tuple[str, str], origin, periods_px, amplitude_px: float,
+                       inplane: bool = False) -> StereoSweep:
     """The set-up with the stereo sweep's plate (:class:`StereoSweep`) as its specimen."""
     cam0, cam1 = scene.camera(cameras[0]), scene.camera(cameras[1])
     origin = np.asarray(origin, float)
@@ -344,34 +348,79 @@ def stereo_sweep_plate(scene: Scene, cameras: tuple[str, str], origin, periods_p
     plate = meshmod.plate(width, 2 * hh, nx, ny)
     x = plate.nodes[:, 0] / mm
     steps = []
-    for p in periods_px:
-        d = np.zeros_like(plate.nodes)
-        d[:, 2] = amplitude_px * mm * np.sin(2 * np.pi * x / p)
-        steps.append(d)
+    for axis in (2, 0) if inplane else (2,):     # W along the normal, then U along the plate's x
+        for p in periods_px:
+            d = np.zeros_like(plate.nodes)
+            d[:, axis] = amplitude_px * mm * np.sin(2 * np.pi * x / p)
+            steps.append(d)
     mesh = meshmod.place_mesh(meshmod.with_displacements(plate, steps), "mm", axes, origin)
     spec = dataclasses.replace(scene.specimen, mesh=None, bulge=None, R=tuple(map(tuple, axes)), t=tuple(origin),
                                plate=Plate(width=width, height=2 * hh, nx=nx, ny=ny))
     return StereoSweep(scene.replace(specimen=spec), tuple(cameras), mesh, origin, axes, float(mm),
-                       tuple(float(p) for p in periods_px), float(amplitude_px), float(spacing_px))
+                       tuple(float(p) for p in periods_px), float(amplitude_px), float(spacing_px), bool(inplane))
 
 
 def stereo_truth_at(sw: StereoSweep, x: np.ndarray, y: np.ndarray) -> dict[str, np.ndarray]:
     """Per camera-0 subset centre: the material point's plate x (px) and, per period, its exact
-    displacement along the plate's normal (mm); the normal in camera 0's frame."""
+    displacement along the plate's normal (mm; with ``inplane`` also along its x, ``truth_u``);
+    the plate's normal and x in camera 0's frame."""
     cam = sw.scene.camera(sw.cameras[0])
     R = np.asarray(cam.rotation, float)
-    normal = R @ sw.axes[:, 2]
+    normal, along = R @ sw.axes[:, 2], R @ sw.axes[:, 0]
     g = mesh_geometry(sw.mesh)
     uv = np.stack([x, y], axis=1).astype(np.float64)
-    xs, ws, ok = None, [], np.ones(len(x), bool)
-    for k in range(1, len(sw.periods_px) + 1):
+    K = len(sw.periods_px)
+    xs, ws, us, ok = None, [], [], np.ones(len(x), bool)
+    for k in range(1, (2 if sw.inplane else 1) * K + 1):
         t = points_truth(g, cam, uv, k)
         if xs is None:   # camera 0's frame → world → plate
             world = (np.nan_to_num(t.X_undeformed) - np.asarray(cam.translation, float)) @ R
             xs = (world - sw.origin) @ sw.axes[:, 0] / sw.mm_per_px
         ok &= t.valid
-        ws.append(np.nan_to_num(t.X_deformed - t.X_undeformed) @ normal)
-    return {"x_plate": np.where(ok, xs, np.nan), "truth_w": np.stack(ws), "truth_valid": ok, "normal": normal}
+        d = np.nan_to_num(t.X_deformed - t.X_undeformed)
+        (ws if k <= K else us).append(d @ (normal if k <= K else along))
+    out = {"x_plate": np.where(ok, xs, np.nan), "truth_w": np.stack(ws), "truth_valid": ok, "normal": normal,
+           "along": along}
+    if us:
+        out["truth_u"] = np.stack(us)
+    return out
+
+
+def _stereo_points(sw: StereoSweep, step: int, x: np.ndarray, y: np.ndarray):
+    """Material points seen at camera-0 pixels: reference position, displacement of ``step``
+    (camera 0's frame, mm), valid — the surface strain's truth field."""
+    t = points_truth(mesh_geometry(sw.mesh), sw.scene.camera(sw.cameras[0]), np.stack([x, y], axis=1), step)
+    return t.X_undeformed, t.X_deformed - t.X_undeformed, t.valid
+
+
+def stereo_strain_sweep(sw: StereoSweep, m, formulation: str) -> dict[str, np.ndarray]:
+    """The in-plane steps' surface strain (pyvale's tangent basis: t₁ camera 0's x projected onto
+    the plate, the plate's x): exx fitted per period over the analytic exx of U at the same points
+    (``strain_ratio``), the FE field's surface strain likewise (``truth_strain_ratio``)."""
+    from glsim.workflows.design import strain as strainmod
+
+    if m.strain_x is None:
+        raise GlsimError("the engine returned no strain for the sinusoid sweep (its npz has no strain arrays)")
+    K = len(sw.periods_px)
+    X0, _, ok = _stereo_points(sw, 1, m.strain_x, m.strain_y)
+    cam = sw.scene.camera(sw.cameras[0])
+    world = (np.nan_to_num(X0) - np.asarray(cam.translation, float)) @ np.asarray(cam.rotation, float)
+    xp = np.where(ok, (world - sw.origin) @ sw.axes[:, 0] / sw.mm_per_px, np.nan)
+    ratio, truth_ratio, amp = [], [], []
+    for k, p in enumerate(sw.periods_px):
+        state = K + k + 1                     # the in-plane steps follow the out-of-plane ones
+        ref = fit_amplitude(xp, analytic_strain(xp, p, sw.amplitude_px, formulation), p)
+        meas = np.where(m.strain_valid[state], m.exx[state], np.nan)
+        fe = strainmod.surface_truth(lambda a, b: _stereo_points(sw, state, a, b), m.strain_x, m.strain_y,
+                                     formulation)["truth_exx"]
+        amp.append(ref)
+        ratio.append(fit_amplitude(xp, meas, p) / ref)
+        truth_ratio.append(fit_amplitude(xp, fe, p) / ref)
+    ratio = np.array(ratio)
+    return {"strain_x": m.strain_x, "strain_y": m.strain_y, "exx": m.exx[K + 1:], "strain_valid": m.strain_valid[K + 1:],
+            "strain_x_plate": xp, "strain_amplitude": np.array(amp), "strain_ratio": ratio,
+            "truth_strain_ratio": np.array(truth_ratio),
+            "strain_spatial_resolution_px": np.float64(spatial_resolution(sw.periods_px, ratio))}
 
 
 def stereo_sweep_row(scene: Scene, cameras: tuple[str, str], specimen, setting, noise_seed: int | None, periods_px,
@@ -385,24 +434,37 @@ def stereo_sweep_row(scene: Scene, cameras: tuple[str, str], specimen, setting, 
     from glsim.workflows.design.engine import write_stereo_exchange
 
     origin = np.mean(np.asarray(specimen.nodes, float), axis=0)
-    sw = stereo_sweep_plate(scene, cameras, origin, periods_px, amplitude_px)
+    sw = stereo_sweep_plate(scene, cameras, origin, periods_px, amplitude_px, inplane=setting.strain is not None)
     # the ROI from step 0 and the first period's step, eroded by the amplitude as the 2-D sweep's
     prep = stereo.prepare(sw.scene, sw.cameras, 1, margin + int(math.ceil(amplitude_px)), mesh=sw.mesh)
-    pairs = stereo.state_pairs(prep, noise_seed, range(len(sw.periods_px) + 1))
+    K = len(sw.periods_px)
+    pairs = stereo.state_pairs(prep, noise_seed, range((2 if sw.inplane else 1) * K + 1))
     write_stereo_exchange(folder / "exchange", pairs, prep.base.roi, pyvale_calibration(*rig), setting.subset_size,
-                          setting.subset_step, setting.shape_function, max(16, int(math.ceil(2 * amplitude_px)) + 4))
+                          setting.subset_step, setting.shape_function, max(16, int(math.ceil(2 * amplitude_px)) + 4),
+                          strain=setting.strain)
     m = eng.measure(folder / "exchange")
     if m.X.shape[0] != len(pairs):
         raise GlsimError(f"engine {eng.name}: {m.X.shape[0]} states measured, expected {len(pairs)} (the sweep's)")
     t = stereo_truth_at(sw, m.x, m.y)
     ok = m.valid[1:] & t["truth_valid"][None, :]
-    w = np.stack([m.U[1:], m.V[1:], m.W[1:]], axis=-1) @ t["normal"]
-    w = np.where(ok, w, np.nan)
+    d = np.where(ok[..., None], np.stack([m.U[1:], m.V[1:], m.W[1:]], axis=-1), np.nan)
+    w = d[:K] @ t["normal"]
     amp_mm = amplitude_px * sw.mm_per_px
     ratio = np.array([fit_amplitude(t["x_plate"], w[k], p) for k, p in enumerate(sw.periods_px)]) / amp_mm
     truth_ratio = np.array([fit_amplitude(t["x_plate"], t["truth_w"][k], p)
                             for k, p in enumerate(sw.periods_px)]) / amp_mm
-    return {"x": m.x, "y": m.y, "U": m.U[1:], "V": m.V[1:], "W": m.W[1:], "w_normal": w, "valid": m.valid[1:],
+    more = {}
+    if sw.inplane:   # U along the plate's x, and its surface strain
+        u = d[K:] @ t["along"]
+        more = {"u_along": u, "truth_u_along": t["truth_u"],
+                "inplane_ratio": np.array([fit_amplitude(t["x_plate"], u[k], p)
+                                           for k, p in enumerate(sw.periods_px)]) / amp_mm,
+                "truth_inplane_ratio": np.array([fit_amplitude(t["x_plate"], t["truth_u"][k], p)
+                                                 for k, p in enumerate(sw.periods_px)]) / amp_mm,
+                **stereo_strain_sweep(sw, m, setting.strain_formulation)}
+        more["inplane_spatial_resolution_px"] = np.float64(spatial_resolution(sw.periods_px, more["inplane_ratio"]))
+    return {**more, "x": m.x, "y": m.y, "U": m.U[1:K + 1], "V": m.V[1:K + 1], "W": m.W[1:K + 1], "w_normal": w,
+            "valid": m.valid[1:K + 1],
             "x_plate": t["x_plate"], "truth_w": t["truth_w"], "truth_valid": t["truth_valid"],
             "normal": t["normal"], "periods_px": np.array(sw.periods_px), "amplitude_px": np.float64(amplitude_px),
             "amplitude_mm": np.float64(amp_mm), "ratio": ratio, "truth_ratio": truth_ratio,

@@ -13,8 +13,8 @@ speckle seed and setting, under the first noise seed) measure the sinusoid sweep
 
 Stereo designs (engine pyvale3d) have stereo engine rows instead (:mod:`~glsim.workflows.design.stereo`):
 both cameras rendered, the rig handed to the engine chosen by :func:`rig_cameras`; their quick rows
-stay 2-D, on camera 0; their resolution rows measure an out-of-plane sinusoid with the stereo engine
-(:func:`~glsim.workflows.design.resolution.stereo_sweep_row`).
+stay 2-D, on camera 0; their resolution rows measure an out-of-plane sinusoid (and, with a strain
+window, an in-plane one) with the stereo engine (:func:`~glsim.workflows.design.resolution.stereo_sweep_row`).
 
 A row lives in ``DIR/rows/<key>/`` (``result.npz``, then ``row.json`` last); ``<key>`` hashes its
 inputs (the resolved scene, camera(s), step, ROI margin, setting, seeds, engine, for stereo the

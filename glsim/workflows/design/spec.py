@@ -118,6 +118,10 @@ STEREO_CRITERIA = {
     "spatial_resolution_mm": ("the same in mm on the plate", True, True),
     "mei_W_mm2": ("metrological efficiency indicator: W noise floor × spatial resolution (mm², [resolution])",
                   True, True),
+    "strain_spatial_resolution_px": ("period (camera 0's px at the plate) at which an in-plane sinusoid's measured "
+                                     "surface exx amplitude falls to 90 % of the analytic one ([resolution] and "
+                                     "[dic] strain_window)", True, True),
+    "strain_mei_px": CRITERIA["strain_mei_px"],
     "quick_sigma_px": CRITERIA["quick_sigma_px"],
     "quick_sigma_mm": CRITERIA["quick_sigma_mm"],
 }
