@@ -253,16 +253,20 @@ def _xdmf_source(path: Path, where: str, item, dims: tuple[int, ...], itemsize: 
     return math.prod(shape) * size
 
 
-def _xdmf_item(path: Path, where: str, element) -> DataItem | None:
-    """The DataItem of the XDMF element ``element`` (a Geometry, Topology or Attribute) bounded
-    against its source and the memory budget; None where meshio cannot read it either (it names why)."""
+def _xdmf_item(path: Path, where: str, element, seen: set | None = None) -> DataItem | None:
+    """The DataItem of the XDMF element ``element`` (a Geometry, Topology or Attribute), or the
+    DataItem ``element`` itself, bounded against its source and the memory budget; None where
+    meshio cannot read it either (it names why) or where it refers to another (bounded on its own).
+    ``seen``: the ids of the DataItems bounded so far, this one added."""
     from meshio.xdmf.common import xdmf_to_numpy_type
 
     from glsim.limits import check_need
 
-    item = element.find("DataItem")
+    item = element if element.tag == "DataItem" else element.find("DataItem")
     if item is None or "Reference" in item.attrib:
         return None
+    if seen is not None:
+        seen.add(id(item))
     try:
         dims = tuple(int(d) for d in item.get("Dimensions", "").split())
         kind = item.get("DataType") or item.get("NumberType") or "Float"
@@ -296,10 +300,7 @@ def check_xdmf(path: Path) -> None:
     attributes), and each Attribute's first dimension against the node (Center="Node") or
     element (Center="Cell") count. The XML itself is read only where its length fits the memory
     estimate of a text mesh file. What meshio cannot read either is left to it."""
-    from meshio._common import num_nodes_per_cell
-    from meshio.xdmf.common import xdmf_to_meshio_type
-
-    from glsim.limits import MESH_BYTES_PER_TEXT_BYTE, MESH_FIX, check_mesh_memory, check_need
+    from glsim.limits import MESH_BYTES_PER_TEXT_BYTE, MESH_FIX, check_need
 
     size = path.stat().st_size
     check_need(str(path), size * MESH_BYTES_PER_TEXT_BYTE, f"its {size:,} bytes of XML need", MESH_FIX)
@@ -307,6 +308,20 @@ def check_xdmf(path: Path) -> None:
         root = ET.parse(path).getroot()
     except (ET.ParseError, OSError):
         return
+    seen: set[int] = set()
+    _check_xdmf_mesh(path, root, seen)
+    for k, item in enumerate(root.iter("DataItem")):    # the others, wherever they are (a Reference may name one)
+        if id(item) not in seen:
+            _xdmf_item(path, f"DataItem {k + 1}" + (f" {item.get('Name')!r}" if item.get("Name") else ""), item)
+
+
+def _check_xdmf_mesh(path: Path, root, seen: set) -> None:
+    """:func:`check_xdmf`'s checks of the mesh grid meshio reads and of the attributes of each step."""
+    from meshio._common import num_nodes_per_cell
+    from meshio.xdmf.common import xdmf_to_meshio_type
+
+    from glsim.limits import check_mesh_memory
+
     domain = root.find("Domain")
     if domain is None:
         return
@@ -316,8 +331,10 @@ def check_xdmf(path: Path) -> None:
     if grid is None:
         return
     name = f"Grid {grid.get('Name')!r}" if grid.get("Name") else "its mesh Grid"
-    points = [_xdmf_item(path, f"{name}: Geometry", g) for g in grid.findall("Geometry")]
-    topologies = [(t, _xdmf_item(path, f"{name}: Topology {k + 1}", t)) for k, t in enumerate(grid.findall("Topology"))]
+    points = [_xdmf_item(path, f"{name}: Geometry", g, seen) for g in grid.findall("Geometry")]
+    found = grid.findall("Topology")
+    topologies = [(t, _xdmf_item(path, f"{name}: Topology" + f" {k + 1}" * (len(found) > 1), t, seen))
+                  for k, t in enumerate(found)]
     if not points or points[-1] is None or not topologies or any(c is None for _, c in topologies):
         return
     points = points[-1]                                  # meshio keeps the last
@@ -332,7 +349,7 @@ def check_xdmf(path: Path) -> None:
         corners = num_nodes_per_cell.get(xdmf_to_meshio_type.get(kind, ""))
         if corners and kind != "Mixed" and math.prod(cells.dims[1:]) != corners:
             raise SceneError(str(path), f"{cells.where} ({kind}) declares Dimensions {_dims(cells.dims)}, not "
-                             f"({cells.dims[0]} {corners})", XDMF_FIX)
+                             f"({cells.dims[0]}, {corners})", XDMF_FIX)
     counts = {"Node": (n_nodes, "nodes", points.where),
               "Cell": (n_cells, "elements", f"{name}: Topology") if not mixed else None}
     largest = 0
@@ -340,7 +357,7 @@ def check_xdmf(path: Path) -> None:
         step_bytes = 0
         for attribute in step.findall("Attribute"):
             where = (f"time step {k}, " if collection is not None else "") + f"Attribute {attribute.get('Name')!r}"
-            item = _xdmf_item(path, where, attribute)
+            item = _xdmf_item(path, where, attribute, seen)
             if item is None:
                 continue
             center = attribute.get("Center")
