@@ -82,8 +82,9 @@ QUADRATIC_CELLS = tuple(_NODES_PER_CELL)
 def check_mesh_file(path: Path, roots: Sequence[Path] = ()) -> None:
     """SceneError naming the file (or the culprit in it) if the counts a mesh file declares cannot be
     true of its length or cannot fit in memory (:func:`~glsim.limits.check_mesh_memory`), read from its
-    headers before meshio allocates them: Gmsh's $Nodes/$Elements, legacy VTK's POINTS/CELLS, a VTU's
-    pieces and data-array headers (:func:`glsim.io.vtkfiles.check_vtu`); an Abaqus file's text with its
+    headers before meshio allocates them: Gmsh's sections and each of their blocks (:class:`_Gmsh`),
+    legacy VTK's POINTS/CELLS, a VTU's pieces and data-array headers (:func:`glsim.io.vtkfiles.check_vtu`),
+    an XDMF file's DataItems (:func:`glsim.io.series.check_xdmf`); an Abaqus file's text with its
     ``*INCLUDE`` files, which must be regular files inside ``roots`` or the file's own folder. A
     header that cannot be read is left to meshio, which names the problem."""
     suffix = path.suffix.lower()
