@@ -251,7 +251,8 @@ def strain_sweep(sw: Sweep, m, formulation: str) -> dict[str, np.ndarray]:
         exact = analytic_strain(xp, p, sw.amplitude_px, formulation)
         ref = fit_amplitude(xp, exact, p)
         meas = np.where(m.strain_valid[k], m.exx[k], np.nan)
-        fe = strainmod.truth(lambda a, b: _motion(sw, k + 1, a, b), m.strain_x, m.strain_y, formulation)["truth_exx"]
+        fe = strainmod.truth(lambda a, b, k=k: _motion(sw, k + 1, a, b), m.strain_x, m.strain_y,
+                             formulation)["truth_exx"]
         amp.append(ref)
         ratio.append(fit_amplitude(xp, meas, p) / ref)
         truth_ratio.append(fit_amplitude(xp, fe, p) / ref)
@@ -411,7 +412,7 @@ def stereo_strain_sweep(sw: StereoSweep, m, formulation: str) -> dict[str, np.nd
         state = K + k + 1                     # the in-plane steps follow the out-of-plane ones
         ref = fit_amplitude(xp, analytic_strain(xp, p, sw.amplitude_px, formulation), p)
         meas = np.where(m.strain_valid[state], m.exx[state], np.nan)
-        fe = strainmod.surface_truth(lambda a, b: _stereo_points(sw, state, a, b), m.strain_x, m.strain_y,
+        fe = strainmod.surface_truth(lambda a, b, s=state: _stereo_points(sw, s, a, b), m.strain_x, m.strain_y,
                                      formulation)["truth_exx"]
         amp.append(ref)
         ratio.append(fit_amplitude(xp, meas, p) / ref)
