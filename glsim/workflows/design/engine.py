@@ -252,10 +252,6 @@ class Pyvale3D:
     def missing(self) -> str | None:
         return Pyvale2D(python=self.python, script=self.script).missing()
 
-    def planar(self) -> Pyvale2D:
-        """The 2-D engine of the same environment (the spatial-resolution sweep on camera 0)."""
-        return Pyvale2D(python=self.python)
-
     def measure(self, exchange: Path) -> StereoResults:
         exchange = run_script(self, exchange)
         path = exchange / f"measured_{STEREO_RUN}.npz"
