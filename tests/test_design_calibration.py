@@ -1,6 +1,7 @@
 """The design planner's [calibration] table and the rig it measures with (glsim.workflows.design.calibration):
 refusals by key, the exact rig, and a stereo calibration from a simulated target library of the
 Table 8 rig at 406 × 308 px checked against the truth."""
+import contextlib
 import math
 import pickle
 import shutil
@@ -147,19 +148,45 @@ BOUND_K1 = {1: 5 * 0.0016, 2: 5 * 0.0010}
 BOUND_T_MM, BOUND_ROT_DEG, BOUND_RMS_PX = 5 * 0.073 * math.sqrt(3), 5 * 0.011 * math.sqrt(3), 2 * 0.011
 
 
+SPEC = {"rig": "targets", "pairs": PAIRS, "seed": SEED}
+
+
+def _make(gl_ctx):
+    """``make(d)`` for shared_dir: dc.calibrated_rig of SPEC made anew in d/work with d the
+    working directory; d/made.pickle: the rig it returned and what it wrote in d (only work)."""
+    def make(d):
+        d.mkdir()
+        with contextlib.chdir(d):
+            rig = dc.calibrated_rig(dc.calibration_spec(SPEC), _scene(), d / "work", ctx=gl_ctx)
+        (d / "made.pickle").write_bytes(pickle.dumps((rig, sorted(p.name for p in d.iterdir()))))
+    return make
+
+
+def _copy(built: Path, work: Path):
+    """This worker's copy of a made calibration's work directory at ``work`` (mtimes kept) and
+    what was made."""
+    shutil.copytree(built / "work", work)
+    return pickle.loads((built / "made.pickle").read_bytes())
+
+
 @pytest.fixture(scope="module")
 def calibrated(tmp_path_factory, gl_ctx, shared_dir):
-    """The calibration of PAIRS pairs, made once per run for every worker: its work directory
-    (each worker's own copy) and the rig calibrated_rig returned when it made it (pickled)."""
-    spec = dc.calibration_spec({"rig": "targets", "pairs": PAIRS, "seed": SEED})
-
-    def make(d):
-        rig = dc.calibrated_rig(spec, _scene(), d / "work", ctx=gl_ctx)
-        (d / "rig.pickle").write_bytes(pickle.dumps(rig))
-    built = shared_dir("design-calibration", make)
+    """The calibration of SPEC, made once per run for every worker: its work directory (each
+    worker's own copy) and the rig calibrated_rig returned when it made it. A worker that finds
+    another making it makes test_same_seed_same_numbers_reused_and_resumed's second one meanwhile."""
+    if shared_dir("design-calibration", _make(gl_ctx), wait=False) is None:
+        shared_dir("design-calibration-anew", _make(gl_ctx), wait=False)
     root = tmp_path_factory.mktemp("design_calibration")
-    shutil.copytree(built / "work", root / "work")
-    return root, spec, pickle.loads((built / "rig.pickle").read_bytes())
+    rig, _ = _copy(shared_dir("design-calibration", _make(gl_ctx)), root / "work")
+    return root, dc.calibration_spec(SPEC), rig
+
+
+@pytest.fixture
+def made_anew(gl_ctx, shared_dir, tmp_path):
+    """A second calibration of SPEC, made anew from nothing (in another directory, by another
+    process or this one): the copy of its work directory in tmp_path/w2, the rig calibrated_rig
+    returned, and the names it wrote in its working directory."""
+    return _copy(shared_dir("design-calibration-anew", _make(gl_ctx)), tmp_path / "w2")
 
 
 @pytest.mark.gl
@@ -196,14 +223,15 @@ def test_targets_calibration_is_near_the_truth(calibrated):
 
 @pytest.mark.gl
 @pytest.mark.slow   # a whole target library rendered and calibrated
-def test_same_seed_same_numbers_reused_and_resumed(calibrated, gl_ctx, tmp_path, monkeypatch):
+def test_same_seed_same_numbers_reused_and_resumed(calibrated, made_anew, gl_ctx, tmp_path, monkeypatch):
     root, spec, r = calibrated
     monkeypatch.chdir(tmp_path)
     before = _files(root)
     again = dc.calibrated_rig(spec, _scene(), root / "work", ctx=gl_ctx)          # a finished one: read back
     assert again == r and _files(root) == before
-    other = dc.calibrated_rig(spec, _scene(), tmp_path / "w2", ctx=gl_ctx)        # made anew: the same numbers
+    other, wrote = made_anew                                                      # made anew: the same numbers
     assert (other.cam0, other.cam1) == (r.cam0, r.cam1) and other.report["errors"] == r.report["errors"]
+    assert wrote == ["work"]                                                      # nothing outside the workdir
     (d,) = (tmp_path / "w2").glob("calibration-*")
     (d / "result.json").unlink()                                                  # interrupted before the end
     pairs = sorted(p.name for p in (d / "library" / "pairs").iterdir())
