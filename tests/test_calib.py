@@ -197,8 +197,20 @@ def ci_library(tmp_path_factory, gl_ctx, shared_dir):
     def make(out):
         cal.detect_library(libmod.write_library(libmod.paper_rig(CI_SCALE), DotGrid(), CI_PAIRS, out, seed=CI_SEED,
                                                 ctx=gl_ctx), 41)
+    if shared_dir("calib-ci-library", make, wait=False) is None:   # another worker is making it: meanwhile
+        shared_dir("calib-t5-library", _t5_library(gl_ctx), wait=False)
     built = shared_dir("calib-ci-library", make)
     return libmod.load_library(_copy_library(built, tmp_path_factory.mktemp("calib") / "lib"))
+
+
+def _t5_library(gl_ctx):
+    """``make(out)`` for shared_dir: test_quality_study_goes_round_the_target_seeds's second
+    library (the CI library's settings, another printed target) and its detection cache."""
+    def make(out):
+        lib = libmod.write_library(libmod.paper_rig(CI_SCALE), DotGrid(defects=Defects(seed=5)), 8, out, seed=CI_SEED,
+                                   ctx=gl_ctx)
+        cal.detect_library(lib, cal.default_min_points(lib.target))
+    return make
 
 
 def _pair_files(d, n):
@@ -692,11 +704,10 @@ def test_library_with_blur_and_lighting(ci_library, tmp_path, gl_ctx, capsys):
 
 @pytest.mark.gl
 @pytest.mark.slow   # a whole calibration study
-def test_quality_study_goes_round_the_target_seeds(ci_library, ci_detections, tmp_path, gl_ctx):
+def test_quality_study_goes_round_the_target_seeds(ci_library, ci_detections, tmp_path, gl_ctx, shared_dir):
     """Several libraries of one σ (one per --target-seed): run r uses the r mod m-th, so the
     runs of a σ average over printed targets."""
-    other = libmod.write_library(libmod.paper_rig(CI_SCALE), DotGrid(defects=Defects(seed=5)), 8, tmp_path / "t5",
-                                 seed=CI_SEED, ctx=gl_ctx)
+    other = libmod.load_library(_copy_library(shared_dir("calib-t5-library", _t5_library(gl_ctx)), tmp_path / "t5"))
     rows = study.run_study("quality", [other.directory, ci_library.directory], tmp_path / "q.csv", sizes=(6,),
                            runs=(4,), seed=2)
     assert [(r["label"], r["run"], r["target_seed"]) for r in sorted(rows, key=lambda r: int(r["run"]))] == \
