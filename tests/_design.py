@@ -17,6 +17,15 @@ from glsim.workflows.design import quick
 from glsim.workflows.design.engine import StereoResults
 
 
+def s_curve_gain() -> float:
+    """The largest relative bias |bias_u/shift| of pyvale's 2-D match on exactly shifted noise-free
+    model images (bench/results/sweep.json, subset 21; docs/verify.md): near zero shift the S-curve
+    is a gain error — a small motion is measured short by up to this share."""
+    sweep = json.loads((Path(__file__).resolve().parents[1] / "bench" / "results" / "sweep.json").read_text())
+    model = next(r for r in sweep["results"] if r["sequence"] == "model" and r["subset_size"] == 21)
+    return max(abs(r["bias_u"] / r["shift_px"]) for r in model["rows"] if 0 < r["shift_px"] <= 0.5)
+
+
 def plate_scene(size=(200, 160), shift_px=(2.0, 0.0), sigma=2.0, bit_depth=16) -> dict:
     """A camera square onto a flat plate at 300 mm, 0.1 mm per px, moved by an image shift at step 1."""
     W, H = size

@@ -21,9 +21,8 @@ from glsim.workflows.design.engine import Pyvale2D, Pyvale3D
 from glsim.workflows.design.spec import check_design
 from glsim.workflows.library.spec import SpecError
 
-from _design import plate_rotation, plate_scene, stereo_plate, write_spec
+from _design import plate_rotation, plate_scene, s_curve_gain, stereo_plate, write_spec
 
-REPO = Path(__file__).resolve().parents[1]
 HALF_ANGLE = math.radians(10.0)     # stereo_plate's rig: 20°, the plate turned by half of it
 
 
@@ -148,15 +147,6 @@ def test_summaries_and_report_show_the_stereo_and_strain_resolutions():
 
 
 # ---- with the engine ---------------------------------------------------------------------------------
-def _s_curve_gain() -> float:
-    """The largest relative bias |bias_u/shift| of pyvale's 2-D match on exactly shifted noise-free
-    model images (bench/results/sweep.json, subset 21; docs/verify.md): near zero shift the S-curve
-    is a gain error — a small motion is measured short by up to this share."""
-    sweep = json.loads((REPO / "bench" / "results" / "sweep.json").read_text())
-    model = next(r for r in sweep["results"] if r["sequence"] == "model" and r["subset_size"] == 21)
-    return max(abs(r["bias_u"] / r["shift_px"]) for r in model["rows"] if 0 < r["shift_px"] <= 0.5)
-
-
 @pytest.mark.process
 @pytest.mark.slow
 @pytest.mark.engine
@@ -179,7 +169,7 @@ def test_stereo_sweep_attenuation_follows_the_foreshortened_subset_average(tmp_p
     assert main([str(spec), "-o", str(out), "-q"]) == 0
     res = json.loads((out / "results.json").read_text())
     by = {r["subset_size"]: r for r in res["ranking"]}
-    gain = _s_curve_gain()
+    gain = s_curve_gain()
     assert 0.04 < gain < 0.06
     for s in sizes:
         r = by[s]
@@ -346,7 +336,7 @@ def test_strain_sweep_follows_the_subset_average_and_the_windows_slope(tmp_path)
     res = json.loads((out / "results.json").read_text())
     by = {r["strain_window"]: r for r in res["ranking"]}
     arrays = _sweep_rows(out, res)
-    gain = _s_curve_gain()
+    gain = s_curve_gain()
     for n, r in sorted(by.items()):
         z = arrays[r["setting"]]
         w = _window(z, z["x"], z["y"], n)          # 2-D: the reference image's px
@@ -419,7 +409,7 @@ def test_stereo_strain_sweep_follows_the_foreshortened_subset_and_window(tmp_pat
     z = _sweep_rows(out, res)[r["setting"]]
     c = math.cos(HALF_ANGLE)
     sinc = _sinc(np.pi * L / (np.array(periods) * c))
-    gain = _s_curve_gain()
+    gain = s_curve_gain()
     print(f"U ratio {np.round(r['inplane_amplitude_ratio'], 4)} (sinc {np.round(sinc, 4)}); resolutions W "
           f"{r['spatial_resolution_px']:.1f}, U {r['inplane_spatial_resolution_px']:.1f}, exx "
           f"{r['strain_spatial_resolution_px']:.1f} px")
