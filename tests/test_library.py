@@ -914,6 +914,7 @@ def test_writer_sigterm_in_a_finalizer_is_kept_for_the_loop_not_printed(monkeypa
 
     monkeypatch.setattr(writer, "_stopped", [])
     monkeypatch.setattr(writer, "_exiting", [])
+    monkeypatch.setattr(writer, "_serving", [True])    # past the set-up (its own test is below)
     with pytest.raises(SystemExit) as stop:
         writer._stop(signal.SIGTERM, sys._getframe())
     assert stop.value.code == 143 and writer._stopped == []
@@ -974,7 +975,7 @@ def test_writer_sigterm_while_its_lifeline_thread_starts_ends_it_quietly():
     """The one moment the loop above hits about once in a few thousand starts, made certain: a
     SIGTERM at the point where Thread.start's wait takes its lock back. Raised there, SystemExit
     left the lock released twice ("RuntimeError: release unlocked lock" and a traceback); the
-    writer holds SIGTERM back until its lifeline runs, so the signal ends it quietly after."""
+    writer keeps a SIGTERM of its set-up as its exit status, which the loop raises before it waits."""
     code = ("import os, signal, sys; from multiprocessing.connection import Pipe; "
             "from glsim.workflows.library import writer\n"
             "def prof(frame, event, arg):\n"

@@ -84,7 +84,7 @@ def check_mesh_file(path: Path, roots: Sequence[Path] = ()) -> None:
     true of its length or cannot fit in memory (:func:`~glsim.limits.check_mesh_memory`), read from its
     headers before meshio allocates them: Gmsh's sections and each of their blocks (:class:`_Gmsh`),
     legacy VTK's POINTS/CELLS, a VTU's pieces and data-array headers (:func:`glsim.io.vtkfiles.check_vtu`),
-    an XDMF file's DataItems (:func:`glsim.io.series.check_xdmf`); an Abaqus file's text with its
+    an XDMF file's DataItems (:func:`glsim.io.xdmfcheck.check_xdmf`); an Abaqus file's text with its
     ``*INCLUDE`` files, which must be regular files inside ``roots`` or the file's own folder. A
     header that cannot be read is left to meshio, which names the problem."""
     suffix = path.suffix.lower()
@@ -100,7 +100,7 @@ def check_mesh_file(path: Path, roots: Sequence[Path] = ()) -> None:
         from glsim.io.vtkfiles import check_vtu
         check_vtu(path)
     elif suffix in (".xdmf", ".xmf"):
-        from glsim.io.series import check_xdmf
+        from glsim.io.xdmfcheck import check_xdmf
         check_xdmf(path)
 
 

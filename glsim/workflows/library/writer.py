@@ -211,8 +211,9 @@ class ProcessWriter:
         self.replies.close()
 
 
-_stopped: list[int] = []   # the writer process's exit status, when a SIGTERM came in a finalizer
+_stopped: list[int] = []   # the writer process's exit status, when a SIGTERM came in a finalizer or the set-up
 _exiting: list[int] = []   # the exit status, once a SIGTERM raised it
+_serving: list[bool] = []  # non-empty once the set-up (the lifeline thread's start) is done
 
 
 def _stop(signum, frame):
@@ -223,10 +224,14 @@ def _stop(signum, frame):
     shutdown, it would cut the one short and print a traceback in the other. Raised inside a
     finalizer (``__del__``, such as a pipe's being collected), Python would print it as
     "Exception ignored" with a traceback and go on: there the status is kept and the loop
-    raises it before its next message."""
+    raises it before its next message. Kept too during the set-up: Thread.start waits on a
+    Condition, and SystemExit raised where that wait takes its lock back leaves the lock released
+    twice (a RuntimeError and its traceback). Blocking the signal there would not do: Python runs
+    its handler in the main thread whichever thread the kernel hands the signal to, and threads
+    started at import (numpy's BLAS) do not block it."""
     if _exiting:
         return
-    if frame is not None and frame.f_code.co_name == "__del__":
+    if not _serving or (frame is not None and frame.f_code.co_name == "__del__"):
         _stopped.append(128 + signum)
         return
     _exiting.append(128 + signum)
@@ -243,14 +248,10 @@ def serve(conn, replies, parent: int) -> None:
 
     signal.signal(signal.SIGINT, signal.SIG_IGN)       # Ctrl-C is the parent's to handle
     blocks: dict[int, tuple] = {}                      # slot → (serial, mmap)
-    # SIGTERM is held back while the lifeline thread starts: Thread.start waits on a Condition,
-    # and a SystemExit raised where that wait takes its lock back leaves the lock released twice
-    # (RuntimeError and a traceback). Pending SIGTERMs arrive on unblocking, inside the try.
-    signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGTERM})
     try:
         signal.signal(signal.SIGTERM, _stop)
         die_with_parent(parent)
-        signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGTERM})
+        _serving.append(True)          # from here a SIGTERM raises; one before is kept in _stopped
         while not _stopped and (msg := conn.recv()) is not None:
             slot, (serial, fd, size), layout, args = msg
             if blocks.get(slot, (None,))[0] != serial:
@@ -276,7 +277,6 @@ def serve(conn, replies, parent: int) -> None:
         pass
     finally:   # nothing in progress now: a SIGTERM during the interpreter's shutdown ends it quietly
         signal.signal(signal.SIGTERM, lambda signum, frame: os._exit(128 + signum))
-        signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGTERM})   # if the setup failed before
 
 
 def main(argv=None) -> None:
