@@ -16,8 +16,9 @@ demo: venv
 test: venv x11 readme-check
 	$(BIN)/python -m pytest -q -ra -n 2 --durations=25 -m "not engine"
 	# the GL tier again in the pixel stage a GPU gets (llvmpipe's own is fragment): the renders'
-	# own tests; the workflows built on them ran in the first pass
-	GLSIM_PIXEL_STAGE=compute $(BIN)/python -m pytest -q -ra -n 2 -m "gl and not workflow"
+	# own tests; the workflows built on them, and the tests that set the stage themselves, ran in
+	# the first pass
+	GLSIM_PIXEL_STAGE=compute $(BIN)/python -m pytest -q -ra -n 2 -m "gl and not workflow and not both_stages"
 
 # the loop while changing code: every in-process test (GL included), none that starts another
 # process (library worker pools, CLI subprocesses, forked checks, Xvfb, a browser, a cluster)

@@ -8,6 +8,7 @@ import pytest
 from glsim.check import runner
 
 
+@pytest.mark.workflow
 @pytest.mark.slow
 @pytest.mark.gl
 def test_glsim_check_passes_here_and_writes_its_report(tmp_path, capsys):

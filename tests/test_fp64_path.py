@@ -163,6 +163,7 @@ def _tree(f: str, defines: dict) -> list[str]:
                           input=assemble(f, defines).text, capture_output=True, text=True, check=True).stdout.splitlines()
 
 
+@pytest.mark.both_stages
 @pytest.mark.gl
 @_GLSLANG
 def test_float64_programs_convert_from_float_only_exact_values(fp64_programs):
@@ -180,6 +181,7 @@ def test_float64_programs_convert_from_float_only_exact_values(fp64_programs):
 _LOCAL_DOUBLES = re.compile(r"'(\w+)' \( (?:temp|in|out|inout) [^)]*double")
 
 
+@pytest.mark.both_stages
 @pytest.mark.gl
 @_GLSLANG
 def test_float64_programs_index_their_double_arrays_by_constants_only(fp64_programs):

@@ -132,6 +132,7 @@ def test_calib_errors_have_units_and_the_largest_is_marked():
     assert lines[-1] == "largest: cx2 +1.55 px, Ty -0.3 mm, Psi +0.02 deg, k1_2 +0.05 (distortion)"
 
 
+@pytest.mark.workflow
 @pytest.mark.gl
 def test_calib_library_draws_until_it_has_the_usable_pairs(tmp_path, capsys):
     """Was: --pairs 3 wrote a library with fewer usable pairs, which calib run then refused."""

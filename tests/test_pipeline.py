@@ -97,6 +97,7 @@ def test_a_renderer_given_a_new_scene_renders_its_cameras_and_options(backend, c
     assert after[0].camera.fx == 1100.0 and before[0].image.tobytes() != after[0].image.tobytes()
 
 
+@pytest.mark.both_stages
 @pytest.mark.gl
 @pytest.mark.parametrize("stage", ["fragment", "compute"])
 def test_no_pass_reads_what_it_did_not_write(stage, gl_ctx, monkeypatch):

@@ -142,6 +142,7 @@ def test_the_environment_picks_the_pixel_stage(gl_ctx, monkeypatch, tmp_path, ca
     assert message in capsys.readouterr().err and not out.exists()   # (no regex metacharacters in it)
 
 
+@pytest.mark.both_stages
 @pytest.mark.gl
 def test_the_compute_pixel_stage_gives_the_fragment_stages_bytes(gl_ctx):
     """The compute pixel stage (the default on GPUs: exact and q4's pass 2 over pixel lists,
