@@ -163,6 +163,7 @@ def _tree(f: str, defines: dict) -> list[str]:
                           input=assemble(f, defines).text, capture_output=True, text=True, check=True).stdout.splitlines()
 
 
+@pytest.mark.slow   # glslangValidator on every float64 program
 @pytest.mark.both_stages
 @pytest.mark.gl
 @_GLSLANG
@@ -181,6 +182,7 @@ def test_float64_programs_convert_from_float_only_exact_values(fp64_programs):
 _LOCAL_DOUBLES = re.compile(r"'(\w+)' \( (?:temp|in|out|inout) [^)]*double")
 
 
+@pytest.mark.slow   # glslangValidator on every float64 program
 @pytest.mark.both_stages
 @pytest.mark.gl
 @_GLSLANG

@@ -166,7 +166,8 @@ def _curved_image(r: Renderer, cam, mesh, deformed, mode: str):
     return grey.reshape(H, s, W, s).mean(axis=(1, 3)).ravel(), _one_per_pixel(raster, mode, H, W, s)
 
 
-@pytest.mark.parametrize("mode, spp, lit", [("exact", 1, False), ("q4", 1, False), ("exact", 4, False),
+@pytest.mark.parametrize("mode, spp, lit", [("exact", 1, False), ("q4", 1, False),
+                                           pytest.param("exact", 4, False, marks=pytest.mark.slow),   # the oracle's 4-spp re-renders
                                            ("exact", 1, True), ("q4", 1, True), ("fast", 4, False), ("fast", 1, True)])
 def test_quadratic_jacobian_matches_central_differences(mode, spp, lit):
     """Q8 and T6 (derived centres: their derivatives spread over the nodes) and a mid-side node
@@ -752,6 +753,7 @@ def test_gl_matches_the_oracle_with_a_fill_factor(gl_ctx):
 
 
 @pytest.mark.gl
+@pytest.mark.slow   # the oracle renders each band's image
 def test_gl_matches_the_oracle_with_a_banded_rolling_shutter(gl_ctx):
     """A rolling shutter with the depth of field and a PSF (each row's band's Jacobian), the
     plate moving rigidly: as above."""

@@ -276,7 +276,7 @@ def test_gl_q4_float32_matches_the_oracle_on_bulge(bulge_pair, camera):
 
 
 @pytest.mark.gl
-@pytest.mark.parametrize("spp", [4, 16])
+@pytest.mark.parametrize("spp", [4, pytest.param(16, marks=pytest.mark.slow)])   # 16: the oracle's 16-spp render
 def test_newton_subsamples_match_the_oracle_on_bulge(bulge_pair, spp):
     """render.subsamples = "newton" (exact mode; sub-samples of single-candidate pixels placed
     by Newton from the pixel centre) against the oracle, which maps every sub-sample on its
