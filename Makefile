@@ -6,7 +6,7 @@ STAMP  := $(VENV)/.glsim-installed
 EGL_PKGS := libegl1 libegl-mesa0 libgl1-mesa-dri libgbm1
 X11_PKGS := xvfb xdotool x11-apps chromium glslang-tools
 
-.PHONY: demo test test-fast test-gl test-engine test-torch bench venv egl x11 clean readme-check
+.PHONY: demo test test-fast test-gl test-engine test-torch test-tools bench venv egl x11 clean readme-check
 
 demo: venv
 	$(BIN)/glsim demo
@@ -14,7 +14,7 @@ demo: venv
 # two pytest workers: many tests wait on subprocesses, servers or a browser, so two overlap well
 # even on two cores
 test: venv x11 readme-check
-	$(BIN)/python -m pytest -q -ra -n 2 --durations=25 -m "not engine"
+	$(BIN)/python -m pytest -q -ra -n 2 --durations=25 -m "not engine and not tools"
 	# the GL tier again in the pixel stage a GPU gets (llvmpipe's own is fragment): the renders'
 	# own tests; the workflows built on them, and the tests that set the stage themselves, ran in
 	# the first pass
@@ -24,7 +24,12 @@ test: venv x11 readme-check
 # process (library worker pools, CLI subprocesses, forked checks, Xvfb, a browser, a cluster)
 # and none that runs a whole command end to end (slow); make test runs them all
 test-fast: venv
-	$(BIN)/python -m pytest -q -ra -n 2 -m "not process and not slow"
+	$(BIN)/python -m pytest -q -ra -n 2 -m "not process and not slow and not tools"
+
+# the developer tools' own tests: the benchmarks' reduced runs and the docs' code blocks (CI runs
+# them after make test, .ci/run; make test keeps to the product)
+test-tools: venv x11
+	$(BIN)/python -m pytest -q -ra -n 2 -m tools
 
 # every measured figure in README.md and docs/ equals what its bench/results file gives
 readme-check: venv

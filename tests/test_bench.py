@@ -7,7 +7,7 @@ import pytest
 from glsim.bench import accuracy, cli
 from glsim.check import closed_forms
 
-pytestmark = pytest.mark.workflow   # the compute-stage rerun of the GL tier leaves these out (docs/testing.md)
+pytestmark = [pytest.mark.workflow, pytest.mark.tools]   # the compute-stage rerun of the GL tier leaves these out (docs/testing.md)
 
 SIZE = ("203", "154")  # a very small image: the whole quick run takes a few seconds on llvmpipe
 

@@ -217,6 +217,7 @@ def _pair_files(d, n):
     return {p.name: p.read_bytes() for p in sorted((Path(d) / "pairs").iterdir()) if int(p.name[:4]) < n}
 
 
+@pytest.mark.slow   # renders (once per run) and detects the CI calibration library
 @pytest.mark.gl
 @pytest.mark.process
 def test_library_on_the_engine_pool_gives_the_same_files(ci_library, tmp_path):
@@ -231,6 +232,7 @@ def test_library_on_the_engine_pool_gives_the_same_files(ci_library, tmp_path):
                              noise=lambda image, cam, seed: image)
 
 
+@pytest.mark.slow   # renders (once per run) and detects the CI calibration library
 @pytest.mark.gl
 def test_library_files_ground_truth_and_resume(ci_library, gl_ctx):
     lib = ci_library
@@ -264,6 +266,7 @@ def ci_detections(ci_library):
     return cal.detect_library(ci_library, 41)
 
 
+@pytest.mark.slow   # renders (once per run) and detects the CI calibration library
 @pytest.mark.process
 @pytest.mark.gl
 def test_two_detection_processes_find_what_one_finds(ci_library, ci_detections):
@@ -277,6 +280,7 @@ def test_two_detection_processes_find_what_one_finds(ci_library, ci_detections):
             assert (a is None and b is None) or np.array_equal(a, b, equal_nan=True)
 
 
+@pytest.mark.slow   # renders (once per run) and detects the CI calibration library
 @pytest.mark.gl
 def test_detection_against_the_true_centroid(ci_library, ci_detections):
     lib = ci_library
@@ -325,6 +329,7 @@ def test_detection_orientation_under_any_roll(gl_ctx):
     assert len(dotgrid.grid_permutations(9, 9)) == 8 and len(dotgrid.grid_permutations(7, 9)) == 4
 
 
+@pytest.mark.slow   # renders (once per run) and detects the CI calibration library
 @pytest.mark.gl
 def test_stereo_calibration_at_ci_size(ci_library, ci_detections, tmp_path):
     """With the perspective-bias correction (the default) the issue's full-size targets hold
@@ -353,6 +358,7 @@ def test_stereo_calibration_at_ci_size(ci_library, ci_detections, tmp_path):
     assert len(rep["views_skipped"]) == sum(r["used"] == "0" for r in rows)
 
 
+@pytest.mark.slow   # renders (once per run) and detects the CI calibration library
 @pytest.mark.gl
 def test_perspective_bias_floor_without_correction(ci_library, ci_detections):
     """Plain OpenCV on dot centroids: the centroid of a dot's image is not the image of its
@@ -395,6 +401,7 @@ def test_study_rows_are_reproducible_and_resumable(ci_library, ci_detections, tm
     assert sorted(kinds[i] for i in chosen) == sorted(posemod.KINDS * 2)
 
 
+@pytest.mark.slow   # renders (once per run) and detects the CI calibration library
 @pytest.mark.gl
 def test_cli_library_is_deterministic_and_run_reports(ci_library, ci_detections, tmp_path, capsys):
     out = tmp_path / "lib"
@@ -441,6 +448,7 @@ def test_charuco_library_with_a_noise_hook(tmp_path, gl_ctx):
         assert len(ids) == 20 and np.abs(corners.reshape(-1, 2) - truth).max() < 0.3   # measured 0.12 px
 
 
+@pytest.mark.slow   # renders (once per run) and detects the CI calibration library
 @pytest.mark.gl
 def test_cli_library_default_noise_is_table_8s_two_percent(ci_library, tmp_path):
     out = tmp_path / "noisy"
@@ -479,6 +487,7 @@ def _run_error(args, capsys) -> str:
     return err.splitlines()[-1]
 
 
+@pytest.mark.slow   # renders (once per run) and detects the CI calibration library
 @pytest.mark.gl
 def test_broken_pair_json_is_named(ci_library, tmp_path, capsys):
     lib = _copy_library(ci_library.directory, tmp_path / "lib", pairs=range(4))
@@ -499,6 +508,7 @@ def test_broken_pair_json_is_named(ci_library, tmp_path, capsys):
     assert "cameras.cam1.projected has 80 entries, the target has 81" in _run_error(["run", str(lib)], capsys)
 
 
+@pytest.mark.slow   # renders (once per run) and detects the CI calibration library
 @pytest.mark.gl
 def test_broken_library_json_is_named(ci_library, tmp_path, capsys):
     lib = _copy_library(ci_library.directory, tmp_path / "lib", pairs=range(2))
@@ -522,6 +532,7 @@ def test_broken_library_json_is_named(ci_library, tmp_path, capsys):
     assert "library.json" in err and "not valid JSON" in err and "delete it and rerun" in err
 
 
+@pytest.mark.slow   # renders (once per run) and detects the CI calibration library
 @pytest.mark.gl
 def test_missing_or_damaged_images_are_named_despite_the_cache(ci_library, ci_detections, tmp_path, capsys):
     lib = _copy_library(ci_library.directory, tmp_path / "lib")
@@ -545,6 +556,7 @@ def test_missing_or_damaged_images_are_named_despite_the_cache(ci_library, ci_de
     assert calib_main(["run", str(lib), "-o", str(tmp_path / "cal")]) == 0
 
 
+@pytest.mark.slow   # renders (once per run) and detects the CI calibration library
 @pytest.mark.gl
 def test_detection_cache_follows_the_images(ci_library, ci_detections, tmp_path):
     lib = libmod.load_library(_copy_library(ci_library.directory, tmp_path / "lib", pairs=range(3)))
@@ -562,6 +574,7 @@ def test_detection_cache_follows_the_images(ci_library, ci_detections, tmp_path)
     assert np.array_equal(again[1][0], ci_detections[5][0], equal_nan=True)
 
 
+@pytest.mark.slow   # renders (once per run) and detects the CI calibration library
 @pytest.mark.gl
 def test_calib_run_outputs_appear_together(ci_library, ci_detections, tmp_path, monkeypatch, capsys):
     lib = _copy_library(ci_library.directory, tmp_path / "lib")
@@ -580,6 +593,7 @@ def test_calib_run_outputs_appear_together(ci_library, ci_detections, tmp_path, 
     assert sorted(f.name for f in out.iterdir()) == ["calibration.yaml", "epipolar.png", "report.json", "residuals.csv"]
 
 
+@pytest.mark.slow   # renders (once per run) and detects the CI calibration library
 @pytest.mark.gl
 def test_library_settings_are_recorded_and_checked(ci_library, tmp_path, capsys):
     out = tmp_path / "lib"
@@ -675,6 +689,7 @@ def test_settings_hash_takes_numbers_as_numbers():
     assert libmod.auto_px_per_mm(libmod.paper_rig(1.0)) == 35 and libmod.auto_px_per_mm(libmod.paper_rig(0.25)) == 10
 
 
+@pytest.mark.slow   # renders (once per run) and detects the CI calibration library
 @pytest.mark.gl
 def test_library_with_blur_and_lighting(ci_library, tmp_path, gl_ctx, capsys):
     """Calibration libraries take the scene's depth of field and lighting when asked, recorded in
@@ -717,6 +732,7 @@ def test_quality_study_goes_round_the_target_seeds(ci_library, ci_detections, tm
                         runs=(1,))
 
 
+@pytest.mark.slow   # renders (once per run) and detects the CI calibration library
 @pytest.mark.gl
 def test_grids_cut_by_the_border_are_detected_by_the_markers(ci_library, ci_detections):
     cut = [(p, c, cam) for p in ci_library.pairs for c, cam in enumerate(ci_library.cameras)

@@ -168,7 +168,8 @@ def _curved_image(r: Renderer, cam, mesh, deformed, mode: str):
 
 @pytest.mark.parametrize("mode, spp, lit", [("exact", 1, False), ("q4", 1, False),
                                            pytest.param("exact", 4, False, marks=pytest.mark.slow),   # the oracle's 4-spp re-renders
-                                           ("exact", 1, True), ("q4", 1, True), ("fast", 4, False), ("fast", 1, True)])
+                                           pytest.param("exact", 1, True, marks=pytest.mark.slow),
+                                           pytest.param("q4", 1, True, marks=pytest.mark.slow), ("fast", 4, False), ("fast", 1, True)])
 def test_quadratic_jacobian_matches_central_differences(mode, spp, lit):
     """Q8 and T6 (derived centres: their derivatives spread over the nodes) and a mid-side node
     among those checked: as test_oracle_matches_central_differences, the oracle's curved raster

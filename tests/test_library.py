@@ -887,6 +887,7 @@ def test_dask_cluster_with_a_worker_killed_gives_the_same_library(reference_libr
 
 # ---- benchmark ------------------------------------------------------------------------------------------
 
+@pytest.mark.tools
 @pytest.mark.process
 def test_reduced_benchmark_writes_its_tables(tmp_path):
     out = tmp_path / "bench"
@@ -986,6 +987,7 @@ def test_writer_sigterm_while_its_lifeline_thread_starts_ends_it_quietly():
     assert r.returncode == 143 and r.stderr == "", (r.returncode, r.stderr)
 
 
+@pytest.mark.tools
 @pytest.mark.process
 @pytest.mark.parametrize("flag", ["--reps", "--images", "--max-workers"])
 def test_benchmark_counts_below_one_are_refused_by_name(tmp_path, flag):

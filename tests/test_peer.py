@@ -11,7 +11,7 @@ from glsim.bench import cli, peer
 from glsim.check import closed_forms
 from tools.docs import regions
 
-pytestmark = pytest.mark.workflow   # the compute-stage rerun of the GL tier leaves these out (docs/testing.md)
+pytestmark = [pytest.mark.workflow, pytest.mark.tools]   # the compute-stage rerun of the GL tier leaves these out (docs/testing.md)
 
 SIZE = ("203", "154")
 RILEY = importlib.util.find_spec("riley") is not None

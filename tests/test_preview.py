@@ -569,6 +569,7 @@ def test_window_under_xvfb(preview_window, small_toml, tmp_path, gl_ctx):
         assert app.wait(30) == 0
 
 
+@pytest.mark.tools
 # ---- glsim bench preview ------------------------------------------------------------------------------
 @pytest.mark.process
 def test_reduced_bench_never_writes_the_committed_results(tmp_path):

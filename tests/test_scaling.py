@@ -323,6 +323,7 @@ def test_elements_too_large_for_one_invocation_are_listed_by_their_covers(gl_ctx
     assert (a.truth.element == 0).sum() > 50_000
 
 
+@pytest.mark.tools
 @pytest.mark.slow
 @pytest.mark.gl
 def test_bench_scaling_reduced_run_writes_elsewhere(tmp_path, capsys, gl_ctx):
