@@ -299,23 +299,3 @@ def test_a_single_state_xdmf_is_bounded_too(tmp_path, monkeypatch):
          'Dimensions="1000000000000 3" Format="HDF" Precision="8">one.h5:/data0')
     with pytest.raises(SceneError, match=r"one.xdmf: Grid 'Grid': Geometry declares Dimensions '1000000000000 3'"):
         load_mesh(tmp_path / "one.xdmf")
-
-
-# ---- VTU: point-data arrays glsim does not read are not decoded -------------------------------------
-
-def test_a_vtu_point_data_array_not_read_is_not_decoded(tmp_path):
-    """The load step's array and the mesh as written; the unused 'junk' is kept by name only (so that a
-    message still lists it), where a reader asked for everything decodes it."""
-    from glsim.io.meshfiles import meshio_read
-    u = np.tile([0.5, -0.25, 0.0], (6, 1))
-    junk = np.arange(6 * 9, dtype=float).reshape(6, 9)
-    path = tmp_path / "m.vtu"
-    meshio.write(path, meshio.Mesh(POINTS, [("quad", QUADS)], point_data={"u": u, "junk": junk}), binary=True)
-    mesh = load_mesh(path, point_data_steps=["u"])
-    np.testing.assert_array_equal(mesh.nodes, POINTS)
-    np.testing.assert_array_equal(mesh.quads, QUADS)
-    np.testing.assert_array_equal(mesh.displacements[1], u)
-    assert meshio_read(path, point_data=["u"]).point_data["junk"].size == 0
-    np.testing.assert_array_equal(meshio_read(path).point_data["junk"], junk)
-    with pytest.raises(SceneError, match=r"m.vtu: has no point-data array 'v' .*; it has: u, junk"):
-        load_mesh(path, point_data_steps=["v"])

@@ -161,30 +161,25 @@ def require_input_file(path) -> Path:
     return require_file(path, str(path), "check the path (relative paths start at the working directory)")
 
 
-def meshio_read(path, roots: Sequence[Path] = (), point_data: Sequence[str] | None = None):
+def meshio_read(path, roots: Sequence[Path] = ()):
     """``meshio.read``, after :func:`check_mesh_file` has bounded what the file declares; its
     printed messages captured: for a file it cannot read it prints why and calls ``sys.exit``,
     which here raises meshio.ReadError with those words instead. ``roots``: the folders an Abaqus
-    ``*INCLUDE`` may read from besides the file's own. ``point_data``: the point-data arrays the
-    caller reads (None: all); a .vtu's others are not decoded (:func:`glsim.io.vtkfiles.read_vtu`)."""
-    path = Path(path)
-    check_mesh_file(path, roots)
+    ``*INCLUDE`` may read from besides the file's own."""
+    check_mesh_file(Path(path), roots)
     said = io.StringIO()
     try:
         with contextlib.redirect_stdout(said), contextlib.redirect_stderr(said):
-            if point_data is not None and path.suffix.lower() == ".vtu":
-                from glsim.io.vtkfiles import read_vtu
-                return read_vtu(path, point_data)
             return meshio.read(path)
     except SystemExit:
         lines = [line.strip().removeprefix("Error: ") for line in said.getvalue().splitlines()]
         raise meshio.ReadError("; ".join(filter(None, lines)) or "meshio gave up") from None
 
 
-def _read_meshio(path, roots: Sequence[Path] = (), point_data: Sequence[str] | None = None):
+def _read_meshio(path, roots: Sequence[Path] = ()):
     path = require_input_file(path)
     try:
-        raw = meshio_read(path, roots, point_data)
+        raw = meshio_read(path, roots)
     except SceneError:
         raise
     except Exception as exc:  # meshio's readers raise many types; wrap their words once
@@ -241,16 +236,13 @@ def _text(path: Path):
                          "save it as UTF-8 or ASCII") from None
 
 
-_LABEL_ARRAYS = ("node_id", "label")     # point data read as node labels, where one holds a label per node
-
-
 def _labels(path: Path, raw) -> tuple[np.ndarray, list[np.ndarray]]:
     """Node labels (N,) and per-cell-block element labels of a meshio mesh read from `path`."""
     n = len(raw.points)
     ordinals = np.cumsum([0] + [len(b.data) for b in raw.cells]) + 1
     element_labels = [np.arange(ordinals[i], ordinals[i + 1]) for i in range(len(raw.cells))]
     if path.suffix.lower() != ".inp":
-        for name in _LABEL_ARRAYS:
+        for name in ("node_id", "label"):
             if name in raw.point_data and np.size(raw.point_data[name]) == n:
                 return np.asarray(raw.point_data[name]).reshape(n).astype(np.int64), element_labels
         return np.arange(1, n + 1), element_labels
@@ -403,7 +395,7 @@ def _point_data_steps(path: Path, raw, names: Sequence[str], node_labels: np.nda
 
 def _file_step(path, n: int, field: str | None, step: int, node_labels: np.ndarray) -> np.ndarray:
     """Displacement (N,3) from the point data of a mesh file with the same nodes in the same order."""
-    raw = _read_meshio(path, point_data=None if field is None else [field])
+    raw = _read_meshio(path)
     key = str(path)
     if len(raw.points) != n:
         raise SceneError(key, f"has {len(raw.points)} nodes, the mesh has {n}",
@@ -488,8 +480,7 @@ def read_mesh_file(path, unit: str = "mm", R=None, t=None, point_data_steps: Seq
     if len(sources) > 1:
         raise SceneError("specimen", "more than one displacement source given",
                          "use only one of point_data_steps, displacement_files, csv_files")
-    # the point data read: the load steps' arrays and the node labels (a .vtu's others are not decoded)
-    raw = _read_meshio(path, [Path(r) for r in roots], [*(point_data_steps or ()), *_LABEL_ARRAYS])
+    raw = _read_meshio(path, [Path(r) for r in roots])
     path = Path(path)
     nodes = as_xyz(raw.points)
     node_labels, element_labels = _labels(path, raw)

@@ -135,39 +135,6 @@ def check_vtu(path: Path) -> None:
 _VTU_HEADERS = {"UInt32": "<u4", "UInt64": "<u8"}
 
 
-def read_vtu(path: Path, keep):
-    """meshio's VTU reader (after :func:`check_vtu`), decoding only the point-data arrays named in
-    ``keep``: the others, which the caller does not use, are not inflated or decoded — they stay in
-    ``point_data`` by name as empty arrays (a name shared with the points, cells, cell or field data
-    is decoded wherever it is)."""
-    import meshio
-    from meshio.vtu import _vtu
-
-    if not hasattr(_vtu, "VtuReader"):              # another meshio than 5.3's layout: it reads everything
-        return meshio.read(path)
-    layout = _vtu_layout(path.read_bytes())
-    point_data, others = set(), set()
-    for piece in layout[0].iter("Piece") if layout is not None else ():
-        for section in piece:
-            (point_data if section.tag == "PointData" else others).update(a.get("Name") for a in section)
-    for field_data in layout[0].iter("FieldData") if layout is not None else ():
-        others.update(a.get("Name") for a in field_data)
-    skip = frozenset(point_data - others - set(keep))
-
-    class Reader(_vtu.VtuReader):
-        def read_data(self, c):
-            if c.get("Name") in skip:
-                return np.empty((0,), _vtu.vtu_to_numpy_type.get(c.get("type"), np.float64))
-            return super().read_data(c)
-
-    reader = Reader(path)
-    point_data = reader.point_data or {}
-    mesh = meshio.Mesh(reader.points, reader.cells, point_data={k: v for k, v in point_data.items() if k not in skip},
-                cell_data=reader.cell_data, field_data=reader.field_data)
-    mesh.point_data = dict(point_data)             # the skipped by name too, in order, after Mesh checked sizes
-    return mesh
-
-
 def _vtu_layout(raw: bytes):
     """(XML root without the appended data, the appended data after its '_', whether that is base64),
     or None where the file is not XML meshio could read (meshio then names the problem)."""
